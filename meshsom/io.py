@@ -1,0 +1,567 @@
+"""Reading meshes: every format trimesh reads, and CityJSON 1.0 to 2.0.
+
+A reader turns one input file into a stream of :class:`RawMesh` (one per
+building or mesh object) and :class:`Rejection` (an object, or the whole file,
+that could not be read, with the reason). Nothing is dropped silently: every
+object the reader is asked for comes out as one or the other.
+
+Coordinates are re-centred per mesh in float64 *before* anything else: a mesh's
+``vertices`` are relative to its ``origin``, so national grids (Swiss LV95 has
+2.6e6 m offsets) keep millimetre precision when later cast to float32. For
+CityJSON the centre is taken on the integer grid, so the re-centring is exact.
+
+Why our own CityJSON reader rather than cjio: cjio builds a full object model
+of the city (Python objects per surface and vertex) and pulls in its own
+dependency set; ingestion needs only the building boundaries as index arrays,
+which a direct walk of the JSON gives with one NumPy gather per building. The
+reader follows the CityJSON 1.0, 1.1 and 2.0 specifications for the parts it
+uses (transform, Solid, MultiSolid, CompositeSolid, MultiSurface,
+CompositeSurface, holes, LoD, BuildingPart parents/children).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
+
+#: File name endings read by trimesh.
+TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+#: File name endings read as CityJSON.
+CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson")
+SUPPORTED_CITYJSON_VERSIONS = ("1.0", "1.1", "2.0")
+LOD_CHOICES = ("highest", "lowest")
+PARTS_CHOICES = ("merge", "separate")
+SURFACE_TYPES = ("MultiSurface", "CompositeSurface")
+SOLID_TYPES = ("Solid",)
+MULTISOLID_TYPES = ("MultiSolid", "CompositeSolid")
+
+
+@dataclass(frozen=True)
+class ReaderOptions:
+    """How inputs are read.
+
+    Attributes
+    ----------
+    lod : str
+        "highest", "lowest", or an exact LoD such as "1", "2" or "2.2" (CityJSON).
+    parts : str
+        "merge": one mesh per Building with its BuildingParts merged in;
+        "separate": one mesh per Building geometry and one per BuildingPart.
+    extrude_lod1 : bool
+        Replace each building by the extrusion of its footprint (union of all
+        its polygons seen from above) from its lowest to its highest point: a
+        closed LoD1 block from LoD2 data, or from LoD1 data that is open.
+    label_attribute : str
+        CityJSON attribute holding a label (the synthetic corpus's family).
+    object_types : tuple of str
+        CityJSON object types taken as buildings.
+    footprint_simplify : float
+        Tolerance (metres) with which extruded footprints are simplified.
+    max_vertices : int
+        Refuse a file declaring more vertices than this (memory guard).
+    """
+
+    lod: str = "highest"
+    parts: str = "merge"
+    extrude_lod1: bool = False
+    label_attribute: str = "family"
+    object_types: tuple[str, ...] = ("Building",)
+    footprint_simplify: float = 0.01
+    max_vertices: int = 50_000_000
+
+    def __post_init__(self):
+        if self.parts not in PARTS_CHOICES:
+            raise ValueError(f"parts must be one of {', '.join(PARTS_CHOICES)}; received {self.parts!r}")
+        if self.lod not in LOD_CHOICES:
+            try:
+                float(self.lod)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"lod must be one of {', '.join(LOD_CHOICES)} or a LoD number like '2.2'; received {self.lod!r}"
+                ) from None
+        if self.footprint_simplify < 0:
+            raise ValueError(f"footprint_simplify must be >= 0, received {self.footprint_simplify}")
+
+
+@dataclass(frozen=True)
+class RawMesh:
+    """A mesh as read, before preprocessing.
+
+    Attributes
+    ----------
+    id : str
+        Stable id: file name, plus ``#object`` for objects inside a file.
+    source : str
+        The file it came from.
+    vertices : (V, 3) float64
+        Coordinates relative to ``origin``.
+    faces : (F, 3) int64
+    origin : (3,) float64
+        World position of the local origin.
+    label : str or None
+    lod : str or None
+    """
+
+    id: str
+    source: str
+    vertices: np.ndarray = field(repr=False)
+    faces: np.ndarray = field(repr=False)
+    origin: np.ndarray = field(repr=False)
+    label: str | None = None
+    lod: str | None = None
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """An input that could not be read, and why."""
+
+    id: str
+    source: str
+    reason: str
+    faces_in: int = 0
+    label: str | None = None
+
+
+def recentre(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move a mesh's bounding-box centre to the origin, in float64.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+
+    Returns
+    -------
+    local : (V, 3) float64
+    origin : (3,) float64
+    """
+    vertices = np.asarray(vertices, np.float64)
+    if len(vertices) == 0:
+        return vertices.reshape(0, 3), np.zeros(3)
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.any():
+        return vertices, np.zeros(3)
+    origin = (vertices[finite].min(axis=0) + vertices[finite].max(axis=0)) / 2
+    return vertices - origin, origin
+
+
+def input_kind(path: Path) -> str:
+    """'cityjson' or 'trimesh' by file name; InputFileError for anything else."""
+    name = path.name.lower()
+    if any(name.endswith(s) for s in CITYJSON_SUFFIXES):
+        return "cityjson"
+    if name.endswith(TRIMESH_SUFFIXES):
+        return "trimesh"
+    raise InputFileError(
+        str(path),
+        f"unknown file type {path.suffix or '(no extension)'!r}; expected one of "
+        f"{', '.join(TRIMESH_SUFFIXES + ('.city.json', '.json'))}",
+    )
+
+
+def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rejection]]:
+    """Turn files and folders into the list of files to read.
+
+    Folders are searched recursively for known file types (other files in them
+    are ignored, as are ``labels.csv`` and ``SOURCE.md``). A path that does not
+    exist, or a file named explicitly with an unknown type, is a rejection.
+
+    Returns
+    -------
+    files : list of Path
+        Sorted within each folder, in input order otherwise.
+    rejections : list of Rejection
+    """
+    files: list[Path] = []
+    rejected: list[Rejection] = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found = []
+            for q in sorted(p.rglob("*")):
+                if q.is_file():
+                    try:
+                        input_kind(q)
+                    except InputFileError:
+                        continue
+                    found.append(q)
+            if not found:
+                rejected.append(Rejection(str(p), str(p), "folder holds no readable mesh or CityJSON file"))
+            files.extend(found)
+        elif p.is_file():
+            try:
+                input_kind(p)
+            except InputFileError as err:
+                rejected.append(Rejection(str(p), str(p), err.problem))
+                continue
+            files.append(p)
+        else:
+            rejected.append(Rejection(str(p), str(p), "no such file or folder"))
+    return files, rejected
+
+
+def read_file(path: str | os.PathLike, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh | Rejection]:
+    """Read every mesh of one file.
+
+    A file that cannot be read at all yields one Rejection whose id is the
+    file; a CityJSON object that cannot be read yields a Rejection for that
+    object and the reader goes on with the others.
+    """
+    path = Path(path)
+    try:
+        kind = input_kind(path)
+        if kind == "cityjson":
+            yield from read_cityjson(path, options)
+        else:
+            yield from read_trimesh(path)
+    except InputFileError as err:
+        yield Rejection(str(path), str(path), err.problem)
+
+
+def _labels_beside(path: Path) -> dict[str, str]:
+    table = path.parent / "labels.csv"
+    if not table.is_file():
+        return {}
+    with open(table, newline="") as fh:
+        return {row["file"]: row["label"] for row in csv.DictReader(fh) if "file" in row and "label" in row}
+
+
+def read_trimesh(path: Path) -> Iterator[RawMesh]:
+    """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh.
+
+    A scene yields one mesh per geometry node, with the node's transform
+    applied, id ``file#node``. Labels come from a ``labels.csv`` (columns
+    ``file``, ``label``) in the same folder, when there is one.
+    """
+    import trimesh
+
+    if path.stat().st_size == 0:
+        raise InputFileError(str(path), "file is empty")
+    try:
+        loaded = trimesh.load(str(path), process=False, force=None)
+    except Exception as err:  # trimesh raises many types for corrupt files
+        raise InputFileError(str(path), f"cannot be read as {path.suffix} ({type(err).__name__}: {err})") from None
+    label = _labels_beside(path).get(path.name)
+    if isinstance(loaded, trimesh.Scene):
+        items = []
+        for node in loaded.graph.nodes_geometry:
+            transform, geom_name = loaded.graph[node]
+            geom = loaded.geometry[geom_name]
+            if not isinstance(geom, trimesh.Trimesh):
+                continue
+            v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
+            items.append((f"{path.name}#{node}", v, np.asarray(geom.faces, np.int64)))
+        if not items:
+            raise InputFileError(str(path), "holds no triangle mesh (only points, lines or nothing)")
+    elif isinstance(loaded, trimesh.Trimesh):
+        items = [(path.name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64))]
+    else:
+        raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
+    for mesh_id, v, f in items:
+        if len(f) == 0:
+            raise InputFileError(str(path), "holds no faces")
+        local, origin = recentre(v)
+        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, label, None)
+
+
+# ----------------------------------------------------------------------------- CityJSON
+
+
+def _lod_key(lod) -> float:
+    try:
+        return float(lod)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _polygons_of(geom: dict) -> list[list[list[int]]]:
+    """Every polygon (list of rings of vertex indices) of a surface or solid geometry."""
+    gtype = geom.get("type")
+    b = geom.get("boundaries", [])
+    if gtype in SURFACE_TYPES:
+        return list(b)
+    if gtype in SOLID_TYPES:
+        return [poly for shell in b for poly in shell]
+    if gtype in MULTISOLID_TYPES:
+        return [poly for solid in b for shell in solid for poly in shell]
+    return []
+
+
+def _check_cityjson_header(cj, path: Path, options: ReaderOptions) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    if not isinstance(cj, dict) or cj.get("type") != "CityJSON":
+        raise InputFileError(str(path), "is JSON but not CityJSON (no \"type\": \"CityJSON\")")
+    version = str(cj.get("version", ""))
+    major_minor = ".".join(version.split(".")[:2])
+    if major_minor not in SUPPORTED_CITYJSON_VERSIONS:
+        raise InputFileError(
+            str(path), f"CityJSON version {version!r} is not supported; expected one of {', '.join(SUPPORTED_CITYJSON_VERSIONS)}"
+        )
+    verts = cj.get("vertices")
+    if not isinstance(verts, list):
+        raise InputFileError(str(path), "has no \"vertices\" array")
+    if len(verts) > options.max_vertices:
+        raise InputFileError(str(path), f"declares {len(verts)} vertices, more than the limit of {options.max_vertices}")
+    if not isinstance(cj.get("CityObjects"), dict):
+        raise InputFileError(str(path), "has no \"CityObjects\" object")
+    transform = cj.get("transform")
+    scale = translate = None
+    if transform is None:
+        if major_minor != "1.0":
+            raise InputFileError(
+                str(path), f"has no \"transform\"; CityJSON {major_minor} requires one (integer vertices × scale + translate)"
+            )
+    else:
+        try:
+            scale = np.asarray(transform["scale"], np.float64).reshape(3)
+            translate = np.asarray(transform["translate"], np.float64).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            raise InputFileError(str(path), "\"transform\" must hold \"scale\" and \"translate\", three numbers each") from None
+        if not (np.isfinite(scale).all() and np.isfinite(translate).all() and (scale > 0).all()):
+            raise InputFileError(str(path), f"\"transform\" has invalid values: scale {scale.tolist()}, translate {translate.tolist()}")
+    try:
+        vertices = np.asarray(verts, dtype=np.float64 if scale is None else np.int64).reshape(-1, 3) if verts else np.zeros((0, 3))
+        if len(verts) and (not isinstance(verts[0], list) or len(vertices) != len(verts)):
+            raise ValueError
+    except (TypeError, ValueError, OverflowError):
+        kind = "integers" if scale is not None else "numbers"
+        raise InputFileError(str(path), f"\"vertices\" must be a list of [x, y, z] {kind}") from None
+    return vertices, scale, translate
+
+
+def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh | Rejection]:
+    """Read the buildings of a CityJSON 1.0, 1.1 or 2.0 file.
+
+    One mesh per Building (BuildingParts merged in, or kept apart with
+    ``options.parts == "separate"``), from the geometries at the chosen LoD.
+    Polygons (with holes) are triangulated in their own plane.
+    """
+    if path.stat().st_size == 0:
+        raise InputFileError(str(path), "file is empty")
+    try:
+        with open(path, "rb") as fh:
+            cj = json.load(fh)
+    except json.JSONDecodeError as err:
+        raise InputFileError(str(path), f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
+    except UnicodeDecodeError as err:
+        raise InputFileError(str(path), f"is not UTF-8 text ({err.reason} at byte {err.start})") from None
+    vertices, scale, translate = _check_cityjson_header(cj, path, options)
+    objects: dict = cj["CityObjects"]
+    name = path.name
+    groups: list[tuple[str, list[str]]] = []
+    for oid, obj in objects.items():
+        if not isinstance(obj, dict):
+            continue
+        otype = obj.get("type")
+        if options.parts == "merge":
+            if otype in options.object_types and not obj.get("parents"):
+                members = [oid]
+                stack = list(obj.get("children", []) or [])
+                while stack:
+                    child = stack.pop()
+                    cobj = objects.get(child)
+                    if isinstance(cobj, dict) and cobj.get("type", "").endswith("Part"):
+                        members.append(child)
+                        stack.extend(cobj.get("children", []) or [])
+                groups.append((oid, members))
+        else:
+            own = bool(obj.get("geometry"))
+            if (otype in options.object_types and (own or not obj.get("children"))) or (otype or "").endswith("Part") and any(
+                isinstance(objects.get(p), dict) and objects[p].get("type") in options.object_types
+                for p in obj.get("parents", []) or []
+            ):
+                groups.append((oid, [oid]))
+    for oid, members in groups:
+        mesh_id = f"{name}#{oid}"
+        attrs = objects[oid].get("attributes") or {}
+        label = attrs.get(options.label_attribute) if isinstance(attrs, dict) else None
+        label = None if label is None else str(label)
+        try:
+            yield _building_mesh(mesh_id, str(path), members, objects, vertices, scale, translate, options, label)
+        except InputFileError as err:
+            yield Rejection(mesh_id, str(path), err.problem, 0, label)
+
+
+def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label) -> RawMesh:
+    geoms = []
+    for m in members:
+        for g in objects[m].get("geometry", []) or []:
+            if isinstance(g, dict):
+                geoms.append(g)
+    if not geoms:
+        raise InputFileError(mesh_id, "has no geometry")
+    if any(g.get("type") == "GeometryInstance" for g in geoms) and not any(
+        g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES for g in geoms
+    ):
+        raise InputFileError(mesh_id, "has only GeometryInstance (template) geometry, which is not supported")
+    usable = [g for g in geoms if g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES]
+    if not usable:
+        types = sorted({str(g.get("type")) for g in geoms})
+        raise InputFileError(mesh_id, f"has no surface or solid geometry (found {', '.join(types)})")
+    lods = sorted({str(g.get("lod")) for g in usable}, key=_lod_key)
+    if options.lod == "highest":
+        want = lods[-1]
+    elif options.lod == "lowest":
+        want = lods[0]
+    else:
+        matches = [lo for lo in lods if lo == options.lod or _lod_key(lo) == _lod_key(options.lod)]
+        if not matches:
+            raise InputFileError(mesh_id, f"has no geometry at LoD {options.lod} (available: {', '.join(lods)})")
+        want = matches[0]
+    chosen = [g for g in usable if str(g.get("lod")) == want]
+    polygons = [poly for g in chosen for poly in _polygons_of(g)]
+    if not polygons:
+        raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
+    try:
+        flat = np.fromiter((i for poly in polygons for ring in poly for i in ring), np.int64)
+    except (TypeError, ValueError):
+        raise InputFileError(mesh_id, "boundaries must be nested lists of integer vertex indices") from None
+    n_vertices = len(vertices)
+    bad = (flat < 0) | (flat >= n_vertices)
+    if bad.any():
+        raise InputFileError(
+            mesh_id, f"vertex index {int(flat[bad][0])} out of range (the file has {n_vertices} vertices)"
+        )
+    used, inverse = np.unique(flat, return_inverse=True)
+    grid = vertices[used]
+    # Exact re-centring: on the integer grid when there is a transform.
+    if scale is not None:
+        centre = (grid.min(axis=0) + grid.max(axis=0)) // 2
+        local = (grid - centre).astype(np.float64) * scale
+        origin = centre.astype(np.float64) * scale + translate
+    else:
+        if not np.isfinite(grid).all():
+            raise InputFileError(mesh_id, f"{int((~np.isfinite(grid).all(axis=1)).sum())} vertices have NaN or infinite coordinates")
+        local, origin = recentre(grid)
+    faces = _triangulate_polygons(polygons, inverse, local)
+    lod = want
+    if options.extrude_lod1:
+        local, faces = _extrude_footprint(mesh_id, local, faces, options.footprint_simplify)
+        lod = f"1 (extruded from {want})"
+    n_in = sum(len(p) for p in polygons)
+    if len(faces) == 0:
+        raise InputFileError(mesh_id, f"all {n_in} polygons at LoD {want} are degenerate")
+    return RawMesh(mesh_id, source, local, faces, origin, label, lod)
+
+
+def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Triangles of every polygon, as indices into ``local``.
+
+    Triangles without holes (most of a triangulated city model) are taken as
+    they are, in one vectorised step; other polygons are triangulated one by one.
+    """
+    sizes = np.array([len(ring) for poly in polygons for ring in poly], np.int64)
+    rings_per_poly = np.array([len(poly) for poly in polygons], np.int64)
+    ring_start = np.concatenate([[0], np.cumsum(sizes)])
+    poly_first_ring = np.concatenate([[0], np.cumsum(rings_per_poly)])[:-1]
+    simple_tri = (rings_per_poly == 1) & (sizes[poly_first_ring] == 3)
+    tri_starts = ring_start[poly_first_ring[simple_tri]]
+    out = [inverse[tri_starts[:, None] + np.arange(3)]]
+    for p in np.flatnonzero(~simple_tri):
+        r0 = poly_first_ring[p]
+        rings_idx = [inverse[ring_start[r]:ring_start[r + 1]] for r in range(r0, r0 + rings_per_poly[p])]
+        rings_idx = [_drop_closing_vertex(r) for r in rings_idx]
+        tri = triangulate_polygon_3d([local[r] for r in rings_idx])
+        if len(tri):
+            out.append(np.concatenate(rings_idx)[tri])
+    return np.concatenate(out).astype(np.int64).reshape(-1, 3)
+
+
+def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:
+    return ring[:-1] if len(ring) > 1 and ring[0] == ring[-1] else ring
+
+
+def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, simplify: float):
+    """Closed LoD1 block: the union of the triangles seen from above, extruded over the z-range."""
+    import shapely
+
+    tris = vertices[faces][:, :, :2]
+    area = (tris[:, 1, 0] - tris[:, 0, 0]) * (tris[:, 2, 1] - tris[:, 0, 1]) - (
+        tris[:, 1, 1] - tris[:, 0, 1]
+    ) * (tris[:, 2, 0] - tris[:, 0, 0])
+    tris = tris[np.abs(area) > 1e-12]
+    if len(tris) == 0:
+        raise InputFileError(mesh_id, "has no footprint (every polygon is vertical)")
+    polys = shapely.polygons(np.concatenate([tris, tris[:, :1]], axis=1))
+    footprint = shapely.union_all(shapely.buffer(polys, 1e-6, join_style="mitre")).buffer(-1e-6, join_style="mitre")
+    if simplify > 0:
+        footprint = footprint.simplify(simplify)
+    parts = [p for p in shapely.get_parts(footprint) if p.area > 0]
+    if not parts:
+        raise InputFileError(mesh_id, "footprint is empty after union")
+    largest = max(parts, key=lambda p: p.area)
+    shell = np.asarray(largest.exterior.coords)[:-1]
+    holes = [np.asarray(r.coords)[:-1] for r in largest.interiors]
+    z0, z1 = float(vertices[:, 2].min()), float(vertices[:, 2].max())
+    if not z1 > z0:
+        raise InputFileError(mesh_id, "has zero height; cannot extrude a LoD1 block")
+    return extrude_polygon(shell, holes, z0, z1)
+
+
+# ----------------------------------------------------------------------------- writing
+
+
+def write_cityjson(path: str | os.PathLike, meshes, scale: float = 0.001, label_attribute: str = "family") -> None:
+    """Write meshes as a CityJSON 2.0 file (one Building with a Solid each).
+
+    Parameters
+    ----------
+    path : path
+    meshes : iterable of objects with ``id``, ``vertices (V, 3) float64`` (world
+        coordinates), ``faces (F, 3) int64``, ``label`` and ``lod``.
+    scale : float
+        Vertex quantisation (metres per integer unit).
+    label_attribute : str
+        Attribute the label is written to.
+    """
+    meshes = list(meshes)
+    allv = np.concatenate([m.vertices for m in meshes])
+    translate = np.floor(allv.min(axis=0))
+    objects = {}
+    all_int = []
+    offset = 0
+    for m in meshes:
+        vi = np.round((m.vertices - translate) / scale).astype(np.int64)
+        all_int.append(vi)
+        shell = [[[int(a) + offset, int(b) + offset, int(c) + offset]] for a, b, c in m.faces]
+        offset += len(vi)
+        objects[m.id] = {
+            "type": "Building",
+            "attributes": {label_attribute: m.label} if m.label is not None else {},
+            "geometry": [{"type": "Solid", "lod": str(m.lod or "1"), "boundaries": [shell]}],
+        }
+    doc = {
+        "type": "CityJSON",
+        "version": "2.0",
+        "transform": {"scale": [scale] * 3, "translate": translate.tolist()},
+        "CityObjects": objects,
+        "vertices": np.concatenate(all_int).tolist(),
+        "metadata": {"title": "meshsom synthetic corpus"},
+    }
+    with open(path, "w") as fh:
+        json.dump(doc, fh, separators=(",", ":"))
+
+
+def write_mesh_folder(folder: str | os.PathLike, meshes, suffix: str = ".obj") -> None:
+    """Write one mesh file per mesh plus ``labels.csv`` (columns file, label)."""
+    import trimesh
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for m in meshes:
+        fname = f"{m.id}{suffix}"
+        trimesh.Trimesh(m.vertices, m.faces, process=False).export(str(folder / fname))
+        rows.append({"file": fname, "label": m.label or ""})
+    with open(folder / "labels.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=["file", "label"])
+        w.writeheader()
+        w.writerows(rows)

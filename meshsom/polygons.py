@@ -1,0 +1,210 @@
+"""Planar polygons: triangulation (with holes) and extrusion into closed blocks.
+
+Polygons are given as rings of coordinates. A ring is not closed (its first
+vertex is not repeated at the end). Triangulation uses shapely's constrained
+Delaunay triangulation (GEOS), never the ``triangle`` package (whose licence
+forbids commercial use).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import shapely
+
+
+def _ring_array(ring) -> np.ndarray:
+    arr = np.asarray(ring, dtype=np.float64)
+    if len(arr) >= 2 and np.array_equal(arr[0], arr[-1]):
+        arr = arr[:-1]
+    return arr
+
+
+def triangulate_polygon_2d(
+    shell: np.ndarray, holes: Sequence[np.ndarray] = ()
+) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay triangulation of a 2D polygon with holes.
+
+    Only the polygon's own vertices are used (no Steiner points), so the
+    result joins watertight with anything sharing the boundary.
+
+    Parameters
+    ----------
+    shell : (S, 2) float64
+        Outer ring, either orientation, not closed.
+    holes : sequence of (H_i, 2) float64
+        Inner rings.
+
+    Returns
+    -------
+    points : (P, 2) float64
+        ``shell`` followed by every hole's vertices, in input order.
+    triangles : (T, 3) int64
+        Indices into ``points``, counter-clockwise.
+    """
+    shell = _ring_array(shell)
+    holes = [_ring_array(h) for h in holes]
+    points = np.concatenate([shell, *holes]) if holes else shell
+    if len(shell) < 3:
+        return points, np.zeros((0, 3), np.int64)
+    if not holes and len(shell) == 3:
+        tri = np.array([[0, 1, 2]], np.int64)
+        return points, _ccw(points, tri)
+    poly = shapely.Polygon(shell, holes)
+    if not poly.is_valid:
+        poly = shapely.make_valid(poly)
+    tris = shapely.constrained_delaunay_triangles(poly)
+    parts = shapely.get_parts(tris)
+    if len(parts) == 0:
+        return points, np.zeros((0, 3), np.int64)
+    coords = shapely.get_coordinates(parts).reshape(len(parts), 4, 2)[:, :3]
+    lookup = {tuple(p): i for i, p in enumerate(points.tolist())}
+    flat = coords.reshape(-1, 2).tolist()
+    idx = np.fromiter((lookup.get(tuple(p), -1) for p in flat), np.int64, len(flat))
+    if (idx < 0).any():
+        # make_valid may have introduced intersection points: append them.
+        extra = {}
+        for k in np.flatnonzero(idx < 0):
+            key = tuple(flat[k])
+            if key not in extra:
+                extra[key] = len(points) + len(extra)
+            idx[k] = extra[key]
+        points = np.concatenate([points, np.array(list(extra), np.float64)])
+    tri = idx.reshape(-1, 3)
+    return points, _ccw(points, tri)
+
+
+def _ccw(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    tri = tri.copy()
+    flip = cross < 0
+    tri[flip] = tri[flip][:, ::-1]
+    return tri[cross != 0]
+
+
+def newell_normal(ring: np.ndarray) -> np.ndarray:
+    """Unnormalised polygon normal by Newell's method.
+
+    Parameters
+    ----------
+    ring : (K, 3) float64
+
+    Returns
+    -------
+    normal : (3,) float64
+        Length = twice the polygon's area; zero for a degenerate ring.
+    """
+    nxt = np.roll(ring, -1, axis=0)
+    return np.cross(ring, nxt).sum(axis=0)
+
+
+def plane_frame(normal: np.ndarray) -> np.ndarray:
+    """Orthonormal (2, 3) basis of the plane with the given normal, right-handed with it."""
+    n = normal / np.linalg.norm(normal)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(helper, n)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    return np.stack([e1, e2])
+
+
+def triangulate_polygon_3d(rings: Sequence[np.ndarray]) -> np.ndarray:
+    """Triangulate a planar 3D polygon (outer ring + holes), keeping its orientation.
+
+    Parameters
+    ----------
+    rings : sequence of (K_i, 3) float64
+        Outer ring first; the polygon's orientation is that of the outer ring
+        (counter-clockwise seen from the side its normal points to).
+
+    Returns
+    -------
+    triangles : (T, 3) int64
+        Indices into the concatenation of ``rings``, oriented like the outer ring.
+        Empty for a degenerate polygon.
+    """
+    rings = [_ring_array(r) for r in rings]
+    outer = rings[0]
+    n_outer = len(outer)
+    if n_outer < 3:
+        return np.zeros((0, 3), np.int64)
+    if len(rings) == 1 and n_outer == 3:
+        return np.array([[0, 1, 2]], np.int64)
+    normal = newell_normal(outer - outer.mean(axis=0))
+    if not np.linalg.norm(normal) > 0:
+        return np.zeros((0, 3), np.int64)
+    if len(rings) == 1 and n_outer == 4:
+        # Quads are the common case: split along the shorter diagonal if convex.
+        frame = plane_frame(normal)
+        p = (outer - outer.mean(axis=0)) @ frame.T
+        if _is_convex(p):
+            d02 = np.linalg.norm(outer[0] - outer[2])
+            d13 = np.linalg.norm(outer[1] - outer[3])
+            return (np.array([[0, 1, 2], [0, 2, 3]]) if d02 <= d13 else np.array([[0, 1, 3], [1, 2, 3]])).astype(np.int64)
+    frame = plane_frame(normal)
+    origin = outer.mean(axis=0)
+    flat = [(r - origin) @ frame.T for r in rings]
+    points, tri = triangulate_polygon_2d(flat[0], flat[1:])
+    n_in = sum(len(r) for r in rings)
+    # Points appended by make_valid cannot be mapped back to input vertices: drop those triangles.
+    return tri[(tri < n_in).all(axis=1)]
+
+
+def _is_convex(p: np.ndarray) -> bool:
+    d1 = np.roll(p, -1, axis=0) - p
+    d2 = np.roll(d1, -1, axis=0)
+    cross = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    return bool((cross > 0).all() or (cross < 0).all())
+
+
+def extrude_polygon(
+    shell: np.ndarray, holes: Sequence[np.ndarray], z0: float, z1: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Extrude a 2D polygon with holes into a closed, outward-oriented block.
+
+    Parameters
+    ----------
+    shell : (S, 2) float64
+        Outer ring of the footprint.
+    holes : sequence of (H_i, 2) float64
+        Courtyards.
+    z0, z1 : float
+        Base and top heights, ``z1 > z0``.
+
+    Returns
+    -------
+    vertices : (2P, 3) float64
+        Bottom ring vertices followed by top ring vertices.
+    faces : (F, 3) int64
+        Counter-clockwise seen from outside.
+    """
+    if not z1 > z0:
+        raise ValueError(f"extrusion needs z1 > z0, received z0={z0}, z1={z1}")
+    shell = _orient_ring(_ring_array(shell), ccw=True)
+    holes = [_orient_ring(_ring_array(h), ccw=False) for h in holes]
+    points, tri = triangulate_polygon_2d(shell, holes)
+    n = len(points)
+    vertices = np.concatenate(
+        [np.column_stack([points, np.full(n, z0)]), np.column_stack([points, np.full(n, z1)])]
+    )
+    bottom = tri[:, ::-1]
+    top = tri + n
+    walls = []
+    start = 0
+    for ring in [shell, *holes]:
+        k = len(ring)
+        i = start + np.arange(k)
+        j = start + (np.arange(k) + 1) % k
+        # Outer ring CCW and holes CW seen from above: the outside is to the right.
+        walls.append(np.column_stack([i, j, j + n]))
+        walls.append(np.column_stack([i, j + n, i + n]))
+        start += k
+    faces = np.concatenate([bottom, top, *walls]).astype(np.int64)
+    return vertices, faces
+
+
+def _orient_ring(ring: np.ndarray, ccw: bool) -> np.ndarray:
+    area2 = np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1])
+    return ring if (area2 > 0) == ccw else ring[::-1]

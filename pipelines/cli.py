@@ -1,0 +1,56 @@
+"""The ``meshsom`` command line.
+
+Each subcommand lives in its own module of ``pipelines`` that defines
+``add_arguments(parser)`` and ``run(args) -> int``; this file only dispatches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from meshsom.errors import MeshsomError
+
+#: subcommand -> (module, one-line help)
+COMMANDS = {
+    "doctor": ("pipelines.doctor", "print versions, OpenCL platforms and devices, Dask and MLflow settings"),
+    "generate": ("pipelines.generate_cmd", "write a seeded synthetic corpus of labelled building blocks"),
+    "ingest": ("pipelines.ingest", "read, clean and store meshes (folders, mesh files, CityJSON)"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="meshsom",
+        description="Unsupervised symmetric polygon-mesh mapping: fold encoding, BMUofN SOMs, domain maps.",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (module, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        importlib.import_module(module).add_arguments(p)
+        p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except MeshsomError as err:
+        print(f"meshsom {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"meshsom {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,128 @@
+"""``meshsom doctor``: what meshsom will run with on this machine."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import os
+import platform
+import sys
+
+PACKAGES = (
+    "meshsom", "numpy", "scipy", "trimesh", "shapely", "pymeshlab", "zarr", "dask", "distributed",
+    "pyopencl", "pocl-binary-distribution", "mlflow", "matplotlib", "pyyaml", "tqdm",
+)
+ENV_VARS = (
+    "PYOPENCL_CTX", "MESHSOM_OPENCL_DEVICE", "POCL_MAX_PTHREAD_COUNT", "OCL_ICD_VENDORS",
+    "DASK_SCHEDULER_ADDRESS", "MLFLOW_TRACKING_URI", "MLFLOW_EXPERIMENT_NAME",
+    "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE", "OMP_NUM_THREADS",
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+
+
+def opencl_devices() -> list[dict]:
+    """Every OpenCL platform and device found (empty when there is none or no ICD loader)."""
+    try:
+        import pyopencl as cl
+
+        platforms = cl.get_platforms()
+    except Exception as err:  # no ICD, no platform: doctor reports, never fails
+        return [{"error": f"{type(err).__name__}: {err}"}]
+    out = []
+    for pi, plat in enumerate(platforms):
+        try:
+            devices = plat.get_devices()
+        except Exception as err:
+            out.append({"platform": plat.name, "error": str(err)})
+            continue
+        for di, dev in enumerate(devices):
+            out.append({
+                "id": f"{pi}:{di}",
+                "platform": plat.name,
+                "platform_version": plat.version,
+                "device": dev.name.strip(),
+                "type": _device_type(dev.type),
+                "compute_units": dev.max_compute_units,
+                "global_mem_mb": dev.global_mem_size // 2**20,
+                "local_mem_kb": dev.local_mem_size // 2**10,
+                "max_work_group_size": dev.max_work_group_size,
+            })
+    return out
+
+
+def _device_type(t: int) -> str:
+    import pyopencl as cl
+
+    names = [n for n, v in (("CPU", cl.device_type.CPU), ("GPU", cl.device_type.GPU), ("ACCELERATOR", cl.device_type.ACCELERATOR)) if t & v]
+    return "|".join(names) or str(t)
+
+
+def report() -> dict:
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = None
+    import dask
+
+    try:
+        import mlflow
+
+        tracking_uri = mlflow.get_tracking_uri()
+    except Exception as err:
+        tracking_uri = f"unavailable ({err})"
+    return {
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "cpus": os.cpu_count(),
+        "packages": versions,
+        "opencl": opencl_devices(),
+        "dask": {
+            "scheduler": dask.config.get("scheduler", None) or "distributed (LocalCluster unless an address is given)",
+            "scheduler_address": dask.config.get("scheduler-address", None) or os.environ.get("DASK_SCHEDULER_ADDRESS"),
+            "worker_threads_default": 1,
+            "temporary_directory": dask.config.get("temporary-directory", None),
+        },
+        "mlflow": {"tracking_uri": tracking_uri, "experiment": os.environ.get("MLFLOW_EXPERIMENT_NAME")},
+        "environment": {k: os.environ[k] for k in ENV_VARS if k in os.environ},
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    info = report()
+    if args.json:
+        import json
+
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"python    {info['python']} on {info['platform']} ({info['cpus']} CPUs)")
+    print("packages")
+    for name, ver in info["packages"].items():
+        print(f"  {name:26s} {ver or 'not installed'}")
+    print("OpenCL")
+    devices = info["opencl"]
+    if not devices:
+        print("  no OpenCL platform found: the NumPy backend will be used")
+    for d in devices:
+        if "error" in d:
+            print(f"  {d.get('platform', '')} error: {d['error']}")
+        else:
+            print(
+                f"  [{d['id']}] {d['platform']} ({d['platform_version']}): {d['device']} "
+                f"{d['type']}, {d['compute_units']} CU, {d['global_mem_mb']} MB, local {d['local_mem_kb']} KB"
+            )
+    print("Dask")
+    for k, v in info["dask"].items():
+        print(f"  {k:24s} {v}")
+    print("MLflow")
+    for k, v in info["mlflow"].items():
+        print(f"  {k:24s} {v}")
+    if info["environment"]:
+        print("environment")
+        for k, v in info["environment"].items():
+            print(f"  {k}={v}")
+    return 0

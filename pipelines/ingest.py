@@ -1,0 +1,221 @@
+"""``meshsom ingest``: read, preprocess and store a corpus, accounting for every input.
+
+Every mesh the readers are asked for ends up in the manifest, either accepted
+(and stored) or rejected with its reason: accepted + rejected = inputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+from meshsom.errors import ConfigError, MeshError, StoreError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    """What an ingestion did.
+
+    Attributes
+    ----------
+    store : str
+    records : list of dict
+        The manifest records, one per input mesh.
+    summary : dict
+        Counts (inputs, accepted, rejected, ...).
+    """
+
+    store: str
+    records: list
+    summary: dict
+
+    @property
+    def accepted(self) -> int:
+        return self.summary["accepted"]
+
+    @property
+    def rejected(self) -> int:
+        return self.summary["rejected"]
+
+
+def iter_raw_meshes(paths: Iterable[str], reader, generator=None) -> Iterator:
+    """Every RawMesh or Rejection of the inputs, files first, then the generator's blocks."""
+    from meshsom.io import RawMesh, expand_inputs, read_file, recentre
+
+    files, missing = expand_inputs(list(paths))
+    yield from missing
+    for f in files:
+        yield from read_file(f, reader)
+    if generator is not None:
+        from meshsom.generate import generate_corpus
+
+        for block in generate_corpus(generator):
+            local, origin = recentre(block.vertices)
+            yield RawMesh(f"synthetic#{block.id}", f"generator(seed={generator.seed})", local, block.faces, origin, block.label, block.lod)
+
+
+def process_one(raw, params) -> tuple[dict, object | None]:
+    """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh."""
+    from meshsom.io import Rejection
+    from meshsom.preprocess import preprocess
+    from meshsom.store import CleanMesh
+
+    if isinstance(raw, Rejection):
+        return {
+            "id": raw.id, "source": raw.source, "status": "rejected", "reason": raw.reason,
+            "faces_in": raw.faces_in, "faces_out": 0, "label": raw.label, "lod": None, "repairs": [],
+        }, None
+    record = {"id": raw.id, "source": raw.source, "faces_in": int(len(raw.faces)), "label": raw.label, "lod": raw.lod}
+    try:
+        result = preprocess(raw.vertices, raw.faces, params, source=raw.id)
+    except MeshError as err:
+        record.update(status="rejected", reason=err.problem, faces_out=0, repairs=[])
+        return record, None
+    record.update(
+        status="accepted", reason="", faces_out=int(len(result.faces)), repairs=list(result.repairs),
+        volume=float(result.volume_out),
+    )
+    return record, CleanMesh(raw.id, result.vertices, result.faces, raw.origin, raw.label)
+
+
+def check_writable(path: Path, overwrite: bool) -> None:
+    """Fail before any work when the store cannot be written."""
+    if path.exists() and not overwrite:
+        raise StoreError(f"{path}: already exists; pass --overwrite to replace it")
+    parent = path.parent if path.parent != Path("") else Path(".")
+    probe = parent
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK):
+        raise StoreError(f"{path}: cannot write into {probe} (permission denied)")
+
+
+def ingest(
+    paths: Iterable[str],
+    out: str | os.PathLike,
+    reader=None,
+    params=None,
+    generator=None,
+    overwrite: bool = False,
+    chunk_rows: int | None = None,
+    progress: bool | None = None,
+) -> IngestResult:
+    """Ingest a corpus into a new store.
+
+    Parameters
+    ----------
+    paths : iterable of str
+        Files and folders.
+    out : path
+        The zarr store to create.
+    reader : ReaderOptions, optional
+    params : PreprocessParams, optional
+    generator : GeneratorParams, optional
+        Synthetic blocks added after the files.
+    overwrite : bool
+    chunk_rows : int, optional
+    progress : bool or None
+        Show a progress bar (None: only on a terminal).
+    """
+    from tqdm import tqdm
+
+    from meshsom.io import ReaderOptions
+    from meshsom.preprocess import PreprocessParams
+    from meshsom.store import DEFAULT_CHUNK_ROWS, create_store, write_manifest, write_meshes
+
+    reader = reader or ReaderOptions()
+    params = params or PreprocessParams()
+    out = Path(out)
+    check_writable(out, overwrite)
+    records: list[dict] = []
+    clean = []
+    bar = tqdm(desc="ingest", unit="mesh", disable=None if progress is None else not progress)
+    for raw in iter_raw_meshes(paths, reader, generator):
+        record, mesh = process_one(raw, params)
+        if mesh is not None:
+            record["index"] = len(clean)
+            clean.append(mesh)
+        records.append(record)
+        bar.update(1)
+        bar.set_postfix(accepted=len(clean), rejected=len(records) - len(clean))
+    bar.close()
+    group = create_store(out, overwrite=overwrite)
+    write_meshes(group, clean, chunk_rows or DEFAULT_CHUNK_ROWS)
+    extra = {
+        "faces_in": sum(r["faces_in"] for r in records),
+        "faces_out": sum(r["faces_out"] for r in records),
+        "reader": asdict(reader),
+        "preprocess": asdict(params),
+        "generator": asdict(generator) if generator is not None else None,
+    }
+    doc = write_manifest(out, records, extra)
+    return IngestResult(str(out), records, doc["summary"])
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("inputs", nargs="*", metavar="INPUT", help="mesh files, CityJSON files or folders")
+    p.add_argument("--out", required=True, help="zarr store to create (e.g. out/city.zarr)")
+    p.add_argument("--config", help="experiment YAML: its corpus.reader and preprocess sections are used")
+    p.add_argument("--lod", help="CityJSON LoD: highest, lowest or a value such as 2.2")
+    p.add_argument("--parts", choices=("merge", "separate"), help="BuildingParts merged into their Building, or kept apart")
+    p.add_argument("--extrude-lod1", action="store_true", default=None, help="replace each building by its extruded footprint (LoD1 block)")
+    p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
+    p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
+    p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    p.add_argument("--chunk-rows", type=int, help="rows per chunk of the per-face arrays")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from meshsom.config import ExperimentConfig, load_config
+    from meshsom.generate import GeneratorParams
+    from meshsom.io import ReaderOptions
+
+    if args.config:
+        cfg = load_config(args.config)
+        reader, params, chunk_rows = cfg.corpus.reader, cfg.preprocess, cfg.store.chunk_rows
+        paths = list(args.inputs) or list(cfg.corpus.paths)
+        generator = cfg.corpus.generator if not args.inputs else None
+    else:
+        cfg = ExperimentConfig(corpus=_placeholder_corpus())
+        reader, params, chunk_rows = ReaderOptions(), cfg.preprocess, cfg.store.chunk_rows
+        paths, generator = list(args.inputs), None
+    try:
+        changes = {k: v for k, v in (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1)) if v is not None}
+        reader = replace(reader, **changes)
+        if args.repair:
+            params = replace(params, repair=True)
+        if args.generate:
+            generator = GeneratorParams(n_blocks=args.generate, seed=args.seed)
+    except ValueError as err:
+        raise ConfigError(f"meshsom ingest: {err}") from None
+    if not paths and generator is None:
+        raise ConfigError("meshsom ingest: no inputs; give files or folders, --generate N, or --config with corpus.paths")
+    result = ingest(paths, args.out, reader, params, generator, args.overwrite, args.chunk_rows or chunk_rows)
+    s = result.summary
+    if args.json:
+        print(json.dumps({k: s[k] for k in ("inputs", "accepted", "rejected", "faces_in", "faces_out")} | {"store": result.store}))
+    else:
+        print(f"{s['inputs']} meshes: {s['accepted']} accepted, {s['rejected']} rejected; "
+              f"{s['faces_in']} triangles in, {s['faces_out']} out -> {result.store}")
+        rejected = [r for r in result.records if r["status"] == "rejected"]
+        for r in rejected[:20]:
+            print(f"  rejected {r['id']}: {r['reason']}")
+        if len(rejected) > 20:
+            print(f"  ... {len(rejected) - 20} more in {result.store}/manifest.json")
+    return 0 if s["accepted"] > 0 else 1
+
+
+def _placeholder_corpus():
+    from meshsom.config import CorpusConfig
+
+    return CorpusConfig(paths=("(command line)",))
