@@ -348,7 +348,7 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
         raise InputFileError(str(path), "file is empty")
     try:
         with open(path, "rb") as fh:
-            cj = json.load(fh)
+            cj = json.loads(fh.read().decode("utf-8"))
     except json.JSONDecodeError as err:
         raise InputFileError(str(path), f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
     except UnicodeDecodeError as err:

@@ -1,0 +1,43 @@
+"""Shared fixtures: tiny analytic meshes and paths to the bundled data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# One BLAS/OpenCL thread per test process: the machines have 2 cores.
+os.environ.setdefault("POCL_MAX_PTHREAD_COUNT", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "data" / "real"
+
+
+@pytest.fixture
+def data_dir() -> Path:
+    return DATA
+
+
+def box(sx=1.0, sy=1.0, sz=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box of 12 outward triangles, corner at the origin.
+
+    Returns
+    -------
+    vertices : (8, 3) float64
+    faces : (12, 3) int64
+    """
+    v = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], np.float64
+    ) * [sx, sy, sz]
+    f = np.array(
+        [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+         [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]], np.int64
+    )
+    return v, f
+
+
+@pytest.fixture
+def cube():
+    return box()

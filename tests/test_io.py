@@ -1,0 +1,163 @@
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from cityjson_samples import CUBE_QUADS, CUBE_VERTS, cube_solid, doc, two_buildings, write
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
+
+
+def _read(path, **opts):
+    out = list(read_file(path, ReaderOptions(**opts)))
+    return [r for r in out if isinstance(r, RawMesh)], [r for r in out if isinstance(r, Rejection)]
+
+
+def _volume(m):
+    return trimesh.Trimesh(m.vertices, m.faces, process=True).volume
+
+
+def test_cityjson_buildings_parts_merged_lod_highest(tmp_path):
+    path = write(tmp_path / "two.city.json", two_buildings())
+    ok, rej = _read(path)
+    assert rej == []
+    assert [m.id for m in ok] == ["two.city.json#A", "two.city.json#B"]  # the Road is not a building
+    a, b = ok
+    assert a.lod == "2" and _volume(a) == pytest.approx(2.0)
+    assert b.lod == "1" and _volume(b) == pytest.approx(2.0)  # two unit cubes merged
+    assert a.label == "cube" and b.label == "pair"
+
+
+def test_cityjson_lod_choice_and_missing_lod(tmp_path):
+    path = write(tmp_path / "two.city.json", two_buildings())
+    ok, _ = _read(path, lod="lowest")
+    assert _volume(ok[0]) == pytest.approx(1.0)
+    ok, rej = _read(path, lod="2")
+    assert [m.id for m in ok] == ["two.city.json#A"]
+    assert rej[0].id == "two.city.json#B" and "no geometry at LoD 2 (available: 1)" in rej[0].reason
+
+
+def test_cityjson_parts_kept_apart(tmp_path):
+    path = write(tmp_path / "two.city.json", two_buildings())
+    ok, rej = _read(path, parts="separate")
+    assert [m.id for m in ok] == ["two.city.json#A", "two.city.json#B1", "two.city.json#B2"]
+    assert rej == []
+
+
+def test_recentring_keeps_millimetres_at_lv95_offsets(tmp_path):
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, [[x + 123, y + 7, z] for x, y, z in CUBE_VERTS])
+    path = write(tmp_path / "lv95.city.json", d)
+    (m,), _ = _read(path)
+    world = m.vertices + m.origin
+    expected = np.array(CUBE_VERTS, float) / 1000 + [2600000.123, 1200000.007, 400.0]
+    assert np.abs(np.sort(world, axis=0) - np.sort(expected, axis=0)).max() < 1e-6
+    # Local float32 coordinates still resolve a millimetre exactly.
+    local32 = m.vertices.astype(np.float32).astype(np.float64)
+    assert np.abs(local32 * 1000 - np.round(local32 * 1000)).max() < 1e-3
+    assert np.abs(m.vertices).max() <= 0.5 + 1e-12
+
+
+def test_polygon_with_hole_and_multisurface(tmp_path):
+    # A flat square with a square hole, as a MultiSurface (open, but the reader only triangulates).
+    verts = [[0, 0, 0], [4000, 0, 0], [4000, 4000, 0], [0, 4000, 0], [1000, 1000, 0], [1000, 3000, 0], [3000, 3000, 0], [3000, 1000, 0]]
+    geom = {"type": "MultiSurface", "lod": "2", "boundaries": [[[0, 1, 2, 3], [4, 5, 6, 7]]]}
+    path = write(tmp_path / "hole.city.json", doc({"H": {"type": "Building", "geometry": [geom]}}, verts))
+    (m,), _ = _read(path)
+    assert len(m.faces) == 8
+    area = trimesh.Trimesh(m.vertices, m.faces, process=False).area
+    assert area == pytest.approx(16 - 4)
+
+
+def test_composite_solid_and_version_1_0_float_vertices(tmp_path):
+    verts = [[x / 1000, y / 1000, z / 1000] for x, y, z in CUBE_VERTS]
+    geom = {"type": "CompositeSolid", "lod": 1, "boundaries": [cube_solid()["boundaries"]]}
+    d = doc({"C": {"type": "Building", "geometry": [geom]}}, verts, version="1.0", transform=False)
+    (m,), rej = _read(write(tmp_path / "v10.json", d))
+    assert rej == [] and _volume(m) == pytest.approx(1.0)
+
+
+def test_cityjson_1_1_upgrade_path_reads_real_zurich(data_dir):
+    ok, rej = _read(data_dir / "zurich-lod2-subset" / "zurich_subset_lod2.city.json")
+    assert len(ok) + len(rej) == 49 and len(ok) == 49
+    assert all(m.lod == "2" for m in ok)
+
+
+def test_extrusion_from_lod2_gives_closed_blocks(data_dir):
+    ok, rej = _read(data_dir / "zurich-lod2-subset" / "zurich_subset_lod2.city.json", extrude_lod1=True)
+    assert len(ok) == 49 and rej == []
+    for m in ok:
+        t = trimesh.Trimesh(m.vertices, m.faces, process=True)
+        assert t.is_watertight and t.volume > 0, m.id
+        assert m.lod.startswith("1 (extruded")
+
+
+# ---------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    "name, content, reason",
+    [
+        ("empty.city.json", b"", "file is empty"),
+        ("trunc.city.json", b'{"type": "CityJSON", "version": "2.0", "vert', "invalid JSON at line 1"),
+        ("bin.city.json", b"\xff\xfe\x00garbage", "is not UTF-8 text"),
+        ("notcj.json", b'{"type": "FeatureCollection"}', "not CityJSON"),
+        ("old.city.json", b'{"type": "CityJSON", "version": "0.9", "CityObjects": {}, "vertices": []}', "version '0.9' is not supported"),
+        ("noverts.city.json", b'{"type": "CityJSON", "version": "2.0", "CityObjects": {}}', 'no "vertices"'),
+        ("empty.obj", b"", "file is empty"),
+        ("corrupt.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 99\nproperty float x\nend_header\n\x00\x01", "cannot be read as .ply"),
+        ("nofaces.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "holds a PointCloud, expected a triangle mesh"),
+    ],
+)
+def test_bad_files_are_rejected_with_reason(tmp_path, name, content, reason):
+    path = tmp_path / name
+    path.write_bytes(content)
+    ok, rej = _read(path)
+    assert ok == []
+    assert len(rej) == 1 and rej[0].id == str(path)
+    assert reason in rej[0].reason
+
+
+def test_missing_transform_in_2_0_is_rejected(tmp_path):
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS, transform=False)
+    _, (rej,) = _read(write(tmp_path / "t.city.json", d))
+    assert 'has no "transform"' in rej.reason and "2.0 requires one" in rej.reason
+
+
+def test_out_of_range_vertex_index_rejects_that_building_only(tmp_path):
+    bad = cube_solid()
+    bad["boundaries"][0][0][0][0] = 99
+    d = doc({"bad": {"type": "Building", "geometry": [bad]}, "good": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS)
+    ok, rej = _read(write(tmp_path / "idx.city.json", d))
+    assert [m.id for m in ok] == ["idx.city.json#good"]
+    assert rej[0].id == "idx.city.json#bad"
+    assert rej[0].reason == "vertex index 99 out of range (the file has 8 vertices)"
+
+
+def test_too_many_vertices_refused_before_reading_geometry(tmp_path):
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS)
+    _, (rej,) = _read(write(tmp_path / "big.city.json", d), max_vertices=4)
+    assert "declares 8 vertices, more than the limit of 4" in rej.reason
+
+
+def test_unknown_extension_and_missing_path(tmp_path):
+    (tmp_path / "notes.txt").write_text("hello")
+    files, rej = expand_inputs([tmp_path / "notes.txt", tmp_path / "missing.obj", tmp_path])
+    assert files == []
+    reasons = [r.reason for r in rej]
+    assert "unknown file type '.txt'" in reasons[0]
+    assert reasons[1] == "no such file or folder"
+    assert reasons[2] == "folder holds no readable mesh or CityJSON file"
+
+
+def test_trimesh_formats_and_labels_csv(tmp_path, cube):
+    v, f = cube
+    for ext in ("obj", "ply", "stl", "off", "glb"):
+        trimesh.Trimesh(v + [2.6e6, 1.2e6, 400], f, process=False).export(tmp_path / f"c.{ext}")
+    (tmp_path / "labels.csv").write_text("file,label\nc.obj,box\n")
+    files, _ = expand_inputs([tmp_path])
+    assert sorted(p.suffix for p in files) == [".glb", ".obj", ".off", ".ply", ".stl"]
+    for p in files:
+        (m,) = [r for r in read_file(p) if isinstance(r, RawMesh)]
+        assert _volume(m) == pytest.approx(1.0), p
+        assert np.allclose(m.origin, [2.6e6 + 0.5, 1.2e6 + 0.5, 400.5]), p
+        assert m.label == ("box" if p.suffix == ".obj" else None)
