@@ -37,6 +37,8 @@ LAYOUT_VERSION = 1
 MANIFEST = "manifest.json"
 #: Rows per chunk of the per-face arrays, unless the caller says otherwise.
 DEFAULT_CHUNK_ROWS = 65_536
+#: Variable-length UTF-8 strings (zarr v3 "string" data type).
+STRING = np.dtypes.StringDType()
 
 
 @dataclass(frozen=True)
@@ -130,8 +132,8 @@ def write_meshes(group: zarr.Group, meshes: Sequence[CleanMesh], chunk_rows: int
     )
     face_mesh = np.repeat(np.arange(n, dtype=np.int32), nf)
     origins = np.array([m.origin for m in meshes], np.float64).reshape(n, 3)
-    ids = np.array([m.id for m in meshes], dtype=str) if n else np.zeros(0, dtype=str)
-    labels = np.array([m.label or "" for m in meshes], dtype=str) if n else np.zeros(0, dtype=str)
+    ids = np.array([m.id for m in meshes], dtype=STRING)
+    labels = np.array([m.label or "" for m in meshes], dtype=STRING)
 
     meshes_group = group.require_group("meshes")
     _put(meshes_group, "ids", ids, max(n, 1))
@@ -182,8 +184,8 @@ def mesh_table(group: zarr.Group) -> MeshTable:
         raise StoreError(f"{store_path(group)}: has no meshes/ (run `meshsom ingest` first)")
     g = group["meshes"]
     return MeshTable(
-        ids=np.asarray(g["ids"][:], dtype=str),
-        labels=np.asarray(g["labels"][:], dtype=str),
+        ids=np.asarray(g["ids"][:]).astype(object).astype(str),
+        labels=np.asarray(g["labels"][:]).astype(object).astype(str),
         vertex_offsets=np.asarray(g["vertex_offsets"][:]),
         face_offsets=np.asarray(g["face_offsets"][:]),
         origins=np.asarray(g["origins"][:]),
