@@ -18,6 +18,7 @@ COMMANDS = {
     "doctor": ("pipelines.doctor", "print versions, OpenCL platforms and devices, Dask and MLflow settings"),
     "generate": ("pipelines.generate_cmd", "write a seeded synthetic corpus of labelled building blocks"),
     "ingest": ("pipelines.ingest", "read, clean and store meshes (folders, mesh files, CityJSON)"),
+    "run": ("pipelines.run", "run a whole experiment from a YAML config (configs/paper.yaml)"),
 }
 
 
