@@ -90,6 +90,192 @@ class StoreConfig:
             raise ValueError(f"chunk_rows must be >= 1, received {self.chunk_rows}")
 
 
+KERNELS = ("default", "bmuofn")
+TOPOLOGIES = ("toroidal", "planar")
+INITS = ("random", "pca")
+TRAININGS = ("batch", "online")
+BACKENDS = ("auto", "numpy", "opencl")
+
+
+@dataclass(frozen=True)
+class TrainSpec:
+    """One triangle map to train: a ring level and a BMU kernel.
+
+    Attributes
+    ----------
+    level : int
+    kernel : str
+        "default" (one variation, the raw vertex order: the paper's level 1*)
+        or "bmuofn" (the best of the level's variations).
+    """
+
+    level: int
+    kernel: str = "bmuofn"
+
+    def __post_init__(self):
+        if not 1 <= self.level <= 8:
+            raise ValueError(f"level must lie in 1..8, received {self.level}")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {', '.join(KERNELS)}; received {self.kernel!r}")
+
+    @property
+    def name(self) -> str:
+        """Run name: ``level1-default``, ``level2-bmuofn``."""
+        return f"level{self.level}-{self.kernel}"
+
+
+@dataclass(frozen=True)
+class SOMConfig:
+    """The triangle maps (one per TrainSpec).
+
+    Attributes
+    ----------
+    rows, cols : int
+        Map size (the paper: 120 x 150).
+    topology : str
+        "toroidal" or "planar".
+    epochs : int
+        Batch epochs.
+    sigma_start : float or None
+        Neighbourhood radius of the first epoch in cells (None: max(rows, cols) / 4).
+    sigma_end : float
+        Radius of the last epoch.
+    init : str
+        "random" (seeded samples) or "pca".
+    training : str
+        "batch" or "online".
+    learning_rate : float
+        Start learning rate of online training.
+    mirror_higher : bool
+        Add mirror variations at levels >= 2 (level 1 always has them).
+    seed : int
+    """
+
+    rows: int = 120
+    cols: int = 150
+    topology: str = "toroidal"
+    epochs: int = 20
+    sigma_start: float | None = None
+    sigma_end: float = 1.0
+    init: str = "random"
+    training: str = "batch"
+    learning_rate: float = 0.5
+    mirror_higher: bool = False
+    seed: int = 0
+
+    def __post_init__(self):
+        for name, valid in (("topology", TOPOLOGIES), ("init", INITS), ("training", TRAININGS)):
+            if getattr(self, name) not in valid:
+                raise ValueError(f"{name} must be one of {', '.join(valid)}; received {getattr(self, name)!r}")
+        if self.rows < 2 or self.cols < 2:
+            raise ValueError(f"map must be at least 2 x 2, received {self.rows} x {self.cols}")
+        if self.epochs < 1:
+            raise ValueError(f"epochs must be >= 1, received {self.epochs}")
+        if self.sigma_start is not None and self.sigma_start <= 0:
+            raise ValueError(f"sigma_start must be > 0, received {self.sigma_start}")
+        if self.sigma_end <= 0:
+            raise ValueError(f"sigma_end must be > 0, received {self.sigma_end}")
+
+
+@dataclass(frozen=True)
+class DomainConfig:
+    """Domain maps (DESIGN.md §5).
+
+    Attributes
+    ----------
+    sigma : float
+        Gaussian smoothing of each mesh's BMU histogram on the triangle map, in cells.
+    rows, cols : int
+        Domain map size.
+    epochs : int
+    seed : int
+    """
+
+    sigma: float = 2.0
+    rows: int = 8
+    cols: int = 10
+    epochs: int = 30
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.sigma <= 0:
+            raise ValueError(f"sigma must be > 0, received {self.sigma}")
+        if self.rows < 2 or self.cols < 2 or self.epochs < 1:
+            raise ValueError(f"need rows, cols >= 2 and epochs >= 1, received {self.rows}, {self.cols}, {self.epochs}")
+
+
+@dataclass(frozen=True)
+class DaskConfig:
+    """Where the work runs.
+
+    Attributes
+    ----------
+    scheduler : str or None
+        Address of an existing scheduler (``tcp://host:8786``); None starts a LocalCluster.
+    workers : int
+        Local worker processes (0: one per core).
+    memory_limit : str
+        Memory limit per local worker (Dask syntax, e.g. "4GB").
+    shard_meshes : int
+        Meshes per ingest/encode task.
+    dashboard : bool
+        Serve the Dask dashboard of a LocalCluster (on a free loopback port).
+    """
+
+    scheduler: str | None = None
+    workers: int = 0
+    memory_limit: str = "4GB"
+    shard_meshes: int = 64
+    dashboard: bool = True
+
+    def __post_init__(self):
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0 (0: one per core), received {self.workers}")
+        if self.shard_meshes < 1:
+            raise ValueError(f"shard_meshes must be >= 1, received {self.shard_meshes}")
+        if self.scheduler is not None and "://" not in self.scheduler:
+            raise ValueError(f"scheduler must be an address like tcp://host:8786, received {self.scheduler!r}")
+
+
+@dataclass(frozen=True)
+class OpenCLConfig:
+    """The BMU backend.
+
+    Attributes
+    ----------
+    backend : str
+        "auto" (OpenCL when a device exists, else NumPy with one warning), "numpy" or "opencl".
+    device : str or None
+        Device selector ("0:0", a platform or device name such as "pocl" or "nvidia");
+        None: ``PYOPENCL_CTX`` or the first device.
+    """
+
+    backend: str = "auto"
+    device: str | None = None
+
+    def __post_init__(self):
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; received {self.backend!r}")
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """MLflow tracking.
+
+    Attributes
+    ----------
+    uri : str or None
+        Tracking URI (``http://127.0.0.1:5000``, ``sqlite:///mlflow.db``); None: MLflow's default
+        (``MLFLOW_TRACKING_URI`` or a local SQLite store).
+    experiment : str
+    enabled : bool
+    """
+
+    uri: str | None = None
+    experiment: str = "meshsom"
+    enabled: bool = True
+
+
 @dataclass(frozen=True)
 class ExperimentConfig:
     """A whole experiment.
@@ -102,6 +288,9 @@ class ExperimentConfig:
     corpus : CorpusConfig
     preprocess : PreprocessParams
     encoding : EncodingConfig
+    train : tuple of TrainSpec
+        The triangle maps to train, in order.
+    som, domain, dask, opencl, tracking : sections
     store : StoreConfig
     """
 
@@ -110,11 +299,22 @@ class ExperimentConfig:
     corpus: CorpusConfig = field(default_factory=lambda: CorpusConfig(paths=("data",)))
     preprocess: Any = None
     encoding: EncodingConfig = EncodingConfig()
+    train: tuple[TrainSpec, ...] = (TrainSpec(1, "default"), TrainSpec(1, "bmuofn"), TrainSpec(2), TrainSpec(3))
+    som: SOMConfig = SOMConfig()
+    domain: DomainConfig = DomainConfig()
+    dask: DaskConfig = DaskConfig()
+    opencl: OpenCLConfig = OpenCLConfig()
+    tracking: TrackingConfig = TrackingConfig()
     store: StoreConfig = StoreConfig()
 
     def __post_init__(self):
         if self.preprocess is None:
             object.__setattr__(self, "preprocess", _preprocess_params_type()())
+        missing = sorted({t.level for t in self.train} - set(self.encoding.levels))
+        if missing:
+            raise ValueError(
+                f"train asks for level(s) {missing} that encoding.levels {list(self.encoding.levels)} does not encode"
+            )
 
 
 #: Field types that cannot be read from annotations (lazy imports).

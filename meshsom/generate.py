@@ -207,37 +207,51 @@ def make_block(family: str, rng: np.random.Generator, params: GeneratorParams) -
     return v, f, "1"
 
 
-def generate_corpus(params: GeneratorParams, progress: Callable[[int], None] | None = None) -> list[Block]:
-    """Generate the labelled synthetic corpus.
+def generate_block(params: GeneratorParams, index: int) -> Block:
+    """Block number ``index`` of the corpus (independent of every other block).
+
+    Each block draws from its own stream ``default_rng([seed, index])``, so
+    shards of a corpus can be generated in parallel and give the same blocks.
+    """
+    if not 0 <= index < params.n_blocks:
+        raise IndexError(f"block index {index} out of range 0..{params.n_blocks - 1}")
+    rng = np.random.default_rng([params.seed, index])
+    side = int(np.ceil(np.sqrt(params.n_blocks)))
+    width = max(len(str(params.n_blocks - 1)), 5)
+    family = params.families[index % len(params.families)]
+    v, f, lod = make_block(family, rng, params)
+    v = v - np.array([v[:, 0].mean(), v[:, 1].mean(), 0.0])
+    if params.rotate:
+        a = rng.uniform(0, 2 * np.pi)
+        rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        v = v @ rot.T
+    cell = np.array([(index % side) * params.spacing, (index // side) * params.spacing, 0.0])
+    v = v + cell + np.asarray(params.origin, np.float64)
+    return Block(id=f"block-{index:0{width}d}", label=family, vertices=v, faces=f, lod=lod)
+
+
+def generate_corpus(
+    params: GeneratorParams, progress: Callable[[int], None] | None = None, indices: range | None = None
+) -> list[Block]:
+    """Generate the labelled synthetic corpus (or the blocks ``indices`` of it).
 
     Parameters
     ----------
     params : GeneratorParams
     progress : callable, optional
         Called with 1 after each block (for progress bars).
+    indices : range, optional
+        A slice of the corpus (default: all ``params.n_blocks`` blocks).
 
     Returns
     -------
     blocks : list of Block
-        ``params.n_blocks`` blocks, placed on a square site grid around
-        ``params.origin``, ids ``block-00000``, ``block-00001``, ...
+        Placed on a square site grid around ``params.origin``, ids
+        ``block-00000``, ``block-00001``, ...
     """
-    rng = np.random.default_rng(params.seed)
-    side = int(np.ceil(np.sqrt(params.n_blocks)))
     blocks = []
-    width = len(str(params.n_blocks - 1)) if params.n_blocks > 1 else 1
-    width = max(width, 5)
-    for i in range(params.n_blocks):
-        family = params.families[i % len(params.families)]
-        v, f, lod = make_block(family, rng, params)
-        v = v - np.array([v[:, 0].mean(), v[:, 1].mean(), 0.0])
-        if params.rotate:
-            a = rng.uniform(0, 2 * np.pi)
-            rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-            v = v @ rot.T
-        cell = np.array([(i % side) * params.spacing, (i // side) * params.spacing, 0.0])
-        v = v + cell + np.asarray(params.origin, np.float64)
-        blocks.append(Block(id=f"block-{i:0{width}d}", label=family, vertices=v, faces=f, lod=lod))
+    for i in indices if indices is not None else range(params.n_blocks):
+        blocks.append(generate_block(params, i))
         if progress is not None:
             progress(1)
     return blocks

@@ -40,3 +40,11 @@ def test_invalid_parameters_name_the_field():
         GeneratorParams(families=("igloo",))
     with pytest.raises(ValueError, match="height_range"):
         GeneratorParams(height_range=(5.0, 1.0))
+
+
+def test_a_slice_of_the_corpus_equals_the_same_blocks_of_the_whole():
+    params = GeneratorParams(n_blocks=12, seed=5)
+    whole = generate_corpus(params)
+    part = generate_corpus(params, indices=range(7, 12))
+    assert [b.id for b in part] == [b.id for b in whole[7:]]
+    assert all(np.array_equal(a.vertices, b.vertices) for a, b in zip(part, whole[7:]))

@@ -1,0 +1,73 @@
+"""Dask clusters: a LocalCluster by default, an existing scheduler by address.
+
+Local workers are processes with one thread each, and PoCL is limited to one
+thread per worker, so workers do not oversubscribe the cores.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from typing import Iterator
+
+from meshsom.config import DaskConfig
+
+log = logging.getLogger(__name__)
+
+#: Environment each local worker starts with: one compute thread per worker.
+WORKER_ENV = {
+    "POCL_MAX_PTHREAD_COUNT": "1",
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
+
+
+@contextlib.contextmanager
+def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
+    """A ``distributed.Client`` for the configured cluster, closed on exit.
+
+    Prints the dashboard address unless ``quiet``.
+    """
+    from distributed import Client, LocalCluster
+
+    if config.scheduler:
+        try:
+            client = Client(config.scheduler, timeout="10s")
+        except OSError as err:
+            from meshsom.errors import MeshsomError
+
+            raise MeshsomError(f"cannot reach the Dask scheduler at {config.scheduler}: {err}") from None
+        cluster = None
+    else:
+        n = config.workers or os.cpu_count() or 1
+        old = {k: os.environ.get(k) for k in WORKER_ENV}
+        os.environ.update(WORKER_ENV)  # inherited by the worker processes
+        try:
+            cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                memory_limit=config.memory_limit,
+                dashboard_address="127.0.0.1:0" if config.dashboard else None,
+                host="127.0.0.1",
+                silence_logs=logging.WARNING,
+            )
+        finally:
+            for k, v in old.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        client = Client(cluster)
+    try:
+        if not quiet:
+            link = client.dashboard_link if config.dashboard or config.scheduler else None
+            where = config.scheduler or f"LocalCluster, {len(client.scheduler_info()['workers'])} workers x 1 thread"
+            print(f"dask: {where}" + (f"; dashboard {link}" if link else ""))
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,186 @@
+"""MLflow tracking: the only module that writes to MLflow.
+
+One parent run per pipeline run; one child run per (level, kernel) with params,
+per-epoch metrics (``step=epoch``), final metrics, artifacts and tags. Uses
+``MlflowClient`` with explicit run ids (no global active-run state), so a
+resumed pipeline continues the same runs.
+
+Metrics are always written to the store first; when the tracking server
+cannot be reached mid-run, the failures are collected (``Tracker.failed``) and
+the pipeline reports them; ``meshsom log`` can send them later from the store.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import urllib.error
+import urllib.request
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from meshsom.config import TrackingConfig
+from meshsom.errors import MeshsomError
+
+log = logging.getLogger(__name__)
+
+#: Seconds to wait for a tracking server's health check before giving up.
+HEALTH_TIMEOUT_S = 5.0
+
+
+class TrackingError(MeshsomError, RuntimeError):
+    """The tracking server cannot be reached or refused a request."""
+
+
+def resolve_uri(config: TrackingConfig) -> str:
+    """The tracking URI in force: the config's, else MLflow's own default."""
+    if config.uri:
+        return config.uri
+    import mlflow
+
+    return mlflow.get_tracking_uri()
+
+
+def check_reachable(uri: str) -> None:
+    """Raise TrackingError, naming the URI, when an HTTP tracking server does not answer.
+
+    Local stores (``sqlite:``, ``file:``, plain paths) are checked for writability.
+    """
+    if uri.startswith(("http://", "https://")):
+        url = uri.rstrip("/") + "/health"
+        try:
+            with urllib.request.urlopen(url, timeout=HEALTH_TIMEOUT_S) as resp:
+                if resp.status != 200:
+                    raise TrackingError(f"MLflow tracking server {uri} answered {resp.status} to {url}")
+        except (urllib.error.URLError, OSError) as err:
+            reason = getattr(err, "reason", err)
+            raise TrackingError(f"cannot reach the MLflow tracking server at {uri}: {reason}") from None
+        return
+    if uri.startswith("sqlite:///"):
+        path = Path(uri[len("sqlite:///"):])
+        folder = path.parent if str(path.parent) else Path(".")
+        folder.mkdir(parents=True, exist_ok=True)
+        if not os.access(folder, os.W_OK):
+            raise TrackingError(f"MLflow store {uri}: cannot write into {folder}")
+
+
+def git_commit() -> str:
+    """The source tree's git commit, or 'unknown'."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
+            cwd=Path(__file__).resolve().parents[1],
+        )
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _param_value(v: Any) -> str:
+    s = str(v)
+    return s if len(s) <= 500 else s[:497] + "..."
+
+
+class Tracker:
+    """Writes one pipeline run to MLflow.
+
+    Parameters
+    ----------
+    config : TrackingConfig
+    """
+
+    def __init__(self, config: TrackingConfig):
+        self.config = config
+        self.uri = resolve_uri(config)
+        self.enabled = config.enabled
+        self.failed: list[dict] = []
+        self._client = None
+        self.experiment_id = None
+
+    @property
+    def client(self):
+        if self._client is None:
+            from mlflow.tracking import MlflowClient
+
+            self._client = MlflowClient(tracking_uri=self.uri)
+        return self._client
+
+    def open(self) -> None:
+        """Check the server and get the experiment; raises TrackingError before any heavy work."""
+        if not self.enabled:
+            return
+        check_reachable(self.uri)
+        try:
+            exp = self.client.get_experiment_by_name(self.config.experiment)
+            self.experiment_id = exp.experiment_id if exp else self.client.create_experiment(self.config.experiment)
+        except Exception as err:  # MLflow raises its own and requests' errors
+            raise TrackingError(f"MLflow at {self.uri}: cannot open experiment {self.config.experiment!r}: {err}") from None
+
+    def start(self, name: str, params: dict, tags: dict, parent: str | None = None, run_id: str | None = None) -> str | None:
+        """Start (or, with ``run_id``, reopen) a run; returns its id."""
+        if not self.enabled:
+            return None
+        if run_id:
+            try:
+                self.client.update_run(run_id, status="RUNNING")
+                return run_id
+            except Exception as err:
+                log.warning("cannot reopen MLflow run %s (%s); starting a new one", run_id, err)
+        all_tags = {"mlflow.runName": name, **{k: str(v) for k, v in tags.items()}}
+        if parent:
+            all_tags["mlflow.parentRunId"] = parent
+        run = self.client.create_run(self.experiment_id, tags=all_tags, run_name=name)
+        rid = run.info.run_id
+        self.log_params(rid, params)
+        return rid
+
+    def _safe(self, what: str, run_id: str | None, fn, **record) -> None:
+        if not self.enabled or run_id is None:
+            return
+        try:
+            fn()
+        except Exception as err:
+            self.failed.append({"what": what, "run_id": run_id, "error": f"{type(err).__name__}: {err}", **record})
+            log.warning("MLflow %s failed for run %s: %s", what, run_id, err)
+
+    def log_params(self, run_id: str | None, params: dict) -> None:
+        from mlflow.entities import Param
+
+        items = [Param(k, _param_value(v)) for k, v in params.items()]
+        for i in range(0, len(items), 100):
+            chunk = items[i:i + 100]
+            self._safe("params", run_id, lambda c=chunk: self.client.log_batch(run_id, params=c))
+
+    def log_metrics(self, run_id: str | None, metrics: dict[str, float], step: int | None = None) -> None:
+        import time
+
+        from mlflow.entities import Metric
+
+        ts = int(time.time() * 1000)
+        items = [Metric(k, float(v), ts, int(step or 0)) for k, v in metrics.items()]
+        self._safe("metrics", run_id, lambda: self.client.log_batch(run_id, metrics=items), metrics=dict(metrics), step=step)
+
+    def set_tags(self, run_id: str | None, tags: dict) -> None:
+        from mlflow.entities import RunTag
+
+        items = [RunTag(k, str(v)) for k, v in tags.items()]
+        self._safe("tags", run_id, lambda: self.client.log_batch(run_id, tags=items))
+
+    def log_artifact(self, run_id: str | None, path: str | Path, folder: str | None = None) -> None:
+        self._safe("artifact", run_id, lambda: self.client.log_artifact(run_id, str(path), folder), path=str(path))
+
+    def finish(self, run_id: str | None, status: str = "FINISHED") -> None:
+        self._safe("finish", run_id, lambda: self.client.set_terminated(run_id, status))
+
+    @contextmanager
+    def run(self, name: str, params: dict, tags: dict, parent: str | None = None, run_id: str | None = None):
+        """Context manager around :meth:`start` / :meth:`finish` (FAILED on an exception)."""
+        rid = self.start(name, params, tags, parent, run_id)
+        try:
+            yield rid
+        except BaseException:
+            self.finish(rid, "FAILED")
+            raise
+        self.finish(rid)
