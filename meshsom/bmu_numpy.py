@@ -1,0 +1,209 @@
+"""Best-matching units of n variations (BMUofN), NumPy/BLAS reference.
+
+A *variation* of a vector ``x`` is a signed gather ``sign[v] * x[index[v]]``
+(row 0 of the table is usually the identity; the default kernel uses it alone).
+For every vector and every variation the unit minimising the squared Euclidean
+distance to the varied vector is found through the expansion
+``||x_v||^2 - 2 x_v . W^T + ||W||^2``, chunked over rows so that at most
+``chunk_rows x M`` distances exist at any time (never ``N x M x n``).
+
+Ties: the lowest unit wins inside a variation, then the lowest variation
+(a later variation replaces the winner only when strictly closer).
+
+This module is the reference that :mod:`meshsom.bmu_opencl` is tested against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Rows of ``X`` handled per chunk: bounds the distance block to chunk_rows x M.
+DEFAULT_CHUNK_ROWS = 512
+
+
+@dataclass(frozen=True)
+class BMUResult:
+    """The answer of a BMUofN search.
+
+    Attributes
+    ----------
+    unit : (N,) int64
+        Best-matching unit of the winning variation.
+    variation : (N,) int64
+        Winning variation (row of the variation table).
+    dist2 : (N,) float64
+        Squared distance ``||sign[v] * x[index[v]] - W[unit]||^2``, recomputed
+        directly (not by the expansion) for the winner.
+    second : (N,) int64
+        Second-best unit of the winning variation (may be equidistant with ``unit``).
+    """
+
+    unit: np.ndarray
+    variation: np.ndarray
+    dist2: np.ndarray
+    second: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.unit)
+
+
+def identity_table(D: int) -> tuple[np.ndarray, np.ndarray]:
+    """The one-row variation table of the default kernel.
+
+    Returns
+    -------
+    index : (1, D) int64
+    sign : (1, D) float32
+    """
+    return np.arange(D, dtype=np.int64)[None, :], np.ones((1, D), np.float32)
+
+
+def validate(X, W, index=None, sign=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Check and normalise the inputs of a BMU search (shared by every backend).
+
+    Parameters
+    ----------
+    X : (N, D) float
+    W : (M, D) float
+    index : (n, D) int or None
+        None: the identity (one variation).
+    sign : (n, D) float or None
+        None: all ones.
+
+    Returns
+    -------
+    X, W : float32 arrays, or float64 when either input is float64
+    index : (n, D) int64
+    sign : (n, D) same dtype as X
+
+    Raises
+    ------
+    TypeError, ValueError
+        Wrong dtypes, shapes, or indices outside ``0..D-1``.
+    """
+    X = np.asarray(X)
+    W = np.asarray(W)
+    for name, a in (("X", X), ("W", W)):
+        if a.ndim != 2:
+            raise ValueError(f"{name} must be a 2-D array, received shape {a.shape}")
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise TypeError(f"{name} must hold real numbers, received dtype {a.dtype}")
+    if X.shape[1] != W.shape[1]:
+        raise ValueError(f"X has {X.shape[1]} columns but W has {W.shape[1]}; expected the same dimension D")
+    if W.shape[0] < 2:
+        raise ValueError(f"W must hold at least 2 units (for the second-best unit), received {W.shape[0]}")
+    dtype = np.float64 if np.float64 in (X.dtype, W.dtype) else np.float32
+    D = X.shape[1]
+    if index is None:
+        index, default_sign = identity_table(D)
+        sign = default_sign if sign is None else sign
+    index = np.asarray(index)
+    if sign is None:
+        sign = np.ones(index.shape, dtype)
+    sign = np.asarray(sign)
+    if index.ndim != 2 or index.shape[1] != D:
+        raise ValueError(f"index must have shape (n, {D}), received {index.shape}")
+    if sign.shape != index.shape:
+        raise ValueError(f"sign must have the shape of index {index.shape}, received {sign.shape}")
+    if not np.issubdtype(index.dtype, np.integer):
+        raise TypeError(f"index must be integer, received dtype {index.dtype}")
+    if index.shape[0] < 1:
+        raise ValueError("index must hold at least one variation, received 0 rows")
+    if index.size and (index.min() < 0 or index.max() >= D):
+        raise ValueError(f"index values must lie in 0..{D - 1}, received {index.min()}..{index.max()}")
+    return (
+        np.ascontiguousarray(X, dtype),
+        np.ascontiguousarray(W, dtype),
+        np.ascontiguousarray(index, np.int64),
+        np.ascontiguousarray(sign, dtype),
+    )
+
+
+def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.ndarray:
+    """The varied vectors ``sign[v] * X[i, index[v]]`` for one variation per row.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    index : (n, D) int64
+    sign : (n, D) float
+    variation : (N,) int or int
+        Variation of each row, or one for all.
+
+    Returns
+    -------
+    (N, D) float, dtype of X
+    """
+    variation = np.broadcast_to(np.asarray(variation, np.int64), (len(X),))
+    rows = np.arange(len(X))[:, None]
+    return (sign[variation] * X[rows, index[variation]]).astype(X.dtype, copy=False)
+
+
+def exact_dist2(X, W, index, sign, unit, variation) -> np.ndarray:
+    """Squared distance of each varied vector to its unit, computed directly in float64.
+
+    Returns
+    -------
+    (N,) float64
+    """
+    diff = varied(X, index, sign, variation).astype(np.float64) - W[unit].astype(np.float64)
+    return np.einsum("ij,ij->i", diff, diff)
+
+
+def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> BMUResult:
+    """BMUofN by BLAS distance expansion, chunked over rows.
+
+    Parameters
+    ----------
+    X : (N, D) float32 or float64
+        Data vectors.
+    W : (M, D) float32 or float64
+        Codebook (M >= 2).
+    index : (n, D) int64 or None
+        Variation gathers; None: the identity only.
+    sign : (n, D) float32 or None
+        Variation signs; None: all +1.
+    chunk_rows : int
+        Rows per chunk; the working memory is about ``chunk_rows * M`` distances.
+
+    Returns
+    -------
+    BMUResult
+    """
+    if chunk_rows < 1:
+        raise ValueError(f"chunk_rows must be >= 1, received {chunk_rows}")
+    X, W, index, sign = validate(X, W, index, sign)
+    N = len(X)
+    n = len(index)
+    wnorm = np.einsum("ij,ij->i", W, W)
+    Wt2 = np.ascontiguousarray((-2 * W).T)  # exact scaling: -2 is a power of two
+    unit = np.zeros(N, np.int64)
+    variation = np.zeros(N, np.int64)
+    second = np.zeros(N, np.int64)
+    for start in range(0, N, chunk_rows):
+        stop = min(N, start + chunk_rows)
+        rows = np.arange(stop - start)
+        xc = X[start:stop]
+        best_d = np.full(stop - start, np.inf, X.dtype)
+        best_u = np.zeros(stop - start, np.int64)
+        best_v = np.zeros(stop - start, np.int64)
+        best_s = np.zeros(stop - start, np.int64)
+        for v in range(n):
+            xv = sign[v] * xc[:, index[v]]
+            g = xv @ Wt2
+            g += wnorm
+            u = np.argmin(g, axis=1)
+            d = g[rows, u] + np.einsum("ij,ij->i", xv, xv)
+            g[rows, u] = np.inf
+            s = np.argmin(g, axis=1)
+            better = d < best_d
+            best_d = np.where(better, d, best_d)
+            best_u = np.where(better, u, best_u)
+            best_v = np.where(better, v, best_v)
+            best_s = np.where(better, s, best_s)
+        unit[start:stop] = best_u
+        variation[start:stop] = best_v
+        second[start:stop] = best_s
+    return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second)

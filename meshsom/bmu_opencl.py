@@ -1,0 +1,279 @@
+"""BMUofN on OpenCL: the fused kernel of ``kernels/bmu.cl``, same answers as :mod:`meshsom.bmu_numpy`.
+
+The kernel never materialises the N x M distance matrix: each work-item keeps the best
+and second-best unit of its rows per SIMD lane while it sweeps the codebook, and applies
+the variations (gather + sign) on the fly. Sizes are compiled in as ``-D`` defines; the
+built program is memoised per (context, defines). The context is injected by the caller
+or made from a device selector: the ``device`` argument, else ``PYOPENCL_CTX``, else the
+first device of the first platform. ``create_some_context`` is never called, so nothing
+ever prompts.
+
+Device selectors: ``"P:D"`` (platform and device numbers, as ``PYOPENCL_CTX``), ``"P"``,
+or a case-insensitive substring of a platform or device name (``"pocl"``, ``"nvidia"``).
+"""
+
+from __future__ import annotations
+
+import os
+import weakref
+from dataclasses import dataclass, replace
+from importlib import resources
+
+import numpy as np
+
+from meshsom.bmu_numpy import BMUResult, exact_dist2, validate
+from meshsom.errors import DeviceError
+
+#: Environment variable read when no device selector is given (pyopencl's own).
+ENV_SELECTOR = "PYOPENCL_CTX"
+
+
+@dataclass(frozen=True)
+class KernelParams:
+    """Tiling of the fused kernel (see the header of ``kernels/bmu.cl``).
+
+    Attributes
+    ----------
+    vector_width : int
+        SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16.
+    unit_blocks : int
+        Vectors of units per step (UB); a codebook tile holds ``vector_width * unit_blocks`` units.
+    max_rows : int
+        Varied vectors per work-item (R = RX * n is at most this, RX at least 1).
+    use_local : bool
+        Stage the codebook tile in local memory.
+    work_group : int
+        Work-items per group.
+    max_dt : int
+        Most dimensions per local tile (DT is the largest divisor of D not above this).
+    """
+
+    vector_width: int = 16
+    unit_blocks: int = 2
+    max_rows: int = 8
+    use_local: bool = True
+    work_group: int = 8
+    max_dt: int = 144
+
+    def __post_init__(self):
+        if self.vector_width not in (2, 4, 8, 16):
+            raise ValueError(f"vector_width must be 2, 4, 8 or 16, received {self.vector_width}")
+        for name in ("unit_blocks", "max_rows", "work_group", "max_dt"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
+
+
+#: Tiling per OpenCL device type: CPUs (PoCL) like wide vectors and many rows per
+#: work-item; GPUs need few registers per work-item and larger groups.
+DEFAULT_PARAMS = {
+    "cpu": KernelParams(vector_width=16, unit_blocks=2, max_rows=8, use_local=True, work_group=8, max_dt=144),
+    "gpu": KernelParams(vector_width=4, unit_blocks=2, max_rows=4, use_local=True, work_group=64, max_dt=64),
+}
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as err:  # pragma: no cover - pyopencl is a dependency
+        raise DeviceError(f"pyopencl is not importable ({err}); install pyopencl (and pocl-binary-distribution)") from None
+    return cl
+
+
+def list_devices() -> list[tuple[str, str, object]]:
+    """Every OpenCL device: (selector "P:D", "platform / device" name, device)."""
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return []
+    out = []
+    for p, platform in enumerate(platforms):
+        try:
+            devices = platform.get_devices()
+        except cl.Error:
+            continue
+        for d, device in enumerate(devices):
+            out.append((f"{p}:{d}", f"{platform.name.strip()} / {device.name.strip()}", device))
+    return out
+
+
+def select_device(selector: str | None = None):
+    """The OpenCL device a selector names.
+
+    Parameters
+    ----------
+    selector : str or None
+        ``"P:D"``, ``"P"`` or a name substring; None: ``$PYOPENCL_CTX``, else the first device.
+
+    Raises
+    ------
+    DeviceError
+        No device at all, or none matching the selector (the message lists those found).
+    """
+    devices = list_devices()
+    if not devices:
+        raise DeviceError("no OpenCL device found (install an ICD such as pocl-binary-distribution)")
+    if selector is None:
+        selector = os.environ.get(ENV_SELECTOR) or None
+    if selector is None or selector == "":
+        return devices[0][2]
+    text = str(selector).strip()
+    found = "; ".join(f"{s} = {name}" for s, name, _ in devices)
+    parts = text.split(":")
+    if all(p.isdigit() for p in parts if p) and len(parts) <= 2:
+        p = int(parts[0]) if parts[0] else 0
+        d = int(parts[1]) if len(parts) > 1 and parts[1] else 0
+        for s, _, device in devices:
+            if s == f"{p}:{d}":
+                return device
+        raise DeviceError(f"OpenCL device {text!r} does not exist; devices found: {found}")
+    for _, name, device in devices:
+        if text.lower() in name.lower():
+            return device
+    raise DeviceError(f"no OpenCL device matches {text!r}; devices found: {found}")
+
+
+_CONTEXTS: dict[str, object] = {}
+_PROGRAMS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def get_context(selector: str | None = None):
+    """A context for the selected device, made once per selector and reused."""
+    cl = _cl()
+    key = str(selector if selector is not None else os.environ.get(ENV_SELECTOR, ""))
+    if key not in _CONTEXTS:
+        _CONTEXTS[key] = cl.Context([select_device(selector)])
+    return _CONTEXTS[key]
+
+
+def device_name(context) -> str:
+    """"platform / device" of a context's first device."""
+    device = context.devices[0]
+    return f"{device.platform.name.strip()} / {device.name.strip()}"
+
+
+def kernel_source() -> str:
+    """Text of ``kernels/bmu.cl``."""
+    return resources.files("meshsom").joinpath("kernels/bmu.cl").read_text()
+
+
+def _largest_divisor(D: int, cap: int) -> int:
+    for dt in range(min(D, cap), 0, -1):
+        if D % dt == 0:
+            return dt
+    return 1
+
+
+def default_params(context) -> KernelParams:
+    """Tiling for a context's device type."""
+    cl = _cl()
+    device = context.devices[0]
+    params = DEFAULT_PARAMS["cpu" if device.type & cl.device_type.CPU else "gpu"]
+    return replace(params, work_group=min(params.work_group, device.max_work_group_size))
+
+
+def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str]:
+    double = dtype == np.float64
+    vw = params.vector_width // 2 if double and params.vector_width > 2 else params.vector_width
+    return {
+        "REAL": "double" if double else "float",
+        "IREAL": "long" if double else "int",
+        "VW": vw,
+        "UB": params.unit_blocks,
+        "D": D,
+        "DT": _largest_divisor(D, params.max_dt) if params.use_local else D,
+        "NV": n,
+        "RX": max(1, params.max_rows // n),
+        "USE_LOCAL": int(params.use_local),
+        "WG": params.work_group,
+    }
+
+
+def get_kernel(context, defines: dict):
+    """The ``bmu_of_n`` kernel built for ``defines``, memoised per context."""
+    cl = _cl()
+    cache = _PROGRAMS.setdefault(context, {})
+    key = tuple(sorted(defines.items()))
+    if key not in cache:
+        options = [f"-D{k}={v}" for k, v in key] + ["-cl-mad-enable"]
+        try:
+            program = cl.Program(context, kernel_source()).build(options=options)
+            cache[key] = cl.Kernel(program, "bmu_of_n")
+        except cl.RuntimeError as err:
+            raise DeviceError(f"{device_name(context)}: kernels/bmu.cl failed to build with {options}: {err}") from None
+    return cache[key]
+
+
+def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = None,
+               params: KernelParams | None = None, queue=None) -> BMUResult:
+    """BMUofN with the fused OpenCL kernel; same signature and answers as :func:`bmu_numpy`.
+
+    Parameters
+    ----------
+    X : (N, D) float32 or float64
+    W : (M, D) float32 or float64
+    index : (n, D) int64 or None
+    sign : (n, D) float32 or None
+    context : pyopencl.Context or None
+        None: :func:`get_context` of ``device``.
+    device : str or None
+        Device selector when no context is given.
+    params : KernelParams or None
+        Tiling; None: :data:`DEFAULT_PARAMS` of the device type.
+    queue : pyopencl.CommandQueue or None
+
+    Returns
+    -------
+    BMUResult
+        ``dist2`` recomputed directly in float64 for the winners, as the NumPy backend does.
+
+    Raises
+    ------
+    DeviceError
+        No device, or the kernel does not build.
+    """
+    cl = _cl()
+    X, W, index, sign = validate(X, W, index, sign)
+    context = context or get_context(device)
+    params = params or default_params(context)
+    queue = queue or cl.CommandQueue(context)
+    N, D = X.shape
+    M = len(W)
+    n = len(index)
+    if N == 0:
+        empty = np.zeros(0, np.int64)
+        return BMUResult(empty, empty, np.zeros(0), empty)
+    defines = _defines(D, n, X.dtype, params)
+    tile = defines["VW"] * defines["UB"]
+    MP = -(-M // tile) * tile
+    WT = np.zeros((D, MP), X.dtype)
+    WT[:, :M] = W.T
+    wnorm = np.full(MP, np.inf, X.dtype)
+    wnorm[:M] = np.einsum("ij,ij->i", W, W)
+    items = -(-N // defines["RX"])
+    wg = defines["WG"]
+    global_size = -(-items // wg) * wg
+
+    mf = cl.mem_flags
+    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+    bufs = [
+        cl.Buffer(context, ro, hostbuf=X),
+        cl.Buffer(context, ro, hostbuf=WT),
+        cl.Buffer(context, ro, hostbuf=wnorm),
+        cl.Buffer(context, ro, hostbuf=index.astype(np.int32)),
+        cl.Buffer(context, ro, hostbuf=sign),
+    ]
+    unit = np.empty(N, np.int32)
+    variation = np.empty(N, np.int32)
+    dist2 = np.empty(N, X.dtype)
+    second = np.empty(N, np.int32)
+    outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
+    kernel = get_kernel(context, defines)
+    kernel(queue, (global_size,), (wg,) if params.use_local else None,
+           bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
+    for host, buf in zip((unit, variation, dist2, second), outs):
+        cl.enqueue_copy(queue, host, buf)
+    queue.finish()
+    unit = unit.astype(np.int64)
+    variation = variation.astype(np.int64)
+    return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second.astype(np.int64))
