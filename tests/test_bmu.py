@@ -1,0 +1,298 @@
+"""BMUofN: NumPy reference vs a per-vector brute force, OpenCL vs NumPy, ties, planted variations."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from meshsom import bmu as bmu_module
+from meshsom.bmu import find_bmus, resolve_backend
+from meshsom.bmu_numpy import bmu_numpy, identity_table
+from meshsom.errors import DeviceError
+
+
+def brute_force(X, W, index, sign):
+    """Per-vector Python reference in float64: lowest variation among equal best distances,
+    lowest unit inside it; second = next unit of the winning variation in (distance, unit) order."""
+    X = np.asarray(X, np.float64)
+    W = np.asarray(W, np.float64)
+    out = []
+    for x in X:
+        best = None
+        for v in range(len(index)):
+            xv = sign[v] * x[index[v]]
+            d = ((W - xv) ** 2).sum(axis=1)
+            order = np.lexsort((np.arange(len(W)), d))
+            u, s = order[0], order[1]
+            if best is None or d[u] < best[0]:
+                best = (d[u], u, v, s)
+        out.append(best)
+    d, u, v, s = map(np.array, zip(*out))
+    return u, v, d, s
+
+
+def random_table(rng, n, D):
+    """Identity first, then random signed permutations."""
+    index = np.stack([np.arange(D)] + [rng.permutation(D) for _ in range(n - 1)]).astype(np.int64)
+    sign = np.where(rng.random((n, D)) < 0.3, -1.0, 1.0).astype(np.float32)
+    sign[0] = 1.0
+    return index, sign
+
+
+def block_table(D, mirror=True):
+    """Rotations of 3 blocks of D/3 values (and their mirrors with a sign flip): the fold-like table."""
+    b = D // 3
+    blocks = np.arange(D).reshape(3, b)
+    rows, signs = [], []
+    for r in range(3):
+        rows.append(np.roll(blocks, -r, axis=0).ravel())
+        signs.append(np.ones(D))
+    if mirror:
+        for r in range(3):
+            rows.append(np.roll(blocks[::-1], -r, axis=0).ravel())
+            s = np.ones(D)
+            s[::3] = -1
+            signs.append(s)
+    return np.array(rows, np.int64), np.array(signs, np.float32)
+
+
+def separated(X, W, index, sign, rel=1e-4):
+    """Rows whose best, second and third (variation, unit) distances are separated beyond float32 rounding."""
+    X = np.asarray(X, np.float64)
+    W = np.asarray(W, np.float64)
+    xv = np.stack([sign[v] * X[:, index[v]] for v in range(len(index))], axis=1)  # (N, n, D)
+    d = ((xv[:, :, None, :] - W[None, None]) ** 2).sum(-1)  # (N, n, M)
+    flat = np.sort(d.reshape(len(X), -1), axis=1)
+    scale = 1.0 + np.abs(flat[:, :1])
+    ok = (flat[:, 1] - flat[:, 0]) > rel * scale[:, 0]
+    v = d.reshape(len(X), -1).argmin(1) // W.shape[0]
+    dv = np.sort(d[np.arange(len(X)), v], axis=1)
+    ok &= (dv[:, 1] - dv[:, 0]) > rel * scale[:, 0]
+    ok &= (dv[:, 2] - dv[:, 1]) > rel * scale[:, 0]
+    return ok
+
+
+@pytest.mark.parametrize("n,D", [(1, 9), (3, 9), (6, 9), (3, 12)])
+def test_numpy_matches_brute_force_float64(n, D):
+    rng = np.random.default_rng(n * 100 + D)
+    X = rng.normal(size=(60, D))
+    W = rng.normal(size=(17, D))
+    index, sign = random_table(rng, n, D)
+    got = bmu_numpy(X, W, index, sign.astype(np.float64), chunk_rows=7)
+    u, v, d, s = brute_force(X, W, index, sign)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+    np.testing.assert_array_equal(got.second, s)
+    np.testing.assert_allclose(got.dist2, d, rtol=1e-10, atol=1e-12)
+
+
+def test_numpy_float32_matches_float64_reference_where_separated():
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(200, 36)).astype(np.float32)
+    W = rng.normal(size=(50, 36)).astype(np.float32)
+    index, sign = random_table(rng, 3, 36)
+    got = bmu_numpy(X, W, index, sign)
+    u, v, d, s = brute_force(X, W, index, sign)
+    ok = separated(X, W, index, sign)
+    assert ok.mean() > 0.9
+    np.testing.assert_array_equal(got.unit[ok], u[ok])
+    np.testing.assert_array_equal(got.variation[ok], v[ok])
+    np.testing.assert_array_equal(got.second[ok], s[ok])
+    np.testing.assert_allclose(got.dist2, d, rtol=1e-5)
+
+
+def planted_ties(rng, D=9):
+    """Small-integer data (exact in float32 whatever the summation order) with duplicated
+    codebook vectors and vectors symmetric under a variation: exact ties of both kinds."""
+    index, sign = block_table(D, mirror=False)
+    W = rng.integers(-3, 4, size=(12, D)).astype(np.float32)
+    W[7] = W[2]  # duplicated units: 2 must win over 7
+    W[11] = W[2]
+    block = rng.integers(-3, 4, size=D // 3)
+    symmetric = np.tile(block, 3).astype(np.float32)  # every rotation gives the same vector
+    X = np.concatenate([
+        W[[2, 7, 11]],  # exact hits of a duplicated unit
+        W[[2]] + 1,  # near it
+        symmetric[None],  # all variations tie
+        rng.integers(-3, 4, size=(20, D)).astype(np.float32),
+    ])
+    return X, W, index, sign
+
+
+def check_ties(result, X, W, index, sign):
+    u, v, d, s = brute_force(X, W, index, sign)
+    np.testing.assert_array_equal(result.unit, u)
+    np.testing.assert_array_equal(result.variation, v)
+    np.testing.assert_array_equal(result.second, s)
+    assert list(result.unit[:3]) == [2, 2, 2] and list(result.second[:3]) == [7, 7, 7]
+    assert result.variation[4] == 0
+
+
+def test_numpy_ties_lowest_unit_then_lowest_variation():
+    X, W, index, sign = planted_ties(np.random.default_rng(1))
+    check_ties(bmu_numpy(X, W, index, sign), X, W, index, sign)
+
+
+def planted_variations(rng, D, mirror=True, N=40, M=30):
+    """Data made as inverse-varied copies of codebook vectors: P_v x = w_u exactly."""
+    index, sign = block_table(D, mirror)
+    W = rng.normal(size=(M, D)).astype(np.float32)
+    u = rng.integers(0, M, N)
+    v = rng.integers(0, len(index), N)
+    X = np.zeros((N, D), np.float32)
+    X[np.arange(N)[:, None], index[v]] = sign[v] * W[u]  # sign[v] * x[index[v]] = w_u
+    return X, W, index, sign, u, v
+
+
+def test_numpy_finds_planted_variation():
+    X, W, index, sign, u, v = planted_variations(np.random.default_rng(2), 9)
+    got = bmu_numpy(X, W, index, sign)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+    np.testing.assert_allclose(got.dist2, 0, atol=1e-10)
+
+
+def test_default_kernel_is_identity_row():
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(30, 9)).astype(np.float32)
+    W = rng.normal(size=(20, 9)).astype(np.float32)
+    a = bmu_numpy(X, W)
+    b = bmu_numpy(X, W, *identity_table(9))
+    np.testing.assert_array_equal(a.unit, b.unit)
+    assert (a.variation == 0).all()
+
+
+def test_validation_messages():
+    X = np.zeros((3, 9), np.float32)
+    with pytest.raises(ValueError, match="X has 9 columns but W has 8"):
+        bmu_numpy(X, np.zeros((4, 8), np.float32))
+    with pytest.raises(ValueError, match="index values must lie in 0..8"):
+        bmu_numpy(X, np.zeros((4, 9), np.float32), np.full((1, 9), 9), np.ones((1, 9), np.float32))
+    with pytest.raises(ValueError, match="backend must be one of"):
+        find_bmus(X, np.zeros((4, 9), np.float32), backend="cuda")
+
+
+# ----------------------------------------------------------------------------- OpenCL
+
+
+def _opencl_context():
+    try:
+        from meshsom.bmu_opencl import get_context
+
+        return get_context(None)
+    except (DeviceError, ImportError) as err:
+        pytest.skip(f"no OpenCL device: {err}")
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    return _opencl_context()
+
+
+@pytest.mark.parametrize(
+    "n,D,M",
+    [(1, 9, 300), (3, 9, 300), (6, 9, 300), (1, 36, 250), (3, 36, 250), (6, 36, 250),
+     (1, 144, 120), (3, 144, 120), (6, 144, 120), (3, 576, 70)],
+)
+def test_opencl_matches_numpy(ctx, n, D, M):
+    from meshsom.bmu_opencl import bmu_opencl
+
+    rng = np.random.default_rng(n * 1000 + D)
+    N = 150
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    W = rng.normal(size=(M, D)).astype(np.float32)
+    index, sign = random_table(rng, n, D)
+    ref = bmu_numpy(X, W, index, sign)
+    got = bmu_opencl(X, W, index, sign, context=ctx)
+    ok = separated(X, W, index, sign)
+    assert ok.mean() > 0.8
+    np.testing.assert_array_equal(got.unit[ok], ref.unit[ok])
+    np.testing.assert_array_equal(got.variation[ok], ref.variation[ok])
+    np.testing.assert_array_equal(got.second[ok], ref.second[ok])
+    np.testing.assert_allclose(got.dist2, ref.dist2, rtol=1e-4, atol=1e-4)
+
+
+def test_opencl_large_dimension_level5(ctx):
+    """D = 9 * 4^4 = 2304 (the codebook is tiled over D in local memory)."""
+    from meshsom.bmu_opencl import bmu_opencl
+
+    rng = np.random.default_rng(11)
+    X, W, index, sign, u, v = planted_variations(rng, 2304, mirror=False, N=12, M=37)
+    got = bmu_opencl(X, W, index, sign, context=ctx)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+
+
+def test_opencl_float64_exact(ctx):
+    from meshsom.bmu_opencl import bmu_opencl
+
+    if "fp64" not in ctx.devices[0].extensions:
+        pytest.skip("device has no fp64")
+    rng = np.random.default_rng(7)
+    X = rng.normal(size=(80, 36))
+    W = rng.normal(size=(90, 36))
+    index, sign = random_table(rng, 3, 36)
+    got = bmu_opencl(X, W, index, sign.astype(np.float64), context=ctx)
+    u, v, d, s = brute_force(X, W, index, sign)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+    np.testing.assert_array_equal(got.second, s)
+
+
+def test_opencl_ties(ctx):
+    from meshsom.bmu_opencl import bmu_opencl
+
+    X, W, index, sign = planted_ties(np.random.default_rng(1))
+    got = bmu_opencl(X, W, index, sign, context=ctx)
+    check_ties(got, X, W, index, sign)
+    ref = bmu_numpy(X, W, index, sign)
+    for name in ("unit", "variation", "second"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
+
+
+def test_opencl_planted_variation_with_mirrors(ctx):
+    from meshsom.bmu_opencl import bmu_opencl
+
+    X, W, index, sign, u, v = planted_variations(np.random.default_rng(4), 36)
+    got = bmu_opencl(X, W, index, sign, context=ctx)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+
+
+def test_program_memoised(ctx):
+    from meshsom.bmu_opencl import _defines, default_params, get_kernel
+
+    defines = _defines(9, 3, np.float32, default_params(ctx))
+    assert get_kernel(ctx, defines) is get_kernel(ctx, defines)
+
+
+def test_device_selector_errors(ctx):
+    from meshsom.bmu_opencl import select_device
+
+    with pytest.raises(DeviceError, match="no OpenCL device matches 'no-such-device'"):
+        select_device("no-such-device")
+    with pytest.raises(DeviceError, match="does not exist"):
+        select_device("9:9")
+    assert select_device("0:0") is not None
+
+
+def test_auto_falls_back_with_one_warning(monkeypatch, caplog):
+    from meshsom import bmu_opencl
+
+    def no_device(selector=None):
+        raise DeviceError("no OpenCL device found (test)")
+
+    monkeypatch.setattr(bmu_opencl, "get_context", no_device)
+    monkeypatch.setattr(bmu_module, "_FELL_BACK", [])
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(10, 9)).astype(np.float32)
+    W = rng.normal(size=(5, 9)).astype(np.float32)
+    with caplog.at_level(logging.WARNING, logger="meshsom.bmu"):
+        for _ in range(3):
+            result, engine = find_bmus(X, W, backend="auto")
+    assert engine.backend == "numpy"
+    assert len([r for r in caplog.records if "NumPy/BLAS backend" in r.message]) == 1
+    with pytest.raises(DeviceError):
+        resolve_backend("opencl")
