@@ -19,6 +19,7 @@ COMMANDS = {
     "generate": ("pipelines.generate_cmd", "write a seeded synthetic corpus of labelled building blocks"),
     "ingest": ("pipelines.ingest", "read, clean and store meshes (folders, mesh files, CityJSON)"),
     "run": ("pipelines.run", "run a whole experiment from a YAML config (configs/paper.yaml)"),
+    "train": ("pipelines.train_cmd", "train one level's triangle map (default or BMUofN kernel) and print T/Q/QC-errors"),
 }
 
 

@@ -194,3 +194,31 @@ def test_codebook_round_trip(tmp_path):
     np.testing.assert_array_equal(cb.bmu.second, bmu.second)
     with pytest.raises(StoreError, match="has no run 'nope'"):
         load_codebook(group, "nope")
+
+
+def test_train_command_json(tmp_path, monkeypatch, capsys):
+    """`meshsom train` end to end on a tiny store (the level's vectors stubbed in; the
+    variation table is the encoder's own)."""
+    variations = pytest.importorskip("meshsom.variations")
+    import json
+
+    from pipelines import train_cmd
+    from pipelines.cli import main
+    from meshsom.codebook import load_codebook
+    from meshsom.store import create_store, open_store
+
+    create_store(tmp_path / "s.zarr")
+    index, _ = variations.variation_table(1, mirror=False)
+    X = np.random.default_rng(0).normal(size=(120, index.shape[1])).astype(np.float32)
+    monkeypatch.setattr(train_cmd, "load_level", lambda group, level: X)
+    for kernel in ("default", "bmuofn"):
+        rc = main(["train", str(tmp_path / "s.zarr"), "--level", "1", "--kernel", kernel, "--map", "5x6",
+                   "--epochs", "3", "--seed", "1", "--backend", "numpy", "--json"])
+        assert rc == 0
+        report = json.loads(capsys.readouterr().out)
+        for key in ("t_error", "q_error", "qc_error", "backend", "device", "level", "kernel", "map_rows",
+                    "map_cols", "epochs", "seconds"):
+            assert key in report
+        assert report["backend"] == "numpy" and report["kernel"] == kernel
+        cb = load_codebook(open_store(tmp_path / "s.zarr"), f"level1-{kernel}")
+        assert cb.weights.shape == (30, X.shape[1]) and cb.metrics["q_error"] == pytest.approx(report["q_error"])
