@@ -288,8 +288,9 @@ class ExperimentConfig:
     corpus : CorpusConfig
     preprocess : PreprocessParams
     encoding : EncodingConfig
-    train : tuple of TrainSpec
-        The triangle maps to train, in order.
+    train : tuple of TrainSpec or None
+        The triangle maps to train, in order. Not given: the paper's choice for the encoded levels
+        (level 1 with the default kernel and with BMUofN, every higher level with BMUofN).
     som, domain, dask, opencl, tracking : sections
     store : StoreConfig
     """
@@ -299,7 +300,7 @@ class ExperimentConfig:
     corpus: CorpusConfig = field(default_factory=lambda: CorpusConfig(paths=("data",)))
     preprocess: Any = None
     encoding: EncodingConfig = EncodingConfig()
-    train: tuple[TrainSpec, ...] = (TrainSpec(1, "default"), TrainSpec(1, "bmuofn"), TrainSpec(2), TrainSpec(3))
+    train: tuple[TrainSpec, ...] | None = None
     som: SOMConfig = SOMConfig()
     domain: DomainConfig = DomainConfig()
     dask: DaskConfig = DaskConfig()
@@ -310,6 +311,9 @@ class ExperimentConfig:
     def __post_init__(self):
         if self.preprocess is None:
             object.__setattr__(self, "preprocess", _preprocess_params_type()())
+        if self.train is None:
+            specs = [TrainSpec(1, "default")] if 1 in self.encoding.levels else []
+            object.__setattr__(self, "train", tuple(specs + [TrainSpec(level) for level in sorted(self.encoding.levels)]))
         missing = sorted({t.level for t in self.train} - set(self.encoding.levels))
         if missing:
             raise ValueError(

@@ -468,15 +468,41 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> n
     for p in np.flatnonzero(~simple_tri):
         r0 = poly_first_ring[p]
         rings_idx = [inverse[ring_start[r]:ring_start[r + 1]] for r in range(r0, r0 + rings_per_poly[p])]
-        rings_idx = [_drop_closing_vertex(r) for r in rings_idx]
+        rings_idx = [_drop_spikes(_drop_closing_vertex(r), local) for r in rings_idx]
+        if len(rings_idx[0]) < 3:
+            continue  # a polygon collapsed to a line or point: nothing to triangulate
+        rings_idx = rings_idx[:1] + [r for r in rings_idx[1:] if len(r) >= 3]
         tri = triangulate_polygon_3d([local[r] for r in rings_idx])
         if len(tri):
             out.append(np.concatenate(rings_idx)[tri])
     return np.concatenate(out).astype(np.int64).reshape(-1, 3)
 
 
+def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) -> np.ndarray:
+    """Drop spike vertices, where a ring goes out and comes back along the same line.
+
+    A footprint with a spike is not a simple polygon (the ring touches itself); without its tip
+    it is. The walls extruded along the spike overlap and are removed in preprocessing.
+    """
+    while len(ring) > 3:
+        p = local[ring]
+        d_in = p - np.roll(p, 1, axis=0)
+        d_out = np.roll(p, -1, axis=0) - p
+        norms = np.linalg.norm(d_in, axis=1) * np.linalg.norm(d_out, axis=1)
+        cos = np.einsum("ij,ij->i", d_in, d_out) / np.where(norms > 0, norms, 1.0)
+        spikes = np.flatnonzero(cos < cos_tol)
+        if len(spikes) == 0:
+            break
+        ring = np.delete(ring, spikes[0])
+        ring = ring[ring != np.roll(ring, 1)]
+    return ring
+
+
 def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:
-    return ring[:-1] if len(ring) > 1 and ring[0] == ring[-1] else ring
+    """Drop repeated consecutive vertices (cyclically), the closing one included."""
+    if len(ring) < 2:
+        return ring
+    return ring[ring != np.roll(ring, 1)]
 
 
 def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, simplify: float):

@@ -44,7 +44,7 @@ def triangulate_polygon_2d(
         Indices into ``points``, counter-clockwise.
     """
     shell = _ring_array(shell)
-    holes = [_ring_array(h) for h in holes]
+    holes = [h for h in (_ring_array(h) for h in holes) if len(h) >= 3]
     points = np.concatenate([shell, *holes]) if holes else shell
     if len(shell) < 3:
         return points, np.zeros((0, 3), np.int64)

@@ -1,0 +1,774 @@
+"""Mesh preprocessing (DESIGN.md §2): weld, clean, close, orient, flatten, re-triangulate, validate.
+
+One function, :func:`preprocess`, turns a raw triangle soup into a closed, edge-manifold,
+outward-oriented mesh whose planar regions are re-triangulated from their corner vertices only
+(constrained Delaunay, no Steiner points), so that a wall is two triangles however finely it
+was modelled. Each step that changes the input beyond re-triangulation is recorded in
+``Result.repairs``; an input that cannot be made valid raises :class:`~meshsom.errors.MeshError`
+whose ``problem`` is the reason written to the manifest.
+
+Steps
+-----
+1. Check coordinates (finite) and indices (in range).
+2. Weld vertices closer than ``weld_tol`` x bounding-box diagonal (KD-tree pairs + connected
+   components); drop faces that collapse, and duplicate faces (a pair walked in opposite directions
+   is an internal wall between merged parts and goes altogether).
+3. Optionally cap open boundary loops that are planar (LoD1 blocks often miss their floor; a
+   polygon dropped by a reader leaves a planar hole). Any other open boundary, or an edge with
+   more than two faces, rejects the mesh (after an optional pymeshlab repair).
+4. Orient every face consistently (parity components of the dual graph), then each shell outward
+   (positive signed volume).
+5. Planar regions: edge-connected faces whose normals agree within ``planar_angle_deg`` and whose
+   vertices lie within ``planar_dist`` x diagonal of the region's plane. A region boundary vertex is
+   kept if it is a corner (or a pinch) in at least one region it touches; otherwise it is collinear
+   everywhere and dropped, from every region at once, so no T-junction can appear.
+6. Re-triangulate each region from its kept boundary vertices (outer ring and holes). A region that
+   cannot be (not planar within tolerance, pinched boundary, failed triangulation) keeps its input
+   triangles, and its vertices are then kept by all neighbours.
+7. Validate: closed, edge-manifold, consistently oriented, no degenerate face, volume unchanged
+   within ``volume_rtol``. If re-triangulation broke any of these, the cleaned input triangulation
+   is kept instead (recorded); if that fails too, the mesh is rejected.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from meshsom.errors import MeshError
+from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_2d
+from meshsom.topology import edge_table, half_edges, signed_volume
+
+__all__ = ["PreprocessParams", "Result", "preprocess", "validate", "weld"]
+
+
+@dataclass(frozen=True)
+class PreprocessParams:
+    """Tolerances and switches of :func:`preprocess` (config section ``preprocess``).
+
+    Attributes
+    ----------
+    weld_tol : float
+        Vertices closer than this fraction of the bounding-box diagonal are merged.
+    tjunction_tol : float
+        An open edge is split at an open-boundary vertex closer than this fraction of the diagonal
+        to it (T-junctions left by modelling tools).
+    planar_angle_deg : float
+        Largest angle between the normals of two adjacent faces of one planar region.
+    planar_dist : float
+        Largest distance of a region's vertex from the region's plane, and of a dropped collinear
+        vertex from the line through its neighbours, as a fraction of the diagonal.
+    volume_rtol : float
+        Largest relative change of the enclosed volume allowed by re-triangulation.
+    retriangulate : bool
+        Re-triangulate planar regions (False keeps the cleaned input triangles).
+    flatten_collinear : bool
+        Drop boundary vertices that are collinear in every region they touch.
+    cap_planar_holes : bool
+        Close open boundary loops that are planar (missing floors, missing polygons).
+    repair : bool
+        Try pymeshlab's non-manifold and hole repairs before rejecting a mesh.
+    min_faces : int
+        Meshes with fewer faces after cleaning are rejected.
+    """
+
+    weld_tol: float = 1e-8
+    tjunction_tol: float = 1e-5
+    planar_angle_deg: float = 1.0
+    planar_dist: float = 1e-4
+    volume_rtol: float = 1e-3
+    retriangulate: bool = True
+    flatten_collinear: bool = True
+    cap_planar_holes: bool = True
+    repair: bool = False
+    min_faces: int = 4
+
+    def __post_init__(self):
+        for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 <= value < 1):
+                raise ValueError(f"{name} must be a number in [0, 1) (a fraction of the diagonal); received {value!r}")
+        if not (isinstance(self.planar_angle_deg, (int, float)) and 0 <= self.planar_angle_deg < 90):
+            raise ValueError(f"planar_angle_deg must be in [0, 90); received {self.planar_angle_deg!r}")
+        if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
+            raise ValueError(f"min_faces must be an integer >= 4 (a tetrahedron); received {self.min_faces!r}")
+
+
+@dataclass
+class Result:
+    """A preprocessed mesh.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+        Closed, edge-manifold, counter-clockwise seen from outside.
+    repairs : list of str
+        What was changed beyond re-triangulation, in words.
+    faces_in, faces_out : int
+    volume_in, volume_out : float
+        Enclosed volume of the cleaned input and of the output.
+    regions : int
+        Number of planar regions.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    repairs: list[str] = field(default_factory=list)
+    faces_in: int = 0
+    faces_out: int = 0
+    volume_in: float = 0.0
+    volume_out: float = 0.0
+    regions: int = 0
+
+
+# --------------------------------------------------------------------------------------------
+# Public entry point
+# --------------------------------------------------------------------------------------------
+
+
+def preprocess(
+    vertices: np.ndarray, faces: np.ndarray, params: PreprocessParams | None = None, source: str = "mesh"
+) -> Result:
+    """Clean, close, orient and re-triangulate one mesh.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+        Re-centred coordinates.
+    faces : (F, 3) int64
+    params : PreprocessParams, optional
+    source : str
+        Named in errors (file and object id).
+
+    Returns
+    -------
+    Result
+
+    Raises
+    ------
+    MeshError
+        With a reason that says what is wrong (``problem``), when the mesh cannot be made valid.
+    """
+    params = params or PreprocessParams()
+    vertices, faces = _check_input(vertices, faces, source)
+    faces_in = len(faces)
+    repairs: list[str] = []
+    try:
+        v, f = _clean(vertices, faces, params, source, repairs)
+    except MeshError:
+        if not params.repair:
+            raise
+        v, f = _pymeshlab_repair(vertices, faces, source)
+        repairs = ["repaired with pymeshlab (non-manifold edges, holes)"]
+        v, f = _clean(v, f, PreprocessParams(**{**params.__dict__, "repair": False}), source, repairs)
+    volume_in = signed_volume(v, f)
+    diag = _diagonal(v)
+    if not volume_in > params.weld_tol * diag**3:  # thinner than the weld tolerance
+        raise MeshError(source, f"zero volume (encloses {volume_in:.3g} cubic units)")
+    regions = 0
+    out_v, out_f = v, f
+    if params.retriangulate:
+        try:
+            out_v, out_f, regions = _retriangulate(v, f, params, diag)
+            problem = validate(out_v, out_f)
+            vol = signed_volume(out_v, out_f)
+            if problem is None and abs(vol - volume_in) > params.volume_rtol * abs(volume_in):
+                problem = f"volume changed by {100 * abs(vol - volume_in) / abs(volume_in):.3g} %"
+        except MeshError as err:  # pragma: no cover - defensive: fall back to the cleaned input
+            problem = err.problem
+        if problem is not None:
+            repairs.append(f"kept the input triangulation (re-triangulation gave: {problem})")
+            out_v, out_f, regions = v, f, 0
+    problem = validate(out_v, out_f)
+    if problem is not None:
+        raise MeshError(source, problem)
+    out_v, out_f = _compact(out_v, out_f)
+    if len(out_f) < params.min_faces:
+        raise MeshError(source, f"only {len(out_f)} faces after cleaning; at least {params.min_faces} needed")
+    return Result(
+        vertices=out_v, faces=out_f, repairs=repairs, faces_in=faces_in, faces_out=len(out_f),
+        volume_in=volume_in, volume_out=signed_volume(out_v, out_f), regions=regions,
+    )
+
+
+def validate(vertices: np.ndarray, faces: np.ndarray) -> str | None:
+    """Why a mesh is not a valid closed one, or None when it is.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+
+    Returns
+    -------
+    problem : str or None
+    """
+    if len(faces) == 0:
+        return "no faces"
+    if (faces[:, 0] == faces[:, 1]).any() or (faces[:, 1] == faces[:, 2]).any() or (faces[:, 0] == faces[:, 2]).any():
+        return "degenerate faces (repeated vertex)"
+    area2 = np.linalg.norm(_cross(vertices, faces), axis=1)
+    if not (area2 > 0).all():
+        return f"{int((area2 <= 0).sum())} degenerate faces of zero area"
+    he = half_edges(faces)
+    _, edge_of, counts = edge_table(faces)
+    if (counts == 1).any():
+        return f"open boundary: {int((counts == 1).sum())} edges have only one face"
+    if (counts > 2).any():
+        return f"non-manifold: {int((counts > 2).sum())} edges are shared by more than two faces"
+    order = np.argsort(edge_of, kind="stable").reshape(-1, 2)
+    if not np.array_equal(he[order[:, 0], 0], he[order[:, 1], 1]):
+        return "inconsistently oriented faces"
+    if signed_volume(vertices, faces) <= 0:
+        return "oriented inward (negative volume)"
+    return None
+
+
+def weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices closer than ``tol`` (absolute), transitively.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    tol : float
+
+    Returns
+    -------
+    welded : (W, 3) float64
+        One representative (the lowest input index) per group, in order of first appearance.
+    remap : (V,) int64
+        New index of every input vertex.
+    """
+    n = len(vertices)
+    if n == 0:
+        return vertices, np.zeros(0, np.int64)
+    pairs = cKDTree(vertices).query_pairs(tol, output_type="ndarray") if tol > 0 else np.zeros((0, 2), np.int64)
+    if tol == 0 or len(pairs) == 0:
+        _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+        labels = inverse.reshape(-1)
+    else:
+        graph = sparse.coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        _, labels = connected_components(graph, directed=False)
+    first = np.full(labels.max() + 1, n, np.int64)
+    np.minimum.at(first, labels, np.arange(n))
+    rank = np.empty(len(first), np.int64)
+    order = np.argsort(first, kind="stable")
+    rank[order] = np.arange(len(first))
+    return vertices[first[order]], rank[labels]
+
+
+# --------------------------------------------------------------------------------------------
+# Steps
+# --------------------------------------------------------------------------------------------
+
+
+def _check_input(vertices, faces, source):
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise MeshError(source, f"vertices must have shape (V, 3), received {vertices.shape}")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise MeshError(source, f"faces must have shape (F, 3) (triangles), received {faces.shape}")
+    if len(faces) == 0:
+        raise MeshError(source, "no faces")
+    if not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+        raise MeshError(source, f"{bad} vertices have NaN or infinite coordinates")
+    faces = faces.astype(np.int64)
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        k = int(np.flatnonzero((faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1))[0])
+        raise MeshError(source, f"face {k} references vertex index {faces[k].tolist()} out of range (the mesh has {len(vertices)} vertices)")
+    return vertices, faces
+
+
+def _diagonal(vertices):
+    if len(vertices) == 0:
+        return 0.0
+    return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+
+
+def _cross(vertices, faces):
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return np.cross(b - a, c - a)
+
+
+def _clean(vertices, faces, params, source, repairs):
+    """Steps 2-4: weld, drop bad faces, cap, check manifoldness, orient. Returns (V, F)."""
+    diag = _diagonal(vertices)
+    if diag == 0:
+        raise MeshError(source, "all vertices coincide (zero size)")
+    v, remap = weld(vertices, params.weld_tol * diag)
+    if len(v) < len(vertices):
+        merged = len(vertices) - len(v)
+        # Exact duplicates (one vertex per polygon corner, as in many OBJ exports) are not news.
+        exact = len(vertices) - len(np.unique(vertices, axis=0))
+        if merged > exact:
+            repairs.append(f"welded {merged - exact} near-coincident vertices")
+    f = remap[faces]
+    collapsed = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    # Slivers: a vertex within the weld tolerance of the opposite edge's line (zero area). Dropping
+    # one leaves a T-junction that _split_t_junctions closes again.
+    longest = np.max(np.linalg.norm(v[np.roll(f, -1, axis=1)] - v[f], axis=2), axis=1)
+    height = np.linalg.norm(_cross(v, f), axis=1) / np.where(longest > 0, longest, 1.0)
+    collapsed |= height <= params.weld_tol * diag
+    if collapsed.any():
+        repairs.append(f"dropped {int(collapsed.sum())} degenerate faces")
+        f = f[~collapsed]
+    f = _drop_duplicates(f, repairs)
+    if len(f) < params.min_faces:
+        raise MeshError(source, f"only {len(f)} faces after cleaning; at least {params.min_faces} needed")
+    _, _, counts = edge_table(f)
+    if (counts == 1).any() and params.cap_planar_holes:
+        f = _cap_planar_loops(v, f, params.planar_dist * diag, repairs)
+        _, _, counts = edge_table(f)
+    for tol in sorted({params.weld_tol, params.tjunction_tol}):
+        if not (counts == 1).any():
+            break
+        # Still open: T-junctions (left by slivers first, then by modelling tools) and overlapping
+        # walls (footprint spikes); then cap again.
+        trial_repairs = list(repairs)
+        g = _split_t_junctions(v, f, tol * diag, trial_repairs)
+        g = _drop_duplicates(g, trial_repairs)
+        _, _, c = edge_table(g)
+        if (c > 2).any():
+            g = _remove_fins(v, g, params.planar_dist * diag, trial_repairs)
+            _, _, c = edge_table(g)
+        if (c == 1).any() and params.cap_planar_holes:
+            g = _cap_planar_loops(v, g, params.planar_dist * diag, trial_repairs)
+            _, _, c = edge_table(g)
+        if (c == 1).sum() + (c > 2).sum() < (counts == 1).sum() + (counts > 2).sum():
+            f, counts, repairs[:] = g, c, trial_repairs
+    if (counts > 2).any():
+        raise MeshError(source, f"non-manifold: {int((counts > 2).sum())} edges are shared by more than two faces")
+    if (counts == 1).any():
+        raise MeshError(source, f"open boundary: {int((counts == 1).sum())} edges have only one face (a hole that is not planar)")
+    f = _orient(v, f, source, repairs)
+    return _compact(v, f)
+
+
+def _drop_duplicates(f, repairs):
+    key = np.sort(f, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    if (counts == 1).all():
+        return f
+    # Orientation parity relative to the sorted key: +1 for an even permutation, -1 for odd.
+    rolled = np.stack([np.roll(f, -k, axis=1) for k in range(3)])
+    even = (rolled == key[None]).all(axis=2).any(axis=0)
+    parity = np.where(even, 1, -1)
+    net = np.zeros(len(counts), np.int64)
+    np.add.at(net, inverse, parity)
+    first = np.full(len(counts), len(f), np.int64)
+    np.minimum.at(first, inverse, np.arange(len(f)))
+    dup = counts[inverse] > 1
+    keep = ~dup | ((np.arange(len(f)) == first[inverse]) & (net[inverse] != 0))
+    # For a kept duplicate, use the majority orientation.
+    flip = keep & dup & (np.sign(net[inverse]) != parity)
+    f = f.copy()
+    f[flip] = f[flip][:, ::-1]
+    internal = int((dup & (net[inverse] == 0)).sum())
+    dropped = int(dup.sum()) - internal - int((keep & dup).sum())
+    if dropped:
+        repairs.append(f"dropped {dropped} duplicate faces")
+    if internal:
+        repairs.append(f"removed {internal} faces of internal walls (face pairs walked both ways)")
+    return f[keep]
+
+
+def _cap_planar_loops(v, f, dist, repairs):
+    """Close open boundary loops that are planar (missing floors, missing roof or wall polygons).
+
+    Loops lying in one plane are capped together, so a floor with a courtyard gets its hole. A loop
+    that is not planar within ``dist``, or whose polygon cannot be triangulated from its own
+    vertices (self-intersecting), is left open and the mesh is then rejected.
+    """
+    import shapely
+
+    he = half_edges(f)
+    _, edge_of, counts = edge_table(f)
+    loops = _walk_loops(he[counts[edge_of] == 1])
+    if not loops:
+        return f
+    planes = []
+    for loop in loops:
+        p = v[loop]
+        n = newell_normal(p - p.mean(axis=0))
+        norm = np.linalg.norm(n)
+        if not norm > 0:
+            return f
+        n = n / norm
+        if np.abs((p - p.mean(axis=0)) @ n).max() > dist:
+            return f
+        planes.append((n, float(p.mean(axis=0) @ n)))
+    # Group loops by plane (normals may point either way: loops of holes run the other way).
+    group = list(range(len(loops)))
+    for i in range(len(loops)):
+        for j in range(i):
+            ni, di = planes[i]
+            nj, dj = planes[j]
+            if abs(abs(ni @ nj) - 1) < 1e-9 + dist and abs(di - np.sign(ni @ nj) * dj) <= dist:
+                group[i] = group[j]
+                break
+    caps = []
+    for g in sorted(set(group)):
+        members = [k for k in range(len(loops)) if group[k] == g]
+        n = planes[members[0]][0]
+        frame = plane_frame(n)
+        origin = v[loops[members[0]][0]]
+        rings = {k: (v[loops[k]] - origin) @ frame.T for k in members}
+        areas = {k: _area2d(rings[k]) for k in members}
+        if min(abs(a) for a in areas.values()) <= dist * dist:
+            return f
+        shells: list[tuple[int, list[int]]] = []
+        polys = {}
+        for k in sorted(members, key=lambda k: -abs(areas[k])):
+            probe = shapely.Polygon(rings[k]).representative_point()
+            for s_k, holes in shells:
+                if polys[s_k].contains(probe):
+                    holes.append(k)
+                    break
+            else:
+                polys[k] = shapely.Polygon(rings[k])
+                shells.append((k, []))
+        for s_k, holes in shells:
+            ids = np.concatenate([loops[s_k], *[loops[h] for h in holes]])
+            _, tri = triangulate_polygon_2d(rings[s_k], [rings[h] for h in holes])
+            if len(tri) != len(ids) + 2 * len(holes) - 2 or (tri >= len(ids)).any():
+                return f
+            # The boundary edges run a -> b in the mesh, so the cap must run b -> a: the cap
+            # faces the way opposite to the loop's own orientation (fixed again by _orient).
+            caps.append(ids[tri] if areas[s_k] < 0 else ids[tri][:, ::-1])
+    cap = np.concatenate(caps)
+    repairs.append(f"capped {len(loops)} open planar loop(s) with {len(cap)} triangles (missing floor or polygon)")
+    return np.concatenate([f, cap])
+
+
+def _split_t_junctions(v, f, tol, repairs, rounds=4):
+    """Split open edges at open-boundary vertices lying on them (T-junctions), within ``tol``.
+
+    Only boundary edges are examined (a closed mesh has none), so the cost is that of the defect.
+    A triangle whose edge is split becomes a fan from its opposite vertex.
+    """
+    split_total = 0
+    for _ in range(rounds):
+        he = half_edges(f)
+        _, edge_of, counts = edge_table(f)
+        open_h = np.flatnonzero(counts[edge_of] == 1)
+        if len(open_h) == 0:
+            break
+        cand = np.unique(he[open_h])
+        p, q = v[he[open_h, 0]], v[he[open_h, 1]]
+        d = q - p
+        dd = np.einsum("ek,ek->e", d, d)
+        t = np.einsum("eck,ek->ec", v[cand][None] - p[:, None], d) / dd[:, None]
+        dist = np.linalg.norm(v[cand][None] - (p[:, None] + t[..., None] * d[:, None]), axis=2)
+        length = np.sqrt(dd)[:, None]
+        on = (dist <= tol) & (t * length > tol) & ((1 - t) * length > tol)
+        if not on.any():
+            break
+        new_faces = []
+        touched = np.zeros(len(f), bool)
+        for e in np.flatnonzero(on.any(axis=1)):
+            face, i = divmod(int(open_h[e]), 3)
+            if touched[face]:
+                continue  # one split per face and round
+            touched[face] = True
+            pts = cand[on[e]][np.argsort(t[e, on[e]])]
+            a, b, c = f[face, i], f[face, (i + 1) % 3], f[face, (i + 2) % 3]
+            chain = [a, *pts.tolist(), b]
+            new_faces += [[chain[k], chain[k + 1], c] for k in range(len(chain) - 1)]
+            split_total += len(pts)
+        f = np.concatenate([f[~touched], np.array(new_faces, np.int64).reshape(-1, 3)])
+    if split_total:
+        repairs.append(f"split open edges at {split_total} T-junction vertices")
+    return f
+
+
+def _remove_fins(v, f, dist, repairs):
+    """Remove zero-thickness fins: coplanar faces of opposite orientation that overlap.
+
+    A footprint ring with a spike (it goes out and comes back along the same line) extrudes into
+    two walls on top of each other, facing opposite ways. Around an edge with more than two
+    faces, such a pair is looked for; in its plane, the faces of either orientation are united
+    and every face inside their common area is removed (after T-junction splitting, a face is
+    either inside it or outside).
+    """
+    import shapely
+
+    he = half_edges(f)
+    _, edge_of, counts = edge_table(f)
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    remove = np.zeros(len(f), bool)
+    for e in np.flatnonzero(counts > 2):
+        around = np.flatnonzero(edge_of == e) // 3
+        for i, a in enumerate(around):
+            for b in around[i + 1:]:
+                if normal[a] @ normal[b] > -0.999999 or remove[a] or remove[b]:
+                    continue
+                n, d = normal[a], float(normal[a] @ v[f[a, 0]])
+                coplanar = (np.abs(normal @ n) > 0.999999) & (np.abs(v[f] @ n - d).max(axis=1) <= dist)
+                frame = plane_frame(n)
+                idx = np.flatnonzero(coplanar)
+                tri2d = v[f[idx]] @ frame.T
+                up = normal[idx] @ n > 0
+                polys = shapely.polygons(tri2d)
+                overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
+                if overlap.area <= dist * dist:
+                    continue
+                inside = shapely.area(shapely.intersection(polys, overlap)) >= 0.999 * shapely.area(polys)
+                remove[idx[inside]] = True
+    if remove.any():
+        repairs.append(f"removed {int(remove.sum())} faces of zero-thickness fins (overlapping opposite walls)")
+    return f[~remove]
+
+
+def _walk_loops(directed: np.ndarray) -> list[np.ndarray] | None:
+    """Chain directed edges (a -> b) into closed loops; None if a vertex has two outgoing edges."""
+    src, dst = directed[:, 0], directed[:, 1]
+    order = np.argsort(src, kind="stable")
+    s_sorted = src[order]
+    if (np.diff(s_sorted) == 0).any():
+        return None
+    pos = np.searchsorted(s_sorted, dst)
+    if (pos >= len(src)).any() or not np.array_equal(s_sorted[np.minimum(pos, len(src) - 1)], dst):
+        return None
+    nxt = order[pos]  # edge that follows each edge
+    seen = np.zeros(len(src), bool)
+    loops = []
+    for start in range(len(src)):
+        if seen[start]:
+            continue
+        loop = []
+        e = start
+        while not seen[e]:
+            seen[e] = True
+            loop.append(src[e])
+            e = nxt[e]
+        if e != start:
+            return None
+        loops.append(np.array(loop, np.int64))
+    return loops
+
+
+def _area2d(ring):
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _orient(v, f, source, repairs):
+    """Consistent orientation by parity components, then each shell outward."""
+    n = len(f)
+    he = half_edges(f)
+    _, edge_of, _ = edge_table(f)
+    order = np.argsort(edge_of, kind="stable").reshape(-1, 2)
+    h0, h1 = order[:, 0], order[:, 1]
+    fa, fb = h0 // 3, h1 // 3
+    same_way = he[h0, 0] == he[h1, 0]  # both faces walk the edge the same way: one must flip
+    # Doubled graph: node (face, state); edge (a, s) -- (b, s xor same_way).
+    a0, b0 = 2 * fa, 2 * fb + same_way
+    a1, b1 = 2 * fa + 1, 2 * fb + (1 - same_way)
+    rows = np.concatenate([a0, a1])
+    cols = np.concatenate([b0, b1])
+    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(2 * n, 2 * n))
+    _, lab = connected_components(graph, directed=False)
+    lab = lab.reshape(n, 2)
+    if (lab[:, 0] == lab[:, 1]).any():
+        raise MeshError(source, "not orientable (a Moebius-like surface)")
+    # Shells: components of the plain dual graph.
+    g1 = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), shape=(n, n))
+    n_shells, shell = connected_components(g1, directed=False)
+    seed = np.full(n_shells, n, np.int64)
+    np.minimum.at(seed, shell, np.arange(n))
+    flip = lab[:, 0] != lab[seed[shell], 0]
+    f = np.where(flip[:, None], f[:, ::-1], f)
+    vol = np.zeros(n_shells)
+    a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
+    np.add.at(vol, shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
+    inward = vol < 0
+    flip_shell = inward[shell]
+    f = np.where(flip_shell[:, None], f[:, ::-1], f)
+    flipped = int((flip ^ flip_shell).sum())
+    if flipped:
+        repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation")
+    return f
+
+
+def _compact(v, f):
+    used = np.zeros(len(v), bool)
+    used[f.reshape(-1)] = True
+    if used.all():
+        return v, f
+    new = np.cumsum(used) - 1
+    return v[used], new[f]
+
+
+# --------------------------------------------------------------------------------------------
+# Planar regions and re-triangulation
+# --------------------------------------------------------------------------------------------
+
+
+def _retriangulate(v, f, params, diag):
+    """Steps 5-6. Returns (vertices, faces, number of regions)."""
+    n = len(f)
+    dist = params.planar_dist * diag
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    longest = np.max(np.linalg.norm(v[np.roll(f, -1, axis=1)] - v[f], axis=2), axis=1)
+    degenerate = area2 <= dist * longest  # height below tolerance: a sliver joins any region
+    normal = np.where(degenerate[:, None], 0.0, cross / np.where(area2 > 0, area2, 1.0)[:, None])
+
+    he = half_edges(f)
+    _, edge_of, _ = edge_table(f)
+    order = np.argsort(edge_of, kind="stable").reshape(-1, 2)
+    h0, h1 = order[:, 0], order[:, 1]
+    twin = np.empty(3 * n, np.int64)
+    twin[h0], twin[h1] = h1, h0
+    fa, fb = h0 // 3, h1 // 3
+    cos_tol = math.cos(math.radians(params.planar_angle_deg))
+    join = (np.einsum("ij,ij->i", normal[fa], normal[fb]) >= cos_tol) | degenerate[fa] | degenerate[fb]
+    g = sparse.coo_matrix((np.ones(int(join.sum()), np.int8), (fa[join], fb[join])), shape=(n, n))
+    n_regions, region = connected_components(g, directed=False)
+
+    # Region planes: area-weighted normal and centroid; regions off their plane keep their faces.
+    plane_n = np.zeros((n_regions, 3))
+    np.add.at(plane_n, region, cross)
+    norm = np.linalg.norm(plane_n, axis=1)
+    fallback = ~(norm > 0)
+    plane_n = plane_n / np.where(norm > 0, norm, 1.0)[:, None]
+    centroid = v[f].mean(axis=1)
+    plane_p = np.zeros((n_regions, 3))
+    np.add.at(plane_p, region, centroid * area2[:, None])
+    w = np.bincount(region, weights=area2, minlength=n_regions)
+    plane_p = plane_p / np.where(w > 0, w, 1.0)[:, None]
+    off = np.abs(np.einsum("ij,ij->i", v[f.reshape(-1)] - plane_p[np.repeat(region, 3)], plane_n[np.repeat(region, 3)]))
+    far = np.zeros(n_regions)
+    np.maximum.at(far, np.repeat(region, 3), off)
+    fallback |= far > dist
+
+    # Region boundary half-edges.
+    on_boundary = region[np.arange(3 * n) // 3] != region[twin // 3]
+    b_idx = np.flatnonzero(on_boundary)
+    b_src, b_dst, b_reg = he[b_idx, 0], he[b_idx, 1], region[b_idx // 3]
+    nv = len(v)
+    key_out = b_reg * nv + b_src
+    key_in = b_reg * nv + b_dst
+    o_order = np.argsort(key_out, kind="stable")
+    k_sorted = key_out[o_order]
+    pinch_key = np.unique(k_sorted[1:][np.diff(k_sorted) == 0])
+    fallback[np.unique(pinch_key // nv)] = True
+
+    for _ in range(n_regions + 1):
+        keep = _kept_vertices(v, f, region, fallback, b_src, b_dst, b_reg, key_in, key_out, o_order, k_sorted, params, dist)
+        new_faces, failed = _triangulate_regions(
+            v, f, region, n_regions, fallback, keep, plane_n, b_src, b_reg, key_in, o_order, k_sorted, nv
+        )
+        if not failed:
+            break
+        fallback[failed] = True
+    return v, new_faces, n_regions
+
+
+def _kept_vertices(v, f, region, fallback, b_src, b_dst, b_reg, key_in, key_out, o_order, k_sorted, params, dist):
+    nv = len(v)
+    keep = np.zeros(nv, bool)
+    keep[f[fallback[region]].reshape(-1)] = True
+    if not params.flatten_collinear:
+        keep[b_src] = True
+        return keep
+    # For every boundary edge (v -> w) of region R find the incoming edge (u -> v) of R.
+    i_order = np.argsort(key_in, kind="stable")
+    pos = np.searchsorted(key_in[i_order], key_out)
+    pos = np.minimum(pos, len(key_in) - 1)
+    incoming = i_order[pos]
+    matched = key_in[incoming] == key_out
+    u = b_src[incoming]
+    p_u, p_v, p_w = v[u], v[b_src], v[b_dst]
+    d1, d2 = p_v - p_u, p_w - p_v
+    base = np.linalg.norm(p_w - p_u, axis=1)
+    height = np.linalg.norm(np.cross(d1, d2), axis=1) / np.where(base > 0, base, 1.0)
+    straight = matched & (height <= dist) & (np.einsum("ij,ij->i", d1, d2) > 0)
+    keep[b_src[~straight]] = True
+    return keep
+
+
+def _triangulate_regions(v, f, region, n_regions, fallback, keep, plane_n, b_src, b_reg, key_in, o_order, k_sorted, nv):
+    """Triangulate every non-fallback region from its kept boundary vertices."""
+    # next boundary edge of the same region: the outgoing edge at this edge's end vertex
+    pos = np.minimum(np.searchsorted(k_sorted, key_in), len(k_sorted) - 1)
+    nxt = o_order[pos]
+    ok = k_sorted[pos] == key_in
+    failed: list[int] = []
+    out = [f[fallback[region]]]
+    loops_of: dict[int, list[np.ndarray]] = {}
+    seen = np.zeros(len(b_src), bool)
+    for start in range(len(b_src)):
+        if seen[start]:
+            continue
+        r = int(b_reg[start])
+        loop = []
+        e = start
+        broken = False
+        while not seen[e]:
+            seen[e] = True
+            loop.append(b_src[e])
+            if not ok[e]:
+                broken = True
+                break
+            e = nxt[e]
+        if broken or e != start:
+            if not fallback[r]:
+                failed.append(r)
+            continue
+        loops_of.setdefault(r, []).append(np.array(loop, np.int64))
+    for r in range(n_regions):
+        if fallback[r] or r in failed:
+            continue
+        loops = [lp[keep[lp]] for lp in loops_of.get(r, [])]
+        if not loops or any(len(lp) < 3 for lp in loops):
+            failed.append(r)
+            continue
+        frame = plane_frame(plane_n[r])
+        origin = v[loops[0][0]]
+        flat = [(v[lp] - origin) @ frame.T for lp in loops]
+        areas = np.array([_area2d(p) for p in flat])
+        outer = np.flatnonzero(areas > 0)
+        if len(outer) != 1 or areas[outer[0]] < np.abs(areas).max():
+            failed.append(r)
+            continue
+        k = int(outer[0])
+        hole_ids = [i for i in range(len(loops)) if i != k]
+        ids = np.concatenate([loops[k], *[loops[i] for i in hole_ids]])
+        if len(loops) == 1 and len(ids) == 3:
+            tri = np.array([[0, 1, 2]], np.int64)
+        else:
+            _, tri = triangulate_polygon_2d(flat[k], [flat[i] for i in hole_ids])
+        if len(tri) != len(ids) + 2 * len(hole_ids) - 2 or (tri >= len(ids)).any():
+            failed.append(r)
+            continue
+        out.append(ids[tri])
+    if failed:
+        return None, sorted(set(failed))
+    return np.concatenate(out).astype(np.int64), []
+
+
+def _pymeshlab_repair(vertices, faces, source):
+    try:
+        import pymeshlab
+    except ImportError as err:  # pragma: no cover - pymeshlab is a declared dependency
+        raise MeshError(source, "repair requested but pymeshlab is not installed (pip install pymeshlab)") from err
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+    ms.meshing_remove_duplicate_vertices()
+    ms.meshing_remove_duplicate_faces()
+    ms.meshing_repair_non_manifold_edges()
+    ms.meshing_close_holes(maxholesize=10_000)
+    m = ms.current_mesh()
+    return np.asarray(m.vertex_matrix(), np.float64), np.asarray(m.face_matrix(), np.int64)

@@ -1,0 +1,126 @@
+"""Ingestion end to end: readers + preprocessing + store + manifest, through the CLI."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from cityjson_samples import CUBE_VERTS, cube_solid, doc, write
+from meshsom.store import mesh_table, open_store, read_manifest, read_mesh
+from pipelines.cli import main
+
+
+def _summary(store):
+    return read_manifest(store)["summary"]
+
+
+def _volume(v, f):
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6
+
+
+def test_derived_zurich_lod1_ingests_49_of_49(tmp_path, data_dir):
+    store = tmp_path / "z.zarr"
+    rc = main(["ingest", str(data_dir / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"), "--out", str(store)])
+    assert rc == 0
+    s = _summary(store)
+    assert (s["inputs"], s["accepted"], s["rejected"]) == (49, 49, 0)
+    g = open_store(store)
+    t = mesh_table(g)
+    assert len(t) == 49 and t.ids[0].startswith("zurich_subset_lod1_derived.city.json#")
+    # LV95 origins, local coordinates small.
+    assert (t.origins[:, 0] > 2.6e6).all()
+    assert np.abs(g["vertices"][:]).max() < 500
+    for i in range(len(t)):
+        v, f = read_mesh(g, i, t)
+        assert _volume(v, f) > 0
+
+
+@pytest.mark.parametrize(
+    "folder, name, n",
+    [
+        ("delft-lod1-3dfier", "delft.city.json", 160),
+        ("zurich-lod2-subset", "zurich_subset_lod2.city.json", 49),
+        ("3dbag-multilod", "multi_lod.city.json", 10),
+    ],
+)
+def test_every_real_building_is_accounted_for(tmp_path, data_dir, folder, name, n):
+    store = tmp_path / "r.zarr"
+    main(["ingest", str(data_dir / folder / name), "--out", str(store)])
+    m = read_manifest(store)
+    s = m["summary"]
+    assert s["inputs"] == n == s["accepted"] + s["rejected"]
+    assert len({r["id"] for r in m["records"]}) == n
+    for r in m["records"]:
+        assert r["status"] in ("accepted", "rejected")
+        assert (r["status"] == "rejected") == bool(r["reason"])
+    if folder == "delft-lod1-3dfier":  # open floors are capped: all accepted, repair recorded
+        assert s["accepted"] == 160
+        assert all(any("capped" in x for x in r["repairs"]) for r in m["records"])
+    if folder == "3dbag-multilod":
+        assert s["accepted"] == 10
+
+
+def test_zurich_lod2_extruded_all_accepted(tmp_path, data_dir):
+    store = tmp_path / "x.zarr"
+    main(["ingest", str(data_dir / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"), "--extrude-lod1", "--out", str(store)])
+    assert _summary(store)["accepted"] == 49
+
+
+def test_generate_then_ingest_48_blocks_with_labels(tmp_path):
+    city = tmp_path / "synth.city.json"
+    assert main(["generate", "--out", str(city), "-n", "48", "--seed", "1", "--roofs"]) == 0
+    store = tmp_path / "s.zarr"
+    assert main(["ingest", str(city), "--out", str(store)]) == 0
+    s = _summary(store)
+    assert (s["inputs"], s["accepted"]) == (48, 48)
+    labels = set(mesh_table(open_store(store)).labels)
+    assert {"L", "U", "T", "courtyard", "gabled", "hipped", "shed"} <= labels
+
+
+def test_mixed_folder_with_bad_files_keeps_going_and_counts_add_up(tmp_path, cube):
+    import trimesh
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    v, f = cube
+    trimesh.Trimesh(v, f, process=False).export(folder / "good.obj")
+    trimesh.Trimesh(v, f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]], process=False).export(folder / "open.obj")  # a bent hole
+    (folder / "empty.ply").write_bytes(b"")
+    (folder / "broken.city.json").write_text('{"type": "CityJSON", ')
+    nan_v = v.copy()
+    nan_v[3, 1] = np.nan
+    (folder / "nan.obj").write_text("".join(f"v {a} {b} {c}\n" for a, b, c in nan_v) + "".join(f"f {a+1} {b+1} {c+1}\n" for a, b, c in f))
+    inside_out = f[:, ::-1]
+    trimesh.Trimesh(v, inside_out, process=False).export(folder / "inverted.obj")
+    bad_idx = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS[:5])
+    write(folder / "idx.city.json", bad_idx)
+    store = tmp_path / "mixed.zarr"
+    rc = main(["ingest", str(folder), "--out", str(store)])
+    assert rc == 0
+    m = read_manifest(store)
+    by_id = {r["id"].split("/")[-1]: r for r in m["records"]}
+    assert m["summary"]["inputs"] == 7 == m["summary"]["accepted"] + m["summary"]["rejected"]
+    assert by_id["good.obj"]["status"] == "accepted"
+    assert by_id["inverted.obj"]["status"] == "accepted"
+    assert any("flip" in x for x in by_id["inverted.obj"]["repairs"])
+    assert "boundary" in by_id["open.obj"]["reason"]
+    assert by_id["empty.ply"]["reason"] == "file is empty"
+    assert "invalid JSON" in by_id["broken.city.json"]["reason"]
+    assert "NaN" in by_id["nan.obj"]["reason"]
+    assert "out of range" in by_id["idx.city.json#X"]["reason"]
+
+
+def test_nothing_ingested_exits_non_zero(tmp_path):
+    (tmp_path / "empty.obj").write_bytes(b"")
+    rc = main(["ingest", str(tmp_path / "empty.obj"), "--out", str(tmp_path / "e.zarr")])
+    assert rc == 1
+    assert _summary(tmp_path / "e.zarr") == {**_summary(tmp_path / "e.zarr"), "inputs": 1, "accepted": 0, "rejected": 1}
+
+
+def test_existing_store_refused_before_work(tmp_path, capsys):
+    (tmp_path / "s.zarr").mkdir()
+    rc = main(["ingest", "--generate", "2", "--out", str(tmp_path / "s.zarr")])
+    assert rc == 2
+    assert "already exists; pass --overwrite" in capsys.readouterr().err

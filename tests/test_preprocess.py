@@ -1,0 +1,258 @@
+"""Preprocessing: answers known by hand (triangle counts of planar polygons, volumes), watertightness."""
+
+import numpy as np
+import pytest
+import shapely
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from conftest import box
+from meshsom.errors import MeshError
+from meshsom.polygons import extrude_polygon
+from meshsom.preprocess import PreprocessParams, preprocess, validate, weld
+from meshsom.topology import edge_table
+
+
+def voxel_mesh(voxels: set[tuple[int, int, int]], seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary of a union of unit cubes; each square split along a random diagonal.
+
+    The triangulations of coplanar squares therefore differ from square to square, and every grid
+    vertex on the surface is present (collinear ones included).
+    """
+    rng = np.random.default_rng(seed)
+    quads = []
+    for x, y, z in sorted(voxels):
+        for axis in range(3):
+            for side in (-1, 1):
+                nb = [x, y, z]
+                nb[axis] += side
+                if tuple(nb) in voxels:
+                    continue
+                # square on the face of the voxel, counter-clockwise seen from outside
+                u, w = (axis + 1) % 3, (axis + 2) % 3
+                base = np.array([x, y, z], float)
+                base[axis] += 1 if side > 0 else 0
+                corners = []
+                for du, dw in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    p = base.copy()
+                    p[u] += du
+                    p[w] += dw
+                    corners.append(p)
+                if side < 0:
+                    corners = corners[::-1]
+                quads.append(corners)
+    verts, index, faces = [], {}, []
+    for q in quads:
+        ids = []
+        for p in q:
+            key = tuple(p)
+            if key not in index:
+                index[key] = len(verts)
+                verts.append(p)
+            ids.append(index[key])
+        a, b, c, d = ids
+        faces += [[a, b, c], [a, c, d]] if rng.random() < 0.5 else [[a, b, d], [b, c, d]]
+    return np.array(verts), np.array(faces, np.int64)
+
+
+def _volume(v, f):
+    return trimesh.Trimesh(v, f, process=False).volume
+
+
+def _no_t_junctions(v, f):
+    """No output vertex lies strictly inside an output edge (brute force over edges x vertices)."""
+    edges, _, _ = edge_table(f)
+    p, q = v[edges[:, 0]], v[edges[:, 1]]
+    d = q - p
+    t = np.einsum("evk,ek->ev", v[None] - p[:, None], d) / np.einsum("ek,ek->e", d, d)[:, None]
+    closest = p[:, None] + t[..., None] * d[:, None]
+    dist = np.linalg.norm(v[None] - closest, axis=2)
+    inside = (t > 1e-9) & (t < 1 - 1e-9) & (dist < 1e-9)
+    return not inside.any()
+
+
+def _check_closed_outward(r, volume):
+    assert validate(r.vertices, r.faces) is None
+    assert _volume(r.vertices, r.faces) == pytest.approx(volume, rel=1e-9)
+    assert _no_t_junctions(r.vertices, r.faces)
+
+
+def test_subdivided_cube_becomes_12_triangles():
+    mesh = trimesh.creation.box(extents=(2.0, 3.0, 5.0))
+    v, f = mesh.vertices, mesh.faces
+    for _ in range(3):
+        v, f = trimesh.remesh.subdivide(v, f)
+    assert len(f) == 12 * 64
+    r = preprocess(v, f)
+    assert len(r.faces) == 12 and len(r.vertices) == 8
+    _check_closed_outward(r, 30.0)
+    assert r.repairs == []
+
+
+def test_rotated_cube_far_from_origin_keeps_precision():
+    v, f = trimesh.remesh.subdivide(*box(3, 4, 5))
+    rot = trimesh.transformations.random_rotation_matrix(np.random.default_rng(3).random(3))[:3, :3]
+    v = v @ rot.T + [2_600_000.0, 1_200_000.0, 400.0]  # LV95-sized offset
+    r = preprocess(v, f)
+    assert len(r.faces) == 12
+    assert _volume(r.vertices, r.faces) == pytest.approx(60.0, rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    "voxels, expected",
+    [
+        ({(0, 0, 0), (1, 0, 0)}, 12),  # two boxes side by side: one 2x1x1 block
+        ({(0, 0, 0), (1, 0, 0), (0, 0, 1)}, 20),  # step: an L profile extruded
+        ({(x, y, 0) for x in range(3) for y in range(3)} - {(1, 1, 0)}, 32),  # courtyard: holes
+        ({(0, 0, 0), (1, 0, 0), (0, 1, 0)}, 20),  # L footprint
+    ],
+)
+def test_voxel_blocks_reach_minimum_triangle_count_without_t_junctions(voxels, expected):
+    v, f = voxel_mesh(voxels, seed=len(voxels))
+    r = preprocess(v, f)
+    assert len(r.faces) == expected
+    _check_closed_outward(r, float(len(voxels)))
+
+
+def test_l_block_minimum_triangles():
+    shell = np.array([[0, 0], [4, 0], [4, 1], [1, 1], [1, 3], [0, 3]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 2.5)
+    v, f = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(v, f))
+    r = preprocess(v, f)
+    # top and bottom: 6-gon -> 4 each; 6 walls -> 2 each
+    assert len(r.faces) == 4 + 4 + 12
+    _check_closed_outward(r, shapely.Polygon(shell).area * 2.5)
+
+
+@st.composite
+def star_polygons(draw):
+    n = draw(st.integers(3, 12))
+    angles = np.sort(np.array(draw(st.lists(st.floats(0, 2 * np.pi, allow_nan=False), min_size=n, max_size=n, unique=True))))
+    radii = np.array(draw(st.lists(st.floats(1.0, 10.0), min_size=n, max_size=n)))
+    gaps = np.diff(np.concatenate([angles, [angles[0] + 2 * np.pi]]))
+    if gaps.min() < 0.05 or gaps.max() > np.pi - 0.05:
+        return None
+    return np.stack([radii * np.cos(angles), radii * np.sin(angles)], axis=1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(star_polygons(), st.floats(0.5, 30.0), st.booleans())
+def test_extruded_polygons_stay_closed_outward_and_volume_equal(shell, height, subdivide):
+    if shell is None or not shapely.Polygon(shell).is_valid:
+        return
+    v, f = extrude_polygon(shell, [], 0.0, height)
+    if subdivide:
+        v, f = trimesh.remesh.subdivide(v, f)
+    volume = shapely.Polygon(shell).area * height
+    n = len(shell)
+    # Exact without flattening (no vertex may move or vanish) ...
+    exact = preprocess(v, f, PreprocessParams(flatten_collinear=False))
+    assert validate(exact.vertices, exact.faces) is None
+    assert exact.volume_out == pytest.approx(volume, rel=1e-9)
+    if not subdivide:  # (subdivision midpoints stay when flattening is off)
+        assert len(exact.faces) == 4 * n - 4
+    # ... and within the volume tolerance when nearly collinear corners are flattened.
+    r = preprocess(v, f)
+    assert validate(r.vertices, r.faces) is None
+    assert r.volume_out == pytest.approx(volume, rel=PreprocessParams().volume_rtol)
+    assert len(r.faces) <= 4 * n - 4
+
+
+def test_open_floor_is_capped_and_recorded():
+    v, f = voxel_mesh({(x, y, 0) for x in range(3) for y in range(3)} - {(1, 1, 0)})
+    floor = np.abs(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])[:, 2]) > 0
+    floor &= v[f].max(axis=1)[:, 2] == 0
+    r = preprocess(v, f[~floor])
+    assert any("capped 2 open planar loop" in x for x in r.repairs)
+    _check_closed_outward(r, 8.0)
+    assert len(r.faces) == 32
+
+
+def test_inside_out_and_duplicates_and_degenerates_are_repaired(cube):
+    v, f = cube
+    f2 = np.concatenate([f[:, ::-1], f[:1, ::-1], [[0, 0, 1]]])
+    r = preprocess(v, f2)
+    joined = " ".join(r.repairs)
+    assert "flipped" in joined and "duplicate" in joined and "degenerate" in joined
+    _check_closed_outward(r, 1.0)
+
+
+def test_weld_merges_near_vertices_and_keeps_distinct_ones():
+    v = np.array([[0, 0, 0], [1e-9, 0, 0], [1, 0, 0], [1, 1e-9, 0], [5, 5, 5]], float)
+    w, remap = weld(v, 1e-6)
+    assert len(w) == 3 and remap.tolist() == [0, 0, 1, 1, 2]
+
+
+def test_unshared_corners_are_welded(cube):
+    v, f = cube
+    soup = v[f].reshape(-1, 3) + np.random.default_rng(0).normal(0, 1e-9, (36, 3))
+    r = preprocess(soup, np.arange(36).reshape(12, 3))
+    assert len(r.faces) == 12 and r.volume_out == pytest.approx(1.0, rel=1e-6)
+    assert any("welded" in x for x in r.repairs)
+
+
+@pytest.mark.parametrize(
+    "case, reason",
+    [
+        ("nan", "NaN"),
+        ("index", "out of range"),
+        ("open_side", "boundary"),
+        ("fin", "non-manifold"),
+        ("flat", "zero volume"),
+        ("tiny", "at least 4"),
+    ],
+)
+def test_bad_meshes_are_rejected_with_reason(cube, case, reason):
+    v, f = cube
+    v = v.copy()
+    if case == "nan":
+        v[2, 0] = np.inf
+    elif case == "index":
+        f = np.concatenate([f, [[0, 1, 99]]])
+    elif case == "open_side":
+        f = f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]]  # two triangles of different walls: a bent hole
+    elif case == "fin":
+        v = np.concatenate([v, v + [1.0, 1.0, 0.0]])  # two cubes touching along one edge
+        f = np.concatenate([f, f + 8])
+    elif case == "flat":
+        v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 0]], float)
+        f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
+    elif case == "tiny":
+        f = f[:2]
+        f = np.concatenate([f, f[:, ::-1]])
+    with pytest.raises(MeshError) as err:
+        preprocess(v, f, source="x.obj#7")
+    assert reason in err.value.problem
+    assert "x.obj#7" in str(err.value)
+
+
+def test_missing_wall_triangle_is_capped(cube):
+    v, f = cube
+    r = preprocess(v, f[:-1])
+    assert any("capped 1 open planar loop" in x for x in r.repairs)
+    _check_closed_outward(r, 1.0)
+    with pytest.raises(MeshError, match="boundary"):
+        preprocess(v, f[:-1], PreprocessParams(cap_planar_holes=False))
+
+
+def test_repair_option_closes_a_bent_hole_with_pymeshlab(cube):
+    v, f = cube
+    bent = f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]]
+    with pytest.raises(MeshError):
+        preprocess(v, bent)
+    r = preprocess(v, bent, PreprocessParams(repair=True))
+    assert any("pymeshlab" in x for x in r.repairs)
+    _check_closed_outward(r, 1.0)
+
+
+def test_retriangulate_off_keeps_input_faces():
+    v, f = trimesh.remesh.subdivide(*box())
+    r = preprocess(v, f, PreprocessParams(retriangulate=False))
+    assert len(r.faces) == 48
+
+
+@pytest.mark.parametrize("bad", [{"weld_tol": -1}, {"planar_angle_deg": 95}, {"min_faces": 2}])
+def test_params_validated(bad):
+    with pytest.raises(ValueError):
+        PreprocessParams(**bad)
