@@ -1,0 +1,162 @@
+"""Folds, ring templates, variations and standardization, against direct computation."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from conftest import box
+from meshsom.errors import MeshError
+from meshsom.folds import folds
+from meshsom.generate import GeneratorParams, generate_block
+from meshsom.polygons import extrude_polygon
+from meshsom.preprocess import preprocess
+from meshsom.rings import dims, encode_level, faces_in_walk, template
+from meshsom.standardize import accumulate, destandardize, empty_accumulator, finalize, merge_accumulators, standardize
+from meshsom.topology import adjacency
+from meshsom.variations import apply, n_variations, variation_table
+
+
+def encode(v, f, level, start=0, dtype=np.float64):
+    adj = adjacency(f)
+    return encode_level(folds(v, f, adj), adj, level, start=start, dtype=dtype)
+
+
+def block(seed=3):
+    b = generate_block(GeneratorParams(n_blocks=8, seed=seed), seed % 8)
+    r = preprocess(b.vertices - b.vertices.mean(axis=0), b.faces)
+    return r.vertices, r.faces
+
+
+def icosphere():
+    m = trimesh.creation.icosphere(subdivisions=2)
+    return m.vertices, m.faces
+
+
+def test_box_folds_are_right_angles_or_flat():
+    v, f = box(2, 3, 5)
+    fo = folds(v, f, adjacency(f))
+    alpha = fo[..., 0]
+    assert np.all(np.isclose(alpha, np.pi / 2) | np.isclose(alpha, np.pi))
+    assert np.isclose(alpha, np.pi).sum() == 12  # each of the 6 diagonals from both sides
+    assert (fo[..., 2] > 0).all()
+
+
+def test_flat_grid_folds_are_pi():
+    # A thin slab: its big faces are flat grids; only interior edges of the top are tested.
+    m = trimesh.creation.box(extents=(10, 10, 1))
+    v, f = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(m.vertices, m.faces))
+    fo = folds(v, f, adjacency(f))
+    n = trimesh.Trimesh(v, f, process=False).face_normals
+    top = np.isclose(n[:, 2], 1)
+    nb = adjacency(f).neighbour
+    inner = top[:, None] & top[nb]
+    assert inner.sum() > 50
+    assert np.allclose(fo[..., 0][inner], np.pi)
+
+
+def test_concave_edge_of_l_block_has_alpha_above_pi():
+    shell = np.array([[0, 0], [4, 0], [4, 1], [1, 1], [1, 3], [0, 3]], float)
+    v, f = extrude_polygon(shell, [], 0, 2)
+    fo = folds(v, f, adjacency(f))
+    # the inner vertical edge at (1, 1): faces on it fold by 3 pi / 2
+    p, q = v[f], v[np.roll(f, -1, axis=1)]
+    inner = np.all(np.isclose(p[..., :2], [1, 1]), axis=-1) & np.all(np.isclose(q[..., :2], [1, 1]), axis=-1)
+    assert inner.sum() == 2
+    assert np.allclose(fo[..., 0][inner], 1.5 * np.pi)
+    assert (fo[..., 0] <= np.pi + 1e-9).sum() == fo[..., 0].size - 2
+
+
+def test_folds_invariant_to_rotation_translation_scale():
+    v, f = block()
+    fo = folds(v, f, adjacency(f))
+    rot = trimesh.transformations.random_rotation_matrix(np.random.default_rng(1).random(3))[:3, :3]
+    w = 3.7 * v @ rot.T + [100.0, -20.0, 7.0]
+    assert np.abs(folds(w, f, adjacency(f)) - fo).max() < 1e-6
+
+
+def test_not_closed_mesh_refused():
+    v, f = box()
+    with pytest.raises(MeshError, match="not a closed 2-manifold"):
+        adjacency(f[:-1], source="open.obj")
+
+
+@pytest.mark.parametrize("level", range(1, 9))
+def test_template_sizes(level):
+    tpl = template(level)
+    assert tpl.dims == dims(level) == 9 * 4 ** (level - 1)
+    assert tpl.n_faces() == faces_in_walk(level) == 3 * 2**level - 2
+
+
+def test_level1_is_the_claw_in_order():
+    v, f = block()
+    adj = adjacency(f)
+    fo = folds(v, f, adj)
+    for k in range(3):
+        x = encode(v, f, 1, start=k)
+        assert np.array_equal(x, fo[:, [(k + j) % 3 for j in range(3)]].reshape(len(f), 9))
+
+
+def test_level2_nests_back_edge_rings():
+    v, f = icosphere()
+    adj = adjacency(f)
+    fo = folds(v, f, adj)
+    x2 = encode(v, f, 2)
+    t = 17
+    expected = [fo[t, [0, 1, 2]]]
+    for j in range(3):
+        s, back = adj.neighbour[t, j], adj.back[t, j]
+        expected.append(fo[s, [back, (back + 1) % 3, (back + 2) % 3]])
+    assert np.array_equal(x2[t], np.concatenate(expected).reshape(-1))
+
+
+@pytest.mark.parametrize("level", [1, 2, 3])
+def test_rotation_variations_equal_direct_reencoding_from_other_start_leaves(level):
+    v, f = block(5)
+    x0 = encode(v, f, level)
+    index, sign = variation_table(level, mirror=True)
+    for k in range(3):
+        direct = encode(v, f, level, start=k)
+        assert np.array_equal(apply(x0, index, sign, k), direct)
+
+
+@pytest.mark.parametrize("level", [1, 2, 3])
+def test_mirrored_mesh_rings_equal_mirror_variation(level):
+    v, f = block(6)
+    x0 = encode(v, f, level)
+    mirrored_v = v * [-1, 1, 1]
+    mirrored_f = f[:, [1, 0, 2]]
+    index, sign = variation_table(level, mirror=True)
+    for k in range(3):
+        direct = encode(mirrored_v, mirrored_f, level, start=k)
+        assert np.abs(apply(x0, index, sign, 3 + k) - direct).max() < 1e-9
+
+
+def test_cyclic_relabelling_gives_a_variation():
+    v, f = block(7)
+    x = encode(v, f, 3)
+    relabelled = np.roll(f, 1, axis=1)
+    y = encode(v, relabelled, 3)
+    index, sign = variation_table(3)
+    candidates = [apply(x, index, sign, k) for k in range(3)]
+    assert any(np.abs(c - y).max() < 1e-12 for c in candidates)
+
+
+def test_variation_counts():
+    assert [n_variations(1), n_variations(2), n_variations(3), n_variations(2, mirror=True), n_variations(1, "default")] == [6, 3, 3, 6, 1]
+    index, sign = variation_table(2, kernel="default")
+    assert index.shape == (1, 36) and np.array_equal(index[0], np.arange(36)) and (sign == 1).all()
+
+
+def test_standardization_per_component_type_commutes_with_variations_and_inverts():
+    v, f = block(2)
+    x = encode(v, f, 2)
+    acc = merge_accumulators(accumulate(empty_accumulator(), x[:10]), accumulate(empty_accumulator(), x[10:]))
+    st = finalize(acc, level=2)
+    comps = x.reshape(-1, 3)
+    assert np.allclose(st.mean, [comps[:, 0].mean(), 0.0, comps[:, 2].mean()])
+    assert np.allclose(st.std, [comps[:, 0].std(), np.sqrt(np.mean(comps[:, 1] ** 2)), comps[:, 2].std()])
+    z = standardize(x, st.to_dict())
+    assert np.abs(destandardize(z, st) - x).max() < 1e-12
+    index, sign = variation_table(2, mirror=True)
+    for var in range(6):
+        assert np.allclose(standardize(apply(x, index, sign, var), st), apply(z, index, sign, var))
