@@ -269,7 +269,7 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     second = np.empty(N, np.int32)
     outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
     kernel = get_kernel(context, defines)
-    kernel(queue, (global_size,), (wg,) if params.use_local else None,
+    kernel(queue, (global_size,), (wg,),
            bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
     for host, buf in zip((unit, variation, dist2, second), outs):
         cl.enqueue_copy(queue, host, buf)
