@@ -18,6 +18,8 @@ COMMANDS = {
     "doctor": ("pipelines.doctor", "print versions, OpenCL platforms and devices, Dask and MLflow settings"),
     "generate": ("pipelines.generate_cmd", "write a seeded synthetic corpus of labelled building blocks"),
     "ingest": ("pipelines.ingest", "read, clean and store meshes (folders, mesh files, CityJSON)"),
+    "encode": ("pipelines.encode_cmd", "encode every cleaned face into nested N-ring fold vectors (rings/level{L})"),
+    "synth": ("pipelines.synth_cmd", "synthesize triangle patches from ring vectors or map prototypes (mesh files + contact sheet)"),
     "run": ("pipelines.run", "run a whole experiment from a YAML config (configs/paper.yaml)"),
     "train": ("pipelines.train_cmd", "train one level's triangle map (default or BMUofN kernel) and print T/Q/QC-errors"),
 }
