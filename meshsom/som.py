@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterable
 
 import numpy as np
+from scipy import sparse
 
 from meshsom.bmu import Engine, find_bmus, resolve_backend
 from meshsom.bmu_numpy import BMUResult, identity_table, varied
@@ -127,8 +128,8 @@ def partial_sums(X, W, index=None, sign=None, backend="auto", device: str | None
     if index is None:
         index, sign = identity_table(X.shape[1])
     xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), bmu.variation)
-    sums = np.zeros(W.shape, np.float64)
-    np.add.at(sums, bmu.unit, xv)
+    onehot = sparse.csr_matrix((np.ones(len(X)), (bmu.unit, np.arange(len(X)))), shape=(len(W), len(X)))
+    sums = np.asarray(onehot @ xv.astype(np.float64))  # (M, D): a sparse product, O(N * D)
     counts = np.bincount(bmu.unit, minlength=len(W)).astype(np.float64)
     return sums, counts, bmu
 

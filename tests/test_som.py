@@ -196,21 +196,24 @@ def test_codebook_round_trip(tmp_path):
         load_codebook(group, "nope")
 
 
-def test_train_command_json(tmp_path, monkeypatch, capsys):
-    """`meshsom train` end to end on a tiny store (the level's vectors stubbed in; the
-    variation table is the encoder's own)."""
+def test_train_command_json(tmp_path, capsys):
+    """`meshsom train` end to end on a tiny encoded store, both kernels."""
     variations = pytest.importorskip("meshsom.variations")
+    standardize = pytest.importorskip("meshsom.standardize")
     import json
 
-    from pipelines import train_cmd
     from pipelines.cli import main
     from meshsom.codebook import load_codebook
-    from meshsom.store import create_store, open_store
+    from meshsom.store import create_store, open_store, write_rings, write_stats
 
-    create_store(tmp_path / "s.zarr")
-    index, _ = variations.variation_table(1, mirror=False)
-    X = np.random.default_rng(0).normal(size=(120, index.shape[1])).astype(np.float32)
-    monkeypatch.setattr(train_cmd, "load_level", lambda group, level: X)
+    group = create_store(tmp_path / "s.zarr")
+    index, _ = variations.variation_table(1)
+    rng = np.random.default_rng(0)
+    rings = np.concatenate([rng.uniform(0, np.pi, (150, 1)), rng.normal(size=(150, 2))], 1)
+    rings = np.tile(rings, (1, index.shape[1] // 3)) + rng.normal(scale=0.1, size=(150, index.shape[1]))
+    write_rings(group, 1, rings, chunk_rows=64)
+    acc = standardize.accumulate(standardize.empty_accumulator(), rings)
+    write_stats(group, 1, standardize.finalize(acc, level=1).to_dict())
     for kernel in ("default", "bmuofn"):
         rc = main(["train", str(tmp_path / "s.zarr"), "--level", "1", "--kernel", kernel, "--map", "5x6",
                    "--epochs", "3", "--seed", "1", "--backend", "numpy", "--json"])
@@ -221,4 +224,5 @@ def test_train_command_json(tmp_path, monkeypatch, capsys):
             assert key in report
         assert report["backend"] == "numpy" and report["kernel"] == kernel
         cb = load_codebook(open_store(tmp_path / "s.zarr"), f"level1-{kernel}")
-        assert cb.weights.shape == (30, X.shape[1]) and cb.metrics["q_error"] == pytest.approx(report["q_error"])
+        assert cb.weights.shape == (30, index.shape[1]) and cb.metrics["q_error"] == pytest.approx(report["q_error"])
+        assert len(cb.bmu.unit) == 150
