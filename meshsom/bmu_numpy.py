@@ -7,8 +7,8 @@ distance to the varied vector is found through the expansion
 ``||x_v||^2 - 2 x_v . W^T + ||W||^2``, chunked over rows so that at most
 ``chunk_rows x M`` distances exist at any time (never ``N x M x n``).
 
-Ties: the lowest unit wins inside a variation, then the lowest variation
-(a later variation replaces the winner only when strictly closer).
+Ties (DESIGN.md §4): the lowest unit, then the lowest variation (a later variation
+replaces the winner when strictly closer, or equally close at a lower unit).
 
 This module is the reference that :mod:`meshsom.bmu_opencl` is tested against.
 """
@@ -198,7 +198,7 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
             d = g[rows, u] + np.einsum("ij,ij->i", xv, xv)
             g[rows, u] = np.inf
             s = np.argmin(g, axis=1)
-            better = d < best_d
+            better = (d < best_d) | ((d == best_d) & (u < best_u))
             best_d = np.where(better, d, best_d)
             best_u = np.where(better, u, best_u)
             best_v = np.where(better, v, best_v)

@@ -14,8 +14,8 @@ from meshsom.errors import DeviceError
 
 
 def brute_force(X, W, index, sign):
-    """Per-vector Python reference in float64: lowest variation among equal best distances,
-    lowest unit inside it; second = next unit of the winning variation in (distance, unit) order."""
+    """Per-vector Python reference in float64: among equal best distances the lowest unit, then
+    the lowest variation; second = next unit of the winning variation in (distance, unit) order."""
     X = np.asarray(X, np.float64)
     W = np.asarray(W, np.float64)
     out = []
@@ -26,7 +26,7 @@ def brute_force(X, W, index, sign):
             d = ((W - xv) ** 2).sum(axis=1)
             order = np.lexsort((np.arange(len(W)), d))
             u, s = order[0], order[1]
-            if best is None or d[u] < best[0]:
+            if best is None or d[u] < best[0] or (d[u] == best[0] and u < best[1]):
                 best = (d[u], u, v, s)
         out.append(best)
     d, u, v, s = map(np.array, zip(*out))
@@ -296,3 +296,23 @@ def test_auto_falls_back_with_one_warning(monkeypatch, caplog):
     assert len([r for r in caplog.records if "NumPy/BLAS backend" in r.message]) == 1
     with pytest.raises(DeviceError):
         resolve_backend("opencl")
+
+
+def test_tie_across_variations_goes_to_the_lowest_unit_then_variation():
+    """x equals unit 5 as it is and unit 3 as its variation 1: unit 3 (variation 1) wins."""
+    rng = np.random.default_rng(4)
+    index, sign = block_table(9, mirror=False)
+    W = rng.integers(-3, 4, size=(8, 9)).astype(np.float32)
+    x = W[5].copy()
+    W[3] = sign[1] * x[index[1]]
+    got = bmu_numpy(x[None], W, index, sign)
+    assert (got.unit[0], got.variation[0]) == (3, 1)
+    from meshsom.bmu_opencl import bmu_opencl, get_context
+    from meshsom.errors import DeviceError
+
+    try:
+        ctx = get_context(None)
+    except DeviceError:  # no OpenCL device here: the NumPy half still ran
+        return
+    got = bmu_opencl(x[None], W, index, sign, context=ctx)
+    assert (got.unit[0], got.variation[0]) == (3, 1)

@@ -8,8 +8,8 @@
  * The distance expansion ||w||^2 - 2 x_v.w is tracked per SIMD lane (best and second, in
  * ascending unit order per lane) and reduced across lanes with the (distance, unit)
  * lexicographic order, so ties go to the lowest unit; across variations a later
- * variation wins only when strictly closer (||x_v||^2 added), so ties go to the lowest
- * variation.
+ * variation wins when strictly closer (||x_v||^2 added) or equally close at a lower unit:
+ * ties go to the lowest unit, then the lowest variation (DESIGN.md section 4).
  *
  * Compile-time sizes (-D):
  *   REAL, IREAL  float/int or double/long (IREAL: the mask type of REAL comparisons)
@@ -160,7 +160,7 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
                 xn = fma(xv, xv, xn);
             }
             const REAL total = B + xn;
-            if (total < best_total) {
+            if (total < best_total || (total == best_total && (int)BU < best_u)) {
                 best_total = total;
                 best_v = v;
                 best_u = (int)BU;
