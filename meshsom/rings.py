@@ -224,3 +224,32 @@ def encode_level(
     idx = ring_index(adj, level, faces, start)
     flat = np.asarray(folds).reshape(-1, 3)
     return flat[idx].reshape(len(idx), -1).astype(dtype, copy=False)
+
+
+def encode_mesh(vertices: np.ndarray, faces: np.ndarray, levels, source: str = "mesh", dtype=np.float32) -> dict:
+    """Ring vectors of every face of one closed mesh at several levels.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+        Closed, outward-oriented 2-manifold (as :func:`meshsom.preprocess.preprocess` returns).
+    levels : iterable of int
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    rings : dict of int -> (F, dims(level)) dtype
+
+    Raises
+    ------
+    MeshError
+        If the mesh is not a closed, consistently oriented 2-manifold.
+    """
+    from meshsom.folds import folds
+    from meshsom.topology import adjacency
+
+    adj = adjacency(faces, source=source)
+    fo = folds(vertices, faces, adj)
+    return {int(level): encode_level(fo, adj, int(level), dtype=dtype) for level in levels}
