@@ -1,0 +1,307 @@
+"""Distributed batch training of one triangle map: epochs as map-reduce over row chunks of zarr.
+
+Map (on the workers, :func:`chunk_pass`): read a row range of ``rings/level{L}``, standardize it
+with the stored statistics, find BMUofN against the broadcast codebook, and return the per-unit
+sums and counts plus the sums behind the T-, Q- and QC-errors. Each worker process resolves its
+BMU backend once (OpenCL context and compiled program, memoised in :mod:`meshsom.bmu_opencl`) and
+keeps recently used standardized chunks in a bounded cache.
+
+Reduce (on the client, :func:`train_spec`): add the partial sums, smooth and divide
+(:func:`meshsom.som.batch_update`), and checkpoint: the codebook is written to
+``runs/<run>/weights`` first and the epoch is marked done in the run's attributes after, so a
+resumed run continues from the last finished epoch and ends with the same codebook as an
+uninterrupted one. After the last epoch one more pass with the final codebook writes the BMUs
+(``bmu_unit``, ``bmu_variation``, ``bmu_dist2``, ``bmu_second``: the layout of
+:mod:`meshsom.codebook`) and the final errors.
+
+The arithmetic is that of :class:`meshsom.som.SOM` (same initialisation from the seed, same
+radius schedule, same update); only the order of the float64 summation over chunks differs.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from collections import OrderedDict
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+#: Bytes of standardized chunks a worker keeps between epochs.
+CHUNK_CACHE_BYTES = 1 << 30
+#: Tasks per worker and epoch when the store's row chunks are larger than that split.
+TASKS_PER_WORKER = 2
+
+_ENGINES: dict = {}
+_CHUNKS: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """Everything that defines one map's training (its hash names a resumable state).
+
+    Attributes
+    ----------
+    store : str
+    level : int
+    kernel : str
+    mirror : bool
+    rows, cols : int
+    topology : str
+    epochs : int
+    sigma_start, sigma_end : float
+    init : str
+    seed : int
+    backend : str
+    device : str or None
+    """
+
+    store: str
+    level: int
+    kernel: str
+    mirror: bool
+    rows: int
+    cols: int
+    topology: str
+    epochs: int
+    sigma_start: float
+    sigma_end: float
+    init: str
+    seed: int
+    backend: str = "auto"
+    device: str | None = None
+
+    @property
+    def run(self) -> str:
+        return f"level{self.level}-{self.kernel}"
+
+    def fingerprint(self) -> str:
+        d = asdict(self)
+        d.pop("store")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+# ----------------------------------------------------------------------------- worker side
+
+
+def _engine(backend: str, device: str | None):
+    from meshsom.bmu import resolve_backend
+
+    key = (backend, device)
+    if key not in _ENGINES:
+        _ENGINES[key] = resolve_backend(backend, device)
+    return _ENGINES[key]
+
+
+def load_chunk(store: str, level: int, start: int, stop: int) -> np.ndarray:
+    """Standardized rows ``start..stop`` of a level, (n, D) float32 (cached per worker)."""
+    key = (store, level, start, stop)
+    if key in _CHUNKS:
+        _CHUNKS.move_to_end(key)
+        return _CHUNKS[key]
+    from meshsom.standardize import standardize
+    from meshsom.store import open_store, read_stats, rings_array
+
+    group = open_store(store)
+    x = standardize(np.asarray(rings_array(group, level)[start:stop]), read_stats(group, level)).astype(np.float32)
+    _CHUNKS[key] = x
+    while sum(a.nbytes for a in _CHUNKS.values()) > CHUNK_CACHE_BYTES and len(_CHUNKS) > 1:
+        _CHUNKS.popitem(last=False)
+    return x
+
+
+def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: bool = False) -> dict:
+    """The map step of one epoch on rows ``start..stop``.
+
+    Returns
+    -------
+    dict
+        ``sums`` (M, D) float64, ``counts`` (M,) float64, ``n``, ``t_bad`` (vectors whose best and
+        second-best units are not neighbours), ``q_sum`` (sum of BMU distances), ``qc_sum`` (sum over
+        vectors of the mean per-component distance), ``backend``, ``device``.
+    """
+    from meshsom.metrics import are_neighbours, residuals
+    from meshsom.som import partial_sums
+    from meshsom.variations import variation_table
+
+    X = load_chunk(job.store, job.level, start, stop)
+    index, sign = variation_table(job.level, mirror=job.mirror, kernel=job.kernel)
+    engine = _engine(job.backend, job.device)
+    sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
+    res = residuals(X, W, bmu, index, sign)
+    parts = res.reshape(len(X), -1, 3)
+    comp = np.sqrt(np.einsum("ijk,ijk->ij", parts, parts))
+    out = {
+        "sums": sums, "counts": counts, "n": len(X),
+        "t_bad": int((~are_neighbours(bmu.unit, bmu.second, job.rows, job.cols, job.topology)).sum()),
+        "q_sum": float(np.sqrt(np.einsum("ij,ij->i", res, res)).sum()),
+        "qc_sum": float(comp.mean(axis=1).sum()),
+        "backend": engine.backend, "device": engine.device,
+    }
+    if write_bmus:
+        from meshsom.codebook import BMU_ARRAYS
+        from meshsom.store import open_store, run_group
+
+        g = run_group(open_store(job.store, mode="r+"), job.run)
+        for attr, name in BMU_ARRAYS.items():
+            g[name][start:stop] = np.asarray(getattr(bmu, attr), np.float64 if attr == "dist2" else np.int64)
+    return out
+
+
+# ----------------------------------------------------------------------------- client side
+
+
+def row_ranges(n: int, chunk_rows: int, n_workers: int) -> list[tuple[int, int]]:
+    """Task row ranges: the store's chunks, split further so every worker gets work."""
+    step = max(1, min(chunk_rows, math.ceil(n / max(1, n_workers * TASKS_PER_WORKER))))
+    return [(a, min(n, a + step)) for a in range(0, n, step)]
+
+
+def _reduce(parts: list[dict]) -> dict:
+    n = sum(p["n"] for p in parts)
+    return {
+        "sums": np.sum([p["sums"] for p in parts], axis=0),
+        "counts": np.sum([p["counts"] for p in parts], axis=0),
+        "t_error": sum(p["t_bad"] for p in parts) / n,
+        "q_error": sum(p["q_sum"] for p in parts) / n,
+        "qc_error": sum(p["qc_sum"] for p in parts) / n,
+        "backend": parts[0]["backend"], "device": parts[0]["device"],
+    }
+
+
+def initial_weights(job: TrainJob, ranges) -> np.ndarray:
+    """The codebook :class:`meshsom.som.SOM` starts from with the same seed.
+
+    ``random`` draws the same rows as :func:`meshsom.som.init_weights` (read from zarr, not from a
+    full array); ``pca`` uses chunked moments, equal to its SVD up to the signs of the components.
+    """
+    from meshsom.standardize import standardize
+    from meshsom.store import open_store, read_stats, rings_array
+
+    group = open_store(job.store)
+    rings = rings_array(group, job.level)
+    stats = read_stats(group, job.level)
+    n = rings.shape[0]
+    M = job.rows * job.cols
+    rng = np.random.default_rng(job.seed)
+    if job.init == "random":
+        pick = rng.choice(n, size=M, replace=n < M)
+        uniq, inverse = np.unique(pick, return_inverse=True)
+        rows = np.asarray(rings.get_orthogonal_selection((uniq, slice(None))))
+        return standardize(rows, stats).astype(np.float32)[inverse]
+    # PCA from chunked moments (equal to the SVD of SOM.fit up to the signs of the components)
+    mean = np.zeros(rings.shape[1])
+    gram = np.zeros((rings.shape[1],) * 2)
+    for a, b in ranges:
+        x = standardize(np.asarray(rings[a:b]), stats).astype(np.float64)
+        mean += x.sum(axis=0)
+        gram += x.T @ x
+    mean /= n
+    cov = (gram - n * np.outer(mean, mean)) / max(n - 1, 1)
+    vals, vecs = np.linalg.eigh(cov)
+    order = np.argsort(vals)[::-1][:2]
+    comps = np.zeros((2, rings.shape[1]))
+    comps[: len(order)] = (vecs[:, order] * np.sqrt(np.maximum(vals[order], 0))).T
+    a = np.linspace(-1, 1, job.rows)
+    b = np.linspace(-1, 1, job.cols)
+    grid = a[:, None, None] * comps[0] + b[None, :, None] * comps[1]
+    return (mean + grid.reshape(M, -1)).astype(np.float32)
+
+
+def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progress=None,
+               chunk_rows: int | None = None) -> dict:
+    """Train one map on the cluster, checkpointing every epoch into ``runs/<run>``.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    job : TrainJob
+    resume : bool
+        Continue from the last finished epoch of the same job (same fingerprint).
+    on_epoch : callable, optional
+        ``on_epoch(epoch, metrics)`` after every epoch (metrics of the search against the
+        codebook before that epoch's update) and ``on_epoch(job.epochs, final_metrics)`` at the end.
+    progress : callable, optional
+        ``progress(done_epochs, total_epochs)``.
+
+    Returns
+    -------
+    dict
+        ``run``, ``metrics`` (final t/q/qc errors), ``history`` (per epoch), ``backend``, ``device``,
+        ``seconds``, ``resumed_from`` (epoch), ``n_vectors``, ``dims``.
+    """
+    from meshsom.codebook import BMU_ARRAYS
+    from meshsom.som import batch_update, sigma_schedule
+    from meshsom.store import open_store, rings_array, run_group
+    from meshsom.variations import n_variations
+
+    t0 = time.perf_counter()
+    group = open_store(job.store, mode="r+")
+    rings = rings_array(group, job.level)
+    n, D = rings.shape
+    M = job.rows * job.cols
+    n_workers = max(1, len(client.scheduler_info()["workers"]))
+    ranges = row_ranges(n, chunk_rows or rings.chunks[0], n_workers)
+    g = run_group(group, job.run)
+    fp = job.fingerprint()
+    attrs = dict(g.attrs)
+    start_epoch, history = 0, []
+    if resume and attrs.get("fingerprint") == fp and attrs.get("epoch_done", 0) > 0 and "weights" in g:
+        start_epoch = int(attrs["epoch_done"])
+        history = list(attrs.get("history", []))[:start_epoch]
+        W = np.asarray(g["weights"][:])
+        if attrs.get("final_done"):
+            return {**attrs["result"], "resumed_from": start_epoch}
+    else:
+        for name in list(g.array_keys()):
+            del g[name]
+        g.attrs.clear()
+        W = initial_weights(job, ranges)
+    g.attrs.update({
+        "rows": job.rows, "cols": job.cols, "topology": job.topology, "level": job.level, "kernel": job.kernel,
+        "fingerprint": fp, "job": asdict(job),
+    })
+    sigma_start = job.sigma_start
+    backend = device = None
+    for epoch in range(start_epoch, job.epochs):
+        sigma = sigma_schedule(epoch, job.epochs, sigma_start, job.sigma_end)
+        wf = client.scatter(W, broadcast=True)
+        futures = [client.submit(chunk_pass, job, a, b, wf, pure=False) for a, b in ranges]
+        red = _reduce(client.gather(futures))
+        backend, device = red["backend"], red["device"]
+        W = batch_update(W, red["sums"], red["counts"], sigma, job.rows, job.cols, job.topology)
+        metrics = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
+        history.append({"epoch": epoch, "sigma": sigma, **metrics})
+        _put(g, "weights", W, job.rows * job.cols)  # write first ...
+        g.attrs.update({"epoch_done": epoch + 1, "history": history})  # ... then mark
+        if on_epoch:
+            on_epoch(epoch, metrics)
+        if progress:
+            progress(epoch + 1, job.epochs)
+    # final pass: BMUs of every vector against the final codebook, and the final errors
+    step = ranges[0][1] - ranges[0][0]
+    for attr, name in BMU_ARRAYS.items():
+        g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
+                       chunks=(max(1, step),), overwrite=True)
+    wf = client.scatter(W, broadcast=True)
+    red = _reduce(client.gather([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges]))
+    final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
+    result = {
+        "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
+        "seconds": time.perf_counter() - t0, "resumed_from": start_epoch, "n_vectors": int(n),
+        "dims": f"{n_variations(job.level, job.kernel, job.mirror)}x{D}",
+    }
+    g.attrs.update({"metrics": final, "result": result, "final_done": True})
+    if on_epoch:
+        on_epoch(job.epochs, final)
+    return result
+
+
+def _put(group, name: str, data: np.ndarray, rows: int) -> None:
+    if name in group and group[name].shape == data.shape:
+        group[name][...] = data
+        return
+    arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=(max(1, rows),) + data.shape[1:], overwrite=True)
+    arr[...] = data

@@ -1,0 +1,76 @@
+"""Distributed batch training equals single-process SOM training; resume equals an uninterrupted run."""
+
+import numpy as np
+import pytest
+from distributed import Client, LocalCluster
+
+from meshsom.codebook import load_codebook
+from meshsom.som import SOM
+from meshsom.store import open_store
+from meshsom.variations import variation_table
+from pipelines.cli import main
+from pipelines.train import TrainJob, train_spec
+from pipelines.train_cmd import load_level
+
+
+@pytest.fixture(scope="module")
+def client():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("train")
+    city = tmp / "c.city.json"
+    assert main(["generate", "--out", str(city), "-n", "10", "--seed", "2"]) == 0
+    s = tmp / "s.zarr"
+    assert main(["ingest", str(city), "--out", str(s), "--chunk-rows", "64"]) == 0
+    assert main(["encode", str(s), "--levels", "1", "2"]) == 0
+    return str(s)
+
+
+def job(store, **kw):
+    base = dict(store=store, level=1, kernel="bmuofn", mirror=False, rows=6, cols=8, topology="toroidal", epochs=6,
+                sigma_start=2.0, sigma_end=0.5, init="random", seed=3, backend="numpy")
+    return TrainJob(**(base | kw))
+
+
+@pytest.mark.parametrize("level, kernel", [(1, "bmuofn"), (1, "default"), (2, "bmuofn")])
+def test_distributed_training_equals_single_process(client, store, level, kernel):
+    j = job(store, level=level, kernel=kernel)
+    result = train_spec(client, j)
+    X = load_level(open_store(store), level)
+    index, sign = variation_table(level, kernel=kernel)
+    som = SOM(rows=6, cols=8, epochs=6, sigma_start=2.0, sigma_end=0.5, random_state=3, backend="numpy").fit(X, index, sign)
+    cb = load_codebook(open_store(store), j.run)
+    assert np.allclose(cb.weights, som.weights_, atol=1e-5)
+    ev = som.evaluate(X)
+    for k in ("t_error", "q_error", "qc_error"):
+        assert result["metrics"][k] == pytest.approx(ev[k], rel=1e-4, abs=1e-6)
+    bmu = som.transform(X)
+    assert (cb.bmu.unit == bmu.unit).mean() > 0.99
+    assert len(result["history"]) == 6
+
+
+def test_resume_after_a_crash_equals_uninterrupted_run(client, store):
+    j = job(store, epochs=5, seed=11)
+    full = train_spec(client, j)
+    w_full = load_codebook(open_store(store), j.run).weights.copy()
+
+    class Crash(Exception):
+        pass
+
+    def crash(epoch, metrics):
+        if epoch == 2:
+            raise Crash
+
+    with pytest.raises(Crash):
+        train_spec(client, j, on_epoch=crash)
+    g = open_store(store)
+    assert g["runs"][j.run].attrs["epoch_done"] == 3 and not g["runs"][j.run].attrs.get("final_done")
+    seen = []
+    resumed = train_spec(client, j, resume=True, on_epoch=lambda e, m: seen.append(e))
+    assert resumed["resumed_from"] == 3 and seen == [3, 4, 5]  # epochs 0-2 were not recomputed
+    assert np.array_equal(load_codebook(open_store(store), j.run).weights, w_full)
+    assert resumed["metrics"] == full["metrics"]
