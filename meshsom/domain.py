@@ -1,0 +1,376 @@
+"""Domain maps (DESIGN.md §5) and how well they group labelled meshes.
+
+A mesh's *domain vector* is the histogram of its triangles' best-matching units on the
+triangle map, divided by its triangle count, smoothed with a Gaussian of ``sigma`` cells on
+the (toroidal) grid and flattened. A small domain SOM (one variation) places every mesh at a
+unit; a figure (:mod:`meshsom.thumbnails`) draws each mesh there.
+
+Clustering quality against known labels (the synthetic corpus's families):
+
+- :func:`knn_label_agreement`: share of each mesh's k nearest other meshes *on the map* that
+  carry its label, averaged; :func:`label_agreement_chance` is its expectation under a
+  random placement;
+- :func:`adjusted_rand_index` of map regions (:func:`map_regions`, k-means on the domain
+  prototypes) against the labels.
+
+Everything here is pure NumPy over arrays; units are numbered row-major as in
+:mod:`meshsom.metrics`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from meshsom.metrics import TOPOLOGIES, grid_distance
+from meshsom.som import SOM, smooth
+
+
+def _check_topology(topology: str) -> None:
+    if topology not in TOPOLOGIES:
+        raise ValueError(f"topology must be one of {', '.join(TOPOLOGIES)}; received {topology!r}")
+
+
+def _check_grid(rows: int, cols: int) -> None:
+    if int(rows) != rows or int(cols) != cols or rows < 1 or cols < 1:
+        raise ValueError(f"rows and cols must be positive integers, received {rows!r} x {cols!r}")
+
+
+def _int_array(name: str, values, ndim: int = 1) -> np.ndarray:
+    arr = np.asarray(values)
+    if arr.ndim != ndim:
+        raise ValueError(f"{name} must be a {ndim}-D array, received shape {arr.shape}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        raise TypeError(f"{name} must hold integers, received dtype {arr.dtype}")
+    return arr.astype(np.int64)
+
+
+# ---------------------------------------------------------------------- domain vectors
+def bmu_histograms(face_mesh, units, n_meshes: int, n_units: int) -> np.ndarray:
+    """Per mesh, the share of its triangles won by each unit of the triangle map.
+
+    Parameters
+    ----------
+    face_mesh : (F,) int
+        Mesh number of every triangle, in ``0..n_meshes-1``.
+    units : (F,) int
+        Best-matching unit of every triangle, in ``0..n_units-1``.
+    n_meshes, n_units : int
+
+    Returns
+    -------
+    (n_meshes, n_units) float64
+        Row ``m`` is the BMU histogram of mesh ``m`` divided by its triangle count (sums to 1).
+
+    Raises
+    ------
+    ValueError
+        Mismatched lengths, an index out of range, or a mesh without triangles.
+    """
+    face_mesh = _int_array("face_mesh", face_mesh)
+    units = _int_array("units", units)
+    if face_mesh.shape != units.shape:
+        raise ValueError(f"face_mesh and units must have the same length, received {len(face_mesh)} and {len(units)}")
+    if n_meshes < 1 or n_units < 1:
+        raise ValueError(f"n_meshes and n_units must be >= 1, received {n_meshes} and {n_units}")
+    for name, arr, n in (("face_mesh", face_mesh, n_meshes), ("units", units, n_units)):
+        bad = np.flatnonzero((arr < 0) | (arr >= n))
+        if len(bad):
+            raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]]} lies outside 0..{n - 1} ({len(bad)} such entries)")
+    counts = np.bincount(face_mesh * n_units + units, minlength=n_meshes * n_units).reshape(n_meshes, n_units)
+    totals = counts.sum(axis=1)
+    empty = np.flatnonzero(totals == 0)
+    if len(empty):
+        raise ValueError(f"every mesh needs at least one triangle; meshes {empty[:10].tolist()} have none "
+                         f"({len(empty)} of {n_meshes})")
+    return counts / totals[:, None].astype(np.float64)
+
+
+def domain_vectors(hist, rows: int, cols: int, sigma: float, topology: str = "toroidal") -> np.ndarray:
+    """Smooth every BMU histogram with a Gaussian of ``sigma`` cells on the grid.
+
+    Each unit's mass is spread with ``exp(-d^2 / (2 sigma^2))`` (``d`` the cell distance of
+    DESIGN.md §4, wrapped on a torus), divided by that kernel's total over the grid, so the
+    mass is conserved: a histogram summing to 1 gives a vector summing to 1. On a torus the
+    kernel's total is the same for every unit, so a mesh whose triangles all hit unit ``u``
+    gives exactly ``exp(-d(u, j)^2 / (2 sigma^2)) / sum_j' exp(-d(u, j')^2 / (2 sigma^2))``.
+    On a planar grid each source unit is normalised by its own (truncated) total.
+
+    The smoothing is separable (:func:`meshsom.som.smooth`): ``O(n_meshes * M * (rows + cols))``.
+
+    Parameters
+    ----------
+    hist : (n_meshes, rows*cols) float
+        From :func:`bmu_histograms`.
+    rows, cols : int
+        The triangle map's size.
+    sigma : float
+        Radius in cells, > 0.
+    topology : {"toroidal", "planar"}
+
+    Returns
+    -------
+    (n_meshes, rows*cols) float32
+    """
+    _check_topology(topology)
+    _check_grid(rows, cols)
+    hist = np.asarray(hist, np.float64)
+    M = rows * cols
+    if hist.ndim != 2 or hist.shape[1] != M:
+        raise ValueError(f"hist must have shape (n_meshes, {M}) for a {rows} x {cols} map, received {hist.shape}")
+    if not sigma > 0:
+        raise ValueError(f"sigma must be > 0, received {sigma}")
+    total = smooth(np.ones(M), sigma, rows, cols, topology)  # (M,): kernel total per source unit
+    out = smooth((hist / total[None, :]).T, sigma, rows, cols, topology).T
+    return np.ascontiguousarray(out, np.float32)
+
+
+# ---------------------------------------------------------------------- domain SOM
+def train_domain_map(vectors, rows: int, cols: int, epochs: int, seed: int, sigma_start: float | None = None,
+                     sigma_end: float = 1.0, init: str = "pca", topology: str = "toroidal",
+                     backend: str = "numpy") -> SOM:
+    """Train the small domain SOM (one variation: the identity) on domain vectors.
+
+    Parameters
+    ----------
+    vectors : (n_meshes, D) float
+        Domain vectors (:func:`domain_vectors`) or any per-mesh descriptor (e.g. D2).
+    rows, cols : int
+        Domain map size.
+    epochs : int
+    seed : int
+        ``random_state`` of the SOM.
+    sigma_start : float or None
+        None: ``max(rows, cols) / 4`` (the SOM's default).
+    sigma_end : float
+    init : {"pca", "random"}
+        PCA is deterministic and spreads a few hundred meshes better than samples.
+    topology : {"toroidal", "planar"}
+    backend : {"numpy", "opencl", "auto"}
+
+    Returns
+    -------
+    SOM
+        Fitted; ``weights_ (rows*cols, D) float32``.
+    """
+    return SOM(rows=rows, cols=cols, topology=topology, epochs=epochs, sigma_start=sigma_start,
+               sigma_end=sigma_end, init=init, random_state=seed, backend=backend).fit(vectors)
+
+
+def place(vectors, som: SOM) -> np.ndarray:
+    """Unit of every mesh on a fitted domain map.
+
+    Parameters
+    ----------
+    vectors : (n_meshes, D) float
+    som : SOM
+        Fitted on vectors of the same D.
+
+    Returns
+    -------
+    (n_meshes,) int64
+    """
+    return np.asarray(som.predict(vectors), np.int64)
+
+
+# ---------------------------------------------------------------------- clustering quality
+def knn_label_agreement(units, labels, rows: int, cols: int, k: int = 5, topology: str = "toroidal") -> float:
+    """Mean share of each mesh's ``k`` nearest other meshes on the map that share its label.
+
+    Nearness is the grid distance between the meshes' units (DESIGN.md §4, wrapped on a
+    torus); meshes on the same unit are at distance 0. Ties are broken by mesh index (the
+    lower first), so the result is deterministic.
+
+    Parameters
+    ----------
+    units : (n,) int
+        Unit of every mesh (:func:`place`).
+    labels : (n,) any
+        Label of every mesh (e.g. family names).
+    rows, cols : int
+        Map size.
+    k : int
+        ``1 <= k <= n - 1``.
+    topology : {"toroidal", "planar"}
+
+    Returns
+    -------
+    float
+        In [0, 1]; compare with :func:`label_agreement_chance`.
+    """
+    _check_topology(topology)
+    _check_grid(rows, cols)
+    units = _int_array("units", units)
+    labels = np.asarray(labels)
+    n = len(units)
+    if labels.shape != (n,):
+        raise ValueError(f"labels must have shape ({n},) like units, received {labels.shape}")
+    if not 1 <= k <= n - 1:
+        raise ValueError(f"k must lie in 1..{n - 1} for {n} meshes, received {k}")
+    if n and (units.min() < 0 or units.max() >= rows * cols):
+        raise ValueError(f"units must lie in 0..{rows * cols - 1}, received {units.min()}..{units.max()}")
+    d = grid_distance(units[:, None], units[None, :], rows, cols, topology)  # (n, n)
+    np.fill_diagonal(d, np.inf)
+    nearest = np.argsort(d, axis=1, kind="stable")[:, :k]  # stable: ties by mesh index
+    _, codes = np.unique(labels, return_inverse=True)
+    return float(np.mean(codes[nearest] == codes[:, None]))
+
+
+def label_agreement_chance(labels) -> float:
+    """Expected :func:`knn_label_agreement` when meshes are placed at random.
+
+    A random other mesh shares mesh ``i``'s label with probability
+    ``(n_label(i) - 1) / (n - 1)``; this is that probability averaged over meshes.
+
+    Parameters
+    ----------
+    labels : (n,) any, n >= 2
+
+    Returns
+    -------
+    float
+    """
+    labels = np.asarray(labels)
+    n = len(labels)
+    if labels.ndim != 1 or n < 2:
+        raise ValueError(f"labels must be a 1-D array of at least 2 entries, received shape {labels.shape}")
+    _, codes, sizes = np.unique(labels, return_inverse=True, return_counts=True)
+    return float(np.mean((sizes[codes] - 1) / (n - 1)))
+
+
+def _comb2(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, np.float64)
+    return x * (x - 1) / 2.0
+
+
+def adjusted_rand_index(a, b) -> float:
+    """Adjusted Rand index of two partitions (Hubert and Arabie 1985).
+
+    From the contingency table ``n_ij`` with row sums ``a_i`` and column sums ``b_j``::
+
+        index    = sum_ij C(n_ij, 2)
+        expected = sum_i C(a_i, 2) * sum_j C(b_j, 2) / C(n, 2)
+        ARI      = (index - expected) / ((sum_i C(a_i, 2) + sum_j C(b_j, 2)) / 2 - expected)
+
+    When the denominator vanishes (both partitions all-in-one or all-singletons), the
+    partitions are identical and the result is 1.0, as in scikit-learn.
+
+    Parameters
+    ----------
+    a, b : (n,) any
+        Cluster labels; only equality matters.
+
+    Returns
+    -------
+    float
+        1 for identical partitions (up to relabelling), about 0 for independent ones.
+    """
+    a = np.asarray(a)
+    b = np.asarray(b)
+    if a.ndim != 1 or a.shape != b.shape:
+        raise ValueError(f"a and b must be 1-D arrays of the same length, received shapes {a.shape} and {b.shape}")
+    n = len(a)
+    if n < 2:
+        return 1.0
+    _, ia = np.unique(a, return_inverse=True)
+    _, ib = np.unique(b, return_inverse=True)
+    table = np.zeros((ia.max() + 1, ib.max() + 1), np.int64)
+    np.add.at(table, (ia, ib), 1)
+    index = _comb2(table).sum()
+    sum_a = _comb2(table.sum(axis=1)).sum()
+    sum_b = _comb2(table.sum(axis=0)).sum()
+    expected = sum_a * sum_b / _comb2(n)
+    denom = (sum_a + sum_b) / 2.0 - expected
+    if denom == 0:
+        return 1.0
+    return float((index - expected) / denom)
+
+
+def kmeans(X, n_clusters: int, seed: int, n_init: int = 4, max_iter: int = 100) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded Lloyd k-means with k-means++ starts; the run of lowest inertia wins.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    n_clusters : int
+        ``1 <= n_clusters <= N``.
+    seed : int
+    n_init : int
+        Independent starts.
+    max_iter : int
+        Lloyd iterations per start.
+
+    Returns
+    -------
+    labels : (N,) int64
+    centres : (n_clusters, D) float64
+    """
+    X = np.asarray(X, np.float64)
+    if X.ndim != 2 or len(X) == 0:
+        raise ValueError(f"X must be a non-empty (N, D) array, received shape {X.shape}")
+    N = len(X)
+    if not 1 <= n_clusters <= N:
+        raise ValueError(f"n_clusters must lie in 1..{N}, received {n_clusters}")
+    rng = np.random.default_rng(seed)
+    xx = np.einsum("ij,ij->i", X, X)
+
+    def dist2(C):  # (N, k): ||x||^2 - 2 x.c + ||c||^2, clipped at 0
+        return np.maximum(xx[:, None] - 2.0 * X @ C.T + np.einsum("ij,ij->i", C, C)[None, :], 0.0)
+
+    best = (np.inf, None, None)
+    for _ in range(max(n_init, 1)):
+        centres = np.empty((n_clusters, X.shape[1]))
+        centres[0] = X[rng.integers(N)]
+        closest = dist2(centres[:1])[:, 0]
+        for c in range(1, n_clusters):  # k-means++: draw proportional to squared distance
+            total = closest.sum()
+            pick = rng.choice(N, p=closest / total) if total > 0 else rng.integers(N)
+            centres[c] = X[pick]
+            closest = np.minimum(closest, dist2(centres[c:c + 1])[:, 0])
+        labels = np.full(N, -1, np.int64)
+        for _ in range(max_iter):
+            d = dist2(centres)
+            new = np.argmin(d, axis=1)
+            sizes = np.bincount(new, minlength=n_clusters)
+            for c in np.flatnonzero(sizes == 0):  # empty cluster: take the worst-served point
+                far = int(np.argmax(d[np.arange(N), new]))
+                new[far] = c
+                d[far] = 0.0
+            if np.array_equal(new, labels):
+                break
+            labels = new
+            sums = np.zeros_like(centres)
+            np.add.at(sums, labels, X)
+            centres = sums / np.bincount(labels, minlength=n_clusters)[:, None]
+        inertia = float(dist2(centres)[np.arange(N), labels].sum())
+        if inertia < best[0]:
+            best = (inertia, labels.copy(), centres.copy())
+    return best[1], best[2]
+
+
+def map_regions(som_weights, rows: int, cols: int, n_regions: int, seed: int) -> np.ndarray:
+    """Cut the domain map into regions: k-means on its prototypes.
+
+    A mesh's region is its unit's: ``map_regions(...)[place(vectors, som)]``, to be compared
+    with the labels by :func:`adjusted_rand_index`.
+
+    Parameters
+    ----------
+    som_weights : (rows*cols, D) float
+        Domain prototypes (``SOM.weights_``).
+    rows, cols : int
+    n_regions : int
+        ``1 <= n_regions <= rows*cols``.
+    seed : int
+
+    Returns
+    -------
+    (rows*cols,) int64
+        Region of every unit, in ``0..n_regions-1``.
+    """
+    _check_grid(rows, cols)
+    W = np.asarray(som_weights)
+    if W.ndim != 2 or len(W) != rows * cols:
+        raise ValueError(f"som_weights must have shape ({rows * cols}, D) for a {rows} x {cols} map, "
+                         f"received {W.shape}")
+    labels, _ = kmeans(W, n_regions, seed)
+    return labels
