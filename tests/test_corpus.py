@@ -1,0 +1,216 @@
+"""Ingest + encode through Dask (pipelines/corpus.py): same store as one process, whatever the shard size;
+every input accounted for; resume redoes only unfinished shards and equals an uninterrupted run."""
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+from distributed import Client, LocalCluster
+
+from meshsom.config import ExperimentConfig, build
+from meshsom.errors import MeshsomError, StoreError
+from meshsom.io import ReaderOptions, read_file
+from meshsom.store import mesh_table, open_store, read_manifest
+from pipelines import corpus, ingest
+from pipelines.cli import main
+
+ZURICH = Path(__file__).resolve().parents[1] / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"
+N_ZURICH, N_BLOCKS, CHUNK = 49, 12, 500
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    """The bundled Zurich file, a file that cannot be read, a path that does not exist."""
+    tmp = tmp_path_factory.mktemp("inputs")
+    broken = tmp / "broken.city.json"
+    broken.write_text('{"type": "CityJSON", "CityObjects": {')
+    return [str(ZURICH), str(broken), str(tmp / "missing.obj")]
+
+
+def config(inputs, shard_meshes, levels=(1, 2)):
+    return build(ExperimentConfig, {
+        "corpus": {"paths": list(inputs), "generator": {"n_blocks": N_BLOCKS, "seed": 0}},
+        "encoding": {"levels": list(levels)},
+        "dask": {"shard_meshes": shard_meshes},
+        "store": {"chunk_rows": CHUNK},
+    })
+
+
+@pytest.fixture(scope="module")
+def cluster_client():
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def local_client():
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
+def two_workers(cluster_client, inputs, tmp_path_factory):
+    """Store made on 2 worker processes, 3 meshes per shard; and the progress calls."""
+    store = tmp_path_factory.mktemp("dask") / "two.zarr"
+    calls = []
+    summary = corpus.run_corpus(cluster_client, config(inputs, 3), store, progress=lambda *a: calls.append(a))
+    return store, summary, calls
+
+
+@pytest.fixture(scope="module")
+def in_process(local_client, inputs, tmp_path_factory):
+    """Store made by an in-process client, 50 meshes per shard."""
+    store = tmp_path_factory.mktemp("dask") / "one.zarr"
+    corpus.run_corpus(local_client, config(inputs, 50), store)
+    return store
+
+
+@pytest.fixture(scope="module")
+def cli_store(inputs, tmp_path_factory):
+    """Store made in one process by `meshsom ingest` then `meshsom encode`."""
+    store = tmp_path_factory.mktemp("cli") / "cli.zarr"
+    assert main(["ingest", *inputs, "--generate", str(N_BLOCKS), "--seed", "0", "--out", str(store),
+                 "--chunk-rows", str(CHUNK)]) == 0
+    assert main(["encode", str(store), "--levels", "1", "2", "--json"]) == 0
+    return store
+
+
+def arrays(store) -> dict:
+    """Every array of a store by path."""
+    out = {}
+
+    def walk(group, prefix):
+        for name, node in group.members():
+            if isinstance(node, zarr.Group):
+                walk(node, prefix + name + "/")
+            else:
+                out[prefix + name] = node
+
+    with warnings.catch_warnings():  # manifest.json is no zarr node
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        walk(zarr.open_group(str(store), mode="r"), "")
+    return out
+
+
+def stats(store) -> dict:
+    return dict(zarr.open_group(str(store), mode="r")["rings/stats"].attrs)
+
+
+def assert_same_store(a, b, exact_stats=True):
+    """Same arrays (names, shapes, dtypes, chunks, values), root attributes, manifest and statistics."""
+    xa, xb = arrays(a), arrays(b)
+    assert sorted(xa) == sorted(xb)
+    assert {"vertices", "faces", "face_mesh", "meshes/ids", "meshes/labels", "meshes/vertex_offsets",
+            "meshes/face_offsets", "meshes/origins", "rings/level1", "rings/level2"} == set(xa)
+    for name in xa:
+        u, v = xa[name], xb[name]
+        assert (u.shape, u.dtype, u.chunks) == (v.shape, v.dtype, v.chunks), name
+        assert np.array_equal(np.asarray(u[:]), np.asarray(v[:])), name
+    assert dict(zarr.open_group(str(a), mode="r").attrs) == dict(zarr.open_group(str(b), mode="r").attrs)
+    ma, mb = read_manifest(a), read_manifest(b)
+    assert ma["records"] == mb["records"]
+    assert ma["summary"] == mb["summary"]
+    sa, sb = stats(a), stats(b)
+    assert sorted(sa) == sorted(sb) == ["level1", "level2"]
+    for level in sa:
+        if exact_stats:
+            assert sa[level] == sb[level]
+        else:  # the single-process encoder sums in other batches: float64 rounding apart
+            assert sa[level]["count"] == sb[level]["count"]
+            np.testing.assert_allclose(sa[level]["mean"], sb[level]["mean"], rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(sa[level]["std"], sb[level]["std"], rtol=1e-12)
+
+
+def test_two_workers_equal_in_process_whatever_the_shard_size(two_workers, in_process):
+    store, summary, calls = two_workers
+    assert_same_store(store, in_process)
+    assert not (store / corpus.STAGING).exists() and not (in_process / corpus.STAGING).exists()
+    assert summary == read_manifest(store)["summary"]
+    n_shards = -(-N_ZURICH // 3) + 1 + -(-N_BLOCKS // 3)
+    assert ("encode", n_shards, n_shards) in calls and calls[-1][0] == "assemble" and calls[-1][1] == calls[-1][2]
+    assert len(arrays(store)["faces"].shape) == 2 and arrays(store)["faces"].shape[0] > 3 * CHUNK  # several chunks
+
+
+def test_equals_single_process_ingest_then_encode(two_workers, cli_store):
+    assert_same_store(two_workers[0], cli_store, exact_stats=False)
+
+
+def test_every_input_is_accounted_for(two_workers, inputs):
+    store = two_workers[0]
+    doc = read_manifest(store)
+    s = doc["summary"]
+    assert s["inputs"] == N_ZURICH + N_BLOCKS + 2 == s["accepted"] + s["rejected"] == len(doc["records"])
+    rejected = {r["id"]: r["reason"] for r in doc["records"] if r["status"] == "rejected"}
+    assert rejected[inputs[1]].startswith("invalid JSON")  # read on a worker
+    assert rejected[inputs[2]] == "no such file or folder"  # found missing by the client
+    accepted = [r for r in doc["records"] if r["status"] == "accepted"]
+    assert [r["index"] for r in accepted] == list(range(len(accepted)))
+    ids = mesh_table(open_store(store)).ids
+    assert list(ids) == [r["id"] for r in accepted]
+    assert ids[0].startswith(ZURICH.name) and ids[-1] == f"synthetic#block-{N_BLOCKS - 1:05d}"
+
+
+def test_resume_redoes_only_unfinished_shards(local_client, inputs, in_process, tmp_path, monkeypatch):
+    store = tmp_path / "resumed.zarr"
+    cfg = config(inputs, 10)  # zurich: 5 shards, broken file: 1, generator: 2
+    zurich_ids = [m.id for m in read_file(ZURICH, ReaderOptions())]
+    poison = {zurich_ids[25], "synthetic#block-00011"}  # in shards s0000-00000020 and s0002-00000010
+    original = ingest.process_one
+    seen = []
+
+    def crashing(raw, params):
+        if raw.id in poison:
+            raise RuntimeError(f"worker lost while processing {raw.id}")
+        return original(raw, params)
+
+    monkeypatch.setattr(ingest, "process_one", crashing)
+    with pytest.raises(MeshsomError, match=r"2 of 8 shards failed.*RuntimeError.*rerun with resume"):
+        corpus.run_corpus(local_client, cfg, store)
+    plan = zarr.open_group(str(store / corpus.STAGING), mode="r").attrs["plan"]
+    names = [s["name"] for s in plan["shards"]]
+    done = [n for n in names if corpus.shard_done(str(store), n)]
+    assert sorted(set(names) - set(done)) == ["s0000-00000020", "s0002-00000010"]
+    # A shard written but not yet marked (killed between write and mark) counts as unfinished.
+    zarr.open_group(str(store / corpus.STAGING / "s0000-00000000"), mode="r+").attrs["done"] = False
+
+    with pytest.raises(StoreError, match=str(store)):  # another configuration is refused
+        corpus.run_corpus(local_client, config(inputs, 10, levels=(1,)), store, resume=True)
+
+    def counting(raw, params):
+        seen.append(raw.id)
+        return original(raw, params)
+
+    monkeypatch.setattr(ingest, "process_one", counting)
+    summary = corpus.run_corpus(local_client, cfg, store, resume=True)
+    assert sorted(seen) == sorted(zurich_ids[0:10] + zurich_ids[20:30] + ["synthetic#block-00010", "synthetic#block-00011"])
+    assert_same_store(store, in_process)
+    assert summary == read_manifest(in_process)["summary"]
+
+    seen.clear()  # a finished corpus is not redone at all
+    assert corpus.run_corpus(local_client, cfg, store, resume=True) == summary
+    assert seen == []
+
+
+def test_worker_functions_without_a_cluster(inputs, tmp_path):
+    """The shard function alone: staging rows, metadata that is JSON, done mark, no recomputation."""
+    from meshsom.preprocess import PreprocessParams
+    from meshsom.store import create_store
+
+    store = tmp_path / "s.zarr"
+    create_store(store)
+    items = corpus.generate_items(build(ExperimentConfig, {"corpus": {"generator": {"n_blocks": 2}}}).corpus.generator, 0, 2)
+    items += corpus.read_source(inputs[1], ReaderOptions())
+    shard = corpus.Shard("s0000-00000", 0, 0, 3)
+    meta = corpus.process_shard(str(store), shard, items, PreprocessParams(), [1, 2], CHUNK)
+    assert json.loads(json.dumps(meta)) == meta
+    assert [r["status"] for r in meta["records"]] == ["accepted", "accepted", "rejected"]
+    g = zarr.open_group(str(store / corpus.STAGING / shard.name), mode="r")
+    assert g.attrs["done"] and g["faces"].shape[0] == sum(meta["n_faces"]) == g["level2"].shape[0]
+    assert np.asarray(g["faces"][:]).max() == sum(meta["n_vertices"]) - 1
+    assert np.array_equal(np.asarray(g["face_mesh"][:]), np.repeat([0, 1], meta["n_faces"]))
+    assert np.asarray(meta["acc"]["1"]).shape == (2, 3, 3)
+    assert corpus.process_shard(str(store), shard, [], PreprocessParams(), [1, 2], CHUNK) == meta  # done: kept
