@@ -32,6 +32,9 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
     """
     from distributed import Client, LocalCluster
 
+    for name in ("distributed", "distributed.scheduler", "distributed.nanny", "distributed.core", "distributed.worker"):
+        logging.getLogger(name).setLevel(logging.WARNING)  # the in-process scheduler talks at INFO
+
     if config.scheduler:
         try:
             client = Client(config.scheduler, timeout="10s")

@@ -1,46 +1,209 @@
-"""``meshsom run CONFIG``: the whole experiment from one YAML file.
+"""``meshsom run CONFIG``: the whole experiment from one YAML file, on a Dask cluster, tracked in MLflow.
 
-Stages, in order: ingest (read, clean, store), then encode and train as they
-are configured. Results land in the zarr store named by ``store.path``.
+Stages:
+
+1. corpus: read, preprocess and encode every input in shards (:mod:`pipelines.corpus`), into the
+   zarr store named by ``store.path``;
+2. maps: one triangle map per ``train`` entry (level, kernel), epochs as map-reduce over row chunks
+   (:mod:`pipelines.train`), each a child MLflow run with per-epoch and final T/Q/QC-errors and its
+   U-matrix;
+3. domain maps per level, where the library provides them (:mod:`meshsom.domain`).
+
+The tracking server is checked before any heavy work. ``--resume`` continues an interrupted run:
+finished shards and epochs are not recomputed, and the MLflow runs of the first attempt are
+continued.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import shutil
 import time
+from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="experiment YAML (see configs/)")
     p.add_argument("--store", help="override store.path")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    mode.add_argument("--resume", action="store_true", help="continue an interrupted run in the existing store")
+    p.add_argument("--tracking-uri", help="MLflow tracking URI (overrides tracking.uri), e.g. http://127.0.0.1:5000")
+    p.add_argument("--no-tracking", action="store_true", help="do not write to MLflow")
+    p.add_argument("--scheduler", help="address of an existing Dask scheduler (overrides dask.scheduler)")
+    p.add_argument("--workers", type=int, help="local Dask workers (overrides dask.workers)")
+
+
+def dataset_fingerprint(manifest: dict) -> str:
+    """Short hash of what was ingested (ids, statuses, face counts)."""
+    rows = sorted((r["id"], r["status"], r.get("faces_out", 0)) for r in manifest["records"])
+    return hashlib.sha256(json.dumps(rows).encode()).hexdigest()[:12]
+
+
+def _overrides(args) -> dict:
+    over: dict = {}
+    if args.store:
+        over["store"] = {"path": args.store}
+    if args.tracking_uri or args.no_tracking:
+        over["tracking"] = {**({"uri": args.tracking_uri} if args.tracking_uri else {}),
+                            **({"enabled": False} if args.no_tracking else {})}
+    if args.scheduler or args.workers:
+        over["dask"] = {**({"scheduler": args.scheduler} if args.scheduler else {}),
+                        **({"workers": args.workers} if args.workers else {})}
+    return over
 
 
 def run(args: argparse.Namespace) -> int:
     from meshsom.config import load_config
-    from pipelines.ingest import ingest
 
-    overrides = {"store": {"path": args.store}} if args.store else None
-    cfg = load_config(args.config, overrides)
-    t0 = time.perf_counter()
-    print(f"[1/2] ingest -> {cfg.store.path}")
-    result = ingest(
-        cfg.corpus.paths, cfg.store.path, cfg.corpus.reader, cfg.preprocess, cfg.corpus.generator,
-        overwrite=args.overwrite, chunk_rows=cfg.store.chunk_rows,
-    )
-    s = result.summary
-    print(f"      {s['inputs']} meshes: {s['accepted']} accepted, {s['rejected']} rejected "
-          f"({s['faces_out']} triangles) in {time.perf_counter() - t0:.1f} s")
-    if not s["accepted"]:
-        return 1
-    from pipelines.encode_cmd import encode_store
+    cfg = load_config(args.config, _overrides(args) or None)
+    return run_experiment(cfg, Path(args.config), overwrite=args.overwrite, resume=args.resume)
 
-    t1 = time.perf_counter()
-    print(f"[2/2] encode levels {list(cfg.encoding.levels)}")
-    enc = encode_store(cfg.store.path, cfg.encoding.levels, cfg.store.chunk_rows, progress=True)
-    for level, info in enc.levels.items():
-        print(f"      rings/level{level}: {enc.faces} x {info['dims']}")
-    print(f"      in {time.perf_counter() - t1:.1f} s")
-    print(f"results: {cfg.store.path} (manifest: {cfg.store.path}/manifest.json)")
-    print("next: `meshsom train STORE --level L --kernel bmuofn` per level (the distributed pipeline is issue 6)")
+
+def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False, resume: bool = False) -> int:
+    """Run every stage of an experiment; returns the exit code."""
+    from tqdm import tqdm
+
+    from meshsom.config import flatten, to_dict
+    from meshsom.errors import StoreError
+    from meshsom.store import open_store, read_manifest
+    from pipelines.cluster import connect
+    from pipelines.corpus import run_corpus
+    from pipelines.ingest import check_writable
+    from pipelines.tracking import Tracker, git_commit
+
+    store = Path(cfg.store.path)
+    if store.exists() and not (overwrite or resume):
+        raise StoreError(f"{store}: already exists; pass --overwrite to replace it or --resume to continue it")
+    if overwrite and store.exists():
+        shutil.rmtree(store)
+    check_writable(store, overwrite=True)
+    tracker = Tracker(cfg.tracking)
+    tracker.open()  # fails here, naming the URI, before any heavy work
+    t_start = time.perf_counter()
+    stages = 2 + (1 if _domain_available() else 0)
+    with connect(cfg.dask) as client:
+        # ------------------------------------------------------------------ 1. corpus
+        print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {store}")
+        bars: dict = {}
+
+        def progress(stage, done, total):
+            bar = bars.get(stage)
+            if bar is None:
+                bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False)
+            bar.update(done - bar.n)
+
+        t0 = time.perf_counter()
+        summary = run_corpus(client, cfg, str(store), resume=resume, progress=progress)
+        for bar in bars.values():
+            bar.close()
+        print(f"      {summary['inputs']} meshes: {summary['accepted']} accepted, {summary['rejected']} rejected "
+              f"({summary.get('faces_out', 0)} triangles) in {time.perf_counter() - t0:.1f} s")
+        if not summary["accepted"]:
+            print("nothing could be ingested; see the manifest for the reasons")
+            return 1
+        group = open_store(store, mode="r+")
+        manifest = read_manifest(store)
+        fingerprint = dataset_fingerprint(manifest)
+        ids = dict(group.attrs.get("mlflow", {})) if resume else {}
+        if ids.get("uri") not in (None, tracker.uri):
+            ids = {}  # a different tracking server: start new runs
+        parent = tracker.start(
+            cfg.name, flatten(to_dict(cfg)),
+            {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
+            run_id=ids.get("parent"),
+        )
+        ids = {"uri": tracker.uri, "parent": parent, "children": dict(ids.get("children", {}))}
+        group.attrs["mlflow"] = ids
+        if config_path is not None and config_path.exists():
+            tracker.log_artifact(parent, config_path, "config")
+        tracker.log_artifact(parent, store / "manifest.json", "manifest")
+
+        # ------------------------------------------------------------------ 2. triangle maps
+        print(f"[2/{stages}] triangle maps: {', '.join(s.name for s in cfg.train)} ({cfg.som.rows} x {cfg.som.cols}, "
+              f"{cfg.som.epochs} epochs)")
+        results = []
+        for spec in cfg.train:
+            results.append(_train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint))
+        # ------------------------------------------------------------------ 3. domain maps
+        if _domain_available():
+            print(f"[3/{stages}] domain maps")
+            from pipelines.domain_stage import run_domain_stage
+
+            run_domain_stage(cfg, store, tracker, ids, results)
+    tracker.finish(parent)
+    _print_summary(results, store, tracker, time.perf_counter() - t_start)
     return 0
+
+
+def _domain_available() -> bool:
+    try:
+        import pipelines.domain_stage  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint) -> dict:
+    from tqdm import tqdm
+
+    from meshsom.umatrix import render_map
+    from meshsom.codebook import load_codebook
+    from meshsom.variations import n_variations
+    from meshsom.rings import dims
+    from pipelines.train import TrainJob, train_spec
+
+    som = cfg.som
+    job = TrainJob(
+        store=str(store), level=spec.level, kernel=spec.kernel, mirror=som.mirror_higher, rows=som.rows, cols=som.cols,
+        topology=som.topology, epochs=som.epochs,
+        sigma_start=float(som.sigma_start if som.sigma_start is not None else max(som.rows, som.cols) / 4),
+        sigma_end=float(som.sigma_end), init=som.init, seed=som.seed, backend=cfg.opencl.backend, device=cfg.opencl.device,
+    )
+    n_var = n_variations(spec.level, spec.kernel, som.mirror_higher)
+    params = {
+        "level": spec.level, "kernel": spec.kernel, "variations": n_var, "dims": f"{n_var}x{dims(spec.level)}",
+        "map_rows": som.rows, "map_cols": som.cols, "topology": som.topology, "epochs": som.epochs,
+        "sigma_start": job.sigma_start, "sigma_end": job.sigma_end, "init": som.init, "seed": som.seed,
+        "backend": cfg.opencl.backend, "codebook": f"{store.resolve()}/runs/{job.run}",
+    }
+    child = tracker.start(job.run, params, {"dataset_fingerprint": fingerprint}, parent=parent,
+                          run_id=ids["children"].get(job.run))
+    ids["children"][job.run] = child
+    group.attrs["mlflow"] = ids
+    bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False)
+
+    def on_epoch(epoch, metrics):
+        tracker.log_metrics(child, metrics, step=epoch)
+        bar.update(1 if epoch < som.epochs else 0)
+
+    result = train_spec(client, job, resume=resume, on_epoch=on_epoch)
+    bar.close()
+    if result["resumed_from"] >= som.epochs and tracker.enabled:
+        tracker.log_metrics(child, result["metrics"], step=som.epochs)
+    cb = load_codebook(group, job.run)
+    figures = store.parent / f"{store.stem}-figures"
+    figures.mkdir(parents=True, exist_ok=True)
+    png = figures / f"umatrix-{job.run}.png"
+    render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
+               title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
+    tracker.log_artifact(child, png, "figures")
+    tracker.set_tags(child, {"opencl_device": result["device"], "backend": result["backend"]})
+    tracker.finish(child)
+    m = result["metrics"]
+    print(f"      {job.run:16s} {result['dims']:>7s}  T {m['t_error']:.5f}  Q {m['q_error']:.5f}  "
+          f"QC {m['qc_error']:.5f}  ({result['backend']}, {result['seconds']:.1f} s)")
+    return {**result, "level": spec.level, "kernel": spec.kernel, "umatrix": str(png)}
+
+
+def _print_summary(results, store, tracker, seconds) -> None:
+    print(f"done in {seconds:.1f} s. results: {store} (manifest.json, runs/), figures: {store.parent / (store.stem + '-figures')}")
+    if tracker.enabled:
+        print(f"MLflow: {tracker.uri}, experiment {tracker.config.experiment!r} "
+              f"(look at them side by side: mlflow ui --backend-store-uri {tracker.uri})")
+    if tracker.failed:
+        print(f"warning: {len(tracker.failed)} MLflow writes failed (the results are in the store):")
+        for f in tracker.failed[:10]:
+            print(f"  {f['what']} for run {f['run_id']}: {f['error']}")

@@ -1,0 +1,102 @@
+"""Domain maps of a pipeline run (DESIGN.md §5): one per trained triangle map.
+
+For every triangle map of the run: per-mesh BMU histograms (from the map's saved BMUs), smoothed
+on the torus into domain vectors, a small domain SOM placing every mesh, the figure with every
+building's thumbnail at its unit (the paper's Figure 9), and, where the corpus has labels, how
+well the map groups them (k-nearest-neighbour label agreement, adjusted Rand index of map regions).
+Results go to ``runs/<run>/domain/`` and to the map's MLflow child run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: Meshes drawn on a domain-map figure at most (a city-sized corpus is drawn by a sample).
+MAX_THUMBNAILS = 400
+#: Neighbours of the k-NN label agreement.
+KNN = 5
+
+
+def thumbnails_of(group, n_meshes: int, size: int = 64) -> list:
+    """Thumbnails of the first ``n_meshes`` meshes of a store (RGBA arrays)."""
+    from meshsom.store import mesh_table, read_mesh
+    from meshsom.thumbnails import render_thumbnail
+
+    table = mesh_table(group)
+    return [render_thumbnail(*read_mesh(group, i, table), size=size) for i in range(n_meshes)]
+
+
+def domain_for_run(cfg, store: Path, run: str, thumbs=None) -> dict:
+    """Domain map of one triangle map; writes ``runs/<run>/domain`` and the figure.
+
+    Returns
+    -------
+    dict
+        ``units`` (n_meshes,), ``figure`` path, ``metrics`` (domain Q-error, and with labels the
+        k-NN agreement, its chance level and the ARI of map regions vs labels).
+    """
+    from meshsom.codebook import load_codebook
+    from meshsom.domain import (
+        adjusted_rand_index, bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance,
+        map_regions, place, train_domain_map,
+    )
+    from meshsom.store import mesh_table, open_store
+    from meshsom.thumbnails import domain_map_figure
+
+    group = open_store(store, mode="r+")
+    cb = load_codebook(group, run)
+    table = mesh_table(group)
+    face_mesh = np.asarray(group["face_mesh"][:])
+    d = cfg.domain
+    hist = bmu_histograms(face_mesh, cb.bmu.unit, len(table), cb.rows * cb.cols)
+    vectors = domain_vectors(hist, cb.rows, cb.cols, d.sigma, cb.topology)
+    som = train_domain_map(vectors, d.rows, d.cols, d.epochs, d.seed)
+    units = place(vectors, som)
+    ev = som.evaluate(vectors)
+    metrics = {"domain_q_error": float(ev["q_error"]), "domain_t_error": float(ev["t_error"])}
+    labels = np.asarray(table.labels)
+    has_labels = len(labels) > 1 and all(labels) and len(set(labels)) > 1
+    if has_labels:
+        metrics["knn_label_agreement"] = knn_label_agreement(units, labels, d.rows, d.cols, k=min(KNN, len(labels) - 1))
+        metrics["knn_label_chance"] = label_agreement_chance(labels)
+        regions = map_regions(som.weights_, d.rows, d.cols, len(set(labels)), d.seed)
+        metrics["ari_regions_vs_labels"] = adjusted_rand_index(regions[units], labels)
+    g = group["runs"][run].require_group("domain")
+    for name, data in (("vectors", vectors.astype(np.float32)), ("weights", som.weights_), ("units", units.astype(np.int64))):
+        arr = g.create_array(name, shape=data.shape, dtype=data.dtype, chunks=data.shape or (1,), overwrite=True)
+        arr[...] = data
+    g.attrs.update({"rows": d.rows, "cols": d.cols, "sigma": d.sigma, "metrics": metrics})
+    figures = store.parent / f"{store.stem}-figures"
+    figures.mkdir(parents=True, exist_ok=True)
+    path = figures / f"domain-{run}.png"
+    n_draw = min(len(table), MAX_THUMBNAILS)
+    if thumbs is None:
+        thumbs = thumbnails_of(group, n_draw)
+    domain_map_figure(units[:n_draw], thumbs[:n_draw], d.rows, d.cols, path,
+                      title=f"Domain map from {run} ({len(table)} meshes)",
+                      labels=labels[:n_draw] if has_labels else None)
+    return {"units": units, "figure": str(path), "metrics": metrics}
+
+
+def run_domain_stage(cfg, store: Path, tracker, ids: dict, results: list[dict]) -> list[dict]:
+    """Domain maps for every trained map of the run, logged to its MLflow child run."""
+    from meshsom.store import mesh_table, open_store
+
+    group = open_store(store)
+    n_draw = min(len(mesh_table(group)), MAX_THUMBNAILS)
+    thumbs = thumbnails_of(group, n_draw)
+    out = []
+    for res in results:
+        run = res["run"]
+        dom = domain_for_run(cfg, store, run, thumbs)
+        child = ids["children"].get(run)
+        tracker.log_metrics(child, dom["metrics"], step=cfg.som.epochs)
+        tracker.log_artifact(child, dom["figure"], "figures")
+        m = dom["metrics"]
+        extra = (f", k-NN label agreement {m['knn_label_agreement']:.3f} (chance {m['knn_label_chance']:.3f}), "
+                 f"ARI {m['ari_regions_vs_labels']:.3f}") if "knn_label_agreement" in m else ""
+        print(f"      {run:16s} domain map {cfg.domain.rows} x {cfg.domain.cols}: Q {m['domain_q_error']:.4f}{extra}")
+        out.append({**dom, "run": run})
+    return out

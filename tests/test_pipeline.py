@@ -1,0 +1,132 @@
+"""The experiment pipeline end to end: a real MLflow server, a 2-worker LocalCluster, resume, errors."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshsom.config import load_config
+from meshsom.errors import ConfigError, MeshsomError
+from meshsom.store import open_store
+from pipelines.run import run_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def mlflow_server(tmp_path_factory):
+    """A real `mlflow server` (SQLite backend) on a loopback port, stopped by PID at the end."""
+    tmp = tmp_path_factory.mktemp("mlflow")
+    port = _free_port()
+    mlflow_bin = Path(sys.executable).with_name("mlflow")
+    proc = subprocess.Popen(
+        [str(mlflow_bin), "server", "--host", "127.0.0.1", "--port", str(port),
+         "--backend-store-uri", f"sqlite:///{tmp / 'mlflow.db'}", "--artifacts-destination", str(tmp / "artifacts"),
+         "--workers", "1"],
+        stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT, cwd=tmp,
+    )
+    uri = f"http://127.0.0.1:{port}"
+    deadline = time.time() + 120
+    while True:
+        try:
+            with urllib.request.urlopen(uri + "/health", timeout=2) as r:
+                if r.status == 200:
+                    break
+        except OSError:
+            pass
+        if proc.poll() is not None or time.time() > deadline:
+            proc.kill()
+            pytest.fail(f"mlflow server did not start: {(tmp / 'server.log').read_text()[-2000:]}")
+        time.sleep(0.5)
+    yield uri
+    proc.terminate()
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+def quick(tmp_path, **over):
+    over = {"dask": {"workers": 2, "dashboard": False}, "store": {"path": str(tmp_path / "q.zarr")}} | over
+    return load_config(ROOT / "configs" / "quick.yaml", over)
+
+
+def test_quick_config_against_a_real_mlflow_server(tmp_path, mlflow_server):
+    import mlflow
+
+    cfg = quick(tmp_path, tracking={"uri": mlflow_server, "experiment": "it-quick"})
+    assert run_experiment(cfg, ROOT / "configs" / "quick.yaml") == 0
+    mlflow.set_tracking_uri(mlflow_server)
+    runs = mlflow.search_runs(experiment_names=["it-quick"])
+    parent = runs[runs["tags.mlflow.parentRunId"].isna()]
+    children = runs[runs["tags.mlflow.parentRunId"].notna()]
+    assert len(parent) == 1
+    assert sorted(children["tags.mlflow.runName"]) == ["level1-bmuofn", "level1-default", "level2-bmuofn"]
+    assert (children["tags.mlflow.parentRunId"] == parent["run_id"].iloc[0]).all()
+    g = open_store(cfg.store.path)
+    for _, child in children.iterrows():
+        name = child["tags.mlflow.runName"]
+        final = g["runs"][name].attrs["metrics"]
+        for k in ("t_error", "q_error", "qc_error"):
+            assert child[f"metrics.{k}"] == pytest.approx(final[k])
+        assert child["params.map_rows"] == "12" and child["params.kernel"] == name.split("-")[1]
+        history = mlflow.tracking.MlflowClient(mlflow_server).get_metric_history(child["run_id"], "q_error")
+        assert len(history) == cfg.som.epochs + 1  # one per epoch, and the final value
+    # BMUofN beats the default kernel at level 1 on Q-error (the paper's first claim)
+    by = {r["tags.mlflow.runName"]: r for _, r in children.iterrows()}
+    assert by["level1-bmuofn"]["metrics.q_error"] < by["level1-default"]["metrics.q_error"]
+
+
+def test_unreachable_tracking_server_stops_before_any_work(tmp_path):
+    cfg = quick(tmp_path, tracking={"uri": f"http://127.0.0.1:{_free_port()}"})
+    with pytest.raises(MeshsomError, match="cannot reach the MLflow tracking server at http://127.0.0.1"):
+        run_experiment(cfg)
+    assert not Path(cfg.store.path).exists()
+
+
+def test_resume_after_interrupted_training_equals_uninterrupted(tmp_path, monkeypatch):
+    import pipelines.train as train
+
+    full = quick(tmp_path / "a", tracking={"enabled": False})
+    assert run_experiment(full) == 0
+    cut = quick(tmp_path / "b", tracking={"enabled": False})
+    real = train.train_spec
+
+    def crash_in_second_map(client, job, resume=False, on_epoch=None, **kw):
+        if job.run == "level1-bmuofn" and not resume:
+            def boom(epoch, metrics):
+                if epoch == 3:
+                    raise KeyboardInterrupt
+            return real(client, job, resume, on_epoch=boom, **kw)
+        return real(client, job, resume, on_epoch=on_epoch, **kw)
+
+    monkeypatch.setattr(train, "train_spec", crash_in_second_map)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(cut)
+    monkeypatch.setattr(train, "train_spec", real)
+    assert run_experiment(cut, resume=True) == 0
+    a, b = open_store(full.store.path), open_store(cut.store.path)
+    for name in ("level1-default", "level1-bmuofn", "level2-bmuofn"):
+        assert np.array_equal(a["runs"][name]["weights"][:], b["runs"][name]["weights"][:])
+        assert np.array_equal(a["runs"][name]["bmu_unit"][:], b["runs"][name]["bmu_unit"][:])
+    assert b["runs"]["level1-bmuofn"].attrs["result"]["resumed_from"] == 4
+
+
+@pytest.mark.parametrize("text, key", [("som: {rows: -3}", "som"), ("som: {rwos: 3}", "rwos"), ("dask: {workers: -1}", "dask")])
+def test_config_errors_fail_fast_naming_the_key(tmp_path, text, key):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=key):
+        load_config(p)
