@@ -92,7 +92,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         def progress(stage, done, total):
             bar = bars.get(stage)
             if bar is None:
-                bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False)
+                bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False, disable=None)
             bar.update(done - bar.n)
 
         t0 = time.perf_counter()
@@ -173,7 +173,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
                           run_id=ids["children"].get(job.run))
     ids["children"][job.run] = child
     group.attrs["mlflow"] = ids
-    bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False)
+    bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False, disable=None)
 
     def on_epoch(epoch, metrics):
         tracker.log_metrics(child, metrics, step=epoch)
