@@ -53,7 +53,7 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
                 threads_per_worker=1,
                 processes=True,
                 memory_limit=config.memory_limit,
-                dashboard_address="127.0.0.1:0" if config.dashboard else None,
+                dashboard_address="127.0.0.1:0",  # None would still take :8787 when free
                 host="127.0.0.1",
                 silence_logs=logging.WARNING,
             )
@@ -66,7 +66,8 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
         client = Client(cluster)
     try:
         if not quiet:
-            link = client.dashboard_link if config.dashboard or config.scheduler else None
+            has_dashboard = "dashboard" in client.scheduler_info().get("services", {})
+            link = client.dashboard_link if has_dashboard and (config.dashboard or config.scheduler) else None
             where = config.scheduler or f"LocalCluster, {len(client.scheduler_info()['workers'])} workers x 1 thread"
             print(f"dask: {where}" + (f"; dashboard {link}" if link else ""))
         yield client
