@@ -20,7 +20,9 @@ COMMANDS = {
     "ingest": ("pipelines.ingest", "read, clean and store meshes (folders, mesh files, CityJSON)"),
     "encode": ("pipelines.encode_cmd", "encode every cleaned face into nested N-ring fold vectors (rings/level{L})"),
     "synth": ("pipelines.synth_cmd", "synthesize triangle patches from ring vectors or map prototypes (mesh files + contact sheet)"),
+    "log": ("pipelines.log_cmd", "send a run's results from the store to MLflow (after the server was unreachable)"),
     "run": ("pipelines.run", "run a whole experiment from a YAML config (configs/paper.yaml)"),
+    "report": ("pipelines.report_cmd", "regenerate the paper's tables and figures and check its claims (report.md)"),
     "train": ("pipelines.train_cmd", "train one level's triangle map (default or BMUofN kernel) and print T/Q/QC-errors"),
 }
 

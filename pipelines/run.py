@@ -115,7 +115,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
             run_id=ids.get("parent"),
         )
-        ids = {"uri": tracker.uri, "parent": parent, "children": dict(ids.get("children", {}))}
+        ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
+               "children": dict(ids.get("children", {}))}
         group.attrs["mlflow"] = ids
         if config_path is not None and config_path.exists():
             tracker.log_artifact(parent, config_path, "config")
@@ -204,6 +205,7 @@ def _print_summary(results, store, tracker, seconds) -> None:
         print(f"MLflow: {tracker.uri}, experiment {tracker.config.experiment!r} "
               f"(look at them side by side: mlflow ui --backend-store-uri {tracker.uri})")
     if tracker.failed:
-        print(f"warning: {len(tracker.failed)} MLflow writes failed (the results are in the store):")
-        for f in tracker.failed[:10]:
-            print(f"  {f['what']} for run {f['run_id']}: {f['error']}")
+        print(f"warning: {len(tracker.failed)} MLflow writes failed; every result is in the store. "
+              f"Send them later with: meshsom log {store} --tracking-uri {tracker.uri}")
+        for f in tracker.failed[:5]:
+            print(f"  {f['what']} ({f.get('name') or f['run_id']}): {f['error']}")

@@ -28,6 +28,9 @@ log = logging.getLogger(__name__)
 
 #: Seconds to wait for a tracking server's health check before giving up.
 HEALTH_TIMEOUT_S = 5.0
+#: MLflow HTTP client limits set (unless the user set them) for a remote server.
+HTTP_LIMITS = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "1", "MLFLOW_HTTP_REQUEST_TIMEOUT": "10",
+               "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1"}
 
 
 class TrackingError(MeshsomError, RuntimeError):
@@ -96,6 +99,7 @@ class Tracker:
         self.uri = resolve_uri(config)
         self.enabled = config.enabled
         self.failed: list[dict] = []
+        self.offline = False  # set at the first failed write: later writes are only recorded
         self._client = None
         self.experiment_id = None
 
@@ -111,6 +115,10 @@ class Tracker:
         """Check the server and get the experiment; raises TrackingError before any heavy work."""
         if not self.enabled:
             return
+        if self.uri.startswith(("http://", "https://")):
+            # fail fast when the server goes away mid-run (the results are in the store anyway)
+            for key, value in HTTP_LIMITS.items():
+                os.environ.setdefault(key, value)
         check_reachable(self.uri)
         try:
             exp = self.client.get_experiment_by_name(self.config.experiment)
@@ -131,7 +139,16 @@ class Tracker:
         all_tags = {"mlflow.runName": name, **{k: str(v) for k, v in tags.items()}}
         if parent:
             all_tags["mlflow.parentRunId"] = parent
-        run = self.client.create_run(self.experiment_id, tags=all_tags, run_name=name)
+        if self.offline:
+            self.failed.append({"what": "start", "run_id": None, "name": name, "error": "tracking server unreachable"})
+            return None
+        try:
+            run = self.client.create_run(self.experiment_id, tags=all_tags, run_name=name)
+        except Exception as err:
+            self.failed.append({"what": "start", "run_id": None, "name": name, "error": f"{type(err).__name__}: {err}"})
+            log.warning("MLflow: cannot start run %s: %s; later writes are skipped", name, err)
+            self.offline = True
+            return None
         rid = run.info.run_id
         self.log_params(rid, params)
         return rid
@@ -139,11 +156,16 @@ class Tracker:
     def _safe(self, what: str, run_id: str | None, fn, **record) -> None:
         if not self.enabled or run_id is None:
             return
+        if self.offline:
+            self.failed.append({"what": what, "run_id": run_id, "error": "tracking server unreachable", **record})
+            return
         try:
             fn()
         except Exception as err:
             self.failed.append({"what": what, "run_id": run_id, "error": f"{type(err).__name__}: {err}", **record})
-            log.warning("MLflow %s failed for run %s: %s", what, run_id, err)
+            log.warning("MLflow %s failed for run %s: %s; later writes are skipped (`meshsom log` sends them "
+                        "from the store)", what, run_id, err)
+            self.offline = True
 
     def log_params(self, run_id: str | None, params: dict) -> None:
         from mlflow.entities import Param

@@ -25,17 +25,16 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def mlflow_server(tmp_path_factory):
-    """A real `mlflow server` (SQLite backend) on a loopback port, stopped by PID at the end."""
-    tmp = tmp_path_factory.mktemp("mlflow")
+def start_mlflow(tmp: Path, db: Path) -> tuple[subprocess.Popen, str]:
+    """Start a real `mlflow server` (SQLite backend ``db``) on a free loopback port; wait for /health."""
     port = _free_port()
     mlflow_bin = Path(sys.executable).with_name("mlflow")
+    log = open(tmp / f"server-{port}.log", "w")
     proc = subprocess.Popen(
         [str(mlflow_bin), "server", "--host", "127.0.0.1", "--port", str(port),
-         "--backend-store-uri", f"sqlite:///{tmp / 'mlflow.db'}", "--artifacts-destination", str(tmp / "artifacts"),
+         "--backend-store-uri", f"sqlite:///{db}", "--artifacts-destination", str(tmp / "artifacts"),
          "--workers", "1"],
-        stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT, cwd=tmp,
+        stdout=log, stderr=subprocess.STDOUT, cwd=tmp,
     )
     uri = f"http://127.0.0.1:{port}"
     deadline = time.time() + 120
@@ -43,19 +42,31 @@ def mlflow_server(tmp_path_factory):
         try:
             with urllib.request.urlopen(uri + "/health", timeout=2) as r:
                 if r.status == 200:
-                    break
+                    return proc, uri
         except OSError:
             pass
         if proc.poll() is not None or time.time() > deadline:
             proc.kill()
-            pytest.fail(f"mlflow server did not start: {(tmp / 'server.log').read_text()[-2000:]}")
+            pytest.fail(f"mlflow server did not start: {(tmp / f'server-{port}.log').read_text()[-2000:]}")
         time.sleep(0.5)
-    yield uri
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """Stop a server started here, by PID (its gunicorn/uvicorn children go with its process group)."""
     proc.terminate()
     try:
         proc.wait(timeout=20)
     except subprocess.TimeoutExpired:
         proc.kill()
+
+
+@pytest.fixture(scope="module")
+def mlflow_server(tmp_path_factory):
+    """A real `mlflow server` (SQLite backend) on a loopback port, stopped by PID at the end."""
+    tmp = tmp_path_factory.mktemp("mlflow")
+    proc, uri = start_mlflow(tmp, tmp / "mlflow.db")
+    yield uri
+    stop(proc)
 
 
 def quick(tmp_path, **over):
@@ -130,3 +141,52 @@ def test_config_errors_fail_fast_naming_the_key(tmp_path, text, key):
     p.write_text(text)
     with pytest.raises(ConfigError, match=key):
         load_config(p)
+
+
+def test_mlflow_server_stopping_mid_run_then_meshsom_log(tmp_path, capsys):
+    """Results stay in the store, the run says what could not be logged, `meshsom log` sends it later."""
+    import threading
+
+    import mlflow
+
+    from pipelines.cli import main
+
+    db = tmp_path / "mlflow.db"
+    proc, uri = start_mlflow(tmp_path, db)
+    cfg = quick(tmp_path, tracking={"uri": uri, "experiment": "outage"}, som={"rows": 12, "cols": 15, "epochs": 30})
+    out = {}
+    t = threading.Thread(target=lambda: out.update(rc=run_experiment(cfg)), daemon=True)
+    t.start()
+
+    def first_map_done():
+        try:
+            return open_store(cfg.store.path)["runs"]["level1-default"].attrs.get("final_done", False)
+        except Exception:
+            return False
+
+    deadline = time.time() + 120
+    while not first_map_done():
+        assert time.time() < deadline and t.is_alive(), "the first map did not finish"
+        time.sleep(0.02)
+    stop(proc)
+    t.join(300)
+    assert out.get("rc") == 0
+    said = capsys.readouterr().out
+    assert "MLflow writes failed" in said and f"meshsom log {cfg.store.path} --tracking-uri" in said
+    g = open_store(cfg.store.path)
+    for name in ("level1-default", "level1-bmuofn", "level2-bmuofn"):
+        assert g["runs"][name].attrs["final_done"]  # every result is in the store
+    proc, uri2 = start_mlflow(tmp_path, db)  # the same database behind a new server
+    try:
+        assert main(["log", cfg.store.path, "--tracking-uri", uri2]) == 0
+        assert main(["log", cfg.store.path, "--tracking-uri", uri2]) == 0  # idempotent
+        client = mlflow.tracking.MlflowClient(uri2)
+        children = open_store(cfg.store.path).attrs["mlflow"]["children"]
+        assert sorted(children) == ["level1-bmuofn", "level1-default", "level2-bmuofn"]
+        for name, rid in children.items():
+            history = client.get_metric_history(rid, "q_error")
+            assert sorted(m.step for m in history) == list(range(31)), name
+            final = [m.value for m in history if m.step == 30][0]
+            assert final == pytest.approx(g["runs"][name].attrs["metrics"]["q_error"])
+    finally:
+        stop(proc)
