@@ -84,16 +84,55 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     return record, CleanMesh(raw.id, result.vertices, result.faces, raw.origin, raw.label)
 
 
-def check_writable(path: Path, overwrite: bool) -> None:
-    """Fail before any work when the store cannot be written."""
+#: Rough size of one input triangle in a mesh or CityJSON file, for the disk-space estimate.
+BYTES_PER_INPUT_TRIANGLE = 40
+#: Triangles per synthetic block, for the disk-space estimate.
+TRIANGLES_PER_BLOCK = 60
+#: Stored bytes per triangle besides its rings: faces (3 x int64), face_mesh, ~1.5 vertices (3 x float64).
+BYTES_PER_TRIANGLE = 3 * 8 + 4 + 36
+
+
+def estimate_store_bytes(paths: Iterable[str], generator=None, levels: Iterable[int] = ()) -> int:
+    """Upper-end estimate of a store's size from its inputs (file sizes, generated blocks, ring levels)."""
+    from meshsom.rings import dims
+
+    size = 0
+    for p in paths:
+        p = Path(p)
+        if p.is_file():
+            size += p.stat().st_size
+        elif p.is_dir():
+            size += sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    triangles = size // BYTES_PER_INPUT_TRIANGLE + (generator.n_blocks * TRIANGLES_PER_BLOCK if generator else 0)
+    return int(triangles * (BYTES_PER_TRIANGLE + 4 * sum(dims(level) for level in levels)))
+
+
+def check_writable(path: Path, overwrite: bool, needed_bytes: int = 0) -> None:
+    """Fail before any work when the store cannot be written (exists, read-only, or too little space).
+
+    Writability is tested by creating and removing a file in the nearest existing folder (file
+    permissions alone say nothing for root or on a read-only mount).
+    """
+    import shutil
+    import tempfile
+
+    path = Path(path)
     if path.exists() and not overwrite:
         raise StoreError(f"{path}: already exists; pass --overwrite to replace it")
-    parent = path.parent if path.parent != Path("") else Path(".")
-    probe = parent
+    probe = path.parent if str(path.parent) else Path(".")
     while not probe.exists():
         probe = probe.parent
-    if not os.access(probe, os.W_OK):
-        raise StoreError(f"{path}: cannot write into {probe} (permission denied)")
+    try:
+        with tempfile.NamedTemporaryFile(dir=probe, prefix=".meshsom-probe-"):
+            pass
+    except OSError as err:
+        raise StoreError(f"{path}: cannot write into {probe} ({err.strerror or err})") from None
+    if needed_bytes:
+        free = shutil.disk_usage(probe).free
+        if free < needed_bytes:
+            raise StoreError(
+                f"{path}: needs about {needed_bytes / 1e6:,.0f} MB, but only {free / 1e6:,.0f} MB are free on its disk"
+            )
 
 
 def ingest(

@@ -77,11 +77,15 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
     store = Path(cfg.store.path)
     if store.exists() and not (overwrite or resume):
         raise StoreError(f"{store}: already exists; pass --overwrite to replace it or --resume to continue it")
+    from pipelines.ingest import estimate_store_bytes
+
+    # every check before any work (and before an old store is removed)
+    check_writable(store, overwrite=True, needed_bytes=estimate_store_bytes(
+        cfg.corpus.paths, cfg.corpus.generator, cfg.encoding.levels))
+    tracker = Tracker(cfg.tracking)
+    tracker.open()  # fails here, naming the URI
     if overwrite and store.exists():
         shutil.rmtree(store)
-    check_writable(store, overwrite=True)
-    tracker = Tracker(cfg.tracking)
-    tracker.open()  # fails here, naming the URI, before any heavy work
     t_start = time.perf_counter()
     stages = 2 + (1 if _domain_available() else 0)
     with connect(cfg.dask) as client:

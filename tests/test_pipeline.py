@@ -190,3 +190,21 @@ def test_mlflow_server_stopping_mid_run_then_meshsom_log(tmp_path, capsys):
             assert final == pytest.approx(g["runs"][name].attrs["metrics"]["q_error"])
     finally:
         stop(proc)
+
+
+def test_read_only_output_path_fails_before_work(tmp_path):
+    cfg = quick(tmp_path, tracking={"enabled": False}, store={"path": "/proc/meshsom-test.zarr"})
+    with pytest.raises(MeshsomError, match="cannot write into /proc"):
+        run_experiment(cfg)
+
+
+def test_too_little_disk_space_fails_before_work(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
+    cfg = quick(tmp_path, tracking={"enabled": False})
+    with pytest.raises(MeshsomError, match=r"needs about .* MB, but only 0 MB are free"):
+        run_experiment(cfg)
+    assert not Path(cfg.store.path).exists()
