@@ -1,0 +1,22 @@
+"""``meshsom report``: every table and figure of the paper's Results section, from tracked runs.
+
+A thin wrapper around :func:`reports.report.make_report` (see :mod:`reports.report`).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from reports.report import add_arguments as report_arguments
+
+    report_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from reports.report import claims_table, make_report
+
+    res = make_report(args.tracking_uri, args.experiment, args.out, args.clustering_experiment, tuple(args.also))
+    print(claims_table(res["claims"]), end="")
+    return 0

@@ -1,0 +1,201 @@
+"""The report scripts on a tiny tracked run (configs/quick.yaml: levels 1-2, 24 labelled blocks).
+
+One pipeline run per module (a 2-worker LocalCluster, a SQLite MLflow store in a temporary
+folder); every script runs against it and must produce its files. Table 2's numbers must equal
+the MLflow metrics they were read from; Figure 10's reduction must equal an independent
+recomputation on the same prototypes; report.md must state every claim.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshsom.config import load_config
+from pipelines.run import run_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENT = "reports-test"
+QUICK_RUNS = ("level1-default", "level1-bmuofn", "level2-bmuofn")
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    """(uri, experiment, store) of one finished quick run."""
+    tmp = tmp_path_factory.mktemp("reports")
+    uri = f"sqlite:///{tmp / 'mlflow.db'}"
+    cfg = load_config(ROOT / "configs" / "quick.yaml", {
+        "store": {"path": str(tmp / "quick.zarr")},
+        "tracking": {"uri": uri, "experiment": EXPERIMENT},
+        "dask": {"workers": 2, "dashboard": False},
+    })
+    assert run_experiment(cfg, ROOT / "configs" / "quick.yaml") == 0
+    return uri, EXPERIMENT, tmp / "quick.zarr"
+
+
+def _args(tracked, out) -> list[str]:
+    uri, exp, _ = tracked
+    return ["--tracking-uri", uri, "--experiment", exp, "--out", str(out)]
+
+
+def _final_metrics(uri: str, run_id: str) -> dict:
+    """Final value (highest step) of every error metric, straight from the metric history."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    out = {}
+    for key in ("t_error", "q_error", "qc_error"):
+        hist = client.get_metric_history(run_id, key)
+        out[key] = max(hist, key=lambda m: (m.step, m.timestamp)).value
+    return out
+
+
+def test_table2_numbers_equal_the_mlflow_metrics(tracked, tmp_path):
+    from reports import table2
+    from reports.runs import load_experiment
+
+    assert table2.main(_args(tracked, tmp_path)) == 0
+    text = (tmp_path / "table2.md").read_text()
+    exp = load_experiment(tracked[0], tracked[1])
+    head = [c.strip() for c in text.splitlines()[0].strip("|").split("|")]
+    seen = set()
+    for line in text.splitlines()[2:]:
+        if not line.startswith("|"):
+            break
+        cells = dict(zip(head, (c.strip() for c in line.strip("|").split("|"))))
+        level = int(cells["level"].rstrip("*"))
+        m = exp.find(level, cells["kernel"])
+        if m is None:
+            assert level == 3 and cells["map"] == "not trained"
+            continue
+        assert cells["map"] == "12x15" and cells["dims"] == m.params["dims"]
+        final = _final_metrics(tracked[0], m.run_id)
+        for key, title in table2.ERRORS.items():
+            assert float(cells[title]) == float(table2.format_value(final[key])), (m.name, key)
+        seen.add(m.name)
+    assert seen == set(QUICK_RUNS)
+    assert "level 3* (bmuofn): not trained" not in text and "level 3 (bmuofn): not trained" in text
+    assert "0.06560" in text  # the paper's level-1 T-error beside ours
+
+
+def test_fig8_writes_the_panel_and_one_u_matrix_per_map(tracked, tmp_path, capsys):
+    from reports import fig8
+
+    assert fig8.main(_args(tracked, tmp_path)) == 0
+    assert (tmp_path / "fig8.png").stat().st_size > 0
+    for run in QUICK_RUNS:
+        assert (tmp_path / f"fig8-{run}.png").stat().st_size > 0
+    assert "level 3 (BMUofN): not trained" in capsys.readouterr().out
+
+
+def test_fig9_writes_a_domain_map_per_map(tracked, tmp_path):
+    from reports import fig9
+
+    assert fig9.main(_args(tracked, tmp_path)) == 0
+    for run in QUICK_RUNS:
+        assert (tmp_path / f"fig9-{run}.png").stat().st_size > 0
+
+
+def test_fig10_reduction_equals_an_independent_recomputation(tracked, tmp_path):
+    import zarr
+
+    from meshsom.standardize import destandardize, standardize
+    from meshsom.synthesis import decode, reencode
+    from reports import fig10
+    from reports.runs import load_experiment
+
+    res = fig10.write(load_experiment(tracked[0], tracked[1]), tmp_path)
+    assert (tmp_path / "fig10.png").stat().st_size > 0
+    assert res["level"] == 2 and "no level-3 map" in res["note"]  # quick.yaml stops at level 2
+    # independently: every unit of the 12 x 15 map (fewer than the sample size), read with zarr directly
+    g = zarr.open_group(str(tracked[2]), mode="r")
+    W = np.asarray(g["runs"]["level2-bmuofn"]["weights"][:])
+    stats = dict(g["rings"]["stats"].attrs["level2"])
+    assert np.array_equal(res["units"], np.arange(len(W)))
+    X = destandardize(W, stats)
+    X[:, 2::3] = np.maximum(X[:, 2::3], fig10.V_MIN)
+
+    def qc(x, leveling):
+        d = standardize(x, stats) - standardize(reencode(decode(x, 2, leveling)), stats)
+        return np.linalg.norm(d.reshape(-1, 3), axis=1).mean()
+
+    raw = np.array([qc(x, False) for x in X])
+    lev = np.array([qc(x, True) for x in X])
+    expected = 100.0 * (1.0 - lev.mean() / raw.mean())
+    assert res["prototypes"]["reduction_pct"] == pytest.approx(expected, abs=1e-9)
+    assert res["prototypes"]["raw_mean"] == pytest.approx(raw.mean(), rel=1e-12)
+
+
+def test_clustering_against_the_d2_baseline(tracked, tmp_path):
+    from reports import clustering
+
+    assert clustering.main(_args(tracked, tmp_path)) == 0
+    text = (tmp_path / "clustering.md").read_text()
+    assert "D2 baseline" in text and "level 2 (bmuofn)" in text
+    values = re.findall(r"\| (0\.\d{3}|1\.000) \|", text)
+    assert values  # numbers, not dashes
+
+
+def test_report_writes_every_file_and_states_every_claim(tracked, tmp_path):
+    from reports.report import CLAIMS, make_report
+
+    uri, exp, _ = tracked
+    res = make_report(uri, exp, tmp_path, clustering_experiment=exp, also=("no-such-experiment",), log=lambda *_: None)
+    names = {Path(f).name for f in res["files"]}
+    expected = {"table1.md", "table2.md", "fig8.png", "fig10.png", "clustering.md", "report.md"}
+    expected |= {f"fig8-{r}.png" for r in QUICK_RUNS} | {f"fig9-{r}.png" for r in QUICK_RUNS}
+    assert expected <= names
+    text = (tmp_path / "report.md").read_text()
+    for claim in CLAIMS.values():
+        assert claim in text
+    assert {c["claim"] for c in res["claims"]} == set(CLAIMS)
+    assert all(c["verdict"] in ("yes", "no", "partly", "not measured") for c in res["claims"])
+    assert "no-such-experiment" in text and "Not tracked" in text
+    assert "![Figure 8](fig8.png)" in text
+
+
+def test_report_without_the_labelled_experiment_says_so(tracked, tmp_path):
+    from reports.report import make_report
+
+    uri, exp, _ = tracked
+    res = make_report(uri, exp, tmp_path, clustering_experiment="absent-labels", also=(), log=lambda *_: None)
+    text = (tmp_path / "report.md").read_text()
+    assert "Not measured" in text and "absent-labels" in text and uri in text
+    assert [c["verdict"] for c in res["claims"] if c["claim"] == "d"] == ["not measured"]
+    assert not (tmp_path / "clustering.md").exists()
+
+
+def test_missing_experiment_is_a_clear_error(tracked, tmp_path, capsys):
+    from pipelines.cli import main as cli
+    from reports import table2
+
+    uri = tracked[0]
+    assert cli(["report", "--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "'nope'" in err and uri in err
+    assert table2.main(["--tracking-uri", uri, "--experiment", "nope", "--out", str(tmp_path)]) == 2
+    assert "'nope'" in capsys.readouterr().err
+
+
+def test_claims_from_hand_made_rows():
+    from reports.report import claim_a, claim_b, claim_c
+
+    def row(level, kernel, t, q, qc):
+        return {"level": level, "kernel": kernel, "run": f"level{level}-{kernel}",
+                "ours": {"t_error": t, "q_error": q, "qc_error": qc}}
+
+    table = [row(1, "default", 0.3, 0.5, 0.2), row(1, "bmuofn", 0.4, 0.4, 0.1), row(2, "bmuofn", 0.2, 0.9, 0.3)]
+    assert [c["verdict"] for c in claim_a(table)] == ["no", "yes", "yes"]
+    assert [c["verdict"] for c in claim_b(table)] == ["yes", "no"]
+    assert claim_b(table[:2])[0]["verdict"] == "not measured"
+    measured = {"level": 3, "note": None, "units": np.arange(4), "noise_sigma": 0.1,
+                "prototypes": {"raw_mean": 1.0, "leveled_mean": 0.65, "reduction_pct": 35.0, "disagreeing": 4},
+                "perturbed": {"raw_mean": 1.0, "leveled_mean": 0.5, "reduction_pct": 50.0, "disagreeing": 4}}
+    assert claim_c(measured)["verdict"] == "yes"
+    measured["prototypes"]["reduction_pct"] = 10.0
+    assert claim_c(measured)["verdict"] == "partly"
+    measured["prototypes"]["reduction_pct"] = 0.0
+    assert claim_c(measured)["verdict"] == "no"
