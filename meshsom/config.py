@@ -189,6 +189,9 @@ class DomainConfig:
         Domain map size.
     epochs : int
     seed : int
+    enabled : bool
+        Build domain maps (they hold n_meshes x map units in memory: switch off for a city-sized
+        corpus on a small machine).
     """
 
     sigma: float = 2.0
@@ -196,6 +199,7 @@ class DomainConfig:
     cols: int = 10
     epochs: int = 30
     seed: int = 0
+    enabled: bool = True
 
     def __post_init__(self):
         if self.sigma <= 0:

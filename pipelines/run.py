@@ -87,7 +87,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
     if overwrite and store.exists():
         shutil.rmtree(store)
     t_start = time.perf_counter()
-    stages = 2 + (1 if _domain_available() else 0)
+    with_domain = cfg.domain.enabled and _domain_available()
+    stages = 2 + (1 if with_domain else 0)
     with connect(cfg.dask) as client:
         # ------------------------------------------------------------------ 1. corpus
         print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {store}")
@@ -133,7 +134,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         for spec in cfg.train:
             results.append(_train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint))
         # ------------------------------------------------------------------ 3. domain maps
-        if _domain_available():
+        if with_domain:
             print(f"[3/{stages}] domain maps")
             from pipelines.domain_stage import run_domain_stage
 
