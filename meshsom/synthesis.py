@@ -10,9 +10,12 @@ root, then every leaf from its fold, slot by slot in walk order:
   (:func:`meshsom.folds.apex_of_fold`); its own edge 0 is the shared edge, walked back.
 
 A vector holds many copies of the same quantity: a level-3 ring repeats folds of its 10 slots in
-16 one-rings, and the dihedral angle of an edge appears from both of its sides. Without
-leveling, the first copy of each fold is used; with leveling, every copy of the same quantity
-is averaged first. The re-translation error is the QC-error between a vector and the
+16 one-rings, and the dihedral angle of an edge appears from both of its sides. Without leveling,
+the first copy of each fold is used; with leveling, every copy of the same quantity is averaged
+first: identical folds, and the two angles of an edge (on the circle, so that copies on both sides
+of 0 / 2 pi agree). Averaging the shape of each face over its parent's fold and its children's
+back-folds as well was tried and raises the QC-error (it spreads a concentrated error over every
+component), so it is not done. The re-translation error is the QC-error between a vector and the
 re-encoding of its own patch.
 """
 
@@ -93,9 +96,12 @@ def level_vector(x: np.ndarray, level: int) -> np.ndarray:
     # alpha: pool a fold with its back-fold when both are in the vector
     edges: dict = {}
     edge_id = np.array([edges.setdefault(min(k, _reverse(k)), len(edges)) for k in keys])
-    alpha = np.zeros(edge_id.max() + 1)
-    np.add.at(alpha, edge_id, f[:, 0])
-    alpha /= np.bincount(edge_id)
+    # alpha is an angle: averaged on the circle, so copies on both sides of 0 / 2 pi agree
+    n_edges = edge_id.max() + 1
+    c = np.bincount(edge_id, weights=np.cos(f[:, 0]), minlength=n_edges)
+    s = np.bincount(edge_id, weights=np.sin(f[:, 0]), minlength=n_edges)
+    alpha = np.mod(np.arctan2(s, c), 2 * np.pi)
+    alpha = np.where(alpha <= 0, 2 * np.pi, alpha)
     out = mean[fold_id]
     out[:, 0] = alpha[edge_id]
     return out.reshape(-1)
