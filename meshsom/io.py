@@ -22,12 +22,14 @@ CompositeSurface, holes, LoD, BuildingPart parents/children).
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
+from urllib.parse import urlparse
 
 import numpy as np
 
@@ -39,6 +41,8 @@ TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 #: File name endings read as CityJSON.
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson")
 SUPPORTED_CITYJSON_VERSIONS = ("1.0", "1.1", "2.0")
+#: Largest integer CityJSON coordinate taken (exact in float64, no int64 overflow in re-centring).
+MAX_GRID_COORDINATE = 2**53
 LOD_CHOICES = ("highest", "lowest")
 PARTS_CHOICES = ("merge", "separate")
 SURFACE_TYPES = ("MultiSurface", "CompositeSurface")
@@ -231,8 +235,17 @@ def _labels_beside(path: Path) -> dict[str, str]:
     table = path.parent / "labels.csv"
     if not table.is_file():
         return {}
-    with open(table, newline="") as fh:
-        return {row["file"]: row["label"] for row in csv.DictReader(fh) if "file" in row and "label" in row}
+    try:
+        with open(table, newline="", encoding="utf-8-sig") as fh:
+            return {
+                str(row["file"]): str(row["label"])
+                for row in csv.DictReader(fh)
+                if row.get("file") is not None and row.get("label") is not None
+            }
+    except (UnicodeDecodeError, csv.Error) as err:
+        raise InputFileError(
+            str(path), f"the {table.name} beside it is not a readable CSV table of file,label ({type(err).__name__}: {err})"
+        ) from None
 
 
 def read_trimesh(path: Path) -> Iterator[RawMesh]:
@@ -241,14 +254,28 @@ def read_trimesh(path: Path) -> Iterator[RawMesh]:
     A scene yields one mesh per geometry node, with the node's transform
     applied, id ``file#node``. Labels come from a ``labels.csv`` (columns
     ``file``, ``label``) in the same folder, when there is one.
+
+    Materials and textures are not loaded (only geometry is used), and the
+    external files a glTF names (buffers) are looked up by :class:`FolderResolver`,
+    inside the file's own folder only.
     """
     import trimesh
 
     if path.stat().st_size == 0:
         raise InputFileError(str(path), "file is empty")
+    file_type = path.suffix.lower().lstrip(".")
+    with open(path, "rb") as fh:
+        # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
+        # reads what there is, where a read from the file would first allocate the claimed size.
+        data = io.BytesIO(fh.read())
     try:
-        loaded = trimesh.load(str(path), process=False, force=None)
-    except Exception as err:  # trimesh raises many types for corrupt files
+        loaded = trimesh.load(
+            data, file_type=file_type, resolver=FolderResolver(path.parent, str(path)),
+            process=False, force=None, skip_materials=True,
+        )
+    except InputFileError:
+        raise
+    except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
         raise InputFileError(str(path), f"cannot be read as {path.suffix} ({type(err).__name__}: {err})") from None
     label = _labels_beside(path).get(path.name)
     if isinstance(loaded, trimesh.Scene):
@@ -273,6 +300,82 @@ def read_trimesh(path: Path) -> Iterator[RawMesh]:
         yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, label, None)
 
 
+class FolderResolver:
+    """Files a mesh file refers to (glTF buffers, materials), looked up in its own folder only.
+
+    trimesh calls ``get(name)`` (or ``resolver[name]``) for each external file. A name that is a
+    URL (``http:``, ``file:``, any scheme), an absolute path, contains ``..``, or resolves (through
+    symbolic links) to a file outside the folder is refused with an :class:`InputFileError` naming
+    the input; nothing outside the folder is opened and the network is never used.
+
+    Parameters
+    ----------
+    folder : path
+        The input file's folder.
+    source : str
+        The input file, named in errors.
+    """
+
+    def __init__(self, folder: str | os.PathLike, source: str):
+        self.folder = Path(folder).resolve()
+        self.source = source
+
+    def _path(self, name) -> Path:
+        if not isinstance(name, str) or not name.strip():
+            raise InputFileError(self.source, f"refers to an external file with an invalid name {name!r}")
+        name = name.strip()
+        parts = name.replace("\\", "/").split("/")
+        if urlparse(name).scheme or name.startswith(("/", "\\", "~")) or ".." in parts or os.path.isabs(name):
+            raise InputFileError(
+                self.source, f"refers to {name!r}, outside its own folder; only files beside it are read"
+            )
+        path = (self.folder / name).resolve()
+        if not path.is_relative_to(self.folder):
+            raise InputFileError(self.source, f"refers to {name!r}, which resolves to {path}, outside its own folder")
+        if not path.is_file():
+            raise InputFileError(self.source, f"refers to {name!r}, which is not a file in {self.folder}")
+        return path
+
+    def get(self, name) -> bytes:
+        """The bytes of the file ``name`` beside the input."""
+        with open(self._path(name), "rb") as fh:
+            return fh.read()
+
+    def __getitem__(self, name) -> bytes:
+        return self.get(name)
+
+    def __contains__(self, name) -> bool:
+        try:
+            self._path(name)
+        except InputFileError:
+            return False
+        return True
+
+    def get_base(self) -> bytes:
+        raise InputFileError(self.source, "has no base file to resolve")
+
+    def namespaced(self, namespace: str) -> "FolderResolver":
+        """A resolver for a sub-folder, still confined to this one."""
+        sub = FolderResolver(self.folder, self.source)
+        sub.folder = self._path_dir(namespace)
+        return sub
+
+    def _path_dir(self, namespace) -> Path:
+        path = (self.folder / str(namespace)).resolve()
+        if not path.is_relative_to(self.folder) or not path.is_dir():
+            raise InputFileError(self.source, f"refers to folder {namespace!r}, outside its own folder")
+        return path
+
+    def keys(self) -> Iterator[str]:
+        """Names of the files directly in the folder."""
+        return (p.name for p in sorted(self.folder.iterdir()) if p.is_file())
+
+    def write(self, name, data):
+        raise InputFileError(self.source, f"reading it tried to write {name!r}; meshsom never writes beside an input")
+
+    __setitem__ = write
+
+
 # ----------------------------------------------------------------------------- CityJSON
 
 
@@ -283,17 +386,38 @@ def _lod_key(lod) -> float:
         return math.nan
 
 
-def _polygons_of(geom: dict) -> list[list[list[int]]]:
-    """Every polygon (list of rings of vertex indices) of a surface or solid geometry."""
+#: Levels of lists above the polygons in a geometry's "boundaries".
+_NESTING = {**dict.fromkeys(SURFACE_TYPES, 0), **dict.fromkeys(SOLID_TYPES, 1), **dict.fromkeys(MULTISOLID_TYPES, 2)}
+
+
+def _polygons_of(geom: dict, mesh_id: str) -> list[list[list[int]]]:
+    """Every polygon (list of rings of vertex indices) of a surface or solid geometry.
+
+    The nesting is checked (lists down to the rings) so malformed boundaries are an
+    InputFileError naming the object; polygons with no ring are dropped.
+    """
     gtype = geom.get("type")
-    b = geom.get("boundaries", [])
-    if gtype in SURFACE_TYPES:
-        return list(b)
-    if gtype in SOLID_TYPES:
-        return [poly for shell in b for poly in shell]
-    if gtype in MULTISOLID_TYPES:
-        return [poly for solid in b for shell in solid for poly in shell]
-    return []
+    if gtype not in _NESTING:
+        return []
+    items = [geom.get("boundaries", [])]
+    for _ in range(_NESTING[gtype] + 1):
+        if not all(isinstance(x, list) for x in items):
+            break
+        items = [y for x in items for y in x]
+    else:
+        if all(isinstance(poly, list) and all(isinstance(ring, list) for ring in poly) for poly in items):
+            return [poly for poly in items if poly]
+    raise InputFileError(mesh_id, f"{gtype} boundaries must be nested lists down to rings of vertex indices")
+
+
+def _ids(value) -> list[str]:
+    """The object ids of a "children" or "parents" member (anything but a list of strings counts as none)."""
+    return [v for v in value if isinstance(v, str)] if isinstance(value, list) else []
+
+
+def _type(obj) -> str:
+    otype = obj.get("type") if isinstance(obj, dict) else None
+    return otype if isinstance(otype, str) else ""
 
 
 def _check_cityjson_header(cj, path: Path, options: ReaderOptions) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -353,6 +477,10 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
         raise InputFileError(str(path), f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
     except UnicodeDecodeError as err:
         raise InputFileError(str(path), f"is not UTF-8 text ({err.reason} at byte {err.start})") from None
+    except ValueError as err:  # e.g. an integer literal of more than 4300 digits
+        raise InputFileError(str(path), f"invalid JSON ({err})") from None
+    except RecursionError:
+        raise InputFileError(str(path), "invalid JSON: arrays or objects nested too deeply") from None
     vertices, scale, translate = _check_cityjson_header(cj, path, options)
     objects: dict = cj["CityObjects"]
     name = path.name
@@ -360,23 +488,26 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
     for oid, obj in objects.items():
         if not isinstance(obj, dict):
             continue
-        otype = obj.get("type")
+        otype = _type(obj)
         if options.parts == "merge":
             if otype in options.object_types and not obj.get("parents"):
                 members = [oid]
-                stack = list(obj.get("children", []) or [])
+                seen = {oid}
+                stack = _ids(obj.get("children"))
                 while stack:
                     child = stack.pop()
+                    if child in seen:
+                        continue  # a part listed twice, or a cycle of children
+                    seen.add(child)
                     cobj = objects.get(child)
-                    if isinstance(cobj, dict) and cobj.get("type", "").endswith("Part"):
+                    if _type(cobj).endswith("Part"):
                         members.append(child)
-                        stack.extend(cobj.get("children", []) or [])
+                        stack.extend(_ids(cobj.get("children")))
                 groups.append((oid, members))
         else:
             own = bool(obj.get("geometry"))
-            if (otype in options.object_types and (own or not obj.get("children"))) or (otype or "").endswith("Part") and any(
-                isinstance(objects.get(p), dict) and objects[p].get("type") in options.object_types
-                for p in obj.get("parents", []) or []
+            if (otype in options.object_types and (own or not obj.get("children"))) or otype.endswith("Part") and any(
+                _type(objects.get(p)) in options.object_types for p in _ids(obj.get("parents"))
             ):
                 groups.append((oid, [oid]))
     for oid, members in groups:
@@ -393,7 +524,8 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
 def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label) -> RawMesh:
     geoms = []
     for m in members:
-        for g in objects[m].get("geometry", []) or []:
+        member_geoms = objects[m].get("geometry", [])
+        for g in member_geoms if isinstance(member_geoms, list) else []:
             if isinstance(g, dict):
                 geoms.append(g)
     if not geoms:
@@ -417,39 +549,71 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
             raise InputFileError(mesh_id, f"has no geometry at LoD {options.lod} (available: {', '.join(lods)})")
         want = matches[0]
     chosen = [g for g in usable if str(g.get("lod")) == want]
-    polygons = [poly for g in chosen for poly in _polygons_of(g)]
+    polygons = [poly for g in chosen for poly in _polygons_of(g, mesh_id)]
     if not polygons:
         raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
-    try:
-        flat = np.fromiter((i for poly in polygons for ring in poly for i in ring), np.int64)
-    except (TypeError, ValueError):
-        raise InputFileError(mesh_id, "boundaries must be nested lists of integer vertex indices") from None
+    flat = _indices(mesh_id, [i for poly in polygons for ring in poly for i in ring])
+    if len(flat) == 0:
+        raise InputFileError(mesh_id, f"has only empty rings at LoD {want}")
     n_vertices = len(vertices)
     bad = (flat < 0) | (flat >= n_vertices)
     if bad.any():
         raise InputFileError(
-            mesh_id, f"vertex index {int(flat[bad][0])} out of range (the file has {n_vertices} vertices)"
+            mesh_id, f"vertex index {flat[bad][0]} out of range (the file has {n_vertices} vertices)"
         )
+    flat = flat.astype(np.int64)
     used, inverse = np.unique(flat, return_inverse=True)
     grid = vertices[used]
     # Exact re-centring: on the integer grid when there is a transform.
     if scale is not None:
+        beyond = (grid > MAX_GRID_COORDINATE) | (grid < -MAX_GRID_COORDINATE)
+        if beyond.any():
+            raise InputFileError(
+                mesh_id, f"integer vertex coordinate {int(grid[beyond][0])} beyond +/-2^53 (not exact in float64)"
+            )
         centre = (grid.min(axis=0) + grid.max(axis=0)) // 2
-        local = (grid - centre).astype(np.float64) * scale
-        origin = centre.astype(np.float64) * scale + translate
+        with np.errstate(over="ignore", invalid="ignore"):
+            local = (grid - centre).astype(np.float64) * scale
+            origin = centre.astype(np.float64) * scale + translate
     else:
         if not np.isfinite(grid).all():
             raise InputFileError(mesh_id, f"{int((~np.isfinite(grid).all(axis=1)).sum())} vertices have NaN or infinite coordinates")
-        local, origin = recentre(grid)
-    faces = _triangulate_polygons(polygons, inverse, local)
-    lod = want
-    if options.extrude_lod1:
-        local, faces = _extrude_footprint(mesh_id, local, faces, options.footprint_simplify)
-        lod = f"1 (extruded from {want})"
+        with np.errstate(over="ignore", invalid="ignore"):
+            local, origin = recentre(grid)
+    if not (np.isfinite(local).all() and np.isfinite(origin).all()):
+        raise InputFileError(mesh_id, "coordinates overflow float64 after the transform or re-centring")
+    import shapely.errors
+
+    try:
+        faces = _triangulate_polygons(polygons, inverse, local)
+        lod = want
+        if options.extrude_lod1:
+            local, faces = _extrude_footprint(mesh_id, local, faces, options.footprint_simplify)
+            lod = f"1 (extruded from {want})"
+    except shapely.errors.GEOSException as err:
+        raise InputFileError(mesh_id, f"a polygon cannot be triangulated (GEOS: {err})") from None
     n_in = sum(len(p) for p in polygons)
     if len(faces) == 0:
         raise InputFileError(mesh_id, f"all {n_in} polygons at LoD {want} are degenerate")
     return RawMesh(mesh_id, source, local, faces, origin, label, lod)
+
+
+def _indices(mesh_id: str, values: list) -> np.ndarray:
+    """The boundaries' vertex indices as an integer array; InputFileError if any is not an integer.
+
+    Returns
+    -------
+    flat : (N,) int64 or uint64
+        uint64 only when an index is beyond the int64 range (then out of range anyway).
+    """
+    try:
+        flat = np.array(values) if values else np.zeros(0, np.int64)
+    except (TypeError, ValueError, OverflowError):
+        flat = None
+    if flat is None or flat.ndim != 1 or flat.dtype.kind not in "iu":
+        found = "mixed or nested values" if flat is None or flat.ndim != 1 else str(flat.dtype)
+        raise InputFileError(mesh_id, f"boundaries must hold integer vertex indices (found {found})")
+    return flat
 
 
 def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> np.ndarray:
@@ -493,9 +657,20 @@ def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) 
         spikes = np.flatnonzero(cos < cos_tol)
         if len(spikes) == 0:
             break
-        ring = np.delete(ring, spikes[0])
+        # Tips at least 3 apart do not change each other's neighbours: drop them together, so a
+        # ring of n spikes (a hostile zig-zag) costs a few passes, not n.
+        ring = np.delete(ring, _spaced(spikes, len(ring), 3)[: len(ring) - 3])
         ring = ring[ring != np.roll(ring, 1)]
     return ring
+
+
+def _spaced(positions: np.ndarray, n: int, gap: int) -> list[int]:
+    """Greedy subset of sorted ring positions that are pairwise at least ``gap`` apart on a ring of ``n``."""
+    out: list[int] = []
+    for i in positions.tolist():
+        if not out or (i - out[-1] >= gap and out[0] + n - i >= gap):
+            out.append(i)
+    return out
 
 
 def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:

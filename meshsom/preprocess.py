@@ -46,6 +46,10 @@ from meshsom.topology import edge_table, half_edges, signed_volume
 
 __all__ = ["PreprocessParams", "Result", "preprocess", "validate", "weld"]
 
+#: Largest bounding-box diagonal taken: squared face areas (diagonal^4) and volumes (diagonal^3
+#: summed over faces) stay far from float64 overflow (1.8e308).
+MAX_DIAGONAL = 1e60
+
 
 @dataclass(frozen=True)
 class PreprocessParams:
@@ -280,6 +284,9 @@ def _check_input(vertices, faces, source):
     if not np.isfinite(vertices).all():
         bad = int((~np.isfinite(vertices)).any(axis=1).sum())
         raise MeshError(source, f"{bad} vertices have NaN or infinite coordinates")
+    diag = _diagonal(vertices)
+    if not diag <= MAX_DIAGONAL:
+        raise MeshError(source, f"bounding-box diagonal {diag:.3g} is larger than {MAX_DIAGONAL:.0e} (volumes would overflow float64)")
     faces = faces.astype(np.int64)
     if faces.min() < 0 or faces.max() >= len(vertices):
         k = int(np.flatnonzero((faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1))[0])
@@ -290,7 +297,8 @@ def _check_input(vertices, faces, source):
 def _diagonal(vertices):
     if len(vertices) == 0:
         return 0.0
-    return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    with np.errstate(over="ignore"):
+        return float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
 
 
 def _cross(vertices, faces):
@@ -765,10 +773,13 @@ def _pymeshlab_repair(vertices, faces, source):
     except ImportError as err:  # pragma: no cover - pymeshlab is a declared dependency
         raise MeshError(source, "repair requested but pymeshlab is not installed (pip install pymeshlab)") from err
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
-    ms.meshing_remove_duplicate_vertices()
-    ms.meshing_remove_duplicate_faces()
-    ms.meshing_repair_non_manifold_edges()
-    ms.meshing_close_holes(maxholesize=10_000)
+    try:
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
+        ms.meshing_remove_duplicate_vertices()
+        ms.meshing_remove_duplicate_faces()
+        ms.meshing_repair_non_manifold_edges()
+        ms.meshing_close_holes(maxholesize=10_000)
+    except pymeshlab.PyMeshLabException as err:
+        raise MeshError(source, f"pymeshlab repair failed ({str(err).strip()})") from None
     m = ms.current_mesh()
     return np.asarray(m.vertex_matrix(), np.float64), np.asarray(m.face_matrix(), np.int64)

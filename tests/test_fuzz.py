@@ -1,0 +1,624 @@
+"""Hostile input: the readers and preprocessing under fuzzed and malicious files.
+
+The contract (``meshsom/io.py``): a bad input becomes a :class:`Rejection` with a reason, or, in
+preprocessing, a :class:`MeshError`; nothing else escapes. Every example is read under a guard
+that bounds its time (``signal.setitimer``) and its Python/NumPy allocations (``tracemalloc``),
+and an audit hook records every file opened, every socket touched and every unpickling attempt.
+
+Example budgets are fixed and ``derandomize=True``: the same examples run in CI every time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import pickle
+import re
+import signal
+import struct
+import sys
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cityjson_samples import CUBE_QUADS, CUBE_VERTS, cube_solid, doc
+from meshsom.errors import ConfigError
+from meshsom.generate import GeneratorParams, generate_corpus
+from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file, write_cityjson
+from meshsom.preprocess import PreprocessParams
+from pipelines.ingest import process_one
+
+#: Wall-clock seconds one input may take to read and preprocess.
+SECONDS_PER_INPUT = 5.0
+#: Peak traced allocation (Python objects and NumPy arrays) one small input may cause.
+MEGABYTES_PER_INPUT = 64
+FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json")
+
+
+# ----------------------------------------------------------------------------- guards
+
+class _Audit:
+    """Process-wide audit hook (hooks cannot be removed), active only inside :func:`watched`."""
+
+    events: list | None = None
+
+    @classmethod
+    def hook(cls, event, args):
+        if cls.events is None:
+            return
+        if event == "open" or event.startswith(("socket.", "pickle.", "urllib.", "http.")) or event in (
+            "subprocess.Popen", "os.system", "os.exec", "os.posix_spawn", "ctypes.dlopen",
+        ):
+            cls.events.append((event, args))
+        if event.startswith(("socket.", "urllib.", "http.")):
+            raise PermissionError(f"test_fuzz: network access attempted ({event} {args!r})")
+
+
+sys.addaudithook(_Audit.hook)
+
+
+class Overrun(BaseException):
+    """Raised by the alarm when one input takes too long (a BaseException, so no ``except Exception`` hides it)."""
+
+
+@contextlib.contextmanager
+def watched(seconds: float = SECONDS_PER_INPUT):
+    """Record audit events, and fail the example after ``seconds``."""
+
+    def on_alarm(signum, frame):
+        raise Overrun(f"input took more than {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    events: list = []
+    _Audit.events = events
+    try:
+        yield events
+    finally:
+        _Audit.events = None
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+@contextlib.contextmanager
+def peak_memory():
+    """Peak traced allocation (bytes) inside the block, as ``box[0]``."""
+    box = [0]
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    try:
+        yield box
+    finally:
+        box[0] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+
+
+def opened_paths(events) -> list[Path]:
+    out = []
+    for event, args in events:
+        if event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+            out.append(Path(os.fsdecode(args[0])).resolve())
+    return out
+
+
+def read_all(path: Path, options: ReaderOptions = ReaderOptions(), preprocess: bool = True):
+    """Read one file (and preprocess what it yields) under the guards; returns (items, records, events).
+
+    Asserts the contract: only RawMesh/Rejection come out of the reader, every RawMesh gives a
+    manifest record, nothing outside the file's folder is opened, no socket, no unpickling.
+    """
+    # Overrun is raised from the alarm handler; an Exception escaping the reader fails the test.
+    with watched() as events:
+        items = list(read_file(path, options))
+        records = [process_one(raw, PreprocessParams())[0] for raw in items] if preprocess else []
+    assert all(isinstance(it, (RawMesh, Rejection)) for it in items), items
+    for it in items:
+        if isinstance(it, Rejection):
+            assert it.reason and isinstance(it.reason, str)
+    for rec in records:
+        assert rec["status"] in ("accepted", "rejected")
+        assert rec["status"] == "accepted" or rec["reason"]
+    folder = path.parent.resolve()
+    outside = [p for p in opened_paths(events) if not p.is_relative_to(folder) and not _is_library(p)]
+    assert outside == [], f"opened outside {folder}: {outside}"
+    assert not [e for e, _ in events if e.startswith(("socket.", "urllib.", "http.", "pickle."))], events
+    return items, records, events
+
+
+def read_bounded(path: Path, options: ReaderOptions = ReaderOptions()):
+    """:func:`read_all`, also asserting the peak allocation stays under ``MEGABYTES_PER_INPUT``."""
+    with peak_memory() as peak:
+        out = read_all(path, options)
+    assert peak[0] < MEGABYTES_PER_INPUT * 2**20, f"{path.name}: peak {peak[0] / 2**20:.0f} MB"
+    return out
+
+
+def _is_library(p: Path) -> bool:
+    """Modules Python itself may open while reading (lazy imports, source lines for a warning)."""
+    if p.suffix not in (".py", ".pyc", ".so", ".zip"):
+        return False
+    roots = [d for d in sys.path if d] + [d for m in list(sys.modules.values()) for d in (getattr(m, "__path__", None) or [])]
+    return any(p.is_relative_to(Path(d).resolve()) for d in roots if isinstance(d, str) and os.path.exists(d))
+
+
+# ----------------------------------------------------------------------------- valid seeds
+
+def _blocks(n=2, seed=4):
+    return generate_corpus(GeneratorParams(n_blocks=n, seed=seed, families=("L", "gabled")))
+
+
+def _valid_files() -> dict[str, bytes]:
+    """Small valid inputs (bytes) to mutate: OBJ, PLY ascii and binary, CityJSON."""
+    block = _blocks(1)[0]
+    mesh = trimesh.Trimesh(block.vertices, block.faces, process=False)
+    out = {
+        ".obj": mesh.export(file_type="obj"),
+        "ascii.ply": mesh.export(file_type="ply", encoding="ascii"),
+        "binary.ply": mesh.export(file_type="ply", encoding="binary"),
+    }
+    return {k: v.encode() if isinstance(v, str) else v for k, v in out.items()}
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    """One input folder, with a sentinel file beside it (outside) that must never be opened."""
+    root = tmp_path_factory.mktemp("hostile")
+    (root / "secret.bin").write_bytes(b"\0" * 4096)
+    (root / "x.mtl").write_text("newmtl evil\nKd 1 0 0\nmap_Kd ../secret.png\n")
+    inputs = root / "inputs"
+    inputs.mkdir()
+    # Warm up lazy imports so the audit log shows reads, not imports.
+    block = _blocks(1)[0]
+    for suffix in (".obj", ".ply", ".stl", ".off", ".glb"):
+        trimesh.Trimesh(block.vertices, block.faces, process=False).export(str(inputs / f"warm{suffix}"))
+        for raw in read_file(inputs / f"warm{suffix}"):
+            process_one(raw, PreprocessParams())
+        (inputs / f"warm{suffix}").unlink()
+    return inputs
+
+
+@pytest.fixture(scope="module")
+def city_bytes(tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("city") / "blocks.city.json"
+    write_cityjson(path, _blocks(2))
+    return path.read_bytes()
+
+
+# ----------------------------------------------------------------------------- 1. random bytes
+
+MAGIC = {
+    ".obj": [b"", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", b"mtllib ../x.mtl\n"],
+    ".ply": [b"", b"ply\nformat ascii 1.0\n", b"ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+              b"property float x\nproperty float y\nproperty float z\nelement face 1\n"
+              b"property list uchar int vertex_indices\nend_header\n"],
+    ".stl": [b"", b"solid x\n", b"\0" * 80 + struct.pack("<I", 3)],
+    ".off": [b"", b"OFF\n", b"OFF\n3 1 0\n"],
+    ".glb": [b"", b"glTF" + struct.pack("<II", 2, 64), b"glTF" + struct.pack("<III", 2, 64, 40) + b"JSON"],
+    ".gltf": [b"", b'{"asset": {"version": "2.0"}, ', b'{"buffers": [{"uri": "../secret.bin", "byteLength": 4096}], '],
+    ".city.json": [b"", b'{"type": "CityJSON", "version": "2.0", ', b'{"type":"CityJSON","version":"1.0","vertices":[[0,0,0]],'],
+}
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_random_bytes_give_rejections_only(folder, suffix):
+    @FUZZ
+    @given(prefix=st.sampled_from(MAGIC[suffix]), body=st.binary(max_size=1500))
+    def check(prefix, body):
+        read_bounded(_write(folder / f"random{suffix}", prefix + body))
+
+    check()
+
+
+# ----------------------------------------------------------------------------- 2. mutations of valid files
+
+HOSTILE_NUMBERS = [b"1e308", b"-1e308", b"1e999", b"nan", b"NaN", b"inf", b"-inf", b"-1", b"-7", b"0",
+                   b"4294967296", b"1000000000000", b"9223372036854775808", b"1" * 40, b"1.5", b"-0"]
+NUMBER = re.compile(rb"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+@st.composite
+def mutated(draw, data: bytes):
+    """``data`` with 1-4 random mutations: byte flips, truncation, line edits, hostile numbers."""
+    for _ in range(draw(st.integers(1, 4))):
+        op = draw(st.sampled_from(["flip", "truncate", "dup_line", "del_line", "number", "insert"]))
+        if not data:
+            break
+        if op == "flip":
+            i = draw(st.integers(0, len(data) - 1))
+            data = data[:i] + bytes([data[i] ^ draw(st.integers(1, 255))]) + data[i + 1:]
+        elif op == "truncate":  # mostly late, where the parser has got going
+            data = data[: draw(st.sampled_from([len(data) - 1 - draw(st.integers(0, len(data) // 2)), draw(st.integers(0, len(data) - 1))]))]
+        elif op in ("dup_line", "del_line"):
+            lines = data.split(b"\n")
+            i = draw(st.integers(0, len(lines) - 1))
+            lines[i:i + 1] = [lines[i]] * 2 if op == "dup_line" else []
+            data = b"\n".join(lines)
+        elif op == "number":
+            spans = [m.span() for m in NUMBER.finditer(data)]
+            if spans:
+                a, b = spans[draw(st.integers(0, len(spans) - 1))]
+                data = data[:a] + draw(st.sampled_from(HOSTILE_NUMBERS)) + data[b:]
+        else:
+            i = draw(st.integers(0, len(data)))
+            data = data[:i] + draw(st.binary(min_size=1, max_size=16)) + data[i:]
+    return data
+
+
+@pytest.mark.parametrize("kind", [".obj", "ascii.ply", "binary.ply"])
+def test_mutated_meshes_are_read_or_rejected(folder, kind):
+    seed = _valid_files()[kind]
+    suffix = ".ply" if kind.endswith(".ply") else kind
+    items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
+    assert [r["status"] for r in records] == ["accepted"]  # the unmutated seed is valid
+
+    @settings(FUZZ, max_examples=100)
+    @given(data=mutated(seed))
+    def check(data):
+        read_bounded(_write(folder / f"mutant{suffix}", data))
+
+    check()
+
+
+@pytest.mark.parametrize("kind", ["binary.ply"])
+def test_binary_ply_with_hostile_values(folder, kind):
+    """Binary PLY payload values replaced by NaN, huge floats, and out-of-range or negative indices."""
+    seed = _valid_files()[kind]
+    head, _, body = seed.partition(b"end_header\n")
+    head += b"end_header\n"
+    values = [struct.pack("<f", x) for x in (np.nan, np.inf, -3e38, 3e38, -1.0)] + [
+        struct.pack("<i", x) for x in (-1, 2**31 - 1, 10**6, -(2**31))] + [b"\xff"]
+
+    @FUZZ
+    @given(edits=st.lists(st.tuples(st.integers(0, max(0, len(body) - 4)), st.sampled_from(values)), min_size=1, max_size=6))
+    def check(edits):
+        data = bytearray(body)
+        for at, value in edits:
+            data[at:at + len(value)] = value
+        read_bounded(_write(folder / "hostile.ply", head + bytes(data)))
+
+    check()
+
+
+JSON_HOSTILE = st.one_of(
+    st.sampled_from([None, True, -1, 0, 10**12, 2**63, 10**40, 1.5, float("nan"), float("inf"), -1e308, "", "x",
+                     "Building", "BuildingPart", "Solid", "MultiSurface", "CompositeSolid", "2.0", [], {}, [[]], [[[]]],
+                     [0, 1, 2], [[0, 1, 2]], {"type": "Solid"}, [10**12, 0, 1], [-1, 0, 1]]),
+    st.recursive(st.integers(-5, 10**13) | st.floats(allow_nan=True) | st.text(max_size=4) | st.none(),
+                 lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=4), c, max_size=3), max_leaves=8),
+)
+
+
+def _json_paths(node, prefix=()):
+    yield prefix
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _json_paths(v, prefix + (k,))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _json_paths(v, prefix + (i,))
+
+
+@st.composite
+def mutated_json(draw, document):
+    """A copy of ``document`` with 1-3 values (anywhere in the tree) replaced, deleted or duplicated."""
+    document = json.loads(json.dumps(document))
+    for _ in range(draw(st.integers(1, 3))):
+        paths = list(_json_paths(document))[1:]
+        if not paths:
+            break
+        where = draw(st.sampled_from(paths))
+        parent = document
+        for key in where[:-1]:
+            parent = parent[key]
+        op = draw(st.sampled_from(["replace", "replace", "delete", "duplicate"]))
+        if op == "replace":
+            parent[where[-1]] = draw(JSON_HOSTILE)
+        elif op == "delete":
+            del parent[where[-1]]
+        elif isinstance(parent, list):
+            parent.insert(where[-1], json.loads(json.dumps(parent[where[-1]])))
+    return document
+
+
+def test_mutated_cityjson_structure(folder, city_bytes):
+    document = json.loads(city_bytes)
+    items, records, _ = read_all(_write(folder / "valid.city.json", city_bytes))
+    assert [r["status"] for r in records] == ["accepted", "accepted"]
+
+    @settings(FUZZ, max_examples=150)
+    @given(d=mutated_json(document))
+    def check(d):
+        read_bounded(_write(folder / "mutant.city.json", json.dumps(d).encode()))
+
+    check()
+
+
+def test_mutated_cityjson_bytes(folder, city_bytes):
+    @settings(FUZZ, max_examples=100)
+    @given(data=mutated(city_bytes))
+    def check(data):
+        read_bounded(_write(folder / "mutant.city.json", data))
+
+    check()
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+# ----------------------------------------------------------------------------- 3. size claims
+
+def test_cityjson_index_of_ten_to_the_twelve_is_refused_without_allocating(folder):
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS)
+    d["CityObjects"]["X"]["geometry"][0]["boundaries"][0][0][0][0] = 10**12
+    path = _write(folder / "claims.city.json", json.dumps(d).encode())
+    with peak_memory() as peak:
+        items, _, _ = read_all(path)
+    assert peak[0] < 4 * 2**20  # a (10**12, 3) gather would be 24 TB
+    assert len(items) == 1 and isinstance(items[0], Rejection)
+    assert "vertex index 1000000000000 out of range (the file has 8 vertices)" in items[0].reason
+
+
+def test_cityjson_vertices_beyond_the_limit_are_refused_before_conversion(folder):
+    n = 100_000
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS + [[1, 2, 3]] * n)
+    path = _write(folder / "many.city.json", json.dumps(d).encode())
+    with peak_memory() as accepted:
+        (item,), _, _ = read_all(path, preprocess=False)
+    assert isinstance(item, RawMesh)
+    with peak_memory() as refused:
+        (item,), _, _ = read_all(path, ReaderOptions(max_vertices=1000))
+    assert isinstance(item, Rejection)
+    assert f"declares {n + 8} vertices, more than the limit of 1000" in item.reason
+    # The parsed JSON costs about ten times the file; the (n, 3) int64 array is never made.
+    assert refused[0] < 12 * path.stat().st_size
+    assert refused[0] < accepted[0] - 0.9 * 24 * n
+
+
+def test_cityjson_cycle_of_parts_terminates(folder):
+    d = doc({"B": {"type": "Building", "children": ["P"]},
+             "P": {"type": "BuildingPart", "parents": ["B"], "children": ["P", "Q"], "geometry": [cube_solid()]},
+             "Q": {"type": "BuildingPart", "parents": ["P"], "children": ["P"]}}, CUBE_VERTS)
+    (item,), records, _ = read_all(_write(folder / "cycle.city.json", json.dumps(d).encode()))
+    assert isinstance(item, RawMesh) and records[0]["status"] == "accepted"
+
+
+def test_cityjson_spiky_ring_is_fast(folder):
+    """A footprint ring going back and forth along one line (every vertex a spike) is not quadratic."""
+    ring = [0, 1] * 20_000
+    d = doc({"X": {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "1", "boundaries": [[ring]]}]}},
+            CUBE_VERTS)
+    (item,), _, _ = read_all(_write(folder / "spiky.city.json", json.dumps(d).encode()))
+    assert isinstance(item, Rejection)
+
+
+def test_cityjson_deeply_nested_json_is_a_rejection(folder):
+    path = _write(folder / "deep.city.json", b'{"type": "CityJSON", "x": ' + b"[" * 200_000 + b"]" * 200_000 + b"}")
+    (item,), _, _ = read_all(path)
+    assert isinstance(item, Rejection) and "deep.city.json" in item.source
+
+
+_PLY_HEAD = (b"element vertex 1000000000000\nproperty float x\nproperty float y\nproperty float z\n"
+             b"element face 1000000000000\nproperty list uchar int vertex_indices\nend_header\n")
+HEADER_CLAIMS = {
+    "binary.ply": b"ply\nformat binary_little_endian 1.0\n" + _PLY_HEAD + b"\0" * 64,
+    "ascii.ply": b"ply\nformat ascii 1.0\n" + _PLY_HEAD + b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    ".off": b"OFF\n1000000000000 1000000000000 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    ".stl": b"\0" * 80 + struct.pack("<I", 2**32 - 1) + b"\0" * 100,
+    ".glb": b"glTF" + struct.pack("<III", 2, 2**32 - 1, 2**32 - 20) + b"JSON" + b'{"buffers": [{"byteLength": 1000000000000}]}',
+    ".gltf": b'{"asset": {"version": "2.0"}, "buffers": [{"byteLength": 1000000000000, "uri": '
+              b'"data:application/octet-stream;base64,AAAA"}], "accessors": [{"bufferView": 0, '
+              b'"componentType": 5126, "count": 1000000000000, "type": "VEC3"}], "bufferViews": '
+              b'[{"buffer": 0, "byteLength": 12000000000000}], "meshes": [{"primitives": '
+              b'[{"attributes": {"POSITION": 0}}]}], "nodes": [{"mesh": 0}], "scenes": [{"nodes": [0]}]}',
+}
+
+
+@pytest.mark.parametrize("kind", HEADER_CLAIMS)
+def test_mesh_headers_claiming_ten_to_the_twelve_elements(folder, kind):
+    """Counts in headers are not trusted: the file is rejected, nothing of the claimed size is allocated."""
+    suffix = ".ply" if kind.endswith(".ply") else kind
+    with peak_memory() as peak:
+        (item,), _, _ = read_all(_write(folder / f"claims{suffix}", HEADER_CLAIMS[kind]))
+    assert isinstance(item, Rejection)
+    assert peak[0] < 16 * 2**20
+
+
+# ----------------------------------------------------------------------------- 4. references outside the folder
+
+def _gltf_with_buffer(uri: str) -> bytes:
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes() + np.array([0, 1, 2], np.uint16).tobytes()
+    return json.dumps({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"uri": uri, "byteLength": len(tri)}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"},
+        ],
+    }).encode()
+
+
+OUTSIDE_URIS = ["../secret.bin", "sub/../../secret.bin", "{root}/secret.bin", "file://{root}/secret.bin",
+                "/etc/passwd", "file:///etc/passwd", "http://127.0.0.1:9/secret.bin", "https://example.com/x.bin",
+                "%2e%2e/secret.bin", "..\\secret.bin"]
+
+
+@pytest.mark.parametrize("uri", OUTSIDE_URIS)
+def test_gltf_buffer_outside_the_folder_is_never_opened(folder, uri):
+    uri = uri.format(root=folder.parent)
+    (item,), _, events = read_all(_write(folder / "outside.gltf", _gltf_with_buffer(uri)))
+    assert isinstance(item, Rejection), item
+    assert "outside.gltf" in item.source
+
+
+def test_gltf_buffer_inside_the_folder_is_read(folder):
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32).tobytes() + np.array([0, 1, 2], np.uint16).tobytes()
+    (folder / "inside.bin").write_bytes(tri)
+    (item,), _, events = read_all(_write(folder / "inside.gltf", _gltf_with_buffer("inside.bin")), preprocess=False)
+    assert isinstance(item, RawMesh) and len(item.faces) == 1
+    assert (folder / "inside.bin").resolve() in opened_paths(events)
+
+
+def test_symlink_out_of_the_folder_is_not_followed(folder):
+    link = folder / "link.bin"
+    if not link.exists():
+        link.symlink_to(folder.parent / "secret.bin")
+    (item,), _, _ = read_all(_write(folder / "symlinked.gltf", _gltf_with_buffer("link.bin")))
+    assert isinstance(item, Rejection)
+
+
+@pytest.mark.parametrize("ref", ["../x.mtl", "{root}/x.mtl", "/etc/passwd", "file:///etc/passwd", "http://127.0.0.1:9/x.mtl"])
+def test_obj_mtllib_outside_the_folder_is_never_opened(folder, ref):
+    ref = ref.format(root=folder.parent)
+    cube = "".join(f"v {x / 1000} {y / 1000} {z / 1000}\n" for x, y, z in CUBE_VERTS)
+    cube += "usemtl evil\n" + "".join(f"f {a + 1} {b + 1} {c + 1}\nf {a + 1} {c + 1} {d + 1}\n" for a, b, c, d in CUBE_QUADS)
+    (item,), records, _ = read_all(_write(folder / "mtl.obj", f"mtllib {ref}\n{cube}".encode()))
+    assert isinstance(item, RawMesh) and records[0]["status"] == "accepted"  # the geometry is still read
+
+
+def test_folder_resolver_confines_names(folder):
+    from meshsom.errors import InputFileError
+    from meshsom.io import FolderResolver
+
+    (folder / "sub").mkdir(exist_ok=True)
+    (folder / "sub" / "a.bin").write_bytes(b"abc")
+    resolver = FolderResolver(folder, "model.gltf")
+    assert resolver["sub/a.bin"] == b"abc" and "sub/a.bin" in resolver
+    assert resolver.namespaced("sub").get("a.bin") == b"abc"
+    for name in ["../secret.bin", "/etc/passwd", "file:///etc/passwd", "http://x/y", "~/x", "sub/../../secret.bin", "", None]:
+        assert name not in resolver
+        with pytest.raises(InputFileError, match="model.gltf"):
+            resolver.get(name)
+    with pytest.raises(InputFileError, match="outside"):
+        resolver.namespaced("..")
+    with pytest.raises(InputFileError, match="never writes"):
+        resolver.write("x.bin", b"")
+
+
+def test_unreadable_labels_table_is_a_rejection_naming_it(tmp_path):
+    block = _blocks(1)[0]
+    trimesh.Trimesh(block.vertices, block.faces, process=False).export(str(tmp_path / "a.stl"))
+    (tmp_path / "labels.csv").write_bytes(b"file,label\n\xff\xfe broken")
+    (item,) = read_file(tmp_path / "a.stl")
+    assert isinstance(item, Rejection) and "labels.csv beside it is not a readable CSV" in item.reason
+
+
+@pytest.mark.parametrize("big", [1e61, 1e160, 1e307])
+def test_preprocess_refuses_coordinates_that_would_overflow(big):
+    from meshsom.errors import MeshError
+    from meshsom.preprocess import preprocess
+
+    v = np.array(CUBE_VERTS, np.float64)
+    v[0] = [big, 0, 0]
+    f = np.array([[a, b, c] for a, b, c, d in CUBE_QUADS] + [[a, c, d] for a, b, c, d in CUBE_QUADS], np.int64)
+    with pytest.raises(MeshError, match="diagonal"):
+        preprocess(v, f, source="big")
+
+
+# ----------------------------------------------------------------------------- 5. nothing unpickled or evaluated
+
+def test_pickle_and_npz_disguised_as_meshes_are_rejected(folder, tmp_path):
+    marker = tmp_path / "pwned"
+
+    class Evil:
+        def __reduce__(self):
+            return (os.system, (f"touch {marker}",))
+
+    payloads = {
+        "pickle.ply": pickle.dumps(Evil()),
+        "pickle.obj": pickle.dumps(Evil()),
+        "pickle.glb": pickle.dumps(Evil()),
+    }
+    buf = __import__("io").BytesIO()
+    np.savez(buf, vertices=np.array([Evil()], dtype=object), faces=np.zeros((1, 3), np.int64))
+    payloads["npz.ply"] = payloads["npz.off"] = payloads["npz.stl"] = buf.getvalue()
+    buf = __import__("io").BytesIO()
+    np.save(buf, np.array([Evil()], dtype=object), allow_pickle=True)
+    payloads["npy.ply"] = buf.getvalue()
+    for name, data in payloads.items():
+        (item,), _, events = read_all(_write(folder / name, data))
+        assert isinstance(item, Rejection), name
+        assert not [e for e, _ in events if e.startswith("pickle.") or e in ("os.system", "subprocess.Popen")]
+    assert not marker.exists()
+
+
+def test_yaml_config_with_python_tag_is_a_config_error(tmp_path):
+    from meshsom.config import load_config
+
+    marker = tmp_path / "pwned"
+    path = tmp_path / "evil.yaml"
+    path.write_text(f"corpus: !!python/object/apply:os.system [\"touch {marker}\"]\n")
+    with pytest.raises(ConfigError, match="evil.yaml"):
+        load_config(path)
+    assert not marker.exists()
+
+
+def test_cityjson_extreme_integer_coordinates_are_rejected(folder):
+    for value in (-(2**63), 2**62, 2**53 + 1):
+        verts = [list(v) for v in CUBE_VERTS]
+        verts[3] = [value, 0, 0]
+        d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, verts)
+        (item,), _, _ = read_all(_write(folder / "extreme.city.json", json.dumps(d).encode()))
+        assert isinstance(item, Rejection) and f"integer vertex coordinate {value} beyond" in item.reason
+
+
+# ----------------------------------------------------------------------------- 6. preprocessing alone
+
+COORDS = st.sampled_from([0.0, 1.0, -1.0, 0.5, 1e-9, 2.0, 1e6, -1e6, 4e59, 1e61, 3.0])
+
+
+@st.composite
+def soups(draw):
+    """Small triangle soups: a few vertices from a handful of values (so coincident, collinear and
+    coplanar cases are common), faces over them, sometimes a valid box with faces perturbed."""
+    if draw(st.booleans()):
+        v = np.array(CUBE_VERTS, np.float64) / 1000
+        f = np.array([[a, b, c] for a, b, c, d in CUBE_QUADS] + [[a, c, d] for a, b, c, d in CUBE_QUADS], np.int64)
+        for _ in range(draw(st.integers(1, 3))):
+            op = draw(st.sampled_from(["move", "flip", "drop", "dup", "reindex"]))
+            k = draw(st.integers(0, len(f) - 1))
+            if op == "move":
+                v[draw(st.integers(0, len(v) - 1))] = [draw(COORDS) for _ in range(3)]
+            elif op == "flip":
+                f[k] = f[k, ::-1]
+            elif op == "drop":
+                f = np.delete(f, k, axis=0)
+            elif op == "dup":
+                f = np.concatenate([f, f[k:k + 1]])
+            else:
+                f[k, draw(st.integers(0, 2))] = draw(st.integers(0, len(v) - 1))
+        return v, f
+    n = draw(st.integers(3, 9))
+    v = np.array([[draw(COORDS) for _ in range(3)] for _ in range(n)], np.float64)
+    f = np.array(draw(st.lists(st.tuples(*[st.integers(0, n - 1)] * 3), min_size=1, max_size=16)), np.int64)
+    return v, f
+
+
+def test_preprocess_gives_a_mesh_or_a_mesh_error():
+    from meshsom.errors import MeshError
+    from meshsom.preprocess import preprocess
+
+    @settings(FUZZ, max_examples=200)
+    @given(soup=soups(), repair=st.booleans())
+    def check(soup, repair):
+        v, f = soup
+        with watched():
+            try:
+                out = preprocess(v, f, PreprocessParams(repair=repair), source="soup")
+            except MeshError as err:
+                assert err.problem
+                return
+        assert np.isfinite(out.vertices).all() and out.faces.shape[1] == 3
+
+    check()
