@@ -177,7 +177,8 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rej
 
     Folders are searched recursively for known file types (other files in them
     are ignored, as are ``labels.csv`` and ``SOURCE.md``). A path that does not
-    exist, or a file named explicitly with an unknown type, is a rejection.
+    exist, a file named explicitly with an unknown type, or a file in a folder
+    that is a link to somewhere outside that folder, is a rejection.
 
     Returns
     -------
@@ -191,11 +192,15 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rej
         p = Path(item)
         if p.is_dir():
             found = []
+            root = p.resolve()
             for q in sorted(p.rglob("*")):
                 if q.is_file():
                     try:
                         input_kind(q)
                     except InputFileError:
+                        continue
+                    if not q.resolve().is_relative_to(root):
+                        rejected.append(Rejection(str(q), str(q), f"is a link to {q.resolve()}, outside the folder {p}; not followed"))
                         continue
                     found.append(q)
             if not found:

@@ -622,3 +622,18 @@ def test_preprocess_gives_a_mesh_or_a_mesh_error():
         assert np.isfinite(out.vertices).all() and out.faces.shape[1] == 3
 
     check()
+
+
+def test_links_out_of_an_input_folder_are_not_followed(tmp_path):
+    from meshsom.io import expand_inputs
+
+    outside = tmp_path / "outside.obj"
+    outside.write_text("v 0 0 0\n")
+    folder = tmp_path / "inputs"
+    folder.mkdir()
+    (folder / "inside.obj").write_text("v 0 0 0\n")
+    (folder / "link.obj").symlink_to(outside)
+    (folder / "alias.obj").symlink_to(folder / "inside.obj")
+    files, rejected = expand_inputs([folder])
+    assert [f.name for f in files] == ["alias.obj", "inside.obj"]
+    assert [r.id for r in rejected] == [str(folder / "link.obj")] and "outside the folder" in rejected[0].reason
