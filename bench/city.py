@@ -12,7 +12,7 @@ the same stage on 10 and 100 workers from the measured per-task costs:
 where ``serial`` is the client-side part (wall time minus the parallel part on the measured
 workers). Peak RSS is read from every process (client: the process running this script, which
 also hosts the scheduler; workers: each worker process) with ``getrusage``.
-The domain stage is off (it holds meshes x map units in memory; see README).
+The domain stage streams its vectors (meshes x map units) through the store when they are large.
 """
 
 from __future__ import annotations
@@ -50,6 +50,7 @@ def main(argv=None):
     p.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     p.add_argument("--backend", default="numpy", choices=["numpy", "opencl", "auto"])
     p.add_argument("--shard-meshes", type=int, default=500)
+    p.add_argument("--domain-epochs", type=int, default=5)
     p.add_argument("--store", default=str(ROOT / "out" / "city.zarr"))
     args = p.parse_args(argv)
 
@@ -59,6 +60,7 @@ def main(argv=None):
     from meshsom.store import open_store
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
+    from pipelines.domain_stage import domain_for_run
     from pipelines.train import TrainJob, train_spec
 
     rows, cols = (int(x) for x in args.map.lower().split("x"))
@@ -70,6 +72,7 @@ def main(argv=None):
                    "generator": {"n_blocks": args.blocks, "seed": 0}},
         "encoding": {"levels": args.levels},
         "som": {"rows": rows, "cols": cols, "epochs": args.epochs},
+        "domain": {"epochs": args.domain_epochs},
         "dask": {"workers": args.workers, "shard_meshes": args.shard_meshes, "dashboard": False},
         "opencl": {"backend": args.backend},
         "tracking": {"enabled": False},
@@ -91,6 +94,11 @@ def main(argv=None):
         tri = int(open_store(store).attrs.get("n_faces", summary.get("faces_out", 0)))
         stages.append(("ingest+encode", wall, tri, tasks))
         print(f"corpus: {summary['inputs']} meshes ({summary['accepted']} accepted), {tri:,} triangles")
+        from pipelines.domain_stage import MAX_THUMBNAILS, thumbnails_of
+
+        t0 = time.perf_counter()
+        thumbs = thumbnails_of(open_store(store), min(summary["accepted"], MAX_THUMBNAILS))
+        print(f"thumbnails: {len(thumbs)} in {time.perf_counter() - t0:.1f} s")
         for level in args.levels:
             job = TrainJob(store=str(store), level=level, kernel="bmuofn", mirror=False, rows=rows, cols=cols,
                            topology="toroidal", epochs=args.epochs, sigma_start=max(rows, cols) / 4, sigma_end=1.0,
@@ -104,6 +112,13 @@ def main(argv=None):
             stages.append((f"map level {level} ({res['dims']}, {args.epochs + 1} passes)", wall, tri * (args.epochs + 1), tasks))
             m = res["metrics"]
             print(f"level {level}: T {m['t_error']:.4f} Q {m['q_error']:.4f} QC {m['qc_error']:.4f}")
+            t0 = time.perf_counter()
+            with get_task_stream(client) as ts:
+                dom = domain_for_run(cfg, store, job.run, thumbs=thumbs, client=client)
+            wall = time.perf_counter() - t0
+            tasks = [sum(s["stop"] - s["start"] for s in t["startstops"] if s["action"] == "compute") for t in ts.data]
+            stages.append((f"domain map level {level}", wall, tri, tasks))
+            print(f"level {level} domain map: {dom['metrics']}")
         worker_rss = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
     print()
     print(f"{'stage':44s} {'wall s':>8s} {'tri/s':>12s} {'tasks':>6s} {'task s':>8s} {'est. 10 w':>10s} {'est. 100 w':>10s}")

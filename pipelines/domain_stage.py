@@ -17,6 +17,62 @@ import numpy as np
 MAX_THUMBNAILS = 400
 #: Neighbours of the k-NN label agreement.
 KNN = 5
+#: Above this many bytes of domain vectors (meshes x triangle-map units x 4) the stage streams them
+#: through the store and trains the domain map on the cluster, chunk by chunk.
+IN_MEMORY_BYTES = 256 << 20
+#: Meshes per task (and per zarr chunk) of streamed domain vectors.
+MESHES_PER_TASK = 256
+#: Meshes in the seeded sample the label measures use on a streamed (city-sized) corpus (they are O(n^2)).
+LABEL_SAMPLE = 2000
+
+
+def domain_chunk(store: str, run: str, m0: int, m1: int, sigma: float) -> int:
+    """Worker task: domain vectors of meshes ``m0..m1`` into ``runs/<run>/domain/vectors``."""
+    from meshsom.domain import bmu_histograms, domain_vectors
+    from meshsom.store import mesh_table, open_store
+
+    group = open_store(store, mode="r+")
+    table = mesh_table(group)
+    g = group["runs"][run]
+    rows, cols, topology = int(g.attrs["rows"]), int(g.attrs["cols"]), str(g.attrs["topology"])
+    f0, f1 = int(table.face_offsets[m0]), int(table.face_offsets[m1])
+    face_mesh = np.asarray(group["face_mesh"][f0:f1]) - m0
+    units = np.asarray(g["bmu_unit"][f0:f1])
+    hist = bmu_histograms(face_mesh, units, m1 - m0, rows * cols)
+    g["domain"]["vectors"][m0:m1] = domain_vectors(hist, rows, cols, sigma, topology)
+    return m1 - m0
+
+
+def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Domain vectors written by worker tasks, domain map trained on the cluster (memory-bounded).
+
+    Returns
+    -------
+    units : (n_meshes,) int64
+    weights : (rows*cols, M) float32
+    metrics : dict
+    """
+    from meshsom.store import mesh_table, open_store
+    from pipelines.train import TrainJob, train_spec
+
+    group = open_store(store, mode="r+")
+    n = len(mesh_table(group))
+    g = group["runs"][run]
+    m = int(g.attrs["rows"]) * int(g.attrs["cols"])
+    dom = g.require_group("domain")
+    dom.create_array("vectors", shape=(n, m), dtype=np.float32, chunks=(MESHES_PER_TASK, m), overwrite=True)
+    tasks = [client.submit(domain_chunk, str(store), run, a, min(n, a + MESHES_PER_TASK), cfg.domain.sigma, pure=False)
+             for a in range(0, n, MESHES_PER_TASK)]
+    client.gather(tasks)
+    d = cfg.domain
+    job = TrainJob(store=str(store), level=int(g.attrs["level"]), kernel="default", mirror=False, rows=d.rows,
+                   cols=d.cols, topology="toroidal", epochs=d.epochs, sigma_start=max(d.rows, d.cols) / 4,
+                   sigma_end=1.0, init="random", seed=d.seed, backend="numpy",
+                   source=f"runs/{run}/domain/vectors", name=f"{run}-domain")
+    res = train_spec(client, job)
+    som_group = open_store(store)["runs"][job.run]
+    metrics = {"domain_q_error": res["metrics"]["q_error"], "domain_t_error": res["metrics"]["t_error"]}
+    return np.asarray(som_group["bmu_unit"][:]), np.asarray(som_group["weights"][:]), metrics
 
 
 def thumbnails_of(group, n_meshes: int, size: int = 64) -> list:
@@ -28,7 +84,7 @@ def thumbnails_of(group, n_meshes: int, size: int = 64) -> list:
     return [render_thumbnail(*read_mesh(group, i, table), size=size) for i in range(n_meshes)]
 
 
-def domain_for_run(cfg, store: Path, run: str, thumbs=None) -> dict:
+def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict:
     """Domain map of one triangle map; writes ``runs/<run>/domain`` and the figure.
 
     Returns
@@ -48,23 +104,36 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None) -> dict:
     group = open_store(store, mode="r+")
     cb = load_codebook(group, run)
     table = mesh_table(group)
-    face_mesh = np.asarray(group["face_mesh"][:])
     d = cfg.domain
-    hist = bmu_histograms(face_mesh, cb.bmu.unit, len(table), cb.rows * cb.cols)
-    vectors = domain_vectors(hist, cb.rows, cb.cols, d.sigma, cb.topology)
-    som = train_domain_map(vectors, d.rows, d.cols, d.epochs, d.seed)
-    units = place(vectors, som)
-    ev = som.evaluate(vectors)
-    metrics = {"domain_q_error": float(ev["q_error"]), "domain_t_error": float(ev["t_error"])}
+    streamed = client is not None and len(table) * cb.rows * cb.cols * 4 > IN_MEMORY_BYTES
+    if streamed:
+        units, weights, metrics = domain_streamed(client, cfg, store, run)
+        vectors = None
+    else:
+        face_mesh = np.asarray(group["face_mesh"][:])
+        hist = bmu_histograms(face_mesh, cb.bmu.unit, len(table), cb.rows * cb.cols)
+        vectors = domain_vectors(hist, cb.rows, cb.cols, d.sigma, cb.topology)
+        som = train_domain_map(vectors, d.rows, d.cols, d.epochs, d.seed)
+        units = place(vectors, som)
+        weights = som.weights_
+        ev = som.evaluate(vectors)
+        metrics = {"domain_q_error": float(ev["q_error"]), "domain_t_error": float(ev["t_error"])}
     labels = np.asarray(table.labels)
     has_labels = len(labels) > 1 and all(labels) and len(set(labels)) > 1
     if has_labels:
-        metrics["knn_label_agreement"] = knn_label_agreement(units, labels, d.rows, d.cols, k=min(KNN, len(labels) - 1))
-        metrics["knn_label_chance"] = label_agreement_chance(labels)
-        regions = map_regions(som.weights_, d.rows, d.cols, len(set(labels)), d.seed)
+        sample = np.arange(len(labels))
+        if len(sample) > LABEL_SAMPLE:
+            sample = np.sort(np.random.default_rng(d.seed).choice(len(labels), LABEL_SAMPLE, replace=False))
+        metrics["knn_label_agreement"] = knn_label_agreement(units[sample], labels[sample], d.rows, d.cols,
+                                                             k=min(KNN, len(sample) - 1))
+        metrics["knn_label_chance"] = label_agreement_chance(labels[sample])
+        regions = map_regions(weights, d.rows, d.cols, len(set(labels)), d.seed)
         metrics["ari_regions_vs_labels"] = adjusted_rand_index(regions[units], labels)
     g = group["runs"][run].require_group("domain")
-    for name, data in (("vectors", vectors.astype(np.float32)), ("weights", som.weights_), ("units", units.astype(np.int64))):
+    arrays = [("weights", np.asarray(weights, np.float32)), ("units", units.astype(np.int64))]
+    if vectors is not None:
+        arrays.append(("vectors", vectors.astype(np.float32)))
+    for name, data in arrays:
         arr = g.create_array(name, shape=data.shape, dtype=data.dtype, chunks=data.shape or (1,), overwrite=True)
         arr[...] = data
     g.attrs.update({"rows": d.rows, "cols": d.cols, "sigma": d.sigma, "metrics": metrics})
@@ -80,7 +149,7 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None) -> dict:
     return {"units": units, "figure": str(path), "metrics": metrics}
 
 
-def run_domain_stage(cfg, store: Path, tracker, ids: dict, results: list[dict]) -> list[dict]:
+def run_domain_stage(cfg, store: Path, tracker, ids: dict, results: list[dict], client=None) -> list[dict]:
     """Domain maps for every trained map of the run, logged to its MLflow child run."""
     from meshsom.store import mesh_table, open_store
 
@@ -90,7 +159,7 @@ def run_domain_stage(cfg, store: Path, tracker, ids: dict, results: list[dict]) 
     out = []
     for res in results:
         run = res["run"]
-        dom = domain_for_run(cfg, store, run, thumbs)
+        dom = domain_for_run(cfg, store, run, thumbs, client)
         child = ids["children"].get(run)
         tracker.log_metrics(child, dom["metrics"], step=cfg.som.epochs)
         tracker.log_artifact(child, dom["figure"], "figures")

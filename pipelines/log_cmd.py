@@ -39,6 +39,8 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
         if not attrs.get("final_done"):
             continue
         job, result = attrs["job"], attrs["result"]
+        if job.get("source"):
+            continue  # a streamed domain map: its metrics go with its triangle map's run
         params = {"level": job["level"], "kernel": job["kernel"], "dims": result["dims"], "map_rows": job["rows"],
                   "map_cols": job["cols"], "topology": job["topology"], "epochs": job["epochs"], "seed": job["seed"]}
         rid = children.get(run)

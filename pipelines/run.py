@@ -138,7 +138,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             print(f"[3/{stages}] domain maps")
             from pipelines.domain_stage import run_domain_stage
 
-            run_domain_stage(cfg, store, tracker, ids, results)
+            run_domain_stage(cfg, store, tracker, ids, results, client)
     tracker.finish(parent)
     _print_summary(results, store, tracker, time.perf_counter() - t_start)
     return 0

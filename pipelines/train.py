@@ -56,6 +56,12 @@ class TrainJob:
     seed : int
     backend : str
     device : str or None
+    source : str or None
+        Array of the store to train on, rows = vectors (default: ``rings/level{L}``, standardized
+        with the level's statistics). Any other array (domain vectors) is used as it is, with one
+        variation.
+    name : str or None
+        Run group under ``runs/`` (default ``level{L}-{kernel}``).
     """
 
     store: str
@@ -72,10 +78,12 @@ class TrainJob:
     seed: int
     backend: str = "auto"
     device: str | None = None
+    source: str | None = None
+    name: str | None = None
 
     @property
     def run(self) -> str:
-        return f"level{self.level}-{self.kernel}"
+        return self.name or f"level{self.level}-{self.kernel}"
 
     def fingerprint(self) -> str:
         d = asdict(self)
@@ -95,17 +103,33 @@ def _engine(backend: str, device: str | None):
     return _ENGINES[key]
 
 
-def load_chunk(store: str, level: int, start: int, stop: int) -> np.ndarray:
-    """Standardized rows ``start..stop`` of a level, (n, D) float32 (cached per worker)."""
-    key = (store, level, start, stop)
+def source_array(group, job: "TrainJob"):
+    """The (N, D) array a job trains on."""
+    from meshsom.errors import StoreError
+    from meshsom.store import rings_array, store_path
+
+    if job.source is None:
+        return rings_array(group, job.level)
+    try:
+        return group[job.source]
+    except KeyError:
+        raise StoreError(f"{store_path(group)}: has no array {job.source!r}") from None
+
+
+def load_chunk(job: "TrainJob", start: int, stop: int) -> np.ndarray:
+    """Rows ``start..stop`` of the job's vectors, (n, D) float32, standardized for ring levels (cached per worker)."""
+    key = (job.store, job.level, job.source, start, stop)
     if key in _CHUNKS:
         _CHUNKS.move_to_end(key)
         return _CHUNKS[key]
     from meshsom.standardize import standardize
-    from meshsom.store import open_store, read_stats, rings_array
+    from meshsom.store import open_store, read_stats
 
-    group = open_store(store)
-    x = standardize(np.asarray(rings_array(group, level)[start:stop]), read_stats(group, level)).astype(np.float32)
+    group = open_store(job.store)
+    x = np.asarray(source_array(group, job)[start:stop])
+    if job.source is None:
+        x = standardize(x, read_stats(group, job.level))
+    x = x.astype(np.float32)
     _CHUNKS[key] = x
     while sum(a.nbytes for a in _CHUNKS.values()) > CHUNK_CACHE_BYTES and len(_CHUNKS) > 1:
         _CHUNKS.popitem(last=False)
@@ -126,12 +150,15 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     from meshsom.som import partial_sums
     from meshsom.variations import variation_table
 
-    X = load_chunk(job.store, job.level, start, stop)
-    index, sign = variation_table(job.level, mirror=job.mirror, kernel=job.kernel)
+    X = load_chunk(job, start, stop)
+    if job.source is None:
+        index, sign = variation_table(job.level, mirror=job.mirror, kernel=job.kernel)
+    else:
+        index = sign = None  # one variation: the identity
     engine = _engine(job.backend, job.device)
     sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
     res = residuals(X, W, bmu, index, sign)
-    parts = res.reshape(len(X), -1, 3)
+    parts = res.reshape(len(X), -1, 3) if X.shape[1] % 3 == 0 else res[:, :, None]
     comp = np.sqrt(np.einsum("ijk,ijk->ij", parts, parts))
     out = {
         "sums": sums, "counts": counts, "n": len(X),
@@ -178,24 +205,28 @@ def initial_weights(job: TrainJob, ranges) -> np.ndarray:
     full array); ``pca`` uses chunked moments, equal to its SVD up to the signs of the components.
     """
     from meshsom.standardize import standardize
-    from meshsom.store import open_store, read_stats, rings_array
+    from meshsom.store import open_store, read_stats
 
     group = open_store(job.store)
-    rings = rings_array(group, job.level)
-    stats = read_stats(group, job.level)
+    rings = source_array(group, job)
+    stats = read_stats(group, job.level) if job.source is None else None
     n = rings.shape[0]
+
+    def prepare(x):
+        return standardize(x, stats) if stats is not None else np.asarray(x, np.float32)
+
     M = job.rows * job.cols
     rng = np.random.default_rng(job.seed)
     if job.init == "random":
         pick = rng.choice(n, size=M, replace=n < M)
         uniq, inverse = np.unique(pick, return_inverse=True)
         rows = np.asarray(rings.get_orthogonal_selection((uniq, slice(None))))
-        return standardize(rows, stats).astype(np.float32)[inverse]
+        return prepare(rows).astype(np.float32)[inverse]
     # PCA from chunked moments (equal to the SVD of SOM.fit up to the signs of the components)
     mean = np.zeros(rings.shape[1])
     gram = np.zeros((rings.shape[1],) * 2)
     for a, b in ranges:
-        x = standardize(np.asarray(rings[a:b]), stats).astype(np.float64)
+        x = prepare(np.asarray(rings[a:b])).astype(np.float64)
         mean += x.sum(axis=0)
         gram += x.T @ x
     mean /= n
@@ -234,12 +265,12 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     """
     from meshsom.codebook import BMU_ARRAYS
     from meshsom.som import batch_update, sigma_schedule
-    from meshsom.store import open_store, rings_array, run_group
+    from meshsom.store import open_store, run_group
     from meshsom.variations import n_variations
 
     t0 = time.perf_counter()
     group = open_store(job.store, mode="r+")
-    rings = rings_array(group, job.level)
+    rings = source_array(group, job)
     n, D = rings.shape
     M = job.rows * job.cols
     n_workers = max(1, len(client.scheduler_info()["workers"]))
@@ -291,7 +322,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     result = {
         "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
         "seconds": time.perf_counter() - t0, "resumed_from": start_epoch, "n_vectors": int(n),
-        "dims": f"{n_variations(job.level, job.kernel, job.mirror)}x{D}",
+        "dims": f"{n_variations(job.level, job.kernel, job.mirror) if job.source is None else 1}x{D}",
     }
     g.attrs.update({"metrics": final, "result": result, "final_done": True})
     if on_epoch:

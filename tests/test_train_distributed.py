@@ -74,3 +74,29 @@ def test_resume_after_a_crash_equals_uninterrupted_run(client, store):
     assert resumed["resumed_from"] == 3 and seen == [3, 4, 5]  # epochs 0-2 were not recomputed
     assert np.array_equal(load_codebook(open_store(store), j.run).weights, w_full)
     assert resumed["metrics"] == full["metrics"]
+
+
+def test_streamed_domain_stage_equals_in_memory_computation(client, store):
+    """City-sized path: domain vectors written by tasks, domain SOM trained chunk-wise on the cluster."""
+    from pathlib import Path
+
+    from meshsom.config import load_config
+    from meshsom.domain import bmu_histograms, domain_vectors
+    from meshsom.store import mesh_table
+    from pipelines.domain_stage import domain_streamed
+
+    j = job(store, epochs=3, seed=5)
+    train_spec(client, j)
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "quick.yaml")
+    units, weights, metrics = domain_streamed(client, cfg, Path(store), j.run)
+    g = open_store(store)
+    cb = load_codebook(g, j.run)
+    hist = bmu_histograms(np.asarray(g["face_mesh"][:]), cb.bmu.unit, len(mesh_table(g)), 48)
+    vectors = domain_vectors(hist, 6, 8, cfg.domain.sigma)
+    assert np.allclose(g["runs"][j.run]["domain"]["vectors"][:], vectors, atol=1e-7)
+    d = cfg.domain
+    som = SOM(rows=d.rows, cols=d.cols, epochs=d.epochs, sigma_start=max(d.rows, d.cols) / 4, sigma_end=1.0,
+              init="random", random_state=d.seed, backend="numpy").fit(vectors)
+    assert np.allclose(weights, som.weights_, atol=1e-5)
+    assert (units == som.predict(vectors)).mean() > 0.95
+    assert metrics["domain_q_error"] > 0
