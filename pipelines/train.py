@@ -186,15 +186,29 @@ def row_ranges(n: int, chunk_rows: int, n_workers: int) -> list[tuple[int, int]]
     return [(a, min(n, a + step)) for a in range(0, n, step)]
 
 
-def _reduce(parts: list[dict]) -> dict:
-    n = sum(p["n"] for p in parts)
+def _reduce(futures) -> dict:
+    """Sum the partial results in task order, fetching one at a time.
+
+    The order makes the float64 sums (and so the codebook) independent of which worker finished
+    first; fetching one result at a time keeps the client's memory at two (M, D) arrays however
+    many chunks there are.
+    """
+    total = None
+    for fut in futures:
+        part = fut.result()
+        if total is None:
+            total = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
+        else:
+            total["sums"] += part["sums"]
+            total["counts"] += part["counts"]
+            for k in ("n", "t_bad", "q_sum", "qc_sum"):
+                total[k] += part[k]
+        fut.release()
+    n = total["n"]
     return {
-        "sums": np.sum([p["sums"] for p in parts], axis=0),
-        "counts": np.sum([p["counts"] for p in parts], axis=0),
-        "t_error": sum(p["t_bad"] for p in parts) / n,
-        "q_error": sum(p["q_sum"] for p in parts) / n,
-        "qc_error": sum(p["qc_sum"] for p in parts) / n,
-        "backend": parts[0]["backend"], "device": parts[0]["device"],
+        "sums": total["sums"], "counts": total["counts"],
+        "t_error": total["t_bad"] / n, "q_error": total["q_sum"] / n, "qc_error": total["qc_sum"] / n,
+        "backend": total["backend"], "device": total["device"],
     }
 
 
@@ -300,7 +314,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         sigma = sigma_schedule(epoch, job.epochs, sigma_start, job.sigma_end)
         wf = client.scatter(W, broadcast=True)
         futures = [client.submit(chunk_pass, job, a, b, wf, pure=False) for a, b in ranges]
-        red = _reduce(client.gather(futures))
+        red = _reduce(futures)
         backend, device = red["backend"], red["device"]
         W = batch_update(W, red["sums"], red["counts"], sigma, job.rows, job.cols, job.topology)
         metrics = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
@@ -317,7 +331,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
                        chunks=(max(1, step),), overwrite=True)
     wf = client.scatter(W, broadcast=True)
-    red = _reduce(client.gather([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges]))
+    red = _reduce([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges])
     final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
     result = {
         "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
