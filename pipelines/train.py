@@ -1,8 +1,9 @@
 """Distributed batch training of one triangle map: epochs as map-reduce over row chunks of zarr.
 
 Map (on the workers, :func:`chunk_pass`): read a row range of ``rings/level{L}``, standardize it
-with the stored statistics, find BMUofN against the broadcast codebook, and return the per-unit
-sums and counts plus the sums behind the T-, Q- and QC-errors. Each worker process resolves its
+with the stored statistics, find BMUofN against the broadcast codebook, write that range's BMUs
+and winning variations into the run (every epoch), and return the per-unit sums and counts plus
+the sums behind the T-, Q- and QC-errors. Each worker process resolves its
 BMU backend once (OpenCL context and compiled program, memoised in :mod:`meshsom.bmu_opencl`) and
 keeps recently used standardized chunks in a bounded cache.
 
@@ -310,26 +311,30 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     })
     sigma_start = job.sigma_start
     backend = device = None
+    # BMUs, variations, distances and second-best units of every vector, rewritten by every pass
+    # (chunks aligned with the task row ranges: no two tasks write one chunk)
+    step = ranges[0][1] - ranges[0][0]
+    for attr, name in BMU_ARRAYS.items():
+        if name not in g or g[name].shape != (n,) or g[name].chunks != (max(1, step),):
+            g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
+                           chunks=(max(1, step),), overwrite=True)
     for epoch in range(start_epoch, job.epochs):
         sigma = sigma_schedule(epoch, job.epochs, sigma_start, job.sigma_end)
         wf = client.scatter(W, broadcast=True)
-        futures = [client.submit(chunk_pass, job, a, b, wf, pure=False) for a, b in ranges]
+        futures = [client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges]
         red = _reduce(futures)
         backend, device = red["backend"], red["device"]
         W = batch_update(W, red["sums"], red["counts"], sigma, job.rows, job.cols, job.topology)
         metrics = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
         history.append({"epoch": epoch, "sigma": sigma, **metrics})
         _put(g, "weights", W, job.rows * job.cols)  # write first ...
-        g.attrs.update({"epoch_done": epoch + 1, "history": history})  # ... then mark
+        # ... then mark (the BMUs on disk are those of this epoch's search, before its update)
+        g.attrs.update({"epoch_done": epoch + 1, "history": history, "bmu_epoch": epoch})
         if on_epoch:
             on_epoch(epoch, metrics)
         if progress:
             progress(epoch + 1, job.epochs)
     # final pass: BMUs of every vector against the final codebook, and the final errors
-    step = ranges[0][1] - ranges[0][0]
-    for attr, name in BMU_ARRAYS.items():
-        g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
-                       chunks=(max(1, step),), overwrite=True)
     wf = client.scatter(W, broadcast=True)
     red = _reduce([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges])
     final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
@@ -338,7 +343,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         "seconds": time.perf_counter() - t0, "resumed_from": start_epoch, "n_vectors": int(n),
         "dims": f"{n_variations(job.level, job.kernel, job.mirror) if job.source is None else 1}x{D}",
     }
-    g.attrs.update({"metrics": final, "result": result, "final_done": True})
+    g.attrs.update({"metrics": final, "result": result, "final_done": True, "bmu_epoch": job.epochs})
     if on_epoch:
         on_epoch(job.epochs, final)
     return result

@@ -69,6 +69,10 @@ def test_resume_after_a_crash_equals_uninterrupted_run(client, store):
         train_spec(client, j, on_epoch=crash)
     g = open_store(store)
     assert g["runs"][j.run].attrs["epoch_done"] == 3 and not g["runs"][j.run].attrs.get("final_done")
+    # the BMUs of the last finished epoch's search are on disk too
+    assert g["runs"][j.run].attrs["bmu_epoch"] == 2
+    units = g["runs"][j.run]["bmu_unit"][:]
+    assert units.shape == (g["rings"]["level1"].shape[0],) and 0 <= units.min() and units.max() < 48
     seen = []
     resumed = train_spec(client, j, resume=True, on_epoch=lambda e, m: seen.append(e))
     assert resumed["resumed_from"] == 3 and seen == [3, 4, 5]  # epochs 0-2 were not recomputed
