@@ -335,8 +335,10 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
         "prototype they are equal too (up to float32 rounding), and leveling (averaging the copies) has nothing "
         "to change: on trained prototypes the reduction is about 0 % by construction of our encoding and "
         "training. The exceptions are a few prototypes whose dihedral angle copies straddle the 0/2 pi wrap "
-        "(near-degenerate neighbours in the data): averaging those angles linearly makes them worse, which can "
-        "turn the mean reduction negative. The paper's 30-40 % implies prototypes whose copies disagree; the "
+        "(near-degenerate neighbours in the data): training has averaged those angles linearly across vectors "
+        "(values near 0 and near 2 pi), so their copies disagree in a way that averaging them, even on the "
+        "circle, cannot repair, which can turn the mean reduction negative. The paper's 30-40 % implies "
+        "prototypes whose copies disagree; the "
         "second measurement (independent noise on every entry) shows what leveling does then.",
         "- (d) The paper shows Figure 9 without a measure; we measure it on the labelled synthetic corpus "
         "(real data carry no family labels; look at their Figure 9 below).",
