@@ -22,6 +22,8 @@ radius schedule, same update); only the order of the float64 summation over chun
 from __future__ import annotations
 
 import hashlib
+import logging
+import warnings
 import json
 import math
 import time
@@ -34,6 +36,11 @@ import numpy as np
 CHUNK_CACHE_BYTES = 1 << 30
 #: Tasks per worker and epoch when the store's row chunks are larger than that split.
 TASKS_PER_WORKER = 2
+#: Times a pass is run again when a worker dies under the client's own transfers, and the wait.
+PASS_RETRIES = 3
+PASS_RETRY_WAIT_S = 1.0
+
+log = logging.getLogger(__name__)
 
 _ENGINES: dict = {}
 _CHUNKS: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
@@ -187,6 +194,35 @@ def row_ranges(n: int, chunk_rows: int, n_workers: int) -> list[tuple[int, int]]
     return [(a, min(n, a + step)) for a in range(0, n, step)]
 
 
+def _codebook(W: np.ndarray) -> np.ndarray:
+    """Identity task that holds the epoch's codebook on the cluster."""
+    return W
+
+
+def _pass(client, job: TrainJob, ranges, W: np.ndarray, retries: int = PASS_RETRIES) -> dict:
+    """One pass over every row chunk against codebook ``W``, reduced in task order.
+
+    A worker dying while the codebook is broadcast or while results are fetched (a connection
+    closed under us) makes the whole pass run again: its tasks are pure and their BMU writes are
+    idempotent region writes, so a repeated pass gives the same result. Dask itself reruns the
+    tasks of a dead worker; this covers the client's own transfers.
+    """
+    for attempt in range(retries + 1):
+        try:
+            # The codebook travels as a task's input, not by scatter: if the worker holding it dies,
+            # the scheduler recomputes it from the graph instead of losing it.
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=".*[Ll]arge (object|graph).*")
+                wf = client.submit(_codebook, W, pure=False)
+            return _reduce([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges])
+        except OSError as err:  # distributed's CommClosedError is an OSError
+            if attempt == retries:
+                raise
+            log.warning("training pass of %s interrupted (%s); running it again", job.run, err)
+            time.sleep(PASS_RETRY_WAIT_S)
+    raise AssertionError("unreachable")
+
+
 def _reduce(futures) -> dict:
     """Sum the partial results in task order, fetching one at a time.
 
@@ -320,9 +356,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
                            chunks=(max(1, step),), overwrite=True)
     for epoch in range(start_epoch, job.epochs):
         sigma = sigma_schedule(epoch, job.epochs, sigma_start, job.sigma_end)
-        wf = client.scatter(W, broadcast=True)
-        futures = [client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges]
-        red = _reduce(futures)
+        red = _pass(client, job, ranges, W)
         backend, device = red["backend"], red["device"]
         W = batch_update(W, red["sums"], red["counts"], sigma, job.rows, job.cols, job.topology)
         metrics = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
@@ -335,8 +369,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         if progress:
             progress(epoch + 1, job.epochs)
     # final pass: BMUs of every vector against the final codebook, and the final errors
-    wf = client.scatter(W, broadcast=True)
-    red = _reduce([client.submit(chunk_pass, job, a, b, wf, True, pure=False) for a, b in ranges])
+    red = _pass(client, job, ranges, W)
     final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
     result = {
         "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
