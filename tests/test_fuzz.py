@@ -212,7 +212,9 @@ def test_random_bytes_give_rejections_only(folder, suffix):
     @FUZZ
     @given(prefix=st.sampled_from(MAGIC[suffix]), body=st.binary(max_size=1500))
     def check(prefix, body):
-        read_bounded(_write(folder / f"random{suffix}", prefix + body))
+        items, records, _ = read_bounded(_write(folder / f"random{suffix}", prefix + body))
+        assert items, "a file must be accounted for: at least one mesh or one rejection"
+        assert len(records) == len(items)
 
     check()
 
@@ -282,7 +284,9 @@ def test_binary_ply_with_hostile_values(folder, kind):
         data = bytearray(body)
         for at, value in edits:
             data[at:at + len(value)] = value
-        read_bounded(_write(folder / "hostile.ply", head + bytes(data)))
+        items, records, _ = read_bounded(_write(folder / "hostile.ply", head + bytes(data)))
+        assert items, "a file must be accounted for: at least one mesh or one rejection"
+        assert len(records) == len(items)
 
     check()
 
@@ -345,7 +349,9 @@ def test_mutated_cityjson_bytes(folder, city_bytes):
     @settings(FUZZ, max_examples=100)
     @given(data=mutated(city_bytes))
     def check(data):
-        read_bounded(_write(folder / "mutant.city.json", data))
+        items, records, _ = read_bounded(_write(folder / "mutant.city.json", data))
+        assert items, "a file must be accounted for: at least one mesh or one rejection"
+        assert len(records) == len(items)
 
     check()
 
