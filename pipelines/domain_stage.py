@@ -26,16 +26,14 @@ MESHES_PER_TASK = 256
 LABEL_SAMPLE = 2000
 
 
-def domain_chunk(store: str, run: str, m0: int, m1: int, sigma: float) -> int:
-    """Worker task: domain vectors of meshes ``m0..m1`` into ``runs/<run>/domain/vectors``."""
+def domain_chunk(store: str, run: str, m0: int, m1: int, f0: int, f1: int, sigma: float) -> int:
+    """Worker task: domain vectors of meshes ``m0..m1`` (faces ``f0..f1``) into ``runs/<run>/domain/vectors``."""
     from meshsom.domain import bmu_histograms, domain_vectors
-    from meshsom.store import mesh_table, open_store
+    from meshsom.store import open_store
 
     group = open_store(store, mode="r+")
-    table = mesh_table(group)
     g = group["runs"][run]
     rows, cols, topology = int(g.attrs["rows"]), int(g.attrs["cols"]), str(g.attrs["topology"])
-    f0, f1 = int(table.face_offsets[m0]), int(table.face_offsets[m1])
     face_mesh = np.asarray(group["face_mesh"][f0:f1]) - m0
     units = np.asarray(g["bmu_unit"][f0:f1])
     hist = bmu_histograms(face_mesh, units, m1 - m0, rows * cols)
@@ -56,13 +54,17 @@ def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.
     from pipelines.train import TrainJob, train_spec
 
     group = open_store(store, mode="r+")
-    n = len(mesh_table(group))
+    offsets = mesh_table(group).face_offsets  # read once here, not by every task
+    n = len(offsets) - 1
     g = group["runs"][run]
     m = int(g.attrs["rows"]) * int(g.attrs["cols"])
     dom = g.require_group("domain")
     dom.create_array("vectors", shape=(n, m), dtype=np.float32, chunks=(MESHES_PER_TASK, m), overwrite=True)
-    tasks = [client.submit(domain_chunk, str(store), run, a, min(n, a + MESHES_PER_TASK), cfg.domain.sigma, pure=False)
-             for a in range(0, n, MESHES_PER_TASK)]
+    tasks = []
+    for a in range(0, n, MESHES_PER_TASK):
+        b = min(n, a + MESHES_PER_TASK)
+        tasks.append(client.submit(domain_chunk, str(store), run, a, b, int(offsets[a]), int(offsets[b]),
+                                   cfg.domain.sigma, pure=False))
     client.gather(tasks)
     d = cfg.domain
     job = TrainJob(store=str(store), level=int(g.attrs["level"]), kernel="default", mirror=False, rows=d.rows,
