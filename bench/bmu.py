@@ -28,6 +28,8 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--device", default=None, help="OpenCL device selector")
     parser.add_argument("--no-opencl", action="store_true")
+    parser.add_argument("--kernel", action="append", choices=["cpu", "tiled"], default=None,
+                        help="OpenCL kernel variant(s) to time (repeatable); default: the device type's default")
     args = parser.parse_args(argv)
 
     rows, cols = MAP
@@ -40,16 +42,23 @@ def main(argv=None) -> int:
     backends = [("numpy", None)]
     if not args.no_opencl:
         try:
-            from meshsom.bmu_opencl import bmu_opencl, device_name, get_context
+            from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params, device_name, get_context
 
             ctx = get_context(args.device)
-            backends.append(("opencl", ctx))
             print(f"OpenCL device: {device_name(ctx)}")
+            if args.kernel is None:
+                params = default_params(ctx)
+                backends.append(("opencl", (ctx, params)))
+                print(f"OpenCL kernel: {params}")
+            for kernel in args.kernel or ():
+                params = DEFAULT_PARAMS["cpu" if kernel == "cpu" else "gpu"]
+                backends.append((f"cl-{kernel}", (ctx, params)))
+                print(f"OpenCL kernel {kernel}: {params}")
         except Exception as err:  # noqa: BLE001 - a benchmark reports and goes on
             print(f"OpenCL skipped: {err}")
 
     print(f"\nmap {rows}x{cols} (M = {M})")
-    header = f"{'N':>7} {'n x D':>7} {'backend':>7} {'s/pass':>8} {'GFLOP/s':>8} {'%SGEMM':>7} {'vs n BLAS':>9}"
+    header = f"{'N':>7} {'n x D':>7} {'backend':>8} {'s/pass':>8} {'GFLOP/s':>8} {'%SGEMM':>7} {'vs n BLAS':>9}"
     print(header)
     print("-" * len(header))
     for N, n, D in (QUICK_WORKLOADS if args.quick else WORKLOADS):
@@ -57,17 +66,17 @@ def main(argv=None) -> int:
         index, sign = block_table(n, D)
         plain = best_time(lambda: bmu_numpy(X, W, *identity_table(D)), args.repeat)
         flops = 2.0 * N * n * M * D
-        print(f"{N:>7} {f'{n}x{D}':>7} {'BLAS n=1':>7} {plain:8.3f} {2.0 * N * M * D / plain / 1e9:8.1f} "
+        print(f"{N:>7} {f'{n}x{D}':>7} {'BLAS n=1':>8} {plain:8.3f} {2.0 * N * M * D / plain / 1e9:8.1f} "
               f"{100 * 2.0 * N * M * D / plain / 1e9 / sgemm:6.1f}% {'':>9}")
         for name, ctx in backends:
             if name == "numpy":
                 fn = lambda: bmu_numpy(X, W, index, sign)  # noqa: E731
             else:
-                fn = lambda: bmu_opencl(X, W, index, sign, context=ctx)  # noqa: E731
-                bmu_opencl(X[:64], W, index, sign, context=ctx)  # build outside the timing
+                fn = lambda: bmu_opencl(X, W, index, sign, context=ctx[0], params=ctx[1])  # noqa: E731
+                bmu_opencl(X[:64], W, index, sign, context=ctx[0], params=ctx[1])  # build outside the timing
             t = best_time(fn, args.repeat)
             rate = flops / t / 1e9
-            print(f"{N:>7} {f'{n}x{D}':>7} {name:>7} {t:8.3f} {rate:8.1f} {100 * rate / sgemm:6.1f}% {t / (n * plain):9.2f}")
+            print(f"{N:>7} {f'{n}x{D}':>7} {name:>8} {t:8.3f} {rate:8.1f} {100 * rate / sgemm:6.1f}% {t / (n * plain):9.2f}")
         sys.stdout.flush()
     return 0
 

@@ -1,8 +1,12 @@
-"""BMUofN on OpenCL: the fused kernel of ``kernels/bmu.cl``, same answers as :mod:`meshsom.bmu_numpy`.
+"""BMUofN on OpenCL: the fused kernel, same answers as :mod:`meshsom.bmu_numpy`.
 
 The kernel never materialises the N x M distance matrix: each work-item keeps the best
 and second-best unit of its rows per SIMD lane while it sweeps the codebook, and applies
-the variations (gather + sign) on the fly. Sizes are compiled in as ``-D`` defines; the
+the variations (gather + sign) on the fly. It comes in two layouts of the same arithmetic
+(:data:`KERNELS`): ``kernels/bmu_cpu.cl`` for CPU devices (cache- and register-blocked,
+the varied vectors of a panel of rows gathered once into private memory) and
+``kernels/bmu.cl`` for GPUs (codebook tiles in local memory); the device type picks one
+(:data:`DEFAULT_PARAMS`), ``params`` overrides it. Sizes are compiled in as ``-D`` defines; the
 built program is memoised per (context, defines). The context is injected by the caller
 or made from a device selector: the ``device`` argument, else ``PYOPENCL_CTX``, else the
 first device of the first platform. ``create_some_context`` is never called, so nothing
@@ -14,6 +18,7 @@ or a case-insensitive substring of a platform or device name (``"pocl"``, ``"nvi
 
 from __future__ import annotations
 
+import math
 import os
 import weakref
 from dataclasses import dataclass, replace
@@ -30,44 +35,70 @@ ENV_SELECTOR = "PYOPENCL_CTX"
 
 @dataclass(frozen=True)
 class KernelParams:
-    """Tiling of the fused kernel (see the header of ``kernels/bmu.cl``).
+    """Which kernel and its tiling.
+
+    Two variants of the one BMUofN kernel exist, with the same arithmetic and answers:
+    ``"cpu"`` (``kernels/bmu_cpu.cl``: a work-item owns a panel of rows and sweeps the codebook
+    in L2-sized blocks with a register-blocked outer product, no barriers) and ``"tiled"``
+    (``kernels/bmu.cl``: a work-group stages codebook tiles in local memory, few registers
+    per work-item, for GPUs).
 
     Attributes
     ----------
+    kernel : {"cpu", "tiled"}
     vector_width : int
-        SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16.
+        SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16 (halved for float64).
     unit_blocks : int
         Vectors of units per step (UB); a codebook tile holds ``vector_width * unit_blocks`` units.
     max_rows : int
-        Varied vectors per work-item (R = RX * n is at most this, RX at least 1).
+        "tiled": varied vectors per work-item (R = RX * n is at most this, RX at least 1).
+        "cpu": varied vectors per register block (RS).
     use_local : bool
-        Stage the codebook tile in local memory.
+        "tiled": stage the codebook tile in local memory.
     work_group : int
-        Work-items per group.
+        "tiled": work-items per group ("cpu" runs groups of one).
     max_dt : int
-        Most dimensions per local tile (DT is the largest divisor of D not above this).
+        "tiled": most dimensions per local tile (DT is the largest divisor of D not above this).
+    panel : int
+        "cpu": varied vectors per work-item (P * n, rounded to whole register blocks).
+    panel_bytes : int
+        "cpu": most bytes of staged varied vectors per work-item (caps the panel at large D).
+    cache_tiles : int
+        "cpu": codebook tiles per cache block (UBLK).
     """
 
+    kernel: str = "tiled"
     vector_width: int = 16
     unit_blocks: int = 2
     max_rows: int = 8
     use_local: bool = True
     work_group: int = 8
     max_dt: int = 144
+    panel: int = 192
+    panel_bytes: int = 262_144
+    cache_tiles: int = 16
 
     def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, received {self.kernel!r}")
         if self.vector_width not in (2, 4, 8, 16):
             raise ValueError(f"vector_width must be 2, 4, 8 or 16, received {self.vector_width}")
-        for name in ("unit_blocks", "max_rows", "work_group", "max_dt"):
+        for name in ("unit_blocks", "max_rows", "work_group", "max_dt", "panel", "panel_bytes", "cache_tiles"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
 
 
-#: Tiling per OpenCL device type: CPUs (PoCL) like wide vectors and many rows per
-#: work-item; GPUs need few registers per work-item and larger groups.
+#: Kernel variant -> (source file under ``kernels/``, kernel function).
+KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "tiled": ("bmu.cl", "bmu_of_n")}
+
+#: Kernel and tiling per OpenCL device type. CPUs (PoCL): the cache-blocked kernel with
+#: 2 x 16 units against 8 varied vectors in registers (16 zmm accumulators), 192 varied
+#: vectors per work-item and 16 tiles (512 units) per L2 block; measured on a 2-core
+#: AVX-512 Xeon (bench/bmu.py). GPUs: few registers per work-item and larger groups.
 DEFAULT_PARAMS = {
-    "cpu": KernelParams(vector_width=16, unit_blocks=2, max_rows=8, use_local=True, work_group=8, max_dt=144),
-    "gpu": KernelParams(vector_width=4, unit_blocks=2, max_rows=4, use_local=True, work_group=64, max_dt=64),
+    "cpu": KernelParams(kernel="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192, cache_tiles=16),
+    "gpu": KernelParams(kernel="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True, work_group=64,
+                        max_dt=64),
 }
 
 
@@ -152,9 +183,10 @@ def device_name(context) -> str:
     return f"{device.platform.name.strip()} / {device.name.strip()}"
 
 
-def kernel_source() -> str:
-    """Text of ``kernels/bmu.cl``."""
-    return resources.files("meshsom").joinpath("kernels/bmu.cl").read_text()
+def kernel_source(kernel: str = "tiled") -> str:
+    """Text of a kernel variant: ``kernels/bmu_common.cl`` then its own ``.cl`` file (see :data:`KERNELS`)."""
+    kernels = resources.files("meshsom").joinpath("kernels")
+    return kernels.joinpath("bmu_common.cl").read_text() + "\n" + kernels.joinpath(KERNELS[kernel][0]).read_text()
 
 
 def _largest_divisor(D: int, cap: int) -> int:
@@ -175,7 +207,25 @@ def default_params(context) -> KernelParams:
 def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str]:
     double = dtype == np.float64
     vw = params.vector_width // 2 if double and params.vector_width > 2 else params.vector_width
+    if params.kernel == "cpu":
+        rs = params.max_rows
+        step = rs // math.gcd(rs, n)  # rows per panel come in steps that fill whole register blocks
+        cap = params.panel_bytes // (n * D * (8 if double else 4))
+        rows = max(step, min(params.panel // n, cap) // step * step)
+        return {
+            "KERNEL": "cpu",
+            "REAL": "double" if double else "float",
+            "IREAL": "long" if double else "int",
+            "VW": vw,
+            "UB": params.unit_blocks,
+            "D": D,
+            "NV": n,
+            "P": rows,
+            "RS": rs,
+            "UBLK": params.cache_tiles,
+        }
     return {
+        "KERNEL": "tiled",
         "REAL": "double" if double else "float",
         "IREAL": "long" if double else "int",
         "VW": vw,
@@ -190,17 +240,18 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
 
 
 def get_kernel(context, defines: dict):
-    """The ``bmu_of_n`` kernel built for ``defines``, memoised per context."""
+    """The kernel ``defines["KERNEL"]`` names, built for ``defines``, memoised per context."""
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
     key = tuple(sorted(defines.items()))
     if key not in cache:
-        options = [f"-D{k}={v}" for k, v in key] + ["-cl-mad-enable"]
+        source, function = KERNELS[defines["KERNEL"]]
+        options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + ["-cl-mad-enable"]
         try:
-            program = cl.Program(context, kernel_source()).build(options=options)
-            cache[key] = cl.Kernel(program, "bmu_of_n")
+            program = cl.Program(context, kernel_source(defines["KERNEL"])).build(options=options)
+            cache[key] = cl.Kernel(program, function)
         except cl.RuntimeError as err:
-            raise DeviceError(f"{device_name(context)}: kernels/bmu.cl failed to build with {options}: {err}") from None
+            raise DeviceError(f"{device_name(context)}: kernels/{source} failed to build with {options}: {err}") from None
     return cache[key]
 
 
@@ -246,13 +297,21 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     defines = _defines(D, n, X.dtype, params)
     tile = defines["VW"] * defines["UB"]
     MP = -(-M // tile) * tile
-    WT = np.zeros((D, MP), X.dtype)
-    WT[:, :M] = W.T
     wnorm = np.full(MP, np.inf, X.dtype)
     wnorm[:M] = np.einsum("ij,ij->i", W, W)
-    items = -(-N // defines["RX"])
-    wg = defines["WG"]
-    global_size = -(-items // wg) * wg
+    if defines["KERNEL"] == "cpu":
+        # tiled codebook (MP / tile, D, tile): one tile's D x tile block is contiguous
+        padded = np.zeros((MP, D), X.dtype)
+        padded[:M] = W
+        WT = np.ascontiguousarray(padded.reshape(MP // tile, tile, D).transpose(0, 2, 1))
+        wg = 1
+        global_size = -(-N // defines["P"])
+    else:
+        WT = np.zeros((D, MP), X.dtype)
+        WT[:, :M] = W.T
+        items = -(-N // defines["RX"])
+        wg = defines["WG"]
+        global_size = -(-items // wg) * wg
 
     mf = cl.mem_flags
     ro = mf.READ_ONLY | mf.COPY_HOST_PTR

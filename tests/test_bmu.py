@@ -58,20 +58,24 @@ def block_table(D, mirror=True):
     return np.array(rows, np.int64), np.array(signs, np.float32)
 
 
-def separated(X, W, index, sign, rel=1e-4):
+def separated(X, W, index, sign, rel=1e-4, chunk=64):
     """Rows whose best, second and third (variation, unit) distances are separated beyond float32 rounding."""
     X = np.asarray(X, np.float64)
     W = np.asarray(W, np.float64)
-    xv = np.stack([sign[v] * X[:, index[v]] for v in range(len(index))], axis=1)  # (N, n, D)
-    d = ((xv[:, :, None, :] - W[None, None]) ** 2).sum(-1)  # (N, n, M)
-    flat = np.sort(d.reshape(len(X), -1), axis=1)
-    scale = 1.0 + np.abs(flat[:, :1])
-    ok = (flat[:, 1] - flat[:, 0]) > rel * scale[:, 0]
-    v = d.reshape(len(X), -1).argmin(1) // W.shape[0]
-    dv = np.sort(d[np.arange(len(X)), v], axis=1)
-    ok &= (dv[:, 1] - dv[:, 0]) > rel * scale[:, 0]
-    ok &= (dv[:, 2] - dv[:, 1]) > rel * scale[:, 0]
-    return ok
+    out = []
+    for start in range(0, len(X), chunk):
+        x = X[start:start + chunk]
+        xv = np.stack([sign[v] * x[:, index[v]] for v in range(len(index))], axis=1)  # (c, n, D)
+        d = ((xv[:, :, None, :] - W[None, None]) ** 2).sum(-1)  # (c, n, M)
+        flat = np.sort(d.reshape(len(x), -1), axis=1)
+        scale = 1.0 + np.abs(flat[:, :1])
+        ok = (flat[:, 1] - flat[:, 0]) > rel * scale[:, 0]
+        v = d.reshape(len(x), -1).argmin(1) // W.shape[0]
+        dv = np.sort(d[np.arange(len(x)), v], axis=1)
+        ok &= (dv[:, 1] - dv[:, 0]) > rel * scale[:, 0]
+        ok &= (dv[:, 2] - dv[:, 1]) > rel * scale[:, 0]
+        out.append(ok)
+    return np.concatenate(out)
 
 
 @pytest.mark.parametrize("n,D", [(1, 9), (3, 9), (6, 9), (3, 12)])
@@ -191,12 +195,57 @@ def ctx():
     return _opencl_context()
 
 
+#: The kernel variants and tilings run on PoCL: the CPU kernel as the CPU default, the
+#: local-memory kernel with the GPU default tiling and with wide vectors.
+KERNEL_PARAMS = {
+    "cpu": {"kernel": "cpu"},
+    "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
+    "tiled-wide": {"kernel": "tiled", "vector_width": 16, "unit_blocks": 2, "max_rows": 8, "work_group": 8},
+}
+
+
+@pytest.fixture(params=list(KERNEL_PARAMS))
+def kernel_params(request):
+    from meshsom.bmu_opencl import KernelParams
+
+    return KernelParams(**KERNEL_PARAMS[request.param])
+
+
+def test_cpu_kernel_panels_and_cache_blocks(ctx):
+    """Several panels (the last one partial) and several cache blocks (the last one partial)
+    of the CPU kernel, with a small panel and small blocks to have many of both."""
+    from meshsom.bmu_opencl import KernelParams, _defines, bmu_opencl
+
+    rng = np.random.default_rng(5)
+    N, M, D = 1013, 1100, 36
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    W = rng.normal(size=(M, D)).astype(np.float32)
+    index, sign = random_table(rng, 3, D)
+    ref = bmu_numpy(X, W, index, sign)
+    ok = separated(X, W, index, sign)
+    assert ok.mean() > 0.8
+    for params in (KernelParams(kernel="cpu"), KernelParams(kernel="cpu", panel=24, cache_tiles=3)):
+        defines = _defines(D, 3, np.float32, params)
+        assert defines["P"] * 3 % defines["RS"] == 0
+        got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
+        np.testing.assert_array_equal(got.unit[ok], ref.unit[ok])
+        np.testing.assert_array_equal(got.variation[ok], ref.variation[ok])
+        np.testing.assert_array_equal(got.second[ok], ref.second[ok])
+    assert _defines(2304, 6, np.float32, KernelParams(kernel="cpu"))["P"] * 6 * 2304 * 4 <= 262_144
+
+
+def test_default_params_pick_the_cpu_kernel_on_pocl(ctx):
+    from meshsom.bmu_opencl import default_params
+
+    assert default_params(ctx).kernel == "cpu"
+
+
 @pytest.mark.parametrize(
     "n,D,M",
     [(1, 9, 300), (3, 9, 300), (6, 9, 300), (1, 36, 250), (3, 36, 250), (6, 36, 250),
      (1, 144, 120), (3, 144, 120), (6, 144, 120), (3, 576, 70)],
 )
-def test_opencl_matches_numpy(ctx, n, D, M):
+def test_opencl_matches_numpy(ctx, kernel_params, n, D, M):
     from meshsom.bmu_opencl import bmu_opencl
 
     rng = np.random.default_rng(n * 1000 + D)
@@ -205,7 +254,7 @@ def test_opencl_matches_numpy(ctx, n, D, M):
     W = rng.normal(size=(M, D)).astype(np.float32)
     index, sign = random_table(rng, n, D)
     ref = bmu_numpy(X, W, index, sign)
-    got = bmu_opencl(X, W, index, sign, context=ctx)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=kernel_params)
     ok = separated(X, W, index, sign)
     assert ok.mean() > 0.8
     np.testing.assert_array_equal(got.unit[ok], ref.unit[ok])
@@ -214,18 +263,18 @@ def test_opencl_matches_numpy(ctx, n, D, M):
     np.testing.assert_allclose(got.dist2, ref.dist2, rtol=1e-4, atol=1e-4)
 
 
-def test_opencl_large_dimension_level5(ctx):
+def test_opencl_large_dimension_level5(ctx, kernel_params):
     """D = 9 * 4^4 = 2304 (the codebook is tiled over D in local memory)."""
     from meshsom.bmu_opencl import bmu_opencl
 
     rng = np.random.default_rng(11)
     X, W, index, sign, u, v = planted_variations(rng, 2304, mirror=False, N=12, M=37)
-    got = bmu_opencl(X, W, index, sign, context=ctx)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=kernel_params)
     np.testing.assert_array_equal(got.unit, u)
     np.testing.assert_array_equal(got.variation, v)
 
 
-def test_opencl_float64_exact(ctx):
+def test_opencl_float64_exact(ctx, kernel_params):
     from meshsom.bmu_opencl import bmu_opencl
 
     if "fp64" not in ctx.devices[0].extensions:
@@ -234,29 +283,29 @@ def test_opencl_float64_exact(ctx):
     X = rng.normal(size=(80, 36))
     W = rng.normal(size=(90, 36))
     index, sign = random_table(rng, 3, 36)
-    got = bmu_opencl(X, W, index, sign.astype(np.float64), context=ctx)
+    got = bmu_opencl(X, W, index, sign.astype(np.float64), context=ctx, params=kernel_params)
     u, v, d, s = brute_force(X, W, index, sign)
     np.testing.assert_array_equal(got.unit, u)
     np.testing.assert_array_equal(got.variation, v)
     np.testing.assert_array_equal(got.second, s)
 
 
-def test_opencl_ties(ctx):
+def test_opencl_ties(ctx, kernel_params):
     from meshsom.bmu_opencl import bmu_opencl
 
     X, W, index, sign = planted_ties(np.random.default_rng(1))
-    got = bmu_opencl(X, W, index, sign, context=ctx)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=kernel_params)
     check_ties(got, X, W, index, sign)
     ref = bmu_numpy(X, W, index, sign)
     for name in ("unit", "variation", "second"):
         np.testing.assert_array_equal(getattr(got, name), getattr(ref, name))
 
 
-def test_opencl_planted_variation_with_mirrors(ctx):
+def test_opencl_planted_variation_with_mirrors(ctx, kernel_params):
     from meshsom.bmu_opencl import bmu_opencl
 
     X, W, index, sign, u, v = planted_variations(np.random.default_rng(4), 36)
-    got = bmu_opencl(X, W, index, sign, context=ctx)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=kernel_params)
     np.testing.assert_array_equal(got.unit, u)
     np.testing.assert_array_equal(got.variation, v)
 

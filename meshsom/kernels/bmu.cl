@@ -21,32 +21,8 @@
  *   WG           work-group size (USE_LOCAL needs it for the cooperative load)
  */
 
-#define CAT_(a, b) a##b
-#define CAT(a, b) CAT_(a, b)
-typedef CAT(REAL, VW) realv;
-typedef CAT(IREAL, VW) irealv;
-#define VLOAD CAT(vload, VW)
-#define VSTORE CAT(vstore, VW)
 #define TILE_M (UB * VW)
 #define R (RX * NV)
-
-#if VW == 2
-#define LANES ((irealv)(0, 1))
-#elif VW == 4
-#define LANES ((irealv)(0, 1, 2, 3))
-#elif VW == 8
-#define LANES ((irealv)(0, 1, 2, 3, 4, 5, 6, 7))
-#else
-#define LANES ((irealv)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
-#endif
-
-/* Insert candidate (d, u) into (b, bu) <= (s, su), lexicographic (distance, unit). */
-#define INSERT(d, u, b, bu, s, su)                                   \
-    if ((d) < (b) || ((d) == (b) && (u) < (bu))) {                   \
-        s = b; su = bu; b = d; bu = u;                               \
-    } else if ((d) < (s) || ((d) == (s) && (u) < (su))) {            \
-        s = d; su = u;                                               \
-    }
 
 __kernel
 #if USE_LOCAL
@@ -112,7 +88,7 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
                     for (int j = 0; j < RX; ++j) {
                         const realv xv = (realv)(s * X[rows[j] * D + ix]);
                         for (int b = 0; b < UB; ++b)
-                            acc[j * NV + v][b] = fma(xv, w[b], acc[j * NV + v][b]);
+                            acc[j * NV + v][b] = xv * w[b] + acc[j * NV + v][b];  /* contracted to an FMA */
                     }
                 }
             }
@@ -125,10 +101,11 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
                 const realv d = wn - (REAL)2 * acc[r][b];
                 const irealv better = d < bd[r];
                 const irealv second = d < sd[r];
-                sd[r] = select(select(sd[r], d, second), bd[r], better);
-                su[r] = select(select(su[r], u, second), bu[r], better);
-                bd[r] = select(bd[r], d, better);
-                bu[r] = select(bu[r], u, better);
+                /* operators, not the fma/select builtins: PoCL may leave those as calls */
+                sd[r] = better ? bd[r] : (second ? d : sd[r]);
+                su[r] = better ? bu[r] : (second ? u : su[r]);
+                bd[r] = better ? d : bd[r];
+                bu[r] = better ? u : bu[r];
             }
         }
     }
@@ -138,38 +115,16 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
     for (int j = 0; j < RX; ++j) {
         if (row0 + j >= N)
             break;
-        REAL best_total = INFINITY;
-        int best_v = 0, best_u = 0, best_s = 0;
+        REAL xnorm[NV];
         for (int v = 0; v < NV; ++v) {
-            const int r = j * NV + v;
-            REAL lb[VW], ls[VW];
-            IREAL lbu[VW], lsu[VW];
-            VSTORE(bd[r], 0, lb);
-            VSTORE(sd[r], 0, ls);
-            VSTORE(bu[r], 0, lbu);
-            VSTORE(su[r], 0, lsu);
-            REAL B = INFINITY, S = INFINITY;
-            IREAL BU = MP, SU = MP;
-            for (int l = 0; l < VW; ++l) {
-                INSERT(lb[l], lbu[l], B, BU, S, SU);
-                INSERT(ls[l], lsu[l], B, BU, S, SU);
-            }
             REAL xn = 0;
             for (int k = 0; k < D; ++k) {
                 const REAL xv = sign[v * D + k] * X[rows[j] * D + index[v * D + k]];
                 xn = fma(xv, xv, xn);
             }
-            const REAL total = B + xn;
-            if (total < best_total || (total == best_total && (int)BU < best_u)) {
-                best_total = total;
-                best_v = v;
-                best_u = (int)BU;
-                best_s = (int)SU;
-            }
+            xnorm[v] = xn;
         }
-        out_unit[row0 + j] = best_u;
-        out_var[row0 + j] = best_v;
-        out_dist2[row0 + j] = best_total;
-        out_second[row0 + j] = best_s;
+        finish_row(bd + j * NV, bu + j * NV, sd + j * NV, su + j * NV, xnorm, NV, MP, row0 + j,
+                   out_unit, out_var, out_dist2, out_second);
     }
 }

@@ -1,0 +1,77 @@
+/* Shared by both BMUofN kernels (kernels/bmu.cl and kernels/bmu_cpu.cl): the loader
+ * (meshsom.bmu_opencl.kernel_source) puts this text in front of each.
+ *
+ * Needs the defines REAL, IREAL, VW and D. Builtins (fma, select, any, vload) are kept
+ * out of the hot loops of the kernels: PoCL may leave them as out-of-line calls, one call
+ * per vector operation; the operators below always inline.
+ */
+
+#define CAT_(a, b) a##b
+#define CAT(a, b) CAT_(a, b)
+typedef CAT(REAL, VW) realv;
+typedef CAT(IREAL, VW) irealv;
+#define VLOAD CAT(vload, VW)
+#define VSTORE CAT(vstore, VW)
+
+#if VW == 2
+#define LANES ((irealv)(0, 1))
+#define ANY(m) (((m).s0 | (m).s1) != 0)
+#elif VW == 4
+#define LANES ((irealv)(0, 1, 2, 3))
+#define ANY(m) ((((m).s01 | (m).s23).s0 | ((m).s01 | (m).s23).s1) != 0)
+#elif VW == 8
+#define LANES ((irealv)(0, 1, 2, 3, 4, 5, 6, 7))
+#define ANY4(m) ((((m).s01 | (m).s23).s0 | ((m).s01 | (m).s23).s1) != 0)
+#define ANY(m) ANY4((m).lo | (m).hi)
+#else
+#define LANES ((irealv)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define ANY4(m) ((((m).s01 | (m).s23).s0 | ((m).s01 | (m).s23).s1) != 0)
+#define ANY8(m) ANY4((m).lo | (m).hi)
+#define ANY(m) ANY8((m).lo | (m).hi)
+#endif
+
+/* Insert candidate (d, u) into (b, bu) <= (s, su), lexicographic (distance, unit). */
+#define INSERT(d, u, b, bu, s, su)                                   \
+    if ((d) < (b) || ((d) == (b) && (u) < (bu))) {                   \
+        s = b; su = bu; b = d; bu = u;                               \
+    } else if ((d) < (s) || ((d) == (s) && (u) < (su))) {            \
+        s = d; su = u;                                               \
+    }
+
+/* Fold the per-lane best / second best (distance ||w||^2 - 2 x_v.w, unit; ascending units
+ * per lane) of one row's nv varied vectors into its answer: across lanes the (distance,
+ * unit) order; across variations ||x_v||^2 (xnorm[v]) is added and a later variation
+ * wins when strictly closer, or equally close at a lower unit. Writes the row's outputs. */
+inline void finish_row(const realv *bd, const irealv *bu, const realv *sd, const irealv *su,
+                       const REAL *xnorm, const int nv, const int MP, const int row,
+                       __global int *out_unit, __global int *out_var, __global REAL *out_dist2,
+                       __global int *out_second)
+{
+    REAL best_total = INFINITY;
+    int best_v = 0, best_u = 0, best_s = 0;
+    for (int v = 0; v < nv; ++v) {
+        REAL lb[VW], ls[VW];
+        IREAL lbu[VW], lsu[VW];
+        VSTORE(bd[v], 0, lb);
+        VSTORE(sd[v], 0, ls);
+        VSTORE(bu[v], 0, lbu);
+        VSTORE(su[v], 0, lsu);
+        REAL B = INFINITY, S = INFINITY;
+        IREAL BU = MP, SU = MP;
+        for (int l = 0; l < VW; ++l) {
+            INSERT(lb[l], lbu[l], B, BU, S, SU);
+            INSERT(ls[l], lsu[l], B, BU, S, SU);
+        }
+        const REAL total = B + xnorm[v];
+        if (total < best_total || (total == best_total && (int)BU < best_u)) {
+            best_total = total;
+            best_v = v;
+            best_u = (int)BU;
+            best_s = (int)SU;
+        }
+    }
+    out_unit[row] = best_u;
+    out_var[row] = best_v;
+    out_dist2[row] = best_total;
+    out_second[row] = best_s;
+}
