@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Rows of ``X`` handled per chunk: bounds the distance block to chunk_rows x M.
-DEFAULT_CHUNK_ROWS = 512
+#: Rows of ``X`` handled per chunk: bounds the distance block to chunk_rows x M (128 x 18,000
+#: float32 = 9 MB; 64-256 rows measured about 25 % faster than 512 on the paper's map).
+DEFAULT_CHUNK_ROWS = 128
 
 
 @dataclass(frozen=True)

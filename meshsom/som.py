@@ -94,10 +94,13 @@ def smooth(values: np.ndarray, sigma: float, rows: int, cols: int, topology: str
     values = np.asarray(values, np.float64)
     tail = values.shape[1:]
     grid = values.reshape(rows, cols, -1)
+    k = grid.shape[2]
     kr = gaussian_kernel_1d(rows, sigma, topology)
     kc = gaussian_kernel_1d(cols, sigma, topology)
-    out = np.matmul(kc, grid)  # along columns, broadcast over rows: (rows, cols, k)
-    out = (kr @ out.reshape(rows, -1)).reshape(rows, cols, -1)
+    # along columns: one (cols x cols) @ (cols x rows*k) product (not rows small batched ones)
+    out = kc @ grid.transpose(1, 0, 2).reshape(cols, rows * k)
+    out = np.ascontiguousarray(out.reshape(cols, rows, k).transpose(1, 0, 2)).reshape(rows, cols * k)
+    out = kr @ out  # along rows
     return out.reshape((rows * cols,) + tail)
 
 
