@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from typing import Callable, Iterable
 
 import numpy as np
-from scipy import sparse
 
 from meshsom.bmu import Engine, find_bmus, resolve_backend
 from meshsom.bmu_numpy import BMUResult, identity_table, varied
@@ -131,8 +130,14 @@ def partial_sums(X, W, index=None, sign=None, backend="auto", device: str | None
     if index is None:
         index, sign = identity_table(X.shape[1])
     xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), bmu.variation)
-    onehot = sparse.csr_matrix((np.ones(len(X)), (bmu.unit, np.arange(len(X)))), shape=(len(W), len(X)))
-    sums = np.asarray(onehot @ xv.astype(np.float64))  # (M, D): a sparse product, O(N * D)
+    # per-unit sums in O(N * D): rows sorted by unit (stable: row order within a unit), one
+    # segmented sum per winning unit
+    order = np.argsort(bmu.unit, kind="stable")
+    units = bmu.unit[order]
+    starts = np.flatnonzero(np.r_[True, units[1:] != units[:-1]]) if len(units) else np.zeros(0, np.int64)
+    sums = np.zeros((len(W), X.shape[1]))
+    if len(units):
+        sums[units[starts]] = np.add.reduceat(xv[order].astype(np.float64), starts, axis=0)
     counts = np.bincount(bmu.unit, minlength=len(W)).astype(np.float64)
     return sums, counts, bmu
 
