@@ -207,11 +207,14 @@ def default_params(context) -> KernelParams:
 def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str]:
     double = dtype == np.float64
     vw = params.vector_width // 2 if double and params.vector_width > 2 else params.vector_width
-    if params.kernel == "cpu":
-        rs = params.max_rows
-        step = rs // math.gcd(rs, n)  # rows per panel come in steps that fill whole register blocks
-        cap = params.panel_bytes // (n * D * (8 if double else 4))
-        rows = max(step, min(params.panel // n, cap) // step * step)
+    rs = params.max_rows
+    step = rs // math.gcd(rs, n)  # rows per panel come in steps that fill whole register blocks
+    staged = n * D * (8 if double else 4)  # bytes of one row's varied vectors
+    # the CPU kernel stages at least one step of rows in private memory (the thread's stack);
+    # where even that exceeds panel_bytes (D in the thousands, ring levels >= 6) the tiled
+    # kernel, which tiles D through local memory, runs with the same vector tiling
+    if params.kernel == "cpu" and step * staged <= params.panel_bytes:
+        rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
         return {
             "KERNEL": "cpu",
             "REAL": "double" if double else "float",

@@ -234,6 +234,20 @@ def test_cpu_kernel_panels_and_cache_blocks(ctx):
     assert _defines(2304, 6, np.float32, KernelParams(kernel="cpu"))["P"] * 6 * 2304 * 4 <= 262_144
 
 
+def test_cpu_kernel_falls_back_to_tiled_at_large_dimension(ctx):
+    """Where one register block of varied vectors exceeds panel_bytes the tiled kernel runs."""
+    from meshsom.bmu_opencl import KernelParams, _defines, bmu_opencl
+
+    params = KernelParams(kernel="cpu", panel_bytes=8 * 3 * 144 * 4 - 1)
+    assert _defines(144, 3, np.float32, params)["KERNEL"] == "tiled"
+    assert _defines(144, 3, np.float32, KernelParams(kernel="cpu"))["KERNEL"] == "cpu"
+    assert _defines(9 * 4**5, 1, np.float32, KernelParams(kernel="cpu"))["KERNEL"] == "tiled"
+    X, W, index, sign, u, v = planted_variations(np.random.default_rng(12), 144, N=20, M=40)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
+    np.testing.assert_array_equal(got.unit, u)
+    np.testing.assert_array_equal(got.variation, v)
+
+
 def test_default_params_pick_the_cpu_kernel_on_pocl(ctx):
     from meshsom.bmu_opencl import default_params
 
