@@ -48,7 +48,7 @@ def main(argv=None):
     p.add_argument("--map", default="120x150")
     p.add_argument("--epochs", type=int, default=2, help="epochs per map (each epoch is one BMU pass over all rows)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 2)
-    p.add_argument("--backend", default="numpy", choices=["numpy", "opencl", "auto"])
+    p.add_argument("--backend", default="auto", choices=["numpy", "opencl", "auto"])
     p.add_argument("--shard-meshes", type=int, default=500)
     p.add_argument("--domain-epochs", type=int, default=5)
     p.add_argument("--store", default=str(ROOT / "out" / "city.zarr"))
