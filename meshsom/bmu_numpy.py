@@ -122,6 +122,11 @@ def validate(X, W, index=None, sign=None) -> tuple[np.ndarray, np.ndarray, np.nd
     )
 
 
+def is_identity(index: np.ndarray, sign: np.ndarray, v: int = 0) -> bool:
+    """Whether variation ``v`` of the table leaves vectors unchanged (index 0..D-1, all signs +1)."""
+    return bool(np.array_equal(index[v], np.arange(index.shape[1])) and np.all(sign[v] == 1))
+
+
 def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.ndarray:
     """The varied vectors ``sign[v] * X[i, index[v]]`` for one variation per row.
 
@@ -138,6 +143,8 @@ def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.
     (N, D) float, dtype of X
     """
     variation = np.broadcast_to(np.asarray(variation, np.int64), (len(X),))
+    if len(index) == 1 and is_identity(index, sign):
+        return X  # the default kernel: no gather
     rows = np.arange(len(X))[:, None]
     return (sign[variation] * X[rows, index[variation]]).astype(X.dtype, copy=False)
 
@@ -183,6 +190,7 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
     unit = np.zeros(N, np.int64)
     variation = np.zeros(N, np.int64)
     second = np.zeros(N, np.int64)
+    identity = [is_identity(index, sign, v) for v in range(n)]
     for start in range(0, N, chunk_rows):
         stop = min(N, start + chunk_rows)
         rows = np.arange(stop - start)
@@ -192,7 +200,7 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
         best_v = np.zeros(stop - start, np.int64)
         best_s = np.zeros(stop - start, np.int64)
         for v in range(n):
-            xv = sign[v] * xc[:, index[v]]
+            xv = xc if identity[v] else sign[v] * xc[:, index[v]]
             g = xv @ Wt2
             g += wnorm
             u = np.argmin(g, axis=1)
