@@ -97,6 +97,9 @@ KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "tiled": ("bmu.cl", "bmu_of_n"
 #: AVX-512 Xeon (bench/bmu.py). GPUs: few registers per work-item and larger groups.
 DEFAULT_PARAMS = {
     "cpu": KernelParams(kernel="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192, cache_tiles=16),
+    # CPUs whose preferred float vector is narrower than 16 (AVX2: 16 ymm registers): 6 x 2 x 8
+    # accumulators, the shape of the usual AVX2 SGEMM micro-kernel (untimed here: no such CPU)
+    "cpu-narrow": KernelParams(kernel="cpu", vector_width=8, unit_blocks=2, max_rows=6, panel=192, cache_tiles=32),
     "gpu": KernelParams(kernel="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True, work_group=64,
                         max_dt=64),
 }
@@ -197,10 +200,13 @@ def _largest_divisor(D: int, cap: int) -> int:
 
 
 def default_params(context) -> KernelParams:
-    """Tiling for a context's device type."""
+    """Tiling for a context's device type (and, on CPUs, its preferred float vector width)."""
     cl = _cl()
     device = context.devices[0]
-    params = DEFAULT_PARAMS["cpu" if device.type & cl.device_type.CPU else "gpu"]
+    if device.type & cl.device_type.CPU:
+        params = DEFAULT_PARAMS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
+    else:
+        params = DEFAULT_PARAMS["gpu"]
     return replace(params, work_group=min(params.work_group, device.max_work_group_size))
 
 

@@ -199,6 +199,7 @@ def ctx():
 #: local-memory kernel with the GPU default tiling and with wide vectors.
 KERNEL_PARAMS = {
     "cpu": {"kernel": "cpu"},
+    "cpu-narrow": {"kernel": "cpu", "vector_width": 8, "unit_blocks": 2, "max_rows": 6, "cache_tiles": 32},
     "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
     "tiled-wide": {"kernel": "tiled", "vector_width": 16, "unit_blocks": 2, "max_rows": 8, "work_group": 8},
 }
