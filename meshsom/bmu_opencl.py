@@ -199,15 +199,19 @@ def _largest_divisor(D: int, cap: int) -> int:
     return 1
 
 
-def default_params(context) -> KernelParams:
-    """Tiling for a context's device type (and, on CPUs, its preferred float vector width)."""
+def device_params(device) -> KernelParams:
+    """Kernel and tiling for an OpenCL device: its type and, on CPUs, its preferred float vector width."""
     cl = _cl()
-    device = context.devices[0]
     if device.type & cl.device_type.CPU:
         params = DEFAULT_PARAMS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
     else:
         params = DEFAULT_PARAMS["gpu"]
     return replace(params, work_group=min(params.work_group, device.max_work_group_size))
+
+
+def default_params(context) -> KernelParams:
+    """Kernel and tiling for a context's first device (:func:`device_params`)."""
+    return device_params(context.devices[0])
 
 
 def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str]:

@@ -23,6 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 
+#: How doctor names the BMUofN kernel layouts of meshsom.bmu_opencl.KERNELS.
+KERNELS_DOC = {"cpu": "kernels/bmu_cpu.cl (CPU layout)", "tiled": "kernels/bmu.cl (GPU layout)"}
+
+
 def opencl_devices() -> list[dict]:
     """Every OpenCL platform and device found (empty when there is none or no ICD loader)."""
     try:
@@ -39,6 +43,14 @@ def opencl_devices() -> list[dict]:
             out.append({"platform": plat.name, "error": str(err)})
             continue
         for di, dev in enumerate(devices):
+            try:
+                from meshsom.bmu_opencl import device_params
+
+                params = device_params(dev)
+                kernel = (f"{KERNELS_DOC[params.kernel]}, register block {params.max_rows} varied vectors x "
+                          f"{params.unit_blocks} x {params.vector_width} units")
+            except Exception as err:  # doctor reports, never fails
+                kernel = f"unknown ({err})"
             out.append({
                 "id": f"{pi}:{di}",
                 "platform": plat.name,
@@ -49,6 +61,7 @@ def opencl_devices() -> list[dict]:
                 "global_mem_mb": dev.global_mem_size // 2**20,
                 "local_mem_kb": dev.local_mem_size // 2**10,
                 "max_work_group_size": dev.max_work_group_size,
+                "bmu_kernel": kernel,
             })
     return out
 
@@ -115,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
                 f"  [{d['id']}] {d['platform']} ({d['platform_version']}): {d['device']} "
                 f"{d['type']}, {d['compute_units']} CU, {d['global_mem_mb']} MB, local {d['local_mem_kb']} KB"
             )
+            print(f"        BMUofN kernel: {d['bmu_kernel']}")
     print("Dask")
     for k, v in info["dask"].items():
         print(f"  {k:24s} {v}")

@@ -251,8 +251,11 @@ def test_cpu_kernel_falls_back_to_tiled_at_large_dimension(ctx):
 
 def test_default_params_pick_the_cpu_kernel_on_pocl(ctx):
     from meshsom.bmu_opencl import default_params
+    from pipelines.doctor import opencl_devices
 
     assert default_params(ctx).kernel == "cpu"
+    pocl = [d for d in opencl_devices() if "Portable Computing Language" in d.get("platform", "")]
+    assert pocl and pocl[0]["bmu_kernel"].startswith("kernels/bmu_cpu.cl (CPU layout), register block 8 varied")
 
 
 @pytest.mark.parametrize(
