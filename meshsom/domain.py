@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshsom.metrics import TOPOLOGIES, grid_distance
-from meshsom.som import SOM, smooth
+from meshsom.metrics import TOPOLOGIES, are_neighbours, grid_distance
+from meshsom.som import SOM, batch_update, gaussian_kernel_1d, sigma_schedule, smooth
 
 
 def _check_topology(topology: str) -> None:
@@ -170,6 +170,196 @@ def place(vectors, som: SOM) -> np.ndarray:
     (n_meshes,) int64
     """
     return np.asarray(som.predict(vectors), np.int64)
+
+
+# ---------------------------------------------------------------------- sparse domain vectors
+#: Mesh pairs of units handled at once by :meth:`SparseDomainVectors.sq_norms` (bounds its memory
+#: to about 100 bytes per pair); meshes with more pairs than this are smoothed densely instead.
+PAIRS_PER_CHUNK = 1 << 20
+#: Meshes smoothed densely at once by :meth:`SparseDomainVectors.sq_norms`.
+DENSE_BATCH = 64
+
+
+class SparseDomainVectors:
+    """Domain vectors kept as their sparse BMU histograms: ``V = H @ B`` with ``B = diag(1/t) @ K``.
+
+    ``K`` is the (symmetric, separable) Gaussian of :func:`domain_vectors` on the triangle map's
+    grid and ``t`` its total per source unit, so row ``i`` of ``V`` is exactly mesh ``i``'s domain
+    vector, but only ``H`` is stored: a mesh has at most as many non-zeros as triangles, so a
+    city's ``V`` (meshes x 18,000 units, gigabytes) is a few megabytes here. Everything a batch
+    SOM needs comes without forming ``V``:
+
+    - ``V @ W.T = H @ (diag(1/t) @ K @ W.T)``: one smoothing of the k prototypes;
+    - ``||v_i||^2 = sum_jk a_ij a_ik (K^2)_jk`` with ``a = H diag(1/t)`` and ``K^2`` separable
+      (``(Kr @ Kr) x (Kc @ Kc)``), summed over the pairs of a mesh's non-zeros;
+    - the sum of the ``v_i`` a unit wins: the sum of their histograms, smoothed once.
+
+    Parameters
+    ----------
+    face_mesh : (F,) int
+        Mesh of every triangle.
+    units : (F,) int
+        Triangle-map BMU of every triangle.
+    n_meshes : int
+    rows, cols : int
+        The triangle map's size.
+    sigma : float
+        Radius in cells, > 0.
+    topology : {"toroidal", "planar"}
+    """
+
+    def __init__(self, face_mesh, units, n_meshes: int, rows: int, cols: int, sigma: float,
+                 topology: str = "toroidal"):
+        from scipy import sparse
+
+        _check_topology(topology)
+        _check_grid(rows, cols)
+        if not sigma > 0:
+            raise ValueError(f"sigma must be > 0, received {sigma}")
+        face_mesh = _int_array("face_mesh", face_mesh)
+        units = _int_array("units", units)
+        if face_mesh.shape != units.shape:
+            raise ValueError(f"face_mesh and units must have the same length, received {len(face_mesh)} and {len(units)}")
+        M = rows * cols
+        for name, arr, n in (("face_mesh", face_mesh, n_meshes), ("units", units, M)):
+            bad = np.flatnonzero((arr < 0) | (arr >= n))
+            if len(bad):
+                raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]]} lies outside 0..{n - 1} ({len(bad)} such entries)")
+        counts = sparse.csr_matrix((np.ones(len(units)), (face_mesh, units)), shape=(n_meshes, M))
+        counts.sum_duplicates()
+        totals = np.asarray(counts.sum(axis=1)).ravel()
+        empty = np.flatnonzero(totals == 0)
+        if len(empty):
+            raise ValueError(f"every mesh needs at least one triangle; meshes {empty[:10].tolist()} have none "
+                             f"({len(empty)} of {n_meshes})")
+        self.rows, self.cols, self.sigma, self.topology = rows, cols, float(sigma), topology
+        self.kernel_total = smooth(np.ones(M), sigma, rows, cols, topology)  # (M,) t
+        # a = H diag(1/t): the histogram (divided by the triangle count) over the kernel totals
+        self.a = sparse.csr_matrix(sparse.diags(1.0 / totals) @ counts @ sparse.diags(1.0 / self.kernel_total))
+        self.a.sort_indices()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(n_meshes, rows*cols)."""
+        return self.a.shape
+
+    def _smooth_rows(self, values: np.ndarray) -> np.ndarray:
+        """``values @ K`` for (k, M) values (K symmetric: smoothing of every row)."""
+        return smooth(np.asarray(values, np.float64).T, self.sigma, self.rows, self.cols, self.topology).T
+
+    def dense(self, rows=None) -> np.ndarray:
+        """Domain vectors of the given meshes (all: None), (k, M) float64, equal to :func:`domain_vectors`."""
+        a = self.a if rows is None else self.a[np.asarray(rows, np.int64)]
+        return self._smooth_rows(a.toarray())
+
+    def dot(self, W) -> np.ndarray:
+        """``V @ W.T`` for prototypes W (k, M): (n_meshes, k) float64.
+
+        Identical prototypes (seeded samples drawn with replacement) get bitwise identical
+        columns, so their exact ties go to the lowest unit as in the dense search.
+        """
+        unique, inverse = np.unique(np.asarray(W), axis=0, return_inverse=True)
+        return np.asarray(self.a @ self._smooth_rows(unique).T)[:, inverse.ravel()]
+
+    def group_sums(self, unit, n_units: int) -> np.ndarray:
+        """Per unit, the sum of the domain vectors of the meshes it won: (n_units, M) float64."""
+        from scipy import sparse
+
+        unit = _int_array("unit", unit)
+        onehot = sparse.csr_matrix((np.ones(len(unit)), (unit, np.arange(len(unit)))), shape=(n_units, len(unit)))
+        return self._smooth_rows((onehot @ self.a).toarray())
+
+    def sq_norms(self) -> np.ndarray:
+        """``||v_i||^2`` of every mesh, (n_meshes,) float64, without forming V.
+
+        Meshes with more than ``sqrt(PAIRS_PER_CHUNK)`` non-zeros (large, detailed buildings) are
+        smoothed densely one batch at a time instead of summed over their pairs.
+        """
+        kr = gaussian_kernel_1d(self.rows, self.sigma, self.topology)
+        kc = gaussian_kernel_1d(self.cols, self.sigma, self.topology)
+        kr2, kc2 = kr @ kr, kc @ kc
+        indptr, indices, data = self.a.indptr, self.a.indices, self.a.data
+        r, c = np.divmod(indices, self.cols)
+        nnz = np.diff(indptr).astype(np.int64)
+        out = np.zeros(len(nnz))
+        heavy = np.flatnonzero(nnz**2 > PAIRS_PER_CHUNK)
+        for start in range(0, len(heavy), DENSE_BATCH):
+            batch = heavy[start:start + DENSE_BATCH]
+            out[batch] = (self.dense(batch) ** 2).sum(axis=1)
+        light = np.flatnonzero(nnz**2 <= PAIRS_PER_CHUNK)
+        pairs = nnz[light] ** 2
+        ends = np.cumsum(pairs)
+        first = 0
+        while first < len(light):  # chunks of meshes with at most PAIRS_PER_CHUNK pairs
+            last = int(np.searchsorted(ends, ends[first] - pairs[first] + PAIRS_PER_CHUNK, side="right"))
+            rows = light[first:last]
+            n = nnz[rows]
+            p = pairs[first:last]
+            mesh = np.repeat(np.arange(len(rows)), p)
+            k = np.arange(p.sum()) - np.repeat(np.cumsum(p) - p, p)  # pair number within its mesh
+            width = np.repeat(n, p)
+            i = indptr[rows][mesh] + k // width
+            j = indptr[rows][mesh] + k % width
+            val = data[i] * data[j] * kr2[r[i], r[j]] * kc2[c[i], c[j]]
+            out[rows] = np.bincount(mesh, val, minlength=len(rows))
+            first = last
+        return out
+
+
+def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, epochs: int, seed: int,
+                            sigma_start: float | None = None, sigma_end: float = 1.0,
+                            topology: str = "toroidal") -> dict:
+    """Batch-train a domain SOM on sparse domain vectors; the same algorithm as :class:`SOM` with
+    ``init="random"`` and one variation (seeded sample prototypes, radius schedule, batch update,
+    then a final search), in float64 throughout.
+
+    Parameters
+    ----------
+    vectors : SparseDomainVectors
+    rows, cols : int
+        Domain map size.
+    epochs : int
+    seed : int
+    sigma_start : float or None
+        None: ``max(rows, cols) / 4``.
+    sigma_end : float
+    topology : {"toroidal", "planar"}
+
+    Returns
+    -------
+    dict
+        ``weights`` (rows*cols, M) float32, ``units`` (n_meshes,) int64 (final BMUs),
+        ``q_error`` and ``t_error`` of the final search.
+    """
+    _check_topology(topology)
+    _check_grid(rows, cols)
+    if epochs < 1:
+        raise ValueError(f"epochs must be >= 1, received {epochs}")
+    n = vectors.shape[0]
+    M = rows * cols
+    rng = np.random.default_rng(seed)
+    W = vectors.dense(rng.choice(n, size=M, replace=n < M)).astype(np.float32)  # as meshsom.som.init_weights
+    norms = vectors.sq_norms()
+    sigma_start = float(sigma_start if sigma_start is not None else max(rows, cols) / 4)
+
+    def search(W):
+        d = norms[:, None] - 2.0 * vectors.dot(W) + np.einsum("ij,ij->i", W.astype(np.float64), W.astype(np.float64))
+        unit = np.argmin(d, axis=1)
+        best = d[np.arange(n), unit]
+        d[np.arange(n), unit] = np.inf
+        return unit, np.argmin(d, axis=1), np.maximum(best, 0.0)
+
+    for epoch in range(epochs):
+        unit, _, _ = search(W)
+        sums = vectors.group_sums(unit, M)
+        counts = np.bincount(unit, minlength=M).astype(np.float64)
+        W = batch_update(W, sums, counts, sigma_schedule(epoch, epochs, sigma_start, sigma_end), rows, cols, topology)
+    unit, second, dist2 = search(W)
+    return {
+        "weights": W, "units": unit.astype(np.int64),
+        "q_error": float(np.sqrt(dist2).mean()),
+        "t_error": float((~are_neighbours(unit, second, rows, cols, topology)).mean()),
+    }
 
 
 # ---------------------------------------------------------------------- clustering quality

@@ -17,8 +17,8 @@ import numpy as np
 MAX_THUMBNAILS = 400
 #: Neighbours of the k-NN label agreement.
 KNN = 5
-#: Above this many bytes of domain vectors (meshes x triangle-map units x 4) the stage streams them
-#: through the store and trains the domain map on the cluster, chunk by chunk.
+#: Above this many bytes of domain vectors (meshes x triangle-map units x 4) the stage writes them
+#: to the store on the workers and trains the domain map on their sparse form on the client.
 IN_MEMORY_BYTES = 256 << 20
 #: Meshes per task (and per zarr chunk) of streamed domain vectors.
 MESHES_PER_TASK = 256
@@ -42,7 +42,13 @@ def domain_chunk(store: str, run: str, m0: int, m1: int, f0: int, f1: int, sigma
 
 
 def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Domain vectors written by worker tasks, domain map trained on the cluster (memory-bounded).
+    """City-sized corpus: domain vectors written by worker tasks, domain map trained on their sparse form.
+
+    The dense vectors (meshes x triangle-map units) go to ``runs/<run>/domain/vectors`` as the
+    store layout asks, chunk by chunk on the workers; meanwhile the client trains the domain map
+    on the per-mesh BMU histograms (:class:`meshsom.domain.SparseDomainVectors`: the smoothing is
+    linear, so distances, norms and sums come from a few megabytes, never from the dense vectors).
+    Same algorithm as the in-memory SOM with ``init="random"`` (tested equal).
 
     Returns
     -------
@@ -50,31 +56,30 @@ def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.
     weights : (rows*cols, M) float32
     metrics : dict
     """
+    from meshsom.domain import SparseDomainVectors, train_domain_map_sparse
     from meshsom.store import mesh_table, open_store
-    from pipelines.train import TrainJob, train_spec
 
     group = open_store(store, mode="r+")
     offsets = mesh_table(group).face_offsets  # read once here, not by every task
     n = len(offsets) - 1
     g = group["runs"][run]
-    m = int(g.attrs["rows"]) * int(g.attrs["cols"])
+    rows, cols, topology = int(g.attrs["rows"]), int(g.attrs["cols"]), str(g.attrs["topology"])
     dom = g.require_group("domain")
-    dom.create_array("vectors", shape=(n, m), dtype=np.float32, chunks=(MESHES_PER_TASK, m), overwrite=True)
+    dom.create_array("vectors", shape=(n, rows * cols), dtype=np.float32, chunks=(MESHES_PER_TASK, rows * cols),
+                     overwrite=True)
     tasks = []
     for a in range(0, n, MESHES_PER_TASK):
         b = min(n, a + MESHES_PER_TASK)
         tasks.append(client.submit(domain_chunk, str(store), run, a, b, int(offsets[a]), int(offsets[b]),
                                    cfg.domain.sigma, pure=False))
-    client.gather(tasks)
     d = cfg.domain
-    job = TrainJob(store=str(store), level=int(g.attrs["level"]), kernel="default", mirror=False, rows=d.rows,
-                   cols=d.cols, topology="toroidal", epochs=d.epochs, sigma_start=max(d.rows, d.cols) / 4,
-                   sigma_end=1.0, init="random", seed=d.seed, backend="numpy",
-                   source=f"runs/{run}/domain/vectors", name=f"{run}-domain")
-    res = train_spec(client, job)
-    som_group = open_store(store)["runs"][job.run]
-    metrics = {"domain_q_error": res["metrics"]["q_error"], "domain_t_error": res["metrics"]["t_error"]}
-    return np.asarray(som_group["bmu_unit"][:]), np.asarray(som_group["weights"][:]), metrics
+    vectors = SparseDomainVectors(np.asarray(group["face_mesh"][:]), np.asarray(g["bmu_unit"][:]), n, rows, cols,
+                                  d.sigma, topology)
+    res = train_domain_map_sparse(vectors, d.rows, d.cols, d.epochs, d.seed, sigma_start=max(d.rows, d.cols) / 4,
+                                  sigma_end=1.0)
+    client.gather(tasks)
+    metrics = {"domain_q_error": res["q_error"], "domain_t_error": res["t_error"]}
+    return res["units"], res["weights"], metrics
 
 
 def thumbnails_of(group, n_meshes: int, size: int = 64) -> list:

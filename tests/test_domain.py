@@ -190,3 +190,66 @@ def test_domain_map_figure_is_written(tmp_path):
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000
     with pytest.raises(ValueError, match=r"one thumbnail per mesh \(6\), received 5"):
         domain_map_figure(units, thumbs[:5], 3, 4, tmp_path / "bad.png")
+
+
+def _random_bmus(rng, n_meshes, rows, cols, per_mesh=(1, 30)):
+    sizes = rng.integers(per_mesh[0], per_mesh[1] + 1, n_meshes)
+    face_mesh = np.repeat(np.arange(n_meshes), sizes)
+    # clustered units: each mesh around a random centre, so meshes share units
+    centre = rng.integers(0, rows * cols, n_meshes)[face_mesh]
+    units = (centre + rng.integers(-3, 4, len(face_mesh)) * cols + rng.integers(-2, 3, len(face_mesh))) % (rows * cols)
+    return face_mesh, units
+
+
+@pytest.mark.parametrize("topology", ["toroidal", "planar"])
+def test_sparse_domain_vectors_equal_the_dense_ones(topology):
+    """Every product the sparse form gives equals the same product on domain_vectors' dense rows."""
+    rng = np.random.default_rng(3)
+    rows, cols, n = 9, 11, 60
+    face_mesh, units = _random_bmus(rng, n, rows, cols)
+    dense = domain.domain_vectors(domain.bmu_histograms(face_mesh, units, n, rows * cols), rows, cols, 1.5, topology)
+    sv = domain.SparseDomainVectors(face_mesh, units, n, rows, cols, 1.5, topology)
+    V = sv.dense()
+    np.testing.assert_allclose(V, dense, rtol=1e-6, atol=1e-9)  # dense is float32
+    np.testing.assert_allclose(sv.sq_norms(), (V**2).sum(axis=1), rtol=1e-12)
+    W = rng.random((7, rows * cols))
+    np.testing.assert_allclose(sv.dot(W), V @ W.T, rtol=1e-12)
+    win = rng.integers(0, 7, n)
+    expect = np.zeros((7, rows * cols))
+    np.add.at(expect, win, V)
+    np.testing.assert_allclose(sv.group_sums(win, 7), expect, rtol=1e-12, atol=1e-15)
+    # small pair chunks (one mesh or a few per chunk) and the dense route for meshes with many
+    # non-zeros give the same norms
+    for limit in (1, 30, 100, 400):
+        old = domain.PAIRS_PER_CHUNK
+        try:
+            domain.PAIRS_PER_CHUNK = limit
+            np.testing.assert_allclose(sv.sq_norms(), (V**2).sum(axis=1), rtol=1e-12)
+        finally:
+            domain.PAIRS_PER_CHUNK = old
+
+
+def test_sparse_domain_map_equals_the_dense_som():
+    from meshsom.som import SOM
+
+    rng = np.random.default_rng(4)
+    rows, cols, n = 12, 15, 300
+    face_mesh, units = _random_bmus(rng, n, rows, cols)
+    vectors = domain.domain_vectors(domain.bmu_histograms(face_mesh, units, n, rows * cols), rows, cols, 2.0)
+    sv = domain.SparseDomainVectors(face_mesh, units, n, rows, cols, 2.0)
+    got = domain.train_domain_map_sparse(sv, 5, 6, epochs=8, seed=2)
+    som = SOM(rows=5, cols=6, epochs=8, sigma_end=1.0, init="random", random_state=2, backend="numpy").fit(vectors)
+    np.testing.assert_allclose(got["weights"], som.weights_, atol=1e-6)
+    assert (got["units"] == som.predict(vectors)).mean() > 0.98
+    ev = som.evaluate(vectors)
+    assert got["q_error"] == pytest.approx(ev["q_error"], rel=1e-4)
+    assert got["t_error"] == pytest.approx(ev["t_error"], abs=0.01)
+
+
+def test_sparse_domain_vectors_errors_name_the_problem():
+    with pytest.raises(ValueError, match="units\\[1\\] = 99 lies outside 0..19"):
+        domain.SparseDomainVectors([0, 0], [1, 99], 1, 4, 5, 1.0)
+    with pytest.raises(ValueError, match="meshes \\[1\\] have none"):
+        domain.SparseDomainVectors([0, 0], [1, 2], 2, 4, 5, 1.0)
+    with pytest.raises(ValueError, match="sigma must be > 0"):
+        domain.SparseDomainVectors([0], [1], 1, 4, 5, 0.0)
