@@ -13,8 +13,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from reports.runs import TrackedExperiment, add_common_arguments, load_experiment, run_main
 
 __all__ = ["PANELS", "main", "write"]
@@ -44,43 +42,6 @@ def _pyplot():
     return plt
 
 
-def draw_u_matrix(ax, umat: np.ndarray, topology: str, title: str):
-    """Draw a U-matrix into a matplotlib axis; toroidal maps with faint wrapped margins.
-
-    Parameters
-    ----------
-    ax : matplotlib.axes.Axes
-    umat : (rows, cols) float
-    topology : {"toroidal", "planar"}
-    title : str
-
-    Returns
-    -------
-    matplotlib.image.AxesImage
-        The image of the map itself (for a colour bar).
-    """
-    plt = _pyplot()
-    rows, cols = umat.shape
-    vmin, vmax = float(np.nanmin(umat)), float(np.nanmax(umat))
-    if topology == "toroidal":
-        r0, c0 = rows // 2, cols // 2
-        extent = (-c0 - 0.5, 2 * cols - c0 - 0.5, 2 * rows - r0 - 0.5, -r0 - 0.5)
-        tiled = np.roll(np.roll(np.tile(umat, (2, 2)), r0, axis=0), c0, axis=1)
-        ax.imshow(tiled, cmap=CMAP, vmin=vmin, vmax=vmax, alpha=FAINT_ALPHA, extent=extent, interpolation="nearest")
-        image = ax.imshow(umat, cmap=CMAP, vmin=vmin, vmax=vmax, interpolation="nearest",
-                          extent=(-0.5, cols - 0.5, rows - 0.5, -0.5))
-        ax.add_patch(plt.Rectangle((-0.5, -0.5), cols, rows, fill=False, linestyle="--", linewidth=1.0,
-                                   edgecolor="white"))
-        ax.set_xlim(extent[0], extent[0] + 2 * cols)
-        ax.set_ylim(extent[2], extent[3])
-    else:
-        image = ax.imshow(umat, cmap=CMAP, vmin=vmin, vmax=vmax, interpolation="nearest")
-    ax.set_title(f"{title}\n{rows} x {cols} {topology}", fontsize=10)
-    ax.set_xticks([])
-    ax.set_yticks([])
-    return image
-
-
 def write(exp: TrackedExperiment, out: Path) -> dict:
     """Write ``fig8.png`` and ``fig8-<run>.png`` into ``out``.
 
@@ -92,7 +53,7 @@ def write(exp: TrackedExperiment, out: Path) -> dict:
     """
     from meshsom.codebook import load_codebook
     from meshsom.metrics import u_matrix
-    from meshsom.umatrix import render_map
+    from meshsom.umatrix import draw_u_matrix, render_map
 
     plt = _pyplot()
     out.mkdir(parents=True, exist_ok=True)
@@ -108,7 +69,11 @@ def write(exp: TrackedExperiment, out: Path) -> dict:
             continue
         cb = load_codebook(group, m.name)
         dims = m.params.get("dims", "")
-        image = draw_u_matrix(ax, u_matrix(cb.weights, cb.rows, cb.cols, cb.topology), cb.topology, f"{title}, {dims}")
+        image = draw_u_matrix(ax, u_matrix(cb.weights, cb.rows, cb.cols, cb.topology), cb.topology, CMAP,
+                              FAINT_ALPHA, frame_width=1.0)
+        ax.set_title(f"{title}, {dims}\n{cb.rows} x {cb.cols} {cb.topology}", fontsize=10)
+        ax.set_xticks([])
+        ax.set_yticks([])
         fig.colorbar(image, ax=ax, shrink=0.8)
         single = out / f"fig8-{m.name}.png"
         render_map(cb.weights, cb.rows, cb.cols, single, topology=cb.topology,
