@@ -68,12 +68,13 @@ def main(argv=None) -> int:
         flops = 2.0 * N * n * M * D
         print(f"{N:>7} {f'{n}x{D}':>7} {'BLAS n=1':>8} {plain:8.3f} {2.0 * N * M * D / plain / 1e9:8.1f} "
               f"{100 * 2.0 * N * M * D / plain / 1e9 / sgemm:6.1f}% {'':>9}")
-        for name, ctx in backends:
+        for name, setup in backends:  # setup: None (NumPy) or (context, kernel params)
             if name == "numpy":
                 fn = lambda: bmu_numpy(X, W, index, sign)  # noqa: E731
             else:
-                fn = lambda: bmu_opencl(X, W, index, sign, context=ctx[0], params=ctx[1])  # noqa: E731
-                bmu_opencl(X[:64], W, index, sign, context=ctx[0], params=ctx[1])  # build outside the timing
+                context, params = setup
+                fn = lambda: bmu_opencl(X, W, index, sign, context=context, params=params)  # noqa: E731
+                bmu_opencl(X[:64], W, index, sign, context=context, params=params)  # build outside the timing
             t = best_time(fn, args.repeat)
             rate = flops / t / 1e9
             print(f"{N:>7} {f'{n}x{D}':>7} {name:>8} {t:8.3f} {rate:8.1f} {100 * rate / sgemm:6.1f}% {t / (n * plain):9.2f}")

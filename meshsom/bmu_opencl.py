@@ -223,29 +223,20 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     # the CPU kernel stages at least one step of rows in private memory (the thread's stack);
     # where even that exceeds panel_bytes (D in the thousands, ring levels >= 6) the tiled
     # kernel, which tiles D through local memory, runs with the same vector tiling
-    if params.kernel == "cpu" and step * staged <= params.panel_bytes:
-        rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
-        return {
-            "KERNEL": "cpu",
-            "REAL": "double" if double else "float",
-            "IREAL": "long" if double else "int",
-            "VW": vw,
-            "UB": params.unit_blocks,
-            "D": D,
-            "NV": n,
-            "P": rows,
-            "RS": rs,
-            "UBLK": params.cache_tiles,
-        }
-    return {
-        "KERNEL": "tiled",
+    common = {
         "REAL": "double" if double else "float",
         "IREAL": "long" if double else "int",
         "VW": vw,
         "UB": params.unit_blocks,
         "D": D,
-        "DT": _largest_divisor(D, params.max_dt) if params.use_local else D,
         "NV": n,
+    }
+    if params.kernel == "cpu" and step * staged <= params.panel_bytes:
+        rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
+        return {"KERNEL": "cpu", **common, "P": rows, "RS": rs, "UBLK": params.cache_tiles}
+    return {
+        "KERNEL": "tiled", **common,
+        "DT": _largest_divisor(D, params.max_dt) if params.use_local else D,
         "RX": max(1, params.max_rows // n),
         "USE_LOCAL": int(params.use_local),
         "WG": params.work_group,

@@ -45,6 +45,26 @@ def _int_array(name: str, values, ndim: int = 1) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- domain vectors
+def _check_bmus(face_mesh, units, n_meshes: int, n_units: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validated (face_mesh, units) as int64 arrays, and every mesh's triangle count (n_meshes,)."""
+    face_mesh = _int_array("face_mesh", face_mesh)
+    units = _int_array("units", units)
+    if face_mesh.shape != units.shape:
+        raise ValueError(f"face_mesh and units must have the same length, received {len(face_mesh)} and {len(units)}")
+    if n_meshes < 1 or n_units < 1:
+        raise ValueError(f"n_meshes and n_units must be >= 1, received {n_meshes} and {n_units}")
+    for name, arr, n in (("face_mesh", face_mesh, n_meshes), ("units", units, n_units)):
+        bad = np.flatnonzero((arr < 0) | (arr >= n))
+        if len(bad):
+            raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]]} lies outside 0..{n - 1} ({len(bad)} such entries)")
+    totals = np.bincount(face_mesh, minlength=n_meshes)
+    empty = np.flatnonzero(totals == 0)
+    if len(empty):
+        raise ValueError(f"every mesh needs at least one triangle; meshes {empty[:10].tolist()} have none "
+                         f"({len(empty)} of {n_meshes})")
+    return face_mesh, units, totals
+
+
 def bmu_histograms(face_mesh, units, n_meshes: int, n_units: int) -> np.ndarray:
     """Per mesh, the share of its triangles won by each unit of the triangle map.
 
@@ -66,22 +86,8 @@ def bmu_histograms(face_mesh, units, n_meshes: int, n_units: int) -> np.ndarray:
     ValueError
         Mismatched lengths, an index out of range, or a mesh without triangles.
     """
-    face_mesh = _int_array("face_mesh", face_mesh)
-    units = _int_array("units", units)
-    if face_mesh.shape != units.shape:
-        raise ValueError(f"face_mesh and units must have the same length, received {len(face_mesh)} and {len(units)}")
-    if n_meshes < 1 or n_units < 1:
-        raise ValueError(f"n_meshes and n_units must be >= 1, received {n_meshes} and {n_units}")
-    for name, arr, n in (("face_mesh", face_mesh, n_meshes), ("units", units, n_units)):
-        bad = np.flatnonzero((arr < 0) | (arr >= n))
-        if len(bad):
-            raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]]} lies outside 0..{n - 1} ({len(bad)} such entries)")
+    face_mesh, units, totals = _check_bmus(face_mesh, units, n_meshes, n_units)
     counts = np.bincount(face_mesh * n_units + units, minlength=n_meshes * n_units).reshape(n_meshes, n_units)
-    totals = counts.sum(axis=1)
-    empty = np.flatnonzero(totals == 0)
-    if len(empty):
-        raise ValueError(f"every mesh needs at least one triangle; meshes {empty[:10].tolist()} have none "
-                         f"({len(empty)} of {n_meshes})")
     return counts / totals[:, None].astype(np.float64)
 
 
@@ -216,22 +222,9 @@ class SparseDomainVectors:
         _check_grid(rows, cols)
         if not sigma > 0:
             raise ValueError(f"sigma must be > 0, received {sigma}")
-        face_mesh = _int_array("face_mesh", face_mesh)
-        units = _int_array("units", units)
-        if face_mesh.shape != units.shape:
-            raise ValueError(f"face_mesh and units must have the same length, received {len(face_mesh)} and {len(units)}")
         M = rows * cols
-        for name, arr, n in (("face_mesh", face_mesh, n_meshes), ("units", units, M)):
-            bad = np.flatnonzero((arr < 0) | (arr >= n))
-            if len(bad):
-                raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]]} lies outside 0..{n - 1} ({len(bad)} such entries)")
+        face_mesh, units, totals = _check_bmus(face_mesh, units, n_meshes, M)
         counts = sparse.csr_matrix((np.ones(len(units)), (face_mesh, units)), shape=(n_meshes, M))
-        counts.sum_duplicates()
-        totals = np.asarray(counts.sum(axis=1)).ravel()
-        empty = np.flatnonzero(totals == 0)
-        if len(empty):
-            raise ValueError(f"every mesh needs at least one triangle; meshes {empty[:10].tolist()} have none "
-                             f"({len(empty)} of {n_meshes})")
         self.rows, self.cols, self.sigma, self.topology = rows, cols, float(sigma), topology
         self.kernel_total = smooth(np.ones(M), sigma, rows, cols, topology)  # (M,) t
         # a = H diag(1/t): the histogram (divided by the triangle count) over the kernel totals
@@ -343,7 +336,8 @@ def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, 
     sigma_start = float(sigma_start if sigma_start is not None else max(rows, cols) / 4)
 
     def search(W):
-        d = norms[:, None] - 2.0 * vectors.dot(W) + np.einsum("ij,ij->i", W.astype(np.float64), W.astype(np.float64))
+        w64 = W.astype(np.float64)
+        d = norms[:, None] - 2.0 * vectors.dot(W) + np.einsum("ij,ij->i", w64, w64)
         unit = np.argmin(d, axis=1)
         best = d[np.arange(n), unit]
         d[np.arange(n), unit] = np.inf
