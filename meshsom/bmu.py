@@ -4,14 +4,26 @@
 with one logged warning (per process); ``"opencl"`` raises
 :class:`~meshsom.errors.DeviceError` when there is no device; ``"numpy"`` never touches
 OpenCL.
+
+On an OpenCL device the kernel layouts of the device's chain
+(:func:`meshsom.bmu_opencl.layout_chain`, e.g. cpu -> cpu-narrow -> tiled) are tried in
+order for each workload (dimension, variations, data type): a layout is used only after it
+passed its probe in a child process (:mod:`meshsom.probe`), so a compiler that aborts cannot
+take the process down. A layout that fails is skipped with one warning line naming the
+device, the layout and the compiler's first error line; when every layout fails, ``"auto"``
+runs the NumPy/BLAS backend (one more warning) and ``"opencl"`` raises a
+:class:`~meshsom.errors.DeviceError` that says what to do. The :class:`Engine` records what
+ran (:meth:`Engine.describe`), so results can say what computed them.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from meshsom.bmu_numpy import BMUResult, bmu_numpy
+import numpy as np
+
+from meshsom.bmu_numpy import BMUResult, bmu_numpy, validate
 from meshsom.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -19,11 +31,15 @@ log = logging.getLogger(__name__)
 BACKENDS = ("auto", "numpy", "opencl")
 #: Device label of the NumPy backend.
 NUMPY_DEVICE = "numpy/BLAS (CPU)"
+#: Layout label of the NumPy backend.
+NUMPY_LAYOUT = "numpy"
+#: What a user can do when OpenCL does not work (the end of every OpenCL error line).
+ADVICE = "run with --backend numpy (opencl.backend: numpy), or pick another device with --device (opencl.device)"
 
 
-@dataclass(frozen=True)
+@dataclass
 class Engine:
-    """A resolved backend.
+    """A resolved backend, and a record of what it ran.
 
     Attributes
     ----------
@@ -32,23 +48,141 @@ class Engine:
     device : str
         Human-readable device ("Portable Computing Language / cpu-...", or the NumPy label).
     context : pyopencl.Context or None
+    layouts : tuple of str
+        OpenCL kernel layouts to try, in order (empty for NumPy).
+    strict : bool
+        Raise when no layout works (``backend="opencl"``) instead of falling back to NumPy.
+    used : dict
+        Workload (D, n, dtype name) -> the layout that ran it (``"numpy"`` after a fallback).
+    fallbacks : dict
+        Workload -> one clause per layout that failed for it ("cpu -> cpu-narrow: reason").
+    failed : set
+        (layout, workload) pairs not to try again.
     """
 
     backend: str
     device: str
     context: object = None
+    layouts: tuple = ()
+    strict: bool = False
+    used: dict = field(default_factory=dict)
+    fallbacks: dict = field(default_factory=dict)
+    failed: set = field(default_factory=set)
+
+    def describe(self, D: int | None = None, n: int | None = None, dtype=np.float32) -> dict:
+        """What computed the results: ``backend``, ``device``, ``layout``, ``fallback``.
+
+        Parameters
+        ----------
+        D, n : int or None
+            One workload (dimension, variations); None: every workload run so far.
+        dtype : numpy dtype
+
+        Returns
+        -------
+        dict
+            ``layout``: the layouts that ran, comma-separated ("numpy" for the NumPy backend);
+            ``fallback``: every fallback, one clause each, "" when none happened.
+        """
+        works = [w for w in {**self.used, **self.fallbacks}
+                 if D is None or w == (int(D), int(n), np.dtype(dtype).name)]
+        if self.backend == "numpy":
+            layout = NUMPY_LAYOUT
+        else:
+            layout = ",".join(sorted({self.used[w] for w in works if w in self.used}))
+        fallback = "; ".join(c for w in works for c in self.fallbacks.get(w, ()))
+        return {"backend": self.backend, "device": self.device, "layout": layout, "fallback": fallback}
+
+    def prepare(self, D: int, n: int, dtype=np.float32) -> str:
+        """Probe the chain for a workload without building anything in this process.
+
+        The verdicts land in the disk cache (:mod:`meshsom.probe`), so processes that search
+        later (Dask workers on this machine) start warm. Failures are recorded and logged as
+        :meth:`search` does.
+
+        Returns
+        -------
+        str
+            The layout that will run the workload (``"numpy"`` when none works and not strict).
+        """
+        if self.backend == "numpy":
+            return NUMPY_LAYOUT
+        from meshsom import bmu_opencl
+
+        work = (int(D), int(n), np.dtype(dtype).name)
+        for name in self.layouts:
+            if (name, work) in self.failed:
+                continue
+            verdict = bmu_opencl.probe_layout(self.context, name, D, n, dtype)
+            if verdict.ok:
+                return name
+            self._failed(name, work, verdict.reason, announce=True)
+        if self.strict:
+            raise DeviceError(f"no BMUofN kernel layout works on {self.device} for D={D}, n={n}; {ADVICE}")
+        return NUMPY_LAYOUT
+
+    def _failed(self, name: str, work: tuple, reason: str, announce: bool) -> None:
+        """Record a failed layout; log one warning line when ``announce`` (else at debug level:
+        the process that probed it, usually the Dask client, has warned already)."""
+        self.failed.add((name, work))
+        later = [n for n in self.layouts if (n, work) not in self.failed]
+        nxt = later[0] if later else ("nothing" if self.strict else NUMPY_LAYOUT)
+        self.fallbacks.setdefault(work, []).append(f"{name} -> {nxt} (D={work[0]}, n={work[1]}): {reason}")
+        log.log(logging.WARNING if announce else logging.DEBUG, "BMUofN kernel layout %r failed on %s (D=%d, n=%d): %s; using %s", name, self.device,
+                    work[0], work[1], reason, f"layout {nxt!r}" if later else ("no layout (none is left)" if self.strict else "NumPy/BLAS"))
+
+    def search(self, X, W, index=None, sign=None) -> BMUResult:
+        """BMUofN of every row of X with this engine (the fallback chain on OpenCL)."""
+        if self.backend == "numpy":
+            return bmu_numpy(X, W, index, sign)
+        from meshsom import bmu_opencl
+
+        X, W, index, sign = validate(X, W, index, sign)
+        work = (X.shape[1], len(index), X.dtype.name)
+        device = self.context.devices[0]
+        reasons = []
+        for name in self.layouts:
+            if (name, work) in self.failed:
+                continue
+            try:
+                result = bmu_opencl.bmu_opencl(X, W, index, sign, context=self.context,
+                                               params=bmu_opencl.layout_params(device, name))
+            except DeviceError as err:
+                reason = getattr(err, "reason", str(err))
+                reasons.append(f"{name}: {reason}")
+                self._failed(name, work, reason, announce=not getattr(err, "cached", False))
+                continue
+            self.used[work] = name
+            return result
+        if self.strict:
+            detail = "; ".join(reasons) or "every layout failed earlier in this process"
+            raise DeviceError(f"no BMUofN kernel layout works on {self.device} for D={work[0]}, n={work[1]} "
+                              f"({detail}); {ADVICE}")
+        self.used[work] = NUMPY_LAYOUT
+        return bmu_numpy(X, W, index, sign)
 
 
 _FELL_BACK = []  # holds one entry once the auto fallback warning has been logged
 
 
-def resolve_backend(backend: str = "auto", device: str | None = None, context=None) -> Engine:
+def resolve_backend(backend: str = "auto", device: str | None = None, context=None,
+                    layout: str | None = None) -> Engine:
     """Turn a backend name (and optional device selector or context) into an :class:`Engine`.
+
+    Parameters
+    ----------
+    backend : {"auto", "numpy", "opencl"} or Engine
+    device : str or None
+        OpenCL device selector.
+    context : pyopencl.Context or None
+    layout : str or None
+        Use this OpenCL kernel layout alone (a key of :data:`meshsom.bmu_opencl.DEFAULT_PARAMS`);
+        None: the device's fallback chain.
 
     Raises
     ------
     ValueError
-        Unknown backend name.
+        Unknown backend or layout name.
     DeviceError
         ``backend="opencl"`` and no usable device.
     """
@@ -64,12 +198,15 @@ def resolve_backend(backend: str = "auto", device: str | None = None, context=No
         context = context or bmu_opencl.get_context(device)
     except DeviceError as err:
         if backend == "opencl":
-            raise
+            raise DeviceError(f"{err}; {ADVICE}") from None
         if not _FELL_BACK:
             log.warning("no usable OpenCL device (%s); BMU search runs on the NumPy/BLAS backend", err)
             _FELL_BACK.append(True)
         return Engine("numpy", NUMPY_DEVICE)
-    return Engine("opencl", bmu_opencl.device_name(context), context)
+    if layout is not None:
+        bmu_opencl.layout_params(context.devices[0], layout)  # ValueError naming the known layouts
+    layouts = (layout,) if layout is not None else bmu_opencl.layout_chain(context.devices[0])
+    return Engine("opencl", bmu_opencl.device_name(context), context, layouts=layouts, strict=backend == "opencl")
 
 
 def find_bmus(X, W, index=None, sign=None, backend="auto", device: str | None = None,
@@ -93,11 +230,7 @@ def find_bmus(X, W, index=None, sign=None, backend="auto", device: str | None = 
     -------
     result : BMUResult
     engine : Engine
-        Which backend and device ran.
+        Which backend and device ran (and, on OpenCL, which layouts and fallbacks).
     """
     engine = resolve_backend(backend, device, context)
-    if engine.backend == "numpy":
-        return bmu_numpy(X, W, index, sign), engine
-    from meshsom.bmu_opencl import bmu_opencl
-
-    return bmu_opencl(X, W, index, sign, context=engine.context), engine
+    return engine.search(X, W, index, sign), engine

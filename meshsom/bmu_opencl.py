@@ -28,6 +28,7 @@ import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, exact_dist2, validate
 from meshsom.errors import DeviceError
+from meshsom.probe import injected_defines
 
 #: Environment variable read when no device selector is given (pyopencl's own).
 ENV_SELECTOR = "PYOPENCL_CTX"
@@ -46,6 +47,9 @@ class KernelParams:
     Attributes
     ----------
     kernel : {"cpu", "tiled"}
+    name : str
+        Layout name for messages, MLflow and the probe's test hook (a key of :data:`DEFAULT_PARAMS`,
+        or "custom").
     vector_width : int
         SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16 (halved for float64).
     unit_blocks : int
@@ -68,6 +72,7 @@ class KernelParams:
     """
 
     kernel: str = "tiled"
+    name: str = "custom"
     vector_width: int = 16
     unit_blocks: int = 2
     max_rows: int = 8
@@ -91,18 +96,30 @@ class KernelParams:
 #: Kernel variant -> (source file under ``kernels/``, kernel function).
 KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "tiled": ("bmu.cl", "bmu_of_n")}
 
-#: Kernel and tiling per OpenCL device type. CPUs (PoCL): the cache-blocked kernel with
-#: 2 x 16 units against 8 varied vectors in registers (16 zmm accumulators), 192 varied
-#: vectors per work-item and 16 tiles (512 units) per L2 block; measured on a 2-core
-#: AVX-512 Xeon (bench/bmu.py). GPUs: few registers per work-item and larger groups.
+#: The layouts: kernel and tiling. "cpu": the cache-blocked kernel with 2 x 16 units against 8
+#: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
+#: tiles (512 units) per L2 block; measured on a 2-core AVX-512 Xeon (bench/bmu.py).
+#: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the GPU default.
+#: "tiled": the local-memory kernel with small vectors, the last OpenCL layout of every chain.
 DEFAULT_PARAMS = {
-    "cpu": KernelParams(kernel="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192, cache_tiles=16),
+    "cpu": KernelParams(kernel="cpu", name="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192,
+                        cache_tiles=16),
     # CPUs whose preferred float vector is narrower than 16 (AVX2: 16 ymm registers): 6 x 2 x 8
     # accumulators, the shape of the usual AVX2 SGEMM micro-kernel (untimed here: no such CPU)
-    "cpu-narrow": KernelParams(kernel="cpu", vector_width=8, unit_blocks=2, max_rows=6, panel=192, cache_tiles=32),
-    "gpu": KernelParams(kernel="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True, work_group=64,
-                        max_dt=64),
+    "cpu-narrow": KernelParams(kernel="cpu", name="cpu-narrow", vector_width=8, unit_blocks=2, max_rows=6, panel=192,
+                               cache_tiles=32),
+    "gpu": KernelParams(kernel="tiled", name="gpu", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
+                        work_group=64, max_dt=64),
+    "tiled": KernelParams(kernel="tiled", name="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
+                          work_group=64, max_dt=64),
 }
+
+#: Fallback chains: the layouts tried in order on a device type until one passes its probe
+#: (:mod:`meshsom.probe`); after the last, the NumPy/BLAS backend.
+CHAINS = {"cpu": ("cpu", "cpu-narrow", "tiled"), "cpu-narrow": ("cpu-narrow", "tiled"), "gpu": ("gpu", "tiled")}
+
+#: Build options of every kernel.
+BUILD_OPTIONS = ["-cl-mad-enable"]
 
 
 def _cl():
@@ -176,7 +193,11 @@ def get_context(selector: str | None = None):
     cl = _cl()
     key = str(selector if selector is not None else os.environ.get(ENV_SELECTOR, ""))
     if key not in _CONTEXTS:
-        _CONTEXTS[key] = cl.Context([select_device(selector)])
+        device = select_device(selector)
+        try:
+            _CONTEXTS[key] = cl.Context([device])
+        except cl.Error as err:
+            raise DeviceError(f"cannot open an OpenCL context on {device.name.strip()}: {err}") from None
     return _CONTEXTS[key]
 
 
@@ -199,19 +220,48 @@ def _largest_divisor(D: int, cap: int) -> int:
     return 1
 
 
-def device_params(device) -> KernelParams:
-    """Kernel and tiling for an OpenCL device: its type and, on CPUs, its preferred float vector width."""
+def layout_chain(device) -> tuple[str, ...]:
+    """The layouts to try on an OpenCL device, fastest first (:data:`CHAINS`).
+
+    CPUs start with "cpu" where the device prefers 16-float vectors, else "cpu-narrow"; other
+    devices with "gpu". Each layout is probed (:mod:`meshsom.probe`) before its first use.
+    """
     cl = _cl()
     if device.type & cl.device_type.CPU:
-        params = DEFAULT_PARAMS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
-    else:
-        params = DEFAULT_PARAMS["gpu"]
+        return CHAINS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
+    return CHAINS["gpu"]
+
+
+def layout_params(device, name: str) -> KernelParams:
+    """The tiling of layout ``name`` fitted to a device (work-group size capped by the device's).
+
+    Raises
+    ------
+    ValueError
+        Unknown layout name (the message lists the known ones).
+    """
+    if name not in DEFAULT_PARAMS:
+        raise ValueError(f"unknown kernel layout {name!r}; known layouts: {', '.join(DEFAULT_PARAMS)}")
+    params = DEFAULT_PARAMS[name]
     return replace(params, work_group=min(params.work_group, device.max_work_group_size))
+
+
+def device_params(device) -> KernelParams:
+    """Kernel and tiling of the first layout of a device's chain (:func:`layout_chain`)."""
+    return layout_params(device, layout_chain(device)[0])
 
 
 def default_params(context) -> KernelParams:
     """Kernel and tiling for a context's first device (:func:`device_params`)."""
     return device_params(context.devices[0])
+
+
+def device_selector(device) -> str:
+    """The ``"P:D"`` selector of a device (what a child process opens to reach the same one)."""
+    for selector, _, other in list_devices():
+        if other == device:
+            return selector
+    raise DeviceError(f"{device.name.strip()}: not among the OpenCL devices of this process")
 
 
 def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str]:
@@ -224,6 +274,7 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     # where even that exceeds panel_bytes (D in the thousands, ring levels >= 6) the tiled
     # kernel, which tiles D through local memory, runs with the same vector tiling
     common = {
+        **injected_defines(params.name),
         "REAL": "double" if double else "float",
         "IREAL": "long" if double else "int",
         "VW": vw,
@@ -243,20 +294,158 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     }
 
 
-def get_kernel(context, defines: dict):
-    """The kernel ``defines["KERNEL"]`` names, built for ``defines``, memoised per context."""
+def probe_layout(context, name: str, D: int, n: int, dtype=np.float32):
+    """The probe verdict (:func:`meshsom.probe.check`) of layout ``name`` for a workload, building nothing here.
+
+    Parameters
+    ----------
+    context : pyopencl.Context
+    name : str
+        A key of :data:`DEFAULT_PARAMS`.
+    D, n : int
+        Dimension and variations.
+    dtype : numpy dtype
+
+    Returns
+    -------
+    meshsom.probe.Verdict
+    """
+    from meshsom.probe import check
+
+    device = context.devices[0]
+    defines = _defines(int(D), int(n), np.dtype(dtype), layout_params(device, name))
+    return check(device, device_selector(device), defines, kernel_source(defines["KERNEL"]), BUILD_OPTIONS, layout=name)
+
+
+class KernelLayoutError(DeviceError):
+    """A kernel layout failed its probe or its launch on a device.
+
+    Attributes
+    ----------
+    layout : str
+    device : str
+    reason : str
+        One line: what failed, with the compiler's first error line.
+    cached : bool
+        The verdict came from the disk cache (the process that probed it has reported it).
+    """
+
+    def __init__(self, layout: str, device: str, reason: str, cached: bool = False):
+        self.layout, self.device, self.reason, self.cached = layout, device, reason, cached
+        super().__init__(f"BMUofN kernel layout {layout!r} does not work on {device}: {reason}")
+
+    def __reduce__(self):  # picklable across Dask: plain strings only
+        return (type(self), (self.layout, self.device, self.reason, self.cached))
+
+
+def get_kernel(context, defines: dict, guard: bool = True, layout: str = "custom"):
+    """The kernel ``defines["KERNEL"]`` names, built for ``defines``, memoised per context.
+
+    Parameters
+    ----------
+    context : pyopencl.Context
+    defines : dict
+        From :func:`_defines`.
+    guard : bool
+        Build only what passed its probe (:func:`meshsom.probe.check`, in a child process, cached
+        on disk); the probe child itself builds with ``guard=False``.
+    layout : str
+        Layout name for messages.
+
+    Raises
+    ------
+    KernelLayoutError
+        The probe rejected the build, or the build failed here.
+    """
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
     key = tuple(sorted(defines.items()))
     if key not in cache:
         source, function = KERNELS[defines["KERNEL"]]
-        options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + ["-cl-mad-enable"]
+        text = kernel_source(defines["KERNEL"])
+        options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
+        device = context.devices[0]
+        if guard:
+            from meshsom.probe import check
+
+            verdict = check(device, device_selector(device), defines, text, BUILD_OPTIONS, layout=layout)
+            if not verdict.ok:
+                raise KernelLayoutError(layout, device_name(context), verdict.reason, verdict.cached)
         try:
-            program = cl.Program(context, kernel_source(defines["KERNEL"])).build(options=options)
+            program = cl.Program(context, text).build(options=options)
             cache[key] = cl.Kernel(program, function)
-        except cl.RuntimeError as err:
-            raise DeviceError(f"{device_name(context)}: kernels/{source} failed to build with {options}: {err}") from None
+        except cl.Error as err:
+            from meshsom.probe import first_error_line
+
+            raise KernelLayoutError(layout, device_name(context),
+                                    f"kernels/{source} failed to build: {first_error_line(str(err))}") from None
     return cache[key]
+
+
+def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np.ndarray, ...]:
+    """Run a built kernel on validated arrays: the raw outputs, int32/REAL.
+
+    Parameters
+    ----------
+    X : (N, D), W : (M, D), index : (n, D) int64, sign : (n, D)
+        As :func:`meshsom.bmu_numpy.validate` returns them (same dtype for X, W and sign).
+
+    Returns
+    -------
+    unit, variation : (N,) int32
+    dist2 : (N,) REAL
+        As the kernel computed it (``||x_v||^2 + ||w||^2 - 2 x_v.w``).
+    second : (N,) int32
+
+    Raises
+    ------
+    DeviceError
+        An OpenCL error (out of resources, a lost device ...), as one readable line.
+    """
+    cl = _cl()
+    N, D = X.shape
+    M = len(W)
+    tile = defines["VW"] * defines["UB"]
+    MP = -(-M // tile) * tile
+    wnorm = np.full(MP, np.inf, X.dtype)
+    wnorm[:M] = np.einsum("ij,ij->i", W, W)
+    if defines["KERNEL"] == "cpu":
+        # tiled codebook (MP / tile, D, tile): one tile's D x tile block is contiguous
+        padded = np.zeros((MP, D), X.dtype)
+        padded[:M] = W
+        WT = np.ascontiguousarray(padded.reshape(MP // tile, tile, D).transpose(0, 2, 1))
+        wg = 1
+        global_size = -(-N // defines["P"])
+    else:
+        WT = np.zeros((D, MP), X.dtype)
+        WT[:, :M] = W.T
+        items = -(-N // defines["RX"])
+        wg = defines["WG"]
+        global_size = -(-items // wg) * wg
+    unit = np.empty(N, np.int32)
+    variation = np.empty(N, np.int32)
+    dist2 = np.empty(N, X.dtype)
+    second = np.empty(N, np.int32)
+    try:
+        mf = cl.mem_flags
+        ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+        bufs = [
+            cl.Buffer(context, ro, hostbuf=np.ascontiguousarray(X)),
+            cl.Buffer(context, ro, hostbuf=WT),
+            cl.Buffer(context, ro, hostbuf=wnorm),
+            cl.Buffer(context, ro, hostbuf=index.astype(np.int32)),
+            cl.Buffer(context, ro, hostbuf=np.ascontiguousarray(sign, X.dtype)),
+        ]
+        outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
+        kernel(queue, (global_size,), (wg,),
+               bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
+        for host, buf in zip((unit, variation, dist2, second), outs):
+            cl.enqueue_copy(queue, host, buf)
+        queue.finish()
+    except cl.Error as err:  # pyopencl's error records do not pickle: one line of text instead
+        raise DeviceError(f"{device_name(context)}: BMUofN kernel launch failed ({type(err).__name__}: "
+                          f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+    return unit, variation, dist2, second
 
 
 def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = None,
@@ -287,56 +476,27 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     DeviceError
         No device, or the kernel does not build.
     """
-    cl = _cl()
     X, W, index, sign = validate(X, W, index, sign)
     context = context or get_context(device)
     params = params or default_params(context)
-    queue = queue or cl.CommandQueue(context)
     N, D = X.shape
-    M = len(W)
-    n = len(index)
     if N == 0:
         empty = np.zeros(0, np.int64)
         return BMUResult(empty, empty, np.zeros(0), empty)
-    defines = _defines(D, n, X.dtype, params)
-    tile = defines["VW"] * defines["UB"]
-    MP = -(-M // tile) * tile
-    wnorm = np.full(MP, np.inf, X.dtype)
-    wnorm[:M] = np.einsum("ij,ij->i", W, W)
-    if defines["KERNEL"] == "cpu":
-        # tiled codebook (MP / tile, D, tile): one tile's D x tile block is contiguous
-        padded = np.zeros((MP, D), X.dtype)
-        padded[:M] = W
-        WT = np.ascontiguousarray(padded.reshape(MP // tile, tile, D).transpose(0, 2, 1))
-        wg = 1
-        global_size = -(-N // defines["P"])
-    else:
-        WT = np.zeros((D, MP), X.dtype)
-        WT[:, :M] = W.T
-        items = -(-N // defines["RX"])
-        wg = defines["WG"]
-        global_size = -(-items // wg) * wg
-
-    mf = cl.mem_flags
-    ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-    bufs = [
-        cl.Buffer(context, ro, hostbuf=X),
-        cl.Buffer(context, ro, hostbuf=WT),
-        cl.Buffer(context, ro, hostbuf=wnorm),
-        cl.Buffer(context, ro, hostbuf=index.astype(np.int32)),
-        cl.Buffer(context, ro, hostbuf=sign),
-    ]
-    unit = np.empty(N, np.int32)
-    variation = np.empty(N, np.int32)
-    dist2 = np.empty(N, X.dtype)
-    second = np.empty(N, np.int32)
-    outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
-    kernel = get_kernel(context, defines)
-    kernel(queue, (global_size,), (wg,),
-           bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
-    for host, buf in zip((unit, variation, dist2, second), outs):
-        cl.enqueue_copy(queue, host, buf)
-    queue.finish()
+    defines = _defines(D, len(index), X.dtype, params)
+    kernel = get_kernel(context, defines, layout=params.name)
+    queue = queue or _queue(context)
+    unit, variation, _, second = launch(context, queue, kernel, X, W, index, sign, defines)
     unit = unit.astype(np.int64)
     variation = variation.astype(np.int64)
     return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second.astype(np.int64))
+
+
+_QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _queue(context):
+    """One command queue per context."""
+    if context not in _QUEUES:
+        _QUEUES[context] = _cl().CommandQueue(context)
+    return _QUEUES[context]

@@ -95,6 +95,8 @@ TOPOLOGIES = ("toroidal", "planar")
 INITS = ("random", "pca")
 TRAININGS = ("batch", "online")
 BACKENDS = ("auto", "numpy", "opencl")
+#: OpenCL kernel layouts (keys of meshsom.bmu_opencl.DEFAULT_PARAMS; kept here so configs load without pyopencl).
+LAYOUTS = ("cpu", "cpu-narrow", "gpu", "tiled")
 
 
 @dataclass(frozen=True)
@@ -252,14 +254,20 @@ class OpenCLConfig:
     device : str or None
         Device selector ("0:0", a platform or device name such as "pocl" or "nvidia");
         None: ``PYOPENCL_CTX`` or the first device.
+    layout : str or None
+        One OpenCL kernel layout to use alone ("cpu", "cpu-narrow", "gpu", "tiled"; ``meshsom doctor``
+        lists each device's verdicts); None: the device's fallback chain, fastest first.
     """
 
     backend: str = "auto"
     device: str | None = None
+    layout: str | None = None
 
     def __post_init__(self):
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; received {self.backend!r}")
+        if self.layout is not None and self.layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)} (or absent); received {self.layout!r}")
 
 
 @dataclass(frozen=True)

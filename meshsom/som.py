@@ -261,6 +261,8 @@ class SOM:
     backend : {"auto", "numpy", "opencl"}
     device : str or None
         OpenCL device selector.
+    layout : str or None
+        One OpenCL kernel layout to use alone; None: the device's fallback chain.
 
     Attributes
     ----------
@@ -272,13 +274,15 @@ class SOM:
         The variation table used in ``fit``.
     backend_, device_ : str
         Which BMU backend and device ran.
+    engine_ : meshsom.bmu.Engine
+        The resolved backend; ``engine_.describe()`` also names the kernel layouts and fallbacks.
     """
 
     def __init__(self, rows: int = 120, cols: int = 150, topology: str = "toroidal", epochs: int = 20,
                  sigma_start: float | None = None, sigma_end: float = 1.0, init: str = "random",
                  training: str = "batch", learning_rate: float = 0.5, learning_rate_end: float = 0.01,
                  decay: str = "exponential", random_state: int | None = 0, backend: str = "auto",
-                 device: str | None = None):
+                 device: str | None = None, layout: str | None = None):
         self.rows = rows
         self.cols = cols
         self.topology = topology
@@ -293,6 +297,7 @@ class SOM:
         self.random_state = random_state
         self.backend = backend
         self.device = device
+        self.layout = layout
 
     # ------------------------------------------------------------------ validation
     def _validate_params(self) -> None:
@@ -353,8 +358,9 @@ class SOM:
         if index.ndim != 2 or index.shape[1] != D or sign.shape != index.shape:
             raise ValueError(f"index and sign must both have shape (n, {D}), received {index.shape} and {sign.shape}")
         rng = np.random.default_rng(self.random_state)
-        engine = resolve_backend(self.backend, self.device)
+        engine = resolve_backend(self.backend, self.device, layout=self.layout)
         self.backend_, self.device_ = engine.backend, engine.device
+        self.engine_ = engine
         self.index_, self.sign_ = index, sign
         self.n_features_in_ = D
         W = init_weights(X, self.rows, self.cols, self.init, rng)
@@ -413,7 +419,8 @@ class SOM:
         X = self._validate_X(X, self.n_features_in_)
         if index is None:
             index, sign = self.index_, self.sign_
-        bmu, _ = find_bmus(X, self.weights_, index, sign, backend=self.backend_, device=self.device)
+        engine = getattr(self, "engine_", None) or self.backend_
+        bmu, _ = find_bmus(X, self.weights_, index, sign, backend=engine, device=self.device)
         return bmu
 
     def predict(self, X, index=None, sign=None) -> np.ndarray:

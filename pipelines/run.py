@@ -20,8 +20,14 @@ import argparse
 import hashlib
 import json
 import shutil
+import signal
 import time
 from pathlib import Path
+
+from meshsom.config import BACKENDS, LAYOUTS
+
+#: Epoch progress lines per map when stdout is not a terminal (no progress bar there).
+EPOCH_LINES = 5
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,6 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-tracking", action="store_true", help="do not write to MLflow")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler (overrides dask.scheduler)")
     p.add_argument("--workers", type=int, help="local Dask workers (overrides dask.workers)")
+    p.add_argument("--backend", choices=BACKENDS, help="BMU search backend (overrides opencl.backend): auto tries "
+                   "OpenCL and falls back to NumPy/BLAS, numpy never touches OpenCL, opencl fails without it")
+    p.add_argument("--device", help="OpenCL device selector, e.g. 0:0, pocl, nvidia (overrides opencl.device)")
+    p.add_argument("--layout", choices=LAYOUTS, help="one OpenCL kernel layout, no fallback chain (overrides "
+                   "opencl.layout; `meshsom doctor` shows which work)")
 
 
 def dataset_fingerprint(manifest: dict) -> str:
@@ -49,6 +60,9 @@ def _overrides(args) -> dict:
     if args.tracking_uri or args.no_tracking:
         over["tracking"] = {**({"uri": args.tracking_uri} if args.tracking_uri else {}),
                             **({"enabled": False} if args.no_tracking else {})}
+    opencl = {k: getattr(args, k) for k in ("backend", "device", "layout") if getattr(args, k, None)}
+    if opencl:
+        over["opencl"] = opencl
     if args.scheduler or args.workers:
         over["dask"] = {**({"scheduler": args.scheduler} if args.scheduler else {}),
                         **({"workers": args.workers} if args.workers else {})}
@@ -59,7 +73,16 @@ def run(args: argparse.Namespace) -> int:
     from meshsom.config import load_config
 
     cfg = load_config(args.config, _overrides(args) or None)
-    return run_experiment(cfg, Path(args.config), overwrite=args.overwrite, resume=args.resume)
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, _terminated)  # a killed run ends its MLflow runs as KILLED
+    try:
+        return run_experiment(cfg, Path(args.config), overwrite=args.overwrite, resume=args.resume)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _terminated(signum, frame):
+    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
 def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False, resume: bool = False) -> int:
@@ -89,56 +112,68 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
     t_start = time.perf_counter()
     with_domain = cfg.domain.enabled and _domain_available()
     stages = 2 + (1 if with_domain else 0)
-    with connect(cfg.dask) as client:
-        # ------------------------------------------------------------------ 1. corpus
-        print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {store}")
-        bars: dict = {}
+    try:
+        with connect(cfg.dask) as client:
+            # ------------------------------------------------------------------ 1. corpus
+            print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {store}")
+            bars: dict = {}
 
-        def progress(stage, done, total):
-            bar = bars.get(stage)
-            if bar is None:
-                bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False, disable=None)
-            bar.update(done - bar.n)
+            def progress(stage, done, total):
+                bar = bars.get(stage)
+                if bar is None:
+                    bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False, disable=None)
+                bar.update(done - bar.n)
 
-        t0 = time.perf_counter()
-        summary = run_corpus(client, cfg, str(store), resume=resume, progress=progress)
-        for bar in bars.values():
-            bar.close()
-        print(f"      {summary['inputs']} meshes: {summary['accepted']} accepted, {summary['rejected']} rejected "
-              f"({summary.get('faces_out', 0)} triangles) in {time.perf_counter() - t0:.1f} s")
-        if not summary["accepted"]:
-            print("nothing could be ingested; see the manifest for the reasons")
-            return 1
-        group = open_store(store, mode="r+")
-        manifest = read_manifest(store)
-        fingerprint = dataset_fingerprint(manifest)
-        ids = dict(group.attrs.get("mlflow", {})) if resume else {}
-        if ids.get("uri") not in (None, tracker.uri):
-            ids = {}  # a different tracking server: start new runs
-        parent = tracker.start(
-            cfg.name, flatten(to_dict(cfg)),
-            {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
-            run_id=ids.get("parent"),
-        )
-        ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
-               "children": dict(ids.get("children", {}))}
-        group.attrs["mlflow"] = ids
-        if config_path is not None and config_path.exists():
-            tracker.log_artifact(parent, config_path, "config")
-        tracker.log_artifact(parent, store / "manifest.json", "manifest")
+            t0 = time.perf_counter()
+            summary = run_corpus(client, cfg, str(store), resume=resume, progress=progress)
+            for bar in bars.values():
+                bar.close()
+            print(f"      {summary['inputs']} meshes: {summary['accepted']} accepted, {summary['rejected']} rejected "
+                  f"({summary.get('faces_out', 0)} triangles) in {time.perf_counter() - t0:.1f} s")
+            if not summary["accepted"]:
+                print("nothing could be ingested; see the manifest for the reasons")
+                return 1
+            group = open_store(store, mode="r+")
+            manifest = read_manifest(store)
+            fingerprint = dataset_fingerprint(manifest)
+            ids = dict(group.attrs.get("mlflow", {})) if resume else {}
+            if ids.get("uri") not in (None, tracker.uri):
+                ids = {}  # a different tracking server: start new runs
+            parent = tracker.start(
+                cfg.name, flatten(to_dict(cfg)),
+                {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
+                run_id=ids.get("parent"),
+            )
+            ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
+                   "children": dict(ids.get("children", {}))}
+            group.attrs["mlflow"] = ids
+            if config_path is not None and config_path.exists():
+                tracker.log_artifact(parent, config_path, "config")
+            tracker.log_artifact(parent, store / "manifest.json", "manifest")
 
-        # ------------------------------------------------------------------ 2. triangle maps
-        print(f"[2/{stages}] triangle maps: {', '.join(s.name for s in cfg.train)} ({cfg.som.rows} x {cfg.som.cols}, "
-              f"{cfg.som.epochs} epochs)")
-        results = []
-        for spec in cfg.train:
-            results.append(_train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint))
-        # ------------------------------------------------------------------ 3. domain maps
-        if with_domain:
-            print(f"[3/{stages}] domain maps")
-            from pipelines.domain_stage import run_domain_stage
+            # ------------------------------------------------------------------ 2. triangle maps
+            print(f"[2/{stages}] triangle maps: {', '.join(s.name for s in cfg.train)} ({cfg.som.rows} x {cfg.som.cols}, "
+                  f"{cfg.som.epochs} epochs)")
+            results = []
+            for spec in cfg.train:
+                results.append(_train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint))
+            # ------------------------------------------------------------------ 3. domain maps
+            if with_domain:
+                print(f"[3/{stages}] domain maps")
+                from pipelines.domain_stage import run_domain_stage
 
-            run_domain_stage(cfg, store, tracker, ids, results, client)
+                run_domain_stage(cfg, store, tracker, ids, results, client)
+    except KeyboardInterrupt:
+        tracker.end_open("KILLED")  # the parent and every map run still open
+        raise
+    except BaseException:
+        tracker.end_open("FAILED")
+        raise
+    tracker.set_tags(parent, {
+        "backends": ",".join(sorted({r["backend"] for r in results})),
+        "kernel_layouts": ",".join(sorted({x for r in results for x in r.get("layout", "").split(",") if x})),
+        "kernel_fallback": "; ".join(r["fallback"] for r in results if r.get("fallback")) or "none",
+    })
     tracker.finish(parent)
     _print_summary(results, store, tracker, time.perf_counter() - t_start)
     return 0
@@ -167,6 +202,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
         topology=som.topology, epochs=som.epochs,
         sigma_start=float(som.sigma_start if som.sigma_start is not None else max(som.rows, som.cols) / 4),
         sigma_end=float(som.sigma_end), init=som.init, seed=som.seed, backend=cfg.opencl.backend, device=cfg.opencl.device,
+        layout=cfg.opencl.layout,
     )
     n_var = n_variations(spec.level, spec.kernel, som.mirror_higher)
     params = {
@@ -180,10 +216,18 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     ids["children"][job.run] = child
     group.attrs["mlflow"] = ids
     bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False, disable=None)
+    every = max(1, -(-som.epochs // EPOCH_LINES))
+    t_map = time.perf_counter()
 
     def on_epoch(epoch, metrics):
         tracker.log_metrics(child, metrics, step=epoch)
         bar.update(1 if epoch < som.epochs else 0)
+        done = epoch + 1
+        if bar.disable and epoch < som.epochs and (done % every == 0 or done == som.epochs):
+            # no progress bar (stdout is not a terminal): a line every few epochs
+            elapsed = time.perf_counter() - t_map
+            print(f"      {job.run}: epoch {done}/{som.epochs}, {elapsed:.1f} s elapsed, about "
+                  f"{elapsed / done * (som.epochs - done):.0f} s left (QC {metrics['qc_error']:.4f})", flush=True)
 
     result = train_spec(client, job, resume=resume, on_epoch=on_epoch)
     bar.close()
@@ -196,12 +240,21 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     tracker.log_artifact(child, png, "figures")
-    tracker.set_tags(child, {"opencl_device": result["device"], "backend": result["backend"]})
+    tracker.set_tags(child, engine_tags(result))
     tracker.finish(child)
     m = result["metrics"]
+    where = result["backend"] if result["backend"] == "numpy" else f"opencl {result['layout']}"
     print(f"      {job.run:16s} {result['dims']:>7s}  T {m['t_error']:.5f}  Q {m['q_error']:.5f}  "
-          f"QC {m['qc_error']:.5f}  ({result['backend']}, {result['seconds']:.1f} s)")
+          f"QC {m['qc_error']:.5f}  ({where}, {result['seconds']:.1f} s)")
+    if result.get("fallback"):
+        print(f"      {job.run}: kernel fallback: {result['fallback']}")
     return {**result, "level": spec.level, "kernel": spec.kernel, "umatrix": str(png)}
+
+
+def engine_tags(result: dict) -> dict:
+    """MLflow tags that say what computed a map: backend, device, kernel layout and any fallback."""
+    return {"backend": result["backend"], "opencl_device": result["device"],
+            "kernel_layout": result.get("layout") or "", "kernel_fallback": result.get("fallback") or "none"}
 
 
 def _print_summary(results, store, tracker, seconds) -> None:

@@ -102,6 +102,7 @@ class Tracker:
         self.offline = False  # set at the first failed write: later writes are only recorded
         self._client = None
         self.experiment_id = None
+        self.open_runs: list[str] = []  # started or reopened, not finished yet
 
     @property
     def client(self):
@@ -133,6 +134,7 @@ class Tracker:
         if run_id:
             try:
                 self.client.update_run(run_id, status="RUNNING")
+                self.open_runs.append(run_id)
                 return run_id
             except Exception as err:
                 log.warning("cannot reopen MLflow run %s (%s); starting a new one", run_id, err)
@@ -150,6 +152,7 @@ class Tracker:
             self.offline = True
             return None
         rid = run.info.run_id
+        self.open_runs.append(rid)
         self.log_params(rid, params)
         return rid
 
@@ -194,7 +197,14 @@ class Tracker:
         self._safe("artifact", run_id, lambda: self.client.log_artifact(run_id, str(path), folder), path=str(path))
 
     def finish(self, run_id: str | None, status: str = "FINISHED") -> None:
+        if run_id in self.open_runs:
+            self.open_runs.remove(run_id)
         self._safe("finish", run_id, lambda: self.client.set_terminated(run_id, status))
+
+    def end_open(self, status: str) -> None:
+        """End every run still open (children first) with ``status``: "FAILED" or "KILLED"."""
+        for run_id in reversed(list(self.open_runs)):
+            self.finish(run_id, status)
 
     @contextmanager
     def run(self, name: str, params: dict, tags: dict, parent: str | None = None, run_id: str | None = None):

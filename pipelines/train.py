@@ -64,6 +64,8 @@ class TrainJob:
     seed : int
     backend : str
     device : str or None
+    layout : str or None
+        OpenCL kernel layout to use alone (None: the device's fallback chain).
     source : str or None
         Array of the store to train on, rows = vectors (default: ``rings/level{L}``, standardized
         with the level's statistics). Any other array (domain vectors) is used as it is, with one
@@ -86,6 +88,7 @@ class TrainJob:
     seed: int
     backend: str = "auto"
     device: str | None = None
+    layout: str | None = None
     source: str | None = None
     name: str | None = None
 
@@ -102,12 +105,13 @@ class TrainJob:
 # ----------------------------------------------------------------------------- worker side
 
 
-def _engine(backend: str, device: str | None):
+def _engine(backend: str, device: str | None, layout: str | None = None):
+    """This process's engine for a backend, device and layout (resolved once, then reused)."""
     from meshsom.bmu import resolve_backend
 
-    key = (backend, device)
+    key = (backend, device, layout)
     if key not in _ENGINES:
-        _ENGINES[key] = resolve_backend(backend, device)
+        _ENGINES[key] = resolve_backend(backend, device, layout=layout)
     return _ENGINES[key]
 
 
@@ -152,7 +156,8 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     dict
         ``sums`` (M, D) float64, ``counts`` (M,) float64, ``n``, ``t_bad`` (vectors whose best and
         second-best units are not neighbours), ``q_sum`` (sum of BMU distances), ``qc_sum`` (sum over
-        vectors of the mean per-component distance), ``backend``, ``device``.
+        vectors of the mean per-component distance), and what computed it: ``backend``, ``device``,
+        ``layout``, ``fallback`` (:meth:`meshsom.bmu.Engine.describe`).
     """
     from meshsom.metrics import are_neighbours, residuals
     from meshsom.som import partial_sums
@@ -163,7 +168,7 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
         index, sign = variation_table(job.level, mirror=job.mirror, kernel=job.kernel)
     else:
         index = sign = None  # one variation: the identity
-    engine = _engine(job.backend, job.device)
+    engine = _engine(job.backend, job.device, job.layout)
     sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
     res = residuals(X, W, bmu, index, sign)
     parts = res.reshape(len(X), -1, 3) if X.shape[1] % 3 == 0 else res[:, :, None]
@@ -173,7 +178,7 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
         "t_bad": int((~are_neighbours(bmu.unit, bmu.second, job.rows, job.cols, job.topology)).sum()),
         "q_sum": float(np.sqrt(np.einsum("ij,ij->i", res, res)).sum()),
         "qc_sum": float(comp.mean(axis=1).sum()),
-        "backend": engine.backend, "device": engine.device,
+        **engine.describe(X.shape[1], 1 if index is None else len(index), X.dtype),
     }
     if write_bmus:
         from meshsom.codebook import BMU_ARRAYS
@@ -231,8 +236,12 @@ def _reduce(futures) -> dict:
     many chunks there are.
     """
     total = None
+    layouts: set = set()
+    fallbacks: list = []
     for fut in futures:
         part = fut.result()
+        layouts.update(filter(None, part["layout"].split(",")))
+        fallbacks += [f for f in part["fallback"].split("; ") if f and f not in fallbacks]
         if total is None:
             total = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
         else:
@@ -245,7 +254,8 @@ def _reduce(futures) -> dict:
     return {
         "sums": total["sums"], "counts": total["counts"],
         "t_error": total["t_bad"] / n, "q_error": total["q_sum"] / n, "qc_error": total["qc_sum"] / n,
-        "backend": total["backend"], "device": total["device"],
+        "backend": total["backend"], "device": total["device"], "layout": ",".join(sorted(layouts)),
+        "fallback": "; ".join(fallbacks),
     }
 
 
@@ -290,6 +300,26 @@ def initial_weights(job: TrainJob, ranges) -> np.ndarray:
     b = np.linspace(-1, 1, job.cols)
     grid = a[:, None, None] * comps[0] + b[None, :, None] * comps[1]
     return (mean + grid.reshape(M, -1)).astype(np.float32)
+
+
+def prepare_engine(client, job: TrainJob, D: int) -> None:
+    """Probe the job's OpenCL layouts from the client before the first pass, when the workers share its machine.
+
+    The probes log what they check; their verdicts go to the disk cache, so the workers start
+    warm and the user sees the check (and any fallback) in the client's output. Workers of a
+    remote scheduler probe on their own machines.
+    """
+    if job.backend == "numpy" or getattr(client, "cluster", None) is None:
+        return
+    from meshsom.errors import DeviceError
+    from meshsom.variations import n_variations
+
+    n = n_variations(job.level, job.kernel, job.mirror) if job.source is None else 1
+    try:
+        engine = _engine(job.backend, job.device, job.layout)
+    except DeviceError:
+        return  # the workers raise (strict) or fall back (auto) themselves, with the same message
+    engine.prepare(D, n, np.float32)
 
 
 def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progress=None,
@@ -347,6 +377,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     })
     sigma_start = job.sigma_start
     backend = device = None
+    prepare_engine(client, job, D)
     # BMUs, variations, distances and second-best units of every vector, rewritten by every pass
     # (chunks aligned with the task row ranges: no two tasks write one chunk)
     step = ranges[0][1] - ranges[0][0]
@@ -373,10 +404,12 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
     result = {
         "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
+        "layout": red["layout"], "fallback": red["fallback"],
         "seconds": time.perf_counter() - t0, "resumed_from": start_epoch, "n_vectors": int(n),
         "dims": f"{n_variations(job.level, job.kernel, job.mirror) if job.source is None else 1}x{D}",
     }
-    g.attrs.update({"metrics": final, "result": result, "final_done": True, "bmu_epoch": job.epochs})
+    g.attrs.update({"metrics": final, "result": result, "final_done": True, "bmu_epoch": job.epochs,
+                    "engine": {k: red[k] for k in ("backend", "device", "layout", "fallback")}})
     if on_epoch:
         on_epoch(job.epochs, final)
     return result

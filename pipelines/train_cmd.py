@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from meshsom.config import BACKENDS, KERNELS, TOPOLOGIES, SOMConfig
+from meshsom.config import BACKENDS, KERNELS, LAYOUTS, TOPOLOGIES, SOMConfig
 
 
 def _map_size(text: str) -> tuple[int, int]:
@@ -44,6 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=("random", "pca"), default=defaults.init)
     parser.add_argument("--backend", choices=BACKENDS, default="auto")
     parser.add_argument("--device", default=None, help="OpenCL device selector (\"0:0\", \"pocl\", ...)")
+    parser.add_argument("--layout", choices=LAYOUTS, default=None,
+                        help="one OpenCL kernel layout, no fallback chain (`meshsom doctor` shows which work)")
     parser.add_argument("--mirror", action="store_true", help="add mirror variations (levels >= 2)")
     parser.add_argument("--run", default=None, help="run name (default level{L}-{kernel})")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     rows, cols = args.map
     som = SOM(rows=rows, cols=cols, topology=args.topology, epochs=args.epochs, sigma_start=args.sigma_start,
               sigma_end=args.sigma_end, init=args.init, random_state=args.seed, backend=args.backend,
-              device=args.device)
+              device=args.device, layout=args.layout)
     t0 = time.perf_counter()
     som.fit(X, index, sign)
     seconds = time.perf_counter() - t0
@@ -95,12 +97,12 @@ def run(args: argparse.Namespace) -> int:
         "qc_error": qc_error(X, som.weights_, bmu, index, sign) if X.shape[1] % 3 == 0 else float("nan"),
     }
     run_name = args.run or f"level{args.level}-{args.kernel}"
+    engine = som.engine_.describe(X.shape[1], len(index), X.dtype)
     save_codebook(group, run_name, som.weights_, rows, cols, args.topology, level=args.level, kernel=args.kernel,
                   metrics=metrics, bmu=bmu,
-                  extra={"epochs": args.epochs, "seed": args.seed, "backend": som.backend_, "device": som.device_,
-                         "mirror": bool(args.mirror), "n_variations": int(len(index)), "seconds": seconds})
+                  extra={"epochs": args.epochs, "seed": args.seed, **engine, "mirror": bool(args.mirror), "n_variations": int(len(index)), "seconds": seconds})
     report = {
-        **metrics, "backend": som.backend_, "device": som.device_, "level": args.level, "kernel": args.kernel,
+        **metrics, **engine, "level": args.level, "kernel": args.kernel,
         "map_rows": rows, "map_cols": cols, "epochs": args.epochs, "seconds": seconds,
         "n_vectors": int(len(X)), "dims": f"{len(index)}x{X.shape[1]}", "run": run_name,
     }
@@ -108,7 +110,10 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(report))
     else:
         print(f"level {args.level} ({args.kernel}, {len(index)}x{X.shape[1]}) on a {rows}x{cols} {args.topology} map, "
-              f"{args.epochs} epochs, {len(X)} vectors, {seconds:.2f} s on {som.backend_} ({som.device_})")
+              f"{args.epochs} epochs, {len(X)} vectors, {seconds:.2f} s on {som.backend_} ({som.device_}"
+              + (f", kernel layout {engine['layout']})" if som.backend_ == "opencl" else ")"))
+        if engine["fallback"]:
+            print(f"kernel fallback: {engine['fallback']}")
         print(f"T-error {metrics['t_error']:.5f}  Q-error {metrics['q_error']:.5f}  QC-error {metrics['qc_error']:.5f}")
         print(f"saved runs/{run_name}")
     return 0

@@ -40,6 +40,7 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
               __global REAL *out_dist2,      /* (N,) */
               __global int *out_second)      /* (N,) */
 {
+    INJECTED_TRAP();
     const int row0 = get_global_id(0) * RX;
     int rows[RX];
     for (int j = 0; j < RX; ++j)

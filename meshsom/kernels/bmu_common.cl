@@ -4,7 +4,19 @@
  * Needs the defines REAL, IREAL, VW and D. Builtins (fma, select, any, vload) are kept
  * out of the hot loops of the kernels: PoCL may leave them as out-of-line calls, one call
  * per vector operation; the operators below always inline.
+ *
+ * Test hooks (meshsom.probe, MESHSOM_KERNEL_INJECT; never defined otherwise): a build that
+ * fails, and a kernel that kills its process on its first launch.
  */
+
+#ifdef MESHSOM_INJECT_BUILD_ERROR
+#error "injected build failure (MESHSOM_KERNEL_INJECT test hook)"
+#endif
+#ifdef MESHSOM_INJECT_TRAP
+#define INJECTED_TRAP() __builtin_trap()
+#else
+#define INJECTED_TRAP()
+#endif
 
 #define CAT_(a, b) a##b
 #define CAT(a, b) CAT_(a, b)

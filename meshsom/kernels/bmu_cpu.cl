@@ -40,6 +40,7 @@ __kernel void bmu_of_n_cpu(__global const REAL *X,        /* (N, D) */
                            __global REAL *out_dist2,      /* (N,) */
                            __global int *out_second)      /* (N,) */
 {
+    INJECTED_TRAP();
     const int row0 = get_global_id(0) * P;
     if (row0 >= N)
         return;

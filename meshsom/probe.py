@@ -1,0 +1,351 @@
+"""Kernel verdicts: does a BMUofN kernel layout build and give right answers on a device?
+
+OpenCL compilers can take the whole process down: PoCL 3.0 with LLVM 14 aborts (``LLVM ERROR``,
+SIGABRT) on some kernels for CPUs LLVM does not know, and no Python ``try`` catches that. So
+before a kernel is built in the user's process for the first time, :func:`check` builds it in a
+*child* process, runs it on a small known answer (random rows against a small codebook, with
+random variations, compared with a float64 NumPy search) and reports a :class:`Verdict`; a
+compiler abort or a hang then kills only the child.
+
+Verdicts are cached on disk, one JSON file per key, so the probe costs once per machine and
+Dask workers on it share the answer. The key covers everything the build depends on: the
+platform and its version, the device, its driver version, the kernel source text and the
+compile defines (sizes, widths, data type). The cache folder is ``$MESHSOM_CACHE_DIR`` (else
+``$XDG_CACHE_HOME/meshsom``, else ``~/.cache/meshsom``), sub-folder ``kernel-verdicts``;
+deleting it forces new probes.
+
+Test hook (never set it otherwise): ``MESHSOM_KERNEL_INJECT="cpu=error,cpu-narrow=trap"`` makes
+the named layouts fail to build (``error``: a ``#error`` directive) or kill their process on
+first launch (``trap``: ``__builtin_trap()``), see :func:`injected_defines`.
+
+The child is this module run as a script: ``python -m meshsom.probe SPEC_JSON``.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Bumped when the probe's check changes, so old verdicts are not reused.
+PROBE_VERSION = 1
+#: Seconds a probe child may take (build + check) before it is killed and the layout rejected.
+PROBE_TIMEOUT_S = 300.0
+#: Rows and extra units of the known-answer check (units: two whole tiles plus this, so the
+#: padding path runs), and the seed of its random data.
+PROBE_ROWS = 67
+PROBE_EXTRA_UNITS = 5
+PROBE_SEED = 12345
+#: Relative tolerance between the kernel's winning distance and the float64 minimum.
+PROBE_RTOL = 1e-4
+#: Workload of the optional throughput figure (``meshsom doctor``): rows, units, variations, D.
+TIMING_WORKLOAD = (4096, 2048, 3, 36)
+
+ENV_CACHE = "MESHSOM_CACHE_DIR"
+ENV_INJECT = "MESHSOM_KERNEL_INJECT"
+ENV_TIMEOUT = "MESHSOM_PROBE_TIMEOUT"
+#: Injected failures (test hook): name -> define added to the layout's build.
+INJECTIONS = {"error": "MESHSOM_INJECT_BUILD_ERROR", "trap": "MESHSOM_INJECT_TRAP"}
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The outcome of one probe.
+
+    Attributes
+    ----------
+    ok : bool
+        The layout built and gave the known answer.
+    layout : str
+        Layout name (a key of :data:`meshsom.bmu_opencl.DEFAULT_PARAMS`, or "custom").
+    device : str
+        "platform / device".
+    reason : str
+        Empty when ok; else one line: what failed and the compiler's first error line.
+    seconds : float
+        Wall time of the probe (child start, build, check).
+    key : str
+        Cache key (hex).
+    gflops : float or None
+        Throughput of a short timed run (only when asked for, as ``meshsom doctor`` does).
+    cached : bool
+        Read from the disk cache (or this process's memory) rather than probed now.
+    """
+
+    ok: bool
+    layout: str
+    device: str
+    reason: str
+    seconds: float
+    key: str
+    gflops: float | None = None
+    cached: bool = False
+
+
+_MEMO: dict[str, Verdict] = {}
+
+
+def cache_dir() -> Path:
+    """Folder of the verdict files."""
+    base = os.environ.get(ENV_CACHE)
+    if base:
+        root = Path(base)
+    else:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "meshsom"
+    return root / "kernel-verdicts"
+
+
+def injected_defines(layout: str) -> dict[str, int]:
+    """Defines the test hook ``$MESHSOM_KERNEL_INJECT`` adds to a layout's build (usually none).
+
+    Raises
+    ------
+    ValueError
+        A malformed value (the message shows the expected form).
+    """
+    text = os.environ.get(ENV_INJECT, "").strip()
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        name, _, what = item.strip().partition("=")
+        if what not in INJECTIONS:
+            raise ValueError(f"{ENV_INJECT} must look like 'cpu=error,cpu-narrow=trap' (failures: "
+                             f"{', '.join(INJECTIONS)}), received {text!r}")
+        if name == layout:
+            out[INJECTIONS[what]] = 1
+    return out
+
+
+def device_identity(device) -> dict[str, str]:
+    """What a verdict depends on besides the kernel: platform, device and driver."""
+    platform = device.platform
+    return {
+        "platform": platform.name.strip(), "platform_version": platform.version.strip(),
+        "device": device.name.strip(), "vendor": device.vendor.strip(),
+        "driver": device.driver_version.strip(), "device_version": device.version.strip(),
+    }
+
+
+def verdict_key(device, defines: dict, source: str, options: list[str]) -> str:
+    """Cache key: device identity, kernel source, defines and build options (sha256 hex)."""
+    blob = json.dumps({
+        "probe": PROBE_VERSION, "device": device_identity(device), "source": hashlib.sha256(source.encode()).hexdigest(),
+        "defines": {k: str(v) for k, v in sorted(defines.items())}, "options": list(options),
+    }, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _timeout() -> float:
+    text = os.environ.get(ENV_TIMEOUT)
+    if not text:
+        return PROBE_TIMEOUT_S
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{ENV_TIMEOUT} must be a number of seconds, received {text!r}") from None
+
+
+def _read(path: Path) -> Verdict | None:
+    try:
+        data = json.loads(path.read_text())
+        return Verdict(**{**data, "cached": True})
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def _write(path: Path, verdict: Verdict) -> None:
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({**asdict(verdict), "cached": False}, indent=1))
+    os.replace(tmp, path)
+
+
+def check(device, selector: str, defines: dict, source: str, options: list[str], layout: str = "custom",
+          timing: bool = False) -> Verdict:
+    """The verdict of one kernel build on one device: from memory, the disk cache, or a child probe.
+
+    Parameters
+    ----------
+    device : pyopencl.Device
+    selector : str
+        ``"P:D"`` of the device (the child opens the same one).
+    defines : dict
+        Compile defines (as :func:`meshsom.bmu_opencl.get_kernel` takes them; ``KERNEL`` names the variant).
+    source : str
+        Kernel source text (part of the key).
+    options : list of str
+        Build options (part of the key).
+    layout : str
+        Layout name for messages.
+    timing : bool
+        Also time a short run (GFLOP/s); always probes anew.
+
+    Returns
+    -------
+    Verdict
+    """
+    key = verdict_key(device, defines, source, options)
+    if not timing and key in _MEMO:
+        return _MEMO[key]
+    folder = cache_dir()
+    path = folder / f"{key}.json"
+    if not timing:
+        cached = _read(path)
+        if cached is not None:
+            _MEMO[key] = cached
+            return cached
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / f"{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another process probing the same key: wait for its verdict
+        cached = None if timing else _read(path)
+        if cached is None:
+            name = f"{device.platform.name.strip()} / {device.name.strip()}"
+            sizes = ", ".join(f"{k}={defines[k]}" for k in ("D", "NV", "REAL") if k in defines)
+            log.info("checking BMUofN kernel layout %r on %s (%s) in a child process", layout, name, sizes)
+            verdict = _probe_child(selector, defines, layout, name, key, timing)
+            log.info("layout %r on %s: %s in %.1f s", layout, name, "ok" if verdict.ok else "FAILED", verdict.seconds)
+            _write(path, verdict)
+        else:
+            verdict = cached
+    _MEMO[key] = verdict
+    return verdict
+
+
+def first_error_line(text: str) -> str:
+    """The first line of compiler output that reads as an error, without temporary file paths."""
+    lines = [re.sub(r"\S+\.cl:\d+:\d+: ", "", ln.strip()) for ln in text.splitlines() if ln.strip()]
+    for ln in lines:
+        low = ln.lower()
+        if "llvm error" in low or "error:" in low or low.startswith("error") or "fatal" in low:
+            return ln[:300]
+    return lines[-1][:300] if lines else "no output"
+
+
+def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str, timing: bool) -> Verdict:
+    spec = json.dumps({"selector": selector, "defines": defines, "timing": timing})
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "meshsom.probe", spec], capture_output=True, text=True,
+                              timeout=_timeout())
+    except subprocess.TimeoutExpired:
+        return Verdict(False, layout, name, f"no answer within {_timeout():.0f} s (build or first run hung)",
+                       time.perf_counter() - t0, key)
+    seconds = time.perf_counter() - t0
+    if proc.returncode == 0:
+        try:
+            out = json.loads(proc.stdout.strip().splitlines()[-1])
+        except (ValueError, IndexError):
+            return Verdict(False, layout, name, f"probe printed no verdict: {first_error_line(proc.stderr)}", seconds, key)
+        return Verdict(bool(out["ok"]), layout, name, out.get("reason", ""), seconds, key, out.get("gflops"))
+    if proc.returncode < 0:
+        try:
+            sig = signal.Signals(-proc.returncode).name
+        except ValueError:
+            sig = f"signal {-proc.returncode}"
+        what = f"the build or first run killed its process ({sig})"
+    else:
+        what = f"the probe exited with status {proc.returncode}"
+    return Verdict(False, layout, name, f"{what}: {first_error_line(proc.stderr + proc.stdout)}", seconds, key)
+
+
+# ----------------------------------------------------------------------------- the child
+
+
+def known_answer(defines: dict) -> tuple[np.ndarray, ...]:
+    """The probe's data for a build: rows, codebook and a random variation table.
+
+    Returns
+    -------
+    X : (PROBE_ROWS, D) float32 or float64
+    W : (M, D), M two tiles plus :data:`PROBE_EXTRA_UNITS`
+    index : (n, D) int64, row 0 the identity
+    sign : (n, D) of ±1
+    """
+    D, n = int(defines["D"]), int(defines["NV"])
+    dtype = np.float64 if defines["REAL"] == "double" else np.float32
+    rng = np.random.default_rng(PROBE_SEED)
+    tile = int(defines.get("TN", int(defines.get("VW", 4)) * int(defines.get("UB", 1))))
+    M = 2 * tile + PROBE_EXTRA_UNITS
+    W = rng.normal(size=(M, D)).astype(dtype)
+    X = rng.normal(size=(PROBE_ROWS, D)).astype(dtype)
+    index = np.stack([np.arange(D)] + [rng.permutation(D) for _ in range(n - 1)]).astype(np.int64)
+    sign = np.where(rng.random((n, D)) < 0.5, -1.0, 1.0).astype(dtype)
+    sign[0] = 1
+    return X, W, index, sign
+
+
+def compare(X, W, index, sign, unit, variation) -> str:
+    """Empty when every row's (unit, variation) is a nearest one within :data:`PROBE_RTOL`; else why not."""
+    M, n = len(W), len(index)
+    if unit.min() < 0 or unit.max() >= M or variation.min() < 0 or variation.max() >= n:
+        return f"wrong answer: unit or variation out of range (units {unit.min()}..{unit.max()} of {M})"
+    Xd, Wd = X.astype(np.float64), W.astype(np.float64)
+    xv = sign[:, None, :].astype(np.float64) * Xd[:, index].transpose(1, 0, 2)  # (n, N, D)
+    d = ((xv[:, :, None, :] - Wd[None, None]) ** 2).sum(-1)  # (n, N, M)
+    best = d.min(axis=(0, 2))
+    got = d[variation, np.arange(len(X)), unit]
+    bad = np.flatnonzero(got > best + PROBE_RTOL * (1 + best))
+    if len(bad):
+        r = int(bad[0])
+        return (f"wrong answer on {len(bad)} of {len(X)} rows (row {r}: distance {got[r]:.6g}, "
+                f"the nearest is {best[r]:.6g})")
+    return ""
+
+
+def _child(spec: dict) -> dict:
+    from meshsom import bmu_opencl
+
+    cl = bmu_opencl._cl()
+    defines = spec["defines"]
+    context = cl.Context([bmu_opencl.select_device(spec["selector"])])
+    queue = cl.CommandQueue(context)
+    X, W, index, sign = known_answer(defines)
+    try:
+        kernel = bmu_opencl.get_kernel(context, defines, guard=False)
+        unit, variation = bmu_opencl.launch(context, queue, kernel, X, W, index, sign, defines)[:2]
+    except bmu_opencl.KernelLayoutError as err:
+        return {"ok": False, "reason": first_error_line(err.reason)}
+    except bmu_opencl.DeviceError as err:
+        return {"ok": False, "reason": first_error_line(str(err))}
+    reason = compare(X, W, index, sign, unit, variation)
+    out = {"ok": not reason, "reason": reason}
+    if spec.get("timing") and not reason:
+        N, M, n, D = TIMING_WORKLOAD
+        rng = np.random.default_rng(PROBE_SEED)
+        dtype = X.dtype
+        if int(defines["D"]) == D and int(defines["NV"]) == n:
+            Xt = rng.normal(size=(N, D)).astype(dtype)
+            Wt = rng.normal(size=(M, D)).astype(dtype)
+            it = np.concatenate([index, index])[:n] if len(index) >= n else index
+            st = np.concatenate([sign, sign])[:n] if len(sign) >= n else sign
+            bmu_opencl.launch(context, queue, kernel, Xt, Wt, it, st, defines)  # warm-up
+            times = []
+            for _ in range(3):
+                t0 = time.perf_counter()
+                bmu_opencl.launch(context, queue, kernel, Xt, Wt, it, st, defines)
+                times.append(time.perf_counter() - t0)
+            out["gflops"] = 2.0 * N * n * M * D / min(times) / 1e9
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    print(json.dumps(_child(json.loads(argv[0]))), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
