@@ -241,7 +241,7 @@ def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str,
         proc = subprocess.run([sys.executable, "-m", "meshsom.probe", spec], capture_output=True, text=True,
                               timeout=_timeout())
     except subprocess.TimeoutExpired:
-        return Verdict(False, layout, name, f"no answer within {_timeout():.0f} s (build or first run hung)",
+        return Verdict(False, layout, name, f"no answer within {_timeout():g} s (build or first run hung)",
                        time.perf_counter() - t0, key)
     seconds = time.perf_counter() - t0
     if proc.returncode == 0:

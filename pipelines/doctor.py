@@ -21,14 +21,47 @@ ENV_VARS = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.add_argument("--no-kernels", action="store_true",
+                   help="skip building and timing the BMUofN kernel layouts (a few seconds per layout and device)")
 
 
 #: How doctor names the BMUofN kernel layouts of meshsom.bmu_opencl.KERNELS.
 KERNELS_DOC = {"cpu": "kernels/bmu_cpu.cl (CPU layout)", "tiled": "kernels/bmu.cl (GPU layout)"}
 
 
-def opencl_devices() -> list[dict]:
-    """Every OpenCL platform and device found (empty when there is none or no ICD loader)."""
+def kernel_verdicts(device) -> list[dict]:
+    """Build, check and time every BMUofN kernel layout on one device, each in a child process.
+
+    Returns
+    -------
+    list of dict
+        Per layout: ``layout``, ``ok``, ``reason``, ``gflops`` (a short run of the workload
+        :data:`meshsom.probe.TIMING_WORKLOAD`), ``seconds`` (probe wall time), ``chain`` (the
+        position in the device's fallback chain, None when not in it).
+    """
+    import numpy as np
+
+    from meshsom.bmu_opencl import (BUILD_OPTIONS, DEFAULT_PARAMS, _defines, device_selector, kernel_source,
+                                    layout_chain, layout_params)
+    from meshsom.probe import TIMING_WORKLOAD, check
+
+    _, _, n, D = TIMING_WORKLOAD
+    chain = layout_chain(device)
+    out = []
+    for name in DEFAULT_PARAMS:
+        defines = _defines(D, n, np.dtype(np.float32), layout_params(device, name))
+        v = check(device, device_selector(device), defines, kernel_source(defines["KERNEL"]), BUILD_OPTIONS,
+                  layout=name, timing=True)
+        out.append({"layout": name, "ok": v.ok, "reason": v.reason, "gflops": v.gflops, "seconds": round(v.seconds, 2),
+                    "chain": chain.index(name) if name in chain else None})
+    return out
+
+
+def opencl_devices(kernels: bool = False) -> list[dict]:
+    """Every OpenCL platform and device found (empty when there is none or no ICD loader).
+
+    With ``kernels``, each device's entry also holds its layouts' verdicts (:func:`kernel_verdicts`).
+    """
     try:
         import pyopencl as cl
 
@@ -62,7 +95,13 @@ def opencl_devices() -> list[dict]:
                 "local_mem_kb": dev.local_mem_size // 2**10,
                 "max_work_group_size": dev.max_work_group_size,
                 "bmu_kernel": kernel,
+                "driver": dev.driver_version.strip(),
             })
+            if kernels:
+                try:
+                    out[-1]["layouts"] = kernel_verdicts(dev)
+                except Exception as err:  # doctor reports, never fails
+                    out[-1]["layouts_error"] = f"{type(err).__name__}: {err}"
     return out
 
 
@@ -73,7 +112,7 @@ def _device_type(t: int) -> str:
     return "|".join(names) or str(t)
 
 
-def report() -> dict:
+def report(kernels: bool = True) -> dict:
     versions = {}
     for name in PACKAGES:
         try:
@@ -93,7 +132,7 @@ def report() -> dict:
         "platform": platform.platform(),
         "cpus": os.cpu_count(),
         "packages": versions,
-        "opencl": opencl_devices(),
+        "opencl": opencl_devices(kernels),
         "dask": {
             "scheduler": dask.config.get("scheduler", None) or "distributed (LocalCluster unless an address is given)",
             "scheduler_address": dask.config.get("scheduler-address", None) or os.environ.get("DASK_SCHEDULER_ADDRESS"),
@@ -106,7 +145,7 @@ def report() -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    info = report()
+    info = report(kernels=not args.no_kernels)
     if args.json:
         import json
 
@@ -128,7 +167,16 @@ def run(args: argparse.Namespace) -> int:
                 f"  [{d['id']}] {d['platform']} ({d['platform_version']}): {d['device']} "
                 f"{d['type']}, {d['compute_units']} CU, {d['global_mem_mb']} MB, local {d['local_mem_kb']} KB"
             )
-            print(f"        BMUofN kernel: {d['bmu_kernel']}")
+            print(f"        driver {d['driver']}; BMUofN kernel: {d['bmu_kernel']}")
+            for v in d.get("layouts", []):
+                where = "not in this device's chain" if v["chain"] is None else f"chain position {v['chain'] + 1}"
+                if v["ok"]:
+                    rate = f"{v['gflops']:.1f} GFLOP/s" if v["gflops"] else "untimed"
+                    print(f"        layout {v['layout']:10s} ok      {rate:>16s}  ({where}; checked in {v['seconds']} s)")
+                else:
+                    print(f"        layout {v['layout']:10s} FAILED  ({where}): {v['reason']}")
+            if "layouts_error" in d:
+                print(f"        layouts not checked: {d['layouts_error']}")
     print("Dask")
     for k, v in info["dask"].items():
         print(f"  {k:24s} {v}")

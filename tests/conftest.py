@@ -41,3 +41,17 @@ def box(sx=1.0, sy=1.0, sz=1.0) -> tuple[np.ndarray, np.ndarray]:
 @pytest.fixture
 def cube():
     return box()
+
+
+@pytest.fixture
+def fresh_verdicts(tmp_path, monkeypatch):
+    """A verdict cache of the test's own (kernel probes run anew), no injected failures.
+
+    Yields the verdict folder (:func:`meshsom.probe.cache_dir`).
+    """
+    from meshsom import probe
+
+    monkeypatch.setenv(probe.ENV_CACHE, str(tmp_path / "cache"))
+    monkeypatch.delenv(probe.ENV_INJECT, raising=False)
+    monkeypatch.setattr(probe, "_MEMO", {})
+    yield probe.cache_dir()

@@ -1,0 +1,115 @@
+"""`meshsom run` when OpenCL misbehaves: the fallback chain on a real LocalCluster, recorded in MLflow
+and in the store; failed and interrupted runs end their MLflow runs as FAILED and KILLED.
+
+Failures are injected with the probe's test hook ``MESHSOM_KERNEL_INJECT`` (inherited by the Dask
+worker processes); each test has its own verdict cache.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshsom.config import load_config
+from meshsom.errors import DeviceError
+from meshsom.store import open_store
+from pipelines.run import run_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.usefixtures("fresh_verdicts")
+
+
+@pytest.fixture
+def chain():
+    """The first OpenCL device's layout chain (skips without a device)."""
+    try:
+        from meshsom.bmu_opencl import get_context, layout_chain
+
+        return layout_chain(get_context(None).devices[0])
+    except (DeviceError, ImportError) as err:
+        pytest.skip(f"no OpenCL device: {err}")
+
+
+def small(tmp_path, name, **over):
+    """configs/quick.yaml with one BMUofN map and no domain maps, tracked in a local SQLite store."""
+    over = {
+        "dask": {"workers": 2, "dashboard": False}, "store": {"path": str(tmp_path / f"{name}.zarr")},
+        "train": [{"level": 1, "kernel": "bmuofn"}], "domain": {"enabled": False},
+        "tracking": {"uri": f"sqlite:///{tmp_path / 'mlflow.db'}", "experiment": name},
+    } | over
+    return load_config(ROOT / "configs" / "quick.yaml", over)
+
+
+def runs_of(cfg):
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(cfg.tracking.uri)
+    exp = client.get_experiment_by_name(cfg.tracking.experiment)
+    return client.search_runs([exp.experiment_id])
+
+
+def test_run_completes_on_the_next_layout_with_that_layouts_results(tmp_path, monkeypatch, chain, capsys):
+    if len(chain) < 3:
+        pytest.skip(f"this device's chain {chain} has fewer than three layouts")
+    from meshsom.probe import ENV_INJECT
+
+    alone = small(tmp_path, "alone", opencl={"backend": "opencl", "layout": chain[2]})
+    assert run_experiment(alone) == 0
+    monkeypatch.setenv(ENV_INJECT, f"{chain[0]}=error,{chain[1]}=trap")
+    fell = small(tmp_path, "fell", opencl={"backend": "opencl"})
+    assert run_experiment(fell) == 0
+    out = capsys.readouterr().out
+    assert f"(opencl {chain[2]}," in out and f"kernel fallback: {chain[0]} -> {chain[1]}" in out
+
+    a, b = open_store(alone.store.path)["runs"]["level1-bmuofn"], open_store(fell.store.path)["runs"]["level1-bmuofn"]
+    np.testing.assert_array_equal(a["weights"][:], b["weights"][:])
+    np.testing.assert_array_equal(a["bmu_unit"][:], b["bmu_unit"][:])
+    assert a.attrs["metrics"] == b.attrs["metrics"]
+    engine = b.attrs["engine"]
+    assert engine["backend"] == "opencl" and engine["layout"] == chain[2]
+    assert f"{chain[0]} -> {chain[1]}" in engine["fallback"] and "injected build failure" in engine["fallback"]
+    assert f"{chain[1]} -> {chain[2]}" in engine["fallback"] and "killed its process" in engine["fallback"]
+    assert a.attrs["engine"]["fallback"] == ""
+
+    runs = {r.info.run_name: r for r in runs_of(fell)}
+    child, parent = runs["level1-bmuofn"], runs[fell.name]
+    assert child.info.status == "FINISHED" and parent.info.status == "FINISHED"
+    assert child.data.tags["kernel_layout"] == chain[2] and child.data.tags["backend"] == "opencl"
+    assert child.data.tags["kernel_fallback"] == engine["fallback"]
+    assert parent.data.tags["kernel_layouts"] == chain[2] and chain[0] in parent.data.tags["kernel_fallback"]
+    assert runs_of(alone)[0].data.tags["kernel_fallback"] == "none"
+
+
+def test_failing_run_leaves_failed_mlflow_runs(tmp_path, monkeypatch, chain):
+    from meshsom.probe import ENV_INJECT
+
+    monkeypatch.setenv(ENV_INJECT, ",".join(f"{name}=error" for name in chain))
+    cfg = small(tmp_path, "failing", opencl={"backend": "opencl"})
+    with pytest.raises(DeviceError, match="no BMUofN kernel layout works on .*--backend numpy"):
+        run_experiment(cfg)
+    runs = runs_of(cfg)
+    assert {r.info.run_name for r in runs} == {cfg.name, "level1-bmuofn"}
+    assert {r.info.status for r in runs} == {"FAILED"}
+
+
+def test_interrupted_run_leaves_killed_mlflow_runs(tmp_path, monkeypatch):
+    import pipelines.train as train
+
+    real = train.train_spec
+
+    def interrupted(client, job, resume=False, on_epoch=None, **kw):
+        def stop(epoch, metrics):
+            if epoch == 2:
+                raise KeyboardInterrupt
+        return real(client, job, resume, on_epoch=stop, **kw)
+
+    monkeypatch.setattr(train, "train_spec", interrupted)
+    cfg = small(tmp_path, "interrupted", opencl={"backend": "numpy"})
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(cfg)
+    runs = runs_of(cfg)
+    assert {r.info.run_name for r in runs} == {cfg.name, "level1-bmuofn"}
+    assert {r.info.status for r in runs} == {"KILLED"}
+    assert {r.data.tags.get("kernel_layout") for r in runs} == {None}
