@@ -28,6 +28,8 @@ from meshsom.config import BACKENDS, LAYOUTS
 
 #: Epoch progress lines per map when stdout is not a terminal (no progress bar there).
 EPOCH_LINES = 5
+#: Seconds between progress lines of a corpus stage when stdout is not a terminal (and one at its end).
+PROGRESS_INTERVAL_S = 10.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -122,7 +124,14 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
                 bar = bars.get(stage)
                 if bar is None:
                     bar = bars[stage] = tqdm(total=total, desc=f"      {stage}", unit="task", leave=False, disable=None)
+                    bar.last = time.perf_counter()  # of the last progress line (no terminal)
                 bar.update(done - bar.n)
+                if bar.disable and (done == total or time.perf_counter() - bar.last >= PROGRESS_INTERVAL_S):
+                    bar.last = time.perf_counter()
+                    elapsed = time.perf_counter() - t0
+                    left = elapsed / max(done, 1) * (total - done)
+                    print(f"      {stage}: {done}/{total} tasks, {elapsed:.1f} s elapsed, about {left:.0f} s left",
+                          flush=True)
 
             t0 = time.perf_counter()
             summary = run_corpus(client, cfg, str(store), resume=resume, progress=progress)
