@@ -21,6 +21,7 @@ import hashlib
 import json
 import shutil
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -75,12 +76,15 @@ def run(args: argparse.Namespace) -> int:
     from meshsom.config import load_config
 
     cfg = load_config(args.config, _overrides(args) or None)
+    main = threading.current_thread() is threading.main_thread()  # handlers can only be set there
     previous = signal.getsignal(signal.SIGTERM)
-    signal.signal(signal.SIGTERM, _terminated)  # a killed run ends its MLflow runs as KILLED
+    if main:
+        signal.signal(signal.SIGTERM, _terminated)  # a killed run ends its MLflow runs as KILLED
     try:
         return run_experiment(cfg, Path(args.config), overwrite=args.overwrite, resume=args.resume)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if main:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _terminated(signum, frame):
