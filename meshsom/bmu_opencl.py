@@ -353,6 +353,11 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     }
 
 
+def has_fp64(context) -> bool:
+    """Whether a context's first device computes in float64 (cl_khr_fp64)."""
+    return "cl_khr_fp64" in context.devices[0].extensions
+
+
 def get_kernel(context, defines: dict, function: str | None = None):
     """A kernel of the program ``defines["KERNEL"]`` names, built for ``defines`` once per context.
 
@@ -364,8 +369,9 @@ def get_kernel(context, defines: dict, function: str | None = None):
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + ["-cl-mad-enable"]
-        if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only
+        if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
             options.append(f"-DUNROLL_EPILOGUE={int(not context.devices[0].type & cl.device_type.CPU)}")
+            options.append(f"-DEXACT={'double' if has_fp64(context) else defines['REAL']}")
         try:
             cache[key] = (cl.Program(context, kernel_source(defines["KERNEL"])).build(options=options), {})
         except cl.RuntimeError as err:
@@ -393,7 +399,7 @@ def _run_gemm(cl, context, queue, defines, params, kernel, bufs, outs, N, n, MP)
     reduce = get_kernel(context, defines, GEMM_REDUCE)
     group = min(REDUCE_GROUP, context.devices[0].max_work_group_size)
     reduce(queue, (-(-N // group) * group,), (group,),
-           bufs[0], np.int32(N), np.int32(MP), bufs[3], bufs[4], np.int32(splits), *parts, *outs)
+           bufs[0], np.int32(N), bufs[1], np.int32(MP), bufs[3], bufs[4], np.int32(splits), *parts, *outs)
 
 
 def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = None,
@@ -417,7 +423,9 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     Returns
     -------
     BMUResult
-        ``dist2`` recomputed directly in float64 for the winners, as the NumPy backend does.
+        ``dist2`` recomputed directly in float64 for the winners, as the NumPy backend does
+        (the "gemm" layout does it on the device where the device has float64: on the host it
+        costs more than the whole search at a million rows).
 
     Raises
     ------
@@ -466,9 +474,11 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
         cl.Buffer(context, ro, hostbuf=index.astype(np.int32)),
         cl.Buffer(context, ro, hostbuf=sign),
     ]
+    # the gemm layout recomputes dist2 of the winners on the device, in float64 where it can
+    device_dist2 = defines["KERNEL"] == "gemm" and has_fp64(context)
     unit = np.empty(N, np.int32)
     variation = np.empty(N, np.int32)
-    dist2 = np.empty(N, X.dtype)
+    dist2 = np.empty(N, np.float64 if device_dist2 else X.dtype)
     second = np.empty(N, np.int32)
     outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
     kernel = get_kernel(context, defines)
@@ -482,4 +492,6 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     queue.finish()
     unit = unit.astype(np.int64)
     variation = variation.astype(np.int64)
-    return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second.astype(np.int64))
+    if not device_dist2:
+        dist2 = exact_dist2(X, W, index, sign, unit, variation)
+    return BMUResult(unit, variation, dist2, second.astype(np.int64))

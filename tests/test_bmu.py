@@ -363,7 +363,8 @@ def test_gemm_unit_splits_and_partial_tiles(ctx, N, n, splits):
     """Row counts from one row to several partial row tiles (TM = 16 virtual rows), M = 301
     units in 13 tiles of 24 (the last partial), 1 to 5 unit ranges and the automatic choice
     (one range per unit tile at N = 1); compared with the float64 brute force."""
-    from meshsom.bmu_opencl import _defines, bmu_opencl, unit_splits
+    from meshsom.bmu_numpy import exact_dist2
+    from meshsom.bmu_opencl import _defines, bmu_opencl, has_fp64, unit_splits
 
     rng = np.random.default_rng(N * 10 + n + splits)
     D, M = 11, 301
@@ -376,6 +377,9 @@ def test_gemm_unit_splits_and_partial_tiles(ctx, N, n, splits):
     assert S == (splits or S) and (S - 1) * per < 13 <= S * per
     got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
     check_against_brute_force(got, X, W, index, sign, min_separated=0.8, rtol=1e-4, atol=1e-4)
+    # dist2 of the winners, recomputed on the device in float64 (where it has it) as on the host
+    exact = exact_dist2(X, W, index, sign, got.unit, got.variation)
+    np.testing.assert_allclose(got.dist2, exact, rtol=1e-12 if has_fp64(ctx) else 1e-5)
 
 
 def test_gemm_ties_across_unit_splits(ctx):

@@ -28,6 +28,8 @@
  *   TM, TN       virtual rows and units per work-group tile
  *   WGM, WGN     work-items along rows (local id 1) and along units (local id 0)
  *   KT           dimensions per local-memory chunk;  DP: D rounded up to a multiple of KT
+ *   EXACT        type of the winners' direct squared distance: double where the device has
+ *                it, else REAL
  *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second (GPUs: keeps them
  *                in registers); 0 on CPU devices, where PoCL compiles the unrolled
  *                branches about 3x slower for no gain (meshsom.bmu_opencl.get_kernel)
@@ -218,9 +220,12 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
 }
 
 /* One work-item per row: fold the S splits of each variation (INSERT), add ||x_v||^2
- * (sequential fma over k, as kernels/bmu.cl) and keep the best variation. */
+ * (sequential fma over k, as kernels/bmu.cl) and keep the best variation; then the squared
+ * distance of the winner computed directly, sum_k (x_v[k] - w[k])^2, in EXACT (double where
+ * the device has it, as meshsom.bmu_numpy.exact_dist2 does on the host). */
 __kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
                                    const int N,
+                                   __global const REAL *WT,       /* (DP, MP) */
                                    const int MP,
                                    __global const int *index,     /* (NV, D) */
                                    __global const REAL *sign,     /* (NV, D) */
@@ -231,7 +236,7 @@ __kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
                                    __global const int *part_second_unit,
                                    __global int *out_unit,        /* (N,) */
                                    __global int *out_var,         /* (N,) */
-                                   __global REAL *out_dist2,      /* (N,) */
+                                   __global EXACT *out_dist2,     /* (N,) */
                                    __global int *out_second)      /* (N,) */
 {
     const int row = get_global_id(0);
@@ -260,8 +265,14 @@ __kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
             best_s = SU;
         }
     }
+    EXACT dist2 = 0;
+    for (int k = 0; k < D; ++k) {
+        const EXACT diff = (EXACT)(sign[best_v * D + k] * X[(size_t)row * D + index[best_v * D + k]])
+                           - (EXACT)WT[(size_t)k * MP + best_u];
+        dist2 = fma(diff, diff, dist2);
+    }
     out_unit[row] = best_u;
     out_var[row] = best_v;
-    out_dist2[row] = best_total;
+    out_dist2[row] = dist2;
     out_second[row] = best_s;
 }
