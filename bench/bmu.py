@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--device", default=None, help="OpenCL device selector")
     parser.add_argument("--no-opencl", action="store_true")
-    parser.add_argument("--kernel", action="append", choices=["cpu", "tiled"], default=None,
+    parser.add_argument("--kernel", action="append", choices=["cpu", "gemm", "tiled"], default=None,
                         help="OpenCL kernel variant(s) to time (repeatable); default: the device type's default")
     args = parser.parse_args(argv)
 
@@ -51,7 +51,7 @@ def main(argv=None) -> int:
                 backends.append(("opencl", (ctx, params)))
                 print(f"OpenCL kernel: {params}")
             for kernel in args.kernel or ():
-                params = DEFAULT_PARAMS["cpu" if kernel == "cpu" else "gpu"]
+                params = DEFAULT_PARAMS[{"cpu": "cpu", "gemm": "gpu", "tiled": "tiled"}[kernel]]
                 backends.append((f"cl-{kernel}", (ctx, params)))
                 print(f"OpenCL kernel {kernel}: {params}")
         except Exception as err:  # noqa: BLE001 - a benchmark reports and goes on

@@ -4,9 +4,11 @@ The kernel never materialises the N x M distance matrix: each work-item keeps th
 and second-best unit of its rows per SIMD lane while it sweeps the codebook, and applies
 the variations (gather + sign) on the fly. It comes in two layouts of the same arithmetic
 (:data:`KERNELS`): ``kernels/bmu_cpu.cl`` for CPU devices (cache- and register-blocked,
-the varied vectors of a panel of rows gathered once into private memory) and
-``kernels/bmu.cl`` for GPUs (codebook tiles in local memory); the device type picks one
-(:data:`DEFAULT_PARAMS`), ``params`` overrides it. Sizes are compiled in as ``-D`` defines; the
+the varied vectors of a panel of rows gathered once into private memory),
+``kernels/bmu_gpu.cl`` for GPUs (a register-tiled GEMM micro-kernel over virtual rows
+``row * n + v`` with a fused best/second epilogue, then a reduction kernel over unit splits
+and variations) and ``kernels/bmu.cl`` (the earlier GPU layout: codebook tiles in local
+memory); the device type picks one (:data:`DEFAULT_PARAMS`), ``params`` overrides it. Sizes are compiled in as ``-D`` defines; the
 built program is memoised per (context, defines). The context is injected by the caller
 or made from a device selector: the ``device`` argument, else ``PYOPENCL_CTX``, else the
 first device of the first platform. ``create_some_context`` is never called, so nothing
@@ -38,20 +40,23 @@ ENV_SELECTOR = "PYOPENCL_CTX"
 class KernelParams:
     """Which kernel and its tiling.
 
-    Two variants of the one BMUofN kernel exist, with the same arithmetic and answers:
+    Three variants of the one BMUofN kernel exist, with the same arithmetic and answers:
     ``"cpu"`` (``kernels/bmu_cpu.cl``: a work-item owns a panel of rows and sweeps the codebook
-    in L2-sized blocks with a register-blocked outer product, no barriers) and ``"tiled"``
-    (``kernels/bmu.cl``: a work-group stages codebook tiles in local memory, few registers
-    per work-item, for GPUs).
+    in L2-sized blocks with a register-blocked outer product, no barriers), ``"gemm"``
+    (``kernels/bmu_gpu.cl``: an SGEMM-style register-tiled work-group tile of varied vectors
+    x units, operands staged through local memory along D, double-buffered; for GPUs) and
+    ``"tiled"`` (``kernels/bmu.cl``: a work-group stages codebook tiles in local memory, few
+    registers per work-item; the earlier GPU layout).
 
     Attributes
     ----------
-    kernel : {"cpu", "tiled"}
+    kernel : {"cpu", "gemm", "tiled"}
     name : str
         Layout name for messages, MLflow and the probe's test hook (a key of :data:`DEFAULT_PARAMS`,
         or "custom").
     vector_width : int
-        SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16 (halved for float64).
+        SIMD lanes per accumulator vector (VW): 2, 4, 8 or 16 (halved for float64). "gemm": the
+        width of the local-memory operand loads; rows and units per work-item are multiples of it.
     unit_blocks : int
         Vectors of units per step (UB); a codebook tile holds ``vector_width * unit_blocks`` units.
     max_rows : int
@@ -69,6 +74,26 @@ class KernelParams:
         "cpu": most bytes of staged varied vectors per work-item (caps the panel at large D).
     cache_tiles : int
         "cpu": codebook tiles per cache block (UBLK).
+    tile_rows : int
+        "gemm": varied vectors (virtual rows) per work-group tile (TM).
+    tile_units : int
+        "gemm": units per work-group tile (TN).
+    group_rows : int
+        "gemm": work-items of a group along the rows (WGM); each holds TM / WGM rows.
+    group_units : int
+        "gemm": work-items of a group along the units (WGN); each holds TN / WGN units, so a
+        work-item keeps (TM / WGM) x (TN / WGN) accumulators in registers.
+    max_kt : int
+        "gemm": most dimensions per local-memory chunk (halved for float64; KT: the largest
+        divisor of D not above this when it is at least half of it, else this, with D
+        zero-padded to a multiple).
+    unit_splits : int
+        "gemm": ranges the units are split into (S; one work-group per row tile and range,
+        partial best/second per range, folded by the reduction kernel). 0: chosen from the
+        device's compute units (:func:`unit_splits`).
+    groups_per_cu : int
+        "gemm", ``unit_splits=0``: the splits make at least this many work-groups per compute
+        unit when the row tiles alone are fewer.
     """
 
     kernel: str = "tiled"
@@ -82,25 +107,48 @@ class KernelParams:
     panel: int = 192
     panel_bytes: int = 262_144
     cache_tiles: int = 16
+    tile_rows: int = 128
+    tile_units: int = 128
+    group_rows: int = 16
+    group_units: int = 16
+    max_kt: int = 16
+    unit_splits: int = 0
+    groups_per_cu: int = 2
 
     def __post_init__(self):
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, received {self.kernel!r}")
         if self.vector_width not in (2, 4, 8, 16):
             raise ValueError(f"vector_width must be 2, 4, 8 or 16, received {self.vector_width}")
-        for name in ("unit_blocks", "max_rows", "work_group", "max_dt", "panel", "panel_bytes", "cache_tiles"):
+        for name in ("unit_blocks", "max_rows", "work_group", "max_dt", "panel", "panel_bytes", "cache_tiles",
+                     "tile_rows", "tile_units", "group_rows", "group_units", "max_kt", "groups_per_cu"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
+        if self.unit_splits < 0:
+            raise ValueError(f"unit_splits must be >= 0 (0: automatic), received {self.unit_splits}")
+        for tile, group in (("tile_rows", "group_rows"), ("tile_units", "group_units")):
+            size, items = getattr(self, tile), getattr(self, group)
+            if self.kernel == "gemm" and (size % items or (size // items) % self.vector_width):
+                raise ValueError(f"{tile} / {group} must be a whole multiple of vector_width {self.vector_width}, "
+                                 f"received {tile}={size}, {group}={items}")
 
 
 #: Kernel variant -> (source file under ``kernels/``, kernel function).
-KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "tiled": ("bmu.cl", "bmu_of_n")}
+KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "gemm": ("bmu_gpu.cl", "bmu_of_n_gemm"),
+           "tiled": ("bmu.cl", "bmu_of_n")}
+#: The second kernel of the "gemm" variant: folds unit splits and variations into the outputs.
+GEMM_REDUCE = "bmu_of_n_gemm_reduce"
+#: Work-group size of the "gemm" reduction kernel (one work-item per row).
+REDUCE_GROUP = 64
 
 #: The layouts: kernel and tiling. "cpu": the cache-blocked kernel with 2 x 16 units against 8
 #: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
 #: tiles (512 units) per L2 block; measured on a 2-core AVX-512 Xeon (bench/bmu.py).
-#: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the GPU default.
-#: "tiled": the local-memory kernel with small vectors, the last OpenCL layout of every chain.
+#: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the SGEMM-style "gemm"
+#: kernel with the usual SGEMM tiling of NVIDIA GPUs (CLBlast's layout): 128 varied vectors x 128
+#: units per group of 16 x 16 work-items, 8 x 8 accumulators each, D staged 16 at a time (8 in
+#: float64); 34 KB of local memory per group. "tiled": the local-memory kernel with small vectors
+#: (the earlier GPU layout), the last OpenCL layout of every chain.
 DEFAULT_PARAMS = {
     "cpu": KernelParams(kernel="cpu", name="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192,
                         cache_tiles=16),
@@ -108,8 +156,8 @@ DEFAULT_PARAMS = {
     # accumulators, the shape of the usual AVX2 SGEMM micro-kernel (untimed here: no such CPU)
     "cpu-narrow": KernelParams(kernel="cpu", name="cpu-narrow", vector_width=8, unit_blocks=2, max_rows=6, panel=192,
                                cache_tiles=32),
-    "gpu": KernelParams(kernel="tiled", name="gpu", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
-                        work_group=64, max_dt=64),
+    "gpu": KernelParams(kernel="gemm", name="gpu", vector_width=4, tile_rows=128, tile_units=128, group_rows=16,
+                        group_units=16, max_kt=16),
     "tiled": KernelParams(kernel="tiled", name="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
                           work_group=64, max_dt=64),
 }
@@ -207,7 +255,7 @@ def device_name(context) -> str:
     return f"{device.platform.name.strip()} / {device.name.strip()}"
 
 
-def kernel_source(kernel: str = "tiled") -> str:
+def kernel_source(kernel: str = "gemm") -> str:
     """Text of a kernel variant: ``kernels/bmu_common.cl`` then its own ``.cl`` file (see :data:`KERNELS`)."""
     kernels = resources.files("meshsom").joinpath("kernels")
     return kernels.joinpath("bmu_common.cl").read_text() + "\n" + kernels.joinpath(KERNELS[kernel][0]).read_text()
@@ -229,6 +277,10 @@ def layout_chain(device) -> tuple[str, ...]:
     cl = _cl()
     if device.type & cl.device_type.CPU:
         return CHAINS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
+    gemm = DEFAULT_PARAMS["gpu"]
+    if (gemm.group_rows * gemm.group_units > device.max_work_group_size
+            or gemm_local_bytes(gemm, np.float32) > device.local_mem_size):
+        return CHAINS["gpu"][1:]  # the device cannot hold a gemm work-group
     return CHAINS["gpu"]
 
 
@@ -249,6 +301,58 @@ def layout_params(device, name: str) -> KernelParams:
 def device_params(device) -> KernelParams:
     """Kernel and tiling of the first layout of a device's chain (:func:`layout_chain`)."""
     return layout_params(device, layout_chain(device)[0])
+
+
+def _max_kt(params: KernelParams, dtype) -> int:
+    """``max_kt``, halved for float64 (the local tiles keep their bytes)."""
+    return max(1, params.max_kt // 2) if np.dtype(dtype) == np.float64 else params.max_kt
+
+
+def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
+    """Dimensions per local-memory chunk of the "gemm" kernel (KT, see :class:`KernelParams`)."""
+    cap = _max_kt(params, dtype)
+    kt = _largest_divisor(D, cap)
+    return kt if 2 * kt >= min(D, cap) else cap
+
+
+def gemm_local_bytes(params: KernelParams, dtype) -> int:
+    """Local memory of one "gemm" work-group at the largest chunk: two buffers of X and W, the row fold.
+
+    About 33 KB with the GPU default, float32 and float64 alike, under the 48 KB that NVIDIA's
+    OpenCL gives a work-group.
+    """
+    size = np.dtype(dtype).itemsize
+    vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
+    tiles = 2 * _max_kt(params, dtype) * (params.tile_rows + vw + params.tile_units) * size
+    return tiles + params.tile_rows * 2 * (size + 4)
+
+
+def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:
+    """Ranges of unit tiles for the "gemm" kernel: (S, tiles per range).
+
+    Parameters
+    ----------
+    rows : int
+        Virtual rows, N * n.
+    unit_tiles : int
+        Codebook tiles of ``tile_units`` units.
+    params : KernelParams
+        ``unit_splits`` (0: automatic) and ``groups_per_cu``.
+    compute_units : int
+        The device's compute units.
+
+    Returns
+    -------
+    splits : int
+        S, at most ``unit_tiles``; none of the ranges is empty.
+    per_split : int
+        Unit tiles per range (the last range may hold fewer).
+    """
+    row_tiles = -(-rows // params.tile_rows)
+    splits = params.unit_splits or -(-compute_units * params.groups_per_cu // row_tiles)
+    splits = max(1, min(splits, unit_tiles))
+    per_split = -(-unit_tiles // splits)
+    return -(-unit_tiles // per_split), per_split
 
 
 def default_params(context) -> KernelParams:
@@ -285,6 +389,11 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     if params.kernel == "cpu" and step * staged <= params.panel_bytes:
         rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
         return {"KERNEL": "cpu", **common, "P": rows, "RS": rs, "UBLK": params.cache_tiles}
+    if params.kernel == "gemm":
+        kt = gemm_kt(D, params, dtype)
+        return {"KERNEL": "gemm", **common, "TM": params.tile_rows, "TN": params.tile_units,
+                "WGM": params.group_rows, "WGN": params.group_units, "KT": kt, "DP": -(-D // kt) * kt,
+                "US": params.unit_splits, "GPC": params.groups_per_cu}
     return {
         "KERNEL": "tiled", **common,
         "DT": _largest_divisor(D, params.max_dt) if params.use_local else D,
@@ -338,14 +447,21 @@ class KernelLayoutError(DeviceError):
         return (type(self), (self.layout, self.device, self.reason, self.cached))
 
 
-def get_kernel(context, defines: dict, guard: bool = True, layout: str = "custom"):
-    """The kernel ``defines["KERNEL"]`` names, built for ``defines``, memoised per context.
+def has_fp64(context) -> bool:
+    """Whether a context's first device computes in float64 (cl_khr_fp64)."""
+    return "cl_khr_fp64" in context.devices[0].extensions
+
+
+def get_kernel(context, defines: dict, function: str | None = None, guard: bool = True, layout: str = "custom"):
+    """A kernel of the program ``defines["KERNEL"]`` names, built for ``defines`` once per context.
 
     Parameters
     ----------
     context : pyopencl.Context
     defines : dict
         From :func:`_defines`.
+    function : str or None
+        The kernel function; None: the variant's main one (:data:`KERNELS`).
     guard : bool
         Build only what passed its probe (:func:`meshsom.probe.check`, in a child process, cached
         on disk); the probe child itself builds with ``guard=False``.
@@ -360,11 +476,14 @@ def get_kernel(context, defines: dict, guard: bool = True, layout: str = "custom
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
     key = tuple(sorted(defines.items()))
+    source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
-        source, function = KERNELS[defines["KERNEL"]]
         text = kernel_source(defines["KERNEL"])
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
         device = context.devices[0]
+        if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
+            options.append(f"-DUNROLL_EPILOGUE={int(not device.type & cl.device_type.CPU)}")
+            options.append(f"-DEXACT={'double' if has_fp64(context) else defines['REAL']}")
         if guard:
             from meshsom.probe import check
 
@@ -372,14 +491,38 @@ def get_kernel(context, defines: dict, guard: bool = True, layout: str = "custom
             if not verdict.ok:
                 raise KernelLayoutError(layout, device_name(context), verdict.reason, verdict.cached)
         try:
-            program = cl.Program(context, text).build(options=options)
-            cache[key] = cl.Kernel(program, function)
+            cache[key] = (cl.Program(context, text).build(options=options), {})
         except cl.Error as err:
             from meshsom.probe import first_error_line
 
             raise KernelLayoutError(layout, device_name(context),
                                     f"kernels/{source} failed to build: {first_error_line(str(err))}") from None
-    return cache[key]
+    program, kernels = cache[key]
+    function = function or main
+    if function not in kernels:
+        kernels[function] = cl.Kernel(program, function)
+    return kernels[function]
+
+
+def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP):
+    """Enqueue the "gemm" kernel over (unit splits, row tiles) and its reduction kernel.
+
+    ``bufs``: X, WT (DP, MP), wnorm, index, sign; ``outs``: unit, variation, dist2, second.
+    """
+    rows = N * n
+    params = KernelParams(kernel="gemm", tile_rows=defines["TM"], unit_splits=defines["US"],
+                          groups_per_cu=defines["GPC"])
+    splits, per_split = unit_splits(rows, MP // defines["TN"], params, context.devices[0].max_compute_units)
+    itemsize = 8 if defines["REAL"] == "double" else 4
+    parts = [cl.Buffer(context, cl.mem_flags.READ_WRITE, rows * splits * size)
+             for size in (itemsize, 4, itemsize, 4)]
+    row_tiles = -(-rows // defines["TM"])
+    kernel(queue, (splits * defines["WGN"], row_tiles * defines["WGM"]), (defines["WGN"], defines["WGM"]),
+           bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split), *parts)
+    reduce = get_kernel(context, defines, GEMM_REDUCE, guard=False)  # one program: built with the main kernel
+    group = min(REDUCE_GROUP, context.devices[0].max_work_group_size)
+    reduce(queue, (-(-N // group) * group,), (group,),
+           bufs[0], np.int32(N), bufs[1], np.int32(MP), bufs[3], bufs[4], np.int32(splits), *parts, *outs)
 
 
 def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np.ndarray, ...]:
@@ -393,8 +536,9 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     Returns
     -------
     unit, variation : (N,) int32
-    dist2 : (N,) REAL
-        As the kernel computed it (``||x_v||^2 + ||w||^2 - 2 x_v.w``).
+    dist2 : (N,) REAL or float64
+        As the kernel computed it (``||x_v||^2 + ||w||^2 - 2 x_v.w``); the "gemm" layout recomputes
+        the winners' distances directly, in float64 where the device has it.
     second : (N,) int32
 
     Raises
@@ -405,11 +549,15 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     cl = _cl()
     N, D = X.shape
     M = len(W)
-    tile = defines["VW"] * defines["UB"]
+    n = len(index)
+    tile = defines["TN"] if defines["KERNEL"] == "gemm" else defines["VW"] * defines["UB"]
     MP = -(-M // tile) * tile
     wnorm = np.full(MP, np.inf, X.dtype)
     wnorm[:M] = np.einsum("ij,ij->i", W, W)
-    if defines["KERNEL"] == "cpu":
+    if defines["KERNEL"] == "gemm":
+        WT = np.zeros((defines["DP"], MP), X.dtype)
+        WT[:D, :M] = W.T
+    elif defines["KERNEL"] == "cpu":
         # tiled codebook (MP / tile, D, tile): one tile's D x tile block is contiguous
         padded = np.zeros((MP, D), X.dtype)
         padded[:M] = W
@@ -424,7 +572,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
         global_size = -(-items // wg) * wg
     unit = np.empty(N, np.int32)
     variation = np.empty(N, np.int32)
-    dist2 = np.empty(N, X.dtype)
+    dist2 = np.empty(N, np.float64 if defines["KERNEL"] == "gemm" and has_fp64(context) else X.dtype)
     second = np.empty(N, np.int32)
     try:
         mf = cl.mem_flags
@@ -437,8 +585,11 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
             cl.Buffer(context, ro, hostbuf=np.ascontiguousarray(sign, X.dtype)),
         ]
         outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
-        kernel(queue, (global_size,), (wg,),
-               bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
+        if defines["KERNEL"] == "gemm":
+            _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP)
+        else:
+            kernel(queue, (global_size,), (wg,),
+                   bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
         for host, buf in zip((unit, variation, dist2, second), outs):
             cl.enqueue_copy(queue, host, buf)
         queue.finish()
@@ -469,7 +620,9 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     Returns
     -------
     BMUResult
-        ``dist2`` recomputed directly in float64 for the winners, as the NumPy backend does.
+        ``dist2`` recomputed directly in float64 for the winners, as the NumPy backend does
+        (the "gemm" layout does it on the device where the device has float64: on the host it
+        costs more than the whole search at a million rows).
 
     Raises
     ------
@@ -486,10 +639,12 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     defines = _defines(D, len(index), X.dtype, params)
     kernel = get_kernel(context, defines, layout=params.name)
     queue = queue or _queue(context)
-    unit, variation, _, second = launch(context, queue, kernel, X, W, index, sign, defines)
+    unit, variation, dist2, second = launch(context, queue, kernel, X, W, index, sign, defines)
     unit = unit.astype(np.int64)
     variation = variation.astype(np.int64)
-    return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second.astype(np.int64))
+    if dist2.dtype != np.float64:  # the gemm layout computes the winners' dist2 in float64 where it can
+        dist2 = exact_dist2(X, W, index, sign, unit, variation)
+    return BMUResult(unit, variation, dist2, second.astype(np.int64))
 
 
 _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()

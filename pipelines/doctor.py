@@ -26,7 +26,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 #: How doctor names the BMUofN kernel layouts of meshsom.bmu_opencl.KERNELS.
-KERNELS_DOC = {"cpu": "kernels/bmu_cpu.cl (CPU layout)", "tiled": "kernels/bmu.cl (GPU layout)"}
+KERNELS_DOC = {"cpu": "kernels/bmu_cpu.cl (CPU layout)", "gemm": "kernels/bmu_gpu.cl (GPU GEMM layout)",
+               "tiled": "kernels/bmu.cl (earlier GPU layout)"}
 
 
 def kernel_verdicts(device) -> list[dict]:
@@ -80,8 +81,12 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 from meshsom.bmu_opencl import device_params
 
                 params = device_params(dev)
-                kernel = (f"{KERNELS_DOC[params.kernel]}, register block {params.max_rows} varied vectors x "
-                          f"{params.unit_blocks} x {params.vector_width} units")
+                if params.kernel == "gemm":
+                    kernel = (f"{KERNELS_DOC[params.kernel]}, tile {params.tile_rows} varied vectors x "
+                              f"{params.tile_units} units on {params.group_rows} x {params.group_units} work-items")
+                else:
+                    kernel = (f"{KERNELS_DOC[params.kernel]}, register block {params.max_rows} varied vectors x "
+                              f"{params.unit_blocks} x {params.vector_width} units")
             except Exception as err:  # doctor reports, never fails
                 kernel = f"unknown ({err})"
             out.append({

@@ -97,14 +97,19 @@ def test_numpy_float32_matches_float64_reference_where_separated():
     X = rng.normal(size=(200, 36)).astype(np.float32)
     W = rng.normal(size=(50, 36)).astype(np.float32)
     index, sign = random_table(rng, 3, 36)
-    got = bmu_numpy(X, W, index, sign)
+    check_against_brute_force(bmu_numpy(X, W, index, sign), X, W, index, sign, min_separated=0.9, rtol=1e-5)
+
+
+def check_against_brute_force(got, X, W, index, sign, min_separated, rtol, atol=0.0):
+    """Units, variations and seconds equal to the float64 brute force on the rows separated
+    beyond float32 rounding (at least ``min_separated`` of them), dist2 close everywhere."""
     u, v, d, s = brute_force(X, W, index, sign)
     ok = separated(X, W, index, sign)
-    assert ok.mean() > 0.9
+    assert ok.mean() > min_separated
     np.testing.assert_array_equal(got.unit[ok], u[ok])
     np.testing.assert_array_equal(got.variation[ok], v[ok])
     np.testing.assert_array_equal(got.second[ok], s[ok])
-    np.testing.assert_allclose(got.dist2, d, rtol=1e-5)
+    np.testing.assert_allclose(got.dist2, d, rtol=rtol, atol=atol)
 
 
 def planted_ties(rng, D=9):
@@ -195,14 +200,27 @@ def ctx():
     return _opencl_context()
 
 
-#: The kernel variants and tilings run on PoCL: the CPU kernel as the CPU default, the
-#: local-memory kernel with the GPU default tiling and with wide vectors.
+#: The kernel variants and tilings run on PoCL: the CPU kernel as the CPU default, the GEMM
+#: layout with the GPU default tiling (128 x 128 tiles, 16 x 16 work-items: the tests' N and M
+#: give one partial tile of each) and with small tiles, vectors of 2, a D-chunk that pads D
+#: and three unit splits (several row and unit tiles, partial ones, the split reduction),
+#: the earlier local-memory kernel with its GPU tiling and with wide vectors.
 KERNEL_PARAMS = {
     "cpu": {"kernel": "cpu"},
     "cpu-narrow": {"kernel": "cpu", "vector_width": 8, "unit_blocks": 2, "max_rows": 6, "cache_tiles": 32},
+    "gemm-gpu": {"kernel": "gemm", "vector_width": 4, "tile_rows": 128, "tile_units": 128, "group_rows": 16,
+                 "group_units": 16, "max_kt": 16},
+    "gemm-split": {"kernel": "gemm", "vector_width": 2, "tile_rows": 16, "tile_units": 24, "group_rows": 4,
+                   "group_units": 4, "max_kt": 8, "unit_splits": 3},
     "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
     "tiled-wide": {"kernel": "tiled", "vector_width": 16, "unit_blocks": 2, "max_rows": 8, "work_group": 8},
 }
+
+
+def test_gpu_default_is_the_gemm_tiling_tested_here():
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, KernelParams
+
+    assert DEFAULT_PARAMS["gpu"] == KernelParams(name="gpu", **KERNEL_PARAMS["gemm-gpu"])
 
 
 @pytest.fixture(params=list(KERNEL_PARAMS))
@@ -251,12 +269,15 @@ def test_cpu_kernel_falls_back_to_tiled_at_large_dimension(ctx):
 
 def test_default_params_pick_a_cpu_layout_on_pocl(ctx):
     """PoCL gets a CPU layout, the first of its chain; doctor names that layout's register block
-    (which block depends on the CPU: no test may assume one machine's)."""
+    (which block depends on the CPU: no test may assume one machine's); GPUs get the gemm layout."""
+    import pyopencl as cl
+
     from meshsom.bmu_opencl import CHAINS, default_params, layout_chain
     from pipelines.doctor import opencl_devices
 
-    if "Portable Computing Language" not in ctx.devices[0].platform.name:
-        pytest.skip("the first OpenCL device is not PoCL")
+    if not ctx.devices[0].type & cl.device_type.CPU:
+        assert default_params(ctx).kernel == "gemm"
+        pytest.skip(f"not a CPU device: {ctx.devices[0].name}")
     params = default_params(ctx)
     assert params.kernel == "cpu" and layout_chain(ctx.devices[0]) in (CHAINS["cpu"], CHAINS["cpu-narrow"])
     assert params.name == layout_chain(ctx.devices[0])[0]
@@ -334,6 +355,62 @@ def test_opencl_planted_variation_with_mirrors(ctx, kernel_params):
     got = bmu_opencl(X, W, index, sign, context=ctx, params=kernel_params)
     np.testing.assert_array_equal(got.unit, u)
     np.testing.assert_array_equal(got.variation, v)
+
+
+def _gemm(**fields):
+    from meshsom.bmu_opencl import KernelParams
+
+    return KernelParams(**{**KERNEL_PARAMS["gemm-split"], **fields})
+
+
+@pytest.mark.parametrize("splits", [1, 2, 5, 0])
+@pytest.mark.parametrize("N,n", [(1, 1), (1, 3), (37, 6), (203, 3)])
+def test_gemm_unit_splits_and_partial_tiles(ctx, N, n, splits):
+    """Row counts from one row to several partial row tiles (TM = 16 virtual rows), M = 301
+    units in 13 tiles of 24 (the last partial), 1 to 5 unit ranges and the automatic choice
+    (one range per unit tile at N = 1); compared with the float64 brute force."""
+    from meshsom.bmu_numpy import exact_dist2
+    from meshsom.bmu_opencl import _defines, bmu_opencl, has_fp64, unit_splits
+
+    rng = np.random.default_rng(N * 10 + n + splits)
+    D, M = 11, 301
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    W = rng.normal(size=(M, D)).astype(np.float32)
+    index, sign = random_table(rng, n, D)
+    params = _gemm(unit_splits=splits)
+    assert _defines(D, n, np.float32, params)["DP"] == 16  # D padded to whole chunks of KT = 8
+    S, per = unit_splits(N * n, 13, params, ctx.devices[0].max_compute_units)
+    assert S == (splits or S) and (S - 1) * per < 13 <= S * per
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
+    check_against_brute_force(got, X, W, index, sign, min_separated=0.8, rtol=1e-4, atol=1e-4)
+    # dist2 of the winners, recomputed on the device in float64 (where it has it) as on the host
+    exact = exact_dist2(X, W, index, sign, got.unit, got.variation)
+    np.testing.assert_allclose(got.dist2, exact, rtol=1e-12 if has_fp64(ctx) else 1e-5)
+
+
+def test_gemm_ties_across_unit_splits(ctx):
+    """The duplicated units 2, 7 and 11 of the planted ties lie in three different unit ranges
+    (tiles of 4 units, one tile per range): the lowest unit still wins, the next is second."""
+    from meshsom.bmu_opencl import bmu_opencl
+
+    X, W, index, sign = planted_ties(np.random.default_rng(1))
+    params = _gemm(tile_units=4, group_units=2, unit_splits=3, tile_rows=8, group_rows=4)
+    for p in (params, _gemm(tile_units=4, group_units=2, unit_splits=1)):
+        got = bmu_opencl(X, W, index, sign, context=ctx, params=p)
+        check_ties(got, X, W, index, sign)
+
+
+def test_gemm_unit_splits_choice():
+    """Automatic S: at least groups_per_cu groups per compute unit, at most one range per tile."""
+    from meshsom.bmu_opencl import KernelParams, unit_splits
+
+    gpu = KernelParams(**KERNEL_PARAMS["gemm-gpu"])
+    assert unit_splits(3064, 141, gpu, 132) == (11, 13)  # 24 row tiles x 11 ranges >= 264 groups
+    assert unit_splits(3_000_000, 141, gpu, 132) == (1, 141)
+    assert unit_splits(1, 141, gpu, 132) == (141, 1)
+    assert unit_splits(1, 5, _gemm(unit_splits=9), 2) == (5, 1)
+    with pytest.raises(ValueError, match="tile_rows / group_rows must be a whole multiple of vector_width 4"):
+        KernelParams(kernel="gemm", vector_width=4, tile_rows=96, group_rows=16)
 
 
 def test_program_memoised(ctx):

@@ -1,0 +1,286 @@
+"""The two tables of issue 13 on one OpenCL device (a GPU): a BMUofN pass, and whole epochs.
+
+Run on the GPU machine (see bench/gpu_device.sh), or anywhere with --quick:
+
+    python bench/gpu.py --device nvidia [--autotune] [--quick]
+
+(a) One BMUofN pass on the paper's 120 x 150 map (M = 18,000), random data, the fold-like
+variation tables of bench/common.py: meshsom ``bmu_opencl`` with the device's default layout
+(and the earlier "tiled" layout beside it), best of --repeat calls after a warm-up call,
+host/device copies included; TFLOP/s = 2 N n M D / t and that rate as % of PyTorch's FP32
+GEMM (8192^3, TF32 off) measured in the same run; the PyTorch baseline (per variation gather
++ sign, ``addmm(||w||^2, x_v, W^T, alpha=-2)``, min over units, keep the best variation;
+rows in chunks of 65,536; TF32 off) with the data already on the GPU and with the copies;
+and whether units and variations agree with PyTorch on every row.
+
+(b) Seconds per epoch: meshsom ``partial_sums`` + ``batch_update`` with the OpenCL engine
+(the default kernel and BMUofN with n variations, as bench/epoch.py), and XPySom with its
+CuPy backend (planar map, construction and host-to-device copy included), each timed in
+steady state: best of the repeats after a warm-up call.
+
+--autotune times a handful of "gemm" tilings on one large (1e6 x 3 x 36) and one small
+(3,064 x 3 x 144) pass and prints the best. Anything not importable (torch, CuPy, XPySom)
+prints n/a.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from bench.common import MAP, best_time, block_table, data  # noqa: E402
+from bench.epoch import meshsom_epoch  # noqa: E402
+from meshsom.bmu_numpy import identity_table  # noqa: E402
+
+#: (N, n, D) of the BMU table (issue 13).
+BMU_WORKLOADS = [(3064, 1, 9), (3064, 6, 9), (3064, 3, 36), (3064, 3, 144), (100_000, 3, 36), (100_000, 1, 36),
+                 (1_000_000, 6, 9), (1_000_000, 3, 36), (1_000_000, 3, 144)]
+#: (N, n, D) of the epoch table: the default kernel with the same (N, D), BMUofN with n.
+EPOCH_WORKLOADS = [(3064, 6, 9), (3064, 3, 36), (3064, 3, 144), (100_000, 3, 36), (1_000_000, 3, 36),
+                   (1_000_000, 3, 144)]
+#: --quick (PoCL, a laptop): N divided by this for the city-sized workloads (N > 10,000).
+QUICK_DIVISOR = 100
+#: Rows at or above this get one timed repetition (after the warm-up): keeps the whole run short.
+LARGE_N = 1_000_000
+#: Rows per PyTorch chunk (the baseline of issue 13).
+TORCH_CHUNK = 65_536
+#: Side of the PyTorch FP32 GEMM yardstick.
+GEMM_SIZE = 8192
+#: Tilings timed by --autotune: (tile_rows, tile_units, group_rows, group_units, max_kt).
+AUTOTUNE_TILINGS = [(128, 128, 16, 16, 16), (128, 128, 16, 16, 8), (128, 128, 16, 16, 32), (64, 128, 16, 16, 16),
+                    (128, 64, 16, 16, 16), (64, 64, 16, 16, 16), (128, 128, 32, 8, 16), (64, 64, 8, 8, 16)]
+#: The workloads --autotune times: (N, n, D).
+AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (3064, 3, 144)]
+
+
+def say(text: str = "") -> None:
+    print(text, flush=True)
+
+
+def workloads(rows, quick: bool):
+    return [(N // QUICK_DIVISOR if quick and N > 10_000 else N,) + tuple(w[1:]) for w in rows for N in (w[0],)]
+
+
+# ----------------------------------------------------------------------------- PyTorch
+
+
+def torch_cuda():
+    """torch with a CUDA device and TF32 off, or None."""
+    try:
+        import torch
+    except ImportError:
+        return None
+    if not torch.cuda.is_available():
+        return None
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
+    return torch
+
+
+def torch_gemm_tflops(torch, size: int = GEMM_SIZE, repeat: int = 3) -> float:
+    """FP32 (TF32 off) size^3 matmul rate on the GPU."""
+    a = torch.randn(size, size, device="cuda")
+    b = torch.randn(size, size, device="cuda")
+
+    def run():
+        a @ b
+        torch.cuda.synchronize()
+
+    run()
+    return 2 * size**3 / best_time(run, repeat) / 1e12
+
+
+def torch_bmu(torch, X, W, index, sign):
+    """The baseline: per variation gather + sign, addmm(||w||^2, x_v, W^T, alpha=-2), min over
+    units, keep the best variation (strictly closer); X, W on the device. Returns (unit, variation)."""
+    wn = (W * W).sum(1)
+    units, variations = [], []
+    for start in range(0, len(X), TORCH_CHUNK):
+        x = X[start:start + TORCH_CHUNK]
+        best_d = best_u = best_v = None
+        for v in range(len(index)):
+            xv = x[:, index[v]] * sign[v]
+            d, u = torch.addmm(wn, xv, W.T, alpha=-2).min(1)
+            d = d + (xv * xv).sum(1)
+            if best_d is None:
+                best_d, best_u, best_v = d, u, torch.zeros_like(u)
+            else:
+                better = d < best_d
+                best_d = torch.where(better, d, best_d)
+                best_u = torch.where(better, u, best_u)
+                best_v = torch.where(better, torch.full_like(u, v), best_v)
+        units.append(best_u)
+        variations.append(best_v)
+    return torch.cat(units), torch.cat(variations)
+
+
+def torch_pass(torch, X, W, index, sign, copies: bool, device_data=None):
+    """One timed baseline pass: from host arrays (copies) or from device_data (Xg, Wg, idx, sgn)."""
+    if copies:
+        Xg, Wg = torch.from_numpy(X).cuda(), torch.from_numpy(W).cuda()
+        idx, sgn = torch.from_numpy(index).cuda(), torch.from_numpy(sign).cuda()
+    else:
+        Xg, Wg, idx, sgn = device_data
+    u, v = torch_bmu(torch, Xg, Wg, idx, sgn)
+    if copies:
+        u, v = u.cpu().numpy(), v.cpu().numpy()
+    torch.cuda.synchronize()
+    return u, v
+
+
+# ----------------------------------------------------------------------------- tables
+
+
+def bmu_table(args, ctx, torch, gemm):
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params
+
+    rows, cols = MAP
+    M = rows * cols
+    params = default_params(ctx)
+    layouts = [("new", params)]
+    if not args.no_old:
+        layouts.append(("old", DEFAULT_PARAMS["tiled"]))
+    say(f"\n(a) one BMUofN pass, map {rows}x{cols} (M = {M}); new layout: {params}")
+    say(f"{'N':>9} {'n x D':>7} {'new s':>8} {'TFLOP/s':>8} {'%GEMM':>7} {'old s':>8} "
+        f"{'torch s':>8} {'torch+cp s':>10} {'agree':>6}")
+    for N, n, D in workloads(BMU_WORKLOADS, args.quick):
+        X, W = data(N, D, M)
+        index, sign = block_table(n, D)
+        repeat = 1 if N >= LARGE_N else args.repeat
+        times, results = {}, {}
+        for name, p in layouts:
+            def run(p=p):
+                return bmu_opencl(X, W, index, sign, context=ctx, params=p)
+            results[name] = run()  # warm-up: builds the program
+            times[name] = best_time(run, repeat)
+        flops = 2.0 * N * n * M * D
+        rate = flops / times["new"] / 1e12
+        share = f"{100 * rate / gemm:6.1f}%" if gemm else f"{'n/a':>7}"
+        old = f"{times['old']:8.4f}" if "old" in times else f"{'n/a':>8}"
+        if torch is not None:
+            device_data = (torch.from_numpy(X).cuda(), torch.from_numpy(W).cuda(),
+                           torch.from_numpy(index).cuda(), torch.from_numpy(sign).cuda())
+            u, v = torch_pass(torch, X, W, index, sign, False, device_data)  # warm-up
+            t_dev = best_time(lambda: torch_pass(torch, X, W, index, sign, False, device_data), repeat)
+            t_cp = best_time(lambda: torch_pass(torch, X, W, index, sign, True), repeat)
+            u, v = u.cpu().numpy(), v.cpu().numpy()
+            new = results["new"]
+            agree = np.mean((u == new.unit) & (v == new.variation))
+            agree_text = "yes" if agree == 1 else f"{100 * agree:.3f}%"
+            torch_text = f"{t_dev:8.4f} {t_cp:10.4f} {agree_text:>6}"
+            del device_data
+        else:
+            torch_text = f"{'n/a':>8} {'n/a':>10} {'n/a':>6}"
+        say(f"{N:>9} {f'{n}x{D}':>7} {times['new']:8.4f} {rate:8.2f} {share} {old} {torch_text}")
+
+
+def xpysom_epoch(cupy, XPySom, X, rows, cols):
+    """One XPySom epoch with the CuPy backend, construction and host-to-device copy included."""
+    som = XPySom(rows, cols, X.shape[1], sigma=5.0, random_seed=0, xp=cupy)
+    som.train(X, 1)
+    cupy.cuda.Device().synchronize()
+
+
+def epoch_table(args, ctx):
+    from meshsom.bmu import resolve_backend
+
+    rows, cols = MAP
+    M = rows * cols
+    engine = resolve_backend("opencl", context=ctx)
+    try:
+        import cupy
+        from xpysom import XPySom
+    except ImportError as err:
+        cupy = XPySom = None
+        say(f"note: XPySom + CuPy not importable ({err}): n/a")
+    say(f"\n(b) seconds per epoch, map {rows}x{cols}; meshsom: partial_sums + batch_update, OpenCL engine")
+    say(f"{'N':>9} {'D':>4} {'default':>9} {'BMUofN (n)':>14} {'XPySom+CuPy':>12} {'xpysom/default':>15}")
+    for N, n, D in workloads(EPOCH_WORKLOADS, args.quick):
+        X, W = data(N, D, M)
+        index, sign = block_table(n, D)
+        ident = identity_table(D)
+        repeat = 1 if N >= LARGE_N else args.repeat
+        meshsom_epoch(X, W, *ident, engine, rows, cols)  # warm-up
+        t_default = best_time(lambda: meshsom_epoch(X, W, *ident, engine, rows, cols), repeat)
+        meshsom_epoch(X, W, index, sign, engine, rows, cols)
+        t_n = best_time(lambda: meshsom_epoch(X, W, index, sign, engine, rows, cols), repeat)
+        if XPySom is not None:
+            xpysom_epoch(cupy, XPySom, X, rows, cols)  # warm-up: CuPy compiles its kernels
+            t_x = best_time(lambda: xpysom_epoch(cupy, XPySom, X, rows, cols), repeat)
+            peer = f"{t_x:12.4f} {t_x / t_default:15.2f}"
+        else:
+            peer = f"{'n/a':>12} {'n/a':>15}"
+        say(f"{N:>9} {D:>4} {t_default:9.4f} {f'{t_n:.4f} ({n})':>14} {peer}")
+
+
+def autotune(args, ctx):
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params
+
+    rows, cols = MAP
+    M = rows * cols
+    base = default_params(ctx)
+    base = base if base.kernel == "gemm" else DEFAULT_PARAMS["gpu"]
+    say("\nautotune: gemm tilings (tile_rows, tile_units, group_rows, group_units, max_kt), seconds per pass")
+    best = {}
+    for N, n, D in workloads(AUTOTUNE_WORKLOADS, args.quick):
+        X, W = data(N, D, M)
+        index, sign = block_table(n, D)
+        for tiling in AUTOTUNE_TILINGS:
+            tm, tn, gm, gn, kt = tiling
+            try:
+                p = replace(base, kernel="gemm", tile_rows=tm, tile_units=tn, group_rows=gm, group_units=gn, max_kt=kt)
+                bmu_opencl(X, W, index, sign, context=ctx, params=p)
+                t = best_time(lambda: bmu_opencl(X, W, index, sign, context=ctx, params=p), 2)
+            except Exception as err:  # noqa: BLE001 - a tiling the device cannot run is reported
+                say(f"{N:>9} {f'{n}x{D}':>7} {str(tiling):>24} failed: {str(err)[:120]}")
+                continue
+            say(f"{N:>9} {f'{n}x{D}':>7} {str(tiling):>24} {t:8.4f} {2.0 * N * n * M * D / t / 1e12:6.2f} TFLOP/s")
+            best.setdefault((N, n, D), []).append((t, tiling))
+    for key, found in best.items():
+        t, tiling = min(found)
+        say(f"best for N, n, D = {key}: {tiling} ({t:.4f} s)")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default=None, help="OpenCL device selector (e.g. nvidia); default $PYOPENCL_CTX")
+    parser.add_argument("--repeat", type=int, default=3, help="timed calls after the warm-up (1 at N >= 1e6)")
+    parser.add_argument("--quick", action="store_true", help=f"N / {QUICK_DIVISOR} for the city-sized workloads")
+    parser.add_argument("--no-old", action="store_true", help="skip the earlier 'tiled' layout")
+    parser.add_argument("--no-epoch", action="store_true", help="skip the epoch table")
+    parser.add_argument("--autotune", action="store_true", help="time a few gemm tilings and print the best")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+
+    from meshsom.bmu_opencl import device_name, get_context
+
+    ctx = get_context(args.device)
+    device = ctx.devices[0]
+    say(f"OpenCL device: {device_name(ctx)} ({device.max_compute_units} compute units, "
+        f"{device.local_mem_size // 1024} KB local memory, driver {device.driver_version})")
+    torch = torch_cuda()
+    gemm = None
+    if torch is None:
+        say("note: torch with CUDA not importable: the PyTorch columns and % of GEMM are n/a")
+    else:
+        gemm = torch_gemm_tflops(torch)
+        say(f"torch {torch.__version__} on {torch.cuda.get_device_name()}: FP32 GEMM {GEMM_SIZE}^3 "
+            f"(TF32 off) {gemm:.1f} TFLOP/s")
+    if args.autotune:
+        autotune(args, ctx)
+    bmu_table(args, ctx, torch, gemm)
+    if not args.no_epoch:
+        epoch_table(args, ctx)
+    say(f"\ntotal {time.perf_counter() - started:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,279 @@
+/* BMUofN for GPUs: a register-tiled GEMM micro-kernel with a fused best/second epilogue.
+ *
+ * The varied vectors are virtual rows: virtual row q = row * NV + v is the vector
+ * sign[v, k] * x[row, index[v, k]], k = 0..D-1 (NR = N * NV of them). As in an SGEMM
+ * (CLBlast's layout), a work-group of WGN x WGM work-items computes a tile of TM virtual
+ * rows x TN units: every work-item accumulates RM = TM / WGM rows x RN = TN / WGN units in
+ * registers. Along D the tiles of X (gathered with the signs once per tile, zero past D)
+ * and of the transposed codebook WT (DP, MP) are staged through local memory in chunks of
+ * KT dimensions, double-buffered: the global loads of chunk c + 1 are in flight (in
+ * registers) while chunk c is multiplied, with one barrier per chunk.
+ *
+ * A work-item owns the rows (i * WGM + ty) * VW + l and the units (j * WGN + tx) * VW + l
+ * (i < RM / VW, j < RN / VW, l < VW): its operands are VW-wide vector loads from local
+ * memory, consecutive work-items reading consecutive vectors (no bank conflicts).
+ *
+ * Arithmetic, the same as kernels/bmu.cl and kernels/bmu_cpu.cl: per (virtual row, unit)
+ * one accumulator, a sequential fma over k = 0..D-1 (the zero padding past D adds exact
+ * zeros), then d = ||w||^2 - 2 acc. The epilogue keeps, per row, the best and second
+ * best (d, unit) in the lexicographic order of INSERT over the work-item's units and unit
+ * tiles; the WGN work-items sharing a row are folded in local memory, and every
+ * work-group writes the best and second of its TM rows over its range of unit tiles (its
+ * split s of S) to the partial arrays (NR, S). bmu_of_n_gemm_reduce then folds the splits
+ * (INSERT again) and the variations (||x_v||^2 added; a later variation wins when strictly
+ * closer, or equally close at a lower unit; DESIGN.md section 4) into the four outputs.
+ *
+ * Compile-time sizes (-D), besides those of bmu_common.cl (REAL, IREAL, VW, D):
+ *   NV           variations
+ *   TM, TN       virtual rows and units per work-group tile
+ *   WGM, WGN     work-items along rows (local id 1) and along units (local id 0)
+ *   KT           dimensions per local-memory chunk;  DP: D rounded up to a multiple of KT
+ *   EXACT        type of the winners' direct squared distance: double where the device has
+ *                it, else REAL
+ *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second (GPUs: keeps them
+ *                in registers); 0 on CPU devices, where PoCL compiles the unrolled
+ *                branches about 3x slower for no gain (meshsom.bmu_opencl.get_kernel)
+ * TM / WGM and TN / WGN are multiples of VW; TM * KT and TN * KT need not be multiples of
+ * the work-group size.
+ */
+
+#define WGS (WGM * WGN)
+#define RM (TM / WGM)           /* virtual rows per work-item */
+#define RN (TN / WGN)           /* units per work-item */
+#define XVEC (RM / VW)          /* row vectors per work-item */
+#define WVEC (RN / VW)          /* unit vectors per work-item */
+#define XSTRIDE (TM + VW)       /* local X row of one dimension, padded: fewer bank conflicts on the stores */
+#define XLOADS ((TM * KT + WGS - 1) / WGS)  /* X elements each work-item stages per chunk */
+#define WLOADS ((TN * KT + WGS - 1) / WGS)  /* W elements each work-item stages per chunk */
+#define NCHUNK (DP / KT)
+
+/* Global loads of chunk k0 into registers (the macros' locals are named apart from the
+ * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
+ * past D), W from the zero-padded transposed codebook. Consecutive work-items take
+ * consecutive dimensions of one row of X and consecutive units of W. */
+#define LOAD_CHUNK(k0)                                                                   \
+    for (int e = 0; e < XLOADS; ++e) {                                                   \
+        const int t = lid + e * WGS;                                                     \
+        const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
+        xreg[e] = 0;                                                                     \
+        if (t < TM * KT && q < NR && kx < D) {                                           \
+            const int v = q % NV;                                                        \
+            xreg[e] = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];    \
+        }                                                                                \
+    }                                                                                    \
+    for (int e = 0; e < WLOADS; ++e) {                                                   \
+        const int t = lid + e * WGS;                                                     \
+        const int col = t % TN, kw = (k0) + t / TN;                                      \
+        wreg[e] = t < TN * KT ? WT[(size_t)kw * MP + m0 + col] : 0;                      \
+    }
+
+/* Registers to local buffer b. */
+#define STORE_CHUNK(b)                                                                   \
+    for (int e = 0; e < XLOADS; ++e) {                                                   \
+        const int t = lid + e * WGS;                                                     \
+        if (t < TM * KT)                                                                 \
+            Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
+    }                                                                                    \
+    for (int e = 0; e < WLOADS; ++e) {                                                   \
+        const int t = lid + e * WGS;                                                     \
+        if (t < TN * KT)                                                                 \
+            Ws[(b) * KT * TN + t] = wreg[e];                                             \
+    }
+
+__kernel __attribute__((reqd_work_group_size(WGN, WGM, 1)))
+void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
+                   const int N,
+                   __global const REAL *WT,       /* (DP, MP): transposed codebook, zero-padded */
+                   __global const REAL *wnorm,    /* (MP,): ||w||^2, +inf on padding */
+                   const int MP,                  /* padded unit count, a multiple of TN */
+                   __global const int *index,     /* (NV, D) */
+                   __global const REAL *sign,     /* (NV, D) */
+                   const int tiles_per_split,     /* unit tiles of TN per split */
+                   __global REAL *part_best,      /* (NR, S) */
+                   __global int *part_unit,       /* (NR, S) */
+                   __global REAL *part_second,    /* (NR, S) */
+                   __global int *part_second_unit)/* (NR, S) */
+{
+    INJECTED_TRAP();
+    const int tx = get_local_id(0), ty = get_local_id(1);
+    const int lid = ty * WGN + tx;
+    const int split = get_group_id(0), S = get_num_groups(0);
+    const int NR = N * NV;
+    const int q0 = get_group_id(1) * TM;
+    const int tile0 = split * tiles_per_split;
+    const int tile1 = min(tile0 + tiles_per_split, MP / TN);
+
+    __local realv Xv[2 * KT * XSTRIDE / VW];
+    __local realv Wv[2 * KT * TN / VW];
+    __local REAL *Xs = (__local REAL *)Xv;
+    __local REAL *Ws = (__local REAL *)Wv;
+    __local REAL run_best[TM], run_second[TM];
+    __local int run_unit[TM], run_second_unit[TM];
+
+    REAL bd[RM], sd[RM];
+    int bu[RM], su[RM];
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+    for (int i = 0; i < RM; ++i) {
+        bd[i] = INFINITY;
+        sd[i] = INFINITY;
+        bu[i] = MP;
+        su[i] = MP;
+    }
+
+    REAL xreg[XLOADS], wreg[WLOADS];
+    for (int tile = tile0; tile < tile1; ++tile) {
+        const int m0 = tile * TN;
+        realv acc[RM][WVEC];
+#pragma unroll
+        for (int i = 0; i < RM; ++i)
+#pragma unroll
+            for (int j = 0; j < WVEC; ++j)
+                acc[i][j] = (realv)(0);
+
+        LOAD_CHUNK(0)
+        STORE_CHUNK(0)
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (int c = 0; c < NCHUNK; ++c) {
+            const int b = c & 1;
+            if (c + 1 < NCHUNK) {
+                LOAD_CHUNK((c + 1) * KT)
+            }
+            __local const realv *xb = Xv + b * (KT * XSTRIDE / VW);
+            __local const realv *wb = Wv + b * (KT * TN / VW);
+#pragma unroll
+            for (int kk = 0; kk < KT; ++kk) {
+                REAL xr[RM];
+                realv w[WVEC];
+#pragma unroll
+                for (int i = 0; i < XVEC; ++i)
+                    VSTORE(xb[kk * (XSTRIDE / VW) + i * WGM + ty], 0, xr + i * VW);
+#pragma unroll
+                for (int j = 0; j < WVEC; ++j)
+                    w[j] = wb[kk * (TN / VW) + j * WGN + tx];
+#pragma unroll
+                for (int i = 0; i < RM; ++i)
+#pragma unroll
+                    for (int j = 0; j < WVEC; ++j)
+                        acc[i][j] = fma((realv)(xr[i]), w[j], acc[i][j]);
+            }
+            if (c + 1 < NCHUNK) {
+                STORE_CHUNK(1 - b)
+            }
+            barrier(CLK_LOCAL_MEM_FENCE);
+        }
+
+        /* epilogue: running best and second of each row over this tile's units */
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+        for (int j = 0; j < WVEC; ++j) {
+            const int u0 = m0 + (j * WGN + tx) * VW;
+            REAL wn[VW];
+            VSTORE(VLOAD(0, wnorm + u0), 0, wn);
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+            for (int i = 0; i < RM; ++i) {
+                REAL a[VW];
+                VSTORE(acc[i][j], 0, a);
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+                for (int l = 0; l < VW; ++l) {
+                    const REAL d = wn[l] - (REAL)2 * a[l];
+                    INSERT(d, u0 + l, bd[i], bu[i], sd[i], su[i]);
+                }
+            }
+        }
+    }
+
+    /* fold the WGN work-items of each row into local memory, one column of work-items
+     * (tx) per round: in a round every row has exactly one writer */
+    for (int r = lid; r < TM; r += WGS) {
+        run_best[r] = INFINITY;
+        run_second[r] = INFINITY;
+        run_unit[r] = MP;
+        run_second_unit[r] = MP;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int t = 0; t < WGN; ++t) {
+        if (tx == t) {
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+            for (int i = 0; i < RM; ++i) {
+                const int r = ((i / VW) * WGM + ty) * VW + i % VW;
+                INSERT(bd[i], bu[i], run_best[r], run_unit[r], run_second[r], run_second_unit[r]);
+                INSERT(sd[i], su[i], run_best[r], run_unit[r], run_second[r], run_second_unit[r]);
+            }
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    for (int r = lid; r < TM && q0 + r < NR; r += WGS) {
+        const size_t o = (size_t)(q0 + r) * S + split;
+        part_best[o] = run_best[r];
+        part_unit[o] = run_unit[r];
+        part_second[o] = run_second[r];
+        part_second_unit[o] = run_second_unit[r];
+    }
+}
+
+/* One work-item per row: fold the S splits of each variation (INSERT), add ||x_v||^2
+ * (sequential fma over k, as kernels/bmu.cl) and keep the best variation; then the squared
+ * distance of the winner computed directly, sum_k (x_v[k] - w[k])^2, in EXACT (double where
+ * the device has it, as meshsom.bmu_numpy.exact_dist2 does on the host). */
+__kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
+                                   const int N,
+                                   __global const REAL *WT,       /* (DP, MP) */
+                                   const int MP,
+                                   __global const int *index,     /* (NV, D) */
+                                   __global const REAL *sign,     /* (NV, D) */
+                                   const int S,
+                                   __global const REAL *part_best,      /* (N * NV, S) */
+                                   __global const int *part_unit,
+                                   __global const REAL *part_second,
+                                   __global const int *part_second_unit,
+                                   __global int *out_unit,        /* (N,) */
+                                   __global int *out_var,         /* (N,) */
+                                   __global EXACT *out_dist2,     /* (N,) */
+                                   __global int *out_second)      /* (N,) */
+{
+    const int row = get_global_id(0);
+    if (row >= N)
+        return;
+    REAL best_total = INFINITY;
+    int best_v = 0, best_u = 0, best_s = 0;
+    for (int v = 0; v < NV; ++v) {
+        REAL B = INFINITY, Sd = INFINITY;
+        int BU = MP, SU = MP;
+        const size_t o = ((size_t)row * NV + v) * S;
+        for (int s = 0; s < S; ++s) {
+            INSERT(part_best[o + s], part_unit[o + s], B, BU, Sd, SU);
+            INSERT(part_second[o + s], part_second_unit[o + s], B, BU, Sd, SU);
+        }
+        REAL xn = 0;
+        for (int k = 0; k < D; ++k) {
+            const REAL xv = sign[v * D + k] * X[(size_t)row * D + index[v * D + k]];
+            xn = fma(xv, xv, xn);
+        }
+        const REAL total = B + xn;
+        if (total < best_total || (total == best_total && BU < best_u)) {
+            best_total = total;
+            best_v = v;
+            best_u = BU;
+            best_s = SU;
+        }
+    }
+    EXACT dist2 = 0;
+    for (int k = 0; k < D; ++k) {
+        const EXACT diff = (EXACT)(sign[best_v * D + k] * X[(size_t)row * D + index[best_v * D + k]])
+                           - (EXACT)WT[(size_t)k * MP + best_u];
+        dist2 = fma(diff, diff, dist2);
+    }
+    out_unit[row] = best_u;
+    out_var[row] = best_v;
+    out_dist2[row] = dist2;
+    out_second[row] = best_s;
+}
