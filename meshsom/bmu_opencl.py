@@ -510,7 +510,8 @@ def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP):
     ``bufs``: X, WT (DP, MP), wnorm, index, sign; ``outs``: unit, variation, dist2, second.
     """
     rows = N * n
-    params = KernelParams(kernel="gemm", tile_rows=defines["TM"], unit_splits=defines["US"],
+    params = KernelParams(kernel="gemm", vector_width=defines["VW"], tile_rows=defines["TM"], tile_units=defines["TN"],
+                          group_rows=defines["WGM"], group_units=defines["WGN"], unit_splits=defines["US"],
                           groups_per_cu=defines["GPC"])
     splits, per_split = unit_splits(rows, MP // defines["TN"], params, context.devices[0].max_compute_units)
     itemsize = 8 if defines["REAL"] == "double" else 4

@@ -140,10 +140,17 @@ def device_identity(device) -> dict[str, str]:
     }
 
 
+def _host_code() -> str:
+    """Hash of the Python that builds, launches and checks kernels (a new meshsom version probes again)."""
+    here = Path(__file__).resolve().parent
+    text = b"".join((here / name).read_bytes() for name in ("probe.py", "bmu_opencl.py", "bmu_numpy.py"))
+    return hashlib.sha256(text).hexdigest()
+
+
 def verdict_key(device, defines: dict, source: str, options: list[str]) -> str:
-    """Cache key: device identity, kernel source, defines and build options (sha256 hex)."""
+    """Cache key: device identity, kernel source, defines, build options and the host code (sha256 hex)."""
     blob = json.dumps({
-        "probe": PROBE_VERSION, "device": device_identity(device), "source": hashlib.sha256(source.encode()).hexdigest(),
+        "probe": PROBE_VERSION, "host": _host_code(), "device": device_identity(device), "source": hashlib.sha256(source.encode()).hexdigest(),
         "defines": {k: str(v) for k, v in sorted(defines.items())}, "options": list(options),
     }, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
@@ -215,9 +222,10 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
             name = f"{device.platform.name.strip()} / {device.name.strip()}"
             sizes = ", ".join(f"{k}={defines[k]}" for k in ("D", "NV", "REAL") if k in defines)
             log.info("checking BMUofN kernel layout %r on %s (%s) in a child process", layout, name, sizes)
-            verdict = _probe_child(selector, defines, layout, name, key, timing)
+            verdict, keep = _probe_child(selector, defines, layout, name, key, timing)
             log.info("layout %r on %s: %s in %.1f s", layout, name, "ok" if verdict.ok else "FAILED", verdict.seconds)
-            _write(path, verdict)
+            if keep:
+                _write(path, verdict)
         else:
             verdict = cached
     _MEMO[key] = verdict
@@ -234,7 +242,13 @@ def first_error_line(text: str) -> str:
     return lines[-1][:300] if lines else "no output"
 
 
-def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str, timing: bool) -> Verdict:
+def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str, timing: bool) -> tuple[Verdict, bool]:
+    """Run the probe child; the verdict, and whether to keep it on disk.
+
+    Verdicts about the device (it built and answered, failed to build, answered wrongly, died or
+    hung) are kept; a child that failed in Python before it could judge (an import error, say)
+    gives a failed verdict for this process only.
+    """
     spec = json.dumps({"selector": selector, "defines": defines, "timing": timing})
     t0 = time.perf_counter()
     try:
@@ -242,23 +256,24 @@ def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str,
                               timeout=_timeout())
     except subprocess.TimeoutExpired:
         return Verdict(False, layout, name, f"no answer within {_timeout():g} s (build or first run hung)",
-                       time.perf_counter() - t0, key)
+                       time.perf_counter() - t0, key), True
     seconds = time.perf_counter() - t0
     if proc.returncode == 0:
         try:
             out = json.loads(proc.stdout.strip().splitlines()[-1])
         except (ValueError, IndexError):
-            return Verdict(False, layout, name, f"probe printed no verdict: {first_error_line(proc.stderr)}", seconds, key)
-        return Verdict(bool(out["ok"]), layout, name, out.get("reason", ""), seconds, key, out.get("gflops"))
+            return Verdict(False, layout, name, f"probe printed no verdict: {first_error_line(proc.stderr)}",
+                           seconds, key), False
+        return Verdict(bool(out["ok"]), layout, name, out.get("reason", ""), seconds, key, out.get("gflops")), True
     if proc.returncode < 0:
         try:
             sig = signal.Signals(-proc.returncode).name
         except ValueError:
             sig = f"signal {-proc.returncode}"
-        what = f"the build or first run killed its process ({sig})"
-    else:
-        what = f"the probe exited with status {proc.returncode}"
-    return Verdict(False, layout, name, f"{what}: {first_error_line(proc.stderr + proc.stdout)}", seconds, key)
+        reason = f"the build or first run killed its process ({sig}): {first_error_line(proc.stderr + proc.stdout)}"
+        return Verdict(False, layout, name, reason, seconds, key), True
+    reason = f"the probe exited with status {proc.returncode}: {first_error_line(proc.stderr + proc.stdout)}"
+    return Verdict(False, layout, name, reason, seconds, key), "Traceback" not in proc.stderr
 
 
 # ----------------------------------------------------------------------------- the child
