@@ -6,11 +6,11 @@
 #
 #     bash bench/gpu_device.sh
 #
-# Budget: at most 100 + 120 s of tests and 300 s of benchmark, under the 10 minutes of one run.
+# Budget: at most 150 s of layout verdicts, 330 s of benchmark and 150 s of tests, under the 10 minutes of one run.
 # 1. installs the wheels into /tmp/site; 2. registers NVIDIA's OpenCL library with the ICD
 # loader bundled in the pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd
-# files); 3. lists the OpenCL devices; 4. the BMU tests on the NVIDIA device (the gemm layout
-# with the GPU tiling first, then the whole file); 5. bench/gpu.py --device nvidia --autotune.
+# files); 3. lists the OpenCL devices; 4. every kernel layout's probe verdict and GFLOP/s;
+# 5. bench/gpu.py --device nvidia --autotune; 6. the BMU and probe tests on the NVIDIA device.
 set -u
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}
@@ -45,12 +45,14 @@ python3 -c 'import pyopencl as cl; print("pyopencl", cl.VERSION_TEXT); [print(p.
          python3 -c 'import pyopencl as cl; print([(p.name, [d.name for d in p.get_devices()]) for p in cl.get_platforms()])'; }
 
 # the tests take their device from PYOPENCL_CTX (a name substring); they skip when it matches none
-export PYOPENCL_CTX=nvidia
-step "tests: the gemm layout and the ties, NVIDIA device"
-timeout 100 python3 -m pytest -q -p no:cacheprovider tests/test_bmu.py -x -k "gemm or ties or default or float64"
-step "tests: tests/test_bmu.py, NVIDIA device"
-timeout 120 python3 -m pytest -q -p no:cacheprovider tests/test_bmu.py -x
+export PYOPENCL_CTX=nvidia MESHSOM_PROBE_TIMEOUT=60
+step "kernel layout verdicts on the NVIDIA device (meshsom doctor's check: child-process probes, GFLOP/s)"
+timeout 150 python3 -c 'from meshsom.bmu_opencl import get_context; from pipelines.doctor import kernel_verdicts
+[print(v) for v in kernel_verdicts(get_context("nvidia").devices[0])]'
 
 step "bench/gpu.py --device nvidia --autotune"
-timeout 300 python3 bench/gpu.py --device nvidia --autotune
+timeout 330 python3 bench/gpu.py --device nvidia --autotune
+
+step "tests: tests/test_bmu.py and tests/test_probe.py on the NVIDIA device (8 pytest workers)"
+timeout 150 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py
 step "done"

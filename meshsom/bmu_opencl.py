@@ -226,8 +226,8 @@ def select_device(selector: str | None = None):
             if s == f"{p}:{d}":
                 return device
         raise DeviceError(f"OpenCL device {text!r} does not exist; devices found: {found}")
-    for _, name, device in devices:
-        if text.lower() in name.lower():
+    for _, name, device in devices:  # names, and the platform's version ("PoCL", "CUDA")
+        if text.lower() in f"{name} {device.platform.version}".lower():
             return device
     raise DeviceError(f"no OpenCL device matches {text!r}; devices found: {found}")
 
