@@ -268,15 +268,94 @@ def _largest_divisor(D: int, cap: int) -> int:
     return 1
 
 
+#: LLVM x86 CPU names (LLVM 14 to 19) with avx512f: 16 float lanes are one zmm register.
+AVX512_CPUS = frozenset({
+    "knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
+    "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
+    "graniterapids", "graniterapids-d", "emeraldrapids", "znver4", "znver5", "x86-64-v4",
+})
+
+#: LLVM x86 CPU names (LLVM 14 to 19) without avx512f: 16 float lanes take two registers or more.
+#: LLVM 14 and 15 call AMD Zen 4 (AVX-512) "znver3", so a Zen 4 host lands here with them.
+NON_AVX512_CPUS = frozenset({
+    "generic", "x86-64", "x86-64-v2", "x86-64-v3",
+    "i386", "i486", "i586", "i686", "pentium", "pentium-mmx", "pentiumpro", "pentium2", "pentium3",
+    "pentium3m", "pentium-m", "pentium4", "pentium4m", "prescott", "nocona", "yonah", "lakemont",
+    "core2", "penryn", "bonnell", "atom", "silvermont", "slm", "goldmont", "goldmont-plus", "tremont",
+    "nehalem", "corei7", "westmere", "sandybridge", "corei7-avx", "ivybridge", "core-avx-i",
+    "haswell", "core-avx2", "broadwell", "skylake", "alderlake", "raptorlake", "meteorlake",
+    "gracemont", "arrowlake", "arrowlake-s", "lunarlake", "pantherlake", "sierraforest",
+    "grandridge", "clearwaterforest",
+    "k6", "k6-2", "k6-3", "athlon", "athlon-tbird", "athlon-4", "athlon-xp", "athlon-mp", "k8",
+    "athlon64", "athlon-fx", "opteron", "k8-sse3", "athlon64-sse3", "opteron-sse3", "amdfam10",
+    "barcelona", "btver1", "btver2", "bdver1", "bdver2", "bdver3", "bdver4",
+    "znver1", "znver2", "znver3",
+    "geode", "winchip-c6", "winchip2", "c3", "c3-2",
+})
+
+
+#: Last part of a target triple before PoCL's CPU name in ``<driver>-<triple>-<cpu>``.
+_TRIPLE_ENDS = ("gnu", "gnueabihf", "gnueabi", "gnux32", "musl", "android", "eabi", "elf",
+                "linux", "darwin", "windows", "msvc", "freebsd")
+
+
+def kernel_target_cpu(device) -> str | None:
+    """The LLVM CPU name PoCL compiles kernels for, from its version strings; None elsewhere.
+
+    PoCL's CPU devices name their kernel target as ``<driver>-<triple>-<cpu>`` (its "HSTR"),
+    e.g. ``pthread-x86_64-unknown-linux-gnu-icelake-client``: PoCL 3.0 ends the device version
+    with ``HSTR: ...``, other releases put it in the driver version. The CPU is what follows the
+    triple's last part (``-gnu-``, ``-linux-``, ...). LLVM's name for the host can lag the
+    hardware (LLVM 14 calls AMD Zen 4 ``znver3``), and kernels get only that CPU's features,
+    whatever vector widths the device reports. Non-PoCL devices give None.
+    """
+    tokens = []
+    for attribute in ("driver_version", "version"):
+        try:
+            text = getattr(device, attribute)
+        except Exception:  # a fake or failing device: nothing to read
+            continue
+        if not isinstance(text, str):
+            continue
+        if "HSTR:" in text:
+            tokens[:0] = text.split("HSTR:", 1)[1].split()[:1]  # the named one first
+        tokens.extend(text.split())
+    for token in tokens:
+        parts = token.split("-")
+        ends = [i for i, part in enumerate(parts[:-1]) if part in _TRIPLE_ENDS]
+        if len(parts) >= 4 and ends:
+            return "-".join(parts[max(ends) + 1:])
+    return None
+
+
+def target_vector_width(cpu_name: str | None, reported_width: int) -> int:
+    """Float lanes to compile for: the device's reported width, capped at 8 where the kernel
+    target CPU is a known LLVM x86 name without AVX-512 (:data:`NON_AVX512_CPUS`).
+
+    PoCL reports the width from the host's cpuid flags but compiles for LLVM's name of the
+    host, which can lack AVX-512 (LLVM 14 on AMD Zen 4: "znver3"); 16 lanes then cost two
+    registers each and the "cpu" register block spills. Names in :data:`AVX512_CPUS`, unknown
+    names and None (not PoCL, or another architecture) keep the reported width.
+    """
+    if cpu_name is None:
+        return reported_width
+    name = cpu_name.strip().lower()
+    if name in AVX512_CPUS or name not in NON_AVX512_CPUS:
+        return reported_width
+    return min(reported_width, 8)
+
+
 def layout_chain(device) -> tuple[str, ...]:
     """The layouts to try on an OpenCL device, fastest first (:data:`CHAINS`).
 
-    CPUs start with "cpu" where the device prefers 16-float vectors, else "cpu-narrow"; other
-    devices with "gpu". Each layout is probed (:mod:`meshsom.probe`) before its first use.
+    CPUs start with "cpu" where the device prefers 16-float vectors and its kernel target CPU has
+    them (:func:`target_vector_width`), else with "cpu-narrow"; other devices with "gpu" (where a
+    gemm work-group fits). Each layout is probed (:mod:`meshsom.probe`) before its first use.
     """
     cl = _cl()
     if device.type & cl.device_type.CPU:
-        return CHAINS["cpu" if device.preferred_vector_width_float >= 16 else "cpu-narrow"]
+        width = target_vector_width(kernel_target_cpu(device), device.preferred_vector_width_float)
+        return CHAINS["cpu" if width >= 16 else "cpu-narrow"]
     gemm = DEFAULT_PARAMS["gpu"]
     if (gemm.group_rows * gemm.group_units > device.max_work_group_size
             or gemm_local_bytes(gemm, np.float32) > device.local_mem_size):

@@ -287,6 +287,113 @@ def test_default_params_pick_a_cpu_layout_on_pocl(ctx):
         f"{params.unit_blocks} x {params.vector_width} units")
 
 
+class FakeDevice:
+    """Just the attributes device_params and kernel_target_cpu read; no OpenCL needed."""
+
+    def __init__(self, version="", driver_version="", width=16, cpu=True):
+        self.version = version
+        self.driver_version = driver_version
+        self.preferred_vector_width_float = width
+        self.cpu = cpu
+        self.max_work_group_size = 4096
+        self.local_mem_size = 48 * 1024  # NVIDIA's OpenCL work-group limit
+
+    @property
+    def type(self):
+        import pyopencl as cl
+
+        return cl.device_type.CPU if self.cpu else cl.device_type.GPU
+
+
+POCL_3 = "OpenCL 3.0 PoCL HSTR: pthread-x86_64-unknown-linux-gnu-{}"
+
+
+@pytest.mark.parametrize(
+    "version,driver_version,cpu",
+    [
+        (POCL_3.format("znver3"), "3.0-rc2", "znver3"),
+        (POCL_3.format("icelake-client"), "3.0-rc2", "icelake-client"),
+        (POCL_3.format("haswell"), "3.0-rc2", "haswell"),
+        ("OpenCL 3.0 PoCL", "pthread-x86_64-unknown-linux-gnu-znver3", "znver3"),
+        ("OpenCL 3.0 PoCL", "pthread-x86_64-unknown-linux-gnu-icelake-client", "icelake-client"),
+        ("OpenCL 3.0 PoCL", "6.0 HSTR: cpu-x86_64-pc-linux-gnu-skylake-avx512", "skylake-avx512"),
+        ("OpenCL 3.0 PoCL HSTR: pthread-aarch64-unknown-linux-gnu-cortex-a72", "3.0", "cortex-a72"),
+        ("OpenCL 3.0 CUDA", "560.35.03", None),
+        ("OpenCL 1.2 AMD-APP (3444.0)", "3444.0 (PAL,LC)", None),
+        ("OpenCL 3.0 PoCL HSTR:", "", None),
+    ],
+)
+def test_kernel_target_cpu_from_pocl_hstr(version, driver_version, cpu):
+    from meshsom.bmu_opencl import kernel_target_cpu
+
+    assert kernel_target_cpu(FakeDevice(version, driver_version)) == cpu
+
+
+def test_kernel_target_cpu_without_version_attributes():
+    from meshsom.bmu_opencl import kernel_target_cpu
+
+    assert kernel_target_cpu(object()) is None
+
+
+@pytest.mark.parametrize(
+    "cpu,reported,width",
+    [
+        ("znver3", 16, 8),  # LLVM 14's name for AMD Zen 4, whose cpuid flags give 16
+        ("znver4", 16, 16),
+        ("icelake-client", 16, 16),
+        ("skylake-avx512", 16, 16),
+        ("x86-64-v4", 16, 16),
+        ("haswell", 8, 8),
+        ("haswell", 16, 8),
+        ("x86-64-v3", 16, 8),
+        ("skylake", 16, 8),
+        ("ZNVER3", 16, 8),
+        ("some-future-cpu", 16, 16),  # unknown: the reported width stands
+        ("cortex-a72", 4, 4),
+        (None, 16, 16),
+        ("znver3", 4, 4),  # a cap, never a raise
+    ],
+)
+def test_target_vector_width(cpu, reported, width):
+    from meshsom.bmu_opencl import target_vector_width
+
+    assert target_vector_width(cpu, reported) == width
+
+
+def test_avx512_and_plain_cpu_tables_are_disjoint():
+    from meshsom.bmu_opencl import AVX512_CPUS, NON_AVX512_CPUS
+
+    assert not AVX512_CPUS & NON_AVX512_CPUS
+
+
+@pytest.mark.parametrize(
+    "version,width,layout",
+    [
+        (POCL_3.format("znver3"), 16, "cpu-narrow"),
+        (POCL_3.format("znver4"), 16, "cpu"),
+        (POCL_3.format("icelake-client"), 16, "cpu"),
+        (POCL_3.format("haswell"), 8, "cpu-narrow"),
+        ("OpenCL 3.0 SomeVendor", 16, "cpu"),  # not PoCL: the reported width stands
+    ],
+)
+def test_device_params_caps_the_width_at_the_kernel_target(version, width, layout):
+    pytest.importorskip("pyopencl")
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, device_params
+
+    assert device_params(FakeDevice(version, width=width)) == DEFAULT_PARAMS[layout]
+
+
+def test_device_params_gpu_ignores_the_cpu_name():
+    pytest.importorskip("pyopencl")
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, device_params
+
+    gpu = FakeDevice("OpenCL 3.0 CUDA", "560.35.03", width=1, cpu=False)
+    assert device_params(gpu) == DEFAULT_PARAMS["gpu"]
+    small = FakeDevice("OpenCL 3.0 CUDA", "560.35.03", width=1, cpu=False)
+    small.local_mem_size = 16 * 1024  # cannot hold a gemm work-group: the chain starts at "tiled"
+    assert device_params(small) == DEFAULT_PARAMS["tiled"]
+
+
 @pytest.mark.parametrize(
     "n,D,M",
     [(1, 9, 300), (3, 9, 300), (6, 9, 300), (1, 36, 250), (3, 36, 250), (6, 36, 250),

@@ -5,6 +5,18 @@
  * out of the hot loops of the kernels: PoCL may leave them as out-of-line calls, one call
  * per vector operation; the operators below always inline.
  *
+ * finish_row (every layout) and kernels/bmu_cpu.cl call no builtin that takes or returns a
+ * realv / irealv by value (no VSTORE, no VLOAD), so that VW = 16 builds on any CPU: how a
+ * 512-bit vector (float16, int16, double8, long8) is passed depends on avx512f, and PoCL
+ * can build the kernel for a CPU name without it while linking its AVX-512 builtin library.
+ * PoCL 3.0 with LLVM 14 does so on AMD Zen 4: LLVM 14 names the host "znver3" (no AVX-512)
+ * while the cpuid flags pick the library compiled for "skylake-avx512" and a preferred float
+ * width of 16. Clang then passes the float16 of vstore16 through memory (warning "AVX vector
+ * argument ... without 'avx512f' enabled changes the ABI"), the library's vstore16 takes it
+ * in a register, PoCL links the call to the mismatched definition, and code generation
+ * aborts the process: "LLVM ERROR: Do not know how to scalarize this operator's operand!".
+ * finish_row reads the lanes through unions instead.
+ *
  * Test hooks (meshsom.probe, MESHSOM_KERNEL_INJECT; never defined otherwise): a build that
  * fails, and a kernel that kills its process on its first launch.
  */
@@ -24,6 +36,10 @@ typedef CAT(REAL, VW) realv;
 typedef CAT(IREAL, VW) irealv;
 #define VLOAD CAT(vload, VW)
 #define VSTORE CAT(vstore, VW)
+
+/* the lanes of a vector as an array (see above: no vstore) */
+typedef union { realv v; REAL s[VW]; } realv_lanes;
+typedef union { irealv v; IREAL s[VW]; } irealv_lanes;
 
 #if VW == 2
 #define LANES ((irealv)(0, 1))
@@ -62,17 +78,17 @@ inline void finish_row(const realv *bd, const irealv *bu, const realv *sd, const
     REAL best_total = INFINITY;
     int best_v = 0, best_u = 0, best_s = 0;
     for (int v = 0; v < nv; ++v) {
-        REAL lb[VW], ls[VW];
-        IREAL lbu[VW], lsu[VW];
-        VSTORE(bd[v], 0, lb);
-        VSTORE(sd[v], 0, ls);
-        VSTORE(bu[v], 0, lbu);
-        VSTORE(su[v], 0, lsu);
+        realv_lanes lb, ls;
+        irealv_lanes lbu, lsu;
+        lb.v = bd[v];
+        ls.v = sd[v];
+        lbu.v = bu[v];
+        lsu.v = su[v];
         REAL B = INFINITY, S = INFINITY;
         IREAL BU = MP, SU = MP;
         for (int l = 0; l < VW; ++l) {
-            INSERT(lb[l], lbu[l], B, BU, S, SU);
-            INSERT(ls[l], lsu[l], B, BU, S, SU);
+            INSERT(lb.s[l], lbu.s[l], B, BU, S, SU);
+            INSERT(ls.s[l], lsu.s[l], B, BU, S, SU);
         }
         const REAL total = B + xnorm[v];
         if (total < best_total || (total == best_total && (int)BU < best_u)) {
