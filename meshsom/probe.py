@@ -234,14 +234,23 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
     return verdict
 
 
+#: What a compiler's or driver's message line starts with or holds, most telling first.
+ERROR_MARKERS = ("llvm error", "error:", "fatal", "error", "warning:")
+
+
 def first_error_line(text: str) -> str:
-    """The first line of compiler output that reads as an error, without temporary file paths."""
+    """The most telling line of a build's or child's output, without temporary file paths.
+
+    In order: an ``LLVM ERROR`` line, a compiler ``error:``, a fatal error, any error, a
+    compiler warning; never a line of a Python traceback (pyopencl repeats source lines there).
+    """
     lines = [re.sub(r"\S+\.cl:\d+:\d+: ", "", ln.strip()) for ln in text.splitlines() if ln.strip()]
-    for ln in lines:
-        low = ln.lower()
-        if "llvm error" in low or "error:" in low or low.startswith("error") or "fatal" in low:
-            return ln[:300]
-    return lines[-1][:300] if lines else "no output"
+    lines = [ln for ln in lines if not ln.startswith(("File \"", "Traceback", "lambda", "^", "~"))]
+    for marker in ERROR_MARKERS:
+        for ln in lines:
+            if marker in ln.lower():
+                return ln[:300]
+    return lines[-1][:300] if lines else "no message"
 
 
 def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str, timing: bool) -> tuple[Verdict, bool]:

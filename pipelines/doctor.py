@@ -101,6 +101,7 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 "max_work_group_size": dev.max_work_group_size,
                 "bmu_kernel": kernel,
                 "driver": dev.driver_version.strip(),
+                "kernel_target": _kernel_target(dev),
             })
             if kernels:
                 try:
@@ -108,6 +109,13 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 except Exception as err:  # doctor reports, never fails
                     out[-1]["layouts_error"] = f"{type(err).__name__}: {err}"
     return out
+
+
+def _kernel_target(device) -> str | None:
+    """PoCL's LLVM CPU name for kernels (what the vector width is capped by), None elsewhere."""
+    from meshsom.bmu_opencl import kernel_target_cpu
+
+    return kernel_target_cpu(device)
 
 
 def _device_type(t: int) -> str:
@@ -172,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
                 f"  [{d['id']}] {d['platform']} ({d['platform_version']}): {d['device']} "
                 f"{d['type']}, {d['compute_units']} CU, {d['global_mem_mb']} MB, local {d['local_mem_kb']} KB"
             )
-            print(f"        driver {d['driver']}; BMUofN kernel: {d['bmu_kernel']}")
+            target = f", kernel target CPU {d['kernel_target']}" if d.get("kernel_target") else ""
+            print(f"        driver {d['driver']}{target}; BMUofN kernel: {d['bmu_kernel']}")
             for v in d.get("layouts", []):
                 where = "not in this device's chain" if v["chain"] is None else f"chain position {v['chain'] + 1}"
                 if v["ok"]:
