@@ -45,7 +45,7 @@ def measure(store: Path) -> dict:
     man = read_manifest(store)
     records = man["records"]
     reasons = collections.Counter(
-        re.sub(r"\d+(\.\d+)?", "N", r["reason"]) for r in records if r["status"] == "rejected"
+        re.sub(r"\d+(\.\d+)?", "N", re.sub(r"part \S+ is", "part P is", r["reason"])) for r in records if r["status"] == "rejected"
     )
     out = {"inputs": len(records), "accepted": sum(r["status"] == "accepted" for r in records),
            "rejected": sum(r["status"] == "rejected" for r in records), "reasons": dict(reasons.most_common()),
