@@ -69,6 +69,15 @@ class ReaderOptions:
         CityJSON attribute holding a label (the synthetic corpus's family).
     object_types : tuple of str
         CityJSON object types taken as buildings.
+    footprint_grid : float
+        Grid (metres) on which the footprint union is computed (GEOS snap-rounding): edges of
+        roof polygons that miss each other by less than this are joined, so seams leave no
+        slivers or pin-holes. A footprint polygon narrower than the grid vanishes; anything wider
+        (a 2 m² shed) is kept. The default is the millimetre grid of most CityJSON files.
+    footprint_seam_width : float
+        A hole of the footprint union narrower than this (metres; mean width, 2 x area /
+        perimeter) is a seam between roof polygons that miss each other, not a courtyard, and is
+        filled. Real courtyards are metres wide; the seams of real LoD2 data are below 1 mm.
     footprint_simplify : float
         Tolerance (metres) with which extruded footprints are simplified.
     max_vertices : int
@@ -80,6 +89,8 @@ class ReaderOptions:
     extrude_lod1: bool = False
     label_attribute: str = "family"
     object_types: tuple[str, ...] = ("Building",)
+    footprint_grid: float = 0.001
+    footprint_seam_width: float = 0.01
     footprint_simplify: float = 0.01
     max_vertices: int = 50_000_000
 
@@ -95,6 +106,10 @@ class ReaderOptions:
                 ) from None
         if self.footprint_simplify < 0:
             raise ValueError(f"footprint_simplify must be >= 0, received {self.footprint_simplify}")
+        if not self.footprint_seam_width >= 0:
+            raise ValueError(f"footprint_seam_width must be >= 0 (metres), received {self.footprint_seam_width}")
+        if not self.footprint_grid >= 0:
+            raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
 
 
 @dataclass(frozen=True)
@@ -104,7 +119,8 @@ class RawMesh:
     Attributes
     ----------
     id : str
-        Stable id: file name, plus ``#object`` for objects inside a file.
+        Stable id: the file's path relative to the input root (the folder given, or the file's
+        own folder for a file given by name), plus ``#object`` for objects inside a file.
     source : str
         The file it came from.
     vertices : (V, 3) float64
@@ -114,6 +130,13 @@ class RawMesh:
         World position of the local origin.
     label : str or None
     lod : str or None
+    parts : tuple of str
+        The CityJSON objects (Building, BuildingParts) whose geometry the mesh holds, when more
+        than one: preprocessing unites them (:mod:`meshsom.union`). Empty otherwise.
+    face_part : (F,) int64 or None
+        Index into ``parts`` of every face's object; None when ``parts`` is empty.
+    notes : tuple of str
+        What the reader changed or left out, in words (recorded in the manifest).
     """
 
     id: str
@@ -123,6 +146,9 @@ class RawMesh:
     origin: np.ndarray = field(repr=False)
     label: str | None = None
     lod: str | None = None
+    parts: tuple[str, ...] = ()
+    face_part: np.ndarray | None = field(default=None, repr=False)
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -172,8 +198,24 @@ def input_kind(path: Path) -> str:
     )
 
 
-def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rejection]]:
-    """Turn files and folders into the list of files to read.
+@dataclass(frozen=True)
+class InputFile:
+    """A file to read and the name its mesh ids start with.
+
+    Attributes
+    ----------
+    path : Path
+    name : str
+        The path relative to the input root, with ``/`` separators: relative to the folder that
+        was given (``sub/folder/file.city.json``), or the file name for a file given by itself.
+    """
+
+    path: Path
+    name: str
+
+
+def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[InputFile], list[Rejection]]:
+    """Turn files and folders into the list of files to read, each with its id prefix.
 
     Folders are searched recursively for known file types (other files in them
     are ignored, as are ``labels.csv`` and ``SOURCE.md``). A path that does not
@@ -182,11 +224,18 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rej
 
     Returns
     -------
-    files : list of Path
+    files : list of InputFile
         Sorted within each folder, in input order otherwise.
     rejections : list of Rejection
+
+    Raises
+    ------
+    InputFileError
+        When two files would give their meshes the same ids (the same name relative to their
+        input roots, e.g. ``a/x.obj`` and ``b/x.obj`` given as two files, or one file given
+        twice), naming both.
     """
-    files: list[Path] = []
+    files: list[InputFile] = []
     rejected: list[Rejection] = []
     for item in inputs:
         p = Path(item)
@@ -202,7 +251,7 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rej
                     if not q.resolve().is_relative_to(root):
                         rejected.append(Rejection(str(q), str(q), f"is a link to {q.resolve()}, outside the folder {p}; not followed"))
                         continue
-                    found.append(q)
+                    found.append(InputFile(q, q.relative_to(p).as_posix()))
             if not found:
                 rejected.append(Rejection(str(p), str(p), "folder holds no readable mesh or CityJSON file"))
             files.extend(found)
@@ -212,28 +261,45 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[Path], list[Rej
             except InputFileError as err:
                 rejected.append(Rejection(str(p), str(p), err.problem))
                 continue
-            files.append(p)
+            files.append(InputFile(p, p.name))
         else:
             rejected.append(Rejection(str(p), str(p), "no such file or folder"))
+    first: dict[str, Path] = {}
+    for f in files:
+        if f.name in first:
+            raise InputFileError(
+                str(f.path), f"its mesh ids would start with {f.name!r}, as those of {first[f.name]} do; ids must be "
+                f"unique (give the folder that holds both, so ids carry the sub-folders, or rename one)",
+            )
+        first[f.name] = f.path
     return files, rejected
 
 
-def read_file(path: str | os.PathLike, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh | Rejection]:
+def read_file(
+    path: str | os.PathLike, options: ReaderOptions = ReaderOptions(), name: str | None = None
+) -> Iterator[RawMesh | Rejection]:
     """Read every mesh of one file.
 
-    A file that cannot be read at all yields one Rejection whose id is the
-    file; a CityJSON object that cannot be read yields a Rejection for that
-    object and the reader goes on with the others.
+    A file that cannot be read at all yields one Rejection whose id is ``name``
+    (the path when no name is given); a CityJSON object that cannot be read
+    yields a Rejection for that object and the reader goes on with the others.
+
+    Parameters
+    ----------
+    path : path
+    options : ReaderOptions
+    name : str, optional
+        The start of the mesh ids (:attr:`InputFile.name`); default: the file name.
     """
     path = Path(path)
     try:
         kind = input_kind(path)
         if kind == "cityjson":
-            yield from read_cityjson(path, options)
+            yield from read_cityjson(path, options, name)
         else:
-            yield from read_trimesh(path)
+            yield from read_trimesh(path, name)
     except InputFileError as err:
-        yield Rejection(str(path), str(path), err.problem)
+        yield Rejection(name or str(path), str(path), err.problem)
 
 
 def _labels_beside(path: Path) -> dict[str, str]:
@@ -253,11 +319,11 @@ def _labels_beside(path: Path) -> dict[str, str]:
         ) from None
 
 
-def read_trimesh(path: Path) -> Iterator[RawMesh]:
+def read_trimesh(path: Path, name: str | None = None) -> Iterator[RawMesh]:
     """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh.
 
     A scene yields one mesh per geometry node, with the node's transform
-    applied, id ``file#node``. Labels come from a ``labels.csv`` (columns
+    applied, id ``name#node`` (``name`` defaults to the file name). Labels come from a ``labels.csv`` (columns
     ``file``, ``label``) in the same folder, when there is one.
 
     Materials and textures are not loaded (only geometry is used), and the
@@ -283,6 +349,7 @@ def read_trimesh(path: Path) -> Iterator[RawMesh]:
     except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
         raise InputFileError(str(path), f"cannot be read as {path.suffix} ({type(err).__name__}: {err})") from None
     label = _labels_beside(path).get(path.name)
+    name = name or path.name
     if isinstance(loaded, trimesh.Scene):
         items = []
         for node in loaded.graph.nodes_geometry:
@@ -291,11 +358,11 @@ def read_trimesh(path: Path) -> Iterator[RawMesh]:
             if not isinstance(geom, trimesh.Trimesh):
                 continue
             v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
-            items.append((f"{path.name}#{node}", v, np.asarray(geom.faces, np.int64)))
+            items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64)))
         if not items:
             raise InputFileError(str(path), "holds no triangle mesh (only points, lines or nothing)")
     elif isinstance(loaded, trimesh.Trimesh):
-        items = [(path.name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64))]
+        items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64))]
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
     for mesh_id, v, f in items:
@@ -466,12 +533,19 @@ def _check_cityjson_header(cj, path: Path, options: ReaderOptions) -> tuple[np.n
     return vertices, scale, translate
 
 
-def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh | Rejection]:
+def read_cityjson(
+    path: Path, options: ReaderOptions = ReaderOptions(), name: str | None = None
+) -> Iterator[RawMesh | Rejection]:
     """Read the buildings of a CityJSON 1.0, 1.1 or 2.0 file.
 
     One mesh per Building (BuildingParts merged in, or kept apart with
     ``options.parts == "separate"``), from the geometries at the chosen LoD.
-    Polygons (with holes) are triangulated in their own plane.
+    Polygons (with holes) are triangulated in their own plane. Mesh ids are
+    ``name#objectid`` (``name`` defaults to the file name).
+
+    A merged Building whose geometry comes from several objects (the Building
+    and its BuildingParts) lists them in ``RawMesh.parts`` and tags every face
+    with its object (``RawMesh.face_part``), for the union in preprocessing.
     """
     if path.stat().st_size == 0:
         raise InputFileError(str(path), "file is empty")
@@ -488,7 +562,7 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
         raise InputFileError(str(path), "invalid JSON: arrays or objects nested too deeply") from None
     vertices, scale, translate = _check_cityjson_header(cj, path, options)
     objects: dict = cj["CityObjects"]
-    name = path.name
+    name = name or path.name
     groups: list[tuple[str, list[str]]] = []
     for oid, obj in objects.items():
         if not isinstance(obj, dict):
@@ -527,19 +601,21 @@ def read_cityjson(path: Path, options: ReaderOptions = ReaderOptions()) -> Itera
 
 
 def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label) -> RawMesh:
-    geoms = []
-    for m in members:
+    geoms, geom_member = [], []
+    for k, m in enumerate(members):
         member_geoms = objects[m].get("geometry", [])
         for g in member_geoms if isinstance(member_geoms, list) else []:
             if isinstance(g, dict):
                 geoms.append(g)
+                geom_member.append(k)
     if not geoms:
         raise InputFileError(mesh_id, "has no geometry")
     if any(g.get("type") == "GeometryInstance" for g in geoms) and not any(
         g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES for g in geoms
     ):
         raise InputFileError(mesh_id, "has only GeometryInstance (template) geometry, which is not supported")
-    usable = [g for g in geoms if g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES]
+    usable_at = [i for i, g in enumerate(geoms) if g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES]
+    usable = [geoms[i] for i in usable_at]
     if not usable:
         types = sorted({str(g.get("type")) for g in geoms})
         raise InputFileError(mesh_id, f"has no surface or solid geometry (found {', '.join(types)})")
@@ -553,8 +629,12 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         if not matches:
             raise InputFileError(mesh_id, f"has no geometry at LoD {options.lod} (available: {', '.join(lods)})")
         want = matches[0]
-    chosen = [g for g in usable if str(g.get("lod")) == want]
-    polygons = [poly for g in chosen for poly in _polygons_of(g, mesh_id)]
+    polygons, poly_member = [], []
+    for i in usable_at:
+        if str(geoms[i].get("lod")) == want:
+            found = _polygons_of(geoms[i], mesh_id)
+            polygons += found
+            poly_member += [geom_member[i]] * len(found)
     if not polygons:
         raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
     flat = _indices(mesh_id, [i for poly in polygons for ring in poly for i in ring])
@@ -589,18 +669,33 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         raise InputFileError(mesh_id, "coordinates overflow float64 after the transform or re-centring")
     import shapely.errors
 
+    notes: list[str] = []
     try:
-        faces = _triangulate_polygons(polygons, inverse, local)
+        faces, face_poly, dropped = _triangulate_polygons(polygons, inverse, local)
+        if dropped:
+            notes.append(
+                f"the reader dropped {dropped} polygon(s) at LoD {want} that cannot be triangulated from their own "
+                f"vertices (self-crossing rings, e.g. a twisted wall quad), leaving holes there"
+            )
         lod = want
-        if options.extrude_lod1:
-            local, faces = _extrude_footprint(mesh_id, local, faces, options.footprint_simplify)
+        if len(faces) and options.extrude_lod1:
+            local, faces, note = _extrude_footprint(mesh_id, local, faces, options)
+            notes += note
             lod = f"1 (extruded from {want})"
     except shapely.errors.GEOSException as err:
         raise InputFileError(mesh_id, f"a polygon cannot be triangulated (GEOS: {err})") from None
     n_in = sum(len(p) for p in polygons)
     if len(faces) == 0:
         raise InputFileError(mesh_id, f"all {n_in} polygons at LoD {want} are degenerate")
-    return RawMesh(mesh_id, source, local, faces, origin, label, lod)
+    parts, face_part = (), None
+    if not options.extrude_lod1:
+        used_members, face_part = np.unique(np.asarray(poly_member, np.int64)[face_poly], return_inverse=True)
+        if len(used_members) > 1:
+            parts = tuple(members[k] for k in used_members)
+            face_part = face_part.reshape(-1).astype(np.int64)
+        else:
+            face_part = None
+    return RawMesh(mesh_id, source, local, faces, origin, label, lod, parts, face_part, tuple(notes))
 
 
 def _indices(mesh_id: str, values: list) -> np.ndarray:
@@ -621,11 +716,21 @@ def _indices(mesh_id: str, values: list) -> np.ndarray:
     return flat
 
 
-def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> np.ndarray:
+def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Triangles of every polygon, as indices into ``local``.
 
     Triangles without holes (most of a triangulated city model) are taken as
     they are, in one vectorised step; other polygons are triangulated one by one.
+
+    Returns
+    -------
+    faces : (F, 3) int64
+    face_poly : (F,) int64
+        The polygon every face comes from.
+    dropped : int
+        Polygons that are not degenerate (their vertices span a plane) but could not be
+        triangulated whole from their own vertices: self-crossing rings, whose triangles would
+        need the crossing point, lose those triangles.
     """
     sizes = np.array([len(ring) for poly in polygons for ring in poly], np.int64)
     rings_per_poly = np.array([len(poly) for poly in polygons], np.int64)
@@ -634,6 +739,8 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> n
     simple_tri = (rings_per_poly == 1) & (sizes[poly_first_ring] == 3)
     tri_starts = ring_start[poly_first_ring[simple_tri]]
     out = [inverse[tri_starts[:, None] + np.arange(3)]]
+    out_poly = [np.flatnonzero(simple_tri)]
+    dropped = 0
     for p in np.flatnonzero(~simple_tri):
         r0 = poly_first_ring[p]
         rings_idx = [inverse[ring_start[r]:ring_start[r + 1]] for r in range(r0, r0 + rings_per_poly[p])]
@@ -642,9 +749,16 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> n
             continue  # a polygon collapsed to a line or point: nothing to triangulate
         rings_idx = rings_idx[:1] + [r for r in rings_idx[1:] if len(r) >= 3]
         tri = triangulate_polygon_3d([local[r] for r in rings_idx])
+        ids = np.concatenate(rings_idx)
+        # A polygon of n vertices and h holes has n + 2h - 2 triangles; fewer means a part of
+        # it was left out, unless it is degenerate (all its vertices on one line).
+        if len(tri) < len(ids) + 2 * (len(rings_idx) - 1) - 2:
+            p3 = local[ids] - local[ids].mean(axis=0)
+            dropped += int(np.linalg.matrix_rank(p3) >= 2 and len(np.unique(ids)) == len(ids))
         if len(tri):
-            out.append(np.concatenate(rings_idx)[tri])
-    return np.concatenate(out).astype(np.int64).reshape(-1, 3)
+            out.append(ids[tri])
+            out_poly.append(np.full(len(tri), p, np.int64))
+    return np.concatenate(out).astype(np.int64).reshape(-1, 3), np.concatenate(out_poly).astype(np.int64), dropped
 
 
 def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) -> np.ndarray:
@@ -685,31 +799,70 @@ def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:
     return ring[ring != np.roll(ring, 1)]
 
 
-def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, simplify: float):
-    """Closed LoD1 block: the union of the triangles seen from above, extruded over the z-range."""
+def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions):
+    """Closed LoD1 block: the union of the triangles seen from above, extruded over the z-range.
+
+    The union is exact up to ``options.footprint_grid`` (GEOS snap-rounding), with no buffer that
+    could erase a small polygon; holes narrower than ``options.footprint_seam_width`` (seams
+    between roof polygons) are filled; every polygon of the union is extruded (a footprint of
+    disjoint polygons gives a mesh of several shells, said in the notes).
+
+    Parameters
+    ----------
+    mesh_id : str
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    options : ReaderOptions
+
+    Returns
+    -------
+    vertices : (W, 3) float64
+    faces : (G, 3) int64
+    notes : list of str
+    """
     import shapely
 
     tris = vertices[faces][:, :, :2]
-    area = (tris[:, 1, 0] - tris[:, 0, 0]) * (tris[:, 2, 1] - tris[:, 0, 1]) - (
+    area2 = (tris[:, 1, 0] - tris[:, 0, 0]) * (tris[:, 2, 1] - tris[:, 0, 1]) - (
         tris[:, 1, 1] - tris[:, 0, 1]
     ) * (tris[:, 2, 0] - tris[:, 0, 0])
-    tris = tris[np.abs(area) > 1e-12]
+    tris = tris[area2 != 0]  # vertical faces add nothing seen from above
     if len(tris) == 0:
         raise InputFileError(mesh_id, "has no footprint (every polygon is vertical)")
-    polys = shapely.polygons(np.concatenate([tris, tris[:, :1]], axis=1))
-    footprint = shapely.union_all(shapely.buffer(polys, 1e-6, join_style="mitre")).buffer(-1e-6, join_style="mitre")
-    if simplify > 0:
-        footprint = footprint.simplify(simplify)
-    parts = [p for p in shapely.get_parts(footprint) if p.area > 0]
-    if not parts:
-        raise InputFileError(mesh_id, "footprint is empty after union")
-    largest = max(parts, key=lambda p: p.area)
-    shell = np.asarray(largest.exterior.coords)[:-1]
-    holes = [np.asarray(r.coords)[:-1] for r in largest.interiors]
     z0, z1 = float(vertices[:, 2].min()), float(vertices[:, 2].max())
     if not z1 > z0:
         raise InputFileError(mesh_id, "has zero height; cannot extrude a LoD1 block")
-    return extrude_polygon(shell, holes, z0, z1)
+    polys = shapely.polygons(np.concatenate([tris, tris[:, :1]], axis=1))
+    footprint = shapely.union_all(polys, grid_size=options.footprint_grid or None)
+    parts, seams = [], 0
+    for p in shapely.get_parts(footprint):
+        if p.geom_type != "Polygon" or not p.area > 0:
+            continue
+        holes = [r for r in p.interiors if 2 * abs(shapely.Polygon(r).area) > options.footprint_seam_width * r.length]
+        seams += len(p.interiors) - len(holes)
+        parts.append(shapely.Polygon(p.exterior, holes) if len(holes) < len(p.interiors) else p)
+    if options.footprint_simplify > 0:
+        parts = [p.simplify(options.footprint_simplify) for p in parts]
+    parts = sorted((p for p in parts if p.geom_type == "Polygon" and p.area > 0), key=lambda p: -p.area)
+    if not parts:
+        raise InputFileError(
+            mesh_id, f"footprint is empty: every polygon seen from above is narrower than footprint_grid "
+            f"({options.footprint_grid} m)"
+        )
+    out_v, out_f = [], []
+    offset = 0
+    for p in parts:
+        shell = np.asarray(p.exterior.coords)[:-1]
+        holes = [np.asarray(r.coords)[:-1] for r in p.interiors]
+        v, f = extrude_polygon(shell, holes, z0, z1)
+        out_v.append(v)
+        out_f.append(f + offset)
+        offset += len(v)
+    notes = [f"filled {seams} seam(s) between roof polygons in the footprint"] if seams else []
+    if len(parts) > 1:
+        areas = ", ".join(f"{p.area:.3g}" for p in parts)
+        notes.append(f"footprint of {len(parts)} disjoint polygons ({areas} m2), each extruded: {len(parts)} shells")
+    return np.concatenate(out_v), np.concatenate(out_f).astype(np.int64), notes
 
 
 # ----------------------------------------------------------------------------- writing

@@ -395,6 +395,12 @@ def _cap_planar_loops(v, f, dist, repairs):
     Loops lying in one plane are capped together, so a floor with a courtyard gets its hole. A loop
     that is not planar within ``dist``, or whose polygon cannot be triangulated from its own
     vertices (self-intersecting), is left open and the mesh is then rejected.
+
+    The cap is held to :func:`validate`'s own test: the 2D triangulation works on coordinates
+    rounded by the projection, where three vertices on one straight edge of the loop (exactly
+    collinear in 3D) can form a triangle of tiny positive area; such a triangle has zero area in
+    3D and would reject the mesh after capping. It is flipped away (:func:`_flip_flat_triangles`);
+    a cap that still has one is not used.
     """
     import shapely
 
@@ -452,9 +458,49 @@ def _cap_planar_loops(v, f, dist, repairs):
             # The boundary edges run a -> b in the mesh, so the cap must run b -> a: the cap
             # faces the way opposite to the loop's own orientation (fixed again by _orient).
             caps.append(ids[tri] if areas[s_k] < 0 else ids[tri][:, ::-1])
-    cap = np.concatenate(caps)
+    cap = _flip_flat_triangles(v, np.concatenate(caps))
+    if cap is None:
+        return f
     repairs.append(f"capped {len(loops)} open planar loop(s) with {len(cap)} triangles (missing floor or polygon)")
     return np.concatenate([f, cap])
+
+
+def _flip_flat_triangles(v, tri):
+    """Replace zero-area triangles of a planar triangulation by flipping their longest edge.
+
+    A zero-area triangle ``(p, q, m)`` whose vertex ``m`` lies on its longest edge ``p -> q``
+    and the triangle ``(q, p, x)`` across that edge become ``(p, x, m)`` and ``(x, q, m)``: the
+    same area, the same boundary, and positive areas unless ``x`` is on the line too (then the
+    next round flips again). Only the (rare) flat triangles are visited.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    tri : (T, 3) int64
+        Consistently oriented triangles of one planar region.
+
+    Returns
+    -------
+    tri : (T, 3) int64 or None
+        Without zero-area triangles (area as :func:`validate` computes it), or None when some
+        cannot be flipped away (the edge is on the region's boundary).
+    """
+    tri = tri.copy()
+    for _ in range(len(tri)):
+        flat = np.flatnonzero(~(np.linalg.norm(_cross(v, tri), axis=1) > 0))
+        if len(flat) == 0:
+            return tri
+        t = int(flat[0])
+        length = np.linalg.norm(v[np.roll(tri[t], -1)] - v[tri[t]], axis=1)
+        k = int(np.argmax(length))  # longest edge: tri[t, k] -> tri[t, k+1]
+        p, q, m = tri[t, k], tri[t, (k + 1) % 3], tri[t, (k + 2) % 3]
+        across = np.flatnonzero(((tri == q) & (np.roll(tri, -1, axis=1) == p)).any(axis=1))
+        if len(across) != 1:
+            return None
+        s = int(across[0])
+        x = int(tri[s][(tri[s] != p) & (tri[s] != q)][0])
+        tri[t], tri[s] = (p, x, m), (x, q, m)
+    return None
 
 
 def _split_t_junctions(v, f, tol, repairs, rounds=4):
@@ -761,7 +807,11 @@ def _triangulate_regions(v, f, region, n_regions, fallback, keep, plane_n, b_src
         if len(tri) != len(ids) + 2 * len(hole_ids) - 2 or (tri >= len(ids)).any():
             failed.append(r)
             continue
-        out.append(ids[tri])
+        region_tri = _flip_flat_triangles(v, ids[tri])
+        if region_tri is None:
+            failed.append(r)
+            continue
+        out.append(region_tri)
     if failed:
         return None, sorted(set(failed))
     return np.concatenate(out).astype(np.int64), []

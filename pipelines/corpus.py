@@ -67,13 +67,15 @@ class Shard:
 # ----------------------------------------------------------------------------- worker side
 
 
-def read_source(path: str, reader) -> list:
+def read_source(path: str, reader, name: str | None = None) -> list:
     """Every RawMesh / Rejection of one file, in the reader's order.
 
     Parameters
     ----------
     path : str
     reader : meshsom.io.ReaderOptions
+    name : str, optional
+        The start of the mesh ids (``meshsom.io.InputFile.name``).
 
     Returns
     -------
@@ -83,9 +85,9 @@ def read_source(path: str, reader) -> list:
     from meshsom.io import Rejection, read_file
 
     try:
-        return list(read_file(path, reader))
+        return list(read_file(path, reader, name))
     except OSError as err:
-        return [Rejection(str(path), str(path), f"cannot be read ({err.strerror or err})")]
+        return [Rejection(name or str(path), str(path), f"cannot be read ({err.strerror or err})")]
 
 
 def generate_items(generator, start: int, stop: int) -> list:
@@ -356,9 +358,9 @@ def run_corpus(client, cfg, store, resume: bool = False,
     read_futures = {}
     if plan is None:
         files, missing = expand_inputs(list(cfg.corpus.paths))
-        sources = [{"kind": "file", "path": str(f)} for f in files]
+        sources = [{"kind": "file", "path": str(f.path), "name": f.name} for f in files]
         for i, src in enumerate(sources):
-            read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, pure=False,
+            read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], pure=False,
                                             key=f"corpus-read-{run_id}-{i}")
         counts = {}
         for k, (i, n) in enumerate(zip(read_futures, client.gather([client.submit(len, f, pure=False)
@@ -396,7 +398,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
                                   key=f"corpus-generate-{run_id}-{sh.name}")
         else:
             if sh.source not in read_futures:
-                read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, pure=False,
+                read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"), pure=False,
                                                         key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
@@ -447,8 +449,12 @@ def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk,
     from meshsom.standardize import finalize, merge_accumulators
     # _put is the helper write_meshes uses: the per-mesh tables get exactly its chunking.
     from meshsom.store import STRING, _put, rings_name, write_manifest, write_stats
+    from pipelines import ingest
 
     ordered = [metas[sh.name] for sh in shards]
+    seen: dict[str, str] = {}  # ids unique before anything is written (expand_inputs checked the files already)
+    for r in [*plan["missing"], *(r for m in ordered for r in m["records"])]:
+        ingest.check_unique_id(seen, r["id"], r["source"])
     nv_shard = [sum(m["n_vertices"]) for m in ordered]
     nf_shard = [sum(m["n_faces"]) for m in ordered]
     nm_shard = [len(m["ids"]) for m in ordered]

@@ -51,7 +51,7 @@ def iter_raw_meshes(paths: Iterable[str], reader, generator=None) -> Iterator:
     files, missing = expand_inputs(list(paths))
     yield from missing
     for f in files:
-        yield from read_file(f, reader)
+        yield from read_file(f.path, reader, f.name)
     if generator is not None:
         from meshsom.generate import generate_corpus
 
@@ -61,10 +61,19 @@ def iter_raw_meshes(paths: Iterable[str], reader, generator=None) -> Iterator:
 
 
 def process_one(raw, params) -> tuple[dict, object | None]:
-    """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh."""
+    """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh.
+
+    A mesh of several CityJSON objects (a Building and its parts) is first united into its outer
+    surface (:func:`meshsom.union.union_parts`) and each shell of the union preprocessed; the
+    record's ``union`` says what the union did (parts, shells before and after, area removed) or
+    why it failed, in which case the parts' triangles are preprocessed together as they are (faces
+    shared by two parts go as internal walls). The reader's ``notes`` are recorded, and a mesh
+    rejected as open says so when the reader dropped polygons of it.
+    """
     from meshsom.io import Rejection
     from meshsom.preprocess import preprocess
     from meshsom.store import CleanMesh
+    from meshsom.union import preprocess_shells, union_parts
 
     if isinstance(raw, Rejection):
         return {
@@ -72,16 +81,61 @@ def process_one(raw, params) -> tuple[dict, object | None]:
             "faces_in": raw.faces_in, "faces_out": 0, "label": raw.label, "lod": None, "repairs": [],
         }, None
     record = {"id": raw.id, "source": raw.source, "faces_in": int(len(raw.faces)), "label": raw.label, "lod": raw.lod}
+    if raw.notes:
+        record["notes"] = list(raw.notes)
+    result = None
+    union_repairs: list[str] = []
+    if raw.face_part is not None and len(raw.parts) > 1:
+        try:
+            united = union_parts(raw.vertices, raw.faces, raw.face_part, params, raw.id, raw.parts)
+            result = preprocess_shells(united.shells, params, source=raw.id)
+        except MeshError as err:
+            record["union"] = {"status": "failed", "parts": len(raw.parts), "reason": err.problem}
+        else:
+            record["union"] = united.record()
+            union_repairs = united.repairs + [
+                f"united {united.parts} parts ({united.shells_before} shells) into {united.shells_after} "
+                f"shell(s), removing {united.area_removed:.6g} of {united.area_in:.6g} square units of surface"
+            ]
     try:
-        result = preprocess(raw.vertices, raw.faces, params, source=raw.id)
+        if result is None:
+            result = preprocess(raw.vertices, raw.faces, params, source=raw.id)
     except MeshError as err:
-        record.update(status="rejected", reason=err.problem, faces_out=0, repairs=[])
+        reason = err.problem
+        dropped = [n for n in raw.notes if "dropped" in n]
+        if reason.startswith("open boundary") and dropped:
+            reason = f"{reason}; {'; '.join(dropped)}"
+        if record.get("union", {}).get("status") == "failed":
+            reason = f"{reason}; the union of its parts failed too ({record['union']['reason']})"
+        record.update(status="rejected", reason=reason, faces_out=0, repairs=[])
         return record, None
     record.update(
-        status="accepted", reason="", faces_out=int(len(result.faces)), repairs=list(result.repairs),
+        status="accepted", reason="", faces_out=int(len(result.faces)), repairs=union_repairs + list(result.repairs),
         volume=float(result.volume_out),
     )
     return record, CleanMesh(raw.id, result.vertices, result.faces, raw.origin, raw.label)
+
+
+def check_unique_id(seen: dict, mesh_id: str, source: str) -> None:
+    """Refuse a mesh whose id an earlier mesh has.
+
+    Parameters
+    ----------
+    seen : dict
+        Id -> source of the meshes so far; this one is added.
+    mesh_id, source : str
+        The mesh's id and the file it comes from.
+
+    Raises
+    ------
+    InputFileError
+        Naming both sources.
+    """
+    from meshsom.errors import InputFileError
+
+    if mesh_id in seen:
+        raise InputFileError(source, f"mesh id {mesh_id!r} is also the id of a mesh from {seen[mesh_id]}; ids must be unique")
+    seen[mesh_id] = source
 
 
 #: Rough size of one input triangle in a mesh or CityJSON file, for the disk-space estimate.
@@ -175,7 +229,9 @@ def ingest(
     records: list[dict] = []
     clean = []
     bar = tqdm(desc="ingest", unit="mesh", disable=None if progress is None else not progress)
+    seen: dict[str, str] = {}
     for raw in iter_raw_meshes(paths, reader, generator):
+        check_unique_id(seen, raw.id, raw.source)
         record, mesh = process_one(raw, params)
         if mesh is not None:
             record["index"] = len(clean)

@@ -42,3 +42,61 @@ def two_buildings():
 def write(path, document):
     path.write_text(json.dumps(document))
     return path
+
+
+# ----------------------------------------------------------------------------- buildings of parts
+
+
+def box_solid(lo, hi, offset, lod="2"):
+    """An axis-aligned box from ``lo`` to ``hi`` (integer millimetres) as CityJSON vertices + Solid.
+
+    Returns
+    -------
+    vertices : list of [x, y, z]
+        Its 8 corners (append them to the file's vertices at index ``offset``).
+    solid : dict
+        A Solid whose six quads are counter-clockwise seen from outside.
+    """
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    corners = [[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0],
+               [x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]]
+    return corners, {"type": "Solid", "lod": lod, "boundaries": [[[[i + offset for i in q]] for q in CUBE_QUADS]]}
+
+
+def building_of_parts(boxes, lod="2"):
+    """One Building "B" whose BuildingParts "P0", "P1", ... are the given boxes (mm, lo/hi pairs)."""
+    verts, objects = [], {"B": {"type": "Building", "children": [f"P{k}" for k in range(len(boxes))]}}
+    for k, (lo, hi) in enumerate(boxes):
+        corners, solid = box_solid(lo, hi, len(verts), lod)
+        verts += corners
+        objects[f"P{k}"] = {"type": "BuildingPart", "parents": ["B"], "geometry": [solid]}
+    return doc(objects, verts)
+
+
+def prism_surfaces(ring, z0, z1, offset=0, floor=True, roof=True):
+    """A vertical prism over a ring (integer mm, made counter-clockwise seen from above) as polygons.
+
+    Returns
+    -------
+    vertices : list of [x, y, z]
+        The ring at ``z0`` then at ``z1``.
+    polygons : list
+        CityJSON polygons (one ring each): floor (optional), roof (optional), one quad per wall.
+    """
+    ring = list(ring)
+    if sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(ring, ring[1:] + ring[:1])) < 0:
+        ring = ring[::-1]
+    n = len(ring)
+    verts = [[x, y, z0] for x, y in ring] + [[x, y, z1] for x, y in ring]
+    polys = []
+    if floor:
+        polys.append([[offset + i for i in range(n - 1, -1, -1)]])
+    if roof:
+        polys.append([[offset + n + i for i in range(n)]])
+    polys += [[[offset + i, offset + (i + 1) % n, offset + n + (i + 1) % n, offset + n + i]] for i in range(n)]
+    return verts, polys
+
+
+#: A real footprint (Zürich, LV95 mm) of 83.6 m²: the old buffer trick of --extrude-lod1 emptied it.
+HEXAGON_MM = [[3798148, 514420], [3802684, 515176], [3802485, 516191], [3806120, 516813],
+              [3807915, 506553], [3799688, 505181]]

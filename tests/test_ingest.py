@@ -124,3 +124,33 @@ def test_existing_store_refused_before_work(tmp_path, capsys):
     rc = main(["ingest", "--generate", "2", "--out", str(tmp_path / "s.zarr")])
     assert rc == 2
     assert "already exists; pass --overwrite" in capsys.readouterr().err
+
+
+def test_ids_carry_sub_folders_and_collisions_are_errors(tmp_path, capsys):
+    for sub in ("a", "b"):
+        (tmp_path / "in" / sub).mkdir(parents=True)
+        write(tmp_path / "in" / sub / "x.city.json", doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS))
+    store = tmp_path / "ids.zarr"
+    assert main(["ingest", str(tmp_path / "in"), "--out", str(store)]) == 0
+    records = read_manifest(store)["records"]
+    assert sorted(r["id"] for r in records) == ["a/x.city.json#X", "b/x.city.json#X"]
+    assert sorted(mesh_table(open_store(store)).ids) == ["a/x.city.json#X", "b/x.city.json#X"]
+    # The same two files given one by one: both would be x.city.json#X; an error naming both, before any work.
+    rc = main(["ingest", str(tmp_path / "in" / "a" / "x.city.json"), str(tmp_path / "in" / "b" / "x.city.json"),
+               "--out", str(tmp_path / "clash.zarr")])
+    err = capsys.readouterr().err
+    assert rc == 2 and str(tmp_path / "in" / "a" / "x.city.json") in err and str(tmp_path / "in" / "b" / "x.city.json") in err
+    assert not (tmp_path / "clash.zarr").exists()
+
+
+def test_union_recorded_in_the_manifest(tmp_path):
+    from cityjson_samples import building_of_parts
+
+    path = write(tmp_path / "pair.city.json", building_of_parts([((0, 0, 0), (10000, 8000, 6000)), ((10000, 0, 0), (16000, 8000, 6000))]))
+    store = tmp_path / "u.zarr"
+    assert main(["ingest", str(path), "--out", str(store)]) == 0
+    (r,) = read_manifest(store)["records"]
+    assert r["union"]["status"] == "united" and r["union"]["shells_after"] == 1
+    assert r["union"]["area_removed"] == pytest.approx(2 * 8 * 6)
+    v, f = read_mesh(open_store(store), 0)
+    assert _volume(v, f) == pytest.approx(16 * 8 * 6) and len(v) == 8

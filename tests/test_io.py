@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from cityjson_samples import CUBE_QUADS, CUBE_VERTS, cube_solid, doc, two_buildings, write
+from cityjson_samples import CUBE_QUADS, CUBE_VERTS, HEXAGON_MM, cube_solid, doc, two_buildings, write
+from meshsom.errors import InputFileError
 from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 
 
@@ -155,9 +156,106 @@ def test_trimesh_formats_and_labels_csv(tmp_path, cube):
         trimesh.Trimesh(v + [2.6e6, 1.2e6, 400], f, process=False).export(tmp_path / f"c.{ext}")
     (tmp_path / "labels.csv").write_text("file,label\nc.obj,box\n")
     files, _ = expand_inputs([tmp_path])
-    assert sorted(p.suffix for p in files) == [".glb", ".obj", ".off", ".ply", ".stl"]
-    for p in files:
+    assert sorted(f.path.suffix for f in files) == [".glb", ".obj", ".off", ".ply", ".stl"]
+    assert sorted(f.name for f in files) == ["c.glb", "c.obj", "c.off", "c.ply", "c.stl"]
+    for p in (f.path for f in files):
         (m,) = [r for r in read_file(p) if isinstance(r, RawMesh)]
         assert _volume(m) == pytest.approx(1.0), p
         assert np.allclose(m.origin, [2.6e6 + 0.5, 1.2e6 + 0.5, 400.5]), p
         assert m.label == ("box" if p.suffix == ".obj" else None)
+
+
+# ---------------------------------------------------------------------------- --extrude-lod1 footprints
+
+
+def _footprint_building(tmp_path, rings, z0=0, z1=6000, name="f.city.json"):
+    """One Building whose BuildingParts are LoD2 prisms (MultiSurface, no floor) over the rings (mm)."""
+    from cityjson_samples import prism_surfaces
+
+    verts, objects = [], {"B": {"type": "Building", "children": [f"P{k}" for k in range(len(rings))]}}
+    for k, ring in enumerate(rings):
+        v, polys = prism_surfaces(ring, z0, z1, len(verts), floor=False)
+        verts += v
+        objects[f"P{k}"] = {"type": "BuildingPart", "parents": ["B"],
+                            "geometry": [{"type": "MultiSurface", "lod": "2", "boundaries": polys}]}
+    return write(tmp_path / name, doc(objects, verts))
+
+
+def _extruded(path):
+    ok, rej = _read(path, extrude_lod1=True)
+    assert rej == [] and len(ok) == 1
+    m = ok[0]
+    t = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    assert t.is_watertight and t.is_winding_consistent
+    return m, t
+
+
+def _shapely_footprint(rings):
+    import shapely
+
+    return shapely.union_all([shapely.Polygon(np.array(r, float) / 1000) for r in rings])
+
+
+@pytest.mark.parametrize(
+    "rings",
+    [
+        [[[0, 0], [1000, 0], [1000, 2000], [0, 2000]]],  # a 2 m2 shed
+        [HEXAGON_MM],  # a real 83.6 m2 block the old buffer trick emptied
+        [[[0, 0], [10000, 0], [10000, 8000], [0, 8000]], [[10000, 0], [16000, 0], [16000, 8000], [10000, 8000]]],
+    ],
+    ids=["2 m2", "hexagon", "two parts sharing a wall"],
+)
+def test_extruded_footprint_is_the_union_of_all_parts(tmp_path, rings):
+    m, t = _extruded(_footprint_building(tmp_path, rings))
+    fp = _shapely_footprint(rings)
+    assert fp.geom_type == "Polygon"
+    assert t.volume == pytest.approx(fp.area * 6, rel=1e-9)
+    assert t.area == pytest.approx(2 * fp.area + fp.length * 6, rel=1e-9)
+    assert len(t.vertices) == 2 * len(fp.simplify(0).exterior.coords[:-1])
+    assert m.notes == () and m.parts == () and m.face_part is None
+
+
+def test_footprint_of_disjoint_polygons_is_extruded_whole(tmp_path):
+    ell = [[0, 0], [12000, 0], [12000, 4000], [4000, 4000], [4000, 9000], [0, 9000]]
+    tri = [[30000, 0], [35000, 0], [30000, 3000]]  # 7.5 m2, far from the L
+    m, t = _extruded(_footprint_building(tmp_path, [ell, tri], 1000, 7000))
+    fp = _shapely_footprint([ell, tri])
+    assert fp.geom_type == "MultiPolygon" and len(fp.geoms) == 2
+    assert t.volume == pytest.approx(fp.area * 6, rel=1e-9)  # both polygons: nothing lost
+    assert t.area == pytest.approx(2 * fp.area + fp.length * 6, rel=1e-9)
+    assert len(t.split(only_watertight=True)) == 2
+    assert any("footprint of 2 disjoint polygons" in n for n in m.notes)
+
+
+def test_footprint_seams_are_filled_but_courtyards_kept(tmp_path):
+    """Two roofs that miss each other by up to 1 mm leave a seam (filled); a 4 x 4 m courtyard stays."""
+    a = [[0, 0], [10000, 0], [10000, 10000], [0, 10000]]
+    b = [[10000, 0], [20000, 0], [20000, 10000], [10000, 10000], [10000, 6000], [10001, 5000], [10000, 4000]]  # 1 mm kink
+    m, t = _extruded(_footprint_building(tmp_path, [a, b]))
+    assert t.volume == pytest.approx(200 * 6, rel=1e-9)
+    assert m.notes == ("filled 1 seam(s) between roof polygons in the footprint",)
+    roof = [[0, 1, 2, 3], [4, 7, 6, 5]]  # 20 x 20 m roof with a 4 x 4 m courtyard, at 6 m
+    wall = [[0, 8, 9, 1]]  # one wall down to the ground gives the z-range
+    verts = [[0, 0, 6000], [20000, 0, 6000], [20000, 20000, 6000], [0, 20000, 6000],
+             [8000, 8000, 6000], [12000, 8000, 6000], [12000, 12000, 6000], [8000, 12000, 6000],
+             [0, 0, 0], [20000, 0, 0]]
+    court = doc({"C": {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "2", "boundaries": [roof, wall]}]}}, verts)
+    m2, t2 = _extruded(write(tmp_path / "court.city.json", court))
+    assert t2.volume == pytest.approx((400 - 16) * 6, rel=1e-9)
+    assert t2.area == pytest.approx(2 * 384 + (80 + 16) * 6, rel=1e-9)
+
+
+# ---------------------------------------------------------------------------- ids
+
+
+def test_same_file_name_in_two_folders_gives_distinct_ids(tmp_path):
+    for sub in ("north", "south/deep"):
+        (tmp_path / "in" / sub).mkdir(parents=True)
+        write(tmp_path / "in" / sub / "tile.city.json", doc({"A": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS))
+    files, rej = expand_inputs([tmp_path / "in"])
+    assert rej == [] and [f.name for f in files] == ["north/tile.city.json", "south/deep/tile.city.json"]
+    ids = [m.id for f in files for m in read_file(f.path, ReaderOptions(), f.name)]
+    assert ids == ["north/tile.city.json#A", "south/deep/tile.city.json#A"]
+    with pytest.raises(InputFileError) as err:  # the two files given by themselves: both named tile.city.json
+        expand_inputs([tmp_path / "in" / "north" / "tile.city.json", tmp_path / "in" / "south" / "deep" / "tile.city.json"])
+    assert "north" in str(err.value) and "deep" in str(err.value) and "'tile.city.json'" in str(err.value)

@@ -256,3 +256,48 @@ def test_retriangulate_off_keeps_input_faces():
 def test_params_validated(bad):
     with pytest.raises(ValueError):
         PreprocessParams(**bad)
+
+
+# ---------------------------------------------------------------------------- capping agrees with validate
+
+
+def _fan_with_flat_ear(real):
+    """A stand-in for triangulate_polygon_2d that, like GEOS on rounded projected coordinates, can
+    emit a flat ear: a fan from the vertex before a collinear one (its first triangle has zero area)."""
+
+    def fake(shell, holes=()):
+        shell = np.asarray(shell, float)
+        n = len(shell)
+        d1 = np.roll(shell, -1, axis=0) - shell
+        d2 = np.roll(d1, -1, axis=0)
+        flat = np.flatnonzero(np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) < 1e-9 * np.abs(d1).max() ** 2)
+        if len(holes) or len(flat) == 0:
+            return real(shell, holes)
+        j = int(flat[0])  # vertex j+1 lies on the segment j -> j+2
+        tri = np.array([[j, (j + k) % n, (j + k + 1) % n] for k in range(1, n - 1)], np.int64)
+        x, y = shell[:, 0], shell[:, 1]
+        if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) < 0:
+            tri = tri[:, ::-1]
+        return shell, tri
+
+    return fake
+
+
+def test_capped_multisurface_building_is_accepted_with_exact_geometry(tmp_path, monkeypatch):
+    """LoD2 MultiSurface without a floor whose bottom loop has vertices on a straight edge: the cap's
+    flat triangle (zero area in 3D) is flipped away, so capping never hands validate a zero-area face."""
+    import meshsom.preprocess as pre
+    from cityjson_samples import doc, prism_surfaces, write
+    from meshsom.io import ReaderOptions, read_file
+
+    monkeypatch.setattr(pre, "triangulate_polygon_2d", _fan_with_flat_ear(pre.triangulate_polygon_2d))
+    ring = [[0, 0], [5000, 0], [10000, 0], [10000, 8000], [0, 8000]]  # (5, 0) on the edge (0, 0) -> (10, 0)
+    verts, polys = prism_surfaces(ring, 0, 6000, floor=False)
+    d = doc({"M": {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "2", "boundaries": polys}]}}, verts)
+    (raw,) = read_file(write(tmp_path / "ms.city.json", d), ReaderOptions())
+    r = preprocess(raw.vertices, raw.faces)
+    assert any(x.startswith("capped 1 open planar loop") for x in r.repairs)
+    assert validate(r.vertices, r.faces) is None
+    assert _volume(r.vertices, r.faces) == pytest.approx(10 * 8 * 6, rel=1e-12)
+    assert trimesh.Trimesh(r.vertices, r.faces, process=False).area == pytest.approx(2 * 80 + 36 * 6, rel=1e-12)
+    assert len(r.vertices) == 8  # the vertex on the edge goes: the two wall quads beside it are coplanar
