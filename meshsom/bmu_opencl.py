@@ -20,6 +20,7 @@ or a case-insensitive substring of a platform or device name (``"pocl"``, ``"nvi
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import weakref
@@ -31,6 +32,8 @@ import numpy as np
 from meshsom.bmu_numpy import BMUResult, exact_dist2, validate
 from meshsom.errors import DeviceError
 from meshsom.probe import injected_defines
+
+log = logging.getLogger(__name__)
 
 #: Environment variable read when no device selector is given (pyopencl's own).
 ENV_SELECTOR = "PYOPENCL_CTX"
@@ -569,6 +572,8 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
             verdict = check(device, device_selector(device), defines, text, BUILD_OPTIONS, layout=layout)
             if not verdict.ok:
                 raise KernelLayoutError(layout, device_name(context), verdict.reason, verdict.cached)
+        log.info("building BMUofN kernel layout %r on %s (D=%s, n=%s)", layout, device_name(context),
+                 defines["D"], defines["NV"])
         try:
             cache[key] = (cl.Program(context, text).build(options=options), {})
         except cl.Error as err:
@@ -732,6 +737,10 @@ _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 def _queue(context):
     """One command queue per context."""
+    cl = _cl()
     if context not in _QUEUES:
-        _QUEUES[context] = _cl().CommandQueue(context)
+        try:
+            _QUEUES[context] = cl.CommandQueue(context)
+        except cl.Error as err:
+            raise DeviceError(f"{device_name(context)}: cannot open a command queue ({err})") from None
     return _QUEUES[context]
