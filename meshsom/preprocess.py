@@ -19,11 +19,14 @@ Steps
 4. Orient every face consistently (parity components of the dual graph), then each shell outward
    (positive signed volume).
 4a. Clean folds: collapse edges shorter than ``min_edge_length`` metres (every chain of short
-   edges becomes one vertex at its centroid), then remove zero-thickness parts that pass the
-   closed-and-oriented checks: fins and pairs of faces folded flat onto each other (a fold angle
-   within ``flat_fold_deg`` of 0 or 2 pi; their coplanar, opposite-facing overlap is removed). The
-   mesh must stay closed, edge-manifold and oriented, with its volume within ``volume_rtol``; a
-   fold that stays near 0/2 pi (a thin spike) rejects the mesh with that reason.
+   edges becomes one vertex at its centroid), then repair zero-thickness parts that pass the
+   closed-and-oriented checks (a fold angle within ``flat_fold_deg`` of 0 or 2 pi): exact fins and
+   pairs of faces folded flat onto each other lose their coplanar, opposite-facing overlap; what
+   remains (fins and caps that overlap only partly, thin spikes and notches a few millimetres
+   wide) is rebuilt by manifold3d with ``fold_repair_tol`` metres of tolerance, which collapses
+   features thinner than that. The mesh must stay closed, edge-manifold and oriented, with its
+   volume within ``volume_rtol`` and no fold left near 0/2 pi; a mesh that no repair makes so is
+   rejected with the reason.
 5. Planar regions: edge-connected faces whose normals agree within ``planar_angle_deg`` and whose
    vertices lie within ``planar_dist`` x diagonal of the region's plane. A region boundary vertex is
    kept if it is a corner (or a pinch) in at least one region it touches; otherwise it is collinear
@@ -91,9 +94,16 @@ class PreprocessParams:
         such an edge beside a face tens of metres long gives folds with ``v`` in the thousands).
         0 disables the collapse.
     flat_fold_deg : float
-        Fold angles within this many degrees of 0 or 2 pi are zero-thickness fins or faces folded
-        flat onto each other: they are removed (exactly coplanar, overlapping, opposite faces) or
-        the mesh is rejected (default 1.0; no accepted mesh has such a fold). 0 disables the check.
+        Fold angles within this many degrees of 0 or 2 pi are zero-thickness fins, faces folded
+        flat onto each other, thin spikes or notches: they are repaired (exactly coplanar,
+        overlapping, opposite faces removed; otherwise the mesh rebuilt by manifold3d with
+        ``fold_repair_tol``) or the mesh is rejected when no repair removes them (default 1.0; no
+        accepted mesh has such a fold). 0 disables the check and the repairs.
+    fold_repair_tol : float
+        Tolerance in metres (absolute) of manifold3d's rebuild of a mesh with flat folds
+        (``Manifold.set_tolerance``): vertices, edges and slivers closer than this are merged,
+        so a spike or notch thinner than this near its tip, or a partly overlapping fin, goes
+        (default 0.01, as ``min_edge_length``). 0 disables the rebuild.
     """
 
     weld_tol: float = 1e-8
@@ -108,6 +118,7 @@ class PreprocessParams:
     min_faces: int = 4
     min_edge_length: float = 0.01
     flat_fold_deg: float = 1.0
+    fold_repair_tol: float = 0.01
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -118,6 +129,8 @@ class PreprocessParams:
             raise ValueError(f"planar_angle_deg must be in [0, 90); received {self.planar_angle_deg!r}")
         if not (isinstance(self.min_edge_length, (int, float)) and 0 <= self.min_edge_length < math.inf):
             raise ValueError(f"min_edge_length must be a finite number >= 0 (metres); received {self.min_edge_length!r}")
+        if not (isinstance(self.fold_repair_tol, (int, float)) and 0 <= self.fold_repair_tol < math.inf):
+            raise ValueError(f"fold_repair_tol must be a finite number >= 0 (metres); received {self.fold_repair_tol!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
@@ -633,7 +646,7 @@ def _opposite_overlap(v, f, normal, a, dist):
 
 
 def _clean_folds(v, f, params, diag, volume_in, source, repairs):
-    """Step 4a: collapse short edges, remove zero-thickness sheets; the mesh stays closed and oriented.
+    """Step 4a: collapse short edges, repair flat folds; the mesh stays closed and oriented.
 
     Parameters
     ----------
@@ -657,8 +670,9 @@ def _clean_folds(v, f, params, diag, volume_in, source, repairs):
     Raises
     ------
     MeshError
-        When the removal of fins breaks closedness, manifoldness, orientation or the volume, or
-        when a fold within ``flat_fold_deg`` of 0/2 pi cannot be removed. A collapse that would
+        When no repair (removing exact overlaps, manifold3d's rebuild) leaves the mesh closed,
+        edge-manifold, oriented, within ``volume_rtol`` of its volume and without a fold within
+        ``flat_fold_deg`` of 0/2 pi; the reason says what each repair left. A collapse that would
         break the mesh is not made (recorded in ``repairs``).
     """
     if params.min_edge_length > 0:
@@ -669,43 +683,193 @@ def _clean_folds(v, f, params, diag, volume_in, source, repairs):
             v, f, repairs[:] = cv, cf, trial
         else:  # the mesh stays as it was: valid, with its short edges
             repairs.append(f"kept the edges shorter than {params.min_edge_length:g} m (collapsing them gives: {problem})")
-    v0, f0 = v, f
-    if params.flat_fold_deg > 0:
-        tol = math.radians(params.flat_fold_deg)
+    flat = _flat_fold_problem(v, f, params)
+    if flat is None:
+        problem = _fold_cleaning_problem(v, f, params, volume_in)
+        if problem is not None:
+            raise MeshError(source, f"collapsing edges shorter than {params.min_edge_length:g} m: {problem}")
+        return _compact(v, f)
+    # Exact fins and faces folded flat: their overlap goes. What stays (partial overlaps, thin
+    # spikes and notches) is rebuilt by manifold3d, from the mesh without the exact overlaps if
+    # their removal left it valid.
+    trial = list(repairs)
+    v, g = _remove_flat_overlaps(v, f, params, diag, trial)
+    problem = _fold_cleaning_problem(v, g, params, volume_in)
+    if problem is None:
+        repairs[:] = trial
+        return _compact(v, g)
+    if validate(v, g) is None:
+        f, repairs[:] = g, trial
+    rebuilds = [("local edge flips and vertex merges", _flip_or_collapse_flat_folds)]
+    if params.fold_repair_tol > 0:
+        rebuilds.insert(0, (f"manifold3d's rebuild at {params.fold_repair_tol:g} m tolerance", _manifold_rebuild))
+    for name, rebuild in rebuilds:
+        rv, rf, summary = rebuild(v, f, params, volume_in)
+        if summary is None:
+            problem = f"{problem}; {name} failed: {rf}"
+            continue
+        rproblem = _fold_cleaning_problem(rv, rf, params, volume_in)
+        if rproblem is None:
+            change = 100 * abs(signed_volume(rv, rf) - volume_in) / abs(volume_in)
+            repairs.append(f"{summary} (the volume changed by {change:.2g} %), for flat folds: {flat}")
+            return _compact(rv, rf)
+        problem = f"{problem}; {name} left: {rproblem}"
+    raise MeshError(source, f"{flat}, not repaired: removing overlapping opposite faces left: {problem}")
+
+
+def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
+    """Remove flat folds one at a time by the local change that moves the volume least.
+
+    For a flat fold across edge ``p -> q`` between faces ``(p, q, a)`` and ``(q, p, b)``, the
+    candidates are flipping the edge (to ``(p, b, a)``, ``(b, q, a)``) and merging any of the four
+    vertices into another; the candidate kept leaves the mesh valid, has fewer flat folds, and
+    changes the enclosed volume least. Used only when manifold3d's rebuild left flat folds, on
+    the handful of edges that have them (each candidate is checked on the whole mesh).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented.
+    params : PreprocessParams
+    volume_in : float
+        The volume the result must stay within ``volume_rtol`` of.
+    max_steps : int
+        Most changes made.
+
+    Returns
+    -------
+    v : (V, 3) float64
+        The vertices, not moved.
+    f : (G, 3) int64
+        Faces after the changes.
+    summary : str
+        The changes made, in words.
+    """
+    tol = math.radians(params.flat_fold_deg)
+
+    def count(g):
+        alpha, _ = _fold_angles(v, g)
+        return int((np.minimum(alpha, 2 * np.pi - alpha) < tol).sum())
+
+    steps, n_flat = 0, count(f)
+    while n_flat and steps < max_steps:
         alpha, neighbour = _fold_angles(v, f)
-        flat = np.minimum(alpha, 2 * np.pi - alpha) < tol
-        if flat.any():
-            cross = _cross(v, f)
-            area2 = np.linalg.norm(cross, axis=1)
-            normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
-            t, i = np.nonzero(flat)
-            s = neighbour[t, i]
-            exact = np.einsum("ij,ij->i", normal[t], normal[s]) <= -0.999999  # coplanar, opposite
-            remove = np.zeros(len(f), bool)
-            for a in np.unique(t[exact]):
-                if not remove[a]:
-                    remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)
-            if remove.any():
-                f = f[~remove]
-                repairs.append(
-                    f"removed {int(remove.sum())} faces of zero-thickness fins or faces folded flat onto each other "
-                    f"(fold angle within {params.flat_fold_deg:g} degrees of 0 or 2 pi)"
-                )
-                if len(f) < params.min_faces:
-                    raise MeshError(source, f"only {len(f)} faces left after removing zero-thickness fins")
-    problem = validate(v, f)
+        best = None  # (|volume change|, faces, flat folds)
+        for t, k in zip(*np.nonzero(np.minimum(alpha, 2 * np.pi - alpha) < tol)):
+            s = neighbour[t, k]
+            p, q, a = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
+            b = f[s][(f[s] != p) & (f[s] != q)][0]
+            trials = [np.concatenate([np.delete(f, [t, s], axis=0), [[p, b, a], [b, q, a]]])]
+            for x in (p, q, a, b):
+                for y in (p, q, a, b):
+                    if x != y:
+                        g = np.where(f == x, y, f)
+                        trials.append(g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])])
+            for g in trials:
+                if len(g) < params.min_faces or validate(v, g) is not None:
+                    continue
+                change = abs(signed_volume(v, g) - volume_in)
+                if change > params.volume_rtol * abs(volume_in) or (best is not None and change >= best[0]):
+                    continue
+                c = count(g)
+                if c < n_flat:
+                    best = (change, g, c)
+        if best is None:
+            break
+        _, f, n_flat = best
+        steps += 1
+    return v, f, f"{steps} local edge flips or vertex merges"
+
+
+def _remove_flat_overlaps(v, f, params, diag, repairs):
+    """Remove the overlap of exactly coplanar, opposite faces that meet at a flat fold.
+
+    Returns
+    -------
+    f : (G, 3) int64
+        ``f`` without the faces of zero-thickness fins and pairs folded flat onto each other
+        (:func:`_opposite_overlap`); validity is checked by the caller.
+    """
+    tol = math.radians(params.flat_fold_deg)
+    alpha, neighbour = _fold_angles(v, f)
+    flat = np.minimum(alpha, 2 * np.pi - alpha) < tol
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    t, i = np.nonzero(flat)
+    s = neighbour[t, i]
+    exact = np.einsum("ij,ij->i", normal[t], normal[s]) <= -0.999999  # coplanar, opposite
+    remove = np.zeros(len(f), bool)
+    for a in np.unique(t[exact]):
+        if not remove[a]:
+            remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)
+    if remove.any():
+        repairs.append(
+            f"removed {int(remove.sum())} faces of zero-thickness fins or faces folded flat onto each other "
+            f"(fold angle within {params.flat_fold_deg:g} degrees of 0 or 2 pi)"
+        )
+    return v, f[~remove]
+
+
+def _fold_cleaning_problem(v, f, params, volume_in):
+    """Why a cleaned mesh is not acceptable (not valid, too few faces, flat folds, volume), or None."""
+    if len(f) < params.min_faces:
+        return f"only {len(f)} faces left"
+    problem = validate(v, f) or _flat_fold_problem(v, f, params)
     if problem is not None:
-        flat = _flat_fold_problem(v0, f0, params)
-        raise MeshError(source, f"{flat}; removing their overlap left: {problem}")
-    problem = _flat_fold_problem(v, f, params)
-    if problem is not None:
-        raise MeshError(source, problem)
+        return problem
     volume = signed_volume(v, f)
     if abs(volume - volume_in) > params.volume_rtol * abs(volume_in):
-        raise MeshError(
-            source, f"cleaning folds (short edges, fins) changed the volume by {100 * abs(volume - volume_in) / abs(volume_in):.3g} %"
-        )
-    return _compact(v, f)
+        return f"the volume changed by {100 * abs(volume - volume_in) / abs(volume_in):.3g} %"
+    return None
+
+
+def _manifold_rebuild(v, f, params, volume_in):
+    """The mesh rebuilt by manifold3d with an absolute tolerance, which removes thin features.
+
+    manifold3d (``Manifold.set_tolerance``) merges vertices and collapses edges and slivers
+    closer than ``tol`` as long as the surface moves by less than ``tol``: the tip of a thin
+    spike or notch, a fin whose sides overlap only partly and faces folded onto each other become
+    a plain surface. The result is a closed, oriented 2-manifold by construction (checked again by
+    the caller, with the flat folds and the volume).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented.
+    params : PreprocessParams
+        ``fold_repair_tol``: the absolute tolerance (the mesh's units, metres).
+    volume_in : float
+        Unused (the signature of every flat-fold repair).
+
+    Returns
+    -------
+    v : (W, 3) float64
+    f : (G, 3) int64 or str
+        The rebuilt mesh; on failure ``f`` is manifold3d's status, in words.
+    summary : str or None
+        What was done, in words; None on failure.
+    """
+    tol = params.fold_repair_tol
+    try:
+        import manifold3d
+    except ImportError as err:  # pragma: no cover - manifold3d is a declared dependency
+        raise ImportError("repairing flat folds needs manifold3d: pip install 'manifold3d>=3.0'") from err
+    centre = (v.min(axis=0) + v.max(axis=0)) / 2  # coordinates of the mesh's own size
+    solid = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(v - centre, np.float64), tri_verts=np.ascontiguousarray(f, np.uint64),
+    ))
+    if solid.status() != manifold3d.Error.NoError:
+        return v, f"manifold3d refuses the mesh ({solid.status().name})", None
+    solid = solid.set_tolerance(tol)
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        return v, f"manifold3d's rebuild failed ({solid.status().name if not solid.is_empty() else 'empty'})", None
+    mesh = solid.to_mesh64()
+    out_v = np.asarray(mesh.vert_properties, np.float64)[:, :3] + centre
+    out_f = np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
+    return out_v, out_f, f"rebuilt with manifold3d at {tol:g} m tolerance ({len(f)} faces to {len(out_f)})"
 
 
 def _collapse_short_edges(v, f, min_length, source, repairs):

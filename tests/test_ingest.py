@@ -20,18 +20,19 @@ def _volume(v, f):
     return np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6
 
 
-def test_derived_zurich_lod1_ingests_43_of_49(tmp_path, data_dir):
+def test_derived_zurich_lod1_ingests_49_of_49(tmp_path, data_dir):
     store = tmp_path / "z.zarr"
     rc = main(["ingest", str(data_dir / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"), "--out", str(store)])
     assert rc == 0
     s = _summary(store)
-    # 6 blocks have fins or notches whose faces only partly overlap (fold angle 0 or 2 pi): rejected, with that reason
-    assert (s["inputs"], s["accepted"], s["rejected"]) == (49, 43, 6)
-    reasons = [r["reason"] for r in read_manifest(store)["records"] if r["status"] == "rejected"]
-    assert all("fold within 1 degrees of 0 or 2 pi" in r for r in reasons)
+    assert (s["inputs"], s["accepted"], s["rejected"]) == (49, 49, 0)
+    # 8 blocks had fins or notches (fold angle 0 or 2 pi): 6 rebuilt by manifold3d, 2 exact fins removed
+    repairs = [" ".join(r["repairs"]) for r in read_manifest(store)["records"]]
+    assert sum("rebuilt with manifold3d" in r for r in repairs) == 6
+    assert sum("zero-thickness fins" in r for r in repairs) == 2
     g = open_store(store)
     t = mesh_table(g)
-    assert len(t) == 43 and t.ids[0].startswith("zurich_subset_lod1_derived.city.json#")
+    assert len(t) == 49 and t.ids[0].startswith("zurich_subset_lod1_derived.city.json#")
     # LV95 origins, local coordinates small.
     assert (t.origins[:, 0] > 2.6e6).all()
     assert np.abs(g["vertices"][:]).max() < 500
@@ -68,7 +69,7 @@ def test_every_real_building_is_accounted_for(tmp_path, data_dir, folder, name, 
 def test_zurich_lod2_extruded_all_accepted(tmp_path, data_dir):
     store = tmp_path / "x.zarr"
     main(["ingest", str(data_dir / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"), "--extrude-lod1", "--out", str(store)])
-    assert _summary(store)["accepted"] == 40  # 9 thin spikes or notches (folds within 1 degree of 0/2 pi): rejected
+    assert _summary(store)["accepted"] == 49  # 3 thin spikes or notches repaired by manifold3d
 
 
 def test_generate_then_ingest_48_blocks_with_labels(tmp_path):
