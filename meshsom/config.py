@@ -53,17 +53,34 @@ class CorpusConfig:
 
 @dataclass(frozen=True)
 class EncodingConfig:
-    """Which ring levels are encoded.
+    """Which ring levels are encoded, and how they are scaled for training.
 
     Attributes
     ----------
     levels : tuple of int
         Ring levels to encode (1..8).
+    scaling : str
+        ``standard`` (default): z-scores per component type, mean and standard deviation over the
+        corpus (u: root mean square). ``robust``: centre = median, scale = interquartile range /
+        1.349 (the standard deviation of a normal distribution with that IQR; u: centre 0, scale
+        from the IQR of u and -u), then clipped to ``+-robust_clip``: a few extreme folds (a
+        centimetre edge beside a 30 m wall, v in the thousands) neither stretch the scale of the
+        others nor get map units of their own. See :mod:`meshsom.standardize`.
+    robust_clip : float
+        Largest absolute robust score (in robust standard deviations) under ``scaling: robust``.
     """
 
     levels: tuple[int, ...] = (1, 2, 3)
+    scaling: str = "standard"
+    robust_clip: float = 5.0
 
     def __post_init__(self):
+        from meshsom.standardize import SCALINGS
+
+        if self.scaling not in SCALINGS:
+            raise ValueError(f"scaling must be one of {sorted(SCALINGS)}, received {self.scaling!r}")
+        if not (isinstance(self.robust_clip, (int, float)) and 0 < self.robust_clip < float("inf")):
+            raise ValueError(f"robust_clip must be a finite number > 0, received {self.robust_clip!r}")
         if not self.levels:
             raise ValueError("levels must name at least one level")
         for lv in self.levels:

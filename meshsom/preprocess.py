@@ -18,6 +18,15 @@ Steps
    more than two faces, rejects the mesh (after an optional pymeshlab repair).
 4. Orient every face consistently (parity components of the dual graph), then each shell outward
    (positive signed volume).
+4a. Clean folds: collapse edges shorter than ``min_edge_length`` metres (every chain of short
+   edges becomes one vertex at its centroid), then repair zero-thickness parts that pass the
+   closed-and-oriented checks (a fold angle within ``flat_fold_deg`` of 0 or 2 pi): exact fins and
+   pairs of faces folded flat onto each other lose their coplanar, opposite-facing overlap; what
+   remains (fins and caps that overlap only partly, thin spikes and notches a few millimetres
+   wide) is rebuilt by manifold3d with ``fold_repair_tol`` metres of tolerance, which collapses
+   features thinner than that. The mesh must stay closed, edge-manifold and oriented, with its
+   volume within ``volume_rtol`` and no fold left near 0/2 pi; a mesh that no repair makes so is
+   rejected with the reason.
 5. Planar regions: edge-connected faces whose normals agree within ``planar_angle_deg`` and whose
    vertices lie within ``planar_dist`` x diagonal of the region's plane. A region boundary vertex is
    kept if it is a corner (or a pinch) in at least one region it touches; otherwise it is collinear
@@ -79,6 +88,22 @@ class PreprocessParams:
         Try pymeshlab's non-manifold and hole repairs before rejecting a mesh.
     min_faces : int
         Meshes with fewer faces after cleaning are rejected.
+    min_edge_length : float
+        Edges shorter than this, in metres (absolute, not relative to the diagonal), are collapsed
+        before re-triangulation (default 0.01: a centimetre, below the precision of city models;
+        such an edge beside a face tens of metres long gives folds with ``v`` in the thousands).
+        0 disables the collapse.
+    flat_fold_deg : float
+        Fold angles within this many degrees of 0 or 2 pi are zero-thickness fins, faces folded
+        flat onto each other, thin spikes or notches: they are repaired (exactly coplanar,
+        overlapping, opposite faces removed; otherwise the mesh rebuilt by manifold3d with
+        ``fold_repair_tol``) or the mesh is rejected when no repair removes them (default 1.0; no
+        accepted mesh has such a fold). 0 disables the check and the repairs.
+    fold_repair_tol : float
+        Tolerance in metres (absolute) of manifold3d's rebuild of a mesh with flat folds
+        (``Manifold.set_tolerance``): vertices, edges and slivers closer than this are merged,
+        so a spike or notch thinner than this near its tip, or a partly overlapping fin, goes
+        (default 0.01, as ``min_edge_length``). 0 disables the rebuild.
     """
 
     weld_tol: float = 1e-8
@@ -91,6 +116,9 @@ class PreprocessParams:
     cap_planar_holes: bool = True
     repair: bool = False
     min_faces: int = 4
+    min_edge_length: float = 0.01
+    flat_fold_deg: float = 1.0
+    fold_repair_tol: float = 0.01
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -99,6 +127,12 @@ class PreprocessParams:
                 raise ValueError(f"{name} must be a number in [0, 1) (a fraction of the diagonal); received {value!r}")
         if not (isinstance(self.planar_angle_deg, (int, float)) and 0 <= self.planar_angle_deg < 90):
             raise ValueError(f"planar_angle_deg must be in [0, 90); received {self.planar_angle_deg!r}")
+        if not (isinstance(self.min_edge_length, (int, float)) and 0 <= self.min_edge_length < math.inf):
+            raise ValueError(f"min_edge_length must be a finite number >= 0 (metres); received {self.min_edge_length!r}")
+        if not (isinstance(self.fold_repair_tol, (int, float)) and 0 <= self.fold_repair_tol < math.inf):
+            raise ValueError(f"fold_repair_tol must be a finite number >= 0 (metres); received {self.fold_repair_tol!r}")
+        if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
+            raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
             raise ValueError(f"min_faces must be an integer >= 4 (a tetrahedron); received {self.min_faces!r}")
 
@@ -175,6 +209,7 @@ def preprocess(
     diag = _diagonal(v)
     if not volume_in > params.weld_tol * diag**3:  # thinner than the weld tolerance
         raise MeshError(source, f"zero volume (encloses {volume_in:.3g} cubic units)")
+    v, f = _clean_folds(v, f, params, diag, volume_in, source, repairs)
     regions = 0
     out_v, out_f = v, f
     if params.retriangulate:
@@ -192,6 +227,9 @@ def preprocess(
     problem = validate(out_v, out_f)
     if problem is not None:
         raise MeshError(source, problem)
+    problem = _flat_fold_problem(out_v, out_f, params)
+    if problem is not None:  # pragma: no cover - re-triangulation keeps planes; defensive
+        raise MeshError(source, f"after re-triangulation: {problem}")
     out_v, out_f = _compact(out_v, out_f)
     if len(out_f) < params.min_faces:
         raise MeshError(source, f"only {len(out_f)} faces after cleaning; at least {params.min_faces} needed")
@@ -553,9 +591,6 @@ def _remove_fins(v, f, dist, repairs):
     and every face inside their common area is removed (after T-junction splitting, a face is
     either inside it or outside).
     """
-    import shapely
-
-    he = half_edges(f)
     _, edge_of, counts = edge_table(f)
     cross = _cross(v, f)
     area2 = np.linalg.norm(cross, axis=1)
@@ -567,21 +602,357 @@ def _remove_fins(v, f, dist, repairs):
             for b in around[i + 1:]:
                 if normal[a] @ normal[b] > -0.999999 or remove[a] or remove[b]:
                     continue
-                n, d = normal[a], float(normal[a] @ v[f[a, 0]])
-                coplanar = (np.abs(normal @ n) > 0.999999) & (np.abs(v[f] @ n - d).max(axis=1) <= dist)
-                frame = plane_frame(n)
-                idx = np.flatnonzero(coplanar)
-                tri2d = v[f[idx]] @ frame.T
-                up = normal[idx] @ n > 0
-                polys = shapely.polygons(tri2d)
-                overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
-                if overlap.area <= dist * dist:
-                    continue
-                inside = shapely.area(shapely.intersection(polys, overlap)) >= 0.999 * shapely.area(polys)
-                remove[idx[inside]] = True
+                remove |= _opposite_overlap(v, f, normal, a, dist)
     if remove.any():
         repairs.append(f"removed {int(remove.sum())} faces of zero-thickness fins (overlapping opposite walls)")
     return f[~remove]
+
+
+def _opposite_overlap(v, f, normal, a, dist):
+    """Faces inside the overlap of opposite-facing faces in the plane of face ``a``.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+    normal : (F, 3) float64
+        Unit normals (zero for degenerate faces).
+    a : int
+        A face of the plane.
+    dist : float
+        Largest distance of a vertex from the plane.
+
+    Returns
+    -------
+    inside : (F,) bool
+        Faces of the plane, of either orientation, lying inside the area that faces of both
+        orientations cover (a zero-thickness sheet); all False when they do not overlap.
+    """
+    import shapely
+
+    inside = np.zeros(len(f), bool)
+    n, d = normal[a], float(normal[a] @ v[f[a, 0]])
+    coplanar = (np.abs(normal @ n) > 0.999999) & (np.abs(v[f] @ n - d).max(axis=1) <= dist)
+    idx = np.flatnonzero(coplanar)
+    up = normal[idx] @ n > 0
+    if up.all() or not up.any():
+        return inside
+    polys = shapely.polygons(v[f[idx]] @ plane_frame(n).T)
+    overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
+    if overlap.area <= dist * dist:
+        return inside
+    inside[idx[shapely.area(shapely.intersection(polys, overlap)) >= 0.999 * shapely.area(polys)]] = True
+    return inside
+
+
+def _clean_folds(v, f, params, diag, volume_in, source, repairs):
+    """Step 4a: collapse short edges, repair flat folds; the mesh stays closed and oriented.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented (from :func:`_clean`).
+    params : PreprocessParams
+    diag : float
+        Bounding-box diagonal.
+    volume_in : float
+        Enclosed volume before this step.
+    source : str
+    repairs : list of str
+        Appended to.
+
+    Returns
+    -------
+    v : (W, 3) float64
+    f : (G, 3) int64
+
+    Raises
+    ------
+    MeshError
+        When no repair (removing exact overlaps, manifold3d's rebuild) leaves the mesh closed,
+        edge-manifold, oriented, within ``volume_rtol`` of its volume and without a fold within
+        ``flat_fold_deg`` of 0/2 pi; the reason says what each repair left. A collapse that would
+        break the mesh is not made (recorded in ``repairs``).
+    """
+    if params.min_edge_length > 0:
+        trial = list(repairs)
+        cv, cf = _collapse_short_edges(v, f, params.min_edge_length, source, trial)
+        problem = validate(cv, cf)
+        if problem is None:
+            v, f, repairs[:] = cv, cf, trial
+        else:  # the mesh stays as it was: valid, with its short edges
+            repairs.append(f"kept the edges shorter than {params.min_edge_length:g} m (collapsing them gives: {problem})")
+    flat = _flat_fold_problem(v, f, params)
+    if flat is None:
+        problem = _fold_cleaning_problem(v, f, params, volume_in)
+        if problem is not None:
+            raise MeshError(source, f"collapsing edges shorter than {params.min_edge_length:g} m: {problem}")
+        return _compact(v, f)
+    # Exact fins and faces folded flat: their overlap goes. What stays (partial overlaps, thin
+    # spikes and notches) is rebuilt by manifold3d, from the mesh without the exact overlaps if
+    # their removal left it valid.
+    trial = list(repairs)
+    v, g = _remove_flat_overlaps(v, f, params, diag, trial)
+    problem = _fold_cleaning_problem(v, g, params, volume_in)
+    if problem is None:
+        repairs[:] = trial
+        return _compact(v, g)
+    if validate(v, g) is None:
+        f, repairs[:] = g, trial
+    rebuilds = [("local edge flips and vertex merges", _flip_or_collapse_flat_folds)]
+    if params.fold_repair_tol > 0:
+        rebuilds.insert(0, (f"manifold3d's rebuild at {params.fold_repair_tol:g} m tolerance", _manifold_rebuild))
+    for name, rebuild in rebuilds:
+        rv, rf, summary = rebuild(v, f, params, volume_in)
+        if summary is None:
+            problem = f"{problem}; {name} failed: {rf}"
+            continue
+        rproblem = _fold_cleaning_problem(rv, rf, params, volume_in)
+        if rproblem is None:
+            change = 100 * abs(signed_volume(rv, rf) - volume_in) / abs(volume_in)
+            repairs.append(f"{summary} (the volume changed by {change:.2g} %), for flat folds: {flat}")
+            return _compact(rv, rf)
+        problem = f"{problem}; {name} left: {rproblem}"
+    raise MeshError(source, f"{flat}, not repaired: removing overlapping opposite faces left: {problem}")
+
+
+def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
+    """Remove flat folds one at a time by the local change that moves the volume least.
+
+    For a flat fold across edge ``p -> q`` between faces ``(p, q, a)`` and ``(q, p, b)``, the
+    candidates are flipping the edge (to ``(p, b, a)``, ``(b, q, a)``) and merging any of the four
+    vertices into another; the candidate kept leaves the mesh valid, has fewer flat folds, and
+    changes the enclosed volume least. Used only when manifold3d's rebuild left flat folds, on
+    the handful of edges that have them (each candidate is checked on the whole mesh).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented.
+    params : PreprocessParams
+    volume_in : float
+        The volume the result must stay within ``volume_rtol`` of.
+    max_steps : int
+        Most changes made.
+
+    Returns
+    -------
+    v : (V, 3) float64
+        The vertices, not moved.
+    f : (G, 3) int64
+        Faces after the changes.
+    summary : str
+        The changes made, in words.
+    """
+    tol = math.radians(params.flat_fold_deg)
+
+    def count(g):
+        alpha, _ = _fold_angles(v, g)
+        return int((np.minimum(alpha, 2 * np.pi - alpha) < tol).sum())
+
+    steps, n_flat = 0, count(f)
+    while n_flat and steps < max_steps:
+        alpha, neighbour = _fold_angles(v, f)
+        best = None  # (|volume change|, faces, flat folds)
+        for t, k in zip(*np.nonzero(np.minimum(alpha, 2 * np.pi - alpha) < tol)):
+            s = neighbour[t, k]
+            p, q, a = f[t, k], f[t, (k + 1) % 3], f[t, (k + 2) % 3]
+            b = f[s][(f[s] != p) & (f[s] != q)][0]
+            trials = [np.concatenate([np.delete(f, [t, s], axis=0), [[p, b, a], [b, q, a]]])]
+            for x in (p, q, a, b):
+                for y in (p, q, a, b):
+                    if x != y:
+                        g = np.where(f == x, y, f)
+                        trials.append(g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])])
+            for g in trials:
+                if len(g) < params.min_faces or validate(v, g) is not None:
+                    continue
+                change = abs(signed_volume(v, g) - volume_in)
+                if change > params.volume_rtol * abs(volume_in) or (best is not None and change >= best[0]):
+                    continue
+                c = count(g)
+                if c < n_flat:
+                    best = (change, g, c)
+        if best is None:
+            break
+        _, f, n_flat = best
+        steps += 1
+    return v, f, f"{steps} local edge flips or vertex merges"
+
+
+def _remove_flat_overlaps(v, f, params, diag, repairs):
+    """Remove the overlap of exactly coplanar, opposite faces that meet at a flat fold.
+
+    Returns
+    -------
+    f : (G, 3) int64
+        ``f`` without the faces of zero-thickness fins and pairs folded flat onto each other
+        (:func:`_opposite_overlap`); validity is checked by the caller.
+    """
+    tol = math.radians(params.flat_fold_deg)
+    alpha, neighbour = _fold_angles(v, f)
+    flat = np.minimum(alpha, 2 * np.pi - alpha) < tol
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    t, i = np.nonzero(flat)
+    s = neighbour[t, i]
+    exact = np.einsum("ij,ij->i", normal[t], normal[s]) <= -0.999999  # coplanar, opposite
+    remove = np.zeros(len(f), bool)
+    for a in np.unique(t[exact]):
+        if not remove[a]:
+            remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)
+    if remove.any():
+        repairs.append(
+            f"removed {int(remove.sum())} faces of zero-thickness fins or faces folded flat onto each other "
+            f"(fold angle within {params.flat_fold_deg:g} degrees of 0 or 2 pi)"
+        )
+    return v, f[~remove]
+
+
+def _fold_cleaning_problem(v, f, params, volume_in):
+    """Why a cleaned mesh is not acceptable (not valid, too few faces, flat folds, volume), or None."""
+    if len(f) < params.min_faces:
+        return f"only {len(f)} faces left"
+    problem = validate(v, f) or _flat_fold_problem(v, f, params)
+    if problem is not None:
+        return problem
+    volume = signed_volume(v, f)
+    if abs(volume - volume_in) > params.volume_rtol * abs(volume_in):
+        return f"the volume changed by {100 * abs(volume - volume_in) / abs(volume_in):.3g} %"
+    return None
+
+
+def _manifold_rebuild(v, f, params, volume_in):
+    """The mesh rebuilt by manifold3d with an absolute tolerance, which removes thin features.
+
+    manifold3d (``Manifold.set_tolerance``) merges vertices and collapses edges and slivers
+    closer than ``tol`` as long as the surface moves by less than ``tol``: the tip of a thin
+    spike or notch, a fin whose sides overlap only partly and faces folded onto each other become
+    a plain surface. The result is a closed, oriented 2-manifold by construction (checked again by
+    the caller, with the flat folds and the volume).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented.
+    params : PreprocessParams
+        ``fold_repair_tol``: the absolute tolerance (the mesh's units, metres).
+    volume_in : float
+        Unused (the signature of every flat-fold repair).
+
+    Returns
+    -------
+    v : (W, 3) float64
+    f : (G, 3) int64 or str
+        The rebuilt mesh; on failure ``f`` is manifold3d's status, in words.
+    summary : str or None
+        What was done, in words; None on failure.
+    """
+    tol = params.fold_repair_tol
+    try:
+        import manifold3d
+    except ImportError as err:  # pragma: no cover - manifold3d is a declared dependency
+        raise ImportError("repairing flat folds needs manifold3d: pip install 'manifold3d>=3.0'") from err
+    centre = (v.min(axis=0) + v.max(axis=0)) / 2  # coordinates of the mesh's own size
+    solid = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(v - centre, np.float64), tri_verts=np.ascontiguousarray(f, np.uint64),
+    ))
+    if solid.status() != manifold3d.Error.NoError:
+        return v, f"manifold3d refuses the mesh ({solid.status().name})", None
+    solid = solid.set_tolerance(tol)
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        return v, f"manifold3d's rebuild failed ({solid.status().name if not solid.is_empty() else 'empty'})", None
+    mesh = solid.to_mesh64()
+    out_v = np.asarray(mesh.vert_properties, np.float64)[:, :3] + centre
+    out_f = np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
+    return out_v, out_f, f"rebuilt with manifold3d at {tol:g} m tolerance ({len(f)} faces to {len(out_f)})"
+
+
+def _collapse_short_edges(v, f, min_length, source, repairs):
+    """Collapse every edge shorter than ``min_length``: each chain of short edges becomes one vertex.
+
+    Detection is one pass over the edge table; the chains are connected components of the short
+    edges, each replaced by its centroid (which lies on a single short edge, so in every plane
+    through it); faces that collapse go, and pairs that become the same triangle walked both ways
+    (a zero-volume pocket) go together. Closedness is checked by the caller.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+    min_length : float
+        Absolute length (metres).
+    source : str
+    repairs : list of str
+
+    Returns
+    -------
+    v : (V, 3) float64
+        Vertices of collapsed chains moved to their centroid (unused ones stay until compacted).
+    f : (G, 3) int64
+    """
+    edges, _, _ = edge_table(f)
+    length = np.linalg.norm(v[edges[:, 1]] - v[edges[:, 0]], axis=1)
+    short = edges[length < min_length]
+    if len(short) == 0:
+        return v, f
+    n = len(v)
+    graph = sparse.coo_matrix((np.ones(len(short), np.int8), (short[:, 0], short[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    size = np.bincount(labels, minlength=labels.max() + 1)
+    centroid = np.zeros((len(size), 3))
+    np.add.at(centroid, labels, v)
+    centroid /= size[:, None]
+    first = np.full(len(size), n, np.int64)
+    np.minimum.at(first, labels, np.arange(n))
+    v = v.copy()
+    moved = size[labels] > 1
+    v[moved] = centroid[labels[moved]]
+    f = first[labels][f]
+    collapsed = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    f = _drop_duplicates(f[~collapsed], repairs)
+    repairs.append(
+        f"collapsed {len(short)} edges shorter than {min_length:g} m ({int(collapsed.sum())} faces removed)"
+    )
+    return v, f
+
+
+def _fold_angles(v, f):
+    """Fold angle across every edge of a closed oriented mesh, and the neighbour across it.
+
+    Returns
+    -------
+    alpha : (F, 3) float64
+        In (0, 2 pi] (DESIGN.md §3).
+    neighbour : (F, 3) int64
+    """
+    from meshsom.folds import folds
+    from meshsom.topology import adjacency
+
+    adj = adjacency(f)
+    return folds(v, f, adj)[..., 0], adj.neighbour
+
+
+def _flat_fold_problem(v, f, params):
+    """Why a closed oriented mesh has folds within ``flat_fold_deg`` of 0/2 pi, or None."""
+    if params.flat_fold_deg <= 0:
+        return None
+    alpha, _ = _fold_angles(v, f)
+    near = np.minimum(alpha, 2 * np.pi - alpha)
+    bad = near < math.radians(params.flat_fold_deg)
+    if not bad.any():
+        return None
+    t, i = np.nonzero(bad)
+    length = np.linalg.norm(v[f[t, (i + 1) % 3]] - v[f[t, i]], axis=1)
+    return (
+        f"{int(bad.sum()) // 2} edges fold within {params.flat_fold_deg:g} degrees of 0 or 2 pi (a thin spike or notch, a "
+        f"fin or faces folded onto each other; smallest angle {math.degrees(near.min()):.3g} degrees, "
+        f"at an edge of {length[np.argmin(near[t, i])]:.3g} m)"
+    )
 
 
 def _walk_loops(directed: np.ndarray) -> list[np.ndarray] | None:

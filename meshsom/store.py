@@ -13,8 +13,14 @@ Layout (DESIGN.md §7; other tools read it, so it is a contract)::
       faces (F, 3) int64       indices into ``vertices`` (global rows)
       face_mesh (F,) int32     mesh index of every face
       rings/level{L} (F, 9*4^(L-1)) float32   raw folds, start leaf k = 0
-      rings/stats              attributes: per level, mean and std per
-                               component type (alpha, u, v)
+      rings/stats              attributes: ``level{L}``, the scaling of that level
+                               (meshsom.standardize.Stats.to_dict: scaling standard|
+                               robust, mean (or median) and std (or IQR/1.349) per
+                               component type alpha, u, v, clip); ``folds_level{L}``,
+                               the fold statistics of that level
+                               (meshsom.standardize.fold_statistics: quantiles of
+                               alpha, u, v; entries within 1e-3 rad and 1 degree of
+                               0/2 pi; entries with v > 100; max |u|)
       runs/<run>/...           codebooks, BMUs, variations, domain vectors
 
 Root attributes: ``meshsom_layout`` (layout version), ``created_by``.
@@ -293,6 +299,40 @@ def read_stats(group: zarr.Group, level: int) -> dict:
         return dict(group["rings"]["stats"].attrs[rings_name(level)])
     except KeyError:
         raise StoreError(f"{store_path(group)}: has no rings/stats for level {level}") from None
+
+
+def fold_stats_name(level: int) -> str:
+    """Attribute name of a level's fold statistics inside ``rings/stats``."""
+    return f"folds_{rings_name(level)}"
+
+
+def write_fold_stats(group: zarr.Group, level: int, stats: dict) -> None:
+    """Store the fold statistics of a level (:func:`meshsom.standardize.fold_statistics`)."""
+    group.require_group("rings").require_group("stats").attrs[fold_stats_name(level)] = stats
+
+
+def read_fold_stats(group: zarr.Group, level: int) -> dict:
+    """Fold statistics of a level as stored by :func:`write_fold_stats`."""
+    try:
+        return dict(group["rings"]["stats"].attrs[fold_stats_name(level)])
+    except KeyError:
+        raise StoreError(f"{store_path(group)}: has no fold statistics for level {level} (encode it again)") from None
+
+
+def read_folds(group: zarr.Group, level: int) -> np.ndarray:
+    """The distinct folds of the corpus, read from the first 9 columns of ``rings/level{L}``.
+
+    Every level-L ring starts with the level-1 ring of its root (DESIGN.md §3), so these columns
+    of any level hold every face's three folds, start leaf 0.
+
+    Returns
+    -------
+    folds : (3F, 3) float32
+        ``(alpha, u, v)`` per fold.
+    """
+    array = rings_array(group, level)
+    parts = [np.asarray(array[a:b, :9]) for a, b in iter_row_chunks(array)]
+    return (np.concatenate(parts) if parts else np.zeros((0, 9), np.float32)).reshape(-1, 3)
 
 
 def iter_row_chunks(array: zarr.Array, chunk_rows: int | None = None) -> Iterator[tuple[int, int]]:

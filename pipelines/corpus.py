@@ -446,10 +446,11 @@ def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk,
     from distributed import as_completed
 
     from meshsom.rings import dims
-    from meshsom.standardize import finalize, merge_accumulators
+    from meshsom.standardize import merge_accumulators
     # _put is the helper write_meshes uses: the per-mesh tables get exactly its chunking.
-    from meshsom.store import STRING, _put, rings_name, write_manifest, write_stats
+    from meshsom.store import STRING, _put, rings_name, write_manifest
     from pipelines import ingest
+    from pipelines.encode_cmd import level_statistics
 
     ordered = [metas[sh.name] for sh in shards]
     seen: dict[str, str] = {}  # ids unique before anything is written (expand_inputs checked the files already)
@@ -502,13 +503,14 @@ def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk,
         fut.result()  # a failed copy raises here; a resumed run redoes the assembly
         report("assemble", k, len(copies))
 
-    # Statistics: per-mesh accumulators merged in mesh order, whatever the sharding.
-    for lv in levels:
-        accs = [np.asarray(a, np.float64) for m in ordered for a in m["acc"][str(lv)]]
-        if not accs:
-            log.warning("%s: no accepted mesh; no statistics for level %d", path, lv)
-            continue
-        write_stats(root, lv, finalize(merge_accumulators(*accs), lv).to_dict())
+    # Statistics: per-mesh accumulators merged in mesh order, whatever the sharding; fold
+    # statistics (and robust scaling) from the assembled rings.
+    if n_faces == 0:
+        log.warning("%s: no accepted mesh; no statistics", path)
+    else:
+        accs = {lv: merge_accumulators(*[np.asarray(a, np.float64) for m in ordered for a in m["acc"][str(lv)]])
+                for lv in levels}
+        level_statistics(root, levels, accs, cfg.encoding.scaling, cfg.encoding.robust_clip)
     root.attrs.update({"n_meshes": n_meshes, "n_faces": n_faces, "n_vertices": n_vertices})
 
     records = list(plan["missing"])

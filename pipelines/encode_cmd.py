@@ -1,7 +1,8 @@
 """``meshsom encode STORE --levels 1 2 3``: fold vectors of every cleaned face into the store.
 
-Writes ``rings/level{L}`` (F x 9*4^(L-1) float32, chunked by rows, start leaf 0, raw values) and
-the standardization statistics of each level into ``rings/stats`` (DESIGN.md §7). Meshes are
+Writes ``rings/level{L}`` (F x 9*4^(L-1) float32, chunked by rows, start leaf 0, raw values), the
+scaling statistics (``--scaling standard|robust``) and the fold statistics of each level into
+``rings/stats`` (DESIGN.md §7), and prints both. Meshes are
 processed in batches of whole meshes (every face's neighbours belong to its own mesh), each batch
 vectorised; memory is bounded by the batch, not by the corpus.
 """
@@ -39,8 +40,46 @@ def mesh_batches(face_offsets: np.ndarray, batch_faces: int) -> list[tuple[int, 
     return batches
 
 
+def level_statistics(group, levels, accs: dict, scaling: str = "standard", robust_clip: float = 5.0) -> dict:
+    """Write every level's scaling and fold statistics into ``rings/stats``; return them.
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The store root, with ``rings/level{L}`` written.
+    levels : list of int
+    accs : dict
+        Level -> standardization accumulator (:func:`meshsom.standardize.accumulate`).
+    scaling : str
+        ``standard`` or ``robust`` (:data:`meshsom.standardize.SCALINGS`).
+    robust_clip : float
+
+    Returns
+    -------
+    out : dict
+        Level -> {"stats": scaling statistics, "folds": fold statistics}.
+    """
+    from meshsom.standardize import SCALINGS, finalize, fold_statistics, robust_stats
+    from meshsom.store import read_folds, write_fold_stats, write_stats
+
+    if scaling not in SCALINGS:
+        raise ValueError(f"scaling must be one of {list(SCALINGS)}, received {scaling!r}")
+    folds = read_folds(group, min(levels)).astype(np.float64)  # the same folds at every level
+    out = {}
+    for level in levels:
+        if scaling == "robust":
+            stats = robust_stats(folds, level, robust_clip).to_dict()
+        else:
+            stats = finalize(accs[level], level).to_dict()
+        fstats = fold_statistics(folds, level)
+        write_stats(group, level, stats)
+        write_fold_stats(group, level, fstats)
+        out[level] = {"stats": stats, "folds": fstats}
+    return out
+
+
 def encode_store(store, levels, chunk_rows: int | None = None, batch_faces: int = DEFAULT_BATCH_FACES,
-                 progress: bool = False) -> EncodeResult:
+                 progress: bool = False, scaling: str = "standard", robust_clip: float = 5.0) -> EncodeResult:
     """Encode every face of an ingested store at the given levels.
 
     Parameters
@@ -53,13 +92,17 @@ def encode_store(store, levels, chunk_rows: int | None = None, batch_faces: int 
     batch_faces : int
     progress : bool
         Show a progress bar.
+    scaling : str
+        ``standard`` (mean, std) or ``robust`` (median, IQR, clipped): config ``encoding.scaling``.
+    robust_clip : float
+        Config ``encoding.robust_clip``.
     """
     from tqdm import tqdm
 
     from meshsom.folds import folds
     from meshsom.rings import dims, encode_level, template
-    from meshsom.standardize import accumulate, empty_accumulator, finalize
-    from meshsom.store import mesh_table, open_store, rings_name, write_stats
+    from meshsom.standardize import accumulate, empty_accumulator
+    from meshsom.store import mesh_table, open_store, rings_name
     from meshsom.topology import adjacency
 
     levels = sorted({int(level) for level in levels})
@@ -96,11 +139,10 @@ def encode_store(store, levels, chunk_rows: int | None = None, batch_faces: int 
             accs[level] = accumulate(accs[level], x)
         bar.update(int(f1 - f0))
     bar.close()
-    out = {}
-    for level in levels:
-        stats = finalize(accs[level], level).to_dict()
-        write_stats(group, level, stats)
-        out[level] = {"dims": dims(level), "seconds": seconds[level], "stats": stats}
+    if n_faces == 0:
+        raise ValueError("the store has no faces to encode")
+    stats = level_statistics(group, levels, accs, scaling, robust_clip)
+    out = {level: {"dims": dims(level), "seconds": seconds[level], **stats[level]} for level in levels}
     return EncodeResult(store=str(store), faces=n_faces, levels=out)
 
 
@@ -109,12 +151,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--levels", type=int, nargs="+", default=[1, 2, 3], help="ring levels (default: 1 2 3)")
     p.add_argument("--chunk-rows", type=int, help="row chunk of the ring arrays")
     p.add_argument("--batch-faces", type=int, default=DEFAULT_BATCH_FACES, help="faces per batch of meshes")
+    p.add_argument("--scaling", choices=("standard", "robust"), default="standard",
+                   help="standard: mean/std; robust: median/IQR, clipped to +-ROBUST_CLIP (default %(default)s)")
+    p.add_argument("--robust-clip", type=float, default=5.0, help="clip of --scaling robust (default %(default)s)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        result = encode_store(args.store, args.levels, args.chunk_rows, args.batch_faces, progress=not args.json)
+        result = encode_store(args.store, args.levels, args.chunk_rows, args.batch_faces, progress=not args.json,
+                              scaling=args.scaling, robust_clip=args.robust_clip)
     except ValueError as err:
         from meshsom.errors import StoreError
 
@@ -122,9 +168,14 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"store": result.store, "faces": result.faces, "levels": {str(k): v for k, v in result.levels.items()}}))
     else:
+        from meshsom.standardize import describe_fold_statistics
+
         for level, info in result.levels.items():
             s = info["stats"]
             rate = result.faces / info["seconds"] if info["seconds"] else float("inf")
+            centre, scale = ("median", "IQR/1.349") if s["scaling"] == "robust" else ("mean", "std")
             print(f"level {level}: {result.faces} x {info['dims']} -> rings/level{level} "
-                  f"({rate:,.0f} triangles/s); mean {np.round(s['mean'], 4).tolist()}, std {np.round(s['std'], 4).tolist()}")
+                  f"({rate:,.0f} triangles/s); {s['scaling']} scaling: {centre} {np.round(s['mean'], 4).tolist()}, "
+                  f"{scale} {np.round(s['std'], 4).tolist()}" + (f", clip {s['clip']:g}" if s["clip"] else ""))
+            print(f"  {describe_fold_statistics(info['folds'])}")
     return 0

@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
+import numpy as np
+
 from meshsom.errors import ConfigError, MeshError, StoreError
 
 log = logging.getLogger(__name__)
@@ -250,7 +252,25 @@ def ingest(
         "generator": asdict(generator) if generator is not None else None,
     }
     doc = write_manifest(out, records, extra)
-    return IngestResult(str(out), records, doc["summary"])
+    # Printed, not stored: the store's fold statistics are written by `meshsom encode` (rings/stats).
+    return IngestResult(str(out), records, {**doc["summary"], "folds": corpus_fold_statistics(clean)})
+
+
+def corpus_fold_statistics(meshes) -> dict | None:
+    """Fold statistics (:func:`meshsom.standardize.fold_statistics`) of the cleaned meshes, None if there are none.
+
+    Parameters
+    ----------
+    meshes : list of CleanMesh
+    """
+    from meshsom.folds import folds
+    from meshsom.standardize import fold_statistics
+    from meshsom.topology import adjacency
+
+    if not meshes:
+        return None
+    parts = [folds(m.vertices, m.faces, adjacency(m.faces, source=m.id)).reshape(-1, 3) for m in meshes]
+    return fold_statistics(np.concatenate(parts), level=1)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -302,6 +322,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"{s['inputs']} meshes: {s['accepted']} accepted, {s['rejected']} rejected; "
               f"{s['faces_in']} triangles in, {s['faces_out']} out -> {result.store}")
+        if s.get("folds"):
+            from meshsom.standardize import describe_fold_statistics
+
+            print(f"  {describe_fold_statistics(s['folds'])}")
         rejected = [r for r in result.records if r["status"] == "rejected"]
         for r in rejected[:20]:
             print(f"  rejected {r['id']}: {r['reason']}")

@@ -115,7 +115,9 @@ def assert_same_store(a, b, exact_stats=True):
     assert ma["records"] == mb["records"]
     assert ma["summary"] == mb["summary"]
     sa, sb = stats(a), stats(b)
-    assert sorted(sa) == sorted(sb) == ["level1", "level2"]
+    assert sorted(sa) == sorted(sb) == ["folds_level1", "folds_level2", "level1", "level2"]
+    for name in ("folds_level1", "folds_level2"):  # from the stored float32 folds: equal
+        assert sa.pop(name) == sb.pop(name)
     for level in sa:
         if exact_stats:
             assert sa[level] == sb[level]
@@ -132,7 +134,7 @@ def test_two_workers_equal_in_process_whatever_the_shard_size(two_workers, in_pr
     assert summary == read_manifest(store)["summary"]
     n_shards = -(-N_ZURICH // 3) + 1 + -(-N_BLOCKS // 3)
     assert ("encode", n_shards, n_shards) in calls and calls[-1][0] == "assemble" and calls[-1][1] == calls[-1][2]
-    assert len(arrays(store)["faces"].shape) == 2 and arrays(store)["faces"].shape[0] > 3 * CHUNK  # several chunks
+    assert len(arrays(store)["faces"].shape) == 2 and arrays(store)["faces"].shape[0] > 2 * CHUNK  # several chunks
 
 
 def test_equals_single_process_ingest_then_encode(two_workers, cli_store):

@@ -160,3 +160,79 @@ def test_standardization_per_component_type_commutes_with_variations_and_inverts
     index, sign = variation_table(2, mirror=True)
     for var in range(6):
         assert np.allclose(standardize(apply(x, index, sign, var), st), apply(z, index, sign, var))
+
+
+def test_fold_statistics_of_a_box_written_to_the_store(tmp_path):
+    import trimesh
+    import zarr
+
+    from conftest import box
+    from meshsom.store import CleanMesh, create_store, read_fold_stats, write_meshes
+    from pipelines.encode_cmd import encode_store
+
+    v, f = box(2.0, 3.0, 5.0)
+    group = create_store(tmp_path / "box.zarr")
+    write_meshes(group, [CleanMesh("box", v, f, np.zeros(3))])
+    encode_store(tmp_path / "box.zarr", [1, 2])
+    # By hand: 12 triangles, 36 folds; 6 face diagonals (pi, both ways: 12 folds) and 12 box edges
+    # (pi/2 both ways: 24 folds); v of every fold from the apex across each edge (trimesh).
+    mesh = trimesh.Trimesh(v, f, process=False)
+    group = zarr.open_group(str(tmp_path / "box.zarr"), mode="r")
+    edges, apex = mesh.face_adjacency_edges, mesh.face_adjacency_unshared
+    folds_v = []
+    for k in (0, 1):  # both directions of every edge
+        p0, p1, r = v[edges[:, 0]], v[edges[:, 1]], v[apex[:, 1 - k]]
+        e = (p1 - p0) / np.linalg.norm(p1 - p0, axis=1, keepdims=True)
+        d = (r - p0) - np.einsum("ij,ij->i", r - p0, e)[:, None] * e
+        folds_v.append(np.linalg.norm(d, axis=1) / np.linalg.norm(p1 - p0, axis=1))
+    folds_v = np.concatenate(folds_v)
+    for level in (1, 2):
+        s = read_fold_stats(group, level)
+        mult = 4 ** (level - 1)
+        assert s["folds"] == 36 and s["entries"] == 36 * mult
+        alpha = np.array(s["alpha"])
+        assert alpha[0] == pytest.approx(np.pi / 2) and alpha[-1] == pytest.approx(np.pi)
+        assert s["alpha"][s["quantiles"].index(0.5)] == pytest.approx(np.pi / 2)  # 24 of 36 are pi/2
+        assert s["flat_1e-3"] == 0 and s["flat_1deg"] == 0 and s["v_over_100"] == 0
+        assert np.allclose(s["v"], np.quantile(folds_v, s["quantiles"]), rtol=1e-6)
+
+
+def test_fold_statistics_equal_direct_numpy():
+    from meshsom.standardize import QUANTILES, fold_statistics
+
+    rng = np.random.default_rng(7)
+    x = np.stack([rng.uniform(0, 2 * np.pi, 500), rng.normal(0, 2, 500), rng.lognormal(0, 2, 500)], axis=1)
+    x[:3, 0] = [1e-4, 2 * np.pi - 1e-4, np.radians(0.5)]
+    s = fold_statistics(x, level=3)
+    assert np.allclose(s["alpha"], np.quantile(x[:, 0], QUANTILES))
+    assert np.allclose(s["u"], np.quantile(x[:, 1], QUANTILES))
+    assert np.allclose(s["v"], np.quantile(x[:, 2], QUANTILES))
+    near = np.minimum(x[:, 0], 2 * np.pi - x[:, 0])
+    assert s["flat_1e-3"] == 16 * (near < 1e-3).sum() == 32
+    assert s["flat_1deg"] == 16 * (near < np.pi / 180).sum()
+    assert s["v_over_100"] == 16 * (x[:, 2] > 100).sum()
+    assert s["max_abs_u"] == np.abs(x[:, 1]).max()
+
+
+def test_robust_scaling_equals_direct_numpy():
+    from meshsom.standardize import robust_stats
+
+    rng = np.random.default_rng(3)
+    folds = np.stack([rng.uniform(0.5, 5.5, 900), rng.standard_t(2, 900), rng.lognormal(0, 1.5, 900)], axis=1)
+    folds[:5, 2] = [500, 900, 1500, 2000, 3000]  # the tails of a centimetre edge
+    st = robust_stats(folds, level=1, clip=4.0)
+    # direct: median / IQR over 1.349; u centred at 0, its IQR over u and -u
+    a, u, v = folds.T
+    iqr = lambda z: np.subtract(*np.quantile(z, [0.75, 0.25]))  # noqa: E731
+    centre = np.array([np.median(a), 0.0, np.median(v)])
+    scale = np.array([iqr(a), iqr(np.concatenate([u, -u])), iqr(v)]) / 1.3489795003921634
+    assert np.allclose(st.mean, centre) and np.allclose(st.std, scale)
+    x = rng.normal(size=(20, 9)) * 50
+    z = standardize(x, st.to_dict())
+    direct = np.clip((x.reshape(20, 3, 3) - centre) / scale, -4.0, 4.0).reshape(20, 9)
+    assert np.allclose(z, direct)
+    inside = np.abs(direct) < 4.0
+    assert np.allclose(destandardize(z, st)[inside], x[inside])
+    # a mirror (sign flip of u) commutes with it
+    mirror = np.tile([1.0, -1.0, 1.0], 3)
+    assert np.allclose(standardize(x * mirror, st), z * mirror)

@@ -301,3 +301,193 @@ def test_capped_multisurface_building_is_accepted_with_exact_geometry(tmp_path, 
     assert _volume(r.vertices, r.faces) == pytest.approx(10 * 8 * 6, rel=1e-12)
     assert trimesh.Trimesh(r.vertices, r.faces, process=False).area == pytest.approx(2 * 80 + 36 * 6, rel=1e-12)
     assert len(r.vertices) == 8  # the vertex on the edge goes: the two wall quads beside it are coplanar
+
+
+# ------------------------------------------------------------------------------------------
+# Clean folds (issue 14): short edges collapsed, fins removed, flat folds rejected
+# ------------------------------------------------------------------------------------------
+
+
+def _fold_alpha_direct(v, f):
+    """Interior dihedral angle at every edge, from trimesh's face adjacency (independent of meshsom.folds)."""
+    mesh = trimesh.Trimesh(v, f, process=False)
+    pairs, edges = mesh.face_adjacency, mesh.face_adjacency_edges
+    n = mesh.face_normals
+    # apex of the second face seen from the first: convex (< pi) when it lies below the first's plane
+    apex = mesh.face_adjacency_unshared[:, 1]
+    below = np.einsum("ij,ij->i", v[apex] - v[edges[:, 0]], n[pairs[:, 0]]) < 0
+    turn = np.arccos(np.clip(np.einsum("ij,ij->i", n[pairs[:, 0]], n[pairs[:, 1]]), -1, 1))
+    return np.where(below, np.pi - turn, np.pi + turn)
+
+
+def test_sliver_with_1mm_edge_on_30m_wall_collapses_and_keeps_volume_and_area():
+    cut = 0.001 / np.sqrt(2)  # a 1 mm chamfer at one corner of a 30 m x 10 m footprint
+    shell = np.array([[0, 0], [30, 0], [30, 10 - cut], [30 - cut, 10], [0, 10]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 8.0)
+    edges = np.linalg.norm(v[np.roll(f, -1, 1)] - v[f], axis=2)
+    assert edges.min() == pytest.approx(0.001, rel=1e-6)
+    r = preprocess(v, f)
+    assert validate(r.vertices, r.faces) is None
+    mesh = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    # the chamfer became one corner: a box, 8 vertices, 12 triangles, no edge below 1 cm
+    assert len(r.vertices) == 8 and len(r.faces) == 12
+    assert np.linalg.norm(r.vertices[np.roll(r.faces, -1, 1)] - r.vertices[r.faces], axis=2).min() > 0.01
+    # independent answers: the collapsed corner sits at the chamfer's midpoint
+    corner = np.array([[0, 0], [30, 0], [30 - cut / 2, 10 - cut / 2], [0, 10]])
+    expected_volume = shapely.Polygon(corner).area * 8.0
+    expected_area = 2 * shapely.Polygon(corner).area + 8.0 * shapely.Polygon(corner).exterior.length
+    assert mesh.volume == pytest.approx(expected_volume, rel=1e-9)
+    assert mesh.area == pytest.approx(expected_area, rel=1e-9)
+    # the original volume and outer area, within the tolerance (a corner moved by 0.35 mm: 2.4e-5)
+    assert mesh.volume == pytest.approx(30 * 10 * 8.0, rel=PreprocessParams().volume_rtol / 10)
+    assert mesh.area == pytest.approx(2 * 300 + 8 * 80, rel=PreprocessParams().volume_rtol / 10)
+    assert any("collapsed 2 edges shorter than 0.01 m" in s for s in r.repairs), r.repairs  # floor and roof
+    # the fold with v ~ 3e4 (roof apex 30 m from a 1 mm edge) is gone: every fold is pi/2 or pi
+    alpha = _fold_alpha_direct(r.vertices, r.faces)
+    assert (np.minimum(np.abs(alpha - np.pi / 2), np.abs(alpha - np.pi)) < 1e-4).all()
+
+
+def test_short_edge_collapse_can_be_disabled():
+    cut = 0.001 / np.sqrt(2)
+    shell = np.array([[0, 0], [30, 0], [30, 10 - cut], [30 - cut, 10], [0, 10]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 8.0)
+    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0))
+    assert len(r.vertices) == 10  # the chamfer stays
+
+
+def _sheet(x0, x1, y, z0, z1, offset):
+    """A zero-thickness vertical quad, both sides, split along different diagonals (not duplicates)."""
+    v = np.array([[x0, y, z0], [x1, y, z0], [x1, y, z1], [x0, y, z1]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [1, 0, 3], [1, 3, 2]]) + offset
+    return v, f
+
+
+def test_fin_is_removed_and_the_box_volume_remains():
+    bv, bf = box(12.0, 8.0, 6.0)
+    sv, sf = _sheet(2.0, 9.0, 4.0, 7.0, 10.0, len(bv))  # a fin above the roof, its own zero-volume shell
+    v, f = np.concatenate([bv, sv]), np.concatenate([bf, sf])
+    assert trimesh.Trimesh(v, f, process=False).is_watertight  # passes trimesh's checks
+    alpha = _fold_alpha_direct(v, f)
+    assert np.isclose(np.minimum(alpha, 2 * np.pi - alpha), 0, atol=1e-9).sum() >= 4  # folded flat at its rim
+    r = preprocess(v, f)
+    assert len(r.faces) == 12 and len(r.vertices) == 8
+    assert _volume(r.vertices, r.faces) == pytest.approx(12 * 8 * 6, rel=1e-12)
+    assert any("zero-thickness fins" in s for s in r.repairs)
+    alpha = _fold_alpha_direct(r.vertices, r.faces)
+    assert np.minimum(alpha, 2 * np.pi - alpha).min() == pytest.approx(np.pi / 2)
+
+
+def _folded_box():
+    # Top of a unit box as a fan around E, with E moved beyond edge CD: triangle CDE folds back
+    # over DAE and BCE (fold angle 0/2pi). The surface is closed, consistently oriented and
+    # encloses the box's volume, so trimesh's checks pass.
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1],
+                  [0.5, 1.5, 1]], float)
+    _, bf = box()
+    return v, np.concatenate([bf[[0, 1, 4, 5, 6, 7, 8, 9, 10, 11]], [[4, 5, 8], [5, 6, 8], [6, 7, 8], [7, 4, 8]]])
+
+
+def test_folded_flat_pair_on_a_box_is_repaired_into_the_box():
+    v, f = _folded_box()
+    mesh = trimesh.Trimesh(v, f, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume == pytest.approx(1.0)
+    alpha = _fold_alpha_direct(v, f)
+    assert (np.minimum(alpha, 2 * np.pi - alpha) < 1e-9).sum() == 2  # DE and CE
+    r = preprocess(v, f)
+    assert any("0 or 2 pi" in s for s in r.repairs), r.repairs
+    out = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert out.is_watertight and out.is_winding_consistent
+    # the folded-over triangle goes: the unit box, 8 corners, volume 1, area 6
+    assert len(r.vertices) == 8 and len(r.faces) == 12
+    assert out.volume == pytest.approx(1.0, rel=1e-12) and out.area == pytest.approx(6.0, rel=1e-12)
+    alpha = _fold_alpha_direct(r.vertices, r.faces)
+    assert np.minimum(alpha, 2 * np.pi - alpha).min() == pytest.approx(np.pi / 2)
+    # with the check disabled, the old behaviour: accepted as it is
+    r = preprocess(v, f, PreprocessParams(flat_fold_deg=0.0, retriangulate=False))
+    assert len(r.faces) == 14
+
+
+def _check_repaired(r, ring_expected, height):
+    """The repaired prism against shapely's polygon: volume, outer area, no flat fold."""
+    poly = shapely.Polygon(ring_expected)
+    out = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert validate(r.vertices, r.faces) is None and out.is_watertight and out.is_winding_consistent
+    assert out.volume == pytest.approx(poly.area * height, rel=1e-9)
+    assert out.area == pytest.approx(2 * poly.area + poly.exterior.length * height, rel=1e-9)
+    alpha = _fold_alpha_direct(r.vertices, r.faces)
+    assert np.minimum(alpha, 2 * np.pi - alpha).min() >= np.radians(1.0)
+
+
+RECT = [[0, 0], [20, 0], [20, 10], [0, 10]]
+
+
+def test_thin_spike_on_a_wall_is_removed():
+    # a spike 10 m long and 1 cm wide at its base leaves the 20 m wall: fold of 0.057 degrees at its tip
+    ring = [[0, 0], [20, 0], [20, 10], [11.005, 10], [11, 20], [10.995, 10], [0, 10]]
+    v, f = extrude_polygon(np.array(ring, float), [], 0.0, 8.0)
+    alpha = _fold_alpha_direct(v, f)
+    assert np.degrees(np.minimum(alpha, 2 * np.pi - alpha).min()) == pytest.approx(0.0573, abs=1e-3)
+    r = preprocess(v, f)
+    assert any(s.startswith("rebuilt with manifold3d at 0.01 m tolerance") for s in r.repairs), r.repairs
+    _check_repaired(r, RECT, 8.0)  # the spike (0.05 m2 of 200, within volume_rtol) is gone
+    assert len(r.vertices) == 8
+    assert shapely.Polygon(ring).area * 8.0 - 1600.0 == pytest.approx(0.4)
+
+
+def test_thin_notch_in_a_wall_is_filled():
+    ring = [[0, 0], [20, 0], [20, 10], [11.005, 10], [11, 2], [10.995, 10], [0, 10]]  # 8 m deep, 1 cm wide
+    v, f = extrude_polygon(np.array(ring, float), [], 0.0, 8.0)
+    alpha = _fold_alpha_direct(v, f)
+    assert 2 * np.pi - alpha.max() < np.radians(0.1)  # the notch's tip folds to nearly 2 pi
+    r = preprocess(v, f)
+    _check_repaired(r, RECT, 8.0)
+    assert len(r.vertices) == 8
+
+
+def test_partly_overlapping_fin_is_removed_and_the_rest_kept():
+    # the footprint runs out to (12, 15) and back to (12, 11) along the same line: a fin whose two
+    # sides overlap only from y = 11 to 15 (from 10 to 11 one side is a real wall of the wedge)
+    ring = [[0, 0], [20, 0], [20, 10], [12, 10], [12, 15], [12, 11], [0, 10]]
+    v, f = extrude_polygon(np.array(ring, float), [], 0.0, 8.0)
+    r = preprocess(v, f)
+    assert any("manifold3d" in s for s in r.repairs), r.repairs
+    _check_repaired(r, [[0, 0], [20, 0], [20, 10], [12, 10], [12, 11], [0, 10]], 8.0)
+
+
+def test_flat_fold_rejected_when_repair_fails_with_the_reason():
+    ring = [[0, 0], [20, 0], [20, 10], [11.005, 10], [11, 20], [10.995, 10], [0, 10]]
+    v, f = extrude_polygon(np.array(ring, float), [], 0.0, 8.0)
+    # removing the spike changes the volume by 2.5e-4: beyond a tolerance of 1e-6, no repair may
+    with pytest.raises(MeshError, match=r"fold within 1 degrees of 0 or 2 pi.*not repaired.*manifold3d.*volume changed"):
+        preprocess(v, f, PreprocessParams(volume_rtol=1e-6))
+    with pytest.raises(MeshError, match=r"fold within 1 degrees of 0 or 2 pi.*not repaired"):
+        preprocess(v, f, PreprocessParams(fold_repair_tol=0.0, volume_rtol=1e-6))
+
+
+@pytest.mark.parametrize("name, extrude", [("zurich_subset_lod1_derived.city.json", False), ("zurich_subset_lod2.city.json", True)])
+def test_accepted_meshes_have_no_flat_folds(data_dir, name, extrude):
+    """Every Zürich block (the paper's LoD1 file, and --extrude-lod1 of the LoD2 file) is accepted,
+    thin spikes, notches and partly overlapping fins repaired, with no fold within 1 degree of 0/2 pi."""
+    from meshsom.io import ReaderOptions, read_file
+
+    path = data_dir / "zurich-lod2-subset" / name
+    accepted = 0
+    for raw in read_file(path, ReaderOptions(extrude_lod1=extrude)):
+        try:
+            r = preprocess(raw.vertices, raw.faces, source=raw.id)
+        except MeshError as err:  # pragma: no cover - every block is accepted
+            pytest.fail(f"{raw.id}: {err.problem}")
+        accepted += 1
+        alpha = _fold_alpha_direct(r.vertices, r.faces)
+        assert np.minimum(alpha, 2 * np.pi - alpha).min() >= np.radians(1.0)
+    assert accepted == 49
+
+
+def test_fold_cleaning_parameters_validated():
+    with pytest.raises(ValueError, match="min_edge_length"):
+        PreprocessParams(min_edge_length=-1.0)
+    with pytest.raises(ValueError, match="flat_fold_deg"):
+        PreprocessParams(flat_fold_deg=90)
+    with pytest.raises(ValueError, match="fold_repair_tol"):
+        PreprocessParams(fold_repair_tol=float("inf"))
