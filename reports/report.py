@@ -134,19 +134,20 @@ def claim_b(table: list[dict]) -> list[dict]:
 
 
 def claim_c(fig10: dict) -> dict:
-    """Claim (c) from :func:`reports.fig10.write`'s result: the reduction on trained prototypes."""
+    """Claim (c) from :func:`reports.fig10.write`'s result: least-squares leveling against the originals."""
     lo, hi = LEVELING_RANGE
     paper = f"{lo:.0f}-{hi:.0f} % lower (level 3)"
     if fig10.get("level") is None:
         return {"claim": "c", "what": "re-translation error, leveling", "paper": paper,
                 "ours": fig10.get("note") or "not measured", "verdict": NOT_MEASURED}
-    p, q = fig10["prototypes"], fig10["perturbed"]
-    r = p["reduction_pct"]
+    m = fig10["measure"]
+    r = m["reduction_pct"]
     verdict = YES if lo <= r <= hi else (PARTLY if r >= 1.0 else NO)
-    ours = (f"level {fig10['level']}, {len(fig10['units'])} prototypes: {p['raw_mean']:.5f} -> {p['leveled_mean']:.5f} "
-            f"(reduction {_pct(r)}; {p['disagreeing']} prototypes with disagreeing copies); with independent noise "
-            f"sigma {fig10['noise_sigma']:g}: {q['raw_mean']:.5f} -> {q['leveled_mean']:.5f} "
-            f"(reduction {_pct(q['reduction_pct'])})")
+    depth = ", ".join(_pct(x) for x in m["reduction_by_depth_pct"])
+    ours = (f"level {fig10['level']}, {len(fig10['units'])} prototypes, QC-error against their originals: "
+            f"{m['none']['original'].mean():.5f} -> {m['lsq']['original'].mean():.5f} (reduction {_pct(r)}; "
+            f"by ring depth root..outer: {depth}; alpha on the circle: {_pct(m['reduction_circular_pct'])}; "
+            f"against the prototype itself: {_pct(m['reduction_prototype_pct'])})")
     if fig10.get("level") != 3:
         verdict = NOT_MEASURED if verdict == YES else verdict
         ours += f" [not level 3: {fig10.get('note')}]"
