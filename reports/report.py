@@ -331,16 +331,14 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
         "so a lower Q-error is expected; the T-error says whether the map is also better ordered.",
         "- (b) Q-error is a distance in 9 * 4^(L-1) dimensions, so it grows with the level by construction; "
         "QC-error (per 3-value fold) and T-error are the informative relations.",
-        "- (c) A batch SOM prototype is a weighted mean of ring vectors (each under its winning variation, itself "
-        "a valid ring vector). In every ring vector the copies of the same quantity are equal, so in every "
-        "prototype they are equal too (up to float32 rounding), and leveling (averaging the copies) has nothing "
-        "to change: on trained prototypes the reduction is about 0 % by construction of our encoding and "
-        "training. The exceptions are a few prototypes whose dihedral angle copies straddle the 0/2 pi wrap "
-        "(near-degenerate neighbours in the data): training has averaged those angles linearly across vectors "
-        "(values near 0 and near 2 pi), so their copies disagree in a way that averaging them, even on the "
-        "circle, cannot repair, which can turn the mean reduction negative. The paper's 30-40 % implies "
-        "prototypes whose copies disagree; the "
-        "second measurement (independent noise on every entry) shows what leveling does then.",
+        "- (c) Leveling is least squares over every entry of the vector (DESIGN.md section 3): the copies of a "
+        "fold inside a prototype are equal, but the geometry its entries imply disagrees. The error is measured "
+        "against each prototype's original (the nearest training vector mapped to it, in its winning "
+        "variation), as the plain QC-error; alpha on the circle and the error against the prototype itself are "
+        "given beside it. Where a map quantises coarsely (few units per triangle) the original lies far from its "
+        "prototype and the error is mostly quantisation, which leveling cannot lower; the unfolding reproduces "
+        "the root's own folds exactly, so leveling can raise the error at the root while lowering it further "
+        "out.",
         "- (d) The paper shows Figure 9 without a measure; we measure it on the labelled synthetic corpus "
         "(real data carry no family labels; look at their Figure 9 below).",
         "",
