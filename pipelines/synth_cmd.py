@@ -3,8 +3,10 @@
 Sources: rows of an encoded store's ``rings/level{L}`` (``--faces``), or the prototypes of a
 trained map saved in the store (``--run RUN --units ...``; standardized weights are
 de-standardized with the level's stored statistics). For each vector it writes the patch
-(without and with leveling) as mesh files, a contact-sheet PNG, and prints the re-translation
-error (QC-error between the vector and the re-encoding of its own patch, standardized units).
+synthesized with ``--level-by`` (``lsq``: least-squares leveling over every entry of the vector,
+the default; ``none``: the unfolding from first copies; :mod:`meshsom.synthesis`) as a mesh file,
+a contact-sheet PNG, and prints the re-translation error (QC-error between the vector and the
+re-encoding of its patch, standardized units) of both methods.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 FORMATS = ("obj", "ply", "glb", "stl", "off")
+LEVEL_BY = ("lsq", "none")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,6 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--units", type=int, nargs="+", help="map units of --run (default: every unit of a map of <= 64 units, else 16 spread ones)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--format", choices=FORMATS, default="obj")
+    p.add_argument("--level-by", choices=LEVEL_BY, default="lsq",
+                   help="lsq: least-squares leveling over every entry (default); none: unfold from first copies")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -65,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     from meshsom.errors import StoreError
     from meshsom.standardize import destandardize
     from meshsom.store import open_store, read_stats, rings_array
-    from meshsom.synthesis import decode, retranslation_error, write_patch
+    from meshsom.standardize import standardize
+    from meshsom.synthesis import Patch, clip_v, encode_patches, entry_deviation, patch_topology, synthesize, write_patch
 
     group = open_store(args.store)
     if args.run:
@@ -95,30 +101,33 @@ def run(args: argparse.Namespace) -> int:
         vectors = np.asarray(arr.oindex[sorted(set(args.faces))] if hasattr(arr, "oindex") else arr[:][args.faces], np.float64)
         names = [f"face{i}" for i in sorted(set(args.faces))]
     # v must stay positive for a triangle to exist
-    vectors = vectors.copy()
-    vectors.reshape(len(vectors), -1, 3)[..., 2] = np.maximum(vectors.reshape(len(vectors), -1, 3)[..., 2], 1e-6)
+    vectors = clip_v(vectors)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    topo = patch_topology(level)
+    z = standardize(vectors, stats)
+    errors = {}
+    for method in LEVEL_BY:
+        V = synthesize(vectors, level, method, stats)
+        errors[method] = entry_deviation(z, encode_patches(V, level), stats).mean(axis=1)
+        if method == args.level_by:
+            chosen = V
     records, patches, titles = [], [], []
-    for name, x in zip(names, vectors):
-        rec = {"name": name, "level": level, "files": []}
-        for leveling in (False, True):
-            patch = decode(x, level, leveling=leveling)
-            tag = "leveled" if leveling else "raw"
-            path = out / f"level{level}_{name}_{tag}.{args.format}"
-            write_patch(patch, path)
-            rec["files"].append(str(path))
-            rec[f"retranslation_{tag}"] = retranslation_error(x, level, leveling=leveling, stats=stats)
-            if leveling:
-                patches.append(patch)
-                titles.append(f"{name}: {rec['retranslation_leveled']:.3g}")
-        records.append(rec)
+    for i, name in enumerate(names):
+        patch = Patch(chosen[i], topo.faces.copy(), list(topo.slots), topo.adjacency, level)
+        path = out / f"level{level}_{name}_{args.level_by}.{args.format}"
+        write_patch(patch, path)
+        records.append({"name": name, "level": level, "level_by": args.level_by, "files": [str(path)],
+                        **{f"retranslation_{m}": float(errors[m][i]) for m in LEVEL_BY}})
+        patches.append(patch)
+        titles.append(f"{name}: {errors[args.level_by][i]:.3g}")
     sheet = out / f"level{level}_contact_sheet.png"
     _contact_sheet(patches, titles, sheet)
     if args.json:
-        print(json.dumps({"level": level, "patches": records, "contact_sheet": str(sheet)}))
+        print(json.dumps({"level": level, "level_by": args.level_by, "patches": records, "contact_sheet": str(sheet)}))
     else:
         for r in records:
-            print(f"{r['name']}: re-translation QC-error {r['retranslation_raw']:.4g} raw, {r['retranslation_leveled']:.4g} leveled")
-        print(f"{len(records) * 2} patch files and {sheet} in {out}")
+            print(f"{r['name']}: re-translation QC-error {r['retranslation_none']:.4g} unleveled, "
+                  f"{r['retranslation_lsq']:.4g} leveled (lsq)")
+        print(f"{len(records)} patch files ({args.level_by}) and {sheet} in {out}")
     return 0

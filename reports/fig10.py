@@ -1,20 +1,26 @@
 """Figure 10 of the paper: re-translation error of level-3 prototypes, before and after leveling.
 
 `python -m reports.fig10 [--tracking-uri URI] [--experiment paper] [--out DIR] [--sample N] [--seed S]`
-takes the level-3 map prototypes of the experiment's latest finished pipeline run (a seeded sample
-of ``N`` units, or all of a smaller map), de-standardizes them with the level's statistics, clips
-the ``v`` entries to at least ``V_MIN`` (an apex must lie off its edge), synthesizes each into a
-triangle patch with and without leveling (:mod:`meshsom.synthesis`) and measures the
-re-translation QC-error (standardized units) between the vector and the re-encoding of its patch.
+takes the level-3 map of the experiment's latest finished pipeline run and, for every unit that
+training vectors are mapped to (or a seeded sample of ``N`` of them), its *original*: the training
+vector, in its winning variation, nearest to the prototype among those mapped to it (DESIGN.md §3;
+:func:`meshsom.synthesis.nearest_mapped`). Each prototype is de-standardized, its ``v`` entries
+raised to at least ``V_MIN``, and synthesized without leveling (the unfolding from first copies) and
+with it (least squares over every entry, :func:`meshsom.synthesis.level_patches`). The patch is
+re-encoded and compared, in standardized units:
 
-The reduction is ``100 * (1 - mean(leveled) / mean(raw))`` over the sample. The paper reports
-30-40 % at level 3 (DESIGN.md §3). A second measurement perturbs every entry of the same
-prototypes independently (seeded Gaussian noise of ``NOISE_SIGMA`` standardized units), so that
-the copies of each quantity disagree, which is the situation leveling is made for.
+- with the original: the paper's re-translation QC-error, per fold entry and per ring depth (0: the
+  root's folds, 1: the first ring's, ...);
+- with the prototype itself.
 
-Writes ``DIR/fig10.png`` (per-component deviation of a representative prototype, the one of median
-raw error, before and after leveling, and the distributions over the sample, for both
-measurements). Without level 3, the highest trained level >= 2 is used, with a note.
+The reduction is ``100 * (1 - mean(leveled) / mean(unleveled))`` over the prototypes. The paper
+reports 30-40 % at level 3, "especially small in close neighborhood to the root triangle".
+
+Writes ``DIR/fig10.png``: the per-entry deviation of one sample prototype (the one of median
+unleveled error) from its original, before (top) and after (bottom) leveling, as the paper's grid of
+``GRID_COLS`` values a row, coloured as a heat-map; the distribution of the error over all measured
+prototypes; the mean error per ring depth. ``DIR/fig10-grid.md`` holds the two grids as numbers in
+the paper's format. Without level 3, the highest trained level >= 2 is used, with a note.
 """
 
 from __future__ import annotations
@@ -25,28 +31,27 @@ from pathlib import Path
 
 import numpy as np
 
+from meshsom.synthesis import V_MIN
 from reports.runs import ReportError, TrackedExperiment, add_common_arguments, load_experiment, run_main
 
-__all__ = ["COPY_TOL", "NOISE_SIGMA", "copy_disagreement", "format_pct", "reduction_pct", "SAMPLE", "V_MIN", "main", "prototypes", "retranslation_errors", "write"]
+__all__ = ["GRID_COLS", "LEVEL", "SAMPLE", "V_MIN", "format_pct", "main", "measure", "reduction_pct", "summary", "write"]
 
 #: Level of the paper's Figure 10.
 LEVEL = 3
-#: Prototypes measured at most (a seeded sample of the map's units).
-SAMPLE = 300
-#: Seed of the sample and of the noise.
+#: Prototypes measured at most (a seeded sample of the units with an original); None: all of them.
+SAMPLE = None
+#: Seed of the sample.
 SEED = 0
-#: Smallest ``v`` (apex distance from its edge, in edge lengths) of a de-standardized prototype.
-V_MIN = 1e-3
-#: Standard deviation of the independent perturbation, in standardized units.
-NOISE_SIGMA = 0.1
-#: Values per fold (alpha, u, v).
-FOLD = 3
-#: Largest difference (raw units) between copies of the same quantity for a vector to count as level.
-COPY_TOL = 1e-3
-#: Histogram bins of the distribution panels.
-BINS = 30
-FIGSIZE = (13.0, 9.0)
+#: Values per row of the grid: the paper prints a level-3 vector (144 entries) as 12 rows of 12.
+GRID_COLS = 12
+#: Leveling methods compared: before, after.
+METHODS = ("none", "lsq")
+#: Histogram bins of the distribution panel.
+BINS = 40
+FIGSIZE = (16.0, 11.0)
 DPI = 120
+#: Font size of the numbers in the grid cells.
+CELL_FONT = 5.5
 
 
 def choose_level(exp: TrackedExperiment, level: int = LEVEL) -> tuple[int | None, str | None]:
@@ -69,89 +74,6 @@ def choose_level(exp: TrackedExperiment, level: int = LEVEL) -> tuple[int | None
                          f"Figure 10 uses level {max(higher)} instead")
 
 
-def prototypes(group, run: str, level: int, sample: int = SAMPLE, seed: int = SEED) -> tuple[np.ndarray, np.ndarray, dict]:
-    """De-standardized prototypes of a map, a seeded sample of them, ``v`` clipped to ``V_MIN``.
-
-    Parameters
-    ----------
-    group : zarr.Group
-        The store.
-    run : str
-        Map run name (``level3-bmuofn``).
-    level : int
-    sample : int
-        Units at most; a map with fewer units is taken whole.
-    seed : int
-
-    Returns
-    -------
-    units : (n,) int64
-        The units measured, ascending.
-    X : (n, D) float64
-        Their raw prototypes.
-    stats : dict
-        The level's standardization statistics.
-    """
-    from meshsom.codebook import load_codebook
-    from meshsom.standardize import destandardize
-    from meshsom.store import read_stats
-
-    cb = load_codebook(group, run)
-    stats = read_stats(group, level)
-    m = len(cb.weights)
-    units = np.arange(m) if m <= sample else np.sort(np.random.default_rng(seed).choice(m, sample, replace=False))
-    X = destandardize(cb.weights[units], stats)
-    v = X[:, 2::FOLD]
-    X[:, 2::FOLD] = np.maximum(v, V_MIN)
-    return units.astype(np.int64), X, stats
-
-
-def perturb(X: np.ndarray, stats: dict, sigma: float = NOISE_SIGMA, seed: int = SEED) -> np.ndarray:
-    """Raw vectors with independent Gaussian noise of ``sigma`` standardized units on every entry.
-
-    Returns
-    -------
-    (n, D) float64
-        ``v`` clipped to ``V_MIN``.
-    """
-    from meshsom.standardize import destandardize, standardize
-
-    z = standardize(np.asarray(X, np.float64), stats)
-    Y = destandardize(z + np.random.default_rng(seed).normal(0.0, sigma, z.shape), stats)
-    Y[:, 2::FOLD] = np.maximum(Y[:, 2::FOLD], V_MIN)
-    return Y
-
-
-def retranslation_errors(X: np.ndarray, level: int, stats: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Re-translation QC-error (standardized units) of every vector, without and with leveling.
-
-    Returns
-    -------
-    raw, leveled : (n,) float64
-    """
-    from meshsom.synthesis import retranslation_error
-
-    raw = np.array([retranslation_error(x, level, False, stats) for x in X])
-    lev = np.array([retranslation_error(x, level, True, stats) for x in X])
-    return raw, lev
-
-
-def component_deviation(x: np.ndarray, level: int, leveling: bool, stats: dict) -> np.ndarray:
-    """Per fold entry, the distance (standardized units) between a vector and its re-translation.
-
-    Returns
-    -------
-    (D / 3,) float64
-        In walk order: the root's one-ring first.
-    """
-    from meshsom.standardize import standardize
-    from meshsom.synthesis import decode, reencode
-
-    y = reencode(decode(x, level, leveling))
-    d = standardize(np.asarray(x, np.float64), stats) - standardize(y, stats)
-    return np.linalg.norm(d.reshape(-1, FOLD), axis=1)
-
-
 def format_pct(x: float) -> str:
     """A percentage with one decimal; values that round to zero print as ``0.0 %`` (never ``-0.0 %``)."""
     return f"{0.0 if abs(x) < 0.05 else x:.1f} %"
@@ -162,30 +84,99 @@ def reduction_pct(raw: np.ndarray, lev: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.mean(lev) / np.mean(raw)))
 
 
-def copy_disagreement(X: np.ndarray, level: int) -> np.ndarray:
-    """Per vector, the largest change leveling makes: max |level_vector(x) - x| (raw units).
+def originals(group, run: str, level: int, sample: int | None = SAMPLE, seed: int = SEED) -> dict:
+    """Prototypes of a map and their originals, standardized.
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The store.
+    run : str
+        Map run name (``level3-bmuofn``); it must hold the BMUs of its training vectors.
+    level : int
+    sample : int or None
+        Units at most (seeded); None: every unit with an original.
+    seed : int
 
     Returns
     -------
-    (n,) float64
-        0 (up to rounding) where every copy of every quantity already agrees.
+    dict
+        ``units`` (n,) int64 ascending, ``rows`` (n,) int64 (rows of ``rings/level{L}``), ``Z`` (n, D)
+        float64 the standardized originals in their winning variations, ``W`` (n, D) float64 the
+        standardized prototypes, ``stats`` (dict), ``n_units`` (map size).
     """
-    from meshsom.synthesis import level_vector
+    from meshsom.bmu_numpy import varied
+    from meshsom.codebook import load_codebook
+    from meshsom.standardize import standardize
+    from meshsom.store import read_stats, rings_array
+    from meshsom.synthesis import nearest_mapped
+    from meshsom.variations import variation_table
 
-    return np.array([np.abs(level_vector(x, level) - x).max() for x in X])
+    cb = load_codebook(group, run)
+    if cb.bmu is None:
+        raise ReportError(f"map {run} holds no BMUs of its training vectors; rerun training to keep them")
+    job = dict(cb.attrs.get("job", {}))
+    stats = read_stats(group, level)
+    orig = nearest_mapped(cb.bmu.unit, cb.bmu.dist2, len(cb.weights))
+    units = np.flatnonzero(orig >= 0)
+    if sample is not None and len(units) > sample:
+        units = np.sort(np.random.default_rng(seed).choice(units, sample, replace=False))
+    rows = orig[units]
+    arr = rings_array(group, level)
+    order = np.argsort(rows)
+    X = np.empty((len(rows), arr.shape[1]), np.float64)
+    X[order] = np.asarray(arr.oindex[rows[order]] if hasattr(arr, "oindex") else arr[:][rows[order]], np.float64)
+    index, sign = variation_table(level, mirror=bool(job.get("mirror", False)), kernel=cb.kernel or "bmuofn")
+    Z = varied(standardize(X, stats), index, sign, cb.bmu.variation[rows]).astype(np.float64)
+    return {"units": units, "rows": rows, "Z": Z, "W": np.asarray(cb.weights[units], np.float64), "stats": stats,
+            "n_units": len(cb.weights)}
 
 
-def _measure(X, level, stats) -> dict:
-    raw, lev = retranslation_errors(X, level, stats)
-    disagree = copy_disagreement(X, level)
-    rep = int(np.argsort(raw)[len(raw) // 2])  # the prototype of median raw error
-    return {
-        "raw": raw, "leveled": lev, "raw_mean": float(raw.mean()), "leveled_mean": float(lev.mean()),
-        "reduction_pct": reduction_pct(raw, lev), "representative": rep,
-        "disagreeing": int((disagree > COPY_TOL).sum()),
-        "deviation_raw": component_deviation(X[rep], level, False, stats),
-        "deviation_leveled": component_deviation(X[rep], level, True, stats),
-    }
+def measure(Z: np.ndarray, W: np.ndarray, level: int, stats) -> dict:
+    """Re-translation errors of prototypes ``W`` against their originals ``Z``, without and with leveling.
+
+    Parameters
+    ----------
+    Z : (n, D) float
+        Standardized originals.
+    W : (n, D) float
+        Standardized prototypes.
+    level : int
+    stats : Stats or dict
+
+    Returns
+    -------
+    dict
+        Per method (``none``, ``lsq``): ``entries`` (n, D/3) deviation from the original per fold
+        entry, ``original`` (n,) the QC-errors against it, ``prototype`` (n,) those against the
+        prototype, ``by_depth`` and ``by_depth_prototype`` (level,) the mean entry deviation per ring
+        depth from the original and from the prototype, ``original_circular`` (n,) the QC-errors
+        against the original with alpha compared on the circle, ``abs`` (n, D)
+        per-value deviation from the original. Also ``depth`` (D/3,) int64, ``reduction_pct``,
+        ``reduction_prototype_pct``, ``reduction_circular_pct``, ``reduction_by_depth_pct`` (level,).
+    """
+    from meshsom.standardize import destandardize, standardize
+    from meshsom.synthesis import clip_v, encode_patches, entry_depth, entry_deviation, synthesize
+
+    X = clip_v(destandardize(W, stats))
+    depth = entry_depth(level)
+    res: dict = {"depth": depth}
+    for method in METHODS:
+        Y = encode_patches(synthesize(X, level, method, stats), level)
+        e, ep = entry_deviation(Z, Y, stats), entry_deviation(W, Y, stats)
+        res[method] = {
+            "entries": e, "original": e.mean(axis=1), "prototype": ep.mean(axis=1),
+            "original_circular": entry_deviation(Z, Y, stats, circular=True).mean(axis=1),
+            "by_depth": np.array([e[:, depth == d].mean() for d in range(level)]),
+            "by_depth_prototype": np.array([ep[:, depth == d].mean() for d in range(level)]),
+            "abs": np.abs(np.asarray(Z, np.float64) - standardize(Y, stats)),
+        }
+    a, b = res["none"], res["lsq"]
+    res["reduction_pct"] = reduction_pct(a["original"], b["original"])
+    res["reduction_prototype_pct"] = reduction_pct(a["prototype"], b["prototype"])
+    res["reduction_circular_pct"] = reduction_pct(a["original_circular"], b["original_circular"])
+    res["reduction_by_depth_pct"] = 100.0 * (1.0 - b["by_depth"] / a["by_depth"])
+    return res
 
 
 def _pyplot():
@@ -197,64 +188,108 @@ def _pyplot():
     return plt
 
 
+def _grid(values: np.ndarray) -> np.ndarray:
+    """Per-value deviations as the paper's grid: rows of ``GRID_COLS`` (the last padded with NaN)."""
+    n = -(-len(values) // GRID_COLS) * GRID_COLS
+    return np.concatenate([values, np.full(n - len(values), np.nan)]).reshape(-1, GRID_COLS)
+
+
+def _cell(v: float) -> str:
+    """A value as the paper prints it: one significant digit, ``9.E-04``."""
+    if not np.isfinite(v):
+        return ""
+    m, e = f"{v:.0E}".split("E")
+    return f"{m}.E{e}"
+
+
+def grid_text(res: dict) -> str:
+    """The sample prototype's two grids (before, then after leveling) as a markdown table."""
+    lines = []
+    for method, what in zip(METHODS, ("before leveling", "after leveling")):
+        g = _grid(res["sample_abs"][method])
+        lines += [f"**{what}** (mean {np.nanmean(g):.2E})", "",
+                  "| " + " | ".join(str(c) for c in range(GRID_COLS)) + " |", "|" + "---|" * GRID_COLS]
+        lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in g]
+        lines.append("")
+    return "\n".join(lines)
+
+
 def _plot(res: dict, path: Path, title: str) -> None:
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=FIGSIZE)
-    for col, (key, what) in enumerate((("prototypes", "trained prototypes"),
-                                       ("perturbed", f"prototypes + noise (sigma {res['noise_sigma']:g})"))):
-        r = res[key]
-        unit = res["units"][r["representative"]]
-        ax = axes[0, col]
-        idx = np.arange(len(r["deviation_raw"]))
-        ax.bar(idx - 0.2, r["deviation_raw"], width=0.4, label=f"before leveling (QC {r['deviation_raw'].mean():.4f})")
-        ax.bar(idx + 0.2, r["deviation_leveled"], width=0.4,
-               label=f"after leveling (QC {r['deviation_leveled'].mean():.4f})")
-        ax.set_xlabel("fold entry of the ring vector (walk order: root's one-ring first)")
-        ax.set_ylabel("deviation (standardized)")
-        ax.set_title(f"{what}: unit {unit} (median raw error)", fontsize=10)
-        ax.legend(fontsize=8)
-        ax = axes[1, col]
-        hi = float(max(r["raw"].max(), r["leveled"].max()))
-        bins = np.linspace(0.0, hi if hi > 0 else 1.0, BINS + 1)
-        ax.hist(r["raw"], bins=bins, alpha=0.6, label=f"before: mean {r['raw_mean']:.4f}")
-        ax.hist(r["leveled"], bins=bins, alpha=0.6, label=f"after: mean {r['leveled_mean']:.4f}")
-        ax.set_xlabel("re-translation QC-error (standardized)")
-        ax.set_ylabel("prototypes")
-        ax.set_title(f"{what}, {len(r['raw'])} prototypes: {format_pct(r['reduction_pct'])} lower with leveling", fontsize=10)
-        ax.legend(fontsize=8)
+    m = res["measure"]
+    fig = plt.figure(figsize=FIGSIZE)
+    gs = fig.add_gridspec(2, 2, width_ratios=(1.25, 1.0))
+    grids = [_grid(res["sample_abs"][k]) for k in METHODS]
+    vmax = float(np.nanmax(grids[0]))
+    unit = int(res["units"][res["sample"]])
+    for i, (g, what) in enumerate(zip(grids, ("before leveling", "after leveling"))):
+        ax = fig.add_subplot(gs[i, 0])
+        im = ax.imshow(g, cmap="magma_r", vmin=0.0, vmax=vmax, aspect="auto")
+        for (r, c), v in np.ndenumerate(g):
+            ax.text(c, r, _cell(v), ha="center", va="center", fontsize=CELL_FONT,
+                    color="white" if np.isfinite(v) and v > 0.6 * vmax else "black")
+        ax.set_xticks(range(GRID_COLS))
+        ax.set_yticks(range(len(g)))
+        ax.set_title(f"unit {unit}, {what}: |original - re-encoding| per value (standardized), "
+                     f"QC {m[METHODS[i]]['original'][res['sample']]:.4f}", fontsize=9)
+        fig.colorbar(im, ax=ax, fraction=0.03)
+    ax = fig.add_subplot(gs[0, 1])
+    both = np.concatenate([m[k]["original"] for k in METHODS])
+    lo = float(both[both > 0].min()) if (both > 0).any() else 1e-12
+    bins = np.geomspace(lo, max(float(both.max()), 2.0 * lo), BINS + 1)
+    ax.set_xscale("log")
+    for k, what in zip(METHODS, ("before", "after")):
+        ax.hist(np.maximum(m[k]["original"], lo), bins=bins, alpha=0.6, label=f"{what} leveling: mean {m[k]['original'].mean():.4f}")
+    ax.set_xlabel("re-translation QC-error against the original (standardized)")
+    ax.set_ylabel("prototypes")
+    ax.set_title(f"{len(res['units'])} prototypes: {format_pct(m['reduction_pct'])} lower with leveling", fontsize=10)
+    ax.legend(fontsize=8)
+    ax = fig.add_subplot(gs[1, 1])
+    d = np.arange(res["level"])
+    w = 0.2
+    for j, (k, ref) in enumerate([(k, ref) for ref in ("original", "prototype") for k in METHODS]):
+        vals = m[k]["by_depth"] if ref == "original" else m[k]["by_depth_prototype"]
+        ax.bar(d + (j - 1.5) * w, vals, width=w, label=f"vs {ref}, {'before' if k == 'none' else 'after'} leveling")
+    ax.set_xticks(d, ["root"] + [f"ring {i}" for i in range(1, res["level"])])
+    ax.set_ylabel("mean deviation per fold entry (standardized)")
+    ax.set_title("by ring depth (depth of the face a fold belongs to)", fontsize=10)
+    ax.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def write(exp: TrackedExperiment, out: Path, sample: int = SAMPLE, seed: int = SEED,
-          noise_sigma: float = NOISE_SIGMA) -> dict:
-    """Measure and plot; writes ``out/fig10.png`` unless no level >= 2 was trained.
+def write(exp: TrackedExperiment, out: Path, sample: int | None = SAMPLE, seed: int = SEED) -> dict:
+    """Measure and plot; writes ``out/fig10.png`` and ``out/fig10-grid.md`` unless no level >= 2 was trained.
 
     Returns
     -------
     dict
         ``level`` (None when skipped), ``note``, ``run``, ``units`` (n,) the units measured,
-        ``prototypes`` and ``perturbed`` (each: ``raw``, ``leveled`` (n,) errors, their means,
-        ``reduction_pct``, ``representative``), ``noise_sigma``, ``figure`` (path or None).
+        ``n_units``, ``measure`` (:func:`measure`'s result), ``sample``
+        (index into ``units`` of the prototype drawn as a grid), ``sample_abs`` (per method, (D,)
+        its per-value deviations), ``figure`` and ``grid`` (paths or None).
     """
     level, note = choose_level(exp)
-    res = {"level": level, "note": note, "figure": None, "noise_sigma": noise_sigma}
+    res = {"level": level, "note": note, "figure": None, "grid": None}
     if level is None:
         return res
     run = exp.find(level).name
-    group = exp.open_store()
-    units, X, stats = prototypes(group, run, level, sample, seed)
-    if not len(units):
-        raise ReportError(f"experiment {exp.experiment!r}: map {run} has no prototypes")
-    res.update(run=run, units=units, prototypes=_measure(X, level, stats),
-               perturbed=_measure(perturb(X, stats, noise_sigma, seed), level, stats))
+    o = originals(exp.open_store(), run, level, sample, seed)
+    if not len(o["units"]):
+        raise ReportError(f"experiment {exp.experiment!r}: map {run} has no unit with a mapped vector")
+    m = measure(o["Z"], o["W"], level, o["stats"])
+    res.update(run=run, units=o["units"], n_units=o["n_units"], measure=m)
+    rep = int(np.argsort(m["none"]["original"], kind="stable")[len(o["units"]) // 2])  # median unleveled error
+    res["sample"] = rep
+    res["sample_abs"] = {k: m[k]["abs"][rep] for k in METHODS}
     out.mkdir(parents=True, exist_ok=True)
     path = out / "fig10.png"
     _plot(res, path, f"Figure 10: level-{level} re-translation before and after leveling "
                      f"(experiment {exp.experiment}, {run})")
-    res["figure"] = str(path)
+    (out / "fig10-grid.md").write_text(f"# Figure 10: unit {int(o['units'][rep])} of {run}\n\n" + grid_text(res))
+    res["figure"], res["grid"] = str(path), str(out / "fig10-grid.md")
     return res
 
 
@@ -262,30 +297,34 @@ def summary(res: dict) -> str:
     """One paragraph with the numbers."""
     if res["level"] is None:
         return f"Figure 10 skipped: {res['note']}"
-    p, q = res["prototypes"], res["perturbed"]
-    text = (f"level {res['level']} ({res['run']}), {len(res['units'])} prototypes: mean re-translation QC-error "
-            f"{p['raw_mean']:.5f} before leveling, {p['leveled_mean']:.5f} after: {format_pct(p['reduction_pct'])} lower; "
-            f"{p['disagreeing']} of them have copies that disagree by more than {COPY_TOL:g} (the rest are level "
-            "already). "
-            f"With independent noise (sigma {res['noise_sigma']:g} standardized): {q['raw_mean']:.5f} -> "
-            f"{q['leveled_mean']:.5f}, {format_pct(q['reduction_pct'])} lower.")
+    m = res["measure"]
+    a, b = m["none"], m["lsq"]
+    depth = ", ".join(f"{'root' if d == 0 else f'ring {d}'} {x:.4f} -> {y:.4f} ({format_pct(p)})"
+                      for d, (x, y, p) in enumerate(zip(a["by_depth"], b["by_depth"], m["reduction_by_depth_pct"])))
+    text = (f"level {res['level']} ({res['run']}), {len(res['units'])} prototypes with an original (of "
+            f"{res['n_units']} units): re-translation QC-error against the original {a['original'].mean():.5f} "
+            f"without leveling, {b['original'].mean():.5f} with least-squares leveling: "
+            f"{format_pct(m['reduction_pct'])} lower. By ring depth: {depth}. Against the prototype itself: "
+            f"{a['prototype'].mean():.5f} -> {b['prototype'].mean():.5f} ({format_pct(m['reduction_prototype_pct'])} lower). "
+            f"Against the original, alpha on the circle: {a['original_circular'].mean():.5f} -> "
+            f"{b['original_circular'].mean():.5f} ({format_pct(m['reduction_circular_pct'])} lower). "
+            f"Grid of unit {int(res['units'][res['sample']])} (median unleveled error): "
+            f"{res['measure']['none']['original'][res['sample']]:.4f} -> {res['measure']['lsq']['original'][res['sample']]:.4f}.")
     return text + (f" Note: {res['note']}" if res["note"] else "")
 
 
 def _main(argv) -> int:
     p = argparse.ArgumentParser(prog="python -m reports.fig10", description=__doc__.splitlines()[0])
     add_common_arguments(p)
-    p.add_argument("--sample", type=int, default=SAMPLE, help=f"prototypes measured at most (default {SAMPLE})")
-    p.add_argument("--seed", type=int, default=SEED, help=f"seed of the sample and the noise (default {SEED})")
-    p.add_argument("--noise-sigma", type=float, default=NOISE_SIGMA,
-                   help=f"noise of the second measurement, standardized units (default {NOISE_SIGMA})")
+    p.add_argument("--sample", type=int, default=SAMPLE, help="prototypes measured at most (default: every unit with an original)")
+    p.add_argument("--seed", type=int, default=SEED, help=f"seed of the sample (default {SEED})")
     args = p.parse_args(argv)
-    if args.sample < 1 or not args.noise_sigma >= 0:
-        p.error(f"--sample must be >= 1 and --noise-sigma >= 0, received {args.sample} and {args.noise_sigma}")
-    res = write(load_experiment(args.tracking_uri, args.experiment), args.out, args.sample, args.seed, args.noise_sigma)
+    if args.sample is not None and args.sample < 1:
+        p.error(f"--sample must be >= 1, received {args.sample}")
+    res = write(load_experiment(args.tracking_uri, args.experiment), args.out, args.sample, args.seed)
     print(summary(res))
     if res["figure"]:
-        print(f"wrote {res['figure']}")
+        print(f"wrote {res['figure']} and {res['grid']}")
     return 0
 
 
