@@ -200,11 +200,14 @@ def test_claims_from_hand_made_rows():
     assert [c["verdict"] for c in claim_a(table)] == ["no", "yes", "yes"]
     assert [c["verdict"] for c in claim_b(table)] == ["yes", "no"]
     assert claim_b(table[:2])[0]["verdict"] == "not measured"
-    measured = {"level": 3, "note": None, "units": np.arange(4), "noise_sigma": 0.1,
-                "prototypes": {"raw_mean": 1.0, "leveled_mean": 0.65, "reduction_pct": 35.0, "disagreeing": 4},
-                "perturbed": {"raw_mean": 1.0, "leveled_mean": 0.5, "reduction_pct": 50.0, "disagreeing": 4}}
+    measure = {"reduction_pct": 35.0, "reduction_by_depth_pct": [-38.0, 3.0, 38.0], "reduction_circular_pct": 31.0,
+               "reduction_prototype_pct": 24.0, "none": {"original": np.array([1.0, 1.0])},
+               "lsq": {"original": np.array([0.65, 0.65])}}
+    measured = {"level": 3, "note": None, "units": np.arange(4), "measure": measure}
     assert claim_c(measured)["verdict"] == "yes"
-    measured["prototypes"]["reduction_pct"] = 10.0
+    assert "1.00000 -> 0.65000" in claim_c(measured)["ours"]
+    measure["reduction_pct"] = 10.0
     assert claim_c(measured)["verdict"] == "partly"
-    measured["prototypes"]["reduction_pct"] = 0.0
+    measure["reduction_pct"] = 0.0
     assert claim_c(measured)["verdict"] == "no"
+    assert claim_c({"level": None, "note": "no level 3"})["verdict"] == "not measured"
