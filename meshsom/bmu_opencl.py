@@ -16,6 +16,17 @@ ever prompts.
 
 Device selectors: ``"P:D"`` (platform and device numbers, as ``PYOPENCL_CTX``), ``"P"``,
 or a case-insensitive substring of a platform or device name (``"pocl"``, ``"nvidia"``).
+
+Resident rows: a row array that cannot change (``X.flags.writeable`` False, and so is every
+array it is a view of, see :func:`immutable`) keeps its device copy, with the int32 variation
+index and the sign table, between searches on the same context (:class:`ResidentRows`), so
+that an epoch loop over cached chunks sends only the codebook and its norms to the device.
+The copies are keyed by the array's identity, checked through a weak reference (a new array
+at a freed one's address never matches), and held within a byte budget per context
+(:data:`RESIDENT_MEMORY_FRACTION` of the device's global memory), least recently used out
+first. Writable arrays are copied every call, as before. The promise a caller makes by
+passing a read-only array is that its values do not change while it lives (do not set it
+writable again and write to it).
 """
 
 from __future__ import annotations
@@ -23,7 +34,9 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from importlib import resources
 
@@ -610,13 +623,209 @@ def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP):
            bufs[0], np.int32(N), bufs[1], np.int32(MP), bufs[3], bufs[4], np.int32(splits), *parts, *outs)
 
 
+#: Share of a device's global memory that the resident row buffers of one context may hold; the
+#: rest is left to the codebook, the outputs and the "gemm" partial results of each call.
+RESIDENT_MEMORY_FRACTION = 0.5
+#: The resident budget in bytes, overriding the fraction (None: the fraction; tests set it small).
+RESIDENT_BYTES: int | None = None
+
+
+def upload(context, host: np.ndarray):
+    """A read-only device buffer holding a copy of ``host`` (every host-to-device copy of a search goes here).
+
+    Parameters
+    ----------
+    host : ndarray
+        C-contiguous.
+    """
+    cl = _cl()
+    return cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=host)
+
+
+def immutable(X: np.ndarray) -> bool:
+    """Whether X is read-only and so is every array it views (its values cannot change through numpy).
+
+    A read-only view of a writable array changes with it, so it is not immutable.
+    """
+    a = X
+    while isinstance(a, np.ndarray):
+        if a.flags.writeable:
+            return False
+        a = a.base
+    return True
+
+
+def _table_key(index: np.ndarray, sign: np.ndarray) -> tuple:
+    """A variation table's identity by value: (shape, sign dtype, index bytes, sign bytes)."""
+    return index.shape, sign.dtype.str, index.tobytes(), sign.tobytes()
+
+
+@dataclass
+class _Resident:
+    """One resident row array: a weak reference to it, its device copy and its tables' copies."""
+
+    ref: weakref.ref
+    shape: tuple
+    dtype: np.dtype
+    rows: object
+    tables: dict
+    nbytes: int
+
+
+class ResidentRows:
+    """Device copies of read-only row arrays on one context, least recently used out first.
+
+    Keyed by ``id(X)``; an entry matches only while its weak reference still returns X itself,
+    so an array freed and a new one at the same address never share a copy (the entry of a
+    freed array is dropped at the next call). Each entry also holds the int32 index and the
+    sign tables searched with those rows, keyed by value.
+
+    Parameters
+    ----------
+    budget : int
+        Most bytes of device copies held; an array larger than this is never held.
+
+    Attributes
+    ----------
+    hits, misses, evictions : int
+        Searches that found their rows on the device, that copied them there (and kept them),
+        and entries dropped for the budget.
+    """
+
+    def __init__(self, budget: int):
+        self.budget = int(budget)
+        self.hits = self.misses = self.evictions = 0
+        self._entries: "OrderedDict[int, _Resident]" = OrderedDict()
+        self._dead: list = []  # ids whose arrays were freed: dropped at the next call
+        self._lock = threading.Lock()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of device copies held now."""
+        with self._lock:
+            self._purge()
+            return sum(e.nbytes for e in self._entries.values())
+
+    def __len__(self) -> int:
+        with self._lock:
+            self._purge()
+            return len(self._entries)
+
+    def __contains__(self, X) -> bool:
+        with self._lock:
+            self._purge()
+            entry = self._entries.get(id(X))
+            return entry is not None and entry.ref() is X
+
+    def _purge(self) -> None:
+        while self._dead:
+            key, ref = self._dead.pop()
+            entry = self._entries.get(key)
+            if entry is not None and entry.ref is ref:
+                del self._entries[key]
+
+    def discard(self, X) -> None:
+        """Drop X's device copy, if held."""
+        with self._lock:
+            entry = self._entries.get(id(X))
+            if entry is not None and entry.ref() is X:
+                del self._entries[id(X)]
+
+    def buffers(self, context, X: np.ndarray, index32: np.ndarray, sign: np.ndarray) -> tuple:
+        """Device buffers of rows and tables: held ones where X is resident, else copied (and held).
+
+        Parameters
+        ----------
+        X : (N, D) float32 or float64
+            C-contiguous; held only where :func:`immutable`.
+        index32 : (n, D) int32
+        sign : (n, D) X's dtype
+
+        Returns
+        -------
+        rows, index, sign : pyopencl.Buffer
+        """
+        if not immutable(X):
+            return upload(context, X), upload(context, index32), upload(context, sign)
+        table = _table_key(index32, sign)
+        with self._lock:
+            self._purge()
+            entry = self._entries.get(id(X))
+            if entry is not None and (entry.ref() is not X or entry.shape != X.shape or entry.dtype != X.dtype):
+                del self._entries[id(X)]  # a freed array's entry, or X was reshaped in place
+                entry = None
+            if entry is not None:
+                self._entries.move_to_end(id(X))
+                self.hits += 1
+                if table in entry.tables:
+                    return (entry.rows, *entry.tables[table])
+        if entry is None:
+            if X.nbytes > self.budget:
+                return upload(context, X), upload(context, index32), upload(context, sign)
+            rows = upload(context, X)
+        else:
+            rows = entry.rows
+        tables = (upload(context, index32), upload(context, sign))
+        with self._lock:
+            if entry is None:
+                # the callback may run inside any call (garbage collection): it only notes the id
+                ref = weakref.ref(X, lambda r, key=id(X), dead=self._dead: dead.append((key, r)))
+                entry = _Resident(ref, X.shape, X.dtype, rows, {}, X.nbytes)
+                self._entries[id(X)] = entry
+                self.misses += 1
+            entry.tables[table] = tables
+            entry.nbytes += index32.nbytes + sign.nbytes
+            self._entries.move_to_end(id(X))
+            while sum(e.nbytes for e in self._entries.values()) > self.budget and len(self._entries) > 1:
+                self._entries.popitem(last=False)
+                self.evictions += 1
+        return (rows, *tables)
+
+
+_RESIDENT: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def resident_budget(context) -> int:
+    """Bytes the resident rows of a context may hold: :data:`RESIDENT_BYTES`, else
+    :data:`RESIDENT_MEMORY_FRACTION` of its first device's global memory."""
+    if RESIDENT_BYTES is not None:
+        return int(RESIDENT_BYTES)
+    return int(RESIDENT_MEMORY_FRACTION * context.devices[0].global_mem_size)
+
+
+def resident_rows(context) -> ResidentRows:
+    """The :class:`ResidentRows` of a context (made on first use, with :func:`resident_budget`)."""
+    if context not in _RESIDENT:
+        _RESIDENT[context] = ResidentRows(resident_budget(context))
+    return _RESIDENT[context]
+
+
+def row_buffers(context, X: np.ndarray, index: np.ndarray, sign: np.ndarray) -> tuple:
+    """Device buffers of X, the int32 index and the sign table (see :meth:`ResidentRows.buffers`).
+
+    Parameters
+    ----------
+    X : (N, D) float32 or float64
+    index : (n, D) integer
+    sign : (n, D)
+
+    Returns
+    -------
+    rows, index, sign : pyopencl.Buffer
+    """
+    return resident_rows(context).buffers(context, np.ascontiguousarray(X), np.ascontiguousarray(index, np.int32),
+                                          np.ascontiguousarray(sign, X.dtype))
+
+
 def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np.ndarray, ...]:
     """Run a built kernel on validated arrays: the raw outputs, int32/REAL.
 
     Parameters
     ----------
     X : (N, D), W : (M, D), index : (n, D) int64, sign : (n, D)
-        As :func:`meshsom.bmu_numpy.validate` returns them (same dtype for X, W and sign).
+        As :func:`meshsom.bmu_numpy.validate` returns them (same dtype for X, W and sign). A
+        read-only X (:func:`immutable`) stays resident on the device with its tables
+        (:func:`row_buffers`); W and its norms go up every call.
 
     Returns
     -------
@@ -661,14 +870,8 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     second = np.empty(N, np.int32)
     try:
         mf = cl.mem_flags
-        ro = mf.READ_ONLY | mf.COPY_HOST_PTR
-        bufs = [
-            cl.Buffer(context, ro, hostbuf=np.ascontiguousarray(X)),
-            cl.Buffer(context, ro, hostbuf=WT),
-            cl.Buffer(context, ro, hostbuf=wnorm),
-            cl.Buffer(context, ro, hostbuf=index.astype(np.int32)),
-            cl.Buffer(context, ro, hostbuf=np.ascontiguousarray(sign, X.dtype)),
-        ]
+        xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
+        bufs = [xbuf, upload(context, WT), upload(context, wnorm), ibuf, sbuf]
         outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
         if defines["KERNEL"] == "gemm":
             _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP)
@@ -679,6 +882,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
             cl.enqueue_copy(queue, host, buf)
         queue.finish()
     except cl.Error as err:  # pyopencl's error records do not pickle: one line of text instead
+        resident_rows(context).discard(X)  # a later try copies the rows afresh
         raise DeviceError(f"{device_name(context)}: BMUofN kernel launch failed ({type(err).__name__}: "
                           f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
     return unit, variation, dist2, second
