@@ -337,6 +337,9 @@ class SOM:
         Parameters
         ----------
         X : (N, D) float
+            On OpenCL a read-only float32 X (or one converted here) stays on the device between
+            epochs (:class:`meshsom.bmu_opencl.ResidentRows`); a writable float32 X is copied up
+            every epoch.
         index : (n, D) int64 or None
             Variation table (None: identity, the default kernel).
         sign : (n, D) float32 or None
@@ -349,7 +352,10 @@ class SOM:
         self
         """
         self._validate_params()
+        given = X
         X = self._validate_X(X)
+        if X is not given and X.base is None:  # a converted copy of fit's own: resident on OpenCL
+            X.flags.writeable = False
         D = X.shape[1]
         if index is None:
             index, sign = identity_table(D)

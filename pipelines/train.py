@@ -5,7 +5,8 @@ with the stored statistics, find BMUofN against the broadcast codebook, write th
 and winning variations into the run (every epoch), and return the per-unit sums and counts plus
 the sums behind the T-, Q- and QC-errors. Each worker process resolves its
 BMU backend once (OpenCL context and compiled program, memoised in :mod:`meshsom.bmu_opencl`) and
-keeps recently used standardized chunks in a bounded cache.
+keeps recently used standardized chunks in a bounded cache, read-only, so that on OpenCL their
+device copies stay resident between epochs and only the codebook goes up each epoch.
 
 Reduce (on the client, :func:`train_spec`): add the partial sums, smooth and divide
 (:func:`meshsom.som.batch_update`), and checkpoint: the codebook is written to
@@ -129,7 +130,14 @@ def source_array(group, job: "TrainJob"):
 
 
 def load_chunk(job: "TrainJob", start: int, stop: int) -> np.ndarray:
-    """Rows ``start..stop`` of the job's vectors, (n, D) float32, standardized for ring levels (cached per worker)."""
+    """Rows ``start..stop`` of the job's vectors, standardized for ring levels (cached per worker).
+
+    Returns
+    -------
+    (stop - start, D) float32, read-only
+        The cached array itself: read-only, so that its device copy stays resident between epochs
+        (:class:`meshsom.bmu_opencl.ResidentRows`) and only the codebook goes up each epoch.
+    """
     key = (job.store, job.level, job.source, start, stop)
     if key in _CHUNKS:
         _CHUNKS.move_to_end(key)
@@ -141,7 +149,8 @@ def load_chunk(job: "TrainJob", start: int, stop: int) -> np.ndarray:
     x = np.asarray(source_array(group, job)[start:stop])
     if job.source is None:
         x = standardize(x, read_stats(group, job.level))
-    x = x.astype(np.float32)
+    x = x.astype(np.float32)  # a copy of its own: nothing else can write to it
+    x.flags.writeable = False
     _CHUNKS[key] = x
     while sum(a.nbytes for a in _CHUNKS.values()) > CHUNK_CACHE_BYTES and len(_CHUNKS) > 1:
         _CHUNKS.popitem(last=False)
