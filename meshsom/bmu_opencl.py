@@ -645,14 +645,21 @@ def upload(context, host: np.ndarray):
 def immutable(X: np.ndarray) -> bool:
     """Whether X is read-only and so is every array it views (its values cannot change through numpy).
 
-    A read-only view of a writable array changes with it, so it is not immutable.
+    A read-only view of a writable array changes with it, so it is not immutable; nor is an
+    array over a writable buffer of another kind (a ``bytearray``). One over a read-only buffer
+    (``bytes``, a read-only ``mmap``) is.
     """
     a = X
     while isinstance(a, np.ndarray):
         if a.flags.writeable:
             return False
         a = a.base
-    return True
+    if a is None:
+        return True
+    try:
+        return memoryview(a).readonly
+    except TypeError:  # not a buffer: nothing known about who else writes to it
+        return False
 
 
 def _table_key(index: np.ndarray, sign: np.ndarray) -> tuple:

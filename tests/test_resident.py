@@ -116,7 +116,10 @@ def test_writable_rows_are_never_held(ctx, uploads):
     writable = np.array(X)
     view = writable[:]
     view.flags.writeable = False  # read-only, but it changes with the array it views
-    assert not immutable(view) and not immutable(writable) and immutable(X)
+    assert not immutable(view) and not immutable(writable) and immutable(X) and immutable(X[1:])
+    over_bytearray = np.frombuffer(bytearray(X.tobytes()), X.dtype)
+    over_bytearray.flags.writeable = False  # the bytearray can still change
+    assert not immutable(over_bytearray) and immutable(np.frombuffer(X.tobytes(), X.dtype))
     for rows in (writable, view):
         for _ in range(2):
             bmu_opencl(rows, W, index, sign, context=ctx, params=DEFAULT_PARAMS["tiled"])
