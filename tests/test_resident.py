@@ -246,3 +246,18 @@ def test_partial_sums_over_epochs_match_numpy(ctx, uploads, n):
         np.testing.assert_array_equal(c, c_ref)
         np.testing.assert_allclose(s, s_ref, rtol=1e-12, atol=1e-9)
     assert [size for size, _ in uploads].count(X.nbytes) == 1  # every epoch after the first: the codebook only
+
+
+def test_som_fit_keeps_its_converted_copy_resident(ctx, uploads):
+    """SOM.fit on float64 rows converts them once, read-only: they go up in the first epoch only;
+    the caller's array is left writable."""
+    from meshsom.som import SOM
+
+    X, _ = clustered(7, 200, 9, 12)
+    given = np.array(X, np.float64)
+    som = SOM(rows=3, cols=4, epochs=3, backend="opencl", layout="tiled").fit(given)
+    rows_up = X.nbytes  # float32 on the device
+    assert [size for size, _ in uploads].count(rows_up) == 1
+    assert given.flags.writeable
+    ref = SOM(rows=3, cols=4, epochs=3, backend="numpy").fit(given)
+    np.testing.assert_allclose(som.weights_, ref.weights_, rtol=1e-5, atol=1e-5)
