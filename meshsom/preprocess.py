@@ -1015,8 +1015,9 @@ def _volume_keeping_points(v, f, labels, size, centroid):
     area2 = np.linalg.norm(cross, axis=1)
     n = cross / np.where(area2 > 0, area2, 1.0)[:, None]
     offset = np.einsum("ij,ij->i", n, x[:, 0])
+    stays = (lab[:, 0] != lab[:, 1]) & (lab[:, 1] != lab[:, 2]) & (lab[:, 0] != lab[:, 2])  # after every chain's collapse
     for corner in range(3):
-        once = multi[:, corner] & (same[:, corner] == 1)
+        once = multi[:, corner] & stays
         np.add.at(quad, lab[once, corner], area2[once, None, None] * n[once, :, None] * n[once, None, :])
         np.add.at(rhs, lab[once, corner], (area2[once] * offset[once])[:, None] * n[once])
     idx = np.flatnonzero(size > 1)
