@@ -352,8 +352,11 @@ def test_short_edge_collapse_can_be_disabled():
     cut = 0.001 / np.sqrt(2)
     shell = np.array([[0, 0], [30, 0], [30, 10 - cut], [30 - cut, 10], [0, 10]], float)
     v, f = extrude_polygon(shell, [], 0.0, 8.0)
-    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0))
+    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0, max_fold_v=0.0))
     assert len(r.vertices) == 10  # the chamfer stays
+    # without step 4a, step 6a (folds of v > 100) takes the 1 mm chamfer back to its corner
+    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0))
+    assert len(r.vertices) == 8 and r.volume_out == pytest.approx(30 * 10 * 8, rel=1e-12)
 
 
 def _sheet(x0, x1, y, z0, z1, offset):
