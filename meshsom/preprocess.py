@@ -34,6 +34,10 @@ Steps
 6. Re-triangulate each region from its kept boundary vertices (outer ring and holes). A region that
    cannot be (not planar within tolerance, pinched boundary, failed triangulation) keeps its input
    triangles, and its vertices are then kept by all neighbours.
+6a. Tall folds: an edge of at most ``max_collapse_length`` metres with a fold of ``v`` above
+   ``max_fold_v`` (a jog of a few centimetres beside walls and roofs metres long) is collapsed,
+   each chain of such edges to the point that keeps the enclosed volume, and the mesh is
+   re-triangulated (a few rounds); a collapse that breaks the mesh or moves its volume is not made.
 7. Validate: closed, edge-manifold, consistently oriented, no degenerate face, volume unchanged
    within ``volume_rtol``. If re-triangulation broke any of these, the cleaned input triangulation
    is kept instead (recorded); if that fails too, the mesh is rejected.
@@ -104,6 +108,18 @@ class PreprocessParams:
         (``Manifold.set_tolerance``): vertices, edges and slivers closer than this are merged,
         so a spike or notch thinner than this near its tip, or a partly overlapping fin, goes
         (default 0.01, as ``min_edge_length``). 0 disables the rebuild.
+    max_fold_v : float
+        After re-triangulation, an edge with a fold whose ``v`` exceeds this (the neighbour's apex
+        more than this many edge lengths from the edge: a jog of a few centimetres in a wall tens
+        of metres long, a crease split a centimetre from its end, the short diagonal of a sliver)
+        is collapsed, if no longer than ``max_collapse_length``, each chain of such edges to the
+        point that keeps the enclosed volume (or to the corner of the planes around it), and the
+        mesh re-triangulated; a collapse that would leave the mesh invalid, with flat folds or
+        outside ``volume_rtol`` is not made (default 100: the corpus's ``v`` tail, which stretches
+        the standardization, ends there). 0 disables it.
+    max_collapse_length : float
+        Longest edge, in metres (absolute), that ``max_fold_v`` collapses (default 0.5: a jog of
+        half a metre is a real feature of a building, however tall).
     """
 
     weld_tol: float = 1e-8
@@ -119,6 +135,8 @@ class PreprocessParams:
     min_edge_length: float = 0.01
     flat_fold_deg: float = 1.0
     fold_repair_tol: float = 0.01
+    max_fold_v: float = 100.0
+    max_collapse_length: float = 0.5
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -131,6 +149,10 @@ class PreprocessParams:
             raise ValueError(f"min_edge_length must be a finite number >= 0 (metres); received {self.min_edge_length!r}")
         if not (isinstance(self.fold_repair_tol, (int, float)) and 0 <= self.fold_repair_tol < math.inf):
             raise ValueError(f"fold_repair_tol must be a finite number >= 0 (metres); received {self.fold_repair_tol!r}")
+        for name in ("max_fold_v", "max_collapse_length"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 <= value < math.inf):
+                raise ValueError(f"{name} must be a finite number >= 0 (0 disables it); received {value!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
@@ -224,6 +246,8 @@ def preprocess(
         if problem is not None:
             repairs.append(f"kept the input triangulation (re-triangulation gave: {problem})")
             out_v, out_f, regions = v, f, 0
+        else:
+            out_v, out_f, regions = _collapse_tall_folds(out_v, out_f, regions, params, diag, volume_in, repairs)
     problem = validate(out_v, out_f)
     if problem is not None:
         raise MeshError(source, problem)
@@ -900,25 +924,192 @@ def _collapse_short_edges(v, f, min_length, source, repairs):
     short = edges[length < min_length]
     if len(short) == 0:
         return v, f
+    v, f, removed = _collapse_edges(v, f, short, repairs)
+    repairs.append(f"collapsed {len(short)} edges shorter than {min_length:g} m ({removed} faces removed)")
+    return v, f
+
+
+def _collapse_edges(v, f, short, repairs, keep_volume=False):
+    """Collapse the given edges: each chain (connected component) of them becomes one vertex.
+
+    The vertex is the chain's centroid, or with ``keep_volume`` the point on the chain's axis
+    (through the centroid towards its farthest vertex, as far as that vertex either way; for one
+    edge, the edge itself) where collapsing that chain alone leaves the enclosed volume unchanged:
+    a collapse moves the surface by a sliver whose volume is linear in the merged vertex, so
+    a 10 cm step between two walls of different lengths leaves the volume as it was instead of
+    moving it by a few tenths of a percent.
+
+    Returns
+    -------
+    v : (V, 3) float64
+        Vertices of collapsed chains moved to their centroid (unused ones stay until compacted).
+    f : (G, 3) int64
+        Faces left (collapsed faces and zero-volume pockets gone; validity is the caller's).
+    removed : int
+        Faces that collapsed.
+    """
     n = len(v)
-    graph = sparse.coo_matrix((np.ones(len(short), np.int8), (short[:, 0], short[:, 1])), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    size = np.bincount(labels, minlength=labels.max() + 1)
-    centroid = np.zeros((len(size), 3))
-    np.add.at(centroid, labels, v)
-    centroid /= size[:, None]
+    labels, size, centroid = _chains(v, short)
     first = np.full(len(size), n, np.int64)
     np.minimum.at(first, labels, np.arange(n))
     v = v.copy()
     moved = size[labels] > 1
+    if keep_volume:
+        centroid, _ = _volume_keeping_points(v, f, labels, size, centroid)
     v[moved] = centroid[labels[moved]]
     f = first[labels][f]
     collapsed = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     f = _drop_duplicates(f[~collapsed], repairs)
-    repairs.append(
-        f"collapsed {len(short)} edges shorter than {min_length:g} m ({int(collapsed.sum())} faces removed)"
-    )
-    return v, f
+    return v, f, int(collapsed.sum())
+
+
+def _chains(v, edges):
+    """Connected components of ``edges``: labels (V,), sizes (K,), centroids (K, 3)."""
+    n = len(v)
+    graph = sparse.coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    size = np.bincount(labels, minlength=labels.max() + 1)
+    centroid = np.zeros((len(size), 3))
+    np.add.at(centroid, labels, v)
+    return labels, size, centroid / size[:, None]
+
+
+def _volume_keeping_points(v, f, labels, size, centroid):
+    """Per chain, the point where collapsing the chain alone keeps the volume (or changes it least).
+
+    With only chain k moved to P, every face with exactly one of its vertices changes its
+    volume term to P.(x1 x x2)/6 and every face with two or three of them goes, so the volume
+    change is P.G/6 - C/6 (G: sum of x1 x x2 over the first kind; C: the volume terms, times 6, of
+    all faces touching the chain). P = c + s (a - c), c the centroid, a the chain vertex farthest
+    from it, s clamped to [-1, 1]; or, where it changes the volume less, the point nearest to the
+    planes of the faces that stay.
+    """
+    lab = labels[f]  # (F, 3)
+    multi = size[lab] > 1
+    same = (lab[:, :, None] == lab[:, None, :]).sum(axis=2)  # corners of the face in the same chain
+    x = v[f]
+    triple = np.einsum("ij,ij->i", x[:, 0], np.cross(x[:, 1], x[:, 2]))
+    k = len(size)
+    g = np.zeros((k, 3))
+    c = np.zeros(k)
+    for corner in range(3):
+        sel = multi[:, corner]
+        once = sel & (same[:, corner] == 1)
+        np.add.at(g, lab[once, corner], np.cross(x[once, (corner + 1) % 3], x[once, (corner + 2) % 3]))
+        np.add.at(c, lab[sel, corner], triple[sel] / same[sel, corner])
+    dist = np.linalg.norm(v - centroid[labels], axis=1)
+    order = np.lexsort((-dist, labels))
+    far = np.full(k, -1, np.int64)
+    far[labels[order[::-1]]] = order[::-1]  # the last write per label is its farthest vertex
+    axis = v[far] - centroid
+    denom = np.einsum("ij,ij->i", axis, g)
+    ok = (size > 1) & (np.abs(denom) > 1e-12 * np.maximum(np.abs(c), 1e-300))
+    s = np.where(ok, (c - np.einsum("ij,ij->i", centroid, g)) / np.where(ok, denom, 1.0), 0.0)
+    on_axis = centroid + np.clip(s, -1.0, 1.0)[:, None] * axis
+    # Second candidate: the point nearest (least squares, area-weighted, minimum-norm from the
+    # centroid) to the planes of the faces that stay, which restores a cut corner (a chamfer of a
+    # convex corner, where no point of the chamfer keeps the volume) to the corner.
+    quad = np.zeros((k, 3, 3))
+    rhs = np.zeros((k, 3))
+    cross = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    n = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    offset = np.einsum("ij,ij->i", n, x[:, 0])
+    stays = (lab[:, 0] != lab[:, 1]) & (lab[:, 1] != lab[:, 2]) & (lab[:, 0] != lab[:, 2])  # after every chain's collapse
+    for corner in range(3):
+        once = multi[:, corner] & stays
+        np.add.at(quad, lab[once, corner], area2[once, None, None] * n[once, :, None] * n[once, None, :])
+        np.add.at(rhs, lab[once, corner], (area2[once] * offset[once])[:, None] * n[once])
+    idx = np.flatnonzero(size > 1)
+    planes = centroid.copy()
+    if len(idx):
+        pinv = np.linalg.pinv(quad[idx], rcond=1e-9)
+        residual = rhs[idx] - np.einsum("kij,kj->ki", quad[idx], centroid[idx])
+        planes[idx] = centroid[idx] + np.einsum("kij,kj->ki", pinv, residual)
+    candidates = np.stack([on_axis, planes])  # (2, K, 3)
+    change = (np.einsum("ckj,kj->ck", candidates, g) - c) / 6.0
+    # the planes' point only when it stays near the chain (within its extent) and keeps the volume better
+    near = np.linalg.norm(planes - centroid, axis=1) <= 2 * np.linalg.norm(axis, axis=1)
+    pick = (near & (np.abs(change[1]) < np.abs(change[0]))).astype(np.int64)
+    return candidates[pick, np.arange(k)], change[pick, np.arange(k)]
+
+
+def _collapse_tall_folds(v, f, regions, params, diag, volume_in, repairs, rounds=4):
+    """Step 6a: collapse short edges whose folds have ``v`` above ``max_fold_v``, re-triangulate.
+
+    A fold's ``v`` is the neighbour's apex distance from the edge in edge lengths, so ``v > 100``
+    marks an edge a hundred times shorter than the faces beside it: a jog of a few centimetres in
+    a footprint (a wall strip 5 cm wide and 10 m tall), a crease split by a vertex a centimetre from
+    its end, the short diagonal of a sliver. Such edges no longer than ``max_collapse_length``
+    metres are collapsed together (each chain to its centroid) and the planar regions are
+    re-triangulated, for a few rounds. A round is kept only when the mesh stays closed,
+    edge-manifold, oriented, free of flat folds and within ``volume_rtol`` of ``volume_in``;
+    otherwise the chains are tried one at a time and those that break it are left as they are.
+
+    Returns
+    -------
+    v, f : the mesh after the collapses (compacting is the caller's)
+    regions : int
+        Planar regions of the last re-triangulation.
+    """
+    if not params.max_fold_v > 0 or not params.max_collapse_length > 0:
+        return v, f, regions
+    from meshsom.folds import folds
+    from meshsom.topology import adjacency
+
+    collapsed = 0
+    for _ in range(rounds):
+        fold = folds(v, f, adjacency(f))
+        nxt = np.roll(f, -1, axis=1)
+        length = np.linalg.norm(v[nxt] - v[f], axis=2)
+        tall = (fold[..., 2] > params.max_fold_v) & (length <= params.max_collapse_length)
+        if not tall.any():
+            break
+        edges = np.unique(np.sort(np.stack([f[tall], nxt[tall]], axis=1), axis=1), axis=0)
+        trial = _try_collapse(v, f, edges, params, diag, volume_in)
+        if trial is None:
+            break
+        v, f, regions = trial
+        collapsed += len(edges)
+    if collapsed:
+        repairs.append(
+            f"collapsed {collapsed} edges of at most {params.max_collapse_length:g} m with folds of v > "
+            f"{params.max_fold_v:g} (an edge that short beside faces that large), re-triangulated"
+        )
+    return v, f, regions
+
+
+def _try_collapse(v, f, edges, params, diag, volume_in):
+    """Collapse the chains of ``edges`` that keep the mesh acceptable, and re-triangulate.
+
+    Only chains whose collapse alone changes the volume by at most 1 % of ``volume_rtol``
+    (:func:`_volume_keeping_points`: almost always exactly 0) go; a chain that would move the
+    volume more (a notch or slot whose walls beside it are too short to take it up) stays. If
+    their collapse together leaves the mesh not acceptable (closed, manifold, oriented, no flat
+    folds, volume within ``volume_rtol``), they are tried one at a time (there are a handful).
+    None when no chain can be collapsed.
+    """
+    labels, size, centroid = _chains(v, edges)
+    _, change = _volume_keeping_points(v, f, labels, size, centroid)
+    chosen = (size > 1) & (np.abs(change) <= 0.01 * params.volume_rtol * abs(volume_in))
+    if not chosen.any():
+        return None
+    cv, cf, _ = _collapse_edges(v, f, edges[chosen[labels[edges[:, 0]]]], [], keep_volume=True)
+    if _fold_cleaning_problem(cv, cf, params, volume_in) is not None:
+        cv, cf, done = v, f, 0
+        for k in np.flatnonzero(chosen):  # one chain at a time
+            tv, tf, _ = _collapse_edges(cv, cf, edges[labels[edges[:, 0]] == k], [], keep_volume=True)
+            if _fold_cleaning_problem(tv, tf, params, volume_in) is None:
+                cv, cf, done = tv, tf, done + 1
+        if not done:
+            return None
+    try:
+        rv, rf, regions = _retriangulate(cv, cf, params, diag)
+    except MeshError:  # pragma: no cover - defensive
+        return None
+    if _fold_cleaning_problem(rv, rf, params, volume_in) is not None:
+        return None
+    return rv, rf, regions
 
 
 def _fold_angles(v, f):

@@ -352,8 +352,11 @@ def test_short_edge_collapse_can_be_disabled():
     cut = 0.001 / np.sqrt(2)
     shell = np.array([[0, 0], [30, 0], [30, 10 - cut], [30 - cut, 10], [0, 10]], float)
     v, f = extrude_polygon(shell, [], 0.0, 8.0)
-    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0))
+    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0, max_fold_v=0.0))
     assert len(r.vertices) == 10  # the chamfer stays
+    # without step 4a, step 6a (folds of v > 100) takes the 1 mm chamfer back to its corner
+    r = preprocess(v, f, PreprocessParams(min_edge_length=0.0))
+    assert len(r.vertices) == 8 and r.volume_out == pytest.approx(30 * 10 * 8, rel=1e-12)
 
 
 def _sheet(x0, x1, y, z0, z1, offset):
@@ -491,3 +494,150 @@ def test_fold_cleaning_parameters_validated():
         PreprocessParams(flat_fold_deg=90)
     with pytest.raises(ValueError, match="fold_repair_tol"):
         PreprocessParams(fold_repair_tol=float("inf"))
+
+
+# --------------------------------------------------------------------------------------------
+# Tall folds (v > max_fold_v): short edges beside large faces collapsed after re-triangulation
+# --------------------------------------------------------------------------------------------
+
+
+def _fold_v_direct(v, f):
+    """v of every fold (apex distance from the edge line / edge length), from trimesh's adjacency."""
+    mesh = trimesh.Trimesh(v, f, process=False)
+    edges = mesh.face_adjacency_edges
+    p, q = v[edges[:, 0]], v[edges[:, 1]]
+    length = np.linalg.norm(q - p, axis=1)
+    e = (q - p) / length[:, None]
+    out = []
+    for side in range(2):
+        r = v[mesh.face_adjacency_unshared[:, side]] - p
+        out.append(np.linalg.norm(r - np.einsum("ij,ij->i", r, e)[:, None] * e, axis=1) / length)
+    return np.concatenate(out)
+
+
+def _two_parts_with_a_2cm_step():
+    """A 15 x 10 x 8 m part and a 15 x 9.98 x 8 m part beside it, 2 cm further north: their union
+    has a wall strip 2 cm wide and 8 m tall, and the shared wall leaves T-junction vertices on the
+    long north wall."""
+    from conftest import box
+
+    a, b = box(15, 10, 8), box(15, 9.98, 8)
+    v = np.concatenate([a[0], b[0] + [15, 0.02, 0]])
+    return v, np.concatenate([a[1], b[1] + 8]), np.repeat([0, 1], 12)
+
+
+@pytest.mark.parametrize("max_fold_v, tall", [(0.0, True), (100.0, False)])
+def test_2cm_step_between_two_parts_is_collapsed_with_volume_kept(max_fold_v, tall):
+    from meshsom.union import preprocess_shells, union_parts
+
+    params = PreprocessParams(max_fold_v=max_fold_v)
+    v, f, part = _two_parts_with_a_2cm_step()
+    r = preprocess_shells(union_parts(v, f, part, params, "two parts").shells, params, "two parts")
+    assert validate(r.vertices, r.faces) is None
+    mesh = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    footprint = shapely.union(shapely.box(0, 0, 15, 10), shapely.box(15, 0.02, 30, 10))
+    assert mesh.volume == pytest.approx(footprint.area * 8, rel=1e-12)  # the union's volume, kept
+    v_max = _fold_v_direct(r.vertices, r.faces).max()
+    if tall:  # the class of input: the strip's roof edge (2 cm) sees a roof apex 15 m away
+        assert v_max == pytest.approx(15 / 0.02)
+        assert mesh.area == pytest.approx(2 * footprint.area + 8 * footprint.length)
+        return
+    assert v_max < 100
+    # the step went to the point that keeps the volume (its middle): the footprint is the quad
+    # (0, 0), (30, 0.02), (30, 10), (0, 10); the T-junction vertices of the shared wall are gone
+    quad = shapely.Polygon([(0, 0), (30, 0.02), (30, 10), (0, 10)])
+    assert quad.area == pytest.approx(footprint.area, rel=1e-12)
+    assert len(r.vertices) == 8 and len(r.faces) == 12
+    assert mesh.area == pytest.approx(2 * quad.area + 8 * quad.length, rel=1e-12)
+    # the outer area lost the strip (2 cm x 8 m), nothing else beyond 1e-4 m²
+    assert 2 * footprint.area + 8 * footprint.length - mesh.area == pytest.approx(0.02 * 8, abs=1e-4)
+    assert any("folds of v > 100" in s for s in r.repairs), r.repairs
+
+
+def test_3cm_chamfer_sliver_on_a_30m_block_goes_back_to_the_corner():
+    # a roof whose triangle on the 3 cm chamfer reaches 30 m (v = 267 before): the chamfer's
+    # chains go to the corner of the walls' planes, the box without chamfer
+    cut = 0.03 / np.sqrt(2)
+    shell = np.array([[0, 0], [30, 0], [30, 10 - cut], [30 - cut, 10], [0, 10]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 8.0)
+    before = preprocess(v, f, PreprocessParams(max_fold_v=0))
+    assert _fold_v_direct(before.vertices, before.faces).max() > 250
+    r = preprocess(v, f)
+    mesh = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert validate(r.vertices, r.faces) is None and mesh.is_watertight and mesh.is_winding_consistent
+    assert _fold_v_direct(r.vertices, r.faces).max() < 100
+    assert len(r.vertices) == 8 and len(r.faces) == 12
+    corners = np.array([[x, y, z] for x in (0, 30) for y in (0, 10) for z in (0, 8)], float)
+    assert np.abs(np.sort(r.vertices, axis=0) - np.sort(corners, axis=0)).max() < 1e-9
+    assert mesh.volume == pytest.approx(30 * 10 * 8, rel=1e-12)
+    assert mesh.area == pytest.approx(2 * 300 + 8 * 80, rel=1e-12)
+    # within the tolerance of the input's volume and area (the chamfer was 0.45 mm² of floor)
+    chamfered = shapely.Polygon(shell)
+    assert mesh.volume == pytest.approx(chamfered.area * 8, rel=PreprocessParams().volume_rtol / 100)
+    assert mesh.area == pytest.approx(2 * chamfered.area + 8 * chamfered.length, rel=PreprocessParams().volume_rtol / 10)
+
+
+def test_tall_fold_collapse_that_would_fold_flat_is_not_made():
+    # a slot 2 cm wide and 2 m deep in a 4 m block 30 m tall: collapsing its 2 cm bottom would
+    # fold its walls onto each other (0.6 degrees) and take 0.25 % of the volume; the mesh keeps
+    # the slot (and its folds with v = 1500), valid, its volume exact
+    shell = np.array([[0, 0], [4, 0], [4, 4], [2.01, 4], [2.01, 2], [1.99, 2], [1.99, 4], [0, 4]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 30.0)
+    r = preprocess(v, f)
+    assert validate(r.vertices, r.faces) is None
+    assert trimesh.Trimesh(r.vertices, r.faces, process=False).volume == pytest.approx(shapely.Polygon(shell).area * 30, rel=1e-12)
+    assert len(r.vertices) == 16 and _fold_v_direct(r.vertices, r.faces).max() == pytest.approx(1500)
+    assert not any("folds of v >" in s for s in r.repairs)
+
+
+@pytest.mark.parametrize("side", [0.5, 1.0])
+def test_bump_4cm_deep_is_collapsed_with_volume_kept(side):
+    # a bump 4 cm deep on a 4 m block 30 m tall, with walls of `side` m beside it: its short
+    # edges go where collapsing them keeps the volume (the walls beside it lean out)
+    shell = np.array([[0, 0], [side, 0], [side, -0.04], [4 - side, -0.04], [4 - side, 0], [4, 0], [4, 4], [0, 4]], float)
+    v, f = extrude_polygon(shell, [], 0.0, 30.0)
+    assert _fold_v_direct(*_check_preprocessed(preprocess(v, f, PreprocessParams(max_fold_v=0)))).max() == pytest.approx(750)
+    r = preprocess(v, f)
+    mesh = trimesh.Trimesh(*_check_preprocessed(r), process=False)
+    assert _fold_v_direct(r.vertices, r.faces).max() < 100 and len(r.vertices) == 12
+    polygon = shapely.Polygon(shell)
+    assert mesh.volume == pytest.approx(polygon.area * 30, rel=1e-9)
+    # the outer area loses at most the bump's two side walls (4 cm x 30 m each)
+    assert 0 < 2 * polygon.area + 30 * polygon.length - mesh.area <= 2 * 0.04 * 30
+
+
+def _check_preprocessed(r):
+    assert validate(r.vertices, r.faces) is None
+    mesh = trimesh.Trimesh(r.vertices, r.faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    return r.vertices, r.faces
+
+
+@pytest.mark.parametrize("bad", [{"max_fold_v": -1}, {"max_collapse_length": float("inf")}])
+def test_tall_fold_parameters_validated(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        PreprocessParams(**bad)
+
+
+@pytest.mark.parametrize(
+    "folder, name, accepted",
+    [("zurich-lod2-subset", "zurich_subset_lod1_derived.city.json", 49), ("delft-lod1-3dfier", "delft.city.json", 160),
+     ("3dbag-multilod", "multi_lod.city.json", 10)],
+)
+def test_real_data_fold_v_tail_below_one_in_ten_thousand(data_dir, folder, name, accepted):
+    """Every building of the bundled data accepted as before, and fewer than 1e-4 of the level-1
+    fold entries with v > 100 (before: 4.9e-3 on Zürich, 1.1e-2 on Delft, max v 241 and 1783)."""
+    from meshsom.io import ReaderOptions
+    from pipelines.ingest import iter_raw_meshes, process_one
+
+    n_accepted, v_all = 0, []
+    for raw in iter_raw_meshes([str(data_dir / folder / name)], ReaderOptions()):
+        record, mesh = process_one(raw, PreprocessParams())
+        assert mesh is not None, record["reason"]
+        n_accepted += 1
+        assert validate(mesh.vertices, mesh.faces) is None
+        v_all.append(_fold_v_direct(mesh.vertices, mesh.faces))
+    v_all = np.concatenate(v_all)
+    assert n_accepted == accepted
+    assert (v_all > 100).mean() < 1e-4
