@@ -176,8 +176,9 @@ def resolve_backend(backend: str = "auto", device: str | None = None, context=No
         OpenCL device selector.
     context : pyopencl.Context or None
     layout : str or None
-        Use this OpenCL kernel layout alone (a key of :data:`meshsom.bmu_opencl.DEFAULT_PARAMS`);
-        None: the device's fallback chain.
+        OpenCL kernel layouts to try in this order instead of the device's chain, comma-separated
+        (keys of :data:`meshsom.bmu_opencl.DEFAULT_PARAMS`; one name: that layout alone); None: the
+        device's fallback chain.
 
     Raises
     ------
@@ -204,8 +205,11 @@ def resolve_backend(backend: str = "auto", device: str | None = None, context=No
             _FELL_BACK.append(True)
         return Engine("numpy", NUMPY_DEVICE)
     if layout is not None:
-        bmu_opencl.layout_params(context.devices[0], layout)  # ValueError naming the known layouts
-    layouts = (layout,) if layout is not None else bmu_opencl.layout_chain(context.devices[0])
+        layouts = tuple(n.strip() for n in layout.split(",") if n.strip())
+        for name in layouts or (layout,):
+            bmu_opencl.layout_params(context.devices[0], name)  # ValueError naming the known layouts
+    else:
+        layouts = bmu_opencl.layout_chain(context.devices[0])
     return Engine("opencl", bmu_opencl.device_name(context), context, layouts=layouts, strict=backend == "opencl")
 
 

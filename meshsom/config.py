@@ -116,6 +116,21 @@ BACKENDS = ("auto", "numpy", "opencl")
 LAYOUTS = ("cpu", "cpu-narrow", "gpu", "tiled")
 
 
+def parse_layouts(text: str) -> tuple[str, ...]:
+    """A comma-separated list of OpenCL kernel layouts, in order ("tiled", "cpu,cpu-narrow,tiled").
+
+    Raises
+    ------
+    ValueError
+        An empty list or an unknown name (the message lists the known ones).
+    """
+    names = tuple(n.strip() for n in str(text).split(",") if n.strip())
+    unknown = [n for n in names if n not in LAYOUTS]
+    if not names or unknown:
+        raise ValueError(f"layout must be one or more of {', '.join(LAYOUTS)}, comma-separated; received {text!r}")
+    return names
+
+
 @dataclass(frozen=True)
 class TrainSpec:
     """One triangle map to train: a ring level and a BMU kernel.
@@ -272,7 +287,8 @@ class OpenCLConfig:
         Device selector ("0:0", a platform or device name such as "pocl" or "nvidia");
         None: ``PYOPENCL_CTX`` or the first device.
     layout : str or None
-        One OpenCL kernel layout to use alone ("cpu", "cpu-narrow", "gpu", "tiled"; ``meshsom doctor``
+        The OpenCL kernel layouts to try, comma-separated, in order ("tiled" alone, or a chain such as
+        "cpu,cpu-narrow,tiled"; layouts: "cpu", "cpu-narrow", "gpu", "tiled"; ``meshsom doctor``
         lists each device's verdicts); None: the device's fallback chain, fastest first.
     """
 
@@ -283,8 +299,8 @@ class OpenCLConfig:
     def __post_init__(self):
         if self.backend not in BACKENDS:
             raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; received {self.backend!r}")
-        if self.layout is not None and self.layout not in LAYOUTS:
-            raise ValueError(f"layout must be one of {', '.join(LAYOUTS)} (or absent); received {self.layout!r}")
+        if self.layout is not None:
+            parse_layouts(self.layout)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ The child is this module run as a script: ``python -m meshsom.probe SPEC_JSON``.
 from __future__ import annotations
 
 import fcntl
+import functools
 import hashlib
 import json
 import logging
@@ -142,6 +143,7 @@ def device_identity(device) -> dict[str, str]:
     }
 
 
+@functools.lru_cache(maxsize=None)
 def _host_code() -> str:
     """Hash of the Python that builds, launches and checks kernels (a new meshsom version probes again)."""
     here = Path(__file__).resolve().parent

@@ -262,7 +262,8 @@ class SOM:
     device : str or None
         OpenCL device selector.
     layout : str or None
-        One OpenCL kernel layout to use alone; None: the device's fallback chain.
+        OpenCL kernel layouts to try in order, comma-separated (one name: that layout alone);
+        None: the device's fallback chain.
 
     Attributes
     ----------
@@ -298,6 +299,13 @@ class SOM:
         self.backend = backend
         self.device = device
         self.layout = layout
+
+    def __getstate__(self) -> dict:
+        """Pickle without the resolved engine (its OpenCL context belongs to this process);
+        an unpickled map resolves ``backend_`` again on its first search."""
+        state = dict(self.__dict__)
+        state.pop("engine_", None)
+        return state
 
     # ------------------------------------------------------------------ validation
     def _validate_params(self) -> None:

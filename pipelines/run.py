@@ -46,8 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=BACKENDS, help="BMU search backend (overrides opencl.backend): auto tries "
                    "OpenCL and falls back to NumPy/BLAS, numpy never touches OpenCL, opencl fails without it")
     p.add_argument("--device", help="OpenCL device selector, e.g. 0:0, pocl, nvidia (overrides opencl.device)")
-    p.add_argument("--layout", choices=LAYOUTS, help="one OpenCL kernel layout, no fallback chain (overrides "
-                   "opencl.layout; `meshsom doctor` shows which work)")
+    p.add_argument("--layout", help=f"OpenCL kernel layouts to try in order instead of the device's chain, "
+                   f"comma-separated (of {', '.join(LAYOUTS)}; overrides opencl.layout; `meshsom doctor` shows which work)")
 
 
 def dataset_fingerprint(manifest: dict) -> str:

@@ -66,7 +66,7 @@ class TrainJob:
     backend : str
     device : str or None
     layout : str or None
-        OpenCL kernel layout to use alone (None: the device's fallback chain).
+        OpenCL kernel layouts to try in order, comma-separated (None: the device's fallback chain).
     source : str or None
         Array of the store to train on, rows = vectors (default: ``rings/level{L}``, standardized
         with the level's statistics). Any other array (domain vectors) is used as it is, with one

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from meshsom.config import BACKENDS, KERNELS, LAYOUTS, TOPOLOGIES, SOMConfig
+from meshsom.config import BACKENDS, KERNELS, LAYOUTS, TOPOLOGIES, SOMConfig, parse_layouts
 
 
 def _map_size(text: str) -> tuple[int, int]:
@@ -25,6 +25,13 @@ def _map_size(text: str) -> tuple[int, int]:
     if rows < 2 or cols < 2:
         raise argparse.ArgumentTypeError(f"--map must be at least 2x2, received {text!r}")
     return rows, cols
+
+
+def _layouts(text: str) -> str:
+    try:
+        return ",".join(parse_layouts(text))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,8 +51,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--init", choices=("random", "pca"), default=defaults.init)
     parser.add_argument("--backend", choices=BACKENDS, default="auto")
     parser.add_argument("--device", default=None, help="OpenCL device selector (\"0:0\", \"pocl\", ...)")
-    parser.add_argument("--layout", choices=LAYOUTS, default=None,
-                        help="one OpenCL kernel layout, no fallback chain (`meshsom doctor` shows which work)")
+    parser.add_argument("--layout", type=_layouts, default=None,
+                        help=f"OpenCL kernel layouts to try in order instead of the device's chain, comma-separated "
+                             f"(of {', '.join(LAYOUTS)}; `meshsom doctor` shows which work)")
     parser.add_argument("--mirror", action="store_true", help="add mirror variations (levels >= 2)")
     parser.add_argument("--run", default=None, help="run name (default level{L}-{kernel})")
     parser.add_argument("--json", action="store_true", help="print one JSON object")

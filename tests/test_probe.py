@@ -156,17 +156,20 @@ def test_direct_calls_go_through_the_guard_and_raise_instead_of_aborting(ctx, mo
 
 
 def test_fallback_chain_runs_the_next_layout_with_its_answers(ctx, monkeypatch, forget_programs, caplog):
-    from meshsom.bmu_opencl import bmu_opencl, layout_chain, layout_params
+    from meshsom.bmu_opencl import CHAINS, bmu_opencl, layout_params
     from meshsom.probe import ENV_INJECT
 
-    chain = layout_chain(ctx.devices[0])
-    if len(chain) < 3:
-        pytest.skip(f"this device's chain {chain} has fewer than three layouts")
+    import pyopencl as cl
+
+    if not ctx.devices[0].type & cl.device_type.CPU:
+        pytest.skip(f"not a CPU device: {ctx.devices[0].name}")
+    chain = CHAINS["cpu"]  # three layouts, whatever this CPU's own chain (two where PoCL's target lacks AVX-512)
     X, W, index, sign = data()
     alone = bmu_opencl(X, W, index, sign, context=ctx, params=layout_params(ctx.devices[0], chain[2]))
     monkeypatch.setenv(ENV_INJECT, f"{chain[0]}=error,{chain[1]}=trap")
     with caplog.at_level(logging.WARNING, logger="meshsom.bmu"):
-        result, engine = find_bmus(X, W, index, sign, backend="auto", context=ctx)
+        result, engine = find_bmus(X, W, index, sign, backend=resolve_backend("auto", context=ctx,
+                                                                            layout=",".join(chain)))
         find_bmus(X, W, index, sign, backend=engine)  # the same engine does not try them again
     np.testing.assert_array_equal(result.unit, alone.unit)
     np.testing.assert_array_equal(result.variation, alone.variation)
@@ -197,6 +200,27 @@ def test_every_layout_failing_falls_back_to_numpy_or_raises_when_opencl_was_aske
 def test_unknown_layout_is_a_clear_error(ctx):
     with pytest.raises(ValueError, match="unknown kernel layout 'fast'; known layouts: cpu, cpu-narrow"):
         resolve_backend("opencl", context=ctx, layout="fast")
+
+
+def test_layout_list_sets_the_chain_and_is_validated(ctx):
+    from meshsom.config import OpenCLConfig, parse_layouts
+
+    assert resolve_backend("opencl", context=ctx, layout="cpu-narrow, tiled").layouts == ("cpu-narrow", "tiled")
+    assert parse_layouts("cpu,cpu-narrow,tiled") == ("cpu", "cpu-narrow", "tiled")
+    with pytest.raises(ValueError, match="layout must be one or more of cpu, cpu-narrow, gpu, tiled"):
+        OpenCLConfig(layout="cpu,fast")
+    with pytest.raises(ValueError, match="received ','"):
+        parse_layouts(",")
+
+
+def test_fitted_som_pickles_without_its_opencl_context(ctx):
+    from meshsom.som import SOM
+
+    X, _, _, _ = data(N=60)
+    som = SOM(rows=3, cols=4, epochs=2, backend="opencl").fit(X)
+    again = pickle.loads(pickle.dumps(som))
+    assert not hasattr(again, "engine_") and again.backend_ == "opencl"
+    np.testing.assert_array_equal(again.predict(X), som.predict(X))
 
 
 def test_explicit_layout_runs_alone(ctx, monkeypatch, forget_programs):
