@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     from meshsom.codebook import load_codebook
     from meshsom.store import open_store
     from meshsom.variations import variation_table
-    from pipelines.train_cmd import load_level
+    from pipelines.train import load_level
 
     group = open_store(args.store)
     context = get_context(args.device)

@@ -49,6 +49,12 @@ class BMUResult:
     def __len__(self) -> int:
         return len(self.unit)
 
+    @classmethod
+    def concatenate(cls, parts) -> "BMUResult":
+        """The results of consecutive row blocks as one."""
+        parts = list(parts)
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("unit", "variation", "dist2", "second")))
+
 
 def identity_table(D: int) -> tuple[np.ndarray, np.ndarray]:
     """The one-row variation table of the default kernel.

@@ -10,8 +10,8 @@ Clustering quality against known labels (the synthetic corpus's families):
 - :func:`knn_label_agreement`: share of each mesh's k nearest other meshes *on the map* that
   carry its label, averaged; :func:`label_agreement_chance` is its expectation under a
   random placement;
-- :func:`adjusted_rand_index` of map regions (:func:`map_regions`, k-means on the domain
-  prototypes) against the labels.
+- the adjusted Rand index (scikit-learn's ``adjusted_rand_score``) of map regions
+  (:func:`map_regions`, scikit-learn's k-means on the domain prototypes) against the labels.
 
 Everything here is pure NumPy over arrays; units are numbered row-major as in
 :mod:`meshsom.metrics`.
@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshsom.metrics import TOPOLOGIES, are_neighbours, grid_distance
-from meshsom.som import SOM, batch_update, gaussian_kernel_1d, sigma_schedule, smooth
+from meshsom.metrics import TIE_RTOL, TOPOLOGIES, grid_distance, neighbour_units, topographic_errors
+from meshsom.som import (
+    INITS, SOM, default_sigma_start, gaussian_kernel_1d, pca_by_shape, pca_codebook, random_pick, smooth, train_batch,
+)
 
 
 def _check_topology(topology: str) -> None:
@@ -262,6 +264,40 @@ class SparseDomainVectors:
         onehot = sparse.csr_matrix((np.ones(len(unit)), (unit, np.arange(len(unit)))), shape=(n_units, len(unit)))
         return self._smooth_rows((onehot @ self.a).toarray())
 
+    def apply(self, V) -> np.ndarray:
+        """``domain_vectors @ V`` for (M, k) V: (n_meshes, k) float64."""
+        return np.asarray(self.a @ smooth(np.asarray(V, np.float64), self.sigma, self.rows, self.cols, self.topology))
+
+    def project(self, U) -> np.ndarray:
+        """``domain_vectors.T @ U`` for (n_meshes, k) U: (M, k) float64."""
+        return smooth(np.asarray(self.a.T @ np.asarray(U, np.float64)), self.sigma, self.rows, self.cols, self.topology)
+
+    def gram(self, batch: int = 256) -> np.ndarray:
+        """``V @ V.T`` of the domain vectors, (n_meshes, n_meshes) float64, in batches of meshes."""
+        n = self.shape[0]
+        out = np.empty((n, n))
+        for a in range(0, n, batch):
+            block = self.a[a:a + batch].toarray().T  # (M, b): the histograms over kernel totals
+            twice = smooth(smooth(block, self.sigma, self.rows, self.cols, self.topology), self.sigma, self.rows,
+                           self.cols, self.topology)
+            out[:, a:a + batch] = np.asarray(self.a @ twice)
+        return out
+
+    def moments(self) -> dict:
+        """:func:`meshsom.som.moments` of the domain vectors, (M, M) scatter: for small triangle maps."""
+        n, M = self.shape
+        ata = np.asarray((self.a.T @ self.a).toarray())
+        gram = smooth(smooth(ata, self.sigma, self.rows, self.cols, self.topology).T, self.sigma, self.rows,
+                      self.cols, self.topology)
+        return {"n": n, "sum": self.project(np.ones((n, 1)))[:, 0], "gram": gram}
+
+    def pca(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and principal axes of the domain vectors by :func:`meshsom.som.pca_by_shape`, the
+        PCA of the in-memory path, without forming the vectors."""
+        n, M = self.shape
+        return pca_by_shape(n, M, moments=self.moments, gram=self.gram, project=self.project, apply=self.apply,
+                            mean=lambda: self.project(np.ones((n, 1)))[:, 0] / n)
+
     def sq_norms(self) -> np.ndarray:
         """``||v_i||^2`` of every mesh, (n_meshes,) float64, without forming V.
 
@@ -300,11 +336,11 @@ class SparseDomainVectors:
 
 
 def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, epochs: int, seed: int,
-                            sigma_start: float | None = None, sigma_end: float = 1.0,
+                            sigma_start: float | None = None, sigma_end: float = 1.0, init: str = "pca",
                             topology: str = "toroidal") -> dict:
-    """Batch-train a domain SOM on sparse domain vectors; the same algorithm as :class:`SOM` with
-    ``init="random"`` and one variation (seeded sample prototypes, radius schedule, batch update,
-    then a final search), in float64 throughout.
+    """Batch-train a domain SOM on sparse domain vectors: :func:`meshsom.som.train_batch` with the
+    initialisation of :class:`SOM` (:func:`meshsom.som.random_pick` rows, or the PCA of
+    :meth:`SparseDomainVectors.pca`) and one variation, the search in float64, then a final search.
 
     Parameters
     ----------
@@ -314,15 +350,16 @@ def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, 
     epochs : int
     seed : int
     sigma_start : float or None
-        None: ``max(rows, cols) / 4``.
+        None: :func:`meshsom.som.default_sigma_start`.
     sigma_end : float
+    init : {"pca", "random"}
     topology : {"toroidal", "planar"}
 
     Returns
     -------
     dict
         ``weights`` (rows*cols, M) float32, ``units`` (n_meshes,) int64 (final BMUs),
-        ``q_error`` and ``t_error`` of the final search.
+        ``q_error`` and ``t_error`` of the final search (tie rule of :mod:`meshsom.metrics`).
     """
     _check_topology(topology)
     _check_grid(rows, cols)
@@ -330,33 +367,48 @@ def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, 
         raise ValueError(f"epochs must be >= 1, received {epochs}")
     n = vectors.shape[0]
     M = rows * cols
-    rng = np.random.default_rng(seed)
-    W = vectors.dense(rng.choice(n, size=M, replace=n < M)).astype(np.float32)  # as meshsom.som.init_weights
+    if init == "random":
+        W = vectors.dense(random_pick(n, M, seed)).astype(np.float32)
+    elif init == "pca":
+        W = pca_codebook(*vectors.pca(), rows, cols)
+    else:
+        raise ValueError(f"init must be one of {', '.join(INITS)}; received {init!r}")
     norms = vectors.sq_norms()
-    sigma_start = float(sigma_start if sigma_start is not None else max(rows, cols) / 4)
+    sigma_start = float(sigma_start if sigma_start is not None else default_sigma_start(rows, cols))
 
     def search(W):
+        """Best and second units, their squared distances, and the whole (n, k) distance matrix."""
         w64 = W.astype(np.float64)
-        d = norms[:, None] - 2.0 * vectors.dot(W) + np.einsum("ij,ij->i", w64, w64)
+        d = np.maximum(norms[:, None] - 2.0 * vectors.dot(W) + np.einsum("ij,ij->i", w64, w64), 0.0)
         unit = np.argmin(d, axis=1)
-        best = d[np.arange(n), unit]
-        d[np.arange(n), unit] = np.inf
-        return unit, np.argmin(d, axis=1), np.maximum(best, 0.0)
+        rest = d.copy()
+        rest[np.arange(n), unit] = np.inf
+        second = np.argmin(rest, axis=1)
+        return unit, second, d
 
-    for epoch in range(epochs):
-        unit, _, _ = search(W)
-        sums = vectors.group_sums(unit, M)
-        counts = np.bincount(unit, minlength=M).astype(np.float64)
-        W = batch_update(W, sums, counts, sigma_schedule(epoch, epochs, sigma_start, sigma_end), rows, cols, topology)
-    unit, second, dist2 = search(W)
-    return {
-        "weights": W, "units": unit.astype(np.int64),
-        "q_error": float(np.sqrt(dist2).mean()),
-        "t_error": float((~are_neighbours(unit, second, rows, cols, topology)).mean()),
-    }
+    def step(W):
+        unit, second, d = search(W)
+        best = d[np.arange(n), unit]
+        # tie rule: a neighbour of the best unit as close as the second-best unit (metrics.tied_with_neighbour)
+        nbrs = neighbour_units(unit, rows, cols, topology)
+        d_nbr = np.where(nbrs >= 0, d[np.arange(n)[:, None], np.maximum(nbrs, 0)], np.inf).min(axis=1)
+        d_second = d[np.arange(n), second]
+        scale = norms + np.einsum("ij,ij->i", W[second].astype(np.float64), W[second].astype(np.float64))
+        tied = d_nbr <= d_second + TIE_RTOL * scale
+        return {"sums": vectors.group_sums(unit, M), "counts": np.bincount(unit, minlength=M).astype(np.float64),
+                "n": n, "t_bad": int(topographic_errors(unit, second, rows, cols, topology, tied=tied).sum()),
+                "q_sum": float(np.sqrt(best).sum()), "qc_sum": float("nan"), "unit": unit}
+
+    W = train_batch(W, step, rows, cols, epochs, sigma_start, sigma_end, topology)
+    final = step(W)
+    return {"weights": W, "units": final["unit"].astype(np.int64),
+            "q_error": final["q_sum"] / n, "t_error": final["t_bad"] / n}
 
 
 # ---------------------------------------------------------------------- clustering quality
+#: k-means restarts of :func:`map_regions` (the best of them is kept).
+KMEANS_RESTARTS = 4
+
 def knn_label_agreement(units, labels, rows: int, cols: int, k: int = 5, topology: str = "toroidal") -> float:
     """Mean share of each mesh's ``k`` nearest other meshes on the map that share its label.
 
@@ -421,121 +473,11 @@ def label_agreement_chance(labels) -> float:
     return float(np.mean((sizes[codes] - 1) / (n - 1)))
 
 
-def _comb2(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, np.float64)
-    return x * (x - 1) / 2.0
-
-
-def adjusted_rand_index(a, b) -> float:
-    """Adjusted Rand index of two partitions (Hubert and Arabie 1985).
-
-    From the contingency table ``n_ij`` with row sums ``a_i`` and column sums ``b_j``::
-
-        index    = sum_ij C(n_ij, 2)
-        expected = sum_i C(a_i, 2) * sum_j C(b_j, 2) / C(n, 2)
-        ARI      = (index - expected) / ((sum_i C(a_i, 2) + sum_j C(b_j, 2)) / 2 - expected)
-
-    When the denominator vanishes (both partitions all-in-one or all-singletons), the
-    partitions are identical and the result is 1.0, as in scikit-learn.
-
-    Parameters
-    ----------
-    a, b : (n,) any
-        Cluster labels; only equality matters.
-
-    Returns
-    -------
-    float
-        1 for identical partitions (up to relabelling), about 0 for independent ones.
-    """
-    a = np.asarray(a)
-    b = np.asarray(b)
-    if a.ndim != 1 or a.shape != b.shape:
-        raise ValueError(f"a and b must be 1-D arrays of the same length, received shapes {a.shape} and {b.shape}")
-    n = len(a)
-    if n < 2:
-        return 1.0
-    _, ia = np.unique(a, return_inverse=True)
-    _, ib = np.unique(b, return_inverse=True)
-    table = np.zeros((ia.max() + 1, ib.max() + 1), np.int64)
-    np.add.at(table, (ia, ib), 1)
-    index = _comb2(table).sum()
-    sum_a = _comb2(table.sum(axis=1)).sum()
-    sum_b = _comb2(table.sum(axis=0)).sum()
-    expected = sum_a * sum_b / _comb2(n)
-    denom = (sum_a + sum_b) / 2.0 - expected
-    if denom == 0:
-        return 1.0
-    return float((index - expected) / denom)
-
-
-def kmeans(X, n_clusters: int, seed: int, n_init: int = 4, max_iter: int = 100) -> tuple[np.ndarray, np.ndarray]:
-    """Seeded Lloyd k-means with k-means++ starts; the run of lowest inertia wins.
-
-    Parameters
-    ----------
-    X : (N, D) float
-    n_clusters : int
-        ``1 <= n_clusters <= N``.
-    seed : int
-    n_init : int
-        Independent starts.
-    max_iter : int
-        Lloyd iterations per start.
-
-    Returns
-    -------
-    labels : (N,) int64
-    centres : (n_clusters, D) float64
-    """
-    X = np.asarray(X, np.float64)
-    if X.ndim != 2 or len(X) == 0:
-        raise ValueError(f"X must be a non-empty (N, D) array, received shape {X.shape}")
-    N = len(X)
-    if not 1 <= n_clusters <= N:
-        raise ValueError(f"n_clusters must lie in 1..{N}, received {n_clusters}")
-    rng = np.random.default_rng(seed)
-    xx = np.einsum("ij,ij->i", X, X)
-
-    def dist2(C):  # (N, k): ||x||^2 - 2 x.c + ||c||^2, clipped at 0
-        return np.maximum(xx[:, None] - 2.0 * X @ C.T + np.einsum("ij,ij->i", C, C)[None, :], 0.0)
-
-    best = (np.inf, None, None)
-    for _ in range(max(n_init, 1)):
-        centres = np.empty((n_clusters, X.shape[1]))
-        centres[0] = X[rng.integers(N)]
-        closest = dist2(centres[:1])[:, 0]
-        for c in range(1, n_clusters):  # k-means++: draw proportional to squared distance
-            total = closest.sum()
-            pick = rng.choice(N, p=closest / total) if total > 0 else rng.integers(N)
-            centres[c] = X[pick]
-            closest = np.minimum(closest, dist2(centres[c:c + 1])[:, 0])
-        labels = np.full(N, -1, np.int64)
-        for _ in range(max_iter):
-            d = dist2(centres)
-            new = np.argmin(d, axis=1)
-            sizes = np.bincount(new, minlength=n_clusters)
-            for c in np.flatnonzero(sizes == 0):  # empty cluster: take the worst-served point
-                far = int(np.argmax(d[np.arange(N), new]))
-                new[far] = c
-                d[far] = 0.0
-            if np.array_equal(new, labels):
-                break
-            labels = new
-            sums = np.zeros_like(centres)
-            np.add.at(sums, labels, X)
-            centres = sums / np.bincount(labels, minlength=n_clusters)[:, None]
-        inertia = float(dist2(centres)[np.arange(N), labels].sum())
-        if inertia < best[0]:
-            best = (inertia, labels.copy(), centres.copy())
-    return best[1], best[2]
-
-
 def map_regions(som_weights, rows: int, cols: int, n_regions: int, seed: int) -> np.ndarray:
     """Cut the domain map into regions: k-means on its prototypes.
 
     A mesh's region is its unit's: ``map_regions(...)[place(vectors, som)]``, to be compared
-    with the labels by :func:`adjusted_rand_index`.
+    with the labels by ``sklearn.metrics.adjusted_rand_score``.
 
     Parameters
     ----------
@@ -556,5 +498,9 @@ def map_regions(som_weights, rows: int, cols: int, n_regions: int, seed: int) ->
     if W.ndim != 2 or len(W) != rows * cols:
         raise ValueError(f"som_weights must have shape ({rows * cols}, D) for a {rows} x {cols} map, "
                          f"received {W.shape}")
-    labels, _ = kmeans(W, n_regions, seed)
-    return labels
+    if not 1 <= n_regions <= len(W):
+        raise ValueError(f"n_regions must lie in 1..{len(W)}, received {n_regions}")
+    from sklearn.cluster import KMeans
+
+    km = KMeans(n_clusters=n_regions, n_init=KMEANS_RESTARTS, random_state=seed).fit(np.asarray(W, np.float64))
+    return km.labels_.astype(np.int64)

@@ -1,5 +1,15 @@
 """Map geometry and quality measures: grid distances, T-, Q- and QC-errors, U-matrix.
 
+The T-error's tie rule: a vector's second-best unit is not always unique. Units whose prototypes
+are equal (bitwise, or up to float32 rounding: batch training on many identical ring vectors, such
+as a corpus of extruded blocks, flattens whole regions of the map onto one prototype) are equally
+far from every vector, and which of them the search reports as "second" is an accident of unit
+numbering and rounding. A vector therefore counts as a topographic error only when *no* unit tied
+for second place is a grid neighbour of its best unit: :func:`tied_with_neighbour` checks whether
+some neighbour of the BMU lies within ``TIE_RTOL * (||x||^2 + ||w||^2)`` of the second-best
+distance (distances recomputed in float64 for the few vectors whose reported second is not a
+neighbour). Without ties the rule is Kohonen's T-error unchanged.
+
 Units are numbered row-major: unit ``j`` sits at row ``j // cols``, column ``j % cols``
 (the order of ``weights_.reshape(rows, cols, D)``, and of MiniSom's ``_weights``).
 On a toroidal map the row and column offsets wrap: ``min(|dr|, rows - |dr|)``.
@@ -19,6 +29,9 @@ NEIGHBOURHOODS = {
 }
 #: Values per fold component (alpha, u, v) for the QC-error.
 COMPONENT = 3
+#: Two squared distances tie when they differ by at most this share of ``||x||^2 + ||w||^2``
+#: (about 8 float32 rounding steps of the distance's terms).
+TIE_RTOL = 1e-6
 
 
 def _check_topology(topology: str) -> None:
@@ -90,13 +103,17 @@ def are_neighbours(a, b, rows: int, cols: int, topology: str = "toroidal", neigh
     return step == 1
 
 
-def t_error(unit, second, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8) -> float:
+def t_error(unit, second, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8,
+            tied=None) -> float:
     """Topographic error: share of vectors whose best and second-best units are not neighbours.
 
     Parameters
     ----------
     unit, second : (N,) int
     neighbourhood : {8, 4}
+    tied : (N,) bool or None
+        Vectors whose second place is shared by a neighbour of their best unit
+        (:func:`tied_with_neighbour`); they do not count as errors. None: no ties.
 
     Returns
     -------
@@ -105,7 +122,147 @@ def t_error(unit, second, rows: int, cols: int, topology: str = "toroidal", neig
     unit = np.asarray(unit)
     if len(unit) == 0:
         raise ValueError("t_error needs at least one vector, received 0")
-    return float(np.mean(~are_neighbours(unit, second, rows, cols, topology, neighbourhood)))
+    return float(np.mean(topographic_errors(unit, second, rows, cols, topology, neighbourhood, tied)))
+
+
+def topographic_errors(unit, second, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8,
+                       tied=None) -> np.ndarray:
+    """Per vector, whether it is a topographic error (see :func:`t_error`).
+
+    Returns
+    -------
+    (N,) bool
+    """
+    bad = ~are_neighbours(unit, second, rows, cols, topology, neighbourhood)
+    return bad if tied is None else bad & ~np.asarray(tied, bool)
+
+
+def neighbour_units(unit, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8) -> np.ndarray:
+    """The grid neighbours of every unit.
+
+    Parameters
+    ----------
+    unit : (N,) int
+
+    Returns
+    -------
+    (N, k) int64
+        ``k`` = 8 or 4; -1 where a planar map has no neighbour (edges and corners).
+    """
+    steps = _check_neighbourhood(neighbourhood)
+    _check_topology(topology)
+    r, c = np.divmod(np.asarray(unit, np.int64), cols)
+    nr = r[:, None] + steps[None, :, 0]
+    nc = c[:, None] + steps[None, :, 1]
+    if topology == "toroidal":
+        return (nr % rows) * cols + nc % cols
+    inside = (nr >= 0) & (nr < rows) & (nc >= 0) & (nc < cols)
+    return np.where(inside, nr * cols + nc, -1)
+
+
+def dist2_to(xv, W, units) -> np.ndarray:
+    """``||xv_i - w_u||^2`` for given units of every (varied) vector, exactly in float64.
+
+    Parameters
+    ----------
+    xv : (N, D) float
+        Vectors in their winning variation (:func:`meshsom.bmu_numpy.varied`).
+    W : (M, D) float
+    units : (N, k) int
+        -1: no unit (gives +inf).
+
+    Returns
+    -------
+    (N, k) float64
+    """
+    xv = np.asarray(xv, np.float64)
+    W = np.asarray(W, np.float64)
+    units = np.asarray(units, np.int64)
+    out = np.full(units.shape, np.inf)
+    for k in range(units.shape[1]):
+        ok = units[:, k] >= 0
+        diff = xv[ok] - W[units[ok, k]]
+        out[ok, k] = np.einsum("ij,ij->i", diff, diff)
+    return out
+
+
+def tied_with_neighbour(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None,
+                        sign=None, neighbourhood: int = 8, tie_rtol: float = TIE_RTOL) -> np.ndarray:
+    """Per vector, whether a grid neighbour of its best unit ties with its second-best unit.
+
+    Only vectors whose reported second-best unit is not a neighbour are examined (the rest are
+    not topographic errors anyway); for them the distances to the second-best unit and to every
+    neighbour of the best unit are recomputed exactly (float64), in the vector's winning
+    variation as the search ranks its second-best unit.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    W : (M, D) float
+    bmu : BMUResult
+    index, sign : (n, D) or None
+        The variation table the BMUs were found with.
+    tie_rtol : float
+        Ties: ``d(neighbour) <= d(second) + tie_rtol * (||x||^2 + ||w_second||^2)``.
+
+    Returns
+    -------
+    (N,) bool
+    """
+    unit, second = np.asarray(bmu.unit, np.int64), np.asarray(bmu.second, np.int64)
+    out = np.zeros(len(unit), bool)
+    look = np.flatnonzero(~are_neighbours(unit, second, rows, cols, topology, neighbourhood) & (second >= 0))
+    if len(look) == 0:
+        return out
+    X = np.asarray(X)[look]
+    W = np.asarray(W)
+    if index is None:
+        xv = X.astype(np.float64)
+    else:
+        xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), np.asarray(bmu.variation)[look])
+        xv = xv.astype(np.float64)
+    d_second = dist2_to(xv, W, second[look, None])[:, 0]
+    d_nbr = dist2_to(xv, W, neighbour_units(unit[look], rows, cols, topology, neighbourhood)).min(axis=1)
+    w64 = W[second[look]].astype(np.float64)
+    scale = np.einsum("ij,ij->i", xv, xv) + np.einsum("ij,ij->i", w64, w64)
+    out[look] = d_nbr <= d_second + tie_rtol * scale
+    return out
+
+
+def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
+               neighbourhood: int = 8, component: int = COMPONENT) -> dict:
+    """The sums behind the T-, Q- and QC-errors of one block of vectors (add blocks, divide by ``n``).
+
+    Returns
+    -------
+    dict
+        ``n``; ``t_bad`` (topographic errors, tie rule included); ``q_sum`` (sum of the BMU
+        distances ``||P_v* x - w_bmu||``); ``qc_sum`` (sum over vectors of the mean distance per
+        ``component``-value slice; NaN when D is not a multiple of ``component``).
+    """
+    res = residuals(X, W, bmu, index, sign)
+    N = len(res)
+    tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
+    return {
+        "n": int(N),
+        "t_bad": int(topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied).sum()),
+        "q_sum": float(np.sqrt(np.einsum("ij,ij->i", res, res)).sum()),
+        "qc_sum": _qc_sum(res, component),
+    }
+
+
+def errors_of(sums: dict) -> dict:
+    """T-, Q- and QC-errors from summed :func:`error_sums`.
+
+    Returns
+    -------
+    dict
+        ``t_error``, ``q_error``, ``qc_error``.
+    """
+    n = sums["n"]
+    if n == 0:
+        raise ValueError("errors need at least one vector, received 0")
+    return {"t_error": sums["t_bad"] / n, "q_error": sums["q_sum"] / n, "qc_error": sums["qc_sum"] / n}
 
 
 def residuals(X, W, bmu: BMUResult, index=None, sign=None) -> np.ndarray:
@@ -158,11 +315,19 @@ def qc_error(X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPO
         ``D`` is not a multiple of ``component``.
     """
     res = residuals(X, W, bmu, index, sign)
+    if res.shape[1] % component:
+        raise ValueError(f"QC-error needs D divisible by {component}, received D = {res.shape[1]}")
+    return _qc_sum(res, component) / len(res)
+
+
+def _qc_sum(res: np.ndarray, component: int) -> float:
+    """Sum over rows of the mean norm of the ``component``-value slices of residuals (N, D); NaN when
+    D is not a multiple of ``component``."""
     N, D = res.shape
     if D % component:
-        raise ValueError(f"QC-error needs D divisible by {component}, received D = {D}")
+        return float("nan")
     parts = res.reshape(N, D // component, component)
-    return float(np.mean(np.sqrt(np.einsum("ijk,ijk->ij", parts, parts))))
+    return float(np.sqrt(np.einsum("ijk,ijk->ij", parts, parts)).mean(axis=1).sum())
 
 
 def u_matrix(W, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8) -> np.ndarray:

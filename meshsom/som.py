@@ -14,6 +14,17 @@ from pure functions so that a distributed pipeline can map-reduce an epoch:
 
 The update costs ``O(M * D * (rows + cols))`` per epoch, independent of N; the only
 ``O(N * M * D)`` work is the BMU search.
+
+One driver, :func:`train_batch`, runs every batch map of the project: it owns the radius
+schedule, the update and the epoch callbacks, and takes the epoch's map step as a function
+``step(W) -> sums`` (:func:`block_sums` added over blocks). :class:`SOM` passes an in-memory step,
+:mod:`pipelines.train` a Dask fan-out over zarr row blocks (checkpointing in a callback), and
+:func:`meshsom.domain.train_domain_map_sparse` the search over sparse domain vectors. Rows are
+always reduced in the same blocks (:func:`row_blocks`) and in block order, so a map trained in
+memory and one trained on a cluster are bitwise equal. Initialisation is shared the same way:
+:func:`random_pick` draws the seeded sample rows, :func:`pca_codebook` spans the first two
+principal axes, with one sign rule, whether the moments come from memory, from zarr blocks or
+from sparse domain vectors.
 """
 
 from __future__ import annotations
@@ -26,11 +37,39 @@ import numpy as np
 
 from meshsom.bmu import Engine, find_bmus, resolve_backend
 from meshsom.bmu_numpy import BMUResult, identity_table, varied
-from meshsom.metrics import TOPOLOGIES, q_error, qc_error, t_error
+from meshsom.metrics import TOPOLOGIES, error_sums, errors_of
 
 INITS = ("random", "pca")
 TRAININGS = ("batch", "online")
 DECAYS = ("exponential", "linear")
+#: Rows per block of a batch epoch: the unit of work of a cluster task and of the order in which
+#: per-unit sums are added (the same everywhere, so that every entry point gives the same codebook).
+BLOCK_ROWS = 16384
+#: PCA solves the D x D covariance when D is at most this, else the n x n Gram matrix of the
+#: centred rows when n is at most this, else the first axes by Lanczos iteration (same axes).
+PCA_EXACT_DIMS = 4096
+#: The first radius, in cells, when none is given: this share of the longer map side.
+SIGMA_START_SHARE = 0.25
+
+
+def default_sigma_start(rows: int, cols: int) -> float:
+    """The radius of the first epoch when none is configured: ``max(rows, cols) / 4`` cells."""
+    return float(max(rows, cols) * SIGMA_START_SHARE)
+
+
+def row_blocks(n: int, block_rows: int = BLOCK_ROWS) -> list[tuple[int, int]]:
+    """Row ranges ``[(start, stop), ...]`` of the blocks an epoch reduces, in order.
+
+    Parameters
+    ----------
+    n : int
+        Rows.
+    block_rows : int
+        Rows per block (the last block may be shorter).
+    """
+    if block_rows < 1:
+        raise ValueError(f"block_rows must be >= 1, received {block_rows}")
+    return [(a, min(n, a + block_rows)) for a in range(0, n, block_rows)]
 
 
 def sigma_schedule(epoch: int, epochs: int, sigma_start: float, sigma_end: float,
@@ -142,6 +181,46 @@ def partial_sums(X, W, index=None, sign=None, backend="auto", device: str | None
     return sums, counts, bmu
 
 
+def block_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
+               backend="auto") -> dict:
+    """The whole map step of a batch epoch on one block of rows: per-unit sums and error sums.
+
+    Parameters
+    ----------
+    X : (N, D) float32
+    W : (M, D) float32
+    index, sign : (n, D) or None
+        Variation table (None: identity).
+    backend : str or Engine
+
+    Returns
+    -------
+    dict
+        ``sums`` (M, D) float64 and ``counts`` (M,) float64 (:func:`partial_sums`), the error sums
+        of :func:`meshsom.metrics.error_sums` (``n``, ``t_bad``, ``q_sum``, ``qc_sum``) and ``bmu``
+        (:class:`BMUResult` of the block).
+    """
+    sums, counts, bmu = partial_sums(X, W, index, sign, backend=backend)
+    return {"sums": sums, "counts": counts, "bmu": bmu,
+            **error_sums(X, W, bmu, rows, cols, topology, index, sign)}
+
+
+#: Keys of :func:`block_sums` that add over blocks.
+SUM_KEYS = ("sums", "counts", "n", "t_bad", "q_sum", "qc_sum")
+
+
+def add_sums(total: dict | None, part: dict) -> dict:
+    """Add one block's :func:`block_sums` to a running total (None: the first block), in place.
+
+    Only :data:`SUM_KEYS` are added; other keys keep the first block's value.
+    """
+    if total is None:
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items() if k != "bmu"}
+    for k in SUM_KEYS:
+        total[k] += part[k]
+    return total
+
+
 def batch_update(W, sums, counts, sigma: float, rows: int, cols: int, topology: str = "toroidal",
                  min_weight: float = 1e-12) -> np.ndarray:
     """The reduce step of a batch epoch: smoothed sums over smoothed counts.
@@ -177,40 +256,303 @@ def batch_update(W, sums, counts, sigma: float, rows: int, cols: int, topology: 
     return out.astype(W.dtype)
 
 
-def init_weights(X, rows: int, cols: int, init: str, rng: np.random.Generator) -> np.ndarray:
-    """Initial prototypes.
+def random_pick(n: int, units: int, seed) -> np.ndarray:
+    """Rows the ``random`` initialisation copies: a seeded sample, with replacement only when
+    there are fewer rows than units.
 
-    ``random``: seeded samples of X (with replacement when X has fewer rows than the map
-    has units). ``pca``: the mean plus a grid over the first two principal components,
-    spanning +-sqrt(eigenvalue) along rows and columns.
+    Parameters
+    ----------
+    seed : int, None or numpy.random.Generator
+
+    Returns
+    -------
+    (units,) int64
+    """
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    return np.asarray(rng.choice(n, size=units, replace=n < units), np.int64)
+
+
+def moments(X) -> dict:
+    """Sums behind the mean and the scatter matrix of one block of rows (add with :func:`add_moments`).
+
+    Parameters
+    ----------
+    X : (N, D) float
+
+    Returns
+    -------
+    dict
+        ``n``, ``sum`` (D,) float64, ``gram`` (D, D) float64 (``X.T @ X``).
+    """
+    X64 = np.asarray(X, np.float64)
+    return {"n": len(X64), "sum": X64.sum(axis=0), "gram": X64.T @ X64}
+
+
+def add_moments(total: dict | None, part: dict) -> dict:
+    """Add one block's :func:`moments` to a running total (None: the first block)."""
+    if total is None:
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
+    for k in ("n", "sum", "gram"):
+        total[k] += part[k]
+    return total
+
+
+def block_moments(X, block_rows: int = BLOCK_ROWS) -> dict:
+    """:func:`moments` of X added over :func:`row_blocks` in order (as a cluster adds them)."""
+    total = None
+    for a, b in row_blocks(len(X), block_rows):
+        total = add_moments(total, moments(X[a:b]))
+    return total
+
+
+def orient_axes(axes: np.ndarray) -> np.ndarray:
+    """The sign rule of principal axes: each axis's entry of largest magnitude is positive.
+
+    An eigen- or singular-vector solver may return any sign; a flipped axis mirrors the map
+    without changing any error, so every PCA initialisation goes through this rule.
+
+    Parameters
+    ----------
+    axes : (k, D) float
+
+    Returns
+    -------
+    (k, D) float64
+    """
+    axes = np.array(axes, np.float64)
+    if axes.size:
+        lead = axes[np.arange(len(axes)), np.argmax(np.abs(axes), axis=1)]
+        axes *= np.where(lead < 0, -1.0, 1.0)[:, None]
+    return axes
+
+
+def principal_axes(mom: dict, components: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and the first principal axes, scaled by their standard deviations, from moments.
+
+    Parameters
+    ----------
+    mom : dict
+        :func:`moments` (added over blocks): ``n``, ``sum`` (D,), ``gram`` (D, D).
+    components : int
+
+    Returns
+    -------
+    mean : (D,) float64
+    axes : (components, D) float64
+        ``sqrt(eigenvalue) * eigenvector`` of the sample covariance (zero rows where D is smaller),
+        oriented by :func:`orient_axes`.
+    """
+    n = int(mom["n"])
+    if n < 1:
+        raise ValueError("PCA needs at least one row, received 0")
+    mean = mom["sum"] / n
+    cov = (mom["gram"] - n * np.outer(mean, mean)) / max(n - 1, 1)
+    vals, vecs = np.linalg.eigh((cov + cov.T) / 2)
+    order = np.argsort(vals)[::-1][:components]
+    axes = np.zeros((components, len(mean)))
+    axes[: len(order)] = (vecs[:, order] * np.sqrt(np.maximum(vals[order], 0.0))).T
+    return mean, orient_axes(axes)
+
+
+def principal_axes_dual(gram: np.ndarray, project: Callable, components: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`principal_axes` from the n x n Gram matrix of the rows (for n smaller than D).
+
+    Parameters
+    ----------
+    gram : (n, n) float64
+        ``X @ X.T`` (not centred).
+    project : callable
+        ``project(U) -> X.T @ U`` for (n, k) U, (D, k) float64.
+
+    Returns
+    -------
+    mean : (D,) float64
+    axes : (components, D) float64
+    """
+    n = len(gram)
+    if n < 1:
+        raise ValueError("PCA needs at least one row, received 0")
+    r = gram.sum(axis=1) / n  # X @ mean
+    centred = gram - r[:, None] - r[None, :] + r.sum() / n
+    vals, vecs = np.linalg.eigh((centred + centred.T) / 2)
+    order = np.argsort(vals)[::-1][:components]
+    U = np.column_stack([vecs[:, order], np.ones(n)])
+    P = project(U)  # (D, k + 1): X.T @ u for each axis, and X.T @ 1
+    mean = P[:, -1] / n
+    axes = np.zeros((components, P.shape[0]))
+    # Xc.T @ u = X.T @ u - mean * sum(u): the covariance axis scaled by its standard deviation
+    axes[: len(order)] = ((P[:, :-1] - np.outer(mean, U[:, :-1].sum(axis=0))) / np.sqrt(max(n - 1, 1))).T
+    return mean, orient_axes(axes)
+
+
+def principal_axes_lanczos(apply: Callable, project: Callable, n: int, D: int, mean: np.ndarray,
+                           components: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`principal_axes` by Lanczos iteration on the centred rows (many rows and dimensions).
+
+    Parameters
+    ----------
+    apply : callable
+        ``apply(V) -> X @ V`` for (D, k) V, (n, k).
+    project : callable
+        ``project(U) -> X.T @ U`` for (n, k) U, (D, k).
+    mean : (D,) float64
+
+    Returns
+    -------
+    mean : (D,) float64
+    axes : (components, D) float64
+    """
+    from scipy.sparse.linalg import LinearOperator, svds
+
+    mean = np.asarray(mean, np.float64)
+
+    def matmat(v):
+        v = np.asarray(v, np.float64).reshape(D, -1)
+        return apply(v) - (mean @ v)[None, :]
+
+    def rmatmat(u):
+        u = np.asarray(u, np.float64).reshape(n, -1)
+        return project(u) - np.outer(mean, u.sum(axis=0))
+
+    op = LinearOperator((n, D), matvec=matmat, rmatvec=rmatmat, matmat=matmat, rmatmat=rmatmat, dtype=np.float64)
+    v0 = np.random.default_rng(0).standard_normal(min(n, D))  # fixed: the axes do not depend on a seed
+    _, s, vt = svds(op, k=components, v0=v0, tol=0, solver="arpack")
+    order = np.argsort(s)[::-1]
+    return mean, orient_axes(vt[order] * (s[order] / np.sqrt(max(n - 1, 1)))[:, None])
+
+
+def pca_codebook(mean, axes, rows: int, cols: int) -> np.ndarray:
+    """The ``pca`` initialisation: the mean plus a grid spanning ``-1..1`` times the first
+    principal axis along rows and the second along columns.
+
+    Parameters
+    ----------
+    mean : (D,) float
+    axes : (2, D) float
+        :func:`principal_axes`.
+
+    Returns
+    -------
+    (rows*cols, D) float32
+    """
+    a = np.linspace(-1, 1, rows)
+    b = np.linspace(-1, 1, cols)
+    grid = a[:, None, None] * axes[0] + b[None, :, None] * axes[1]
+    return (np.asarray(mean) + grid.reshape(rows * cols, -1)).astype(np.float32)
+
+
+def rows_pca(X, block_rows: int = BLOCK_ROWS) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and principal axes of rows in memory, by the rule of :data:`PCA_EXACT_DIMS`
+    (the covariance from moments added over :func:`row_blocks`, as on a cluster).
+
+    Parameters
+    ----------
+    X : (N, D) float
+
+    Returns
+    -------
+    mean : (D,) float64
+    axes : (2, D) float64
+    """
+    X = np.asarray(X)
+    n, D = X.shape
+    X64 = X.astype(np.float64) if D > PCA_EXACT_DIMS else None
+    return pca_by_shape(n, D, moments=lambda: block_moments(X, block_rows), gram=lambda: X64 @ X64.T,
+                        project=lambda U: X64.T @ U, apply=lambda V: X64 @ V, mean=lambda: X64.mean(axis=0))
+
+
+def pca_by_shape(n: int, D: int, moments: Callable, gram: Callable, project: Callable, apply: Callable,
+                 mean: Callable) -> tuple[np.ndarray, np.ndarray]:
+    """The one PCA of every initialisation, for rows held in any form: the solver by the rule of
+    :data:`PCA_EXACT_DIMS`, each given as a callable so that only the one used is computed.
+
+    Parameters
+    ----------
+    n, D : int
+        Rows and dimensions.
+    moments : callable
+        ``moments() -> dict`` (:func:`moments` of all rows).
+    gram : callable
+        ``gram() -> (n, n) X @ X.T``.
+    project, apply : callable
+        ``project(U) -> X.T @ U``, ``apply(V) -> X @ V``.
+    mean : callable
+        ``mean() -> (D,)``.
+
+    Returns
+    -------
+    mean : (D,) float64
+    axes : (2, D) float64
+    """
+    if D <= PCA_EXACT_DIMS:
+        return principal_axes(moments())
+    if n <= PCA_EXACT_DIMS:
+        return principal_axes_dual(gram(), project)
+    return principal_axes_lanczos(apply, project, n, D, mean())
+
+
+def init_weights(X, rows: int, cols: int, init: str, seed=None, block_rows: int = BLOCK_ROWS) -> np.ndarray:
+    """Initial prototypes from rows in memory.
+
+    ``random``: the rows :func:`random_pick` draws. ``pca``: :func:`pca_codebook` of
+    :func:`rows_pca`.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    seed : int, None or numpy.random.Generator
 
     Returns
     -------
     (rows*cols, D) float32
     """
     X = np.asarray(X)
-    M = rows * cols
     if init == "random":
-        pick = rng.choice(len(X), size=M, replace=len(X) < M)
-        return X[pick].astype(np.float32)
+        return X[random_pick(len(X), rows * cols, seed)].astype(np.float32)
     if init == "pca":
-        X64 = X.astype(np.float64)
-        mean = X64.mean(axis=0)
-        _, s, vt = np.linalg.svd(X64 - mean, full_matrices=False)
-        scale = s / np.sqrt(max(len(X) - 1, 1))
-        comps = np.zeros((2, X.shape[1]))
-        k = min(2, len(scale))
-        comps[:k] = vt[:k] * scale[:k, None]
-        a = np.linspace(-1, 1, rows)
-        b = np.linspace(-1, 1, cols)
-        grid = a[:, None, None] * comps[0] + b[None, :, None] * comps[1]
-        return (mean + grid.reshape(M, -1)).astype(np.float32)
+        return pca_codebook(*rows_pca(X, block_rows), rows, cols)
     raise ValueError(f"init must be one of {', '.join(INITS)}; received {init!r}")
+
+
+def train_batch(W, step: Callable[[np.ndarray], dict], rows: int, cols: int, epochs: int, sigma_start: float,
+                sigma_end: float, topology: str = "toroidal", decay: str = "exponential", start_epoch: int = 0,
+                callbacks: Iterable[Callable] = ()) -> np.ndarray:
+    """The batch-SOM driver: radius schedule, map step, update and callbacks, epoch by epoch.
+
+    Parameters
+    ----------
+    W : (rows*cols, D) float32
+        The codebook to start from (an initialisation, or a checkpoint at ``start_epoch``).
+    step : callable
+        ``step(W) -> dict`` with at least ``sums`` (M, D), ``counts`` (M,) and the error sums
+        ``n``, ``t_bad``, ``q_sum``, ``qc_sum``: :func:`block_sums` added over row blocks, in
+        memory or on a cluster.
+    start_epoch : int
+        First epoch to run (a resumed run).
+    callbacks : iterable of callables
+        Each called as ``callback(info, W)`` after every epoch with an :class:`EpochInfo` (the
+        errors of the search against the codebook before the update) and the updated codebook.
+
+    Returns
+    -------
+    (rows*cols, D) float32
+        The codebook after the last epoch.
+    """
+    callbacks = tuple(callbacks)
+    for epoch in range(start_epoch, epochs):
+        t0 = time.perf_counter()
+        sigma = sigma_schedule(epoch, epochs, sigma_start, sigma_end, decay)
+        part = step(W)
+        W = batch_update(W, part["sums"], part["counts"], sigma, rows, cols, topology)
+        info = EpochInfo(epoch, sigma, part.get("bmu"), errors_of(part), time.perf_counter() - t0, part)
+        for callback in callbacks:
+            callback(info, W)
+    return W
 
 
 @dataclass(frozen=True)
 class EpochInfo:
-    """What a callback receives after each epoch (with the epoch number and the SOM).
+    """What an epoch callback receives.
 
     Attributes
     ----------
@@ -219,19 +561,28 @@ class EpochInfo:
     sigma : float
         Radius used in this epoch.
     bmu : BMUResult or None
-        The BMUs found in this epoch, against the prototypes *before* its update
-        (None in online training).
-    q_error : float
-        Mean BMU distance of that search (NaN in online training).
+        The BMUs found in this epoch, against the prototypes *before* its update (None where
+        the step does not return them, as on a cluster, or in online training).
+    errors : dict
+        ``t_error``, ``q_error``, ``qc_error`` of that search (NaN in online training).
     seconds : float
         Wall time of the epoch.
+    sums : dict or None
+        What the step returned (sums, counts, error sums, and anything the step adds, such as
+        the engine that computed it).
     """
 
     epoch: int
     sigma: float
     bmu: BMUResult | None
-    q_error: float
+    errors: dict
     seconds: float
+    sums: dict | None = None
+
+    @property
+    def q_error(self) -> float:
+        """Mean BMU distance of the epoch's search."""
+        return float(self.errors["q_error"])
 
 
 class SOM:
@@ -336,7 +687,7 @@ class SOM:
     @property
     def sigma_start_(self) -> float:
         """The resolved first radius."""
-        return float(self.sigma_start if self.sigma_start is not None else max(self.rows, self.cols) / 4)
+        return float(self.sigma_start if self.sigma_start is not None else default_sigma_start(self.rows, self.cols))
 
     # ------------------------------------------------------------------ training
     def fit(self, X, index=None, sign=None, callbacks: Iterable[Callable] = ()) -> "SOM":
@@ -379,22 +730,37 @@ class SOM:
         self.n_features_in_ = D
         W = init_weights(X, self.rows, self.cols, self.init, rng)
         callbacks = tuple(callbacks)
+
+        def report(info: EpochInfo, W) -> None:
+            self.weights_ = W
+            self.n_iter_ = info.epoch + 1
+            for callback in callbacks:
+                callback(info.epoch, self, info)
+
+        if self.training == "batch":
+            # block views made once, so that read-only blocks stay resident on an OpenCL device
+            blocks = [X[a:b] for a, b in row_blocks(len(X))]
+
+            def step(W):
+                total, bmus = None, []
+                for block in blocks:
+                    part = block_sums(block, W, self.rows, self.cols, self.topology, index, sign, backend=engine)
+                    bmus.append(part["bmu"])
+                    total = add_sums(total, part)
+                total["bmu"] = BMUResult.concatenate(bmus)
+                return total
+
+            train_batch(W, step, self.rows, self.cols, self.epochs, self.sigma_start_, self.sigma_end,
+                        self.topology, self.decay, callbacks=(report,))
+            return self
         for epoch in range(self.epochs):
             t0 = time.perf_counter()
             sigma = sigma_schedule(epoch, self.epochs, self.sigma_start_, self.sigma_end, self.decay)
-            if self.training == "batch":
-                sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
-                W = batch_update(W, sums, counts, sigma, self.rows, self.cols, self.topology)
-                qe = float(np.mean(np.sqrt(bmu.dist2)))
-            else:
-                lr = sigma_schedule(epoch, self.epochs, self.learning_rate, self.learning_rate_end, self.decay)
-                W = self._online_epoch(X, W, index, sign, sigma, lr, rng)
-                bmu, qe = None, float("nan")
-            self.weights_ = W
-            self.n_iter_ = epoch + 1
-            info = EpochInfo(epoch, sigma, bmu, qe, time.perf_counter() - t0)
-            for callback in callbacks:
-                callback(epoch, self, info)
+            lr = sigma_schedule(epoch, self.epochs, self.learning_rate, self.learning_rate_end, self.decay)
+            W = self._online_epoch(X, W, index, sign, sigma, lr, rng)
+            nan = float("nan")
+            report(EpochInfo(epoch, sigma, None, {"t_error": nan, "q_error": nan, "qc_error": nan},
+                             time.perf_counter() - t0), W)
         return self
 
     def _online_epoch(self, X, W, index, sign, sigma, lr, rng) -> np.ndarray:
@@ -452,16 +818,13 @@ class SOM:
         Returns
         -------
         dict
-            ``t_error``, ``q_error``, ``qc_error`` (NaN when D is not a multiple of 3).
+            ``t_error`` (with the tie rule of :mod:`meshsom.metrics`), ``q_error``, ``qc_error``
+            (NaN when D is not a multiple of 3).
         """
         if index is None:
             self._check_fitted()
             index, sign = self.index_, self.sign_
         bmu = self.transform(X, index, sign)
         X = self._validate_X(X, self.n_features_in_)
-        D = X.shape[1]
-        return {
-            "t_error": t_error(bmu.unit, bmu.second, self.rows, self.cols, self.topology, neighbourhood),
-            "q_error": q_error(X, self.weights_, bmu, index, sign),
-            "qc_error": qc_error(X, self.weights_, bmu, index, sign) if D % 3 == 0 else float("nan"),
-        }
+        return errors_of(error_sums(X, self.weights_, bmu, self.rows, self.cols, self.topology, index, sign,
+                                    neighbourhood))

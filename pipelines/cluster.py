@@ -75,3 +75,18 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+@contextlib.contextmanager
+def serial_client() -> Iterator:
+    """A Dask client whose one worker is a thread of this process: the serial executor of the
+    single-process commands (``meshsom train``), which run the same drivers as ``meshsom run``."""
+    from distributed import Client
+
+    for name in ("distributed", "distributed.scheduler", "distributed.core", "distributed.worker"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    client = Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None)
+    try:
+        yield client
+    finally:
+        client.close()

@@ -75,8 +75,7 @@ def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.
     d = cfg.domain
     vectors = SparseDomainVectors(np.asarray(group["face_mesh"][:]), np.asarray(g["bmu_unit"][:]), n, rows, cols,
                                   d.sigma, topology)
-    res = train_domain_map_sparse(vectors, d.rows, d.cols, d.epochs, d.seed, sigma_start=max(d.rows, d.cols) / 4,
-                                  sigma_end=1.0)
+    res = train_domain_map_sparse(vectors, d.rows, d.cols, d.epochs, d.seed)  # as train_domain_map in memory
     client.gather(tasks)
     metrics = {"domain_q_error": res["q_error"], "domain_t_error": res["t_error"]}
     return res["units"], res["weights"], metrics
@@ -101,8 +100,10 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
         k-NN agreement, its chance level and the ARI of map regions vs labels).
     """
     from meshsom.codebook import load_codebook
+    from sklearn.metrics import adjusted_rand_score
+
     from meshsom.domain import (
-        adjusted_rand_index, bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance,
+        bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance,
         map_regions, place, train_domain_map,
     )
     from meshsom.store import mesh_table, open_store
@@ -135,7 +136,7 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
                                                              k=min(KNN, len(sample) - 1))
         metrics["knn_label_chance"] = label_agreement_chance(labels[sample])
         regions = map_regions(weights, d.rows, d.cols, len(set(labels)), d.seed)
-        metrics["ari_regions_vs_labels"] = adjusted_rand_index(regions[units], labels)
+        metrics["ari_regions_vs_labels"] = adjusted_rand_score(regions[units], labels)
     g = group["runs"][run].require_group("domain")
     arrays = [("weights", np.asarray(weights, np.float32)), ("units", units.astype(np.int64))]
     if vectors is not None:

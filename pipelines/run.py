@@ -207,13 +207,14 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     from meshsom.codebook import load_codebook
     from meshsom.variations import n_variations
     from meshsom.rings import dims
+    from meshsom.som import default_sigma_start
     from pipelines.train import TrainJob, train_spec
 
     som = cfg.som
     job = TrainJob(
         store=str(store), level=spec.level, kernel=spec.kernel, mirror=som.mirror_higher, rows=som.rows, cols=som.cols,
         topology=som.topology, epochs=som.epochs,
-        sigma_start=float(som.sigma_start if som.sigma_start is not None else max(som.rows, som.cols) / 4),
+        sigma_start=float(som.sigma_start if som.sigma_start is not None else default_sigma_start(som.rows, som.cols)),
         sigma_end=float(som.sigma_end), init=som.init, seed=som.seed, backend=cfg.opencl.backend, device=cfg.opencl.device,
         layout=cfg.opencl.layout,
     )
@@ -234,9 +235,9 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
 
     def on_epoch(epoch, metrics):
         tracker.log_metrics(child, metrics, step=epoch)
-        bar.update(1 if epoch < som.epochs else 0)
+        bar.update(1)
         done = epoch + 1
-        if bar.disable and epoch < som.epochs and (done % every == 0 or done == som.epochs):
+        if bar.disable and (done % every == 0 or done == som.epochs):
             # no progress bar (stdout is not a terminal): a line every few epochs
             elapsed = time.perf_counter() - t_map
             print(f"      {job.run}: epoch {done}/{som.epochs}, {elapsed:.1f} s elapsed, about "
@@ -244,7 +245,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
 
     result = train_spec(client, job, resume=resume, on_epoch=on_epoch)
     bar.close()
-    if result["resumed_from"] >= som.epochs and tracker.enabled:
+    if result["resumed_from"] < som.epochs:  # a finished map's final errors were logged by its first attempt
         tracker.log_metrics(child, result["metrics"], step=som.epochs)
     cb = load_codebook(group, job.run)
     figures = store.parent / f"{store.stem}-figures"

@@ -16,8 +16,12 @@ uninterrupted one. After the last epoch one more pass with the final codebook wr
 (``bmu_unit``, ``bmu_variation``, ``bmu_dist2``, ``bmu_second``: the layout of
 :mod:`meshsom.codebook`) and the final errors.
 
-The arithmetic is that of :class:`meshsom.som.SOM` (same initialisation from the seed, same
-radius schedule, same update); only the order of the float64 summation over chunks differs.
+The epochs run in :func:`meshsom.som.train_batch`, the driver :class:`meshsom.som.SOM` uses too:
+tasks are the row blocks of :func:`meshsom.som.row_blocks`, their sums are added in block order, the
+initialisation comes from :func:`meshsom.som.random_pick` or the block moments of
+:func:`meshsom.som.principal_axes`. A map trained here is bitwise equal to ``SOM.fit`` on the same
+standardized rows, whatever the number of workers. ``meshsom train`` runs this same code on an
+in-process cluster (:func:`pipelines.cluster.serial_client`).
 """
 
 from __future__ import annotations
@@ -26,7 +30,6 @@ import hashlib
 import logging
 import warnings
 import json
-import math
 import time
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
@@ -35,8 +38,6 @@ import numpy as np
 
 #: Bytes of standardized chunks a worker keeps between epochs.
 CHUNK_CACHE_BYTES = 1 << 30
-#: Tasks per worker and epoch when the store's row chunks are larger than that split.
-TASKS_PER_WORKER = 2
 #: Times a pass is run again when a worker dies under the client's own transfers, and the wait.
 PASS_RETRIES = 3
 PASS_RETRY_WAIT_S = 1.0
@@ -157,19 +158,36 @@ def load_chunk(job: "TrainJob", start: int, stop: int) -> np.ndarray:
     return x
 
 
+def load_level(group, level: int) -> np.ndarray:
+    """All standardized fold vectors of a level in memory, read block by block.
+
+    Returns
+    -------
+    (F, D) float32
+    """
+    from meshsom.som import row_blocks
+    from meshsom.standardize import standardize
+    from meshsom.store import read_stats, rings_array
+
+    rings = rings_array(group, level)
+    stats = read_stats(group, level)
+    out = np.empty(rings.shape, np.float32)
+    for a, b in row_blocks(rings.shape[0]):
+        out[a:b] = standardize(np.asarray(rings[a:b]), stats)
+    return out
+
+
 def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: bool = False) -> dict:
-    """The map step of one epoch on rows ``start..stop``.
+    """The map step of one epoch on the row block ``start..stop``.
 
     Returns
     -------
     dict
-        ``sums`` (M, D) float64, ``counts`` (M,) float64, ``n``, ``t_bad`` (vectors whose best and
-        second-best units are not neighbours), ``q_sum`` (sum of BMU distances), ``qc_sum`` (sum over
-        vectors of the mean per-component distance), and what computed it: ``backend``, ``device``,
-        ``layout``, ``fallback`` (:meth:`meshsom.bmu.Engine.describe`).
+        :func:`meshsom.som.block_sums` without the BMUs (``sums``, ``counts``, ``n``, ``t_bad``,
+        ``q_sum``, ``qc_sum``), and what computed it: ``backend``, ``device``, ``layout``,
+        ``fallback`` (:meth:`meshsom.bmu.Engine.describe`).
     """
-    from meshsom.metrics import are_neighbours, residuals
-    from meshsom.som import partial_sums
+    from meshsom.som import block_sums
     from meshsom.variations import variation_table
 
     X = load_chunk(job, start, stop)
@@ -178,17 +196,9 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     else:
         index = sign = None  # one variation: the identity
     engine = _engine(job.backend, job.device, job.layout)
-    sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
-    res = residuals(X, W, bmu, index, sign)
-    parts = res.reshape(len(X), -1, 3) if X.shape[1] % 3 == 0 else res[:, :, None]
-    comp = np.sqrt(np.einsum("ijk,ijk->ij", parts, parts))
-    out = {
-        "sums": sums, "counts": counts, "n": len(X),
-        "t_bad": int((~are_neighbours(bmu.unit, bmu.second, job.rows, job.cols, job.topology)).sum()),
-        "q_sum": float(np.sqrt(np.einsum("ij,ij->i", res, res)).sum()),
-        "qc_sum": float(comp.mean(axis=1).sum()),
-        **engine.describe(X.shape[1], 1 if index is None else len(index), X.dtype),
-    }
+    out = block_sums(X, W, job.rows, job.cols, job.topology, index, sign, backend=engine)
+    bmu = out.pop("bmu")
+    out.update(engine.describe(X.shape[1], 1 if index is None else len(index), X.dtype))
     if write_bmus:
         from meshsom.codebook import BMU_ARRAYS
         from meshsom.store import open_store, run_group
@@ -200,12 +210,6 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
 
 
 # ----------------------------------------------------------------------------- client side
-
-
-def row_ranges(n: int, chunk_rows: int, n_workers: int) -> list[tuple[int, int]]:
-    """Task row ranges: the store's chunks, split further so every worker gets work."""
-    step = max(1, min(chunk_rows, math.ceil(n / max(1, n_workers * TASKS_PER_WORKER))))
-    return [(a, min(n, a + step)) for a in range(0, n, step)]
 
 
 def _codebook(W: np.ndarray) -> np.ndarray:
@@ -238,12 +242,14 @@ def _pass(client, job: TrainJob, ranges, W: np.ndarray, retries: int = PASS_RETR
 
 
 def _reduce(futures) -> dict:
-    """Sum the partial results in task order, fetching one at a time.
+    """Add the blocks' sums in block order (:func:`meshsom.som.add_sums`), fetching one at a time.
 
     The order makes the float64 sums (and so the codebook) independent of which worker finished
-    first; fetching one result at a time keeps the client's memory at two (M, D) arrays however
-    many chunks there are.
+    first, and equal to ``SOM.fit``'s; fetching one result at a time keeps the client's memory at
+    two (M, D) arrays however many blocks there are.
     """
+    from meshsom.som import add_sums
+
     total = None
     layouts: set = set()
     fallbacks: list = []
@@ -251,64 +257,43 @@ def _reduce(futures) -> dict:
         part = fut.result()
         layouts.update(filter(None, part["layout"].split(",")))
         fallbacks += [f for f in part["fallback"].split("; ") if f and f not in fallbacks]
-        if total is None:
-            total = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
-        else:
-            total["sums"] += part["sums"]
-            total["counts"] += part["counts"]
-            for k in ("n", "t_bad", "q_sum", "qc_sum"):
-                total[k] += part[k]
+        total = add_sums(total, part)
         fut.release()
-    n = total["n"]
-    return {
-        "sums": total["sums"], "counts": total["counts"],
-        "t_error": total["t_bad"] / n, "q_error": total["q_sum"] / n, "qc_error": total["qc_sum"] / n,
-        "backend": total["backend"], "device": total["device"], "layout": ",".join(sorted(layouts)),
-        "fallback": "; ".join(fallbacks),
-    }
+    total["layout"] = ",".join(sorted(layouts))
+    total["fallback"] = "; ".join(fallbacks)
+    return total
 
 
 def initial_weights(job: TrainJob, ranges) -> np.ndarray:
-    """The codebook :class:`meshsom.som.SOM` starts from with the same seed.
+    """The codebook :class:`meshsom.som.SOM` starts from with the same seed, read block by block.
 
-    ``random`` draws the same rows as :func:`meshsom.som.init_weights` (read from zarr, not from a
-    full array); ``pca`` uses chunked moments, equal to its SVD up to the signs of the components.
+    ``random``: the rows :func:`meshsom.som.random_pick` draws (read from zarr, not from a full
+    array); ``pca``: :func:`meshsom.som.principal_axes` of the moments added over the same blocks
+    (fewer rows than dimensions: all rows in memory, as ``SOM.fit`` does).
     """
+    from meshsom.som import add_moments, init_weights, moments, pca_codebook, principal_axes, random_pick
     from meshsom.standardize import standardize
     from meshsom.store import open_store, read_stats
 
     group = open_store(job.store)
     rings = source_array(group, job)
     stats = read_stats(group, job.level) if job.source is None else None
-    n = rings.shape[0]
+    n, D = rings.shape
 
     def prepare(x):
-        return standardize(x, stats) if stats is not None else np.asarray(x, np.float32)
+        return (standardize(x, stats) if stats is not None else np.asarray(x)).astype(np.float32)
 
     M = job.rows * job.cols
-    rng = np.random.default_rng(job.seed)
     if job.init == "random":
-        pick = rng.choice(n, size=M, replace=n < M)
+        pick = random_pick(n, M, job.seed)
         uniq, inverse = np.unique(pick, return_inverse=True)
-        rows = np.asarray(rings.get_orthogonal_selection((uniq, slice(None))))
-        return prepare(rows).astype(np.float32)[inverse]
-    # PCA from chunked moments (equal to the SVD of SOM.fit up to the signs of the components)
-    mean = np.zeros(rings.shape[1])
-    gram = np.zeros((rings.shape[1],) * 2)
+        return prepare(np.asarray(rings.get_orthogonal_selection((uniq, slice(None)))))[inverse.ravel()]
+    if n < D:
+        return init_weights(prepare(np.asarray(rings[:])), job.rows, job.cols, job.init, job.seed)
+    total = None
     for a, b in ranges:
-        x = prepare(np.asarray(rings[a:b])).astype(np.float64)
-        mean += x.sum(axis=0)
-        gram += x.T @ x
-    mean /= n
-    cov = (gram - n * np.outer(mean, mean)) / max(n - 1, 1)
-    vals, vecs = np.linalg.eigh(cov)
-    order = np.argsort(vals)[::-1][:2]
-    comps = np.zeros((2, rings.shape[1]))
-    comps[: len(order)] = (vecs[:, order] * np.sqrt(np.maximum(vals[order], 0))).T
-    a = np.linspace(-1, 1, job.rows)
-    b = np.linspace(-1, 1, job.cols)
-    grid = a[:, None, None] * comps[0] + b[None, :, None] * comps[1]
-    return (mean + grid.reshape(M, -1)).astype(np.float32)
+        total = add_moments(total, moments(prepare(np.asarray(rings[a:b]))))
+    return pca_codebook(*principal_axes(total), job.rows, job.cols)
 
 
 def prepare_engine(client, job: TrainJob, D: int) -> None:
@@ -331,8 +316,7 @@ def prepare_engine(client, job: TrainJob, D: int) -> None:
     engine.prepare(D, n, np.float32)
 
 
-def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progress=None,
-               chunk_rows: int | None = None) -> dict:
+def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progress=None) -> dict:
     """Train one map on the cluster, checkpointing every epoch into ``runs/<run>``.
 
     Parameters
@@ -343,7 +327,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         Continue from the last finished epoch of the same job (same fingerprint).
     on_epoch : callable, optional
         ``on_epoch(epoch, metrics)`` after every epoch (metrics of the search against the
-        codebook before that epoch's update) and ``on_epoch(job.epochs, final_metrics)`` at the end.
+        codebook before that epoch's update; ``epoch`` 0-based).
     progress : callable, optional
         ``progress(done_epochs, total_epochs)``.
 
@@ -351,10 +335,11 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     -------
     dict
         ``run``, ``metrics`` (final t/q/qc errors), ``history`` (per epoch), ``backend``, ``device``,
-        ``seconds``, ``resumed_from`` (epoch), ``n_vectors``, ``dims``.
+        ``layout``, ``fallback``, ``seconds``, ``resumed_from`` (epoch), ``n_vectors``, ``dims``.
     """
     from meshsom.codebook import BMU_ARRAYS
-    from meshsom.som import batch_update, sigma_schedule
+    from meshsom.metrics import errors_of
+    from meshsom.som import BLOCK_ROWS, row_blocks, train_batch
     from meshsom.store import open_store, run_group
     from meshsom.variations import n_variations
 
@@ -362,9 +347,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     group = open_store(job.store, mode="r+")
     rings = source_array(group, job)
     n, D = rings.shape
-    M = job.rows * job.cols
-    n_workers = max(1, len(client.scheduler_info()["workers"]))
-    ranges = row_ranges(n, chunk_rows or rings.chunks[0], n_workers)
+    ranges = row_blocks(n)
     g = run_group(group, job.run)
     fp = job.fingerprint()
     attrs = dict(g.attrs)
@@ -384,33 +367,30 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         "rows": job.rows, "cols": job.cols, "topology": job.topology, "level": job.level, "kernel": job.kernel,
         "fingerprint": fp, "job": asdict(job),
     })
-    sigma_start = job.sigma_start
-    backend = device = None
     prepare_engine(client, job, D)
     # BMUs, variations, distances and second-best units of every vector, rewritten by every pass
-    # (chunks aligned with the task row ranges: no two tasks write one chunk)
-    step = ranges[0][1] - ranges[0][0]
+    # (chunks are the row blocks: no two tasks write one chunk)
     for attr, name in BMU_ARRAYS.items():
-        if name not in g or g[name].shape != (n,) or g[name].chunks != (max(1, step),):
+        if name not in g or g[name].shape != (n,) or g[name].chunks != (BLOCK_ROWS,):
             g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
-                           chunks=(max(1, step),), overwrite=True)
-    for epoch in range(start_epoch, job.epochs):
-        sigma = sigma_schedule(epoch, job.epochs, sigma_start, job.sigma_end)
-        red = _pass(client, job, ranges, W)
-        backend, device = red["backend"], red["device"]
-        W = batch_update(W, red["sums"], red["counts"], sigma, job.rows, job.cols, job.topology)
-        metrics = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
-        history.append({"epoch": epoch, "sigma": sigma, **metrics})
+                           chunks=(BLOCK_ROWS,), overwrite=True)
+
+    def checkpoint(info, W):
+        metrics = {k: float(v) for k, v in info.errors.items()}
+        history.append({"epoch": info.epoch, "sigma": info.sigma, **metrics})
         _put(g, "weights", W, job.rows * job.cols)  # write first ...
         # ... then mark (the BMUs on disk are those of this epoch's search, before its update)
-        g.attrs.update({"epoch_done": epoch + 1, "history": history, "bmu_epoch": epoch})
+        g.attrs.update({"epoch_done": info.epoch + 1, "history": history, "bmu_epoch": info.epoch})
         if on_epoch:
-            on_epoch(epoch, metrics)
+            on_epoch(info.epoch, metrics)
         if progress:
-            progress(epoch + 1, job.epochs)
+            progress(info.epoch + 1, job.epochs)
+
+    W = train_batch(W, lambda W: _pass(client, job, ranges, W), job.rows, job.cols, job.epochs, job.sigma_start,
+                    job.sigma_end, job.topology, start_epoch=start_epoch, callbacks=(checkpoint,))
     # final pass: BMUs of every vector against the final codebook, and the final errors
     red = _pass(client, job, ranges, W)
-    final = {k: float(red[k]) for k in ("t_error", "q_error", "qc_error")}
+    final = {k: float(v) for k, v in errors_of(red).items()}
     result = {
         "run": job.run, "metrics": final, "history": history, "backend": red["backend"], "device": red["device"],
         "layout": red["layout"], "fallback": red["fallback"],
@@ -419,8 +399,6 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     }
     g.attrs.update({"metrics": final, "result": result, "final_done": True, "bmu_epoch": job.epochs,
                     "engine": {k: red[k] for k in ("backend", "device", "layout", "fallback")}})
-    if on_epoch:
-        on_epoch(job.epochs, final)
     return result
 
 

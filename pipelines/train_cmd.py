@@ -3,16 +3,15 @@
 Reads ``rings/level{L}`` of an encoded store, standardizes it with the stored statistics,
 trains the SOM (default kernel: the identity variation only; bmuofn: the level's variation
 table), prints the T-, Q- and QC-errors (or one JSON object with ``--json``) and saves the
-map in ``runs/level{L}-{kernel}`` of the store.
+map in ``runs/level{L}-{kernel}`` of the store. It runs the training of ``meshsom run``
+(:func:`pipelines.train.train_spec`) on an in-process executor, so the same settings give the
+same codebook and errors as the corresponding map of ``meshsom run``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
-
-import numpy as np
 
 from meshsom.config import BACKENDS, KERNELS, LAYOUTS, TOPOLOGIES, SOMConfig, parse_layouts
 
@@ -59,69 +58,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def load_level(group, level: int) -> np.ndarray:
-    """Standardized fold vectors of a level, read chunk by chunk.
-
-    Returns
-    -------
-    (F, D) float32
-    """
-    from meshsom.standardize import standardize
-    from meshsom.store import iter_row_chunks, read_stats, rings_array
-
-    rings = rings_array(group, level)
-    stats = read_stats(group, level)
-    parts = [np.asarray(standardize(np.asarray(rings[a:b]), stats), np.float32) for a, b in iter_row_chunks(rings)]
-    return np.concatenate(parts) if parts else np.zeros((0,) + tuple(rings.shape[1:]), np.float32)
-
-
 def run(args: argparse.Namespace) -> int:
-    from meshsom.codebook import save_codebook
     from meshsom.errors import StoreError
-    from meshsom.som import SOM
-    from meshsom.store import open_store
-    from meshsom.variations import variation_table
+    from meshsom.som import default_sigma_start
+    from meshsom.store import open_store, rings_array
+    from pipelines.cluster import serial_client
+    from pipelines.train import TrainJob, train_spec
 
     group = open_store(args.store, mode="r+")
-    X = load_level(group, args.level)
-    if len(X) == 0:
+    if rings_array(group, args.level).shape[0] == 0:
         raise StoreError(f"{args.store}: rings/level{args.level} holds no vectors")
-    index, sign = variation_table(args.level, mirror=args.mirror)
-    if args.kernel == "default":
-        index, sign = index[:1], sign[:1]
     rows, cols = args.map
-    som = SOM(rows=rows, cols=cols, topology=args.topology, epochs=args.epochs, sigma_start=args.sigma_start,
-              sigma_end=args.sigma_end, init=args.init, random_state=args.seed, backend=args.backend,
-              device=args.device, layout=args.layout)
-    t0 = time.perf_counter()
-    som.fit(X, index, sign)
-    seconds = time.perf_counter() - t0
-    bmu = som.transform(X)
-    from meshsom.metrics import q_error, qc_error, t_error
-
-    metrics = {
-        "t_error": t_error(bmu.unit, bmu.second, rows, cols, args.topology),
-        "q_error": q_error(X, som.weights_, bmu, index, sign),
-        "qc_error": qc_error(X, som.weights_, bmu, index, sign) if X.shape[1] % 3 == 0 else float("nan"),
-    }
-    run_name = args.run or f"level{args.level}-{args.kernel}"
-    engine = som.engine_.describe(X.shape[1], len(index), X.dtype)
-    save_codebook(group, run_name, som.weights_, rows, cols, args.topology, level=args.level, kernel=args.kernel,
-                  metrics=metrics, bmu=bmu,
-                  extra={"epochs": args.epochs, "seed": args.seed, **engine, "mirror": bool(args.mirror), "n_variations": int(len(index)), "seconds": seconds})
+    job = TrainJob(
+        store=str(args.store), level=args.level, kernel=args.kernel, mirror=bool(args.mirror), rows=rows, cols=cols,
+        topology=args.topology, epochs=args.epochs,
+        sigma_start=float(args.sigma_start if args.sigma_start is not None else default_sigma_start(rows, cols)),
+        sigma_end=float(args.sigma_end), init=args.init, seed=args.seed, backend=args.backend, device=args.device,
+        layout=args.layout, name=args.run,
+    )
+    with serial_client() as client:
+        result = train_spec(client, job)
+    metrics = result["metrics"]
+    engine = {k: result[k] for k in ("backend", "device", "layout", "fallback")}
     report = {
         **metrics, **engine, "level": args.level, "kernel": args.kernel,
-        "map_rows": rows, "map_cols": cols, "epochs": args.epochs, "seconds": seconds,
-        "n_vectors": int(len(X)), "dims": f"{len(index)}x{X.shape[1]}", "run": run_name,
+        "map_rows": rows, "map_cols": cols, "epochs": args.epochs, "seconds": result["seconds"],
+        "n_vectors": result["n_vectors"], "dims": result["dims"], "run": job.run,
     }
     if args.json:
         print(json.dumps(report))
     else:
-        print(f"level {args.level} ({args.kernel}, {len(index)}x{X.shape[1]}) on a {rows}x{cols} {args.topology} map, "
-              f"{args.epochs} epochs, {len(X)} vectors, {seconds:.2f} s on {som.backend_} ({som.device_}"
-              + (f", kernel layout {engine['layout']})" if som.backend_ == "opencl" else ")"))
+        print(f"level {args.level} ({args.kernel}, {result['dims']}) on a {rows}x{cols} {args.topology} map, "
+              f"{args.epochs} epochs, {result['n_vectors']} vectors, {result['seconds']:.2f} s on {engine['backend']} "
+              f"({engine['device']}" + (f", kernel layout {engine['layout']})" if engine["backend"] == "opencl" else ")"))
         if engine["fallback"]:
             print(f"kernel fallback: {engine['fallback']}")
         print(f"T-error {metrics['t_error']:.5f}  Q-error {metrics['q_error']:.5f}  QC-error {metrics['qc_error']:.5f}")
-        print(f"saved runs/{run_name}")
+        print(f"saved runs/{job.run}")
     return 0

@@ -58,8 +58,10 @@ def d2_baseline(group, exp: TrackedExperiment, labels: np.ndarray) -> dict:
         ``knn_label_agreement``, ``knn_label_chance``, ``ari_regions_vs_labels``, ``units`` (n,) int64.
     """
     from meshsom.descriptors import d2_histograms
+    from sklearn.metrics import adjusted_rand_score
+
     from meshsom.domain import (
-        adjusted_rand_index, knn_label_agreement, label_agreement_chance, map_regions, place, train_domain_map,
+        knn_label_agreement, label_agreement_chance, map_regions, place, train_domain_map,
     )
     from meshsom.store import iter_meshes
 
@@ -72,7 +74,7 @@ def d2_baseline(group, exp: TrackedExperiment, labels: np.ndarray) -> dict:
     return {
         KNN_METRIC: knn_label_agreement(units, labels, rows, cols, k=min(_knn(), len(labels) - 1)),
         CHANCE_METRIC: label_agreement_chance(labels),
-        ARI_METRIC: adjusted_rand_index(regions[units], labels),
+        ARI_METRIC: adjusted_rand_score(regions[units], labels),
         "units": units,
     }
 

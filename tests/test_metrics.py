@@ -109,3 +109,71 @@ def test_errors_match_minisom_on_planar_map():
     assert ours_t == pytest.approx(som.topographic_error(X), abs=1e-12)
     winners = np.array([np.ravel_multi_index(som.winner(x), (rows, cols)) for x in X[:50]])
     np.testing.assert_array_equal(bmu.unit[:50], winners)
+
+
+# ---------------------------------------------------------------------- T-error tie rule
+def _brute_force_t_bad(X, W, rows, cols, topology="toroidal"):
+    """Independent reference: x is an error iff no unit tied for second place is a neighbour of
+    the best unit (all distances in float64, the tie tolerance of the rule)."""
+    from meshsom.metrics import TIE_RTOL
+
+    X64, W64 = X.astype(np.float64), W.astype(np.float64)
+    bad = []
+    for x in X64:
+        d = ((W64 - x) ** 2).sum(axis=1)
+        best = int(np.argmin(d))
+        rest = d.copy()
+        rest[best] = np.inf
+        second = int(np.argmin(rest))
+        tol = TIE_RTOL * (x @ x + W64[second] @ W64[second])
+        tied = np.flatnonzero(rest <= rest[second] + tol)
+        bad.append(not any(are_neighbours(best, t, rows, cols, topology) for t in tied))
+    return np.array(bad)
+
+
+@pytest.mark.parametrize("topology", ["toroidal", "planar"])
+def test_t_error_tie_rule_on_duplicated_prototypes(topology):
+    from meshsom.bmu_numpy import bmu_numpy
+    from meshsom.metrics import error_sums, errors_of, tied_with_neighbour
+
+    rows, cols = 4, 4
+    rng = np.random.default_rng(0)
+    W = rng.normal(0, 1, (16, 6)).astype(np.float32) * 10
+    p = rng.normal(0, 1, 6).astype(np.float32)
+    # units 0 (0,0) and 10 (2,2) share a prototype, far apart; 5 (1,1) is a neighbour of 0 with the same
+    # prototype up to float32 rounding; 12 and 13 share one, and are neighbours
+    W[0] = W[10] = p
+    W[5] = p * np.float32(1 + 2e-7)
+    W[12] = W[13] = p + 3
+    X = np.stack([p, p + 3, p + 0.01, W[7]]).astype(np.float32)
+    bmu = bmu_numpy(X, W)
+    assert {int(bmu.unit[0]), int(bmu.second[0])} <= {0, 5, 10}  # the search reports arbitrary tied units
+    tied = tied_with_neighbour(X, W, bmu, rows, cols, topology)
+    want = _brute_force_t_bad(X, W, rows, cols, topology)
+    got = ~are_neighbours(bmu.unit, bmu.second, rows, cols, topology) & ~tied
+    np.testing.assert_array_equal(got, want)
+    assert not want[0]  # a neighbour (5) ties for second place: not a topographic error
+    assert not want[1]  # 12 and 13 are equal neighbours
+    assert t_error(bmu.unit, bmu.second, rows, cols, topology, tied=tied) == pytest.approx(want.mean())
+    assert errors_of(error_sums(X, W, bmu, rows, cols, topology))["t_error"] == pytest.approx(want.mean())
+    # without the near-duplicate neighbour, 0 and 10 are far apart duplicates: a real topographic error
+    W2 = W.copy()
+    W2[5] = p + 5
+    bmu2 = bmu_numpy(X[:1], W2)
+    assert bmu2.second[0] == 10
+    assert errors_of(error_sums(X[:1], W2, bmu2, rows, cols, topology))["t_error"] == 1.0
+
+
+def test_t_error_ties_on_a_map_of_identical_vectors():
+    """Many identical vectors (extruded blocks): the plateau of equal prototypes is no topology error."""
+    from meshsom.som import SOM
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(4, 9)).astype(np.float32)
+    X = base[rng.integers(0, 4, 2000)]
+    som = SOM(12, 15, epochs=8, sigma_end=0.8, init="pca", backend="numpy").fit(X)
+    bmu = som.transform(X)
+    naive = t_error(bmu.unit, bmu.second, 12, 15)
+    want = _brute_force_t_bad(X, som.weights_, 12, 15).mean()
+    assert som.evaluate(X)["t_error"] == pytest.approx(want)
+    assert naive > 0.5 and want < 0.05  # the ties made three quarters of the vectors look like errors
