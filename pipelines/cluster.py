@@ -75,3 +75,15 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+@contextlib.contextmanager
+def connect_serial() -> Iterator:
+    """An in-process ``distributed.Client`` with one worker thread: the serial executor of the single-process
+    commands (``meshsom ingest``, ``meshsom encode``), which run the drivers of ``meshsom run`` on it."""
+    from distributed import Client
+
+    for name in ("distributed", "distributed.scheduler", "distributed.core", "distributed.worker"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as client:
+        yield client
