@@ -1,12 +1,6 @@
 """Save and load a trained map in a store's ``runs/<run>`` group.
 
-Layout of ``runs/<run>`` (the group itself comes from :func:`meshsom.store.run_group`):
-
-- ``weights``: (rows*cols, D) float32, the prototypes, row-major over the grid;
-- ``bmu_unit``, ``bmu_variation``, ``bmu_second``: (N,) int64, optional, per input vector;
-- ``bmu_dist2``: (N,) float64, optional;
-- attributes: ``rows``, ``cols``, ``topology``, ``level``, ``kernel``, ``metrics`` (a dict
-  of floats) and any ``extra`` attributes given.
+The layout of ``runs/<run>`` (weights, BMU arrays, attributes) is defined in :mod:`meshsom.store`.
 """
 
 from __future__ import annotations
@@ -18,9 +12,9 @@ import zarr
 
 from meshsom.bmu_numpy import BMUResult
 from meshsom.errors import StoreError
-from meshsom.store import run_group, store_path
-
-BMU_ARRAYS = {"unit": "bmu_unit", "variation": "bmu_variation", "dist2": "bmu_dist2", "second": "bmu_second"}
+from meshsom.store import (  # noqa: F401  (BMU_ARRAYS: re-exported for the callers that import it from here)
+    BMU_ARRAYS, read_bmus, read_weights, run_group, store_path, write_bmus, write_run_header, write_weights,
+)
 
 
 @dataclass(frozen=True)
@@ -51,13 +45,6 @@ class Codebook:
     attrs: dict = field(default_factory=dict, repr=False)
 
 
-def _put(group: zarr.Group, name: str, data: np.ndarray) -> None:
-    chunks = (max(1, min(len(data), 1 << 16)),) + tuple(data.shape[1:])
-    arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks, overwrite=True)
-    if data.size:
-        arr[...] = data
-
-
 def save_codebook(group: zarr.Group, run: str, weights, rows: int, cols: int, topology: str,
                   level: int | None = None, kernel: str | None = None, metrics: dict | None = None,
                   bmu: BMUResult | None = None, extra: dict | None = None) -> zarr.Group:
@@ -82,17 +69,11 @@ def save_codebook(group: zarr.Group, run: str, weights, rows: int, cols: int, to
     if weights.ndim != 2 or len(weights) != rows * cols:
         raise ValueError(f"weights must have shape ({rows * cols}, D) for a {rows} x {cols} map, received {weights.shape}")
     g = run_group(group, run)
-    _put(g, "weights", weights)
+    write_weights(g, weights)
     if bmu is not None:
-        for attr, name in BMU_ARRAYS.items():
-            a = getattr(bmu, attr)
-            _put(g, name, np.asarray(a, np.float64 if attr == "dist2" else np.int64))
-    g.attrs.update({
-        "rows": int(rows), "cols": int(cols), "topology": str(topology),
-        "level": None if level is None else int(level), "kernel": kernel,
-        "metrics": {k: float(v) for k, v in (metrics or {}).items()},
-        **(extra or {}),
-    })
+        write_bmus(g, bmu)
+    write_run_header(g, rows, cols, topology, level, kernel)
+    g.attrs.update({"metrics": {k: float(v) for k, v in (metrics or {}).items()}, **(extra or {})})
     return g
 
 
@@ -105,14 +86,14 @@ def load_codebook(group: zarr.Group, run: str) -> Codebook:
         No such run, or it holds no ``weights``.
     """
     g = run_group(group, run, create=False)
-    if "weights" not in g:
+    weights = read_weights(g)
+    if weights is None:
         raise StoreError(f"{store_path(group)}: run {run!r} has no weights array")
     attrs = dict(g.attrs)
-    bmu = None
-    if all(name in g for name in BMU_ARRAYS.values()):
-        bmu = BMUResult(**{attr: np.asarray(g[name][:]) for attr, name in BMU_ARRAYS.items()})
+    bmus = read_bmus(g)
+    bmu = None if bmus is None else BMUResult(**bmus)
     return Codebook(
-        weights=np.asarray(g["weights"][:]),
+        weights=weights,
         rows=int(attrs["rows"]), cols=int(attrs["cols"]), topology=str(attrs["topology"]),
         level=attrs.get("level"), kernel=attrs.get("kernel"), metrics=dict(attrs.get("metrics", {})),
         bmu=bmu, attrs=attrs,

@@ -78,15 +78,12 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
 
 
 @contextlib.contextmanager
-def serial_client() -> Iterator:
-    """A Dask client whose one worker is a thread of this process: the serial executor of the
-    single-process commands (``meshsom train``), which run the same drivers as ``meshsom run``."""
+def connect_serial() -> Iterator:
+    """An in-process ``distributed.Client`` with one worker thread: the serial executor of the single-process
+    commands (``meshsom ingest``, ``meshsom encode``), which run the drivers of ``meshsom run`` on it."""
     from distributed import Client
 
     for name in ("distributed", "distributed.scheduler", "distributed.core", "distributed.worker"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    client = Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None)
-    try:
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
         yield client
-    finally:
-        client.close()

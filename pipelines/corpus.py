@@ -1,7 +1,12 @@
 """Ingest + encode as a Dask graph, with region writes and resumable shards.
 
-The result is the same store, array for array, as ``meshsom ingest`` followed by
-``meshsom encode`` in one process (layout: :mod:`meshsom.store`, DESIGN.md §7).
+The drivers of ``meshsom run`` (:func:`run_corpus`: read, preprocess and encode), ``meshsom
+ingest`` (:func:`run_corpus` with no levels) and ``meshsom encode`` (:func:`encode_corpus`: encode
+an ingested store); the single-process commands run them on an in-process client
+(:func:`pipelines.cluster.connect_serial`). Both drivers encode every mesh with
+:func:`encode_meshes`, stage per-shard rows, assemble them with :func:`copy_rows` and merge the
+per-mesh statistics in mesh order (:func:`corpus_statistics`), so ``ingest`` + ``encode`` gives
+the store of ``run``, array for array (layout: :mod:`meshsom.store`, DESIGN.md §7).
 
 1. Plan: the inputs are expanded (``meshsom.io.expand_inputs``); one task per
    file reads its meshes (RawMesh or Rejection), the client counts them and
@@ -28,7 +33,7 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
+import time
 import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -36,12 +41,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from meshsom.store import STAGING  # noqa: F401  (the staging group: tests and tools name it from here)
+
 log = logging.getLogger(__name__)
 
-#: Group of the per-shard results while a run is under way (removed at the end).
-STAGING = "staging"
-#: Per-face arrays of a shard, besides the ring levels.
-FACE_ARRAYS = ("faces", "face_mesh")
+#: Faces per shard of ``meshsom encode`` (whole meshes; a mesh larger than this is a shard of its own).
+DEFAULT_BATCH_FACES = 500_000
 
 
 @dataclass(frozen=True)
@@ -116,13 +121,52 @@ def slice_items(items: list, start: int, stop: int) -> list:
 
 def shard_done(store: str, name: str) -> bool:
     """Whether ``staging/<name>`` of a store is marked done."""
-    import zarr
+    from meshsom.store import shard_meta
 
-    try:
-        group = zarr.open_group(str(Path(store) / STAGING / name), mode="r")
-    except (FileNotFoundError, zarr.errors.GroupNotFoundError):
-        return False
-    return bool(group.attrs.get("done"))
+    return shard_meta(store, name) is not None
+
+
+def encode_meshes(meshes: Sequence[tuple[str, np.ndarray, np.ndarray]], levels: Sequence[int],
+                  seconds: dict | None = None) -> tuple[dict, dict]:
+    """Ring vectors of whole meshes, one mesh at a time, and the per-mesh standardization accumulators.
+
+    Parameters
+    ----------
+    meshes : sequence of (id, vertices (V, 3) float64, faces (F, 3) int64)
+        Closed meshes; the id is named in errors.
+    levels : sequence of int
+    seconds : dict, optional
+        Level -> seconds, increased by the time spent encoding each level.
+
+    Returns
+    -------
+    rings : dict
+        Level -> (sum F, dims(level)) float32, the meshes' rows in order.
+    acc : dict
+        ``str(level)`` -> list (one per mesh) of accumulators as nested lists (JSON-able).
+
+    Raises
+    ------
+    MeshError
+        A mesh that is not a closed, consistently oriented 2-manifold (the first one).
+    """
+    from meshsom.folds import folds
+    from meshsom.rings import dims, encode_level
+    from meshsom.standardize import accumulate, empty_accumulator
+    from meshsom.topology import adjacency
+
+    parts = {lv: [] for lv in levels}
+    for mesh_id, vertices, faces in meshes:
+        adj = adjacency(faces, source=mesh_id)
+        fo = folds(vertices, faces, adj)
+        for lv in levels:
+            t = time.perf_counter()
+            parts[lv].append(encode_level(fo, adj, lv, dtype=np.float32))
+            if seconds is not None:
+                seconds[lv] = seconds.get(lv, 0.0) + time.perf_counter() - t
+    rings = {lv: np.concatenate(x) if x else np.zeros((0, dims(lv)), np.float32) for lv, x in parts.items()}
+    acc = {str(lv): [accumulate(empty_accumulator(), x).tolist() for x in parts[lv]] for lv in levels}
+    return rings, acc
 
 
 def process_shard(store: str, shard: Shard, items: list, params, levels: Sequence[int], chunk_rows: int) -> dict:
@@ -150,30 +194,28 @@ def process_shard(store: str, shard: Shard, items: list, params, levels: Sequenc
         ``n_vertices``, ``n_faces`` (per accepted mesh) and ``acc`` (per level,
         the standardization accumulator of every accepted mesh as a nested list).
     """
-    import zarr
-
     from meshsom.errors import MeshError
-    from meshsom.rings import dims, encode_mesh
-    from meshsom.standardize import accumulate, empty_accumulator
+    from meshsom.store import shard_meta, write_shard
     from pipelines import ingest
 
-    group_path = str(Path(store) / STAGING / shard.name)
-    if shard_done(store, shard.name):
-        return dict(zarr.open_group(group_path, mode="r").attrs["meta"])
+    done = shard_meta(store, shard.name)
+    if done is not None:
+        return done
     levels = [int(lv) for lv in levels]
-    records, meshes, rings = [], [], {lv: [] for lv in levels}
+    records, meshes, rings, acc = [], [], {lv: [] for lv in levels}, {str(lv): [] for lv in levels}
     for raw in items:
         record, mesh = ingest.process_one(raw, params)
         if mesh is not None:
             try:
-                encoded = encode_mesh(mesh.vertices, mesh.faces, levels, source=mesh.id)
+                x, a = encode_meshes([(mesh.id, mesh.vertices, mesh.faces)], levels)
             except MeshError as err:
                 record.update(status="rejected", reason=f"encoding: {err.problem}", faces_out=0)
                 record.pop("volume", None)
                 mesh = None
             else:
                 for lv in levels:
-                    rings[lv].append(encoded[lv])
+                    rings[lv].append(x[lv])
+                    acc[str(lv)] += a[str(lv)]
                 meshes.append(mesh)
         records.append(record)
 
@@ -186,19 +228,8 @@ def process_shard(store: str, shard: Shard, items: list, params, levels: Sequenc
                   if meshes else np.zeros((0, 3), np.int64)),
         "face_mesh": np.repeat(np.arange(len(meshes), dtype=np.int32), nf),
     }
-    acc = {}
     for lv in levels:
-        arrays[f"level{lv}"] = (np.concatenate(rings[lv]).astype(np.float32) if meshes
-                                else np.zeros((0, dims(lv)), np.float32))
-        acc[str(lv)] = [accumulate(empty_accumulator(), x).tolist() for x in rings[lv]]
-
-    # A fresh group: leftovers of a half-written attempt are dropped.
-    group = zarr.open_group(group_path, mode="w")
-    for name, data in arrays.items():
-        chunks = (max(1, min(chunk_rows, len(data))),) + data.shape[1:]
-        arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks)
-        if data.size:
-            arr[...] = data
+        arrays[f"level{lv}"] = np.concatenate(rings[lv]) if meshes else encode_meshes([], [lv])[0][lv]
     meta = {
         "records": records,
         "ids": [m.id for m in meshes],
@@ -208,7 +239,25 @@ def process_shard(store: str, shard: Shard, items: list, params, levels: Sequenc
         "n_faces": nf,
         "acc": acc,
     }
-    group.attrs.update({"meta": meta, "done": True})  # last: only now the shard counts as finished
+    write_shard(store, shard.name, arrays, meta, chunk_rows)  # a fresh group; marked done last
+    return meta
+
+
+def encode_shard(store: str, shard: Shard, levels: Sequence[int], chunk_rows: int) -> dict:
+    """Encode meshes ``shard.start..shard.stop`` of an ingested store into ``staging/<shard>``.
+
+    Returns
+    -------
+    meta : dict
+        JSON-able: ``n_faces`` (per mesh), ``acc`` (as :func:`process_shard`), ``seconds`` (per level).
+    """
+    from meshsom.store import open_store, read_meshes, write_shard
+
+    meshes = read_meshes(open_store(store), shard.start, shard.stop)
+    seconds: dict = {}
+    rings, acc = encode_meshes(meshes, [int(lv) for lv in levels], seconds)
+    meta = {"n_faces": [len(f) for _, _, f in meshes], "acc": acc, "seconds": {str(k): v for k, v in seconds.items()}}
+    write_shard(store, shard.name, {f"level{lv}": x for lv, x in rings.items()}, meta, chunk_rows)
     return meta
 
 
@@ -219,7 +268,8 @@ def copy_rows(store: str, target: str, start: int, stop: int, pieces: list) -> i
     ----------
     store : str
     target : str
-        Path of the final array in the store (``faces``, ``rings/level2``).
+        Path of the final array in the store (``faces``, ``rings/level2``), as
+        :func:`meshsom.store.create_corpus_arrays` and :func:`meshsom.store.create_rings` name it.
     start, stop : int
         A chunk-aligned row range of ``target`` (no other task writes it).
     pieces : list of (shard, name, row0, row1, add)
@@ -231,14 +281,14 @@ def copy_rows(store: str, target: str, start: int, stop: int, pieces: list) -> i
     -------
     rows : int
     """
-    import zarr
+    from meshsom.store import open_store, shard_array
 
-    root = zarr.open_group(store, mode="r+")
+    root = open_store(store, mode="r+")
     arr = root[target]
     block = np.empty((stop - start,) + tuple(arr.shape[1:]), arr.dtype)
     row = 0
     for shard, name, a, b, add in pieces:
-        src = np.asarray(root[f"{STAGING}/{shard}/{name}"][a:b])
+        src = np.asarray(shard_array(root, shard, name)[a:b])
         block[row:row + (b - a)] = src + add if add else src
         row += b - a
     if row != stop - start:
@@ -250,7 +300,7 @@ def copy_rows(store: str, target: str, start: int, stop: int, pieces: list) -> i
 # ----------------------------------------------------------------------------- client side
 
 
-def _fingerprint(cfg) -> dict:
+def _fingerprint(cfg, levels: Sequence[int]) -> dict:
     """What a resumed run must share with the interrupted one (JSON form)."""
     from meshsom.config import to_dict
 
@@ -259,7 +309,7 @@ def _fingerprint(cfg) -> dict:
         "generator": to_dict(cfg.corpus.generator),
         "reader": to_dict(cfg.corpus.reader),
         "preprocess": to_dict(cfg.preprocess),
-        "levels": [int(lv) for lv in cfg.encoding.levels],
+        "levels": [int(lv) for lv in levels],
         "shard_meshes": int(cfg.dask.shard_meshes),
         "chunk_rows": int(cfg.store.chunk_rows),
     }
@@ -269,13 +319,11 @@ def _fingerprint(cfg) -> dict:
 def _finished_summary(path: Path, levels: Sequence[int]) -> dict | None:
     """The manifest summary of a finished store at ``path``, or None if it is unfinished."""
     from meshsom.errors import StoreError
-    from meshsom.store import MANIFEST, open_store, read_manifest, rings_name
+    from meshsom.store import MANIFEST, open_store, read_manifest, ring_levels, staging_exists
 
-    if not (path / MANIFEST).is_file() or (path / STAGING).exists():
+    if not (path / MANIFEST).is_file() or staging_exists(path):
         return None
-    root = open_store(path)
-    have = set(root["rings"].array_keys()) if "rings" in root else set()
-    missing = [lv for lv in levels if rings_name(lv) not in have]
+    missing = sorted(set(levels) - set(ring_levels(open_store(path))))
     if missing:
         raise StoreError(
             f"{path}: a finished store without rings for level(s) {missing}; run without resume to rebuild it"
@@ -289,8 +337,48 @@ def _rejection_record(rejection, params) -> dict:
     return ingest.process_one(rejection, params)[0]
 
 
+def _run_shards(client, path: Path, shards: list, submit: Callable, report: Callable) -> tuple[dict, list]:
+    """Run the shards not done yet; returns (metadata by shard name, failed (shard, exception) pairs)."""
+    from distributed import as_completed
+
+    from meshsom.store import shard_meta
+
+    metas: dict[str, dict] = {}
+    futures = {}
+    for sh in shards:
+        meta = shard_meta(path, sh.name)
+        if meta is not None:
+            metas[sh.name] = meta
+        else:
+            fut = submit(sh)
+            futures[fut.key] = (sh, fut)
+    if metas:
+        log.info("%s: %d of %d shards done already", path, len(metas), len(shards))
+    report("encode", len(metas), len(shards))
+    failed = []
+    for fut in as_completed([f for _, f in futures.values()]):
+        sh, _ = futures[fut.key]
+        if fut.status == "error":
+            failed.append((sh, fut.exception()))
+        else:
+            metas[sh.name] = fut.result()
+        report("encode", len(metas) + len(failed), len(shards))
+    return metas, failed
+
+
+def _shards_failed(path: Path, shards: list, failed: list, what: Callable) -> None:
+    from meshsom.errors import MeshsomError
+
+    if failed:
+        sh, err = failed[0]
+        raise MeshsomError(
+            f"{path}: {len(failed)} of {len(shards)} shards failed (first: {sh.name}, items {sh.start}..{sh.stop} "
+            f"of {what(sh)}: {type(err).__name__}: {err}); the others are kept, rerun with resume to finish"
+        ) from err
+
+
 def run_corpus(client, cfg, store, resume: bool = False,
-               progress: Callable[[str, int, int], None] | None = None) -> dict:
+               progress: Callable[[str, int, int], None] | None = None, levels: Sequence[int] | None = None) -> dict:
     """Ingest and encode the configured corpus into ``store`` on a Dask client.
 
     Parameters
@@ -298,7 +386,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     client : distributed.Client
     cfg : meshsom.config.ExperimentConfig
         Uses ``corpus`` (paths, generator, reader), ``preprocess``,
-        ``encoding.levels``, ``dask.shard_meshes`` and ``store.chunk_rows``.
+        ``encoding`` (levels, scaling, robust_clip), ``dask.shard_meshes`` and ``store.chunk_rows``.
     store : path
         The zarr store. Without ``resume`` it is created afresh (anything at
         ``store`` is replaced: the caller checks ``--overwrite``).
@@ -309,55 +397,55 @@ def run_corpus(client, cfg, store, resume: bool = False,
     progress : callable, optional
         Called as ``progress(stage, done, total)`` with stage ``"read"``,
         ``"encode"`` (shards) or ``"assemble"`` (chunk copies).
+    levels : sequence of int, optional
+        Ring levels to encode (default ``cfg.encoding.levels``); empty: ingest only (``meshsom ingest``).
 
     Returns
     -------
     summary : dict
         The manifest summary (inputs, accepted, rejected, faces_in, faces_out,
-        reader, preprocess, generator), as ``meshsom ingest`` writes it.
+        reader, preprocess, generator).
 
     Raises
     ------
+    InputFileError
+        Two inputs with one name, before anything is written.
     StoreError
         When a resumed store was made with another configuration.
     MeshsomError
         When shards fail; the others are finished and kept, so a resumed run
         only redoes the failed ones.
     """
-    from distributed import as_completed
-
-    from meshsom.errors import MeshsomError, StoreError
+    from meshsom.errors import StoreError
     from meshsom.io import expand_inputs
-    from meshsom.store import create_store, open_store
+    from meshsom.store import create_store, open_store, read_manifest, read_plan, remove_staging, write_plan
 
     path = Path(store)
-    levels = sorted({int(lv) for lv in cfg.encoding.levels})
+    levels = sorted({int(lv) for lv in (cfg.encoding.levels if levels is None else levels)})
     chunk = int(cfg.store.chunk_rows)
-    fingerprint = _fingerprint(cfg)
+    fingerprint = _fingerprint(cfg, levels)
     run_id = uuid.uuid4().hex[:8]
     report = progress or (lambda stage, done, total: None)
 
-    root = None
+    root = plan = None
     if resume and path.exists():
         summary = _finished_summary(path, levels)
         if summary is not None:
             log.info("%s: finished already; nothing to resume", path)
             return summary
         root = open_store(path, mode="r+")
-    if root is None:
-        root = create_store(path, overwrite=True)
-    staging = root.require_group(STAGING)
-
-    # ---- plan: sources and their shards, kept in the store for a resumed run
-    plan = staging.attrs.get("plan")
+        plan = read_plan(root)
     if plan is not None and plan["fingerprint"] != fingerprint:
         raise StoreError(
             f"{path}: was started with another configuration (corpus, preprocessing, levels, shard size or "
             f"chunk rows differ); run without resume to start again"
         )
+
+    # ---- plan: sources and their shards, kept in the store for a resumed run
     read_futures = {}
     if plan is None:
-        files, missing = expand_inputs(list(cfg.corpus.paths))
+        files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
+        root = root or create_store(path, overwrite=True)
         sources = [{"kind": "file", "path": str(f.path), "name": f.name} for f in files]
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], pure=False,
@@ -381,115 +469,48 @@ def run_corpus(client, cfg, store, resume: bool = False,
             "shards": [asdict(s) for s in shards],
             "missing": [_rejection_record(r, cfg.preprocess) for r in missing],
         }
-        staging.attrs["plan"] = plan
+        write_plan(root, plan)
     sources = plan["sources"]
     shards = [Shard(**s) for s in plan["shards"]]
 
     # ---- shards: preprocess + encode + staging write, done ones skipped
-    metas: dict[str, dict] = {}
-    futures = {}
-    for sh in shards:
-        if shard_done(str(path), sh.name):
-            metas[sh.name] = dict(staging[sh.name].attrs["meta"])
-            continue
+    def submit(sh):
         src = sources[sh.source]
         if src["kind"] == "generator":
             items = client.submit(generate_items, cfg.corpus.generator, sh.start, sh.stop, pure=False,
                                   key=f"corpus-generate-{run_id}-{sh.name}")
         else:
             if sh.source not in read_futures:
-                read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"), pure=False,
-                                                        key=f"corpus-read-{run_id}-{sh.source}")
+                read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"),
+                                                        pure=False, key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
-        fut = client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,
-                            key=f"corpus-shard-{run_id}-{sh.name}")
-        futures[fut.key] = (sh, fut)
-    read_futures.clear()  # the shard tasks hold what they need; memory is freed as they finish
-    items = fut = None
-    if metas:
-        log.info("%s: %d of %d shards done already", path, len(metas), len(shards))
-    report("encode", len(metas), len(shards))
-    failed = []
-    for fut in as_completed([f for _, f in futures.values()]):
-        sh, _ = futures[fut.key]
-        if fut.status == "error":
-            failed.append((sh, fut.exception()))
-        else:
-            metas[sh.name] = fut.result()
-        report("encode", len(metas) + len(failed), len(shards))
-    futures.clear()
-    if failed:
-        sh, err = failed[0]
-        src = sources[sh.source]
-        what = src.get("path", "generator")
-        raise MeshsomError(
-            f"{path}: {len(failed)} of {len(shards)} shards failed (first: {sh.name}, items {sh.start}..{sh.stop} "
-            f"of {what}: {type(err).__name__}: {err}); the others are kept, rerun with resume to finish"
-        ) from err
+        return client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,
+                             key=f"corpus-shard-{run_id}-{sh.name}")
+
+    metas, failed = _run_shards(client, path, shards, submit, report)
+    read_futures.clear()
+    _shards_failed(path, shards, failed, lambda sh: sources[sh.source].get("path", "generator"))
 
     _assemble(client, root, path, shards, metas, plan, cfg, levels, chunk, run_id, report)
-    shutil.rmtree(path / STAGING)
-    from meshsom.store import read_manifest
-
+    remove_staging(path)
     return read_manifest(path)["summary"]
 
 
-def _create_rows(group, name: str, shape: tuple, dtype, chunk_rows: int):
-    """An empty per-row array chunked as :func:`meshsom.store.write_meshes` chunks it."""
-    chunks = (max(1, min(chunk_rows, max(shape[0], 1))),) + tuple(shape[1:])
-    return group.create_array(name, shape=shape, dtype=dtype, chunks=chunks, overwrite=True)
+def _fill(client, path: Path, targets: list, shards: list, chunk: int, run_id: str, report: Callable) -> None:
+    """Fill final per-row arrays from the staged shards by chunk-aligned copies on the workers.
 
-
-def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk, run_id, report) -> None:
-    """Final arrays by chunk-aligned copies, then tables, statistics, root attributes and manifest."""
+    Parameters
+    ----------
+    targets : list of (target path, n rows, staged name, row offsets per shard (n_shards+1,),
+        value offsets per shard or None)
+    """
     from distributed import as_completed
 
-    from meshsom.rings import dims
-    from meshsom.standardize import merge_accumulators
-    # _put is the helper write_meshes uses: the per-mesh tables get exactly its chunking.
-    from meshsom.store import STRING, _put, rings_name, write_manifest
-    from pipelines import ingest
-    from pipelines.encode_cmd import level_statistics
-
-    ordered = [metas[sh.name] for sh in shards]
-    seen: dict[str, str] = {}  # ids unique before anything is written (expand_inputs checked the files already)
-    for r in [*plan["missing"], *(r for m in ordered for r in m["records"])]:
-        ingest.check_unique_id(seen, r["id"], r["source"])
-    nv_shard = [sum(m["n_vertices"]) for m in ordered]
-    nf_shard = [sum(m["n_faces"]) for m in ordered]
-    nm_shard = [len(m["ids"]) for m in ordered]
-    v_off = np.concatenate([[0], np.cumsum(nv_shard, dtype=np.int64)]).astype(np.int64)
-    f_off = np.concatenate([[0], np.cumsum(nf_shard, dtype=np.int64)]).astype(np.int64)
-    m_off = np.concatenate([[0], np.cumsum(nm_shard, dtype=np.int64)]).astype(np.int64)
-    n_vertices, n_faces, n_meshes = int(v_off[-1]), int(f_off[-1]), int(m_off[-1])
-
-    # Per-mesh tables (small): exactly as write_meshes writes them.
-    nv = np.array([n for m in ordered for n in m["n_vertices"]], np.int64)
-    nf = np.array([n for m in ordered for n in m["n_faces"]], np.int64)
-    meshes = root.require_group("meshes")
-    _put(meshes, "ids", np.array([i for m in ordered for i in m["ids"]], dtype=STRING), max(n_meshes, 1))
-    _put(meshes, "labels", np.array([s for m in ordered for s in m["labels"]], dtype=STRING), max(n_meshes, 1))
-    _put(meshes, "vertex_offsets", np.concatenate([[0], np.cumsum(nv)]).astype(np.int64), max(n_meshes + 1, 1))
-    _put(meshes, "face_offsets", np.concatenate([[0], np.cumsum(nf)]).astype(np.int64), max(n_meshes + 1, 1))
-    _put(meshes, "origins", np.array([o for m in ordered for o in m["origins"]], np.float64).reshape(n_meshes, 3),
-         max(n_meshes, 1))
-
-    # Per-row arrays: created here, filled chunk by chunk on the workers.
-    rings = root.require_group("rings")
-    targets = [  # (target path, group, name, shape, dtype, staging name, offsets of rows, value offsets)
-        ("vertices", root, "vertices", (n_vertices, 3), np.float64, "vertices", v_off, None),
-        ("faces", root, "faces", (n_faces, 3), np.int64, "faces", f_off, v_off),
-        ("face_mesh", root, "face_mesh", (n_faces,), np.int32, "face_mesh", f_off, m_off),
-    ] + [
-        (f"rings/{rings_name(lv)}", rings, rings_name(lv), (n_faces, dims(lv)), np.float32, f"level{lv}", f_off, None)
-        for lv in levels
-    ]
     copies = []
-    for target, group, name, shape, dtype, staged, row_off, add_off in targets:
-        _create_rows(group, name, shape, dtype, chunk)
-        for start in range(0, shape[0], chunk):
-            stop = min(shape[0], start + chunk)
+    for target, n_rows, staged, row_off, add_off in targets:
+        for start in range(0, n_rows, chunk):
+            stop = min(n_rows, start + chunk)
             pieces = []
             for k, sh in enumerate(shards):
                 a, b = max(start, int(row_off[k])), min(stop, int(row_off[k + 1]))
@@ -503,15 +524,73 @@ def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk,
         fut.result()  # a failed copy raises here; a resumed run redoes the assembly
         report("assemble", k, len(copies))
 
-    # Statistics: per-mesh accumulators merged in mesh order, whatever the sharding; fold
-    # statistics (and robust scaling) from the assembled rings.
-    if n_faces == 0:
+
+def _offsets(counts) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
+
+
+def _ring_targets(root, levels: Sequence[int], f_off: np.ndarray, chunk: int) -> list:
+    from meshsom.store import create_rings, rings_name
+
+    create_rings(root, levels, int(f_off[-1]), chunk)
+    return [(f"rings/{rings_name(lv)}", int(f_off[-1]), f"level{lv}", f_off, None) for lv in levels]
+
+
+def corpus_statistics(root, levels: Sequence[int], ordered: list, scaling: str, robust_clip: float) -> dict:
+    """Scaling and fold statistics of every level into ``rings/stats``, from the shards' per-mesh accumulators.
+
+    The accumulators are merged in mesh order, whatever the sharding; the fold statistics (and
+    robust scaling) come from the assembled rings.
+
+    Returns
+    -------
+    dict
+        Level -> {"stats": scaling statistics, "folds": fold statistics}.
+    """
+    from meshsom.standardize import SCALINGS, finalize, fold_statistics, merge_accumulators, robust_stats
+    from meshsom.store import read_folds, write_fold_stats, write_stats
+
+    if scaling not in SCALINGS:
+        raise ValueError(f"scaling must be one of {list(SCALINGS)}, received {scaling!r}")
+    folds = read_folds(root, min(levels)).astype(np.float64)  # the same folds at every level
+    out = {}
+    for lv in levels:
+        if scaling == "robust":
+            stats = robust_stats(folds, lv, robust_clip).to_dict()
+        else:
+            acc = merge_accumulators(*[np.asarray(a, np.float64) for m in ordered for a in m["acc"][str(lv)]])
+            stats = finalize(acc, lv).to_dict()
+        fstats = fold_statistics(folds, lv)
+        write_stats(root, lv, stats)
+        write_fold_stats(root, lv, fstats)
+        out[lv] = {"stats": stats, "folds": fstats}
+    return out
+
+
+def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk, run_id, report) -> None:
+    """Final arrays by chunk-aligned copies, then tables, statistics, root attributes and manifest."""
+    from meshsom.store import create_corpus_arrays, write_manifest, write_mesh_tables
+    from pipelines import ingest
+
+    ordered = [metas[sh.name] for sh in shards]
+    seen: dict[str, str] = {}  # ids unique before anything is written (expand_inputs checked the files already)
+    for r in [*plan["missing"], *(r for m in ordered for r in m["records"])]:
+        ingest.check_unique_id(seen, r["id"], r["source"])
+    v_off = _offsets([sum(m["n_vertices"]) for m in ordered])
+    f_off = _offsets([sum(m["n_faces"]) for m in ordered])
+    m_off = _offsets([len(m["ids"]) for m in ordered])
+
+    write_mesh_tables(root, [i for m in ordered for i in m["ids"]], [s for m in ordered for s in m["labels"]],
+                      [n for m in ordered for n in m["n_vertices"]], [n for m in ordered for n in m["n_faces"]],
+                      [o for m in ordered for o in m["origins"]])
+    create_corpus_arrays(root, int(v_off[-1]), int(f_off[-1]), chunk)
+    targets = [("vertices", int(v_off[-1]), "vertices", v_off, None), ("faces", int(f_off[-1]), "faces", f_off, v_off),
+               ("face_mesh", int(f_off[-1]), "face_mesh", f_off, m_off)]
+    _fill(client, path, targets + _ring_targets(root, levels, f_off, chunk), shards, chunk, run_id, report)
+    if f_off[-1] == 0:
         log.warning("%s: no accepted mesh; no statistics", path)
-    else:
-        accs = {lv: merge_accumulators(*[np.asarray(a, np.float64) for m in ordered for a in m["acc"][str(lv)]])
-                for lv in levels}
-        level_statistics(root, levels, accs, cfg.encoding.scaling, cfg.encoding.robust_clip)
-    root.attrs.update({"n_meshes": n_meshes, "n_faces": n_faces, "n_vertices": n_vertices})
+    elif levels:
+        corpus_statistics(root, levels, ordered, cfg.encoding.scaling, cfg.encoding.robust_clip)
 
     records = list(plan["missing"])
     index = 0
@@ -529,3 +608,83 @@ def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk,
         "generator": asdict(cfg.corpus.generator) if cfg.corpus.generator is not None else None,
     }
     write_manifest(path, records, extra)  # last: a store with a manifest and no staging is finished
+
+
+def mesh_batches(face_offsets: np.ndarray, batch_faces: int) -> list[tuple[int, int]]:
+    """Consecutive mesh ranges ``(first, stop)`` holding at most ``batch_faces`` faces (or one mesh)."""
+    batches, first = [], 0
+    n = len(face_offsets) - 1
+    while first < n:
+        stop = first + 1
+        while stop < n and face_offsets[stop + 1] - face_offsets[first] <= batch_faces:
+            stop += 1
+        batches.append((first, stop))
+        first = stop
+    return batches
+
+
+def encode_corpus(client, store, levels: Sequence[int], chunk_rows: int | None = None,
+                  batch_faces: int = DEFAULT_BATCH_FACES, scaling: str = "standard", robust_clip: float = 5.0,
+                  progress: Callable[[str, int, int], None] | None = None) -> dict:
+    """Encode every mesh of an ingested store on a Dask client (``meshsom encode``).
+
+    Shards of whole meshes (at most ``batch_faces`` faces each, or one mesh) are encoded on the
+    workers with :func:`encode_meshes` into ``staging``, then assembled into ``rings/level{L}`` and
+    their statistics exactly as :func:`run_corpus` assembles them: the same store as ``meshsom run``.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    store : path
+        A store written by ``meshsom ingest``; its ``rings/level{L}`` of ``levels`` are replaced.
+    levels : sequence of int
+    chunk_rows : int, optional
+        Row chunk of the ring arrays (default: the store's faces chunking).
+    batch_faces : int
+    scaling, robust_clip
+        Config ``encoding.scaling`` (standard|robust) and ``encoding.robust_clip``.
+    progress : callable, optional
+        ``progress(stage, done, total)``, stages ``"encode"`` (shards) and ``"assemble"``.
+
+    Returns
+    -------
+    dict
+        Level -> {"dims", "seconds" (encoding time summed over the shards), "stats", "folds"}.
+
+    Raises
+    ------
+    StoreError
+        No store, no meshes, or no faces to encode.
+    MeshsomError
+        When shards fail (a mesh that cannot be encoded is named).
+    """
+    from meshsom.errors import StoreError
+    from meshsom.rings import dims, template
+    from meshsom.store import corpus_chunk_rows, mesh_table, open_store, remove_staging
+
+    path = Path(store)
+    levels = sorted({int(lv) for lv in levels})
+    for lv in levels:
+        template(lv)  # validates
+    root = open_store(path, mode="r+")
+    table = mesh_table(root)
+    if int(table.face_offsets[-1]) == 0:
+        raise StoreError(f"{path}: the store has no faces to encode")
+    chunk = int(chunk_rows or corpus_chunk_rows(root))
+    run_id = uuid.uuid4().hex[:8]
+    report = progress or (lambda stage, done, total: None)
+    remove_staging(path)  # an interrupted encode is redone
+    shards = [Shard(f"e{a:08d}", 0, a, b) for a, b in mesh_batches(table.face_offsets, batch_faces)]
+
+    def submit(sh):
+        return client.submit(encode_shard, str(path), sh, levels, chunk, pure=False, key=f"encode-{run_id}-{sh.name}")
+
+    metas, failed = _run_shards(client, path, shards, submit, report)
+    _shards_failed(path, shards, failed, lambda sh: "meshes")
+    ordered = [metas[sh.name] for sh in shards]
+    f_off = _offsets([sum(m["n_faces"]) for m in ordered])
+    _fill(client, path, _ring_targets(root, levels, f_off, chunk), shards, chunk, run_id, report)
+    stats = corpus_statistics(root, levels, ordered, scaling, robust_clip)
+    remove_staging(path)
+    return {lv: {"dims": dims(lv), "seconds": sum(m["seconds"].get(str(lv), 0.0) for m in ordered), **stats[lv]}
+            for lv in levels}

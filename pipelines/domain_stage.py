@@ -57,16 +57,14 @@ def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.
     metrics : dict
     """
     from meshsom.domain import SparseDomainVectors, train_domain_map_sparse
-    from meshsom.store import mesh_table, open_store
+    from meshsom.store import create_domain_vectors, map_shape, mesh_table, open_store, run_group
 
     group = open_store(store, mode="r+")
     offsets = mesh_table(group).face_offsets  # read once here, not by every task
     n = len(offsets) - 1
-    g = group["runs"][run]
-    rows, cols, topology = int(g.attrs["rows"]), int(g.attrs["cols"]), str(g.attrs["topology"])
-    dom = g.require_group("domain")
-    dom.create_array("vectors", shape=(n, rows * cols), dtype=np.float32, chunks=(MESHES_PER_TASK, rows * cols),
-                     overwrite=True)
+    g = run_group(group, run, create=False)
+    rows, cols, topology = map_shape(g)
+    create_domain_vectors(group, run, n, rows * cols, MESHES_PER_TASK)
     tasks = []
     for a in range(0, n, MESHES_PER_TASK):
         b = min(n, a + MESHES_PER_TASK)
@@ -106,7 +104,7 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
         bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance,
         map_regions, place, train_domain_map,
     )
-    from meshsom.store import mesh_table, open_store
+    from meshsom.store import figures_dir, mesh_table, open_store, write_domain
     from meshsom.thumbnails import domain_map_figure
 
     group = open_store(store, mode="r+")
@@ -137,17 +135,9 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
         metrics["knn_label_chance"] = label_agreement_chance(labels[sample])
         regions = map_regions(weights, d.rows, d.cols, len(set(labels)), d.seed)
         metrics["ari_regions_vs_labels"] = adjusted_rand_score(regions[units], labels)
-    g = group["runs"][run].require_group("domain")
-    arrays = [("weights", np.asarray(weights, np.float32)), ("units", units.astype(np.int64))]
-    if vectors is not None:
-        arrays.append(("vectors", vectors.astype(np.float32)))
-    for name, data in arrays:
-        arr = g.create_array(name, shape=data.shape, dtype=data.dtype, chunks=data.shape or (1,), overwrite=True)
-        arr[...] = data
-    g.attrs.update({"rows": d.rows, "cols": d.cols, "sigma": d.sigma, "metrics": metrics})
-    figures = store.parent / f"{store.stem}-figures"
-    figures.mkdir(parents=True, exist_ok=True)
-    path = figures / f"domain-{run}.png"
+    arrays = {"weights": weights, "units": units} | ({} if vectors is None else {"vectors": vectors})
+    write_domain(group, run, arrays, {"rows": d.rows, "cols": d.cols, "sigma": d.sigma, "metrics": metrics})
+    path = figures_dir(store) / f"domain-{run}.png"
     n_draw = min(len(table), MAX_THUMBNAILS)
     if thumbs is None:
         thumbs = thumbnails_of(group, n_draw)

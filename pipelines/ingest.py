@@ -1,7 +1,9 @@
 """``meshsom ingest``: read, preprocess and store a corpus, accounting for every input.
 
 Every mesh the readers are asked for ends up in the manifest, either accepted
-(and stored) or rejected with its reason: accepted + rejected = inputs.
+(and stored) or rejected with its reason: accepted + rejected = inputs. The work is done by the
+corpus driver of ``meshsom run`` (:func:`pipelines.corpus.run_corpus`, without encoding) on an
+in-process Dask client.
 """
 
 from __future__ import annotations
@@ -9,9 +11,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
+from typing import Iterable, Iterator
 
 import numpy as np
 
@@ -48,18 +50,15 @@ class IngestResult:
 
 def iter_raw_meshes(paths: Iterable[str], reader, generator=None) -> Iterator:
     """Every RawMesh or Rejection of the inputs, files first, then the generator's blocks."""
-    from meshsom.io import RawMesh, expand_inputs, read_file, recentre
+    from meshsom.io import expand_inputs, read_file
+    from pipelines.corpus import generate_items
 
     files, missing = expand_inputs(list(paths))
     yield from missing
     for f in files:
         yield from read_file(f.path, reader, f.name)
     if generator is not None:
-        from meshsom.generate import generate_corpus
-
-        for block in generate_corpus(generator):
-            local, origin = recentre(block.vertices)
-            yield RawMesh(f"synthetic#{block.id}", f"generator(seed={generator.seed})", local, block.faces, origin, block.label, block.lod)
+        yield from generate_items(generator, 0, generator.n_blocks)
 
 
 def process_one(raw, params) -> tuple[dict, object | None]:
@@ -201,7 +200,7 @@ def ingest(
     chunk_rows: int | None = None,
     progress: bool | None = None,
 ) -> IngestResult:
-    """Ingest a corpus into a new store.
+    """Ingest a corpus into a new store, with the corpus driver of ``meshsom run`` on an in-process client.
 
     Parameters
     ----------
@@ -216,44 +215,57 @@ def ingest(
     overwrite : bool
     chunk_rows : int, optional
     progress : bool or None
-        Show a progress bar (None: only on a terminal).
+        Show progress bars (None: only on a terminal).
+    """
+    from meshsom.config import CorpusConfig, ExperimentConfig, StoreConfig
+    from meshsom.io import ReaderOptions
+    from meshsom.preprocess import PreprocessParams
+    from meshsom.store import DEFAULT_CHUNK_ROWS, mesh_table, open_store, read_manifest, read_meshes
+    from pipelines.cluster import connect_serial
+    from pipelines.corpus import run_corpus
+
+    out = Path(out)
+    check_writable(out, overwrite)
+    cfg = ExperimentConfig(
+        corpus=CorpusConfig(tuple(str(p) for p in paths), generator, reader or ReaderOptions()),
+        preprocess=params or PreprocessParams(),
+        store=StoreConfig(path=str(out), chunk_rows=chunk_rows or DEFAULT_CHUNK_ROWS),
+    )
+    report, close = progress_bars(progress)
+    try:
+        with connect_serial() as client:
+            summary = run_corpus(client, cfg, out, progress=report, levels=())
+    finally:
+        close()
+    group = open_store(out)
+    meshes = read_meshes(group, 0, len(mesh_table(group)))
+    # Printed, not stored: the store's fold statistics are written by `meshsom encode` (rings/stats).
+    return IngestResult(str(out), read_manifest(out)["records"], {**summary, "folds": corpus_fold_statistics(meshes)})
+
+
+def progress_bars(enabled: bool | None) -> tuple:
+    """A ``progress(stage, done, total)`` callback drawing one bar per stage, and the function that closes them.
+
+    Parameters
+    ----------
+    enabled : bool or None
+        None: only on a terminal.
     """
     from tqdm import tqdm
 
-    from meshsom.io import ReaderOptions
-    from meshsom.preprocess import PreprocessParams
-    from meshsom.store import DEFAULT_CHUNK_ROWS, create_store, write_manifest, write_meshes
+    bars: dict = {}
 
-    reader = reader or ReaderOptions()
-    params = params or PreprocessParams()
-    out = Path(out)
-    check_writable(out, overwrite)
-    records: list[dict] = []
-    clean = []
-    bar = tqdm(desc="ingest", unit="mesh", disable=None if progress is None else not progress)
-    seen: dict[str, str] = {}
-    for raw in iter_raw_meshes(paths, reader, generator):
-        check_unique_id(seen, raw.id, raw.source)
-        record, mesh = process_one(raw, params)
-        if mesh is not None:
-            record["index"] = len(clean)
-            clean.append(mesh)
-        records.append(record)
-        bar.update(1)
-        bar.set_postfix(accepted=len(clean), rejected=len(records) - len(clean))
-    bar.close()
-    group = create_store(out, overwrite=overwrite)
-    write_meshes(group, clean, chunk_rows or DEFAULT_CHUNK_ROWS)
-    extra = {
-        "faces_in": sum(r["faces_in"] for r in records),
-        "faces_out": sum(r["faces_out"] for r in records),
-        "reader": asdict(reader),
-        "preprocess": asdict(params),
-        "generator": asdict(generator) if generator is not None else None,
-    }
-    doc = write_manifest(out, records, extra)
-    # Printed, not stored: the store's fold statistics are written by `meshsom encode` (rings/stats).
-    return IngestResult(str(out), records, {**doc["summary"], "folds": corpus_fold_statistics(clean)})
+    def report(stage: str, done: int, total: int) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            bar = bars[stage] = tqdm(total=total, desc=stage, unit="task", disable=None if enabled is None else not enabled)
+        bar.update(done - bar.n)
+
+    def close() -> None:
+        for bar in bars.values():
+            bar.close()
+
+    return report, close
 
 
 def corpus_fold_statistics(meshes) -> dict | None:
@@ -261,7 +273,7 @@ def corpus_fold_statistics(meshes) -> dict | None:
 
     Parameters
     ----------
-    meshes : list of CleanMesh
+    meshes : list of (id, vertices (V, 3) float64, faces (F, 3) int64)
     """
     from meshsom.folds import folds
     from meshsom.standardize import fold_statistics
@@ -269,7 +281,7 @@ def corpus_fold_statistics(meshes) -> dict | None:
 
     if not meshes:
         return None
-    parts = [folds(m.vertices, m.faces, adjacency(m.faces, source=m.id)).reshape(-1, 3) for m in meshes]
+    parts = [folds(v, f, adjacency(f, source=mesh_id)).reshape(-1, 3) for mesh_id, v, f in meshes]
     return fold_statistics(np.concatenate(parts), level=1)
 
 

@@ -18,11 +18,11 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     """Log the store's finished maps to MLflow; returns ``{"parent": id, "children": {run: id}, "logged": n}``."""
     from meshsom.config import TrackingConfig
     from meshsom.errors import StoreError
-    from meshsom.store import list_runs, open_store
+    from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, write_tracking
     from pipelines.tracking import Tracker, TrackingError
 
     group = open_store(store, mode="r+")
-    info = dict(group.attrs.get("mlflow", {}))
+    info = read_tracking(group)
     uri = uri or info.get("uri")
     if not uri:
         raise StoreError(f"{store}: records no tracking URI; pass --tracking-uri")
@@ -35,7 +35,7 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     children = dict(info.get("children", {})) if same else {}
     logged = 0
     for run in list_runs(group):
-        attrs = dict(group["runs"][run].attrs)
+        attrs = run_attrs(group, run)
         if not attrs.get("final_done"):
             continue
         job, result = attrs["job"], attrs["result"]
@@ -53,14 +53,13 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
                 logged += 1
         if job["epochs"] not in have:
             final = dict(result["metrics"])
-            if "domain" in group["runs"][run]:
-                final.update(dict(group["runs"][run]["domain"].attrs.get("metrics", {})))
+            final.update((read_domain(group, run) or {}).get("metrics", {}))
             tracker.log_metrics(rid, final, step=job["epochs"])
             logged += 1
         tracker.finish(rid)
     tracker.finish(parent)
     info.update(uri=uri, experiment=experiment, parent=parent, children=children)
-    group.attrs["mlflow"] = info
+    write_tracking(group, info)
     if tracker.failed:
         raise TrackingError(f"MLflow at {uri}: {len(tracker.failed)} writes failed again: {tracker.failed[0]['error']}")
     return {"parent": parent, "children": children, "logged": logged}

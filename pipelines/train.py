@@ -21,7 +21,7 @@ tasks are the row blocks of :func:`meshsom.som.row_blocks`, their sums are added
 initialisation comes from :func:`meshsom.som.random_pick` or the block moments of
 :func:`meshsom.som.principal_axes`. A map trained here is bitwise equal to ``SOM.fit`` on the same
 standardized rows, whatever the number of workers. ``meshsom train`` runs this same code on an
-in-process cluster (:func:`pipelines.cluster.serial_client`).
+in-process cluster (:func:`pipelines.cluster.connect_serial`).
 """
 
 from __future__ import annotations
@@ -200,12 +200,9 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     bmu = out.pop("bmu")
     out.update(engine.describe(X.shape[1], 1 if index is None else len(index), X.dtype))
     if write_bmus:
-        from meshsom.codebook import BMU_ARRAYS
-        from meshsom.store import open_store, run_group
+        from meshsom.store import open_store, run_group, write_bmu_rows
 
-        g = run_group(open_store(job.store, mode="r+"), job.run)
-        for attr, name in BMU_ARRAYS.items():
-            g[name][start:stop] = np.asarray(getattr(bmu, attr), np.float64 if attr == "dist2" else np.int64)
+        write_bmu_rows(run_group(open_store(job.store, mode="r+"), job.run), bmu, start)
     return out
 
 
@@ -337,10 +334,12 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         ``run``, ``metrics`` (final t/q/qc errors), ``history`` (per epoch), ``backend``, ``device``,
         ``layout``, ``fallback``, ``seconds``, ``resumed_from`` (epoch), ``n_vectors``, ``dims``.
     """
-    from meshsom.codebook import BMU_ARRAYS
     from meshsom.metrics import errors_of
     from meshsom.som import BLOCK_ROWS, row_blocks, train_batch
-    from meshsom.store import open_store, run_group
+    from meshsom.store import (
+        create_bmu_arrays, open_store, read_checkpoint, reset_run, run_group, write_checkpoint, write_run_header,
+        write_run_result,
+    )
     from meshsom.variations import n_variations
 
     t0 = time.perf_counter()
@@ -348,39 +347,28 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     rings = source_array(group, job)
     n, D = rings.shape
     ranges = row_blocks(n)
-    g = run_group(group, job.run)
     fp = job.fingerprint()
-    attrs = dict(g.attrs)
+    g = run_group(group, job.run)
+    cp = read_checkpoint(g) if resume else None
     start_epoch, history = 0, []
-    if resume and attrs.get("fingerprint") == fp and attrs.get("epoch_done", 0) > 0 and "weights" in g:
-        start_epoch = int(attrs["epoch_done"])
-        history = list(attrs.get("history", []))[:start_epoch]
-        W = np.asarray(g["weights"][:])
-        if attrs.get("final_done"):
-            return {**attrs["result"], "resumed_from": start_epoch}
+    if cp is not None and cp["fingerprint"] == fp:
+        if cp["final_done"]:
+            return {**cp["result"], "resumed_from": cp["epoch_done"]}
+        start_epoch, history, W = cp["epoch_done"], cp["history"], cp["weights"]
     else:
-        for name in list(g.array_keys()):
-            del g[name]
-        g.attrs.clear()
+        g = reset_run(group, job.run)
         W = initial_weights(job, ranges)
-    g.attrs.update({
-        "rows": job.rows, "cols": job.cols, "topology": job.topology, "level": job.level, "kernel": job.kernel,
-        "fingerprint": fp, "job": asdict(job),
-    })
+    write_run_header(g, job.rows, job.cols, job.topology, job.level, job.kernel, fp, asdict(job))
     prepare_engine(client, job, D)
     # BMUs, variations, distances and second-best units of every vector, rewritten by every pass
     # (chunks are the row blocks: no two tasks write one chunk)
-    for attr, name in BMU_ARRAYS.items():
-        if name not in g or g[name].shape != (n,) or g[name].chunks != (BLOCK_ROWS,):
-            g.create_array(name, shape=(n,), dtype=np.float64 if attr == "dist2" else np.int64,
-                           chunks=(BLOCK_ROWS,), overwrite=True)
+    create_bmu_arrays(g, n, BLOCK_ROWS)
 
     def checkpoint(info, W):
         metrics = {k: float(v) for k, v in info.errors.items()}
         history.append({"epoch": info.epoch, "sigma": info.sigma, **metrics})
-        _put(g, "weights", W, job.rows * job.cols)  # write first ...
-        # ... then mark (the BMUs on disk are those of this epoch's search, before its update)
-        g.attrs.update({"epoch_done": info.epoch + 1, "history": history, "bmu_epoch": info.epoch})
+        # the codebook first, then the mark (the BMUs on disk are those of this epoch's search)
+        write_checkpoint(g, W, info.epoch + 1, history, info.epoch)
         if on_epoch:
             on_epoch(info.epoch, metrics)
         if progress:
@@ -397,14 +385,6 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
         "seconds": time.perf_counter() - t0, "resumed_from": start_epoch, "n_vectors": int(n),
         "dims": f"{n_variations(job.level, job.kernel, job.mirror) if job.source is None else 1}x{D}",
     }
-    g.attrs.update({"metrics": final, "result": result, "final_done": True, "bmu_epoch": job.epochs,
-                    "engine": {k: red[k] for k in ("backend", "device", "layout", "fallback")}})
+    write_run_result(g, final, result, {k: red[k] for k in ("backend", "device", "layout", "fallback")}, job.epochs)
     return result
 
-
-def _put(group, name: str, data: np.ndarray, rows: int) -> None:
-    if name in group and group[name].shape == data.shape:
-        group[name][...] = data
-        return
-    arr = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=(max(1, rows),) + data.shape[1:], overwrite=True)
-    arr[...] = data

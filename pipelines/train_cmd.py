@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from meshsom.errors import StoreError
     from meshsom.som import default_sigma_start
     from meshsom.store import open_store, rings_array
-    from pipelines.cluster import serial_client
+    from pipelines.cluster import connect_serial
     from pipelines.train import TrainJob, train_spec
 
     group = open_store(args.store, mode="r+")
@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         sigma_end=float(args.sigma_end), init=args.init, seed=args.seed, backend=args.backend, device=args.device,
         layout=args.layout, name=args.run,
     )
-    with serial_client() as client:
+    with connect_serial() as client:
         result = train_spec(client, job)
     metrics = result["metrics"]
     engine = {k: result[k] for k in ("backend", "device", "layout", "fallback")}

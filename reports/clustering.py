@@ -83,10 +83,9 @@ def _domain_metrics(group, exp: TrackedExperiment, m) -> dict:
     """A map's clustering metrics: MLflow's, else those stored with its domain map."""
     if KNN_METRIC in m.metrics:
         return m.metrics
-    runs = group.get("runs")
-    if runs is not None and m.name in runs and "domain" in runs[m.name]:
-        return dict(runs[m.name]["domain"].attrs.get("metrics", {}))
-    return {}
+    from meshsom.store import read_domain
+
+    return dict((read_domain(group, m.name) or {}).get("metrics", {}))
 
 
 def rows(exp: TrackedExperiment, group, labels: np.ndarray) -> list[dict]:

@@ -51,7 +51,7 @@ def write(exp: TrackedExperiment, out: Path) -> dict:
     dict
         ``figures``: run name -> path; ``missing``: notes on maps skipped.
     """
-    from meshsom.store import mesh_table
+    from meshsom.store import mesh_table, read_domain
     from meshsom.thumbnails import domain_map_figure
 
     out.mkdir(parents=True, exist_ok=True)
@@ -62,13 +62,12 @@ def write(exp: TrackedExperiment, out: Path) -> dict:
     thumbs = None
     figures, missing = {}, []
     for m in exp.maps.values():
-        runs = group.get("runs")
-        if runs is None or m.name not in runs or "domain" not in runs[m.name]:
+        dom = read_domain(group, m.name)
+        if dom is None:
             missing.append(f"{m.name}: no domain map in {exp.store}")
             continue
-        dom = runs[m.name]["domain"]
-        units = np.asarray(dom["units"][:])
-        rows, cols = int(dom.attrs["rows"]), int(dom.attrs["cols"])
+        units = dom["units"]
+        rows, cols = int(dom["rows"]), int(dom["cols"])
         if thumbs is None:
             thumbs = thumbnails(group, n_draw)  # once for every map
         path = out / f"fig9-{m.name}.png"

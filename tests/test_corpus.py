@@ -216,3 +216,27 @@ def test_worker_functions_without_a_cluster(inputs, tmp_path):
     assert np.array_equal(np.asarray(g["face_mesh"][:]), np.repeat([0, 1], meta["n_faces"]))
     assert np.asarray(meta["acc"]["1"]).shape == (2, 3, 3)
     assert corpus.process_shard(str(store), shard, [], PreprocessParams(), [1, 2], CHUNK) == meta  # done: kept
+
+
+def test_ingest_then_encode_is_bitwise_the_corpus_stage_of_run(two_workers, local_client, inputs, tmp_path):
+    """`meshsom ingest` + `meshsom encode` (several encode shards) against `run_corpus`, the corpus stage of
+    `meshsom run`: every array bitwise, the statistics exactly, for standard and robust scaling."""
+    store = tmp_path / "cli.zarr"
+    assert main(["ingest", *inputs, "--generate", str(N_BLOCKS), "--seed", "0", "--out", str(store),
+                 "--chunk-rows", str(CHUNK)]) == 0
+    assert main(["encode", str(store), "--levels", "1", "2", "--batch-faces", "300", "--json"]) == 0
+    assert_same_store(two_workers[0], store, exact_stats=True)
+
+    robust = tmp_path / "robust.zarr"
+    cfg = build(ExperimentConfig, {
+        "corpus": {"paths": [], "generator": {"n_blocks": N_BLOCKS, "seed": 3}},
+        "encoding": {"levels": [1, 2], "scaling": "robust", "robust_clip": 4.0},
+        "dask": {"shard_meshes": 5}, "store": {"chunk_rows": 128},
+    })
+    corpus.run_corpus(local_client, cfg, robust)
+    assert main(["ingest", "--generate", str(N_BLOCKS), "--seed", "3", "--out", str(tmp_path / "r2.zarr"),
+                 "--chunk-rows", "128"]) == 0
+    assert main(["encode", str(tmp_path / "r2.zarr"), "--levels", "2", "1", "--batch-faces", "100",
+                 "--scaling", "robust", "--robust-clip", "4", "--json"]) == 0
+    assert_same_store(robust, tmp_path / "r2.zarr", exact_stats=True)
+    assert stats(robust)["level1"]["scaling"] == "robust" and stats(robust)["level1"]["clip"] == 4.0
