@@ -61,6 +61,7 @@ def main(argv=None):
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
     from pipelines.domain_stage import domain_for_run
+    from meshsom.som import default_sigma_start
     from pipelines.train import TrainJob, train_spec
 
     rows, cols = (int(x) for x in args.map.lower().split("x"))
@@ -101,7 +102,7 @@ def main(argv=None):
         print(f"thumbnails: {len(thumbs)} in {time.perf_counter() - t0:.1f} s")
         for level in args.levels:
             job = TrainJob(store=str(store), level=level, kernel="bmuofn", mirror=False, rows=rows, cols=cols,
-                           topology="toroidal", epochs=args.epochs, sigma_start=max(rows, cols) / 4, sigma_end=1.0,
+                           topology="toroidal", epochs=args.epochs, sigma_start=default_sigma_start(rows, cols), sigma_end=1.0,
                            init="random", seed=0, backend=args.backend)
             t0 = time.perf_counter()
             with get_task_stream(client) as ts:
