@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshsom.config import load_config
+from pipelines.settings import load_config
 from meshsom.errors import ConfigError, MeshsomError
 from meshsom.store import open_store
 from pipelines.run import run_experiment
