@@ -56,7 +56,7 @@ def main(argv=None):
 
     from distributed import get_task_stream
 
-    from meshsom.config import load_config
+    from pipelines.settings import load_config
     from meshsom.store import open_store
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus

@@ -1,9 +1,15 @@
 """Typed experiment configuration, loaded once from YAML into frozen dataclasses.
 
 Every section is a frozen dataclass; the loader maps YAML mappings onto them by
-field name. Unknown keys, wrong types and invalid values are
-:class:`~meshsom.errors.ConfigError` naming the file and the key path
-(``som.epochs``), what was received and what was expected.
+field name. Unknown keys, removed keys, wrong types and invalid values are
+:class:`~meshsom.errors.ConfigError` naming the source (the file, or ``--set`` for a
+command-line override) and the key path (``som.epochs``), what was received and what
+was expected.
+
+The library's :class:`ExperimentConfig` holds what the computation depends on. Where
+the work runs and where it is tracked (``dask:``, ``tracking:``) are pipeline settings:
+``pipelines.settings.RunConfig`` extends this class with them and loads the same YAML
+files through :func:`load_config` (``cls=RunConfig``).
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ class CorpusConfig:
     Attributes
     ----------
     paths : tuple of str
-        Files or folders, relative to the working directory.
+        Files or folders; ``meshsom run`` resolves relative ones against the config file's folder.
     generator : GeneratorParams or None
         A synthetic corpus added to (or instead of) ``paths``.
     reader : ReaderOptions
@@ -95,6 +101,7 @@ class StoreConfig:
     Attributes
     ----------
     path : str
+        Relative paths: ``meshsom run`` resolves them against the config file's folder.
     chunk_rows : int
         Rows per chunk of the per-face arrays.
     """
@@ -110,7 +117,6 @@ class StoreConfig:
 KERNELS = ("default", "bmuofn")
 TOPOLOGIES = ("toroidal", "planar")
 INITS = ("random", "pca")
-TRAININGS = ("batch", "online")
 BACKENDS = ("auto", "numpy", "opencl")
 #: OpenCL kernel layouts (keys of meshsom.bmu_opencl.DEFAULT_PARAMS; kept here so configs load without pyopencl).
 LAYOUTS = ("cpu", "cpu-narrow", "gpu", "tiled")
@@ -176,10 +182,6 @@ class SOMConfig:
         Radius of the last epoch.
     init : str
         "random" (seeded samples) or "pca".
-    training : str
-        "batch" or "online".
-    learning_rate : float
-        Start learning rate of online training.
     mirror_higher : bool
         Add mirror variations at levels >= 2 (level 1 always has them).
     seed : int
@@ -192,13 +194,11 @@ class SOMConfig:
     sigma_start: float | None = None
     sigma_end: float = 1.0
     init: str = "random"
-    training: str = "batch"
-    learning_rate: float = 0.5
     mirror_higher: bool = False
     seed: int = 0
 
     def __post_init__(self):
-        for name, valid in (("topology", TOPOLOGIES), ("init", INITS), ("training", TRAININGS)):
+        for name, valid in (("topology", TOPOLOGIES), ("init", INITS)):
             if getattr(self, name) not in valid:
                 raise ValueError(f"{name} must be one of {', '.join(valid)}; received {getattr(self, name)!r}")
         if self.rows < 2 or self.cols < 2:
@@ -243,39 +243,6 @@ class DomainConfig:
 
 
 @dataclass(frozen=True)
-class DaskConfig:
-    """Where the work runs.
-
-    Attributes
-    ----------
-    scheduler : str or None
-        Address of an existing scheduler (``tcp://host:8786``); None starts a LocalCluster.
-    workers : int
-        Local worker processes (0: one per core).
-    memory_limit : str
-        Memory limit per local worker (Dask syntax, e.g. "4GB").
-    shard_meshes : int
-        Meshes per ingest/encode task.
-    dashboard : bool
-        Serve the Dask dashboard of a LocalCluster (on a free loopback port).
-    """
-
-    scheduler: str | None = None
-    workers: int = 0
-    memory_limit: str = "4GB"
-    shard_meshes: int = 64
-    dashboard: bool = True
-
-    def __post_init__(self):
-        if self.workers < 0:
-            raise ValueError(f"workers must be >= 0 (0: one per core), received {self.workers}")
-        if self.shard_meshes < 1:
-            raise ValueError(f"shard_meshes must be >= 1, received {self.shard_meshes}")
-        if self.scheduler is not None and "://" not in self.scheduler:
-            raise ValueError(f"scheduler must be an address like tcp://host:8786, received {self.scheduler!r}")
-
-
-@dataclass(frozen=True)
 class OpenCLConfig:
     """The BMU backend.
 
@@ -304,53 +271,30 @@ class OpenCLConfig:
 
 
 @dataclass(frozen=True)
-class TrackingConfig:
-    """MLflow tracking.
-
-    Attributes
-    ----------
-    uri : str or None
-        Tracking URI (``http://127.0.0.1:5000``, ``sqlite:///mlflow.db``); None: MLflow's default
-        (``MLFLOW_TRACKING_URI`` or a local SQLite store).
-    experiment : str
-    enabled : bool
-    """
-
-    uri: str | None = None
-    experiment: str = "meshsom"
-    enabled: bool = True
-
-
-@dataclass(frozen=True)
 class ExperimentConfig:
     """A whole experiment.
 
     Attributes
     ----------
     name : str
-    seed : int
-        Master seed (sections with their own seed use theirs).
     corpus : CorpusConfig
     preprocess : PreprocessParams
     encoding : EncodingConfig
     train : tuple of TrainSpec or None
         The triangle maps to train, in order. Not given: the paper's choice for the encoded levels
         (level 1 with the default kernel and with BMUofN, every higher level with BMUofN).
-    som, domain, dask, opencl, tracking : sections
+    som, domain, opencl : sections
     store : StoreConfig
     """
 
     name: str = "meshsom"
-    seed: int = 0
     corpus: CorpusConfig = field(default_factory=lambda: CorpusConfig(paths=("data",)))
     preprocess: Any = None
     encoding: EncodingConfig = EncodingConfig()
     train: tuple[TrainSpec, ...] | None = None
     som: SOMConfig = SOMConfig()
     domain: DomainConfig = DomainConfig()
-    dask: DaskConfig = DaskConfig()
     opencl: OpenCLConfig = OpenCLConfig()
-    tracking: TrackingConfig = TrackingConfig()
     store: StoreConfig = StoreConfig()
 
     def __post_init__(self):
@@ -366,13 +310,37 @@ class ExperimentConfig:
             )
 
 
-#: Field types that cannot be read from annotations (lazy imports).
+#: Field types that cannot be read from annotations (lazy imports), by (class, field); subclasses inherit them.
 _LAZY_TYPES = {(ExperimentConfig, "preprocess"): _preprocess_params_type}
 
+#: Keys that configs used to have, by (class, field), and why they are gone; a config that still
+#: gives one is an error that says so (subclasses inherit these).
+REMOVED_KEYS = {
+    (ExperimentConfig, "seed"): "it was never read; every seeded stage has its own seed "
+                                "(som.seed, domain.seed, corpus.generator.seed)",
+    (SOMConfig, "training"): "meshsom run trains batch maps only (online training: meshsom.som.SOM(training='online'))",
+    (SOMConfig, "learning_rate"): "it set the online learning rate, and meshsom run trains batch maps only",
+}
 
-def _convert(value: Any, hint: Any, key: str, source: str) -> Any:
+#: Where a value came from, for error messages: a file name, or a function of the key path.
+Source = str | typing.Callable[[str], str]
+
+
+def _where(source: Source, key: str) -> str:
+    return source(key) if callable(source) else source
+
+
+def _lookup(table: dict, cls: type, name: str):
+    for base in cls.__mro__:
+        if (base, name) in table:
+            return table[(base, name)]
+    return None
+
+
+def _convert(value: Any, hint: Any, key: str, source: Source) -> Any:
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
+    where = _where(source, key)
     if hint is Any:
         return value
     if origin in (typing.Union, types.UnionType):
@@ -386,37 +354,37 @@ def _convert(value: Any, hint: Any, key: str, source: str) -> Any:
                 return _convert(value, a, key, source)
             except ConfigError as err:
                 errors.append(str(err))
-        raise ConfigError(errors[0] if errors else f"{source}: {key}: invalid value {value!r}")
+        raise ConfigError(errors[0] if errors else f"{where}: {key}: invalid value {value!r}")
     if dataclasses.is_dataclass(hint):
         return build(hint, value, key, source)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{source}: {key}: expected a list, received {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: {key}: expected a list, received {type(value).__name__} {value!r}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(v, args[0], f"{key}[{i}]", source) for i, v in enumerate(value))
         if len(value) != len(args):
-            raise ConfigError(f"{source}: {key}: expected a list of {len(args)} values, received {list(value)!r}")
+            raise ConfigError(f"{where}: {key}: expected a list of {len(args)} values, received {list(value)!r}")
         return tuple(_convert(v, a, f"{key}[{i}]", source) for i, (v, a) in enumerate(zip(value, args)))
     if hint is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{source}: {key}: expected true or false, received {value!r}")
+            raise ConfigError(f"{where}: {key}: expected true or false, received {value!r}")
         return value
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{source}: {key}: expected an integer, received {value!r}")
+            raise ConfigError(f"{where}: {key}: expected an integer, received {value!r}")
         return value
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{source}: {key}: expected a number, received {value!r}")
+            raise ConfigError(f"{where}: {key}: expected a number, received {value!r}")
         return float(value)
     if hint is str:
         if not isinstance(value, (str, int, float)) or isinstance(value, bool):
-            raise ConfigError(f"{source}: {key}: expected a string, received {value!r}")
+            raise ConfigError(f"{where}: {key}: expected a string, received {value!r}")
         return str(value)
     return value
 
 
-def build(cls: type, data: Any, key: str = "", source: str = "config") -> Any:
+def build(cls: type, data: Any, key: str = "", source: Source = "config") -> Any:
     """Build dataclass ``cls`` from a mapping, strictly.
 
     Parameters
@@ -426,46 +394,110 @@ def build(cls: type, data: Any, key: str = "", source: str = "config") -> Any:
         None gives the defaults.
     key : str
         Key path of ``data`` in the file, for error messages.
-    source : str
-        File name, for error messages.
+    source : str or callable
+        File name for error messages, or a function from a key path (``som.epochs``) to the
+        name of where that key was given (the file, or ``--set``).
     """
     if data is None:
         data = {}
     if isinstance(data, cls):
         return data
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: {key or '(top level)'}: expected a mapping, received {type(data).__name__} {data!r}")
+        raise ConfigError(f"{_where(source, key)}: {key or '(top level)'}: expected a mapping, "
+                          f"received {type(data).__name__} {data!r}")
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
+    for k in data:
+        why = _lookup(REMOVED_KEYS, cls, k)
+        if why is not None:
+            sub = f"{key}.{k}" if key else k
+            raise ConfigError(f"{_where(source, sub)}: {sub} was removed: {why}; delete it from the config")
     unknown = [k for k in data if k not in names]
     if unknown:
         where = f"{key}." if key else ""
         raise ConfigError(
-            f"{source}: unknown key {where}{unknown[0]!r}; valid keys{' of ' + key if key else ''}: {', '.join(names)}"
+            f"{_where(source, where + str(unknown[0]))}: unknown key {where}{unknown[0]!r}; "
+            f"valid keys{' of ' + key if key else ''}: {', '.join(names)}"
         )
     kwargs = {}
     for name in names:
         if name not in data:
             continue
         sub = f"{key}.{name}" if key else name
-        hint = _LAZY_TYPES[(cls, name)]() if (cls, name) in _LAZY_TYPES else hints[name]
+        lazy = _lookup(_LAZY_TYPES, cls, name)
+        hint = lazy() if lazy is not None else hints[name]
         kwargs[name] = _convert(data[name], hint, sub, source)
     try:
         return cls(**kwargs)
     except ConfigError:
         raise
     except (TypeError, ValueError) as err:
-        raise ConfigError(f"{source}: {key or '(top level)'}: {err}") from None
+        raise ConfigError(f"{_where(source, key)}: {key or '(top level)'}: {err}") from None
 
 
-def load_config(path: str | Path, overrides: dict | None = None) -> ExperimentConfig:
+#: The source name of command-line overrides in error messages.
+SET_SOURCE = "--set"
+
+
+def parse_sets(items: typing.Iterable[str]) -> dict:
+    """``["som.epochs=4", "encoding.levels=[1,2]"]`` -> ``{"som": {"epochs": 4}, "encoding": {"levels": [1, 2]}}``.
+
+    Each value is parsed as YAML (``4`` is an integer, ``[1,2]`` a list, ``null`` None, ``x`` a string).
+
+    Raises
+    ------
+    ConfigError
+        An item without ``=``, an empty key or key part, or a value that is not valid YAML;
+        the message names the item and the source ``--set``.
+    """
+    out: dict = {}
+    for item in items:
+        key, sep, text = str(item).partition("=")
+        key = key.strip()
+        parts = key.split(".")
+        if not sep or not all(parts):
+            raise ConfigError(f"{SET_SOURCE}: expected KEY=VALUE with a dotted key such as som.epochs=4, "
+                              f"received {item!r}")
+        try:
+            value = yaml.safe_load(text) if text.strip() else ""
+        except yaml.YAMLError as err:
+            raise ConfigError(f"{SET_SOURCE}: {key}: invalid YAML value {text!r}: "
+                              f"{str(err).splitlines()[0]}") from None
+        node = out
+        for part in parts[:-1]:
+            if not isinstance(node.get(part, {}), dict):
+                raise ConfigError(f"{SET_SOURCE}: {key}: {'.'.join(parts[:parts.index(part) + 1])} "
+                                  f"is set to a value and used as a section")
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+    return out
+
+
+def _key_paths(d: dict, prefix: str = "") -> list[str]:
+    out = []
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        out.append(name)
+        if isinstance(v, dict):
+            out += _key_paths(v, name + ".")
+    return out
+
+
+def load_config(path: str | Path, overrides: dict | None = None, sets: typing.Iterable[str] = (),
+                cls: type = ExperimentConfig) -> Any:
     """Load and validate an experiment YAML file.
 
     Parameters
     ----------
     path : path
     overrides : dict, optional
-        Nested mapping merged over the file's content (command-line options).
+        Nested mapping merged over the file's content (command-line options); errors in it
+        are reported as the file's.
+    sets : iterable of str
+        ``KEY=VALUE`` overrides (``--set som.epochs=4``; see :func:`parse_sets`), merged last;
+        errors in the keys they give name the source ``--set``.
+    cls : dataclass type
+        :class:`ExperimentConfig` or a subclass (``pipelines.settings.RunConfig``).
     """
     path = Path(path)
     try:
@@ -478,7 +510,17 @@ def load_config(path: str | Path, overrides: dict | None = None) -> ExperimentCo
         raise ConfigError(f"{path}: invalid YAML: {err}") from None
     if overrides:
         data = _merge(data, overrides)
-    return build(ExperimentConfig, data, "", str(path))
+    source: Source = str(path)
+    set_data = parse_sets(sets)
+    if set_data:
+        data = _merge(data, set_data) if isinstance(data, dict) else data
+        given = _key_paths(set_data)
+
+        def source(key: str, given=given) -> str:
+            hit = any(key == g or key.startswith((g + ".", g + "[")) or g.startswith(key + ".") for g in given)
+            return SET_SOURCE if hit else str(path)
+
+    return build(cls, data, "", source)
 
 
 def _merge(base: dict, over: dict) -> dict:

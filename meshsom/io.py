@@ -214,13 +214,20 @@ class InputFile:
     name: str
 
 
-def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[InputFile], list[Rejection]]:
+def expand_inputs(inputs: list[str | os.PathLike],
+                  skipped: list[tuple[str, str]] | None = None) -> tuple[list[InputFile], list[Rejection]]:
     """Turn files and folders into the list of files to read, each with its id prefix.
 
     Folders are searched recursively for known file types (other files in them
-    are ignored, as are ``labels.csv`` and ``SOURCE.md``). A path that does not
+    are not read: with ``skipped``, each is listed there with the reason). A path that does not
     exist, a file named explicitly with an unknown type, or a file in a folder
     that is a link to somewhere outside that folder, is a rejection.
+
+    Parameters
+    ----------
+    inputs : list of path
+    skipped : list, optional
+        Receives ``(path, why)`` for every file in a folder that is not read.
 
     Returns
     -------
@@ -246,7 +253,10 @@ def expand_inputs(inputs: list[str | os.PathLike]) -> tuple[list[InputFile], lis
                 if q.is_file():
                     try:
                         input_kind(q)
-                    except InputFileError:
+                    except InputFileError as err:
+                        if skipped is not None:
+                            why = "mesh labels, read with the meshes" if q.name == "labels.csv" else err.problem
+                            skipped.append((str(q), why))
                         continue
                     if not q.resolve().is_relative_to(root):
                         rejected.append(Rejection(str(q), str(q), f"is a link to {q.resolve()}, outside the folder {p}; not followed"))

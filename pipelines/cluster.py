@@ -11,7 +11,7 @@ import logging
 import os
 from typing import Iterator
 
-from meshsom.config import DaskConfig
+from pipelines.settings import DaskConfig
 
 log = logging.getLogger(__name__)
 
@@ -28,7 +28,8 @@ WORKER_ENV = {
 def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
     """A ``distributed.Client`` for the configured cluster, closed on exit.
 
-    Prints the dashboard address unless ``quiet``.
+    Prints where the work runs (and the dashboard link, when one is served) unless ``quiet``.
+    A LocalCluster serves the dashboard only with ``config.dashboard``.
     """
     from distributed import Client, LocalCluster
 
@@ -53,7 +54,10 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
                 threads_per_worker=1,
                 processes=True,
                 memory_limit=config.memory_limit,
-                dashboard_address="127.0.0.1:0",  # None would still take :8787 when free
+                # the scheduler's HTTP server always starts (None would take :8787 when free); the
+                # dashboard pages only when configured
+                dashboard_address="127.0.0.1:0",
+                scheduler_kwargs={"dashboard": bool(config.dashboard)},
                 host="127.0.0.1",
                 silence_logs=logging.WARNING,
             )
@@ -67,7 +71,8 @@ def connect(config: DaskConfig, quiet: bool = False) -> Iterator:
     try:
         if not quiet:
             has_dashboard = "dashboard" in client.scheduler_info().get("services", {})
-            link = client.dashboard_link if has_dashboard and (config.dashboard or config.scheduler) else None
+            served = config.dashboard or config.scheduler  # a LocalCluster without one answers 404
+            link = client.dashboard_link if has_dashboard and served else None
             where = config.scheduler or f"LocalCluster, {len(client.scheduler_info()['workers'])} workers x 1 thread"
             print(f"dask: {where}" + (f"; dashboard {link}" if link else ""))
         yield client

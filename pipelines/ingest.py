@@ -303,12 +303,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from meshsom.config import ExperimentConfig, load_config
+    from meshsom.config import ExperimentConfig
     from meshsom.generate import GeneratorParams
     from meshsom.io import ReaderOptions
+    from pipelines.settings import load_config, resolve_paths
 
     if args.config:
-        cfg = load_config(args.config)
+        cfg = resolve_paths(load_config(args.config), Path(args.config).parent)
         reader, params, chunk_rows = cfg.corpus.reader, cfg.preprocess, cfg.store.chunk_rows
         paths = list(args.inputs) or list(cfg.corpus.paths)
         generator = cfg.corpus.generator if not args.inputs else None

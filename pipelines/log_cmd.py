@@ -16,10 +16,15 @@ METRICS = ("t_error", "q_error", "qc_error")
 
 def log_store(store, uri: str | None = None, experiment: str | None = None) -> dict:
     """Log the store's finished maps to MLflow; returns ``{"parent": id, "children": {run: id}, "logged": n}``."""
-    from meshsom.config import TrackingConfig
     from meshsom.errors import StoreError
+<<<<<<< HEAD
     from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, write_tracking
     from pipelines.tracking import Tracker, TrackingError
+=======
+    from meshsom.store import list_runs, open_store
+    from pipelines.settings import TrackingConfig
+    from pipelines.tracking import Tracker, TrackingError, new_short_id, run_name, store_location
+>>>>>>> s2-mlf
 
     group = open_store(store, mode="r+")
     info = read_tracking(group)
@@ -30,7 +35,9 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     tracker = Tracker(TrackingConfig(uri=uri, experiment=experiment))
     tracker.open()
     same = info.get("uri") == uri and info.get("experiment", experiment) == experiment
-    parent = tracker.start(info.get("name", "meshsom"), {}, {"store": str(store), "logged_by": "meshsom log"},
+    name = info.get("name", "meshsom")
+    short_id = info.get("short_id") or new_short_id()
+    parent = tracker.start(run_name(name, short_id), {}, {"store": store_location(str(store)), "logged_by": "meshsom log"},
                            run_id=info.get("parent") if same else None)
     children = dict(info.get("children", {})) if same else {}
     logged = 0
@@ -42,9 +49,11 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
         if job.get("source"):
             continue  # a streamed domain map: its metrics go with its triangle map's run
         params = {"level": job["level"], "kernel": job["kernel"], "dims": result["dims"], "map_rows": job["rows"],
-                  "map_cols": job["cols"], "topology": job["topology"], "epochs": job["epochs"], "seed": job["seed"]}
+                  "map_cols": job["cols"], "topology": job["topology"], "epochs": job["epochs"], "seed": job["seed"],
+                  "codebook": f"runs/{run}"}
         rid = children.get(run)
-        rid = tracker.start(run, params if rid is None else {}, {}, parent=parent, run_id=rid)
+        rid = tracker.start(run_name(name, short_id, run), params if rid is None else {}, {"map": run},
+                            parent=parent, run_id=rid)
         children[run] = rid
         have = {m.step for m in tracker.client.get_metric_history(rid, "q_error")}
         for h in result["history"]:
@@ -58,8 +67,13 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
             logged += 1
         tracker.finish(rid)
     tracker.finish(parent)
+<<<<<<< HEAD
     info.update(uri=uri, experiment=experiment, parent=parent, children=children)
     write_tracking(group, info)
+=======
+    info.update(uri=uri, experiment=experiment, parent=parent, children=children, short_id=short_id)
+    group.attrs["mlflow"] = info
+>>>>>>> s2-mlf
     if tracker.failed:
         raise TrackingError(f"MLflow at {uri}: {len(tracker.failed)} writes failed again: {tracker.failed[0]['error']}")
     return {"parent": parent, "children": children, "logged": logged}

@@ -9,9 +9,15 @@ Stages:
    U-matrix;
 3. domain maps per level, where the library provides them (:mod:`meshsom.domain`).
 
-The tracking server is checked before any heavy work. ``--resume`` continues an interrupted run:
-finished shards and epochs are not recomputed, and the MLflow runs of the first attempt are
-continued.
+The tracking server and the inputs are checked before any heavy work and before a store is
+created. ``--resume`` continues an interrupted run: finished shards and epochs are not recomputed,
+and the MLflow runs of the first attempt are continued (no metric step is logged twice).
+
+Configuration: the YAML file, then the options (``--store``, ``--backend``, ...), then ``--set
+KEY=VALUE`` items, validated together (:func:`pipelines.settings.load_config`). Relative paths in
+the config are relative to the config file's folder (``--store`` to the working directory). MLflow
+records this configuration, defaults filled in, as the parent's params and as
+``config/config.yaml``; the conventions of names, tags and metrics are in :mod:`pipelines.tracking`.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import shutil
 import signal
 import threading
@@ -35,7 +42,7 @@ PROGRESS_INTERVAL_S = 10.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="experiment YAML (see configs/)")
-    p.add_argument("--store", help="override store.path")
+    p.add_argument("--store", help="override store.path (relative to the working directory)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
     mode.add_argument("--resume", action="store_true", help="continue an interrupted run in the existing store")
@@ -48,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", help="OpenCL device selector, e.g. 0:0, pocl, nvidia (overrides opencl.device)")
     p.add_argument("--layout", help=f"OpenCL kernel layouts to try in order instead of the device's chain, "
                    f"comma-separated (of {', '.join(LAYOUTS)}; overrides opencl.layout; `meshsom doctor` shows which work)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override any config key (dotted path, YAML value), validated like the file; repeatable: "
+                        "--set som.epochs=4 --set encoding.levels=[1,2]")
 
 
 def dataset_fingerprint(manifest: dict) -> str:
@@ -59,7 +69,11 @@ def dataset_fingerprint(manifest: dict) -> str:
 def _overrides(args) -> dict:
     over: dict = {}
     if args.store:
-        over["store"] = {"path": args.store}
+        store = args.store
+        if "://" not in store and not Path(store).is_absolute():
+            # relative to the working directory, written relative to the config's folder like every config path
+            store = os.path.relpath(Path(store).resolve(), Path(args.config).resolve().parent)
+        over["store"] = {"path": store}
     if args.tracking_uri or args.no_tracking:
         over["tracking"] = {**({"uri": args.tracking_uri} if args.tracking_uri else {}),
                             **({"enabled": False} if args.no_tracking else {})}
@@ -73,9 +87,9 @@ def _overrides(args) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from meshsom.config import load_config
+    from pipelines.settings import load_config
 
-    cfg = load_config(args.config, _overrides(args) or None)
+    cfg = load_config(args.config, _overrides(args) or None, getattr(args, "sets", ()))
     main = threading.current_thread() is threading.main_thread()  # handlers can only be set there
     previous = signal.getsignal(signal.SIGTERM)
     if main:
@@ -92,8 +106,19 @@ def _terminated(signum, frame):
 
 
 def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False, resume: bool = False) -> int:
-    """Run every stage of an experiment; returns the exit code."""
+    """Run every stage of an experiment; returns the exit code.
+
+    Parameters
+    ----------
+    cfg : pipelines.settings.RunConfig
+        As loaded: relative paths are resolved here, against the folder of ``config_path`` (the
+        working directory without one); MLflow records ``cfg`` itself.
+    config_path : Path, optional
+        The config file (its folder anchors relative paths; its name is the run's source).
+    """
     from tqdm import tqdm
+
+    import yaml
 
     from meshsom.config import flatten, to_dict
     from meshsom.errors import StoreError
@@ -101,19 +126,24 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
     from pipelines.ingest import check_writable
-    from pipelines.tracking import Tracker, git_commit
+    from pipelines.settings import resolve_paths
+    from pipelines.tracking import Tracker, new_short_id, run_name, source_tags, store_location
 
+    given = cfg  # what MLflow records: paths as written, relative to the config's folder
+    cfg = resolve_paths(cfg, config_path.parent if config_path is not None else Path.cwd())
     store = Path(cfg.store.path)
     if store.exists() and not (overwrite or resume):
         raise StoreError(f"{store}: already exists; pass --overwrite to replace it or --resume to continue it")
     from pipelines.ingest import estimate_store_bytes
 
-    # every check before any work (and before an old store is removed)
+    # every check before any work (and before an old store is removed or a new one created)
+    skipped = check_inputs(given, cfg, config_path)
     check_writable(store, overwrite=True, needed_bytes=estimate_store_bytes(
         cfg.corpus.paths, cfg.corpus.generator, cfg.encoding.levels))
     tracker = Tracker(cfg.tracking)
     tracker.open()  # fails here, naming the URI
-    if overwrite and store.exists():
+    existed = store.exists()
+    if overwrite and existed:
         shutil.rmtree(store)
     t_start = time.perf_counter()
     with_domain = cfg.domain.enabled and _domain_available()
@@ -121,7 +151,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
     try:
         with connect(cfg.dask) as client:
             # ------------------------------------------------------------------ 1. corpus
-            print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {store}")
+            print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {_shown(store)}")
+            _print_skipped(skipped)
             bars: dict = {}
 
             def progress(stage, done, total):
@@ -141,35 +172,34 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             summary = run_corpus(client, cfg, str(store), resume=resume, progress=progress)
             for bar in bars.values():
                 bar.close()
-            print(f"      {summary['inputs']} meshes: {summary['accepted']} accepted, {summary['rejected']} rejected "
-                  f"({summary.get('faces_out', 0)} triangles) in {time.perf_counter() - t0:.1f} s")
+            print(f"      {summary['inputs']} meshes: {summary['accepted']} accepted, {summary['rejected']} "
+                  f"rejected ({summary.get('faces_out', 0)} triangles) in {time.perf_counter() - t0:.1f} s")
             if not summary["accepted"]:
-                print("nothing could be ingested; see the manifest for the reasons")
-                return 1
+                _nothing_ingested(store, remove=not (resume and existed))
             group = open_store(store, mode="r+")
             manifest = read_manifest(store)
             fingerprint = dataset_fingerprint(manifest)
             ids = dict(group.attrs.get("mlflow", {})) if resume else {}
             if ids.get("uri") not in (None, tracker.uri):
                 ids = {}  # a different tracking server: start new runs
-            parent = tracker.start(
-                cfg.name, flatten(to_dict(cfg)),
-                {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
-                run_id=ids.get("parent"),
-            )
+            short_id = ids.get("short_id") or new_short_id()
+            tags = {**source_tags(f"meshsom run {config_path.name}" if config_path is not None else "meshsom run"),
+                    "dataset_fingerprint": fingerprint, "store": store_location(cfg.store.path)}
+            parent = tracker.start(run_name(cfg.name, short_id), flatten(to_dict(given)), tags,
+                                   run_id=ids.get("parent"))
             ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
-                   "children": dict(ids.get("children", {}))}
+                   "short_id": short_id, "children": dict(ids.get("children", {}))}
             group.attrs["mlflow"] = ids
-            if config_path is not None and config_path.exists():
-                tracker.log_artifact(parent, config_path, "config")
+            tracker.log_text(parent, yaml.safe_dump(to_dict(given), sort_keys=False), CONFIG_ARTIFACT)
             tracker.log_artifact(parent, store / "manifest.json", "manifest")
 
             # ------------------------------------------------------------------ 2. triangle maps
-            print(f"[2/{stages}] triangle maps: {', '.join(s.name for s in cfg.train)} ({cfg.som.rows} x {cfg.som.cols}, "
-                  f"{cfg.som.epochs} epochs)")
+            print(f"[2/{stages}] {len(cfg.train)} triangle maps, {cfg.som.rows} x {cfg.som.cols}, "
+                  f"{cfg.som.epochs} epochs")
             results = []
             for spec in cfg.train:
                 results.append(_train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fingerprint))
+            print(f"      BMU search: {'; '.join(sorted({_engine(r) for r in results}))}")
             # ------------------------------------------------------------------ 3. domain maps
             if with_domain:
                 print(f"[3/{stages}] domain maps")
@@ -187,9 +217,103 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         "kernel_layouts": ",".join(sorted({x for r in results for x in r.get("layout", "").split(",") if x})),
         "kernel_fallback": "; ".join(r["fallback"] for r in results if r.get("fallback")) or "none",
     })
+    seconds = time.perf_counter() - t_start
+    _log_once(tracker, parent, {**summary_metrics(results), "total_seconds": seconds}, step=0)
     tracker.finish(parent)
-    _print_summary(results, store, tracker, time.perf_counter() - t_start)
+    _print_summary(results, store, tracker, seconds)
     return 0
+
+
+#: Artifact path of the resolved configuration on the parent run.
+CONFIG_ARTIFACT = "config/config.yaml"
+#: Skipped files listed on the terminal before the rest are counted.
+SKIPPED_SHOWN = 10
+
+
+def summary_metrics(results: list[dict]) -> dict[str, float]:
+    """The parent run's summary: every map's final errors, ``level1-bmuofn.qc_error``, and its seconds."""
+    out = {}
+    for r in results:
+        for k in ("t_error", "q_error", "qc_error"):
+            out[f"{r['run']}.{k}"] = float(r["metrics"][k])
+        out[f"{r['run']}.seconds"] = float(r["seconds"])
+    return out
+
+
+def _log_once(tracker, run_id, metrics: dict, step: int) -> None:
+    """Log the metrics that run ``run_id`` does not have at ``step`` yet (a resumed run repeats none)."""
+    fresh = {k: v for k, v in metrics.items() if step not in tracker.logged_steps(run_id, k)}
+    tracker.log_metrics(run_id, fresh, step=step)
+
+
+def check_inputs(given, cfg, config_path: Path | None) -> list[tuple[str, str]]:
+    """Check ``corpus.paths`` before anything is created; returns the files in folders that are skipped.
+
+    Parameters
+    ----------
+    given, cfg : RunConfig
+        As written, and with paths resolved.
+    config_path : Path or None
+
+    Returns
+    -------
+    list of (path, why)
+
+    Raises
+    ------
+    meshsom.errors.ConfigError
+        Naming the config file, each input that does not exist or holds nothing readable (a folder
+        without a mesh or CityJSON file, a file of an unknown type), and where it was looked for.
+    """
+    from meshsom.errors import ConfigError
+    from meshsom.io import expand_inputs
+
+    skipped: list[tuple[str, str]] = []
+    _, rejected = expand_inputs(list(cfg.corpus.paths), skipped)
+    roots = dict(zip(cfg.corpus.paths, given.corpus.paths))
+    bad = [f"{roots[r.source]!r} ({r.source}): {r.reason}" for r in rejected if r.source in roots]
+    if bad:
+        where = config_path or "the config"
+        raise ConfigError(f"{where}: corpus.paths (relative to the config file's folder): "
+                          + "; ".join(bad) + "; nothing was created")
+    return skipped
+
+
+def _print_skipped(skipped: list[tuple[str, str]]) -> None:
+    from meshsom.io import CITYJSON_SUFFIXES, TRIMESH_SUFFIXES
+
+    for path, why in skipped[:SKIPPED_SHOWN]:
+        print(f"      skipped: {Path(path).name} ({why.split(';')[0]})")  # the list of types once, below
+    if len(skipped) > SKIPPED_SHOWN:
+        print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
+    if any(why.startswith("unknown file type") for _, why in skipped):
+        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)})")
+
+
+def _nothing_ingested(store: Path, remove: bool) -> None:
+    """Every input was rejected: say why (the first few reasons) and remove the new store."""
+    from meshsom.errors import InputFileError
+    from meshsom.store import read_manifest
+
+    records = [r for r in read_manifest(store)["records"] if r["status"] != "accepted"]
+    reasons = "; ".join(f"{r.get('source') or r['id']}: {r.get('reason', '?')}" for r in records[:3])
+    more = f" (and {len(records) - 3} more)" if len(records) > 3 else ""
+    if remove:
+        shutil.rmtree(store)
+    raise InputFileError(str(store), f"nothing could be ingested; every input was rejected: {reasons}{more}"
+                         + ("; the store was removed" if remove else ""))
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the working directory when it lies below it (shorter on the terminal)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _engine(result: dict) -> str:
+    return result["backend"] if result["backend"] == "numpy" else f"opencl {result['layout']}"
 
 
 def _domain_available() -> bool:
@@ -208,6 +332,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     from meshsom.variations import n_variations
     from meshsom.rings import dims
     from meshsom.som import default_sigma_start
+    from pipelines.tracking import run_name
     from pipelines.train import TrainJob, train_spec
 
     som = cfg.som
@@ -223,30 +348,35 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
         "level": spec.level, "kernel": spec.kernel, "variations": n_var, "dims": f"{n_var}x{dims(spec.level)}",
         "map_rows": som.rows, "map_cols": som.cols, "topology": som.topology, "epochs": som.epochs,
         "sigma_start": job.sigma_start, "sigma_end": job.sigma_end, "init": som.init, "seed": som.seed,
-        "backend": cfg.opencl.backend, "codebook": f"{store.resolve()}/runs/{job.run}",
+        "backend": cfg.opencl.backend, "codebook": f"runs/{job.run}",  # relative to the parent's store tag
     }
-    child = tracker.start(job.run, params, {"dataset_fingerprint": fingerprint}, parent=parent,
-                          run_id=ids["children"].get(job.run))
+    previous = ids["children"].get(job.run)
+    child = tracker.start(run_name(cfg.name, ids["short_id"], job.run), params,
+                          {"dataset_fingerprint": fingerprint, "map": job.run}, parent=parent, run_id=previous)
     ids["children"][job.run] = child
     group.attrs["mlflow"] = ids
+    logged = tracker.logged_steps(child, "q_error") if previous else set()  # steps an earlier attempt logged
     bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False, disable=None)
     every = max(1, -(-som.epochs // EPOCH_LINES))
     t_map = time.perf_counter()
 
     def on_epoch(epoch, metrics):
-        tracker.log_metrics(child, metrics, step=epoch)
+        if epoch not in logged:  # the history at step=epoch, the final errors at step=epochs: each once
+            tracker.log_metrics(child, metrics, step=epoch)
+            logged.add(epoch)
         bar.update(1)
         done = epoch + 1
         if bar.disable and (done % every == 0 or done == som.epochs):
             # no progress bar (stdout is not a terminal): a line every few epochs
             elapsed = time.perf_counter() - t_map
-            print(f"      {job.run}: epoch {done}/{som.epochs}, {elapsed:.1f} s elapsed, about "
-                  f"{elapsed / done * (som.epochs - done):.0f} s left (QC {metrics['qc_error']:.4f})", flush=True)
+            print(f"      {job.run}: epoch {done}/{som.epochs}, {elapsed:.1f} s, about "
+                  f"{elapsed / done * (som.epochs - done):.0f} s left, QC {metrics['qc_error']:.4f}", flush=True)
 
     result = train_spec(client, job, resume=resume, on_epoch=on_epoch)
     bar.close()
-    if result["resumed_from"] < som.epochs:  # a finished map's final errors were logged by its first attempt
+    if som.epochs not in logged:  # finished in an earlier attempt, but MLflow missed its final errors
         tracker.log_metrics(child, result["metrics"], step=som.epochs)
+        logged.add(som.epochs)
     cb = load_codebook(group, job.run)
     figures = store.parent / f"{store.stem}-figures"
     figures.mkdir(parents=True, exist_ok=True)
@@ -254,12 +384,18 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     tracker.log_artifact(child, png, "figures")
+    trained = som.epochs - min(int(result["resumed_from"]), som.epochs)  # epochs computed in this attempt
+    if trained and result["seconds"] > 0:
+        tracker.log_metrics(child, {
+            "wall_seconds": time.perf_counter() - t_map,
+            "seconds_per_epoch": result["seconds"] / trained,
+            "triangles_per_second": result["n_vectors"] * trained / result["seconds"],
+        }, step=som.epochs)
     tracker.set_tags(child, engine_tags(result))
     tracker.finish(child)
     m = result["metrics"]
-    where = result["backend"] if result["backend"] == "numpy" else f"opencl {result['layout']}"
-    print(f"      {job.run:16s} {result['dims']:>7s}  T {m['t_error']:.5f}  Q {m['q_error']:.5f}  "
-          f"QC {m['qc_error']:.5f}  ({where}, {result['seconds']:.1f} s)")
+    print(f"      {job.run:14s} {result['dims']:>5s}  T {m['t_error']:.5f}  Q {m['q_error']:.5f}  "
+          f"QC {m['qc_error']:.5f}  {result['seconds']:6.1f} s")
     if result.get("fallback"):
         print(f"      {job.run}: kernel fallback: {result['fallback']}")
     return {**result, "level": spec.level, "kernel": spec.kernel, "umatrix": str(png)}
@@ -272,12 +408,15 @@ def engine_tags(result: dict) -> dict:
 
 
 def _print_summary(results, store, tracker, seconds) -> None:
-    print(f"done in {seconds:.1f} s. results: {store} (manifest.json, runs/), figures: {store.parent / (store.stem + '-figures')}")
+    figures = store.parent / (store.stem + "-figures")
+    print(f"done in {seconds:.1f} s")
+    print(f"  store:   {_shown(store)} (manifest.json, runs/)")
+    print(f"  figures: {_shown(figures)}")
     if tracker.enabled:
-        print(f"MLflow: {tracker.uri}, experiment {tracker.config.experiment!r} "
-              f"(look at them side by side: mlflow ui --backend-store-uri {tracker.uri})")
+        print(f"  MLflow:  experiment {tracker.config.experiment!r} at {tracker.uri}")
+        print(f"           side by side: mlflow ui --backend-store-uri {tracker.uri}")
     if tracker.failed:
-        print(f"warning: {len(tracker.failed)} MLflow writes failed; every result is in the store. "
-              f"Send them later with: meshsom log {store} --tracking-uri {tracker.uri}")
+        print(f"warning: {len(tracker.failed)} MLflow writes failed; every result is in the store.")
+        print(f"  send them later with: meshsom log {store} --tracking-uri {tracker.uri}")
         for f in tracker.failed[:5]:
-            print(f"  {f['what']} ({f.get('name') or f['run_id']}): {f['error']}")
+            print(f"  {f['what']} ({f.get('name') or f['run_id']}): {f['error']}"[:80])

@@ -5,6 +5,23 @@ per-epoch metrics (``step=epoch``), final metrics, artifacts and tags. Uses
 ``MlflowClient`` with explicit run ids (no global active-run state), so a
 resumed pipeline continues the same runs.
 
+Conventions (what ``meshsom run`` writes):
+
+- Run names (:func:`run_name`): parent ``quick/ab12cd`` (config name, short id), child
+  ``quick/level1-bmuofn/ab12cd``; the short id is drawn once per store and kept on resume.
+- Tags: MLflow's own ``mlflow.source.name``, ``mlflow.source.type``, ``mlflow.source.git.commit``,
+  ``mlflow.source.git.branch`` (:func:`source_tags`); on the parent ``store`` (a URL as given, a
+  local store as its path) and ``dataset_fingerprint``; on a child ``map`` (its name in the store,
+  ``runs/<map>``) and the engine tags (backend, device, kernel layout, fallback).
+- Params: the parent holds the configuration as run (file, options and ``--set``, defaults
+  filled in; paths as written), flattened (``som.epochs``), and as the artifact
+  ``config/config.yaml``; a child holds its map's settings and ``codebook`` = ``runs/<map>``,
+  relative to the store. No param holds a local absolute path the config did not give.
+- Metrics: a child's ``t_error``, ``q_error``, ``qc_error`` per epoch at ``step=epoch`` and the final
+  errors at ``step=epochs``, each step logged once (a resumed run skips the steps MLflow has);
+  ``wall_seconds``, ``seconds_per_epoch``, ``triangles_per_second`` at ``step=epochs``. The parent
+  has the summary: ``<map>.t_error`` (and q, qc), ``<map>.seconds``, ``total_seconds``.
+
 Metrics are always written to the store first; when the tracking server
 cannot be reached mid-run, the failures are collected (``Tracker.failed``) and
 the pipeline reports them; ``meshsom log`` can send them later from the store.
@@ -21,8 +38,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from meshsom.config import TrackingConfig
 from meshsom.errors import MeshsomError
+from pipelines.settings import TrackingConfig
 
 log = logging.getLogger(__name__)
 
@@ -69,16 +86,55 @@ def check_reachable(uri: str) -> None:
             raise TrackingError(f"MLflow store {uri}: cannot write into {folder}")
 
 
-def git_commit() -> str:
-    """The source tree's git commit, or 'unknown'."""
+def _git(*args: str) -> str:
+    """Output of a git command in the source tree, or '' (no git, not a checkout)."""
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
-            cwd=Path(__file__).resolve().parents[1],
-        )
-        return out.stdout.strip() or "unknown"
+        out = subprocess.run(["git", *args], capture_output=True, text=True, timeout=5,
+                             cwd=Path(__file__).resolve().parents[1])
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        return ""
+    return out.stdout.strip() if out.returncode == 0 else ""
+
+
+def source_tags(name: str) -> dict[str, str]:
+    """MLflow's own source tags (``mlflow.source.*``) for a run started by ``name`` (``meshsom run quick.yaml``).
+
+    Gives ``mlflow.source.name``, ``mlflow.source.type`` (LOCAL) and, where the source tree is a
+    git checkout, ``mlflow.source.git.commit``, ``mlflow.source.git.branch`` and
+    ``mlflow.source.git.repoURL`` (the ``origin`` remote).
+    """
+    tags = {"mlflow.source.name": name, "mlflow.source.type": "LOCAL"}
+    commit = _git("rev-parse", "HEAD")
+    if commit:
+        tags["mlflow.source.git.commit"] = commit
+        branch = _git("rev-parse", "--abbrev-ref", "HEAD")
+        if branch and branch != "HEAD":
+            tags["mlflow.source.git.branch"] = branch
+        remote = _git("remote", "get-url", "origin")
+        if remote:
+            tags["mlflow.source.git.repoURL"] = remote
+    return tags
+
+
+#: Hex digits of the short id that makes run names unique (``quick/ab12cd``).
+SHORT_ID_LEN = 6
+
+
+def new_short_id() -> str:
+    """A fresh random short id for the run names of one pipeline run."""
+    import uuid
+
+    return uuid.uuid4().hex[:SHORT_ID_LEN]
+
+
+def store_location(path: str) -> str:
+    """The ``store`` tag: a URL as given (``s3://bucket/x.zarr``), a local store as its absolute path."""
+    return path if "://" in path else str(Path(path).resolve())
+
+
+def run_name(config_name: str, short_id: str, map_name: str | None = None) -> str:
+    """``quick/ab12cd`` (a pipeline run), ``quick/level1-bmuofn/ab12cd`` (one of its maps)."""
+    return f"{config_name}/{map_name}/{short_id}" if map_name else f"{config_name}/{short_id}"
 
 
 def _param_value(v: Any) -> str:
@@ -185,7 +241,19 @@ class Tracker:
 
         ts = int(time.time() * 1000)
         items = [Metric(k, float(v), ts, int(step or 0)) for k, v in metrics.items()]
+        if not items:
+            return
         self._safe("metrics", run_id, lambda: self.client.log_batch(run_id, metrics=items), metrics=dict(metrics), step=step)
+
+    def logged_steps(self, run_id: str | None, key: str) -> set[int]:
+        """Steps of metric ``key`` that run ``run_id`` has already (empty when off or unreachable)."""
+        if not self.enabled or run_id is None or self.offline:
+            return set()
+        try:
+            return {m.step for m in self.client.get_metric_history(run_id, key)}
+        except Exception as err:  # MLflow raises its own and requests' errors
+            log.warning("MLflow: cannot read the history of %s of run %s: %s", key, run_id, err)
+            return set()
 
     def set_tags(self, run_id: str | None, tags: dict) -> None:
         from mlflow.entities import RunTag
@@ -195,6 +263,10 @@ class Tracker:
 
     def log_artifact(self, run_id: str | None, path: str | Path, folder: str | None = None) -> None:
         self._safe("artifact", run_id, lambda: self.client.log_artifact(run_id, str(path), folder), path=str(path))
+
+    def log_text(self, run_id: str | None, text: str, artifact_file: str) -> None:
+        """Write ``text`` as artifact ``artifact_file`` (``config/config.yaml``) of a run."""
+        self._safe("artifact", run_id, lambda: self.client.log_text(run_id, text, artifact_file), path=artifact_file)
 
     def finish(self, run_id: str | None, status: str = "FINISHED") -> None:
         if run_id in self.open_runs:

@@ -217,7 +217,7 @@ def _figures_md(res: dict, prefix: str) -> list[str]:
 
 def _header(exp: TrackedExperiment) -> str:
     return (f"MLflow experiment `{exp.experiment}` ({DESCRIPTIONS.get(exp.experiment, 'custom experiment')}), "
-            f"pipeline run `{exp.run_id}`, git commit `{exp.tags.get('git_commit', 'unknown')}`, "
+            f"pipeline run `{exp.run_id}`, git commit `{exp.tags.get('mlflow.source.git.commit', 'unknown')}`, "
             f"dataset fingerprint `{exp.tags.get('dataset_fingerprint', 'unknown')}`, store `{exp.store}`.")
 
 

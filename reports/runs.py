@@ -184,7 +184,7 @@ def load_experiment(uri: str | None, experiment: str) -> TrackedExperiment:
     for r in sorted(runs, key=lambda r: r.info.start_time):  # later attempts replace earlier ones
         if r.data.tags.get(PARENT_TAG) != pid:
             continue
-        name = r.info.run_name or r.data.tags.get("mlflow.runName", "")
+        name = r.data.tags.get("map") or r.info.run_name or r.data.tags.get("mlflow.runName", "")  # map: its store name
         params = dict(r.data.params)
         m = RUN_NAME.match(name)
         level = int(params.get("level", m.group(1) if m else 0))

@@ -32,7 +32,6 @@ WAIT_S = 120
 
 CONFIG = """
 name: faults
-seed: 0
 corpus:
   generator: {n_blocks: 96, seed: 5}
 encoding: {levels: [1, 2]}

@@ -10,7 +10,8 @@ import pytest
 import zarr
 from distributed import Client, LocalCluster
 
-from meshsom.config import ExperimentConfig, build
+from meshsom.config import build
+from pipelines.settings import RunConfig
 from meshsom.errors import MeshsomError, StoreError
 from meshsom.io import ReaderOptions, read_file
 from meshsom.store import mesh_table, open_store, read_manifest
@@ -31,7 +32,7 @@ def inputs(tmp_path_factory):
 
 
 def config(inputs, shard_meshes, levels=(1, 2)):
-    return build(ExperimentConfig, {
+    return build(RunConfig, {
         "corpus": {"paths": list(inputs), "generator": {"n_blocks": N_BLOCKS, "seed": 0}},
         "encoding": {"levels": list(levels)},
         "dask": {"shard_meshes": shard_meshes},
@@ -204,7 +205,7 @@ def test_worker_functions_without_a_cluster(inputs, tmp_path):
 
     store = tmp_path / "s.zarr"
     create_store(store)
-    items = corpus.generate_items(build(ExperimentConfig, {"corpus": {"generator": {"n_blocks": 2}}}).corpus.generator, 0, 2)
+    items = corpus.generate_items(build(RunConfig, {"corpus": {"generator": {"n_blocks": 2}}}).corpus.generator, 0, 2)
     items += corpus.read_source(inputs[1], ReaderOptions())
     shard = corpus.Shard("s0000-00000", 0, 0, 3)
     meta = corpus.process_shard(str(store), shard, items, PreprocessParams(), [1, 2], CHUNK)

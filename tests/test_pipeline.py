@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshsom.config import load_config
+from pipelines.settings import load_config
 from meshsom.errors import ConfigError, MeshsomError
 from meshsom.store import open_store
 from pipelines.run import run_experiment
@@ -84,11 +84,12 @@ def test_quick_config_against_a_real_mlflow_server(tmp_path, mlflow_server):
     parent = runs[runs["tags.mlflow.parentRunId"].isna()]
     children = runs[runs["tags.mlflow.parentRunId"].notna()]
     assert len(parent) == 1
-    assert sorted(children["tags.mlflow.runName"]) == ["level1-bmuofn", "level1-default", "level2-bmuofn"]
+    assert sorted(children["tags.map"]) == ["level1-bmuofn", "level1-default", "level2-bmuofn"]
     assert (children["tags.mlflow.parentRunId"] == parent["run_id"].iloc[0]).all()
     g = open_store(cfg.store.path)
     for _, child in children.iterrows():
-        name = child["tags.mlflow.runName"]
+        name = child["tags.map"]
+        assert child["tags.mlflow.runName"] == f"quick/{name}/{g.attrs['mlflow']['short_id']}"
         final = g["runs"][name].attrs["metrics"]
         for k in ("t_error", "q_error", "qc_error"):
             assert child[f"metrics.{k}"] == pytest.approx(final[k])
@@ -96,7 +97,7 @@ def test_quick_config_against_a_real_mlflow_server(tmp_path, mlflow_server):
         history = mlflow.tracking.MlflowClient(mlflow_server).get_metric_history(child["run_id"], "q_error")
         assert len(history) == cfg.som.epochs + 1  # one per epoch, and the final value
     # BMUofN beats the default kernel at level 1 on Q-error (the paper's first claim)
-    by = {r["tags.mlflow.runName"]: r for _, r in children.iterrows()}
+    by = {r["tags.map"]: r for _, r in children.iterrows()}
     assert by["level1-bmuofn"]["metrics.q_error"] < by["level1-default"]["metrics.q_error"]
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshsom.config import load_config
+from pipelines.settings import load_config
 from pipelines.run import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]

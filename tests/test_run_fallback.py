@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshsom.config import load_config
+from pipelines.settings import load_config
 from meshsom.errors import DeviceError
 from meshsom.store import open_store
 from pipelines.run import run_experiment
@@ -66,7 +66,7 @@ def test_run_completes_on_the_next_layout_with_that_layouts_results(tmp_path, mo
     fell = small(tmp_path, "fell", opencl={"backend": "opencl", "layout": ",".join(chain)})
     assert run_experiment(fell) == 0
     out = capsys.readouterr().out
-    assert f"(opencl {chain[2]}," in out and f"kernel fallback: {chain[0]} -> {chain[1]}" in out
+    assert f"BMU search: opencl {chain[2]}" in out and f"kernel fallback: {chain[0]} -> {chain[1]}" in out
 
     a, b = open_store(alone.store.path)["runs"]["level1-bmuofn"], open_store(fell.store.path)["runs"]["level1-bmuofn"]
     np.testing.assert_array_equal(a["weights"][:], b["weights"][:])
@@ -78,8 +78,8 @@ def test_run_completes_on_the_next_layout_with_that_layouts_results(tmp_path, mo
     assert f"{chain[1]} -> {chain[2]}" in engine["fallback"] and "killed its process" in engine["fallback"]
     assert a.attrs["engine"]["fallback"] == ""
 
-    runs = {r.info.run_name: r for r in runs_of(fell)}
-    child, parent = runs["level1-bmuofn"], runs[fell.name]
+    runs = {r.data.tags.get("map", "parent"): r for r in runs_of(fell)}
+    child, parent = runs["level1-bmuofn"], runs["parent"]
     assert child.info.status == "FINISHED" and parent.info.status == "FINISHED"
     assert child.data.tags["kernel_layout"] == chain[2] and child.data.tags["backend"] == "opencl"
     assert child.data.tags["kernel_fallback"] == engine["fallback"]
@@ -95,7 +95,7 @@ def test_failing_run_leaves_failed_mlflow_runs(tmp_path, monkeypatch, chain):
     with pytest.raises(DeviceError, match="no BMUofN kernel layout works on .*--backend numpy"):
         run_experiment(cfg)
     runs = runs_of(cfg)
-    assert {r.info.run_name for r in runs} == {cfg.name, "level1-bmuofn"}
+    assert {r.data.tags.get("map", "parent") for r in runs} == {"parent", "level1-bmuofn"}
     assert {r.info.status for r in runs} == {"FAILED"}
 
 
@@ -115,6 +115,6 @@ def test_interrupted_run_leaves_killed_mlflow_runs(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         run_experiment(cfg)
     runs = runs_of(cfg)
-    assert {r.info.run_name for r in runs} == {cfg.name, "level1-bmuofn"}
+    assert {r.data.tags.get("map", "parent") for r in runs} == {"parent", "level1-bmuofn"}
     assert {r.info.status for r in runs} == {"KILLED"}
     assert {r.data.tags.get("kernel_layout") for r in runs} == {None}

@@ -85,7 +85,7 @@ def test_streamed_domain_stage_equals_in_memory_computation(client, store):
     from dataclasses import replace
     from pathlib import Path
 
-    from meshsom.config import load_config
+    from pipelines.settings import load_config
     from meshsom.domain import bmu_histograms, domain_vectors
     from meshsom.store import mesh_table
     from pipelines.domain_stage import domain_streamed
