@@ -17,14 +17,9 @@ METRICS = ("t_error", "q_error", "qc_error")
 def log_store(store, uri: str | None = None, experiment: str | None = None) -> dict:
     """Log the store's finished maps to MLflow; returns ``{"parent": id, "children": {run: id}, "logged": n}``."""
     from meshsom.errors import StoreError
-<<<<<<< HEAD
     from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, write_tracking
-    from pipelines.tracking import Tracker, TrackingError
-=======
-    from meshsom.store import list_runs, open_store
     from pipelines.settings import TrackingConfig
     from pipelines.tracking import Tracker, TrackingError, new_short_id, run_name, store_location
->>>>>>> s2-mlf
 
     group = open_store(store, mode="r+")
     info = read_tracking(group)
@@ -67,13 +62,8 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
             logged += 1
         tracker.finish(rid)
     tracker.finish(parent)
-<<<<<<< HEAD
-    info.update(uri=uri, experiment=experiment, parent=parent, children=children)
-    write_tracking(group, info)
-=======
     info.update(uri=uri, experiment=experiment, parent=parent, children=children, short_id=short_id)
-    group.attrs["mlflow"] = info
->>>>>>> s2-mlf
+    write_tracking(group, info)
     if tracker.failed:
         raise TrackingError(f"MLflow at {uri}: {len(tracker.failed)} writes failed again: {tracker.failed[0]['error']}")
     return {"parent": parent, "children": children, "logged": logged}
