@@ -253,6 +253,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     tracker.log_artifact(child, png, "figures")
+    tracker.log_model(child, group, job.run, step=som.epochs)  # the map as a pyfunc model (pipelines.model)
     tracker.set_tags(child, engine_tags(result))
     tracker.finish(child)
     m = result["metrics"]
