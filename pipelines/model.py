@@ -25,6 +25,7 @@ themselves are :meth:`pipelines.tracking.Tracker.log_model`'s.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,6 +81,22 @@ class MapPackage:
 
     def cleanup(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)
+
+    def artifact_uris(self) -> dict:
+        """``artifacts`` as paths relative to the working directory, where the folder lies inside it.
+
+        MLflow records each artifact's source URI in the model's ``MLmodel`` (it reads only the
+        copies inside the model): relative paths keep absolute local paths out of it.
+        """
+        here = Path.cwd().resolve()
+        return {k: os.path.relpath(Path(v).resolve(), here) if Path(v).resolve().is_relative_to(here) else v
+                for k, v in self.artifacts.items()}
+
+
+def packing_folder() -> Path | None:
+    """Where to pack a model: the working directory when it is writable (see
+    :meth:`MapPackage.artifact_uris`), else None (the system's temporary folder)."""
+    return Path.cwd() if os.access(Path.cwd(), os.W_OK) else None
 
 
 def as_ring_vectors(X, dims: int) -> np.ndarray:

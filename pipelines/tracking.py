@@ -248,9 +248,9 @@ class Tracker:
 
         with warnings.catch_warnings():  # MLflow asks every PythonModel subclass for type hints
             warnings.simplefilter("ignore", UserWarning)
-            from pipelines.model import MapModel, pack_map, pip_requirements
+            from pipelines.model import MapModel, pack_map, packing_folder, pip_requirements
 
-        with tempfile.TemporaryDirectory(prefix="meshsom-model-") as tmp:
+        with tempfile.TemporaryDirectory(prefix=".meshsom-model-", dir=packing_folder()) as tmp:
             try:
                 package = pack_map(group, run, tmp)
             except (MeshsomError, OSError, ValueError) as err:  # the store, not the server: stay online
@@ -275,7 +275,7 @@ class Tracker:
                     warnings.simplefilter("ignore", UserWarning)  # integer columns in the signature
                     model = Model.log(
                         artifact_path=None, name="model", flavor=mlflow.pyfunc, run_id=run_id, step=int(step),
-                        model_id=created.model_id, python_model=MapModel(), artifacts=package.artifacts,
+                        model_id=created.model_id, python_model=MapModel(), artifacts=package.artifact_uris(),
                         code_paths=package.code_paths, input_example=package.input_example,
                         signature=infer_signature(package.input_example, package.output_example),
                         pip_requirements=pip_requirements(),
