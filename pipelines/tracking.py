@@ -243,6 +243,9 @@ class Tracker:
         """
         if not self.enabled or run_id is None:
             return None
+        if self.offline:  # recorded like every write after the server went away; nothing packed
+            self._safe("model", run_id, lambda: None, name=run)
+            return None
         import tempfile
         import warnings
 
