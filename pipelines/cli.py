@@ -23,6 +23,8 @@ COMMANDS = {
     "log": ("pipelines.log_cmd", "send a run's results from the store to MLflow (after the server was unreachable)"),
     "run": ("pipelines.run", "run a whole experiment from a YAML config (configs/paper.yaml)"),
     "report": ("pipelines.report_cmd", "regenerate the paper's tables and figures and check its claims (report.md)"),
+    "runs": ("pipelines.runs_cmd", "list the tracked maps side by side: config, level, kernel, backend, T/Q/QC-errors"),
+    "inspect": ("pipelines.inspect_cmd", "summarize a store: manifest, arrays, trained maps, fold statistics"),
     "train": ("pipelines.train_cmd", "train one level's triangle map (default or BMUofN kernel) and print T/Q/QC-errors"),
 }
 

@@ -217,7 +217,8 @@ def ingest(
     progress : bool or None
         Show progress bars (None: only on a terminal).
     """
-    from meshsom.config import CorpusConfig, ExperimentConfig, StoreConfig
+    from meshsom.config import CorpusConfig, StoreConfig
+    from pipelines.settings import RunConfig
     from meshsom.io import ReaderOptions
     from meshsom.preprocess import PreprocessParams
     from meshsom.store import DEFAULT_CHUNK_ROWS, mesh_table, open_store, read_manifest, read_meshes
@@ -226,7 +227,7 @@ def ingest(
 
     out = Path(out)
     check_writable(out, overwrite)
-    cfg = ExperimentConfig(
+    cfg = RunConfig(
         corpus=CorpusConfig(tuple(str(p) for p in paths), generator, reader or ReaderOptions()),
         preprocess=params or PreprocessParams(),
         store=StoreConfig(path=str(out), chunk_rows=chunk_rows or DEFAULT_CHUNK_ROWS),
@@ -303,7 +304,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from meshsom.config import ExperimentConfig
+    from pipelines.settings import RunConfig
     from meshsom.generate import GeneratorParams
     from meshsom.io import ReaderOptions
     from pipelines.settings import load_config, resolve_paths
@@ -314,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
         paths = list(args.inputs) or list(cfg.corpus.paths)
         generator = cfg.corpus.generator if not args.inputs else None
     else:
-        cfg = ExperimentConfig(corpus=_placeholder_corpus())
+        cfg = RunConfig(corpus=_placeholder_corpus())
         reader, params, chunk_rows = ReaderOptions(), cfg.preprocess, cfg.store.chunk_rows
         paths, generator = list(args.inputs), None
     try:

@@ -384,6 +384,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     tracker.log_artifact(child, png, "figures")
+    tracker.log_model(child, group, job.run, step=som.epochs)  # the map as a pyfunc model (pipelines.model)
     trained = som.epochs - min(int(result["resumed_from"]), som.epochs)  # epochs computed in this attempt
     if trained and result["seconds"] > 0:
         tracker.log_metrics(child, {

@@ -288,3 +288,96 @@ class Tracker:
             self.finish(rid, "FAILED")
             raise
         self.finish(rid)
+
+    def log_model(self, run_id: str | None, group, run: str, step: int = 0) -> str | None:
+        """Log a trained map of the store as the MLflow pyfunc model ``model`` of run ``run_id``.
+
+        The model packs the codebook, the level's standardization statistics, the variation
+        table and the map's geometry, with the code that predicts (:mod:`pipelines.model`), a
+        signature and an input example; it never refers to the store or any other local path.
+        The run gets the tag ``model_uri``.
+
+        Parameters
+        ----------
+        run_id : str or None
+        group : zarr.Group
+            The store root.
+        run : str
+            The map under ``runs/``.
+        step : int
+            Step of the run's metrics that MLflow links to the model (the final errors').
+
+        Returns
+        -------
+        str or None
+            The model's URI (``models:/<id>``), or None when tracking is off or the write failed
+            (recorded in :attr:`failed`, like every other write).
+        """
+        if not self.enabled or run_id is None:
+            return None
+        if self.offline:  # recorded like every write after the server went away; nothing packed
+            self._safe("model", run_id, lambda: None, name=run)
+            return None
+        import tempfile
+        import warnings
+
+        with warnings.catch_warnings():  # MLflow asks every PythonModel subclass for type hints
+            warnings.simplefilter("ignore", UserWarning)
+            from pipelines.model import MapModel, pack_map, packing_folder, pip_requirements
+
+        with tempfile.TemporaryDirectory(prefix=".meshsom-model-", dir=packing_folder()) as tmp:
+            try:
+                package = pack_map(group, run, tmp)
+            except (MeshsomError, OSError, ValueError) as err:  # the store, not the server: stay online
+                self.failed.append({"what": "model", "run_id": run_id, "name": run, "error": f"{type(err).__name__}: {err}"})
+                log.warning("cannot pack map %s as an MLflow model: %s", run, err)
+                return None
+            info: dict = {}
+
+            def write():
+                import mlflow.pyfunc
+                from mlflow.models import Model, infer_signature
+                from mlflow.tracking._tracking_service.utils import _use_tracking_uri
+
+                # the model belongs to the run's experiment (Model.log alone would file it under the
+                # default one) and carries the map's description as params
+                experiment = self.client.get_run(run_id).info.experiment_id
+                created = self.client.create_logged_model(
+                    experiment, name="model", source_run_id=run_id, model_type="meshsom-triangle-map",
+                    params={k: _param_value(v) for k, v in package.meta.items() if k not in ("stats", "metrics")},
+                )
+                with _use_tracking_uri(self.uri), warnings.catch_warnings(), _quiet_mlflow():
+                    warnings.simplefilter("ignore", UserWarning)  # integer columns in the signature
+                    model = Model.log(
+                        artifact_path=None, name="model", flavor=mlflow.pyfunc, run_id=run_id, step=int(step),
+                        model_id=created.model_id, python_model=MapModel(), artifacts=package.artifact_uris(),
+                        code_paths=package.code_paths, input_example=package.input_example,
+                        signature=infer_signature(package.input_example, package.output_example),
+                        pip_requirements=pip_requirements(),
+                    )
+                self.client.finalize_logged_model(created.model_id, "READY")
+                info["uri"] = model.model_uri
+                self.client.set_tag(run_id, "model_uri", model.model_uri)
+
+            self._safe("model", run_id, write, name=run)
+        return info.get("uri")
+
+
+@contextmanager
+def _quiet_mlflow():
+    """MLflow's model-logging chatter (pickling advice, signature checks, download bars) off, then back."""
+    names = ("mlflow.pyfunc", "mlflow.models", "mlflow.models.model")
+    levels = {n: logging.getLogger(n).level for n in names}
+    bar = os.environ.get("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR")
+    os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = "false"
+    for n in names:
+        logging.getLogger(n).setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for n, level in levels.items():
+            logging.getLogger(n).setLevel(level)
+        if bar is None:
+            os.environ.pop("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", None)
+        else:
+            os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = bar
