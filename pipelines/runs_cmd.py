@@ -40,7 +40,7 @@ SHRINK = ("config", "run", "backend", "kernel")
 MIN_WIDTH = 4
 METRICS = ("t_error", "q_error", "qc_error")
 #: Metric holding a map's training time, where the run logged one.
-SECONDS_METRIC = "seconds"
+SECONDS_METRIC = "wall_seconds"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
