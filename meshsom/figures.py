@@ -116,8 +116,8 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 120) -> tuple[str, str]
 def texts_outside(fig, tolerance: float = 1.0) -> list[str]:
     """Visible texts of ``fig`` that extend beyond the figure (cut off when saved).
 
-    Draws the figure once (Agg renderer) and compares every non-empty visible ``Text``'s window
-    extent with the figure's bounding box.
+    Draws the figure once (Agg renderer) and compares the window extent of every non-empty visible
+    ``Text`` that is drawn (tick labels of ticks outside the view are not) with the figure's box.
 
     Parameters
     ----------
@@ -137,9 +137,17 @@ def texts_outside(fig, tolerance: float = 1.0) -> list[str]:
     canvas.draw()
     renderer = canvas.get_renderer()
     w, h = fig.bbox.width, fig.bbox.height
+    skip = set()  # labels of ticks outside their axis' view: kept by matplotlib but never drawn
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            lo, hi = sorted(axis.get_view_interval())
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                loc = tick.get_loc()
+                if loc is None or not lo - 1e-9 * abs(hi - lo) <= loc <= hi + 1e-9 * abs(hi - lo):
+                    skip.update((id(tick.label1), id(tick.label2)))
     bad = []
     for text in fig.findobj(Text):
-        if not text.get_visible() or not text.get_text().strip():
+        if id(text) in skip or not text.get_visible() or not text.get_text().strip():
             continue
         box = text.get_window_extent(renderer)
         if box.x0 < -tolerance or box.y0 < -tolerance or box.x1 > w + tolerance or box.y1 > h + tolerance:
