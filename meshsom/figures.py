@@ -21,7 +21,7 @@ PERCENTILES = (1.0, 99.0)
 #: Every figure is written in these formats, one file each, same stem.
 FORMATS = ("png", "svg")
 #: Width of an average character in units of the font size (for wrapping titles before drawing).
-CHAR_WIDTH = 0.55
+CHAR_WIDTH = 0.62
 
 
 def _matplotlib():

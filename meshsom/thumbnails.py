@@ -302,7 +302,7 @@ def draw_domain_map(units, thumbnails, rows: int, cols: int, title: str = "Domai
     ax.set_xlim(0, cols)
     ax.set_ylim(rows, 0)
     note = "torus: opposite edges touch" if topology == "toroidal" else "planar"
-    ax.set_title(fit_text(f"{title}\n{rows} x {cols} {note}; {n} meshes", width - 0.4, 11), fontsize=11)
+    ax.set_title(fit_text(f"{title}\n{rows} x {cols} {note}; {n} meshes", width - 1.0, 11), fontsize=11)
     caption = []
     if span is not None:
         caption.append(f"All thumbnails at one scale: a thumbnail filling a cell spans {span:.3g} mesh units; "
