@@ -80,12 +80,12 @@ def domain_streamed(client, cfg, store: Path, run: str) -> tuple[np.ndarray, np.
 
 
 def thumbnails_of(group, n_meshes: int, size: int = 64) -> list:
-    """Thumbnails of the first ``n_meshes`` meshes of a store (RGBA arrays)."""
+    """Thumbnails of the first ``n_meshes`` meshes of a store (RGBA arrays), all at one scale."""
     from meshsom.store import mesh_table, read_mesh
-    from meshsom.thumbnails import render_thumbnail
+    from meshsom.thumbnails import render_thumbnails
 
     table = mesh_table(group)
-    return [render_thumbnail(*read_mesh(group, i, table), size=size) for i in range(n_meshes)]
+    return render_thumbnails([read_mesh(group, i, table) for i in range(n_meshes)], size=size)[0]
 
 
 def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict:
@@ -143,7 +143,7 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
         thumbs = thumbnails_of(group, n_draw)
     domain_map_figure(units[:n_draw], thumbs[:n_draw], d.rows, d.cols, path,
                       title=f"Domain map from {run} ({len(table)} meshes)",
-                      labels=labels[:n_draw] if has_labels else None)
+                      labels=labels[:n_draw] if has_labels else None, ids=np.asarray(table.ids)[:n_draw])
     return {"units": units, "figure": str(path), "metrics": metrics}
 
 

@@ -15,8 +15,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from reports.report import claims_table, make_report
+    from reports.report import claims_text, make_report
 
-    res = make_report(args.tracking_uri, args.experiment, args.out, args.clustering_experiment, tuple(args.also))
-    print(claims_table(res["claims"]), end="")
+    res = make_report(args.tracking_uri, args.experiment, args.out, args.clustering_experiment,
+                      None if args.also is None else tuple(args.also), runs=tuple(args.runs))
+    print(claims_text(res["claims"]), end="")  # report.md keeps the Markdown table
+    print(f"\nfull report: {res['report']}")
     return 0

@@ -5,7 +5,7 @@ trained map saved in the store (``--run RUN --units ...``; standardized weights 
 de-standardized with the level's stored statistics). For each vector it writes the patch
 synthesized with ``--level-by`` (``lsq``: least-squares leveling over every entry of the vector,
 the default; ``none``: the unfolding from first copies; :mod:`meshsom.synthesis`) as a mesh file,
-a contact-sheet PNG, and prints the re-translation error (QC-error between the vector and the
+a contact sheet (PNG and SVG), and prints the re-translation error (QC-error between the vector and the
 re-encoding of its patch, standardized units) of both methods.
 """
 
@@ -35,35 +35,64 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _contact_sheet(patches: list, titles: list[str], path: Path) -> None:
-    import matplotlib
+#: Pixels per patch image on the contact sheet, and patches per row at most.
+SHEET_PIXELS, SHEET_COLS = 200, 6
+#: Colours of the root triangle and of the other faces on the contact sheet.
+ROOT_COLOUR, FACE_COLOUR = (0.85, 0.25, 0.15), (0.35, 0.55, 0.85)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+def _crop(image: np.ndarray, margin: int = 4) -> np.ndarray:
+    """An RGBA image cut to its opaque pixels plus ``margin`` (the empty border removed)."""
+    rows, cols = np.nonzero(image[..., 3])
+    if not len(rows):
+        return image
+    r0, c0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    return image[r0:rows.max() + margin + 1, c0:cols.max() + margin + 1]
+
+
+def contact_sheet(patches: list, names: list[str], errors: dict, level: int, level_by: str, path: Path) -> tuple[str, str]:
+    """One image per synthesized patch, cropped to the patch, named and with its errors; PNG and SVG.
+
+    Parameters
+    ----------
+    patches : list of Patch
+    names : list of str
+        ``unit12`` or ``face7`` per patch.
+    errors : dict of str to (n,) float
+        Re-translation QC-error per method (``none``, ``lsq``), standardized units.
+    level, level_by
+        Named in the title.
+    path : Path
+        The PNG; the SVG is written beside it.
+
+    Returns
+    -------
+    (png, svg) : str
+    """
+    from meshsom.figures import fit_text, new_figure, save_figure
+    from meshsom.thumbnails import render_thumbnail
 
     n = len(patches)
-    cols = min(n, 6)
-    rows = (n + cols - 1) // cols
-    fig = plt.figure(figsize=(2.4 * cols, 2.4 * rows))
-    for i, (patch, title) in enumerate(zip(patches, titles)):
-        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
-        tris = patch.vertices[patch.faces]
-        shade = 0.35 + 0.6 * np.abs(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])[:, 2]) / (
-            np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1) + 1e-12)
-        colors = [(0.2, 0.4 + 0.4 * s, 0.8, 0.9) for s in shade]
-        colors[0] = (0.9, 0.3, 0.2, 1.0)  # the root
-        ax.add_collection3d(Poly3DCollection(tris, facecolors=colors, edgecolors="k", linewidths=0.3))
-        lo, hi = patch.vertices.min(axis=0), patch.vertices.max(axis=0)
-        c, r = (lo + hi) / 2, (hi - lo).max() / 2 + 1e-9
-        ax.set_xlim(c[0] - r, c[0] + r)
-        ax.set_ylim(c[1] - r, c[1] + r)
-        ax.set_zlim(c[2] - r, c[2] + r)
+    cols = min(n, SHEET_COLS)
+    rows = -(-n // cols)
+    width = max(2.0 * cols, 5.5)
+    fig = new_figure((width, 2.1 * rows + 1.5))
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    for ax in axes:
         ax.set_axis_off()
-        ax.set_title(title, fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    for i, (ax, patch, name) in enumerate(zip(axes, patches, names)):
+        colours = np.tile(FACE_COLOUR, (len(patch.faces), 1))
+        colours[0] = ROOT_COLOUR
+        ax.imshow(_crop(render_thumbnail(patch.vertices, patch.faces, size=SHEET_PIXELS, colours=colours,
+                                         edges="black")))
+        ax.set_title(f"{name}\n{errors['none'][i]:.3g} -> {errors['lsq'][i]:.3g}", fontsize=8)
+    method = "least-squares leveling" if level_by == "lsq" else "no leveling (unfolding from first copies)"
+    fig.suptitle(fit_text(f"Level-{level} patches synthesized with {method}", width - 0.3, 11), fontsize=11)
+    fig.supxlabel(fit_text("Red: the root triangle. Under each name: the re-translation QC-error (standardized "
+                           "units; QC-error between the vector and the re-encoding of its patch) without -> with "
+                           "least-squares leveling. Each patch is drawn at its own scale.", width - 0.3, 8),
+                  fontsize=8)
+    return save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -112,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
         errors[method] = entry_deviation(z, encode_patches(V, level), stats).mean(axis=1)
         if method == args.level_by:
             chosen = V
-    records, patches, titles = [], [], []
+    records, patches = [], []
     for i, name in enumerate(names):
         patch = Patch(chosen[i], topo.faces.copy(), list(topo.slots), topo.adjacency, level)
         path = out / f"level{level}_{name}_{args.level_by}.{args.format}"
@@ -120,14 +149,13 @@ def run(args: argparse.Namespace) -> int:
         records.append({"name": name, "level": level, "level_by": args.level_by, "files": [str(path)],
                         **{f"retranslation_{m}": float(errors[m][i]) for m in LEVEL_BY}})
         patches.append(patch)
-        titles.append(f"{name}: {errors[args.level_by][i]:.3g}")
-    sheet = out / f"level{level}_contact_sheet.png"
-    _contact_sheet(patches, titles, sheet)
+    sheet, sheet_svg = contact_sheet(patches, names, errors, level, args.level_by, out / f"level{level}_contact_sheet.png")
     if args.json:
-        print(json.dumps({"level": level, "level_by": args.level_by, "patches": records, "contact_sheet": str(sheet)}))
+        print(json.dumps({"level": level, "level_by": args.level_by, "patches": records, "contact_sheet": sheet,
+                          "contact_sheet_svg": sheet_svg}))
     else:
         for r in records:
             print(f"{r['name']}: re-translation QC-error {r['retranslation_none']:.4g} unleveled, "
                   f"{r['retranslation_lsq']:.4g} leveled (lsq)")
-        print(f"{len(records)} patch files ({args.level_by}) and {sheet} in {out}")
+        print(f"{len(records)} patch files ({args.level_by}) and {Path(sheet).name} (and .svg) in {out}")
     return 0

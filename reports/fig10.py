@@ -1,6 +1,6 @@
 """Figure 10 of the paper: re-translation error of level-3 prototypes, before and after leveling.
 
-`python -m reports.fig10 [--tracking-uri URI] [--experiment paper] [--out DIR] [--sample N] [--seed S]`
+`python -m reports.fig10 [--tracking-uri URI] [--experiment paper | --run ID] [--out DIR] [--sample N] [--seed S]`
 takes the level-3 map of the experiment's latest finished pipeline run and, for every unit that
 training vectors are mapped to (or a seeded sample of ``N`` of them), its *original*: the training
 vector, in its winning variation, nearest to the prototype among those mapped to it (DESIGN.md §3;
@@ -16,9 +16,9 @@ re-encoded and compared, in standardized units:
 The reduction is ``100 * (1 - mean(leveled) / mean(unleveled))`` over the prototypes. The paper
 reports 30-40 % at level 3, "especially small in close neighborhood to the root triangle".
 
-Writes ``DIR/fig10.png``: the per-entry deviation of one sample prototype (the one of median
+Writes ``DIR/fig10.png`` and ``.svg``: the per-entry deviation of one sample prototype (the one of median
 unleveled error) from its original, before (top) and after (bottom) leveling, as the paper's grid of
-``GRID_COLS`` values a row, coloured as a heat-map; the distribution of the error over all measured
+``GRID_COLS`` values a row, coloured as a heat-map on one shared scale; the distribution of the error over all measured
 prototypes; the mean error per ring depth. ``DIR/fig10-grid.md`` holds the two grids as numbers in
 the paper's format. Without level 3, the highest trained level >= 2 is used, with a note.
 """
@@ -32,9 +32,10 @@ from pathlib import Path
 import numpy as np
 
 from meshsom.synthesis import V_MIN
-from reports.runs import ReportError, TrackedExperiment, add_common_arguments, load_experiment, run_main
+from reports.runs import ReportError, TrackedExperiment, add_common_arguments, load_from_args, run_main
 
-__all__ = ["GRID_COLS", "LEVEL", "SAMPLE", "V_MIN", "format_pct", "main", "measure", "reduction_pct", "summary", "write"]
+__all__ = ["GRID_COLS", "LEVEL", "SAMPLE", "V_MIN", "change_text", "figure", "format_pct", "main", "measure",
+           "reduction_pct", "summary", "write"]
 
 #: Level of the paper's Figure 10.
 LEVEL = 3
@@ -179,15 +180,6 @@ def measure(Z: np.ndarray, W: np.ndarray, level: int, stats) -> dict:
     return res
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _grid(values: np.ndarray) -> np.ndarray:
     """Per-value deviations as the paper's grid: rows of ``GRID_COLS`` (the last padded with NaN)."""
     n = -(-len(values) // GRID_COLS) * GRID_COLS
@@ -214,54 +206,92 @@ def grid_text(res: dict) -> str:
     return "\n".join(lines)
 
 
-def _plot(res: dict, path: Path, title: str) -> None:
-    plt = _pyplot()
+def change_text(pct: float) -> str:
+    """A relative change as words, never a double negative: ``6.3 % lower``, ``6.3 % higher``, ``unchanged``.
+
+    Parameters
+    ----------
+    pct : float
+        Reduction in percent (:func:`reduction_pct`): positive when the second value is lower.
+    """
+    if abs(pct) < 0.05:
+        return "unchanged (0.0 %)"
+    return f"{format_pct(abs(pct))} {'lower' if pct > 0 else 'higher'}"
+
+
+#: Colours of the two methods (before, after leveling), used by every panel.
+COLOURS = {"none": "tab:orange", "lsq": "tab:blue"}
+WHAT = {"none": "before leveling", "lsq": "after leveling"}
+
+
+def figure(res: dict, title: str):
+    """Build Figure 10 from :func:`write`'s measurements.
+
+    Left: the sample prototype's per-value deviation grids before (top) and after (bottom) leveling,
+    on one shared, percentile-clipped colour scale. Right, top: the distribution of the error over
+    all prototypes, both methods as outlined histograms with a legend; bottom: the mean error per
+    ring depth.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from meshsom.figures import PERCENTILES, clip_note, fit_text, new_figure, robust_limits
+
     m = res["measure"]
-    fig = plt.figure(figsize=FIGSIZE)
+    fig = new_figure(FIGSIZE)
     gs = fig.add_gridspec(2, 2, width_ratios=(1.25, 1.0))
     grids = [_grid(res["sample_abs"][k]) for k in METHODS]
-    vmax = float(np.nanmax(grids[0]))
+    vmin, vmax = robust_limits(np.concatenate([g.ravel() for g in grids]), (0.0, PERCENTILES[1]))
+    vmin = 0.0
     unit = int(res["units"][res["sample"]])
-    for i, (g, what) in enumerate(zip(grids, ("before leveling", "after leveling"))):
+    grid_axes = []
+    for i, (g, k) in enumerate(zip(grids, METHODS)):
         ax = fig.add_subplot(gs[i, 0])
-        im = ax.imshow(g, cmap="magma_r", vmin=0.0, vmax=vmax, aspect="auto")
+        grid_axes.append(ax)
+        im = ax.imshow(g, cmap="magma_r", vmin=vmin, vmax=vmax, aspect="auto")
         for (r, c), v in np.ndenumerate(g):
             ax.text(c, r, _cell(v), ha="center", va="center", fontsize=CELL_FONT,
                     color="white" if np.isfinite(v) and v > 0.6 * vmax else "black")
         ax.set_xticks(range(GRID_COLS))
         ax.set_yticks(range(len(g)))
-        ax.set_title(f"unit {unit}, {what}: |original - re-encoding| per value (standardized), "
-                     f"QC {m[METHODS[i]]['original'][res['sample']]:.4f}", fontsize=9)
-        fig.colorbar(im, ax=ax, fraction=0.03)
+        ax.set_xlabel("entry within the row", fontsize=8)
+        ax.set_ylabel(f"row of {GRID_COLS} entries", fontsize=8)
+        ax.set_title(f"unit {unit}, {WHAT[k]}: QC-error {m[k]['original'][res['sample']]:.4f}", fontsize=10)
+    fig.colorbar(im, ax=grid_axes, extend="max", fraction=0.04,
+                 label=fit_text(f"|original - re-encoding| per value (standardized units); one scale for both "
+                                f"grids, {clip_note((0.0, PERCENTILES[1]))}", 0.8 * FIGSIZE[1], 9))
     ax = fig.add_subplot(gs[0, 1])
     both = np.concatenate([m[k]["original"] for k in METHODS])
     lo = float(both[both > 0].min()) if (both > 0).any() else 1e-12
     bins = np.geomspace(lo, max(float(both.max()), 2.0 * lo), BINS + 1)
     ax.set_xscale("log")
-    for k, what in zip(METHODS, ("before", "after")):
-        ax.hist(np.maximum(m[k]["original"], lo), bins=bins, alpha=0.6, label=f"{what} leveling: mean {m[k]['original'].mean():.4f}")
-    ax.set_xlabel("re-translation QC-error against the original (standardized)")
+    for k, style in zip(METHODS, ("-", "--")):
+        ax.hist(np.maximum(m[k]["original"], lo), bins=bins, histtype="step", linewidth=1.6, linestyle=style,
+                color=COLOURS[k], label=f"{WHAT[k]}: mean {m[k]['original'].mean():.4f}")
+    ax.set_xlabel("re-translation QC-error against the original (standardized units)")
     ax.set_ylabel("prototypes")
-    ax.set_title(f"{len(res['units'])} prototypes: {format_pct(m['reduction_pct'])} lower with leveling", fontsize=10)
+    ax.set_title(fit_text(f"{len(res['units'])} prototypes: mean error {change_text(m['reduction_pct'])} "
+                          "with leveling", 6.0, 10), fontsize=10)
     ax.legend(fontsize=8)
     ax = fig.add_subplot(gs[1, 1])
     d = np.arange(res["level"])
     w = 0.2
-    for j, (k, ref) in enumerate([(k, ref) for ref in ("original", "prototype") for k in METHODS]):
+    for j, (ref, k) in enumerate((ref, k) for ref in ("original", "prototype") for k in METHODS):
         vals = m[k]["by_depth"] if ref == "original" else m[k]["by_depth_prototype"]
-        ax.bar(d + (j - 1.5) * w, vals, width=w, label=f"vs {ref}, {'before' if k == 'none' else 'after'} leveling")
+        ax.bar(d + (j - 1.5) * w, vals, width=w, color=COLOURS[k], hatch="" if ref == "original" else "//",
+               edgecolor="black", linewidth=0.5, label=f"vs {ref}, {WHAT[k]}")
     ax.set_xticks(d, ["root"] + [f"ring {i}" for i in range(1, res["level"])])
-    ax.set_ylabel("mean deviation per fold entry (standardized)")
-    ax.set_title("by ring depth (depth of the face a fold belongs to)", fontsize=10)
+    ax.set_xlabel("ring depth of the face a fold belongs to")
+    ax.set_ylabel("mean deviation per fold entry\n(standardized units)")
+    ax.set_title("error by ring depth", fontsize=10)
     ax.legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
+    fig.suptitle(fit_text(title, FIGSIZE[0] - 0.5, 12), fontsize=12)
+    return fig
 
 
 def write(exp: TrackedExperiment, out: Path, sample: int | None = SAMPLE, seed: int = SEED) -> dict:
-    """Measure and plot; writes ``out/fig10.png`` and ``out/fig10-grid.md`` unless no level >= 2 was trained.
+    """Measure and plot; writes ``out/fig10.png``, ``.svg`` and ``out/fig10-grid.md`` unless no level >= 2 was trained.
 
     Returns
     -------
@@ -269,10 +299,10 @@ def write(exp: TrackedExperiment, out: Path, sample: int | None = SAMPLE, seed: 
         ``level`` (None when skipped), ``note``, ``run``, ``units`` (n,) the units measured,
         ``n_units``, ``measure`` (:func:`measure`'s result), ``sample``
         (index into ``units`` of the prototype drawn as a grid), ``sample_abs`` (per method, (D,)
-        its per-value deviations), ``figure`` and ``grid`` (paths or None).
+        its per-value deviations), ``figure``, ``svg`` and ``grid`` (paths or None), ``files``.
     """
     level, note = choose_level(exp)
-    res = {"level": level, "note": note, "figure": None, "grid": None}
+    res = {"level": level, "note": note, "figure": None, "svg": None, "grid": None, "files": []}
     if level is None:
         return res
     run = exp.find(level).name
@@ -284,12 +314,15 @@ def write(exp: TrackedExperiment, out: Path, sample: int | None = SAMPLE, seed: 
     rep = int(np.argsort(m["none"]["original"], kind="stable")[len(o["units"]) // 2])  # median unleveled error
     res["sample"] = rep
     res["sample_abs"] = {k: m[k]["abs"][rep] for k in METHODS}
+    from meshsom.figures import save_figure
+
     out.mkdir(parents=True, exist_ok=True)
-    path = out / "fig10.png"
-    _plot(res, path, f"Figure 10: level-{level} re-translation before and after leveling "
-                     f"(experiment {exp.experiment}, {run})")
+    fig = figure(res, f"Figure 10: level-{level} re-translation before and after leveling "
+                      f"(experiment {exp.experiment}, {run})")
+    res["figure"], res["svg"] = save_figure(fig, out / "fig10.png", DPI)
     (out / "fig10-grid.md").write_text(f"# Figure 10: unit {int(o['units'][rep])} of {run}\n\n" + grid_text(res))
-    res["figure"], res["grid"] = str(path), str(out / "fig10-grid.md")
+    res["grid"] = str(out / "fig10-grid.md")
+    res["files"] = [res["figure"], res["svg"], res["grid"]]
     return res
 
 
@@ -299,15 +332,15 @@ def summary(res: dict) -> str:
         return f"Figure 10 skipped: {res['note']}"
     m = res["measure"]
     a, b = m["none"], m["lsq"]
-    depth = ", ".join(f"{'root' if d == 0 else f'ring {d}'} {x:.4f} -> {y:.4f} ({format_pct(p)})"
+    depth = ", ".join(f"{'root' if d == 0 else f'ring {d}'} {x:.4f} -> {y:.4f} ({change_text(p)})"
                       for d, (x, y, p) in enumerate(zip(a["by_depth"], b["by_depth"], m["reduction_by_depth_pct"])))
     text = (f"level {res['level']} ({res['run']}), {len(res['units'])} prototypes with an original (of "
             f"{res['n_units']} units): re-translation QC-error against the original {a['original'].mean():.5f} "
             f"without leveling, {b['original'].mean():.5f} with least-squares leveling: "
-            f"{format_pct(m['reduction_pct'])} lower. By ring depth: {depth}. Against the prototype itself: "
-            f"{a['prototype'].mean():.5f} -> {b['prototype'].mean():.5f} ({format_pct(m['reduction_prototype_pct'])} lower). "
+            f"{change_text(m['reduction_pct'])}. By ring depth: {depth}. Against the prototype itself: "
+            f"{a['prototype'].mean():.5f} -> {b['prototype'].mean():.5f} ({change_text(m['reduction_prototype_pct'])}). "
             f"Against the original, alpha on the circle: {a['original_circular'].mean():.5f} -> "
-            f"{b['original_circular'].mean():.5f} ({format_pct(m['reduction_circular_pct'])} lower). "
+            f"{b['original_circular'].mean():.5f} ({change_text(m['reduction_circular_pct'])}). "
             f"Grid of unit {int(res['units'][res['sample']])} (median unleveled error): "
             f"{res['measure']['none']['original'][res['sample']]:.4f} -> {res['measure']['lsq']['original'][res['sample']]:.4f}.")
     return text + (f" Note: {res['note']}" if res["note"] else "")
@@ -321,10 +354,10 @@ def _main(argv) -> int:
     args = p.parse_args(argv)
     if args.sample is not None and args.sample < 1:
         p.error(f"--sample must be >= 1, received {args.sample}")
-    res = write(load_experiment(args.tracking_uri, args.experiment), args.out, args.sample, args.seed)
+    res = write(load_from_args(args), args.out, args.sample, args.seed)
     print(summary(res))
     if res["figure"]:
-        print(f"wrote {res['figure']} and {res['grid']}")
+        print(f"wrote {res['figure']}, {res['svg']} and {res['grid']}")
     return 0
 
 

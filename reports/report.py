@@ -1,14 +1,18 @@
 """Every table and figure of the paper's Results section, and a page that checks its claims.
 
-`meshsom report [--tracking-uri URI] [--experiment paper] --out DIR` (or `python -m reports.report`)
-reads the latest finished pipeline run of each experiment from MLflow and writes into DIR:
+`meshsom report [--tracking-uri URI] [--experiment paper | --run ID ...] --out DIR` (or
+`python -m reports.report`) reads the latest finished pipeline run of each experiment from MLflow, or
+exactly the pipeline runs named by ``--run`` (repeatable; the first is the main one, the others are
+reported in ``DIR/<experiment>-<id prefix>/``), and writes into DIR:
 
 - ``table1.md`` (:mod:`reports.table1`), ``table2.md``, ``fig8.png`` and ``fig8-<run>.png``,
-  ``fig9-<run>.png``, ``fig10.png`` of the main experiment (``--experiment``, default ``paper``);
+  ``fig9-<run>.png``, ``fig10.png`` (each figure also as ``.svg``) of the main experiment
+  (``--experiment``, default ``paper``);
 - ``clustering.md`` from the labelled experiment (``--clustering-experiment``, default
-  ``synthetic``) when it is tracked;
-- for every other experiment of ``--also`` that is tracked (default: ``delft`` and ``synthetic``,
-  and ``paper`` when it is not the main one), the same tables and figures in ``DIR/<experiment>/``;
+  ``synthetic``) when it is tracked (a ``--run`` of that experiment is used when given);
+- for every other experiment of ``--also`` that is tracked (default without ``--run``: ``delft``
+  and ``synthetic``, and ``paper`` when it is not the main one; with ``--run``: none), the same
+  tables and figures in ``DIR/<experiment>/``;
 - ``report.md``: our numbers next to the paper's, and for each of the paper's claims whether our
   runs reproduce it, with the numbers:
 
@@ -18,7 +22,8 @@ reads the latest finished pipeline run of each experiment from MLflow and writes
   (d) similar buildings lie close on domain maps (k-NN label agreement vs chance and vs D2).
 
 A missing main experiment is an error naming the tracking URI and the experiment; a missing
-optional experiment is noted in ``report.md``.
+optional experiment is noted in ``report.md``; an unknown ``--run`` id is an error naming it.
+The terminal gets the claims as a plain table that fits 80 columns (:func:`claims_text`).
 """
 
 from __future__ import annotations
@@ -27,9 +32,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from reports.runs import DEFAULT_EXPERIMENT, ReportError, TrackedExperiment, load_experiment, resolve_uri, run_main
+from reports.runs import (
+    DEFAULT_EXPERIMENT, ReportError, TrackedExperiment, load_experiment, load_run, resolve_uri, run_main,
+)
 
-__all__ = ["CLAIMS", "DESCRIPTIONS", "claim_a", "claim_b", "claim_c", "claim_d", "main", "make_report"]
+__all__ = ["CLAIMS", "DESCRIPTIONS", "claim_a", "claim_b", "claim_c", "claim_d", "claims_text", "main", "make_report"]
 
 #: The paper's claims, by key.
 CLAIMS = {
@@ -57,6 +64,12 @@ def _pct(x: float) -> str:
     from reports.fig10 import format_pct
 
     return format_pct(x)
+
+
+def _change(x: float) -> str:
+    from reports.fig10 import change_text
+
+    return change_text(x)
 
 
 def _verdict(flags: list[bool]) -> str:
@@ -145,9 +158,10 @@ def claim_c(fig10: dict) -> dict:
     verdict = YES if lo <= r <= hi else (PARTLY if r >= 1.0 else NO)
     depth = ", ".join(_pct(x) for x in m["reduction_by_depth_pct"])
     ours = (f"level {fig10['level']}, {len(fig10['units'])} prototypes, QC-error against their originals: "
-            f"{m['none']['original'].mean():.5f} -> {m['lsq']['original'].mean():.5f} (reduction {_pct(r)}; "
-            f"by ring depth root..outer: {depth}; alpha on the circle: {_pct(m['reduction_circular_pct'])}; "
-            f"against the prototype itself: {_pct(m['reduction_prototype_pct'])})")
+            f"{m['none']['original'].mean():.5f} -> {m['lsq']['original'].mean():.5f} ({_change(r)}; "
+            f"reduction by ring depth root..outer: {depth}; alpha on the circle: "
+            f"{_change(m['reduction_circular_pct'])}; "
+            f"against the prototype itself: {_change(m['reduction_prototype_pct'])})")
     if fig10.get("level") != 3:
         verdict = NOT_MEASURED if verdict == YES else verdict
         ours += f" [not level 3: {fig10.get('note')}]"
@@ -185,6 +199,31 @@ def claims_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def claims_text(rows: list[dict], width: int = 80) -> str:
+    """The claims as a plain-text table for a terminal: no line longer than ``width`` characters.
+
+    One block per claim: its key and statement, then per measured relation the verdict, what was
+    measured, and the paper's and our numbers, wrapped and indented.
+    """
+    import textwrap
+
+    verdict_w = max(len(v) for v in (YES, NO, PARTLY, NOT_MEASURED))
+    what_w = width - 6 - verdict_w - 2
+    lines, last = [], None
+    for r in rows:
+        if r["claim"] != last:
+            lines += ([""] if last is not None else []) + textwrap.wrap(
+                f"({r['claim']}) {CLAIMS[r['claim']]}", width, subsequent_indent="    ")
+            last = r["claim"]
+        what = textwrap.wrap(r["what"], what_w) or [""]
+        lines.append(f"    {r['verdict']:<{verdict_w}}  {what[0]}")
+        lines += [f"    {'':<{verdict_w}}  {w}" for w in what[1:]]
+        for key in ("paper", "ours"):
+            lines += textwrap.wrap(f"{key}: {r[key]}", width, initial_indent=" " * (6 + verdict_w),
+                                   subsequent_indent=" " * (8 + verdict_w), break_long_words=True)
+    return "\n".join(lines) + "\n"
+
+
 # ---------------------------------------------------------------------------------------------- per experiment
 def experiment_outputs(exp: TrackedExperiment, out: Path, log=print) -> dict:
     """Table 2 and Figures 8-10 of one experiment, into ``out``; returns what each wrote."""
@@ -205,7 +244,8 @@ def experiment_outputs(exp: TrackedExperiment, out: Path, log=print) -> dict:
 def _figures_md(res: dict, prefix: str) -> list[str]:
     from reports.fig10 import summary
 
-    lines = [f"![Figure 8]({prefix}fig8.png)", ""]
+    lines = ["Every figure is also written as SVG beside its PNG (same name, `.svg`).", "",
+             f"![Figure 8]({prefix}fig8.png)", ""]
     lines += [f"- {n}" for n in res["fig8"]["missing"]]
     lines += [f"![Figure 9, {run}]({prefix}{Path(p).name})" for run, p in res["fig9"]["figures"].items()]
     lines += [f"- {n}" for n in res["fig9"]["missing"]]
@@ -217,7 +257,8 @@ def _figures_md(res: dict, prefix: str) -> list[str]:
 
 def _header(exp: TrackedExperiment) -> str:
     return (f"MLflow experiment `{exp.experiment}` ({DESCRIPTIONS.get(exp.experiment, 'custom experiment')}), "
-            f"pipeline run `{exp.run_id}`, git commit `{exp.tags.get('mlflow.source.git.commit', 'unknown')}`, "
+            f"pipeline run `{exp.run_id}`, git commit "
+            f"`{exp.tags.get('mlflow.source.git.commit', exp.tags.get('git_commit', 'unknown'))}`, "
             f"dataset fingerprint `{exp.tags.get('dataset_fingerprint', 'unknown')}`, store `{exp.store}`.")
 
 
@@ -229,23 +270,29 @@ def _try_load(uri: str, name: str) -> tuple[TrackedExperiment | None, str | None
 
 
 # ---------------------------------------------------------------------------------------------- the report
-def make_report(uri: str | None, experiment: str, out: Path, clustering_experiment: str = "synthetic",
-                also: tuple[str, ...] = DEFAULT_ALSO, log=print) -> dict:
+def make_report(uri: str | None, experiment: str | None, out: Path, clustering_experiment: str = "synthetic",
+                also: tuple[str, ...] | None = None, log=print, runs: tuple[str, ...] = ()) -> dict:
     """Write every table and figure and ``report.md`` into ``out``.
 
     Parameters
     ----------
     uri : str or None
         Tracking URI; None: MLflow's default.
-    experiment : str
-        The main experiment (its files go to ``out`` itself).
+    experiment : str or None
+        The main experiment (its latest finished pipeline run; its files go to ``out`` itself).
+        Ignored when ``runs`` are given.
     out : Path
     clustering_experiment : str
         Labelled experiment for ``clustering.md`` and claim (d); skipped with a note when absent.
-    also : tuple of str
-        Further experiments reported in ``out/<name>/`` when tracked.
+        When one of ``runs`` belongs to it, that run is used, else its latest.
+    also : tuple of str or None
+        Further experiments reported in ``out/<name>/`` when tracked; None: :data:`DEFAULT_ALSO`
+        without ``runs``, none with them.
     log : callable
         Progress messages.
+    runs : tuple of str
+        MLflow ids of pipeline runs to report instead of the latest: the first is the main one, the
+        others go to ``out/<experiment>-<first 8 characters of the id>/``.
 
     Returns
     -------
@@ -256,22 +303,28 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
     Raises
     ------
     ReportError
-        When the main experiment is not tracked (the message names the URI and the experiment).
+        When the main experiment is not tracked (the message names the URI and the experiment), or
+        a run id does not exist or is not a finished pipeline run (the message names the id).
     """
     from reports import clustering, table1
 
     uri = resolve_uri(uri)
     out = Path(out)
-    main_exp = load_experiment(uri, experiment)  # fails first, naming URI and experiment
+    chosen = [load_run(uri, r) for r in runs]  # fail first, naming the id
+    main_exp = chosen[0] if chosen else load_experiment(uri, experiment)  # or the URI and experiment
+    experiment = main_exp.experiment
+    if also is None:
+        also = () if chosen else DEFAULT_ALSO
     out.mkdir(parents=True, exist_ok=True)
-    log(f"report of experiment {experiment!r} from {uri} into {out}")
+    log(f"report of experiment {experiment!r}, run {main_exp.run_id}\n  from {uri}\n  into {out}")
     t1 = table1.rows()
     table1.check_against_paper(t1)
     (out / "table1.md").write_text(table1.format_markdown(t1))
     results = {experiment: experiment_outputs(main_exp, out, log)}
 
     log(f"  clustering: experiment {clustering_experiment!r}")
-    clus_exp, clus_note = _try_load(uri, clustering_experiment)
+    given = [e for e in chosen if e.experiment == clustering_experiment]
+    clus_exp, clus_note = (given[0], None) if given else _try_load(uri, clustering_experiment)
     clus_rows, clus_text = None, None
     if clus_exp is not None:
         try:
@@ -281,15 +334,14 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
     claims = results[experiment]["claims"] + [claim_d(clus_rows, clus_note, clustering_experiment)]
 
     others: dict = {}
-    for name in also:
-        if name == experiment:
-            continue
-        exp, note = _try_load(uri, name)
+    targets = [(f"{e.experiment}-{e.run_id[:8]}", e, None) for e in chosen[1:]]
+    targets += [(name, *_try_load(uri, name)) for name in also if name != experiment]
+    for name, exp, note in targets:
         if exp is None:
             others[name] = {"note": note}
             continue
         res = experiment_outputs(exp, out / name, log)
-        if name == clustering_experiment:
+        if exp.experiment == clustering_experiment and clus_exp is not None and exp.run_id == clus_exp.run_id:
             res["claims"].append(claims[-1])
         others[name] = {"exp": exp, "res": res}
         results[name] = res
@@ -322,7 +374,7 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
                 cells.append(hit[0]["verdict"] if hit else NOT_MEASURED)
             lines.append(f"| ({claim}) | {what} | " + " | ".join(cells) + " |")
         lines += [f"| (d) | {claims[-1]['what']} | " + " | ".join(
-            claims[-1]["verdict"] if n == clustering_experiment else "no labels" for n, _ in summary_rows)
+            claims[-1]["verdict"] if any(c["claim"] == "d" for c in rows) else "no labels" for _, rows in summary_rows)
             + " |", ""]
     lines += [
         "Notes on the verdicts:",
@@ -358,7 +410,7 @@ def make_report(uri: str | None, experiment: str, out: Path, clustering_experime
         "",
     ]
     for name, o in others.items():
-        title = DESCRIPTIONS.get(name, name)
+        title = DESCRIPTIONS.get(o["exp"].experiment if "exp" in o else name, name)
         if "res" not in o:
             lines += [f"## Experiment `{name}`: {title}", "", f"Not tracked: {o['note']}", ""]
             continue
@@ -377,11 +429,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``meshsom report`` and ``python -m reports.report``."""
     p.add_argument("--tracking-uri", help="MLflow tracking URI (default: MLFLOW_TRACKING_URI or ./mlflow.db)")
     p.add_argument("--experiment", default=DEFAULT_EXPERIMENT,
-                   help=f"main experiment: Table 2 and Figures 8-10 (default: {DEFAULT_EXPERIMENT})")
+                   help=f"main experiment: Table 2 and Figures 8-10 of its latest finished run "
+                        f"(default: {DEFAULT_EXPERIMENT})")
+    p.add_argument("--run", dest="runs", action="append", default=[], metavar="ID",
+                   help="MLflow id of a pipeline run to report instead of the latest (repeatable: the first is "
+                        "the main one, the others go to OUT/<experiment>-<id prefix>/)")
     p.add_argument("--clustering-experiment", default="synthetic",
                    help="labelled experiment for clustering.md and claim (d) (default: synthetic)")
-    p.add_argument("--also", nargs="*", default=list(DEFAULT_ALSO),
-                   help=f"further experiments reported in OUT/<name>/ when tracked (default: {' '.join(DEFAULT_ALSO)})")
+    p.add_argument("--also", nargs="*", default=None,
+                   help=f"further experiments reported in OUT/<name>/ when tracked (default: {' '.join(DEFAULT_ALSO)}; "
+                        "none with --run)")
     p.add_argument("--out", type=Path, required=True, help="folder to write into (created)")
 
 
@@ -389,8 +446,10 @@ def _main(argv) -> int:
     p = argparse.ArgumentParser(prog="python -m reports.report", description=__doc__.splitlines()[0])
     add_arguments(p)
     args = p.parse_args(argv)
-    res = make_report(args.tracking_uri, args.experiment, args.out, args.clustering_experiment, tuple(args.also))
-    print(claims_table(res["claims"]), end="")
+    res = make_report(args.tracking_uri, args.experiment, args.out, args.clustering_experiment,
+                      None if args.also is None else tuple(args.also), runs=tuple(args.runs))
+    print(claims_text(res["claims"]), end="")
+    print(f"\nfull report: {res['report']}")
     return 0
 
 
