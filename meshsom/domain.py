@@ -409,7 +409,11 @@ def train_domain_map_sparse(vectors: SparseDomainVectors, rows: int, cols: int, 
 #: k-means restarts of :func:`map_regions` (the best of them is kept).
 KMEANS_RESTARTS = 4
 
-def knn_label_agreement(units, labels, rows: int, cols: int, k: int = 5, topology: str = "toroidal") -> float:
+#: Nearest meshes on the map whose labels :func:`knn_label_agreement` compares (the pipeline's and the reports' k).
+KNN = 5
+
+
+def knn_label_agreement(units, labels, rows: int, cols: int, k: int = KNN, topology: str = "toroidal") -> float:
     """Mean share of each mesh's ``k`` nearest other meshes on the map that share its label.
 
     Nearness is the grid distance between the meshes' units (DESIGN.md §4, wrapped on a

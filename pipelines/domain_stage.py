@@ -15,8 +15,6 @@ import numpy as np
 
 #: Meshes drawn on a domain-map figure at most (a city-sized corpus is drawn by a sample).
 MAX_THUMBNAILS = 400
-#: Neighbours of the k-NN label agreement.
-KNN = 5
 #: Above this many bytes of domain vectors (meshes x triangle-map units x 4) the stage writes them
 #: to the store on the workers and trains the domain map on their sparse form on the client.
 IN_MEMORY_BYTES = 256 << 20
@@ -97,12 +95,12 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
         ``units`` (n_meshes,), ``figure`` path, ``metrics`` (domain Q-error, and with labels the
         k-NN agreement, its chance level and the ARI of map regions vs labels).
     """
-    from meshsom.codebook import load_codebook
     from sklearn.metrics import adjusted_rand_score
 
+    from meshsom.codebook import load_codebook
     from meshsom.domain import (
-        bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance,
-        map_regions, place, train_domain_map,
+        KNN, bmu_histograms, domain_vectors, knn_label_agreement, label_agreement_chance, map_regions, place,
+        train_domain_map,
     )
     from meshsom.store import figures_dir, mesh_table, open_store, write_domain
     from meshsom.thumbnails import domain_map_figure
@@ -160,7 +158,8 @@ def run_domain_stage(cfg, store: Path, tracker, ids: dict, results: list[dict], 
         dom = domain_for_run(cfg, store, run, thumbs, client)
         child = ids["children"].get(run)
         tracker.log_metrics(child, dom["metrics"], step=cfg.som.epochs)
-        tracker.log_artifact(child, dom["figure"], "figures")
+        for figure in (dom["figure"], str(Path(dom["figure"]).with_suffix(".svg"))):
+            tracker.log_artifact(child, figure, "figures")
         m = dom["metrics"]
         extra = (f", k-NN label agreement {m['knn_label_agreement']:.3f} (chance {m['knn_label_chance']:.3f}), "
                  f"ARI {m['ari_regions_vs_labels']:.3f}") if "knn_label_agreement" in m else ""

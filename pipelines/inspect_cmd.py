@@ -25,22 +25,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print everything as one JSON document")
 
 
-def store_levels(group) -> list[int]:
-    """Ring levels the store holds (``rings/level{L}`` arrays), ascending."""
-    from meshsom.errors import StoreError
-    from meshsom.rings import MAX_LEVEL
-    from meshsom.store import rings_array
-
-    levels = []
-    for level in range(1, MAX_LEVEL + 1):
-        try:
-            rings_array(group, level)
-        except StoreError:
-            continue
-        levels.append(level)
-    return levels
-
-
 def describe_store(path) -> dict:
     """Everything ``meshsom inspect`` shows, as plain data.
 
@@ -55,7 +39,9 @@ def describe_store(path) -> dict:
         ``folds``: the fold statistics or None).
     """
     from meshsom.errors import StoreError
-    from meshsom.store import list_runs, open_store, read_fold_stats, read_manifest, read_stats, run_group
+    from meshsom.store import (
+        list_runs, open_store, read_domain, read_fold_stats, read_manifest, read_stats, ring_levels, run_attrs,
+    )
 
     group = open_store(path)
     try:
@@ -76,12 +62,13 @@ def describe_store(path) -> dict:
         "levels": [],
     }
     for name in list_runs(group):
-        attrs = dict(run_group(group, name, create=False).attrs)
+        attrs = run_attrs(group, name)
         metrics = dict(attrs.get("metrics", {}))
         engine = dict(attrs.get("engine", {}))
         job = dict(attrs.get("job", {}))
-        sub = run_group(group, name, create=False)
-        domain = dict(sub["domain"].attrs) if "domain" in sub else None
+        domain = read_domain(group, name)
+        if domain is not None:
+            domain.pop("units", None)
         out["runs"].append({
             "name": name, "rows": attrs.get("rows"), "cols": attrs.get("cols"), "topology": attrs.get("topology"),
             "level": attrs.get("level"), "kernel": attrs.get("kernel"), "epochs": job.get("epochs"),
@@ -89,7 +76,7 @@ def describe_store(path) -> dict:
             **{k: metrics.get(k) for k in ("t_error", "q_error", "qc_error")},
             "engine": engine, "domain": domain,
         })
-    for level in store_levels(group):
+    for level in ring_levels(group):
         try:
             stats = read_stats(group, level)
         except StoreError:

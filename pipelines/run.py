@@ -383,7 +383,8 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     png = figures / f"umatrix-{job.run}.png"
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
-    tracker.log_artifact(child, png, "figures")
+    for figure in (png, png.with_suffix(".svg")):
+        tracker.log_artifact(child, figure, "figures")
     tracker.log_model(child, group, job.run, step=som.epochs)  # the map as a pyfunc model (pipelines.model)
     trained = som.epochs - min(int(result["resumed_from"]), som.epochs)  # epochs computed in this attempt
     if trained and result["seconds"] > 0:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from meshsom.domain import KNN
 from reports.runs import ReportError, TrackedExperiment, add_common_arguments, load_experiment, run_main
 
 __all__ = ["DEFAULT_EXPERIMENT", "d2_baseline", "format_markdown", "main", "rows", "write"]
@@ -29,12 +30,6 @@ __all__ = ["DEFAULT_EXPERIMENT", "d2_baseline", "format_markdown", "main", "rows
 DEFAULT_EXPERIMENT = "synthetic"
 #: Metric names the pipeline logs for a labelled corpus.
 KNN_METRIC, CHANCE_METRIC, ARI_METRIC = "knn_label_agreement", "knn_label_chance", "ari_regions_vs_labels"
-
-
-def _knn() -> int:
-    from pipelines.domain_stage import KNN  # the pipeline's k, so both sides use the same
-
-    return KNN
 
 
 def labels_of(group, exp: TrackedExperiment) -> np.ndarray:
@@ -57,9 +52,9 @@ def d2_baseline(group, exp: TrackedExperiment, labels: np.ndarray) -> dict:
     dict
         ``knn_label_agreement``, ``knn_label_chance``, ``ari_regions_vs_labels``, ``units`` (n,) int64.
     """
-    from meshsom.descriptors import d2_histograms
     from sklearn.metrics import adjusted_rand_score
 
+    from meshsom.descriptors import d2_histograms
     from meshsom.domain import (
         knn_label_agreement, label_agreement_chance, map_regions, place, train_domain_map,
     )
@@ -72,7 +67,7 @@ def d2_baseline(group, exp: TrackedExperiment, labels: np.ndarray) -> dict:
     units = place(vectors, som)
     regions = map_regions(som.weights_, rows, cols, len(set(labels.tolist())), seed)
     return {
-        KNN_METRIC: knn_label_agreement(units, labels, rows, cols, k=min(_knn(), len(labels) - 1)),
+        KNN_METRIC: knn_label_agreement(units, labels, rows, cols, k=min(KNN, len(labels) - 1)),
         CHANCE_METRIC: label_agreement_chance(labels),
         ARI_METRIC: adjusted_rand_score(regions[units], labels),
         "units": units,
@@ -127,7 +122,7 @@ def format_markdown(table: list[dict], exp: TrackedExperiment, labels: np.ndarra
         "",
         f"Corpus: {len(labels)} meshes of {len(fams)} families ("
         + ", ".join(f"{f} {c}" for f, c in zip(fams, counts)) + f"); store `{exp.store}`.",
-        f"Domain maps: {rows_} x {cols} torus, k = {min(_knn(), len(labels) - 1)} nearest meshes on the map "
+        f"Domain maps: {rows_} x {cols} torus, k = {min(KNN, len(labels) - 1)} nearest meshes on the map "
         f"(toroidal grid distance); regions: k-means on the domain prototypes, one region per family. "
         f"MLflow experiment `{exp.experiment}` at `{exp.uri}`, pipeline run `{exp.run_id}`. The D2 baseline "
         "is Osada's D2 shape distribution of every mesh (scale-normalised pair distances, 64 bins) on the same "
