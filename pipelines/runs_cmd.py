@@ -190,7 +190,7 @@ def render_runs(records: list[dict], wide: bool = False, width: int = WIDTH) -> 
 
 
 def run(args: argparse.Namespace) -> int:
-    from meshsom.config import TrackingConfig
+    from pipelines.settings import TrackingConfig
     from pipelines.tracking import resolve_uri
 
     uri = resolve_uri(TrackingConfig(uri=args.tracking_uri))

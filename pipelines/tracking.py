@@ -346,7 +346,7 @@ class Tracker:
                     experiment, name="model", source_run_id=run_id, model_type="meshsom-triangle-map",
                     params={k: _param_value(v) for k, v in package.meta.items() if k not in ("stats", "metrics")},
                 )
-                with _use_tracking_uri(self.uri), warnings.catch_warnings(), _quiet_mlflow():
+                with _keep_tracking_env(), _use_tracking_uri(self.uri), warnings.catch_warnings(), _quiet_mlflow():
                     warnings.simplefilter("ignore", UserWarning)  # integer columns in the signature
                     model = Model.log(
                         artifact_path=None, name="model", flavor=mlflow.pyfunc, run_id=run_id, step=int(step),
@@ -381,3 +381,17 @@ def _quiet_mlflow():
             os.environ.pop("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", None)
         else:
             os.environ["MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"] = bar
+
+
+@contextmanager
+def _keep_tracking_env():
+    """Restore ``MLFLOW_TRACKING_URI`` on exit: MLflow's ``_use_tracking_uri`` unsets it when it
+    restores a global URI that was never set, and the user's next run would fall back to the default."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("MLFLOW_TRACKING_URI", None)
+        else:
+            os.environ["MLFLOW_TRACKING_URI"] = before

@@ -229,7 +229,7 @@ def test_ingest_then_encode_is_bitwise_the_corpus_stage_of_run(two_workers, loca
     assert_same_store(two_workers[0], store, exact_stats=True)
 
     robust = tmp_path / "robust.zarr"
-    cfg = build(ExperimentConfig, {
+    cfg = build(RunConfig, {
         "corpus": {"paths": [], "generator": {"n_blocks": N_BLOCKS, "seed": 3}},
         "encoding": {"levels": [1, 2], "scaling": "robust", "robust_clip": 4.0},
         "dask": {"shard_meshes": 5}, "store": {"chunk_rows": 128},

@@ -182,7 +182,7 @@ def test_logging_the_model_links_final_metrics_without_repeating_steps(quick_run
 
 
 def test_log_model_failures_are_recorded_not_raised(quick_run, tmp_path):
-    from meshsom.config import TrackingConfig
+    from pipelines.settings import TrackingConfig
     from meshsom.store import open_store
     from pipelines.tracking import Tracker
 
