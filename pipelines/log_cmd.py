@@ -18,7 +18,7 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     """Log the store's finished maps to MLflow; returns ``{"parent": id, "children": {run: id}, "logged": n}``."""
     from meshsom.config import TrackingConfig
     from meshsom.errors import StoreError
-    from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, write_tracking
+    from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, store_url, write_tracking
     from pipelines.tracking import Tracker, TrackingError
 
     group = open_store(store, mode="r+")
@@ -30,7 +30,7 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     tracker = Tracker(TrackingConfig(uri=uri, experiment=experiment))
     tracker.open()
     same = info.get("uri") == uri and info.get("experiment", experiment) == experiment
-    parent = tracker.start(info.get("name", "meshsom"), {}, {"store": str(store), "logged_by": "meshsom log"},
+    parent = tracker.start(info.get("name", "meshsom"), {}, {"store": store_url(store), "logged_by": "meshsom log"},
                            run_id=info.get("parent") if same else None)
     children = dict(info.get("children", {})) if same else {}
     logged = 0

@@ -19,8 +19,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import shutil
 import signal
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -97,14 +97,15 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
 
     from meshsom.config import flatten, to_dict
     from meshsom.errors import StoreError
-    from meshsom.store import open_store, read_manifest
+    from meshsom.store import MANIFEST, local_copy, location, open_store, read_manifest, remove_store, \
+        store_exists, store_url
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
     from pipelines.ingest import check_writable
     from pipelines.tracking import Tracker, git_commit
 
-    store = Path(cfg.store.path)
-    if store.exists() and not (overwrite or resume):
+    store = location(cfg.store.path)  # a local folder or a URL (s3://bucket/name.zarr)
+    if store_exists(store) and not (overwrite or resume):
         raise StoreError(f"{store}: already exists; pass --overwrite to replace it or --resume to continue it")
     from pipelines.ingest import estimate_store_bytes
 
@@ -113,8 +114,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         cfg.corpus.paths, cfg.corpus.generator, cfg.encoding.levels))
     tracker = Tracker(cfg.tracking)
     tracker.open()  # fails here, naming the URI
-    if overwrite and store.exists():
-        shutil.rmtree(store)
+    if overwrite:
+        remove_store(store)
     t_start = time.perf_counter()
     with_domain = cfg.domain.enabled and _domain_available()
     stages = 2 + (1 if with_domain else 0)
@@ -154,7 +155,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
                 ids = {}  # a different tracking server: start new runs
             parent = tracker.start(
                 cfg.name, flatten(to_dict(cfg)),
-                {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": str(store.resolve())},
+                {"git_commit": git_commit(), "dataset_fingerprint": fingerprint, "store": store_url(store)},
                 run_id=ids.get("parent"),
             )
             ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
@@ -162,7 +163,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             group.attrs["mlflow"] = ids
             if config_path is not None and config_path.exists():
                 tracker.log_artifact(parent, config_path, "config")
-            tracker.log_artifact(parent, store / "manifest.json", "manifest")
+            with tempfile.TemporaryDirectory() as tmp:  # a remote store's manifest is copied here first
+                tracker.log_artifact(parent, local_copy(store, MANIFEST, tmp), "manifest")
 
             # ------------------------------------------------------------------ 2. triangle maps
             print(f"[2/{stages}] triangle maps: {', '.join(s.name for s in cfg.train)} ({cfg.som.rows} x {cfg.som.cols}, "
@@ -205,6 +207,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
 
     from meshsom.umatrix import render_map
     from meshsom.codebook import load_codebook
+    from meshsom.store import figures_dir, store_url
     from meshsom.variations import n_variations
     from meshsom.rings import dims
     from meshsom.som import default_sigma_start
@@ -223,7 +226,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
         "level": spec.level, "kernel": spec.kernel, "variations": n_var, "dims": f"{n_var}x{dims(spec.level)}",
         "map_rows": som.rows, "map_cols": som.cols, "topology": som.topology, "epochs": som.epochs,
         "sigma_start": job.sigma_start, "sigma_end": job.sigma_end, "init": som.init, "seed": som.seed,
-        "backend": cfg.opencl.backend, "codebook": f"{store.resolve()}/runs/{job.run}",
+        "backend": cfg.opencl.backend, "codebook": f"{store_url(store)}/runs/{job.run}",
     }
     child = tracker.start(job.run, params, {"dataset_fingerprint": fingerprint}, parent=parent,
                           run_id=ids["children"].get(job.run))
@@ -248,9 +251,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     if result["resumed_from"] < som.epochs:  # a finished map's final errors were logged by its first attempt
         tracker.log_metrics(child, result["metrics"], step=som.epochs)
     cb = load_codebook(group, job.run)
-    figures = store.parent / f"{store.stem}-figures"
-    figures.mkdir(parents=True, exist_ok=True)
-    png = figures / f"umatrix-{job.run}.png"
+    png = figures_dir(store) / f"umatrix-{job.run}.png"
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     tracker.log_artifact(child, png, "figures")
@@ -272,7 +273,9 @@ def engine_tags(result: dict) -> dict:
 
 
 def _print_summary(results, store, tracker, seconds) -> None:
-    print(f"done in {seconds:.1f} s. results: {store} (manifest.json, runs/), figures: {store.parent / (store.stem + '-figures')}")
+    from meshsom.store import figures_dir
+
+    print(f"done in {seconds:.1f} s. results: {store} (manifest.json, runs/), figures: {figures_dir(store)}")
     if tracker.enabled:
         print(f"MLflow: {tracker.uri}, experiment {tracker.config.experiment!r} "
               f"(look at them side by side: mlflow ui --backend-store-uri {tracker.uri})")
