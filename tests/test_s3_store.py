@@ -4,8 +4,9 @@ A real S3-compatible server (moto's server mode) runs on a free loopback port fo
 and is stopped at its end; credentials and endpoint reach every process (the test, the Dask
 workers) through the standard ``AWS_*`` environment, as on a cloud cluster. The quick config
 (fewer epochs) runs once with a local store and twice with an ``s3://`` store, on a LocalCluster
-and on an external scheduler, and every array, attribute and tracked metric must be the same;
-then the report reads the remote store through the ``store`` tag of its MLflow run.
+and on an external scheduler (there interrupted in its second map and resumed), and every array,
+attribute and tracked metric must be the same; then the report reads the remote store through
+the ``store`` tag of its MLflow run.
 """
 
 from __future__ import annotations
@@ -161,8 +162,20 @@ def test_s3_store_gives_the_results_of_a_local_store(s3, runs):
         assert (s3["tmp"] / "quick-figures" / f"domain-{name}.png").stat().st_size > 0
 
 
-def test_s3_store_on_an_external_scheduler(s3, runs):
+def test_s3_store_on_an_external_scheduler_interrupted_and_resumed(s3, runs, monkeypatch):
     from distributed import LocalCluster
+
+    import pipelines.train as train
+
+    real = train.train_spec
+
+    def interrupt_second_map(client, job, resume=False, on_epoch=None, **kw):
+        if job.run == "level1-bmuofn" and not resume:
+            def stop(epoch, metrics):
+                if epoch == 1:
+                    raise KeyboardInterrupt
+            return real(client, job, resume, on_epoch=stop, **kw)
+        return real(client, job, resume, on_epoch=on_epoch, **kw)
 
     # an external cluster: its worker processes get the S3 endpoint and credentials from their own
     # environment (inherited here), as workers on other machines get theirs
@@ -170,11 +183,17 @@ def test_s3_store_on_an_external_scheduler(s3, runs):
                       dashboard_address=None, silence_logs=logging.WARNING) as cluster:
         cfg = quick(s3["tmp"], f"s3://{BUCKET}/external.zarr", "s3-test-external",
                     dask={"scheduler": cluster.scheduler_address, "dashboard": False})
-        assert run_experiment(cfg) == 0
+        monkeypatch.setattr(train, "train_spec", interrupt_second_map)
+        with pytest.raises(KeyboardInterrupt):
+            run_experiment(cfg)
+        monkeypatch.setattr(train, "train_spec", real)
+        assert run_experiment(cfg, resume=True) == 0
         # the corpus and training tasks ran on that cluster
         keys = {str(t[0]) for t in cluster.scheduler.transition_log}
         assert any(k.startswith("corpus-shard-") for k in keys) and any(k.startswith("corpus-copy-") for k in keys)
-    assert "external.zarr/manifest.json" in _objects(s3["endpoint"], "external.zarr/")
+    keys = _objects(s3["endpoint"], "external.zarr/")
+    assert "external.zarr/manifest.json" in keys and not any(k.startswith("external.zarr/staging/") for k in keys)
+    assert open_store(cfg.store.path)["runs"]["level1-bmuofn"].attrs["result"]["resumed_from"] == 2
     assert_same_stores(runs["local"].store.path, cfg.store.path)
 
 
@@ -213,3 +232,23 @@ def test_store_functions_on_s3(s3):
 def test_a_missing_fsspec_backend_is_named():
     with pytest.raises(StoreError, match="no-such-protocol://x/y.zarr"):
         store_exists("no-such-protocol://x/y.zarr")
+
+
+def test_single_process_commands_on_s3(s3, tmp_path, capsys):
+    """`meshsom ingest`, `encode` and `train` with an s3:// STORE write what they write locally."""
+    from pipelines.cli import main
+
+    stores = {"local": str(tmp_path / "cli.zarr"), "remote": f"s3://{BUCKET}/cli.zarr"}
+    for store in stores.values():
+        assert main(["ingest", "--generate", "4", "--out", store, "--json"]) == 0
+        assert main(["encode", store, "--levels", "1", "2", "--json"]) == 0
+        assert main(["train", store, "--level", "2", "--map", "4x5", "--epochs", "2", "--backend", "numpy",
+                     "--json"]) == 0
+    assert "cli.zarr/rings/level2/zarr.json" in _objects(s3["endpoint"], "cli.zarr/")
+    a, b = open_store(stores["local"]), open_store(stores["remote"])
+    assert read_manifest(stores["local"])["records"] == read_manifest(stores["remote"])["records"]
+    for name in ("faces", "rings/level1", "rings/level2", "runs/level2-bmuofn/weights", "runs/level2-bmuofn/bmu_unit"):
+        np.testing.assert_array_equal(a[name][:], b[name][:], err_msg=name)
+    capsys.readouterr()
+    assert main(["ingest", "--generate", "4", "--out", stores["remote"]]) == 2
+    assert f"meshsom ingest: error: s3://{BUCKET}/cli.zarr: already exists" in capsys.readouterr().err
