@@ -163,9 +163,10 @@ def _join(path: str | os.PathLike, *parts: str) -> str:
 
 
 def _open_group(path: str, mode: str) -> zarr.Group:
+    """A zarr v3 group (v3 said outright: no probing for v2 metadata, which costs requests remotely)."""
     if is_remote(path):
-        return zarr.open_group(path, mode=mode, storage_options=dict(REMOTE_OPTIONS))
-    return zarr.open_group(path, mode=mode)
+        return zarr.open_group(path, mode=mode, zarr_format=3, storage_options=dict(REMOTE_OPTIONS))
+    return zarr.open_group(path, mode=mode, zarr_format=3)
 
 
 def store_exists(path: str | os.PathLike) -> bool:
@@ -254,14 +255,13 @@ def open_store(path: str | os.PathLike, mode: str = "r") -> zarr.Group:
         When there is no meshsom store at ``path``.
     """
     loc = location(path)
-    if is_remote(loc):
-        fs, root = _fs(loc)
-        found = fs.exists(f"{root}/zarr.json")
-    else:
-        found = Path(loc, "zarr.json").is_file()
-    if not found:
-        raise StoreError(f"{loc}: no zarr store here (expected a store made by `meshsom ingest` or `meshsom run`)")
-    group = _open_group(loc, mode=mode)
+    missing = StoreError(f"{loc}: no zarr store here (expected a store made by `meshsom ingest` or `meshsom run`)")
+    if not is_remote(loc) and not Path(loc, "zarr.json").is_file():
+        raise missing
+    try:
+        group = _open_group(loc, mode=mode)
+    except (FileNotFoundError, zarr.errors.GroupNotFoundError):
+        raise missing from None
     if group.attrs.get("meshsom_layout") != LAYOUT_VERSION:
         raise StoreError(
             f"{loc}: store layout {group.attrs.get('meshsom_layout')!r}, expected {LAYOUT_VERSION} (made by another meshsom version?)"

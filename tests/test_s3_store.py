@@ -220,8 +220,12 @@ def test_store_functions_on_s3(s3):
         create_store(url)
     probe_writable(url)  # leaves nothing behind
     assert _objects(s3["endpoint"], "functions.zarr/") == {"functions.zarr/zarr.json"}
+    import boto3
+
+    boto3.client("s3", endpoint_url=s3["endpoint"]).put_object(Bucket=BUCKET, Key="functions.zarr-old/keep", Body=b"1")
     remove_store(url)
     assert not store_exists(url) and not _objects(s3["endpoint"], "functions.zarr/")
+    assert _objects(s3["endpoint"], "functions.zarr-old/") == {"functions.zarr-old/keep"}  # a prefix, not a folder
     remove_store(url)  # nothing there is fine
     with pytest.raises(StoreError, match="s3://no-such-bucket/x.zarr: cannot write there"):
         probe_writable("s3://no-such-bucket/x.zarr")
