@@ -35,7 +35,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from meshsom.bmu import Engine, find_bmus, resolve_backend
+from meshsom.bmu import find_bmus, resolve_backend
 from meshsom.bmu_numpy import BMUResult, identity_table, varied
 from meshsom.metrics import TOPOLOGIES, error_sums, errors_of
 

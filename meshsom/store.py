@@ -45,19 +45,35 @@ the library call these functions and never open a zarr path themselves. The layo
                                           attribute ``plan``; staging/<shard>/ holds a shard's rows
                                           (vertices, faces, face_mesh, level{L}) and, written
                                           last, attributes ``meta`` and ``done``
-    STORE-figures/                        beside the store (not in it): U-matrix and domain-map PNGs
+    STORE-figures/                        beside a local store (not in it): U-matrix and domain-map
+                                          PNGs; for a remote store ``./STORE-figures`` in the
+                                          working directory (:func:`figures_dir`)
 
 Chunking: every per-row array is chunked by rows only, ``min(chunk_rows, max(n, 1))`` rows per
 chunk (:func:`chunk_of`), ``chunk_rows`` from ``store.chunk_rows`` (default
 :data:`DEFAULT_CHUNK_ROWS`); the per-mesh tables are one chunk; the BMU arrays of a run are
 chunked as the training tasks write them (:func:`create_bmu_arrays`); domain vectors written by
 tasks are chunked by the task's meshes; the other domain arrays are one chunk.
+
+Where a store lives: ``path`` is a local folder or any fsspec URL (``s3://bucket/name.zarr``,
+``gs://...``, ``memory://...``; :func:`is_remote`). A remote store is read and written through
+zarr's fsspec store with :data:`REMOTE_OPTIONS`; ``manifest.json``, the existence, removal and
+writability checks go through fsspec too. Credentials and the endpoint come from the
+filesystem's own configuration, read by every process that opens the store (so every Dask
+worker reads them itself): for S3 the standard ``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``,
+``AWS_ENDPOINT_URL`` (or ``~/.aws``), or fsspec's ``FSSPEC_S3_<KWARG>`` variables (e.g.
+``FSSPEC_S3_ENDPOINT_URL``) and config files. None of it is in the experiment YAML, so no
+secret reaches MLflow params. Figures are files for people and for MLflow artifacts, so those of
+a remote store are written to a local folder (:func:`figures_dir`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
+import tempfile
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
@@ -97,51 +113,168 @@ class CleanMesh:
     label: str | None = None
 
 
-def _path(path: str | os.PathLike) -> Path:
-    return Path(path)
+# ----------------------------------------------------------------------------- where a store lives
+
+#: fsspec options of every remote store: no cached directory listings (Dask workers in other
+#: processes write the store too, so a listing cached in this process could be stale).
+REMOTE_OPTIONS = {"use_listings_cache": False}
+#: What to install for the usual protocols (a missing fsspec backend is named in the error).
+BACKEND_PACKAGES = {"s3": "s3fs (pip install 'meshsom[s3]')", "gs": "gcsfs", "gcs": "gcsfs", "az": "adlfs",
+                    "abfs": "adlfs"}
+
+
+def location(path: str | os.PathLike) -> str:
+    """The canonical form of a store's path: a URL without trailing ``/``, or a local path (``file://`` dropped)."""
+    s = os.fspath(path)
+    if s.startswith("file://"):
+        return s[len("file://"):]
+    return s.rstrip("/") if "://" in s else s
+
+
+def is_remote(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is an fsspec URL of a non-local filesystem (``s3://bucket/name.zarr``)."""
+    return "://" in location(path)
+
+
+def store_url(path: str | os.PathLike) -> str:
+    """The store as anyone can name it: the URL of a remote store, the absolute path of a local one."""
+    loc = location(path)
+    return loc if is_remote(loc) else str(Path(loc).resolve())
+
+
+def _fs(path: str | os.PathLike):
+    """``(filesystem, path inside it)`` of a remote store."""
+    from fsspec.core import url_to_fs
+
+    loc = location(path)
+    try:
+        return url_to_fs(loc, **REMOTE_OPTIONS)
+    except ImportError as err:
+        protocol = loc.split("://", 1)[0]
+        raise StoreError(f"{loc}: protocol {protocol!r} needs an fsspec backend that is not installed "
+                         f"({BACKEND_PACKAGES.get(protocol, err)})") from None
+    except ValueError as err:  # unknown protocol
+        raise StoreError(f"{loc}: not a local path nor a URL fsspec knows ({err})") from None
+
+
+def _join(path: str | os.PathLike, *parts: str) -> str:
+    loc = location(path)
+    return "/".join([loc, *parts]) if is_remote(loc) else str(Path(loc).joinpath(*parts))
+
+
+def _open_group(path: str, mode: str) -> zarr.Group:
+    """A zarr v3 group (v3 said outright: no probing for v2 metadata, which costs requests remotely)."""
+    if is_remote(path):
+        return zarr.open_group(path, mode=mode, zarr_format=3, storage_options=dict(REMOTE_OPTIONS))
+    return zarr.open_group(path, mode=mode, zarr_format=3)
+
+
+def store_exists(path: str | os.PathLike) -> bool:
+    """Whether anything (a store, a file, any object under the prefix) is at ``path``."""
+    if not is_remote(path):
+        return Path(location(path)).exists()
+    fs, root = _fs(path)
+    return bool(fs.exists(root))
+
+
+def remove_store(path: str | os.PathLike) -> None:
+    """Delete a store (a local folder, or every object under a remote prefix); nothing there is fine."""
+    if not is_remote(path):
+        shutil.rmtree(location(path), ignore_errors=True)
+        return
+    fs, root = _fs(path)
+    if fs.exists(root):
+        fs.rm(root, recursive=True)
+
+
+def probe_writable(path: str | os.PathLike, needed_bytes: int = 0) -> None:
+    """Fail unless a store can be written at ``path`` (and, locally, ``needed_bytes`` are free).
+
+    Locally a file is created and removed in the nearest existing folder (permissions alone say
+    nothing for root or on a read-only mount); remotely a small object is written under the
+    store's prefix and removed (a missing bucket, bad credentials or an unreachable endpoint
+    fail here, before any work). Free space is not checked remotely.
+
+    Raises
+    ------
+    StoreError
+        Naming the path and what failed.
+    """
+    loc = location(path)
+    if is_remote(loc):
+        fs, root = _fs(loc)
+        probe = f"{root}/.meshsom-probe-{uuid.uuid4().hex[:8]}"
+        try:
+            fs.pipe_file(probe, b"meshsom")
+            fs.rm(probe)
+        except Exception as err:  # noqa: BLE001 - fsspec backends raise their own types (botocore, aiohttp, ...)
+            raise StoreError(f"{loc}: cannot write there ({type(err).__name__}: {err})") from None
+        return
+    p = Path(loc)
+    probe_dir = p.parent if str(p.parent) else Path(".")
+    while not probe_dir.exists():
+        probe_dir = probe_dir.parent
+    try:
+        with tempfile.NamedTemporaryFile(dir=probe_dir, prefix=".meshsom-probe-"):
+            pass
+    except OSError as err:
+        raise StoreError(f"{loc}: cannot write into {probe_dir} ({err.strerror or err})") from None
+    if needed_bytes:
+        free = shutil.disk_usage(probe_dir).free
+        if free < needed_bytes:
+            raise StoreError(
+                f"{loc}: needs about {needed_bytes / 1e6:,.0f} MB, but only {free / 1e6:,.0f} MB are free on its disk"
+            )
 
 
 def create_store(path: str | os.PathLike, overwrite: bool = False) -> zarr.Group:
-    """Create an empty store; refuse to overwrite an existing one unless asked.
+    """Create an empty store (a local folder or a remote URL); refuse to overwrite an existing one unless asked.
 
     Raises
     ------
     StoreError
         When ``path`` exists and ``overwrite`` is false, or cannot be written.
     """
-    p = _path(path)
-    if p.exists() and not overwrite:
-        raise StoreError(f"{p}: already exists; pass overwrite=True (--overwrite) to replace it")
+    loc = location(path)
+    if store_exists(loc) and not overwrite:
+        raise StoreError(f"{loc}: already exists; pass overwrite=True (--overwrite) to replace it")
     try:
-        group = zarr.open_group(str(p), mode="w")
+        group = _open_group(loc, mode="w")
     except OSError as err:
-        raise StoreError(f"{p}: cannot be created ({err.strerror or err})") from None
+        raise StoreError(f"{loc}: cannot be created ({err.strerror or err})") from None
     group.attrs.update({"meshsom_layout": LAYOUT_VERSION, "created_by": "meshsom"})
     return group
 
 
 def open_store(path: str | os.PathLike, mode: str = "r") -> zarr.Group:
-    """Open an existing store.
+    """Open an existing store (a local folder or a remote URL).
 
     Raises
     ------
     StoreError
         When there is no meshsom store at ``path``.
     """
-    p = _path(path)
-    if not (p / "zarr.json").is_file():
-        raise StoreError(f"{p}: no zarr store here (expected a folder made by `meshsom ingest`)")
-    group = zarr.open_group(str(p), mode=mode)
+    loc = location(path)
+    missing = StoreError(f"{loc}: no zarr store here (expected a store made by `meshsom ingest` or `meshsom run`)")
+    if not is_remote(loc) and not Path(loc, "zarr.json").is_file():
+        raise missing
+    try:
+        group = _open_group(loc, mode=mode)
+    except (FileNotFoundError, zarr.errors.GroupNotFoundError):
+        raise missing from None
     if group.attrs.get("meshsom_layout") != LAYOUT_VERSION:
         raise StoreError(
-            f"{p}: store layout {group.attrs.get('meshsom_layout')!r}, expected {LAYOUT_VERSION} (made by another meshsom version?)"
+            f"{loc}: store layout {group.attrs.get('meshsom_layout')!r}, expected {LAYOUT_VERSION} (made by another meshsom version?)"
         )
     return group
 
 
-def store_path(group: zarr.Group) -> Path:
-    """Folder of a local store group."""
-    return Path(str(group.store.root)) if hasattr(group.store, "root") else Path(str(group.store))
+def store_path(group: zarr.Group) -> str:
+    """Where a store group lives: its local folder, or the URL of a remote store."""
+    store = group.store
+    if hasattr(store, "fs"):  # zarr's FsspecStore
+        return store.fs.unstrip_protocol(store.path)
+    return str(store.root) if hasattr(store, "root") else str(store)
 
 
 def chunk_of(n_rows: int, chunk_rows: int) -> int:
@@ -342,7 +475,11 @@ def write_manifest(path: str | os.PathLike, records: list[dict], extra: dict | N
         "summary": {"inputs": len(records), "accepted": accepted, "rejected": rejected, **(extra or {})},
         "records": records,
     }
-    target = _path(path) / MANIFEST
+    if is_remote(path):  # one object PUT: atomic on object storage
+        fs, root = _fs(path)
+        fs.pipe_file(f"{root}/{MANIFEST}", json.dumps(doc, indent=1).encode())
+        return doc
+    target = Path(location(path)) / MANIFEST
     tmp = target.with_suffix(".json.tmp")
     with open(tmp, "w") as fh:
         json.dump(doc, fh, indent=1)
@@ -350,13 +487,39 @@ def write_manifest(path: str | os.PathLike, records: list[dict], extra: dict | N
     return doc
 
 
+def has_manifest(path: str | os.PathLike) -> bool:
+    """Whether a store has its ``manifest.json`` (written last by ingest: the corpus is finished)."""
+    if is_remote(path):
+        fs, root = _fs(path)
+        return bool(fs.isfile(f"{root}/{MANIFEST}"))
+    return (Path(location(path)) / MANIFEST).is_file()
+
+
 def read_manifest(path: str | os.PathLike) -> dict:
-    """Read ``manifest.json`` of a store folder."""
-    target = _path(path) / MANIFEST
-    if not target.is_file():
-        raise StoreError(f"{_path(path)}: has no {MANIFEST}")
-    with open(target) as fh:
+    """Read ``manifest.json`` of a store (local or remote)."""
+    if not has_manifest(path):
+        raise StoreError(f"{location(path)}: has no {MANIFEST}")
+    if is_remote(path):
+        fs, root = _fs(path)
+        return json.loads(fs.cat_file(f"{root}/{MANIFEST}"))
+    with open(Path(location(path)) / MANIFEST) as fh:
         return json.load(fh)
+
+
+def local_copy(path: str | os.PathLike, name: str, folder: str | os.PathLike) -> Path:
+    """A file of a store (``manifest.json``) as a local file, e.g. to log it to MLflow.
+
+    Returns
+    -------
+    pathlib.Path
+        The file itself in a local store; for a remote store a copy written into ``folder``.
+    """
+    if not is_remote(path):
+        return Path(location(path)) / name
+    fs, root = _fs(path)
+    target = Path(folder) / name
+    target.write_bytes(fs.cat_file(f"{root}/{name}"))
+    return target
 
 
 # ----------------------------------------------------------------------------- rings
@@ -682,9 +845,19 @@ def read_domain(group: zarr.Group, run: str) -> dict | None:
 
 
 def figures_dir(path: str | os.PathLike, create: bool = True) -> Path:
-    """The folder of a store's figures, ``STORE-figures`` beside ``STORE.zarr``."""
-    p = _path(path)
-    out = p.parent / f"{p.stem}-figures"
+    """The local folder of a store's figures.
+
+    ``STORE-figures`` beside a local ``STORE.zarr``; for a remote store (``s3://bucket/STORE.zarr``)
+    ``STORE-figures`` in the working directory: figures are files for people and for MLflow
+    artifacts, not part of the store.
+    """
+    loc = location(path)
+    if is_remote(loc):
+        name = loc.rsplit("/", 1)[-1]
+        out = Path.cwd() / f"{name[:-len('.zarr')] if name.endswith('.zarr') else name}-figures"
+    else:
+        p = Path(loc)
+        out = p.parent / f"{p.stem}-figures"
     if create:
         out.mkdir(parents=True, exist_ok=True)
     return out
@@ -707,15 +880,13 @@ STAGING = "staging"
 
 
 def staging_exists(path: str | os.PathLike) -> bool:
-    """Whether a store folder has a ``staging`` group (work under way or interrupted)."""
-    return (_path(path) / STAGING).exists()
+    """Whether a store has a ``staging`` group (work under way or interrupted)."""
+    return store_exists(_join(path, STAGING))
 
 
 def remove_staging(path: str | os.PathLike) -> None:
-    """Delete the ``staging`` group of a store folder, if any."""
-    import shutil
-
-    shutil.rmtree(_path(path) / STAGING, ignore_errors=True)
+    """Delete the ``staging`` group of a store, if any."""
+    remove_store(_join(path, STAGING))
 
 
 def read_plan(group: zarr.Group) -> dict | None:
@@ -733,7 +904,7 @@ def write_shard(path: str | os.PathLike, name: str, arrays: dict, meta: dict, ch
 
     A half-written shard (killed before the mark) is never taken as finished.
     """
-    g = zarr.open_group(str(_path(path) / STAGING / name), mode="w")
+    g = _open_group(_join(path, STAGING, name), mode="w")
     for key, data in arrays.items():
         put_rows(g, key, data, chunk_rows)
     g.attrs.update({"meta": meta, "done": True})
@@ -742,7 +913,7 @@ def write_shard(path: str | os.PathLike, name: str, arrays: dict, meta: dict, ch
 def shard_meta(path: str | os.PathLike, name: str) -> dict | None:
     """The metadata of ``staging/<name>`` when it is marked done, else None."""
     try:
-        g = zarr.open_group(str(_path(path) / STAGING / name), mode="r")
+        g = _open_group(_join(path, STAGING, name), mode="r")
     except (FileNotFoundError, zarr.errors.GroupNotFoundError):
         return None
     return dict(g.attrs["meta"]) if g.attrs.get("done") else None

@@ -36,7 +36,6 @@ import logging
 import time
 import uuid
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -316,12 +315,12 @@ def _fingerprint(cfg, levels: Sequence[int]) -> dict:
     return json.loads(json.dumps(doc))
 
 
-def _finished_summary(path: Path, levels: Sequence[int]) -> dict | None:
+def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
     """The manifest summary of a finished store at ``path``, or None if it is unfinished."""
     from meshsom.errors import StoreError
-    from meshsom.store import MANIFEST, open_store, read_manifest, ring_levels, staging_exists
+    from meshsom.store import has_manifest, open_store, read_manifest, ring_levels, staging_exists
 
-    if not (path / MANIFEST).is_file() or staging_exists(path):
+    if not has_manifest(path) or staging_exists(path):
         return None
     missing = sorted(set(levels) - set(ring_levels(open_store(path))))
     if missing:
@@ -337,7 +336,7 @@ def _rejection_record(rejection, params) -> dict:
     return ingest.process_one(rejection, params)[0]
 
 
-def _run_shards(client, path: Path, shards: list, submit: Callable, report: Callable) -> tuple[dict, list]:
+def _run_shards(client, path: str, shards: list, submit: Callable, report: Callable) -> tuple[dict, list]:
     """Run the shards not done yet; returns (metadata by shard name, failed (shard, exception) pairs)."""
     from distributed import as_completed
 
@@ -366,7 +365,7 @@ def _run_shards(client, path: Path, shards: list, submit: Callable, report: Call
     return metas, failed
 
 
-def _shards_failed(path: Path, shards: list, failed: list, what: Callable) -> None:
+def _shards_failed(path: str, shards: list, failed: list, what: Callable) -> None:
     from meshsom.errors import MeshsomError
 
     if failed:
@@ -418,9 +417,11 @@ def run_corpus(client, cfg, store, resume: bool = False,
     """
     from meshsom.errors import StoreError
     from meshsom.io import expand_inputs
-    from meshsom.store import create_store, open_store, read_manifest, read_plan, remove_staging, write_plan
+    from meshsom.store import (
+        create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
+    )
 
-    path = Path(store)
+    path = location(store)
     levels = sorted({int(lv) for lv in (cfg.encoding.levels if levels is None else levels)})
     chunk = int(cfg.store.chunk_rows)
     fingerprint = _fingerprint(cfg, levels)
@@ -428,7 +429,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     report = progress or (lambda stage, done, total: None)
 
     root = plan = None
-    if resume and path.exists():
+    if resume and store_exists(path):
         summary = _finished_summary(path, levels)
         if summary is not None:
             log.info("%s: finished already; nothing to resume", path)
@@ -497,7 +498,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     return read_manifest(path)["summary"]
 
 
-def _fill(client, path: Path, targets: list, shards: list, chunk: int, run_id: str, report: Callable) -> None:
+def _fill(client, path: str, targets: list, shards: list, chunk: int, run_id: str, report: Callable) -> None:
     """Fill final per-row arrays from the staged shards by chunk-aligned copies on the workers.
 
     Parameters
@@ -567,7 +568,7 @@ def corpus_statistics(root, levels: Sequence[int], ordered: list, scaling: str, 
     return out
 
 
-def _assemble(client, root, path: Path, shards, metas, plan, cfg, levels, chunk, run_id, report) -> None:
+def _assemble(client, root, path: str, shards, metas, plan, cfg, levels, chunk, run_id, report) -> None:
     """Final arrays by chunk-aligned copies, then tables, statistics, root attributes and manifest."""
     from meshsom.store import create_corpus_arrays, write_manifest, write_mesh_tables
     from pipelines import ingest
@@ -660,9 +661,9 @@ def encode_corpus(client, store, levels: Sequence[int], chunk_rows: int | None =
     """
     from meshsom.errors import StoreError
     from meshsom.rings import dims, template
-    from meshsom.store import corpus_chunk_rows, mesh_table, open_store, remove_staging
+    from meshsom.store import corpus_chunk_rows, location, mesh_table, open_store, remove_staging
 
-    path = Path(store)
+    path = location(store)
     levels = sorted({int(lv) for lv in levels})
     for lv in levels:
         template(lv)  # validates

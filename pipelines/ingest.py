@@ -162,32 +162,17 @@ def estimate_store_bytes(paths: Iterable[str], generator=None, levels: Iterable[
     return int(triangles * (BYTES_PER_TRIANGLE + 4 * sum(dims(level) for level in levels)))
 
 
-def check_writable(path: Path, overwrite: bool, needed_bytes: int = 0) -> None:
+def check_writable(path: str | os.PathLike, overwrite: bool, needed_bytes: int = 0) -> None:
     """Fail before any work when the store cannot be written (exists, read-only, or too little space).
 
-    Writability is tested by creating and removing a file in the nearest existing folder (file
-    permissions alone say nothing for root or on a read-only mount).
+    ``path`` is a local folder or a remote URL (:func:`meshsom.store.probe_writable` says how each
+    is probed; free space is checked locally only).
     """
-    import shutil
-    import tempfile
+    from meshsom.store import location, probe_writable, store_exists
 
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise StoreError(f"{path}: already exists; pass --overwrite to replace it")
-    probe = path.parent if str(path.parent) else Path(".")
-    while not probe.exists():
-        probe = probe.parent
-    try:
-        with tempfile.NamedTemporaryFile(dir=probe, prefix=".meshsom-probe-"):
-            pass
-    except OSError as err:
-        raise StoreError(f"{path}: cannot write into {probe} ({err.strerror or err})") from None
-    if needed_bytes:
-        free = shutil.disk_usage(probe).free
-        if free < needed_bytes:
-            raise StoreError(
-                f"{path}: needs about {needed_bytes / 1e6:,.0f} MB, but only {free / 1e6:,.0f} MB are free on its disk"
-            )
+    if store_exists(path) and not overwrite:
+        raise StoreError(f"{location(path)}: already exists; pass --overwrite to replace it")
+    probe_writable(path, needed_bytes)
 
 
 def ingest(
@@ -225,7 +210,9 @@ def ingest(
     from pipelines.cluster import connect_serial
     from pipelines.corpus import run_corpus
 
-    out = Path(out)
+    from meshsom.store import location
+
+    out = location(out)
     check_writable(out, overwrite)
     cfg = RunConfig(
         corpus=CorpusConfig(tuple(str(p) for p in paths), generator, reader or ReaderOptions()),

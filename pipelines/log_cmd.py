@@ -17,9 +17,9 @@ METRICS = ("t_error", "q_error", "qc_error")
 def log_store(store, uri: str | None = None, experiment: str | None = None) -> dict:
     """Log the store's finished maps to MLflow; returns ``{"parent": id, "children": {run: id}, "logged": n}``."""
     from meshsom.errors import StoreError
-    from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, write_tracking
+    from meshsom.store import list_runs, open_store, read_domain, read_tracking, run_attrs, store_url, write_tracking
     from pipelines.settings import TrackingConfig
-    from pipelines.tracking import Tracker, TrackingError, new_short_id, run_name, store_location
+    from pipelines.tracking import Tracker, TrackingError, new_short_id, run_name
 
     group = open_store(store, mode="r+")
     info = read_tracking(group)
@@ -32,7 +32,7 @@ def log_store(store, uri: str | None = None, experiment: str | None = None) -> d
     same = info.get("uri") == uri and info.get("experiment", experiment) == experiment
     name = info.get("name", "meshsom")
     short_id = info.get("short_id") or new_short_id()
-    parent = tracker.start(run_name(name, short_id), {}, {"store": store_location(str(store)), "logged_by": "meshsom log"},
+    parent = tracker.start(run_name(name, short_id), {}, {"store": store_url(store), "logged_by": "meshsom log"},
                            run_id=info.get("parent") if same else None)
     children = dict(info.get("children", {})) if same else {}
     logged = 0

@@ -26,8 +26,8 @@ import argparse
 import hashlib
 import json
 import os
-import shutil
 import signal
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -122,17 +122,18 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
 
     from meshsom.config import flatten, to_dict
     from meshsom.errors import StoreError
-    from meshsom.store import open_store, read_manifest
+    from meshsom.store import MANIFEST, local_copy, location, open_store, read_manifest, remove_store, \
+        store_exists, store_url
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
     from pipelines.ingest import check_writable
     from pipelines.settings import resolve_paths
-    from pipelines.tracking import Tracker, new_short_id, run_name, source_tags, store_location
+    from pipelines.tracking import Tracker, new_short_id, run_name, source_tags
 
     given = cfg  # what MLflow records: paths as written, relative to the config's folder
     cfg = resolve_paths(cfg, config_path.parent if config_path is not None else Path.cwd())
-    store = Path(cfg.store.path)
-    if store.exists() and not (overwrite or resume):
+    store = location(cfg.store.path)  # a local folder or a URL (s3://bucket/name.zarr)
+    if store_exists(store) and not (overwrite or resume):
         raise StoreError(f"{store}: already exists; pass --overwrite to replace it or --resume to continue it")
     from pipelines.ingest import estimate_store_bytes
 
@@ -142,9 +143,9 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         cfg.corpus.paths, cfg.corpus.generator, cfg.encoding.levels))
     tracker = Tracker(cfg.tracking)
     tracker.open()  # fails here, naming the URI
-    existed = store.exists()
+    existed = store_exists(store)
     if overwrite and existed:
-        shutil.rmtree(store)
+        remove_store(store)
     t_start = time.perf_counter()
     with_domain = cfg.domain.enabled and _domain_available()
     stages = 2 + (1 if with_domain else 0)
@@ -184,14 +185,15 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
                 ids = {}  # a different tracking server: start new runs
             short_id = ids.get("short_id") or new_short_id()
             tags = {**source_tags(f"meshsom run {config_path.name}" if config_path is not None else "meshsom run"),
-                    "dataset_fingerprint": fingerprint, "store": store_location(cfg.store.path)}
+                    "dataset_fingerprint": fingerprint, "store": store_url(store)}
             parent = tracker.start(run_name(cfg.name, short_id), flatten(to_dict(given)), tags,
                                    run_id=ids.get("parent"))
             ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
                    "short_id": short_id, "children": dict(ids.get("children", {}))}
             group.attrs["mlflow"] = ids
             tracker.log_text(parent, yaml.safe_dump(to_dict(given), sort_keys=False), CONFIG_ARTIFACT)
-            tracker.log_artifact(parent, store / "manifest.json", "manifest")
+            with tempfile.TemporaryDirectory() as tmp:  # a remote store's manifest is copied here first
+                tracker.log_artifact(parent, local_copy(store, MANIFEST, tmp), "manifest")
 
             # ------------------------------------------------------------------ 2. triangle maps
             print(f"[2/{stages}] {len(cfg.train)} triangle maps, {cfg.som.rows} x {cfg.som.cols}, "
@@ -290,7 +292,7 @@ def _print_skipped(skipped: list[tuple[str, str]]) -> None:
         print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)})")
 
 
-def _nothing_ingested(store: Path, remove: bool) -> None:
+def _nothing_ingested(store: str, remove: bool) -> None:
     """Every input was rejected: say why (the first few reasons) and remove the new store."""
     from meshsom.errors import InputFileError
     from meshsom.store import read_manifest
@@ -299,13 +301,19 @@ def _nothing_ingested(store: Path, remove: bool) -> None:
     reasons = "; ".join(f"{r.get('source') or r['id']}: {r.get('reason', '?')}" for r in records[:3])
     more = f" (and {len(records) - 3} more)" if len(records) > 3 else ""
     if remove:
-        shutil.rmtree(store)
+        from meshsom.store import remove_store
+
+        remove_store(store)
     raise InputFileError(str(store), f"nothing could be ingested; every input was rejected: {reasons}{more}"
                          + ("; the store was removed" if remove else ""))
 
 
-def _shown(path: Path) -> str:
-    """``path`` relative to the working directory when it lies below it (shorter on the terminal)."""
+def _shown(path) -> str:
+    """``path`` relative to the working directory when it lies below it (shorter on the terminal); a URL as it is."""
+    from meshsom.store import is_remote
+
+    if is_remote(path):
+        return str(path)
     try:
         return str(Path(path).resolve().relative_to(Path.cwd()))
     except ValueError:
@@ -329,6 +337,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
 
     from meshsom.umatrix import render_map
     from meshsom.codebook import load_codebook
+    from meshsom.store import figures_dir
     from meshsom.variations import n_variations
     from meshsom.rings import dims
     from meshsom.som import default_sigma_start
@@ -378,9 +387,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
         tracker.log_metrics(child, result["metrics"], step=som.epochs)
         logged.add(som.epochs)
     cb = load_codebook(group, job.run)
-    figures = store.parent / f"{store.stem}-figures"
-    figures.mkdir(parents=True, exist_ok=True)
-    png = figures / f"umatrix-{job.run}.png"
+    png = figures_dir(store) / f"umatrix-{job.run}.png"
     render_map(cb.weights, cb.rows, cb.cols, png, topology=cb.topology,
                title=f"U-matrix, level {spec.level} ({spec.kernel} kernel, {result['dims']})")
     for figure in (png, png.with_suffix(".svg")):
@@ -410,7 +417,9 @@ def engine_tags(result: dict) -> dict:
 
 
 def _print_summary(results, store, tracker, seconds) -> None:
-    figures = store.parent / (store.stem + "-figures")
+    from meshsom.store import figures_dir
+
+    figures = figures_dir(store)
     print(f"done in {seconds:.1f} s")
     print(f"  store:   {_shown(store)} (manifest.json, runs/)")
     print(f"  figures: {_shown(figures)}")

@@ -127,11 +127,6 @@ def new_short_id() -> str:
     return uuid.uuid4().hex[:SHORT_ID_LEN]
 
 
-def store_location(path: str) -> str:
-    """The ``store`` tag: a URL as given (``s3://bucket/x.zarr``), a local store as its absolute path."""
-    return path if "://" in path else str(Path(path).resolve())
-
-
 def run_name(config_name: str, short_id: str, map_name: str | None = None) -> str:
     """``quick/ab12cd`` (a pipeline run), ``quick/level1-bmuofn/ab12cd`` (one of its maps)."""
     return f"{config_name}/{map_name}/{short_id}" if map_name else f"{config_name}/{short_id}"

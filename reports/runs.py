@@ -2,7 +2,7 @@
 
 Every report script reads the same things (DESIGN.md §7): a *finished* parent run of an MLflow
 experiment (a pipeline run: no ``mlflow.parentRunId`` tag, its ``store`` tag the absolute path of
-its zarr store), either the experiment's latest (:func:`load_experiment`) or one chosen by its run
+its zarr store or its URL on object storage), either the experiment's latest (:func:`load_experiment`) or one chosen by its run
 id (:func:`load_run`); its child runs (one per triangle map, named ``level1-default``,
 ``level1-bmuofn``, ``level2-bmuofn``, ...); and the store. Reports never write to MLflow.
 
@@ -28,7 +28,7 @@ __all__ = [
 DEFAULT_EXPERIMENT = "paper"
 #: MLflow tag naming a child run's parent.
 PARENT_TAG = "mlflow.parentRunId"
-#: Tag of a pipeline run holding the absolute path of its store.
+#: Tag of a pipeline run holding the absolute path of its store (or its URL: ``s3://bucket/name.zarr``).
 STORE_TAG = "store"
 #: Most runs of one experiment looked at when searching for the latest pipeline run.
 MAX_RUNS = 5000
@@ -78,8 +78,8 @@ class TrackedExperiment:
     params : dict of str to str
         The flattened config (``som.rows``, ``domain.rows``, ...).
     tags : dict of str to str
-    store : pathlib.Path
-        From the ``store`` tag.
+    store : str
+        From the ``store`` tag: a local path or a URL (:func:`meshsom.store.open_store` takes both).
     maps : dict of str to MapRun
         Child runs by name, in training order (level, then default before BMUofN).
     """
@@ -89,7 +89,7 @@ class TrackedExperiment:
     run_id: str
     params: dict = field(repr=False)
     tags: dict = field(repr=False)
-    store: Path
+    store: str
     maps: dict = field(repr=False)
 
     def find(self, level: int, kernel: str = "bmuofn") -> MapRun | None:
@@ -167,7 +167,7 @@ def _tracked(client, uri: str, experiment: str, parent, runs=None) -> TrackedExp
         maps[name] = MapRun(name, r.info.run_id, level, kernel, params, dict(r.data.metrics))
     maps = {k: maps[k] for k in sorted(maps, key=_sort_key)}
     return TrackedExperiment(uri, experiment, pid, dict(parent.data.params), dict(parent.data.tags),
-                             Path(parent.data.tags[STORE_TAG]), maps)
+                             parent.data.tags[STORE_TAG], maps)
 
 
 def load_experiment(uri: str | None, experiment: str) -> TrackedExperiment:
