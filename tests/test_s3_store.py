@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from meshsom.config import load_config
+from pipelines.settings import load_config
 from meshsom.errors import StoreError
 from meshsom.store import (
     BMU_ARRAYS, create_store, figures_dir, list_runs, open_store, probe_writable, read_domain, read_manifest,
@@ -129,7 +129,7 @@ def _tracked(uri: str, experiment: str) -> tuple[dict, dict]:
     found = client.search_runs([exp.experiment_id])
     parents = [r for r in found if "mlflow.parentRunId" not in r.data.tags]
     assert len(parents) == 1 and parents[0].info.status == "FINISHED"
-    children = {r.info.run_name: (dict(r.data.params), dict(r.data.metrics)) for r in found
+    children = {r.data.tags["map"]: (dict(r.data.params), dict(r.data.metrics)) for r in found
                 if r.data.tags.get("mlflow.parentRunId") == parents[0].info.run_id}
     return dict(parents[0].data.tags), children
 
@@ -146,14 +146,14 @@ def test_s3_store_gives_the_results_of_a_local_store(s3, runs):
     assert not (s3["tmp"] / "s3:").exists()  # no local folder named after the URL
     assert_same_stores(local, remote)
 
-    # tracked: the same final metrics; the parent names the URL, the codebook param points into it
+    # tracked: the same final metrics; the parent names the URL, the codebook param is the run inside it
     uri = runs["remote"].tracking.uri
     tags_l, maps_l = _tracked(uri, "s3-test-local")
     tags_r, maps_r = _tracked(uri, "s3-test-remote")
     assert tags_r["store"] == remote and tags_l["store"] == str(Path(local).resolve())
     assert set(maps_l) == set(maps_r) == {"level1-default", "level1-bmuofn", "level2-bmuofn"}
     for name, (params, metrics) in maps_r.items():
-        assert params["codebook"] == f"{remote}/runs/{name}"
+        assert params["codebook"] == f"runs/{name}"  # inside the store the parent's store tag names
         for key in ("t_error", "q_error", "qc_error"):
             assert metrics[key] == maps_l[name][1][key]
             assert metrics[key] == pytest.approx(open_store(remote)["runs"][name].attrs["metrics"][key])
