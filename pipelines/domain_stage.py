@@ -27,15 +27,15 @@ LABEL_SAMPLE = 2000
 def domain_chunk(store: str, run: str, m0: int, m1: int, f0: int, f1: int, sigma: float) -> int:
     """Worker task: domain vectors of meshes ``m0..m1`` (faces ``f0..f1``) into ``runs/<run>/domain/vectors``."""
     from meshsom.domain import bmu_histograms, domain_vectors
-    from meshsom.store import open_store
+    from meshsom.store import domain_vectors_array, map_shape, open_store, run_group
 
     group = open_store(store, mode="r+")
-    g = group["runs"][run]
-    rows, cols, topology = int(g.attrs["rows"]), int(g.attrs["cols"]), str(g.attrs["topology"])
+    g = run_group(group, run, create=False)
+    rows, cols, topology = map_shape(g)
     face_mesh = np.asarray(group["face_mesh"][f0:f1]) - m0
     units = np.asarray(g["bmu_unit"][f0:f1])
     hist = bmu_histograms(face_mesh, units, m1 - m0, rows * cols)
-    g["domain"]["vectors"][m0:m1] = domain_vectors(hist, rows, cols, sigma, topology)
+    domain_vectors_array(group, run)[m0:m1] = domain_vectors(hist, rows, cols, sigma, topology)
     return m1 - m0
 
 
@@ -140,7 +140,7 @@ def domain_for_run(cfg, store: Path, run: str, thumbs=None, client=None) -> dict
     if thumbs is None:
         thumbs = thumbnails_of(group, n_draw)
     domain_map_figure(units[:n_draw], thumbs[:n_draw], d.rows, d.cols, path,
-                      title=f"Domain map from {run} ({len(table)} meshes)",
+                      title=f"Domain map from {run}",
                       labels=labels[:n_draw] if has_labels else None, ids=np.asarray(table.ids)[:n_draw])
     return {"units": units, "figure": str(path), "metrics": metrics}
 

@@ -122,8 +122,8 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
 
     from meshsom.config import flatten, to_dict
     from meshsom.errors import StoreError
-    from meshsom.store import MANIFEST, local_copy, location, open_store, read_manifest, remove_store, \
-        store_exists, store_url
+    from meshsom.store import MANIFEST, local_copy, location, open_store, read_manifest, read_tracking, \
+        remove_store, store_exists, store_url, write_tracking
     from pipelines.cluster import connect
     from pipelines.corpus import run_corpus
     from pipelines.ingest import check_writable
@@ -180,7 +180,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             group = open_store(store, mode="r+")
             manifest = read_manifest(store)
             fingerprint = dataset_fingerprint(manifest)
-            ids = dict(group.attrs.get("mlflow", {})) if resume else {}
+            ids = read_tracking(group) if resume else {}
             if ids.get("uri") not in (None, tracker.uri):
                 ids = {}  # a different tracking server: start new runs
             short_id = ids.get("short_id") or new_short_id()
@@ -190,7 +190,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
                                    run_id=ids.get("parent"))
             ids = {"uri": tracker.uri, "experiment": cfg.tracking.experiment, "name": cfg.name, "parent": parent,
                    "short_id": short_id, "children": dict(ids.get("children", {}))}
-            group.attrs["mlflow"] = ids
+            write_tracking(group, ids)
             tracker.log_text(parent, yaml.safe_dump(to_dict(given), sort_keys=False), CONFIG_ARTIFACT)
             with tempfile.TemporaryDirectory() as tmp:  # a remote store's manifest is copied here first
                 tracker.log_artifact(parent, local_copy(store, MANIFEST, tmp), "manifest")
@@ -337,7 +337,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
 
     from meshsom.umatrix import render_map
     from meshsom.codebook import load_codebook
-    from meshsom.store import figures_dir
+    from meshsom.store import figures_dir, write_tracking
     from meshsom.variations import n_variations
     from meshsom.rings import dims
     from meshsom.som import default_sigma_start
@@ -363,7 +363,7 @@ def _train_one(client, cfg, spec, store, tracker, parent, ids, group, resume, fi
     child = tracker.start(run_name(cfg.name, ids["short_id"], job.run), params,
                           {"dataset_fingerprint": fingerprint, "map": job.run}, parent=parent, run_id=previous)
     ids["children"][job.run] = child
-    group.attrs["mlflow"] = ids
+    write_tracking(group, ids)
     logged = tracker.logged_steps(child, "q_error") if previous else set()  # steps an earlier attempt logged
     bar = tqdm(total=som.epochs, desc=f"      {job.run}", unit="epoch", leave=False, disable=None)
     every = max(1, -(-som.epochs // EPOCH_LINES))
