@@ -362,7 +362,7 @@ def train_spec(client, job: TrainJob, resume: bool = False, on_epoch=None, progr
     prepare_engine(client, job, D)
     # BMUs, variations, distances and second-best units of every vector, rewritten by every pass
     # (chunks are the row blocks: no two tasks write one chunk)
-    create_bmu_arrays(g, n, BLOCK_ROWS)
+    create_bmu_arrays(g, n, min(max(n, 1), BLOCK_ROWS))
 
     def checkpoint(info, W):
         metrics = {k: float(v) for k, v in info.errors.items()}
