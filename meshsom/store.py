@@ -333,6 +333,11 @@ def write_mesh_tables(group: zarr.Group, ids: Sequence[str], labels: Sequence[st
 CORPUS_ARRAYS = {"vertices": ((3,), np.float64), "faces": ((3,), np.int64), "face_mesh": ((), np.int32)}
 
 
+def corpus_counts(group: zarr.Group) -> dict:
+    """``n_meshes``, ``n_faces``, ``n_vertices`` of the stored corpus (the root attributes; None where absent)."""
+    return {k: group.attrs.get(k) for k in ("n_meshes", "n_faces", "n_vertices")}
+
+
 def create_corpus_arrays(group: zarr.Group, n_vertices: int, n_faces: int, chunk_rows: int) -> dict[str, zarr.Array]:
     """Empty ``vertices``, ``faces`` and ``face_mesh`` arrays, to be filled by row ranges.
 

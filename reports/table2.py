@@ -86,10 +86,12 @@ def format_markdown(table: list[dict], exp: TrackedExperiment) -> str:
         lines.append("| " + " | ".join(
             [r["name"], r["kernel"], r["map"] or "not trained", r["dims"] or "—"] + ours
             + [p.get("map", "—"), p.get("dims", "—")] + [f"{p[k]:.5f}" if k in p else "—" for k in ERRORS]) + " |")
-    attrs = dict(exp.open_store().attrs)
+    from meshsom.store import corpus_counts
+
+    attrs = {k: ("?" if v is None else v) for k, v in corpus_counts(exp.open_store()).items()}
     lines += [
         "",
-        f"Ours: {attrs.get('n_meshes', '?')} meshes, {attrs.get('n_faces', '?')} triangles; MLflow experiment "
+        f"Ours: {attrs['n_meshes']} meshes, {attrs['n_faces']} triangles; MLflow experiment "
         f"`{exp.experiment}` at `{exp.uri}`, pipeline run `{exp.run_id}` (store `{exp.store}`); final metrics (step = epochs) of each map's child run, on standardized "
         "vectors. Paper: Table 2, 48 LoD1 blocks of Zürich Altstetten (3064 triangles), its own scaling: "
         "compare relations between rows, not absolute values. `1*` is the default kernel (one variation).",
