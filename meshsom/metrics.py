@@ -216,11 +216,7 @@ def tied_with_neighbour(X, W, bmu: BMUResult, rows: int, cols: int, topology: st
         return out
     X = np.asarray(X)[look]
     W = np.asarray(W)
-    if index is None:
-        xv = X.astype(np.float64)
-    else:
-        xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), np.asarray(bmu.variation)[look])
-        xv = xv.astype(np.float64)
+    xv = winning_vectors(X, np.asarray(bmu.variation)[look], index, sign)
     d_second = dist2_to(xv, W, second[look, None])[:, 0]
     d_nbr = dist2_to(xv, W, neighbour_units(unit[look], rows, cols, topology, neighbourhood)).min(axis=1)
     w64 = W[second[look]].astype(np.float64)
@@ -280,12 +276,27 @@ def residuals(X, W, bmu: BMUResult, index=None, sign=None) -> np.ndarray:
     -------
     (N, D) float64
     """
+    return winning_vectors(X, bmu.variation, index, sign) - np.asarray(W, np.float64)[bmu.unit]
+
+
+def winning_vectors(X, variation, index=None, sign=None) -> np.ndarray:
+    """``P_v x`` of every vector in its winning variation ``v``, in float64.
+
+    Parameters
+    ----------
+    X : (N, D) float
+    variation : (N,) int
+    index, sign : (n, D) or None
+        The variation table (None: identity; ``variation`` is then ignored).
+
+    Returns
+    -------
+    (N, D) float64
+    """
     X = np.asarray(X)
     if index is None:
-        xv = X.astype(np.float64)
-    else:
-        xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), bmu.variation).astype(np.float64)
-    return xv - np.asarray(W, np.float64)[bmu.unit]
+        return X.astype(np.float64)
+    return varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), variation).astype(np.float64)
 
 
 def q_error(X, W, bmu: BMUResult, index=None, sign=None) -> float:
