@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshsom.bmu_numpy import BMUResult, bmu_numpy, validate
+from meshsom.bmu_numpy import BMUResult, bmu_numpy, unit_sums, validate
 from meshsom.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -58,6 +58,9 @@ class Engine:
         Workload -> one clause per layout that failed for it ("cpu -> cpu-narrow: reason").
     failed : set
         (layout, workload) pairs not to try again.
+    sums_on_host : str
+        Why per-unit sums are taken on the host on this OpenCL device ("" while they run on it,
+        :meth:`unit_sums`).
     """
 
     backend: str
@@ -68,6 +71,7 @@ class Engine:
     used: dict = field(default_factory=dict)
     fallbacks: dict = field(default_factory=dict)
     failed: set = field(default_factory=set)
+    sums_on_host: str = ""
 
     def describe(self, D: int | None = None, n: int | None = None, dtype=np.float32) -> dict:
         """What computed the results: ``backend``, ``device``, ``layout``, ``fallback``.
@@ -91,6 +95,8 @@ class Engine:
         else:
             layout = ",".join(sorted({self.used[w] for w in works if w in self.used}))
         fallback = "; ".join(c for w in works for c in self.fallbacks.get(w, ()))
+        if self.sums_on_host:
+            fallback = "; ".join(c for c in (fallback, f"per-unit sums on the host: {self.sums_on_host}") if c)
         return {"backend": self.backend, "device": self.device, "layout": layout, "fallback": fallback}
 
     def prepare(self, D: int, n: int, dtype=np.float32) -> str:
@@ -160,6 +166,42 @@ class Engine:
                               f"({detail}); {ADVICE}")
         self.used[work] = NUMPY_LAYOUT
         return bmu_numpy(X, W, index, sign)
+
+
+    def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None) -> tuple[np.ndarray, np.ndarray]:
+        """Per unit, the sum of the varied vectors it won and how many it won (a batch epoch's map step).
+
+        On an OpenCL device with float64, where an OpenCL layout ran the search, the sums are taken
+        on the device next to the (resident) rows (:func:`meshsom.bmu_opencl.unit_sums_opencl`),
+        bit for bit the host's :func:`meshsom.bmu_numpy.unit_sums`; elsewhere, and after the
+        device path failed once (one warning line; :attr:`sums_on_host` says why), on the host.
+
+        Parameters
+        ----------
+        X : (N, D), W : (M, D)
+        bmu : BMUResult
+            This engine's answer for X against W.
+        index, sign : (n, D) or None
+            The variation table of the search.
+
+        Returns
+        -------
+        sums : (M, D) float64
+        counts : (M,) float64
+        """
+        X, W, index, sign = validate(X, W, index, sign)
+        work = (X.shape[1], len(index), X.dtype.name)
+        if self.backend == "opencl" and not self.sums_on_host and self.used.get(work, NUMPY_LAYOUT) != NUMPY_LAYOUT:
+            from meshsom import bmu_opencl
+
+            try:
+                return bmu_opencl.unit_sums_opencl(
+                    X, W, bmu, index, sign, context=self.context,
+                    params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]))
+            except DeviceError as err:
+                self.sums_on_host = getattr(err, "reason", str(err))
+                log.warning("per-unit sums run on the host from now on: %s", self.sums_on_host)
+        return unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W))
 
 
 _FELL_BACK = []  # holds one entry once the auto fallback warning has been logged

@@ -136,6 +136,9 @@ def is_identity(index: np.ndarray, sign: np.ndarray, v: int = 0) -> bool:
 def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.ndarray:
     """The varied vectors ``sign[v] * X[i, index[v]]`` for one variation per row.
 
+    Gathers the rows of each variation together and permutes their columns with one ``take``
+    (an (N, D) fancy index of int64 would cost more than the search at a million rows).
+
     Parameters
     ----------
     X : (N, D) float
@@ -148,11 +151,84 @@ def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.
     -------
     (N, D) float, dtype of X
     """
-    variation = np.broadcast_to(np.asarray(variation, np.int64), (len(X),))
+    X = np.asarray(X)
     if len(index) == 1 and is_identity(index, sign):
         return X  # the default kernel: no gather
-    rows = np.arange(len(X))[:, None]
-    return (sign[variation] * X[rows, index[variation]]).astype(X.dtype, copy=False)
+    if np.ndim(variation) == 0:
+        v = int(variation)
+        return (np.take(X, index[v], axis=1) * sign[v]).astype(X.dtype, copy=False)
+    variation = np.asarray(variation, np.int64)
+    if len(variation) != len(X):
+        raise ValueError(f"variation must hold one entry per row of X ({len(X)}), received {len(variation)}")
+    out = np.empty_like(X)
+    for v in range(len(index)):
+        rows = np.flatnonzero(variation == v)
+        if len(rows) == len(X):
+            out[:] = np.take(X, index[v], axis=1) * sign[v]
+        elif len(rows):
+            out[rows] = np.take(X[rows], index[v], axis=1) * sign[v]
+    return out
+
+
+def unit_order(unit: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows grouped by unit, in row order within a unit (a stable counting order).
+
+    Parameters
+    ----------
+    unit : (N,) int
+        Units in 0..M-1.
+    M : int
+
+    Returns
+    -------
+    order : (N,) int64
+        Row numbers, sorted by unit, ascending within a unit.
+    offsets : (M + 1,) int64
+        Rows of unit u are ``order[offsets[u]:offsets[u + 1]]``.
+    """
+    unit = np.asarray(unit)
+    key = unit.astype(np.uint16) if M <= 1 << 16 else unit  # 16-bit keys: NumPy sorts stably by radix
+    order = np.argsort(key, kind="stable")
+    offsets = np.zeros(M + 1, np.int64)
+    np.cumsum(np.bincount(unit, minlength=M), out=offsets[1:])
+    return order, offsets
+
+
+def unit_sums(X, unit, variation, index, sign, M: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per unit, the sum of the varied vectors it won, and how many it won: the reference of the
+    OpenCL ``unit_sums`` kernel (``kernels/unit_sums.cl``), which gives the same bits.
+
+    Each sum is taken in float64 from 0, adding one vector after another in row order (a
+    sparse (M, N) one-hot matrix in :func:`unit_order`'s order times the varied vectors: SciPy's
+    CSR product adds each row's entries in that order).
+
+    Parameters
+    ----------
+    X : (N, D) float
+    unit, variation : (N,) int
+        The winners (:class:`BMUResult`).
+    index : (n, D) int64
+    sign : (n, D) float
+        The variation table the winners were found with.
+    M : int
+        Units.
+
+    Returns
+    -------
+    sums : (M, D) float64
+    counts : (M,) float64
+    """
+    from scipy.sparse import csr_matrix
+
+    X = np.asarray(X)
+    N, D = X.shape
+    order, offsets = unit_order(unit, M)
+    counts = np.diff(offsets).astype(np.float64)
+    if N == 0:
+        return np.zeros((M, D)), counts
+    xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), variation)
+    one_hot = csr_matrix((np.ones(N), order, offsets), shape=(M, N))
+    return np.asarray(one_hot @ xv.astype(np.float64, copy=False)), counts
 
 
 def exact_dist2(X, W, index, sign, unit, variation) -> np.ndarray:

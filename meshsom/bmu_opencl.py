@@ -42,7 +42,7 @@ from importlib import resources
 
 import numpy as np
 
-from meshsom.bmu_numpy import BMUResult, exact_dist2, validate
+from meshsom.bmu_numpy import BMUResult, exact_dist2, unit_order, validate
 from meshsom.errors import DeviceError
 from meshsom.probe import injected_defines
 
@@ -156,6 +156,10 @@ KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "gemm": ("bmu_gpu.cl", "bmu_of
 GEMM_REDUCE = "bmu_of_n_gemm_reduce"
 #: Work-group size of the "gemm" reduction kernel (one work-item per row).
 REDUCE_GROUP = 64
+#: The per-unit sums kernel (``kernels/unit_sums.cl``), part of every layout's program.
+UNIT_SUMS = "unit_sums"
+#: Work-group size of the per-unit sums kernel (one work-item per unit and dimension).
+SUMS_GROUP = 64
 
 #: The layouts: kernel and tiling. "cpu": the cache-blocked kernel with 2 x 16 units against 8
 #: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
@@ -272,9 +276,12 @@ def device_name(context) -> str:
 
 
 def kernel_source(kernel: str = "gemm") -> str:
-    """Text of a kernel variant: ``kernels/bmu_common.cl`` then its own ``.cl`` file (see :data:`KERNELS`)."""
+    """Text of a kernel variant's program: ``kernels/bmu_common.cl``, its own ``.cl`` file (see
+    :data:`KERNELS`), then ``kernels/unit_sums.cl`` (:data:`UNIT_SUMS`, built where the device has
+    float64)."""
     kernels = resources.files("meshsom").joinpath("kernels")
-    return kernels.joinpath("bmu_common.cl").read_text() + "\n" + kernels.joinpath(KERNELS[kernel][0]).read_text()
+    return "\n".join(kernels.joinpath(name).read_text()
+                     for name in ("bmu_common.cl", KERNELS[kernel][0], "unit_sums.cl"))
 
 
 def _largest_divisor(D: int, cap: int) -> int:
@@ -570,10 +577,11 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     """
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
-    key = tuple(sorted(defines.items()))
+    key = tuple(sorted(defines.items())) + (("UNIT_SUMS", int(has_fp64(context))),)
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         text = kernel_source(defines["KERNEL"])
+        # UNIT_SUMS (the key's last item): kernels/unit_sums.cl is built where the device has float64
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
         device = context.devices[0]
         if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
@@ -597,7 +605,11 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     program, kernels = cache[key]
     function = function or main
     if function not in kernels:
-        kernels[function] = cl.Kernel(program, function)
+        try:
+            kernels[function] = cl.Kernel(program, function)
+        except cl.Error as err:
+            raise KernelLayoutError(layout, device_name(context),
+                                    f"kernel {function} is not in the program of kernels/{source} ({err})") from None
     return kernels[function]
 
 
@@ -941,6 +953,82 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     if dist2.dtype != np.float64:  # the gemm layout computes the winners' dist2 in float64 where it can
         dist2 = exact_dist2(X, W, index, sign, unit, variation)
     return BMUResult(unit, variation, dist2, second.astype(np.int64))
+
+
+def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M: int) -> tuple[np.ndarray, np.ndarray]:
+    """Run the built per-unit sums kernel on validated arrays (the rows resident where X is read-only).
+
+    Takes and returns what :func:`meshsom.bmu_numpy.unit_sums` does, with X, index and sign as
+    :func:`meshsom.bmu_numpy.validate` returns them; the (M, D) float64 sums and (M,) counts are
+    the host's, bit for bit.
+
+    Raises
+    ------
+    DeviceError
+        An OpenCL error, as one readable line.
+    """
+    cl = _cl()
+    N, D = X.shape
+    order, offsets = unit_order(unit, M)
+    sums = np.empty((M, D), np.float64)
+    if N:
+        try:
+            xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
+            out = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, sums.nbytes)
+            group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
+            kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, ibuf, sbuf,
+                   upload(context, np.ascontiguousarray(variation, np.int32)), upload(context, order.astype(np.int32)),
+                   upload(context, offsets.astype(np.int32)), np.int32(M), out)
+            cl.enqueue_copy(queue, sums, out)
+            queue.finish()
+        except cl.Error as err:
+            resident_rows(context).discard(X)
+            raise DeviceError(f"{device_name(context)}: per-unit sums kernel failed ({type(err).__name__}: "
+                              f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+    else:
+        sums[:] = 0
+    return sums, np.diff(offsets).astype(np.float64)
+
+
+def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
+                     params: KernelParams | None = None, queue=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-unit sums and counts of a search's winners on the device: same bits as
+    :func:`meshsom.bmu_numpy.unit_sums`.
+
+    The kernel is part of the layout's program (:func:`kernel_source`), so it is built, and
+    probed, with the search; where X is read-only its resident device copy is read
+    (:class:`ResidentRows`), so a training epoch sends the rows to the device once and brings
+    back only the (M, D) sums.
+
+    Parameters
+    ----------
+    X : (N, D) float32 or float64
+    W : (M, D)
+    bmu : BMUResult
+        The winners of X against W (:func:`bmu_opencl` or any backend).
+    index, sign : (n, D) or None
+        The variation table the winners were found with.
+    context, device, params, queue
+        As :func:`bmu_opencl`.
+
+    Returns
+    -------
+    sums : (M, D) float64
+    counts : (M,) float64
+
+    Raises
+    ------
+    DeviceError
+        The device has no float64, or the build or the kernel failed.
+    """
+    X, W, index, sign = validate(X, W, index, sign)
+    context = context or get_context(device)
+    if not has_fp64(context):
+        raise DeviceError(f"{device_name(context)} has no float64 (cl_khr_fp64): per-unit sums are taken on the host")
+    params = params or default_params(context)
+    defines = _defines(X.shape[1], len(index), X.dtype, params)
+    kernel = get_kernel(context, defines, UNIT_SUMS, layout=params.name)
+    return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W))
 
 
 _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()

@@ -4,8 +4,9 @@ OpenCL compilers can take the whole process down: PoCL 3.0 with LLVM 14 aborts (
 SIGABRT) on some kernels for CPUs LLVM does not know, and no Python ``try`` catches that. So
 before a kernel is built in the user's process for the first time, :func:`check` builds it in a
 *child* process, runs it on a small known answer (random rows against a small codebook, with
-random variations, compared with a float64 NumPy search) and reports a :class:`Verdict`; a
-compiler abort or a hang then kills only the child.
+random variations, compared with a float64 NumPy search; where the device has float64, the
+program's per-unit sums kernel too, compared bit for bit with :func:`meshsom.bmu_numpy.unit_sums`)
+and reports a :class:`Verdict`; a compiler abort or a hang then kills only the child.
 
 Verdicts are cached on disk, one JSON file per key, so the probe costs once per machine and
 Dask workers on it share the answer. The key covers everything the build depends on: the
@@ -42,7 +43,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 #: Bumped when the probe's check changes, so old verdicts are not reused.
-PROBE_VERSION = 1
+PROBE_VERSION = 2
 #: Seconds a probe child may take (build + check) before it is killed and the layout rejected.
 PROBE_TIMEOUT_S = 300.0
 #: Rows and extra units of the known-answer check (units: two whole tiles plus this, so the
@@ -333,6 +334,23 @@ def compare(X, W, index, sign, unit, variation) -> str:
     return ""
 
 
+def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: int) -> str:
+    """Empty when the program's per-unit sums kernel gives the host's sums bit for bit; else why not."""
+    from meshsom import bmu_opencl
+    from meshsom.bmu_numpy import unit_sums
+
+    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
+    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M)
+    want, want_counts = unit_sums(X, unit, variation, index, sign, M)
+    if not np.array_equal(counts, want_counts):
+        return "wrong per-unit counts"
+    bad = np.flatnonzero((sums != want).any(axis=1))
+    if len(bad):
+        u = int(bad[0])
+        return f"wrong per-unit sums on {len(bad)} of {M} units (unit {u}: {sums[u][:3]} ..., host {want[u][:3]} ...)"
+    return ""
+
+
 def _child(spec: dict) -> dict:
     from meshsom import bmu_opencl
 
@@ -349,6 +367,8 @@ def _child(spec: dict) -> dict:
     except bmu_opencl.DeviceError as err:
         return {"ok": False, "reason": first_error_line(str(err))}
     reason = compare(X, W, index, sign, unit, variation)
+    if not reason and bmu_opencl.has_fp64(context):
+        reason = compare_sums(context, queue, defines, X, index, sign, unit, variation, len(W))
     out = {"ok": not reason, "reason": reason}
     if spec.get("timing") and not reason:
         N, M, n, D = TIMING_WORKLOAD

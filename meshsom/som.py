@@ -36,7 +36,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from meshsom.bmu import find_bmus, resolve_backend
-from meshsom.bmu_numpy import BMUResult, identity_table, varied
+from meshsom.bmu_numpy import BMUResult, identity_table
 from meshsom.metrics import TOPOLOGIES, error_sums, errors_of
 
 INITS = ("random", "pca")
@@ -158,26 +158,16 @@ def partial_sums(X, W, index=None, sign=None, backend="auto", device: str | None
     Returns
     -------
     sums : (M, D) float64
-        Per unit, the sum of the winning varied vectors ``sign[v] * x[index[v]]``.
+        Per unit, the sum of the winning varied vectors ``sign[v] * x[index[v]]``, in row order
+        (:func:`meshsom.bmu_numpy.unit_sums`; on an OpenCL device with float64 the same sums are
+        taken on the device, bit for bit, next to the rows: :meth:`meshsom.bmu.Engine.unit_sums`).
     counts : (M,) float64
         Per unit, how many vectors it won.
     bmu : BMUResult
     """
-    X = np.asarray(X)
-    W = np.asarray(W)
-    bmu, _ = find_bmus(X, W, index, sign, backend=backend, device=device)
-    if index is None:
-        index, sign = identity_table(X.shape[1])
-    xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), bmu.variation)
-    # per-unit sums in O(N * D): rows sorted by unit (stable: row order within a unit), one
-    # segmented sum per winning unit
-    order = np.argsort(bmu.unit, kind="stable")
-    units = bmu.unit[order]
-    starts = np.flatnonzero(np.r_[True, units[1:] != units[:-1]]) if len(units) else np.zeros(0, np.int64)
-    sums = np.zeros((len(W), X.shape[1]))
-    if len(units):
-        sums[units[starts]] = np.add.reduceat(xv[order].astype(np.float64), starts, axis=0)
-    counts = np.bincount(bmu.unit, minlength=len(W)).astype(np.float64)
+    engine = resolve_backend(backend, device)
+    bmu = engine.search(X, W, index, sign)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign)
     return sums, counts, bmu
 
 

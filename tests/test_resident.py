@@ -244,7 +244,7 @@ def test_partial_sums_over_epochs_match_numpy(ctx, uploads, n):
         np.testing.assert_array_equal(b.unit, b_ref.unit)
         np.testing.assert_array_equal(b.variation, b_ref.variation)
         np.testing.assert_array_equal(c, c_ref)
-        np.testing.assert_allclose(s, s_ref, rtol=1e-12, atol=1e-9)
+        assert s.tobytes() == s_ref.tobytes()  # the sums are taken on the device, bit for bit the host's
     assert [size for size, _ in uploads].count(X.nbytes) == 1  # every epoch after the first: the codebook only
 
 
