@@ -22,6 +22,19 @@ XPySom with its CuPy backend (planar map, construction and host-to-device copy i
 each timed in steady state: best of the repeats after a warm-up call. Table (a) keeps
 writable X: its passes include the row copies, as the PyTorch "with copies" column does.
 
+(c) Training epochs as the pipeline runs them (``SOM.fit``: the search, the per-unit sums and
+the T / Q / QC error sums of every epoch, the update), seconds per epoch in steady state (the
+median of the epochs after the first): the paper config's four maps (120 x 150, its levels and
+kernels), and a 1,000,000-row level-3 map (the paper's level-3 rows repeated with a little seeded
+noise, BMUofN). Each row says where the per-unit sums and errors were taken (device or host).
+The standardized level vectors come from a store of ``meshsom run configs/paper.yaml``,
+exported once where the pipeline's dependencies are installed:
+
+    python bench/gpu.py --export-levels out/paper.zarr .gpu/paper-levels.npz
+
+and read with ``--levels .gpu/paper-levels.npz`` (the GPU machine has no zarr); without it the
+table is skipped.
+
 --autotune times a handful of "gemm" tilings on one large (1e6 x 3 x 36) and one small
 (3,064 x 3 x 144) pass and prints the best. Anything not importable (torch, CuPy, XPySom)
 prints n/a.
@@ -62,6 +75,15 @@ AUTOTUNE_TILINGS = [(128, 128, 16, 16, 16), (128, 128, 16, 16, 8), (128, 128, 16
                     (128, 64, 16, 16, 16), (64, 64, 16, 16, 16), (128, 128, 32, 8, 16), (64, 64, 8, 8, 16)]
 #: The workloads --autotune times: (N, n, D).
 AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (3064, 3, 144)]
+#: The paper config's maps (configs/paper.yaml): (level, kernel), trained for PAPER_EPOCHS.
+PAPER_MAPS = [(1, "default"), (1, "bmuofn"), (2, "bmuofn"), (3, "bmuofn")]
+PAPER_EPOCHS = 20
+#: The large training map: level-3 rows repeated to this many, BMUofN, for LARGE_EPOCHS epochs.
+LARGE_ROWS = 1_000_000
+LARGE_EPOCHS = 3
+#: Standard deviation of the noise added to the repeated rows (standardized units) and its seed.
+LARGE_NOISE = 0.01
+LARGE_SEED = 0
 
 
 def say(text: str = "") -> None:
@@ -229,6 +251,59 @@ def epoch_table(args, ctx):
         del X  # frees the rows' device copy too
 
 
+def export_levels(store: str, out: str) -> None:
+    """Write the standardized vectors of every ring level of a store, and the variation tables of
+    PAPER_MAPS, to an .npz (keys ``X<level>``, ``index_<level>_<kernel>``, ``sign_<level>_<kernel>``)."""
+    from meshsom.store import open_store, ring_levels
+    from meshsom.variations import variation_table
+    from pipelines.train import load_level
+
+    group = open_store(store)
+    arrays = {f"X{level}": load_level(group, level) for level in ring_levels(group)}
+    for level, kernel in PAPER_MAPS:
+        index, sign = variation_table(level, mirror=False, kernel=kernel)
+        arrays[f"index_{level}_{kernel}"], arrays[f"sign_{level}_{kernel}"] = index, sign
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, **arrays)
+    say(f"wrote {out}: " + ", ".join(f"{k} {v.shape}" for k, v in arrays.items()))
+
+
+def fit_epochs(X, index, sign, epochs: int, device) -> tuple[float, str]:
+    """SOM.fit on the paper's map with the OpenCL engine: the median seconds of the epochs after
+    the first, and where the per-unit sums and errors ran."""
+    from meshsom.som import SOM
+
+    rows, cols = MAP
+    seconds = []
+    som = SOM(rows, cols, epochs=epochs, backend="opencl", device=device, random_state=0)
+    som.fit(X, index, sign, callbacks=[lambda epoch, som, info: seconds.append(info.seconds)])
+    engine = som.engine_
+    where = f"host ({engine.sums_on_host})" if engine.sums_on_host else "device"
+    return float(np.median(seconds[1:] if len(seconds) > 1 else seconds)), where
+
+
+def training_table(args) -> None:
+    levels = np.load(args.levels)
+    rows, cols = MAP
+    say(f"\n(c) training epochs (SOM.fit: search, per-unit sums, T/Q/QC error sums, update), map {rows}x{cols}, "
+        f"OpenCL engine; median seconds of the epochs after the first")
+    say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9}  sums and errors on")
+    for level, kernel in PAPER_MAPS:
+        X = levels[f"X{level}"]
+        index, sign = levels[f"index_{level}_{kernel}"], levels[f"sign_{level}_{kernel}"]
+        epochs = 3 if args.quick else PAPER_EPOCHS
+        t, where = fit_epochs(X, index, sign, epochs, args.device)
+        say(f"{f'paper level {level} {kernel}':>22} {len(X):>9} {f'{len(index)}x{X.shape[1]}':>7} {epochs:>6} "
+            f"{t:9.4f}  {where}")
+    X3 = levels["X3"]
+    N = LARGE_ROWS // QUICK_DIVISOR if args.quick else LARGE_ROWS
+    rng = np.random.default_rng(LARGE_SEED)
+    X = X3[np.arange(N) % len(X3)] + rng.normal(scale=LARGE_NOISE, size=(N, X3.shape[1])).astype(np.float32)
+    index, sign = levels["index_3_bmuofn"], levels["sign_3_bmuofn"]
+    t, where = fit_epochs(X, index, sign, LARGE_EPOCHS, args.device)
+    say(f"{'level 3 x 1e6 bmuofn':>22} {N:>9} {f'{len(index)}x{X.shape[1]}':>7} {LARGE_EPOCHS:>6} {t:9.4f}  {where}")
+
+
 def autotune(args, ctx):
     from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params
 
@@ -265,7 +340,14 @@ def main(argv=None) -> int:
     parser.add_argument("--no-old", action="store_true", help="skip the earlier 'tiled' layout")
     parser.add_argument("--no-epoch", action="store_true", help="skip the epoch table")
     parser.add_argument("--autotune", action="store_true", help="time a few gemm tilings and print the best")
+    parser.add_argument("--levels", default=None, help="an .npz of --export-levels: table (c), training epochs")
+    parser.add_argument("--only-training", action="store_true", help="table (c) alone")
+    parser.add_argument("--export-levels", nargs=2, metavar=("STORE", "NPZ"),
+                        help="write a paper store's level vectors and variation tables for --levels, and stop")
     args = parser.parse_args(argv)
+    if args.export_levels:
+        export_levels(*args.export_levels)
+        return 0
     started = time.perf_counter()
 
     from meshsom.bmu_opencl import device_name, get_context
@@ -282,11 +364,16 @@ def main(argv=None) -> int:
         gemm = torch_gemm_tflops(torch)
         say(f"torch {torch.__version__} on {torch.cuda.get_device_name()}: FP32 GEMM {GEMM_SIZE}^3 "
             f"(TF32 off) {gemm:.1f} TFLOP/s")
-    if args.autotune:
+    if args.autotune and not args.only_training:
         autotune(args, ctx)
-    bmu_table(args, ctx, torch, gemm)
-    if not args.no_epoch:
+    if not args.only_training:
+        bmu_table(args, ctx, torch, gemm)
+    if not args.no_epoch and not args.only_training:
         epoch_table(args, ctx)
+    if args.levels:
+        training_table(args)
+    else:
+        say("\n(c) training epochs: skipped (no --levels; see --export-levels)")
     say(f"\ntotal {time.perf_counter() - started:.0f} s")
     return 0
 

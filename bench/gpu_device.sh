@@ -2,15 +2,19 @@
 # The GPU check of issue 13, as one command on the GPU machine (NVIDIA H200, Python 3.12 with
 # numpy, torch, CuPy and pytest; no pyopencl, nothing downloadable). Run from the repository
 # root with the wheels in .whl/ (pyopencl and its pure dependencies, the XPySom wheel; see
-# the note of the GPU run), writes everything to $OUT/gpu.log:
+# the note of the GPU run) and the paper's level vectors in .gpu/paper-levels.npz (bench/gpu.py
+# --export-levels), writes everything to $OUT/gpu.log. As the device tool's command, carrying
+# [".whl", ".gpu"], with timeout_s 600:
 #
 #     bash bench/gpu_device.sh
 #
-# Budget: at most 150 s of layout verdicts, 330 s of benchmark and 150 s of tests, under the 10 minutes of one run.
+# Budget: at most 90 s of layout verdicts, 360 s of benchmark and 120 s of tests, under the 10
+# minutes of one run.
 # 1. installs the wheels into /tmp/site; 2. registers NVIDIA's OpenCL library with the ICD
 # loader bundled in the pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd
 # files); 3. lists the OpenCL devices; 4. every kernel layout's probe verdict and GFLOP/s;
-# 5. bench/gpu.py --device nvidia --autotune; 6. the BMU and probe tests on the NVIDIA device.
+# 5. bench/gpu.py --device nvidia --autotune --levels (tables a, b, c); 6. the BMU, probe and
+# epoch-sums tests on the NVIDIA device.
 set -u
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}
@@ -47,12 +51,14 @@ python3 -c 'import pyopencl as cl; print("pyopencl", cl.VERSION_TEXT); [print(p.
 # the tests take their device from PYOPENCL_CTX (a name substring); they skip when it matches none
 export PYOPENCL_CTX=nvidia MESHSOM_PROBE_TIMEOUT=60
 step "kernel layout verdicts on the NVIDIA device (meshsom doctor's check: child-process probes, GFLOP/s)"
-timeout 150 python3 -c 'from meshsom.bmu_opencl import get_context; from pipelines.doctor import kernel_verdicts
+timeout 90 python3 -c 'from meshsom.bmu_opencl import get_context; from pipelines.doctor import kernel_verdicts
 [print(v) for v in kernel_verdicts(get_context("nvidia").devices[0])]'
 
-step "bench/gpu.py --device nvidia --autotune"
-timeout 330 python3 bench/gpu.py --device nvidia --autotune
+levels=.gpu/paper-levels.npz
+[ -e "$levels" ] && levels_arg="--levels $levels" || { echo "no $levels: table (c) skipped"; levels_arg=""; }
+step "bench/gpu.py --device nvidia --autotune $levels_arg"
+timeout 360 python3 bench/gpu.py --device nvidia --autotune $levels_arg
 
-step "tests: tests/test_bmu.py and tests/test_probe.py on the NVIDIA device (8 pytest workers)"
-timeout 150 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py
+step "tests: tests/test_bmu.py, tests/test_probe.py and tests/test_epoch_sums.py on the NVIDIA device (8 pytest workers)"
+timeout 120 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py
 step "done"

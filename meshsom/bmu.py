@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, bmu_numpy, unit_sums, validate
+from meshsom.metrics import COMPONENT, row_errors
 from meshsom.errors import DeviceError
 
 log = logging.getLogger(__name__)
@@ -59,8 +60,8 @@ class Engine:
     failed : set
         (layout, workload) pairs not to try again.
     sums_on_host : str
-        Why per-unit sums are taken on the host on this OpenCL device ("" while they run on it,
-        :meth:`unit_sums`).
+        Why per-unit sums and per-row errors are taken on the host on this OpenCL device ("" while
+        they run on it: :meth:`unit_sums`, :meth:`row_errors`).
     """
 
     backend: str
@@ -96,7 +97,7 @@ class Engine:
             layout = ",".join(sorted({self.used[w] for w in works if w in self.used}))
         fallback = "; ".join(c for w in works for c in self.fallbacks.get(w, ()))
         if self.sums_on_host:
-            fallback = "; ".join(c for c in (fallback, f"per-unit sums on the host: {self.sums_on_host}") if c)
+            fallback = "; ".join(c for c in (fallback, f"per-unit sums and errors on the host: {self.sums_on_host}") if c)
         return {"backend": self.backend, "device": self.device, "layout": layout, "fallback": fallback}
 
     def prepare(self, D: int, n: int, dtype=np.float32) -> str:
@@ -190,18 +191,40 @@ class Engine:
         counts : (M,) float64
         """
         X, W, index, sign = validate(X, W, index, sign)
-        work = (X.shape[1], len(index), X.dtype.name)
-        if self.backend == "opencl" and not self.sums_on_host and self.used.get(work, NUMPY_LAYOUT) != NUMPY_LAYOUT:
-            from meshsom import bmu_opencl
+        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign)
+        return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W))
 
-            try:
-                return bmu_opencl.unit_sums_opencl(
-                    X, W, bmu, index, sign, context=self.context,
-                    params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]))
-            except DeviceError as err:
-                self.sums_on_host = getattr(err, "reason", str(err))
-                log.warning("per-unit sums run on the host from now on: %s", self.sums_on_host)
-        return unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W))
+    def row_errors(self, X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Per row, the Q- and QC-error distances of its winner (:func:`meshsom.metrics.row_errors`).
+
+        On the device where :meth:`unit_sums` runs there (and ``component`` is the compiled
+        :data:`meshsom.metrics.COMPONENT`), the same to rounding; else on the host.
+
+        Returns
+        -------
+        q, qc : (N,) float64
+        """
+        X, W, index, sign = validate(X, W, index, sign)
+        found = self._on_device("row_errors_opencl", X, W, bmu, index, sign) if component == COMPONENT else None
+        return found if found is not None else row_errors(X, W, bmu, index, sign, component)
+
+    def _on_device(self, function: str, X, W, bmu, index, sign):
+        """``meshsom.bmu_opencl.<function>`` on this engine's device for validated arrays, or None
+        where it does not run there (NumPy backend, NumPy fallback for the workload, or an earlier
+        failure; a failure now is recorded in :attr:`sums_on_host` with one warning line)."""
+        work = (X.shape[1], len(index), X.dtype.name)
+        if self.backend != "opencl" or self.sums_on_host or self.used.get(work, NUMPY_LAYOUT) == NUMPY_LAYOUT:
+            return None
+        from meshsom import bmu_opencl
+
+        try:
+            return getattr(bmu_opencl, function)(X, W, bmu, index, sign, context=self.context,
+                                                 params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]))
+        except DeviceError as err:
+            self.sums_on_host = getattr(err, "reason", str(err))
+            log.warning("per-unit sums and errors run on the host from now on: %s", self.sums_on_host)
+            return None
 
 
 _FELL_BACK = []  # holds one entry once the auto fallback warning has been logged

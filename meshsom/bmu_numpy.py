@@ -196,7 +196,7 @@ def unit_order(unit: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
 
 def unit_sums(X, unit, variation, index, sign, M: int) -> tuple[np.ndarray, np.ndarray]:
     """Per unit, the sum of the varied vectors it won, and how many it won: the reference of the
-    OpenCL ``unit_sums`` kernel (``kernels/unit_sums.cl``), which gives the same bits.
+    OpenCL ``unit_sums`` kernel (``kernels/epoch_sums.cl``), which gives the same bits.
 
     Each sum is taken in float64 from 0, adding one vector after another in row order (a
     sparse (M, N) one-hot matrix in :func:`unit_order`'s order times the varied vectors: SciPy's

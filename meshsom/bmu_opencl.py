@@ -43,6 +43,7 @@ from importlib import resources
 import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, exact_dist2, unit_order, validate
+from meshsom.metrics import COMPONENT
 from meshsom.errors import DeviceError
 from meshsom.probe import injected_defines
 
@@ -156,9 +157,11 @@ KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "gemm": ("bmu_gpu.cl", "bmu_of
 GEMM_REDUCE = "bmu_of_n_gemm_reduce"
 #: Work-group size of the "gemm" reduction kernel (one work-item per row).
 REDUCE_GROUP = 64
-#: The per-unit sums kernel (``kernels/unit_sums.cl``), part of every layout's program.
+#: The kernels of an epoch's reductions (``kernels/epoch_sums.cl``), part of every layout's
+#: program where the device has float64: per-unit sums and per-row Q / QC distances.
 UNIT_SUMS = "unit_sums"
-#: Work-group size of the per-unit sums kernel (one work-item per unit and dimension).
+ROW_ERRORS = "row_errors"
+#: Work-group size of those kernels (one work-item per unit and dimension, or per row).
 SUMS_GROUP = 64
 
 #: The layouts: kernel and tiling. "cpu": the cache-blocked kernel with 2 x 16 units against 8
@@ -277,11 +280,11 @@ def device_name(context) -> str:
 
 def kernel_source(kernel: str = "gemm") -> str:
     """Text of a kernel variant's program: ``kernels/bmu_common.cl``, its own ``.cl`` file (see
-    :data:`KERNELS`), then ``kernels/unit_sums.cl`` (:data:`UNIT_SUMS`, built where the device has
-    float64)."""
+    :data:`KERNELS`), then ``kernels/epoch_sums.cl`` (:data:`UNIT_SUMS`, :data:`ROW_ERRORS`; built
+    where the device has float64)."""
     kernels = resources.files("meshsom").joinpath("kernels")
     return "\n".join(kernels.joinpath(name).read_text()
-                     for name in ("bmu_common.cl", KERNELS[kernel][0], "unit_sums.cl"))
+                     for name in ("bmu_common.cl", KERNELS[kernel][0], "epoch_sums.cl"))
 
 
 def _largest_divisor(D: int, cap: int) -> int:
@@ -577,11 +580,11 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     """
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
-    key = tuple(sorted(defines.items())) + (("UNIT_SUMS", int(has_fp64(context))),)
+    key = tuple(sorted(defines.items())) + (("EPOCH_SUMS", int(has_fp64(context))), ("COMPONENT", COMPONENT))
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         text = kernel_source(defines["KERNEL"])
-        # UNIT_SUMS (the key's last item): kernels/unit_sums.cl is built where the device has float64
+        # the key's last items: kernels/epoch_sums.cl is built where the device has float64
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
         device = context.devices[0]
         if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
@@ -1021,14 +1024,68 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
     DeviceError
         The device has no float64, or the build or the kernel failed.
     """
+    X, W, index, sign, context, kernel = _epoch_kernel(UNIT_SUMS, X, W, index, sign, context, device, params)
+    return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W))
+
+
+def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation) -> tuple[np.ndarray, np.ndarray]:
+    """Run the built per-row errors kernel on validated arrays (the rows resident where X is read-only).
+
+    Takes and returns what :func:`meshsom.metrics.row_errors` does (with the program's
+    :data:`meshsom.metrics.COMPONENT`), the same to rounding.
+
+    Raises
+    ------
+    DeviceError
+        An OpenCL error, as one readable line.
+    """
+    cl = _cl()
+    N = len(X)
+    q = np.empty(N, np.float64)
+    qc = np.empty(N, np.float64)
+    if N:
+        try:
+            xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
+            outs = [cl.Buffer(context, cl.mem_flags.WRITE_ONLY, a.nbytes) for a in (q, qc)]
+            group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
+            kernel(queue, (-(-N // group) * group,), (group,), xbuf, np.int32(N), ibuf, sbuf,
+                   upload(context, np.ascontiguousarray(variation, np.int32)),
+                   upload(context, np.ascontiguousarray(unit, np.int32)), upload(context, W), *outs)
+            for host, buf in zip((q, qc), outs):
+                cl.enqueue_copy(queue, host, buf)
+            queue.finish()
+        except cl.Error as err:
+            resident_rows(context).discard(X)
+            raise DeviceError(f"{device_name(context)}: per-row errors kernel failed ({type(err).__name__}: "
+                              f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+    return q, qc
+
+
+def _epoch_kernel(function, X, W, index, sign, context, device, params):
+    """Validated arrays, context and a built kernel of ``kernels/epoch_sums.cl`` (see :func:`unit_sums_opencl`)."""
     X, W, index, sign = validate(X, W, index, sign)
     context = context or get_context(device)
     if not has_fp64(context):
-        raise DeviceError(f"{device_name(context)} has no float64 (cl_khr_fp64): per-unit sums are taken on the host")
+        raise DeviceError(f"{device_name(context)} has no float64 (cl_khr_fp64): per-unit sums and errors "
+                          f"are taken on the host")
     params = params or default_params(context)
     defines = _defines(X.shape[1], len(index), X.dtype, params)
-    kernel = get_kernel(context, defines, UNIT_SUMS, layout=params.name)
-    return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W))
+    return X, W, index, sign, context, get_kernel(context, defines, function, layout=params.name)
+
+
+def row_errors_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
+                      params: KernelParams | None = None, queue=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row Q- and QC-distances of a search's winners on the device: :func:`meshsom.metrics.row_errors`
+    (component :data:`meshsom.metrics.COMPONENT`), the same to rounding.
+
+    Parameters and errors as :func:`unit_sums_opencl`.
+
+    Returns
+    -------
+    q, qc : (N,) float64
+    """
+    X, W, index, sign, context, kernel = _epoch_kernel(ROW_ERRORS, X, W, index, sign, context, device, params)
+    return launch_row_errors(context, queue or _queue(context), kernel, X, W, index, sign, bmu.unit, bmu.variation)
 
 
 _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()

@@ -226,8 +226,14 @@ def tied_with_neighbour(X, W, bmu: BMUResult, rows: int, cols: int, topology: st
 
 
 def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
-               neighbourhood: int = 8, component: int = COMPONENT) -> dict:
+               neighbourhood: int = 8, component: int = COMPONENT, distances=None) -> dict:
     """The sums behind the T-, Q- and QC-errors of one block of vectors (add blocks, divide by ``n``).
+
+    Parameters
+    ----------
+    distances : (q, qc) of (N,) float64, or None
+        The per-row distances of :func:`row_errors` where they were taken already (on an OpenCL
+        device: :meth:`meshsom.bmu.Engine.row_errors`); None: computed here.
 
     Returns
     -------
@@ -236,14 +242,13 @@ def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toro
         distances ``||P_v* x - w_bmu||``); ``qc_sum`` (sum over vectors of the mean distance per
         ``component``-value slice; NaN when D is not a multiple of ``component``).
     """
-    res = residuals(X, W, bmu, index, sign)
-    N = len(res)
+    q, qc = distances if distances is not None else row_errors(X, W, bmu, index, sign, component)
     tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
     return {
-        "n": int(N),
+        "n": int(len(q)),
         "t_bad": int(topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied).sum()),
-        "q_sum": float(np.sqrt(np.einsum("ij,ij->i", res, res)).sum()),
-        "qc_sum": _qc_sum(res, component),
+        "q_sum": float(q.sum()),
+        "qc_sum": float(qc.sum()),
     }
 
 
@@ -259,6 +264,61 @@ def errors_of(sums: dict) -> dict:
     if n == 0:
         raise ValueError("errors need at least one vector, received 0")
     return {"t_error": sums["t_bad"] / n, "q_error": sums["q_sum"] / n, "qc_error": sums["qc_sum"] / n}
+
+
+#: Rows per block of :func:`row_errors`: bounds its float64 temporaries to this many rows x D.
+ROW_ERRORS_BLOCK = 16384
+
+
+def row_errors(X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Per vector, its Q-error distance and its QC-error distance.
+
+    With the residual ``d = P_v* x - w_bmu`` in float64: ``q = ||d||``, its squares added in
+    dimension order from 0; ``qc`` the mean over the ``D / component`` consecutive slices of the
+    slice norms (squares added in order within a slice, norms added in slice order), NaN when
+    ``component`` does not divide D. This order is the one the OpenCL ``row_errors`` kernel
+    (``kernels/epoch_sums.cl``) follows, so both agree to rounding (a device may fuse a square
+    and its add).
+
+    Parameters
+    ----------
+    X : (N, D) float
+    W : (M, D) float
+    bmu : BMUResult
+    index, sign : (n, D) or None
+        The variation table (None: identity).
+    component : int
+
+    Returns
+    -------
+    q, qc : (N,) float64
+    """
+    X = np.asarray(X)
+    N, D = X.shape
+    W = np.asarray(W, np.float64)
+    q = np.empty(N)
+    qc = np.full(N, np.nan)
+    slices = D // component if D % component == 0 else 0
+    for start in range(0, N, ROW_ERRORS_BLOCK):
+        stop = min(N, start + ROW_ERRORS_BLOCK)
+        block = BMUResult(bmu.unit[start:stop], bmu.variation[start:stop], bmu.dist2[start:stop],
+                          bmu.second[start:stop])
+        squares = np.ascontiguousarray(residuals(X[start:stop], W, block, index, sign).T)
+        squares *= squares  # (D, rows)
+        total = np.zeros(stop - start)
+        for k in range(D):
+            total += squares[k]
+        q[start:stop] = np.sqrt(total)
+        if slices:
+            norms = np.zeros(stop - start)
+            for j in range(slices):
+                part = np.zeros(stop - start)
+                for k in range(j * component, (j + 1) * component):
+                    part += squares[k]
+                norms += np.sqrt(part)
+            qc[start:stop] = norms / slices
+    return q, qc
 
 
 def residuals(X, W, bmu: BMUResult, index=None, sign=None) -> np.ndarray:
@@ -310,8 +370,7 @@ def q_error(X, W, bmu: BMUResult, index=None, sign=None) -> float:
     index, sign : (n, D) or None
         The variation table (None: identity).
     """
-    res = residuals(X, W, bmu, index, sign)
-    return float(np.mean(np.sqrt(np.einsum("ij,ij->i", res, res))))
+    return float(np.mean(row_errors(X, W, bmu, index, sign)[0]))
 
 
 def qc_error(X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT) -> float:
@@ -325,20 +384,10 @@ def qc_error(X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPO
     ValueError
         ``D`` is not a multiple of ``component``.
     """
-    res = residuals(X, W, bmu, index, sign)
-    if res.shape[1] % component:
-        raise ValueError(f"QC-error needs D divisible by {component}, received D = {res.shape[1]}")
-    return _qc_sum(res, component) / len(res)
-
-
-def _qc_sum(res: np.ndarray, component: int) -> float:
-    """Sum over rows of the mean norm of the ``component``-value slices of residuals (N, D); NaN when
-    D is not a multiple of ``component``."""
-    N, D = res.shape
+    D = np.shape(X)[1]
     if D % component:
-        return float("nan")
-    parts = res.reshape(N, D // component, component)
-    return float(np.sqrt(np.einsum("ijk,ijk->ij", parts, parts)).mean(axis=1).sum())
+        raise ValueError(f"QC-error needs D divisible by {component}, received D = {D}")
+    return float(np.mean(row_errors(X, W, bmu, index, sign, component)[1]))
 
 
 def u_matrix(W, rows: int, cols: int, topology: str = "toroidal", neighbourhood: int = 8) -> np.ndarray:

@@ -53,6 +53,9 @@ PROBE_EXTRA_UNITS = 5
 PROBE_SEED = 12345
 #: Relative tolerance between the kernel's winning distance and the float64 minimum.
 PROBE_RTOL = 1e-4
+#: Relative tolerance between the per-row Q / QC distances of the device and of the host (the
+#: same order of operations; a device may fuse a square and its add).
+PROBE_ERRORS_RTOL = 1e-12
 #: Workload of the optional throughput figure (``meshsom doctor``): rows, units, variations, D.
 TIMING_WORKLOAD = (4096, 2048, 3, 36)
 #: Timed runs of that workload after a warm-up (the best counts).
@@ -335,9 +338,11 @@ def compare(X, W, index, sign, unit, variation) -> str:
 
 
 def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: int) -> str:
-    """Empty when the program's per-unit sums kernel gives the host's sums bit for bit; else why not."""
+    """Empty when the program's per-unit sums kernel gives the host's sums bit for bit and its per-row
+    errors kernel the host's distances to :data:`PROBE_ERRORS_RTOL`; else why not."""
     from meshsom import bmu_opencl
-    from meshsom.bmu_numpy import unit_sums
+    from meshsom.bmu_numpy import BMUResult, unit_sums
+    from meshsom.metrics import row_errors
 
     kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
     sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M)
@@ -348,6 +353,14 @@ def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: in
     if len(bad):
         u = int(bad[0])
         return f"wrong per-unit sums on {len(bad)} of {M} units (unit {u}: {sums[u][:3]} ..., host {want[u][:3]} ...)"
+    W = known_answer(defines)[1]
+    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.ROW_ERRORS, guard=False)
+    found = bmu_opencl.launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation)
+    bmu = BMUResult(unit, variation, np.zeros(len(X)), unit)
+    for name, got, ref in zip(("Q", "QC"), found, row_errors(X, W, bmu, index, sign)):
+        if not np.allclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True):
+            r = int(np.flatnonzero(~np.isclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True))[0])
+            return f"wrong per-row {name} distances (row {r}: {got[r]:.17g}, host {ref[r]:.17g})"
     return ""
 
 

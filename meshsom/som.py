@@ -190,9 +190,11 @@ def block_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=Non
         of :func:`meshsom.metrics.error_sums` (``n``, ``t_bad``, ``q_sum``, ``qc_sum``) and ``bmu``
         (:class:`BMUResult` of the block).
     """
-    sums, counts, bmu = partial_sums(X, W, index, sign, backend=backend)
+    engine = resolve_backend(backend)
+    sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
+    distances = engine.row_errors(X, W, bmu, index, sign)
     return {"sums": sums, "counts": counts, "bmu": bmu,
-            **error_sums(X, W, bmu, rows, cols, topology, index, sign)}
+            **error_sums(X, W, bmu, rows, cols, topology, index, sign, distances=distances)}
 
 
 #: Keys of :func:`block_sums` that add over blocks.

@@ -1,5 +1,6 @@
 """Per-unit sums (a batch epoch's map step): the host reference against an independent loop, the
-OpenCL kernel against the host bit for bit on every layout, and the engine's fallback."""
+OpenCL kernel against the host bit for bit on every layout, and the engine's fallback; per-row Q / QC
+distances likewise (to rounding on the device)."""
 
 from __future__ import annotations
 
@@ -158,7 +159,114 @@ def test_engine_without_float64_sums_on_the_host_with_one_warning(ctx, monkeypat
             sums, counts, _ = partial_sums(X, W, backend=engine)
     lines = [r.getMessage() for r in caplog.records if "per-unit sums" in r.getMessage()]
     assert len(lines) == 1 and "has no float64" in lines[0]
-    assert "per-unit sums on the host" in engine.describe()["fallback"]
+    assert "per-unit sums and errors on the host" in engine.describe()["fallback"]
     ref_sums, ref_counts, _ = partial_sums(X, W, backend="numpy")
     assert sums.tobytes() == ref_sums.tobytes()
     np.testing.assert_array_equal(counts, ref_counts)
+
+
+# ----------------------------------------------------------------------------- per-row errors
+
+
+def loop_errors(X, W, unit, variation, index, sign, component):
+    """Independent: one row and one value at a time, in the documented order."""
+    N, D = X.shape
+    q, qc = np.empty(N), np.full(N, np.nan)
+    for r in range(N):
+        v, u = variation[r], unit[r]
+        d = [np.float64(sign[v, k] * X[r, index[v, k]]) - np.float64(W[u, k]) for k in range(D)]
+        total = 0.0
+        for x in d:
+            total += x * x
+        q[r] = np.sqrt(total)
+        if D % component == 0:
+            norms = 0.0
+            for j in range(D // component):
+                part = 0.0
+                for x in d[j * component:(j + 1) * component]:
+                    part += x * x
+                norms += np.sqrt(part)
+            qc[r] = norms / (D // component)
+    return q, qc
+
+
+@pytest.mark.parametrize("D, component", [(9, 3), (12, 4), (10, 3)])
+def test_row_errors_follow_the_documented_order(D, component, monkeypatch):
+    from meshsom import metrics
+
+    monkeypatch.setattr(metrics, "ROW_ERRORS_BLOCK", 70)  # several blocks
+    rng = np.random.default_rng(D)
+    N, M, n = 300, 25, 3
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    W = rng.normal(size=(M, D)).astype(np.float32)
+    index, sign = table(D, n, seed=D)
+    unit, variation = winners(N, M, n, seed=D)
+    q, qc = metrics.row_errors(X, W, BMUResult(unit, variation, np.zeros(N), unit), index, sign, component)
+    want_q, want_qc = loop_errors(X, W, unit, variation, index, sign, component)
+    assert q.tobytes() == want_q.tobytes()
+    np.testing.assert_array_equal(qc, want_qc)  # NaN where component does not divide D
+    assert np.isnan(qc).all() == bool(D % component)
+
+
+def test_q_and_qc_errors_are_the_textbook_formulas():
+    """Against the plain formulas: mean ||d||, and the mean over slices of the slice norms."""
+    from meshsom.metrics import q_error, qc_error
+
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(200, 9)).astype(np.float32)
+    W = rng.normal(size=(15, 9)).astype(np.float32)
+    index, sign = table(9, 2, seed=4)
+    unit, variation = winners(200, 15, 2, seed=4)
+    bmu = BMUResult(unit, variation, np.zeros(200), unit)
+    d = (sign[variation] * X[np.arange(200)[:, None], index[variation]]).astype(np.float64) - W[unit]
+    assert q_error(X, W, bmu, index, sign) == pytest.approx(np.linalg.norm(d, axis=1).mean(), rel=1e-14)
+    assert qc_error(X, W, bmu, index, sign) == pytest.approx(
+        np.linalg.norm(d.reshape(200, 3, 3), axis=2).mean(), rel=1e-14)
+
+
+@pytest.mark.parametrize("N, D, M, n, dtype", [(3000, 9, 300, 6, np.float32), (500, 144, 70, 3, np.float32),
+                                               (400, 10, 30, 1, np.float32), (300, 12, 20, 2, np.float64)])
+def test_device_row_errors_are_the_host_row_errors(ctx, N, D, M, n, dtype):
+    from meshsom.bmu_opencl import has_fp64, layout_params, row_errors_opencl
+    from meshsom.metrics import row_errors
+
+    if not has_fp64(ctx):
+        pytest.skip("the OpenCL device has no float64")
+    rng = np.random.default_rng(N + D)
+    X = rng.normal(size=(N, D)).astype(dtype)
+    X.flags.writeable = False
+    W = rng.normal(size=(M, D)).astype(dtype)
+    index, sign = table(D, n, seed=N)
+    unit, variation = winners(N, M, n, seed=N)
+    bmu = BMUResult(unit, variation, np.zeros(N), unit)
+    for layout in ("cpu", "gpu"):
+        q, qc = row_errors_opencl(X, W, bmu, index, sign, context=ctx, params=layout_params(ctx.devices[0], layout))
+        want_q, want_qc = row_errors(X, W, bmu, index, sign.astype(dtype))
+        np.testing.assert_allclose(q, want_q, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(qc, want_qc, rtol=1e-12, atol=0)  # NaN for D = 10
+
+
+def test_block_sums_take_the_errors_on_the_device(ctx, monkeypatch):
+    """block_sums with the OpenCL engine: per-row errors from the device kernel, the NumPy engine's sums."""
+    from meshsom import bmu, bmu_opencl
+    from meshsom.som import block_sums
+
+    if not bmu_opencl.has_fp64(ctx):
+        pytest.skip("the OpenCL device has no float64")
+    host_calls = []
+    real = bmu.row_errors
+    monkeypatch.setattr(bmu, "row_errors", lambda *a, **k: host_calls.append(1) or real(*a, **k))
+    rng = np.random.default_rng(11)
+    X = rng.normal(size=(2500, 36)).astype(np.float32)
+    X.flags.writeable = False
+    W = rng.normal(size=(48, 36)).astype(np.float32)
+    index, sign = block_table(36)
+    engine = bmu.resolve_backend("opencl", context=ctx)
+    got = block_sums(X, W, 6, 8, "toroidal", index[:3], sign[:3], backend=engine)
+    assert host_calls == []
+    ref = block_sums(X, W, 6, 8, "toroidal", index[:3], sign[:3], backend="numpy")
+    assert host_calls == [1]
+    assert got["n"] == ref["n"] and got["t_bad"] == ref["t_bad"]
+    assert got["q_sum"] == pytest.approx(ref["q_sum"], rel=1e-13)
+    assert got["qc_sum"] == pytest.approx(ref["qc_sum"], rel=1e-13)
+    assert got["sums"].tobytes() == ref["sums"].tobytes()

@@ -1,0 +1,83 @@
+/* The reductions of a batch epoch's map step, next to the resident rows, in float64: per-unit
+ * sums of the winning varied vectors (the reduce input) and per-row Q / QC distances (the
+ * errors), so that only (M, D) sums and two (N,) columns come back, not N x D residuals.
+ *
+ * unit_sums: the same bits as meshsom.bmu_numpy.unit_sums. Per (unit u, dimension k) the varied
+ * values sign[v, k] * X[r, index[v, k]] of the rows r that u won (v: each row's winning
+ * variation), converted to double and added one after another to 0 in row order. The rows of
+ * each unit come from a stable counting order made on the host (order, offsets:
+ * meshsom.bmu_numpy.unit_order). One work-item per (u, k), k fastest, so that the work-items of
+ * one unit read one row together.
+ *
+ * row_errors: meshsom.metrics.row_errors. Per row, the residual d_k = x_v[k] - w_u[k] in double;
+ * q = sqrt of the d_k^2 added in k order from 0; qc = the mean over the D / COMPONENT slices of
+ * the slice's sqrt (squares added in order within the slice; slice norms added in order), NaN
+ * when COMPONENT does not divide D. The same to rounding: a compiler may fuse d * d + s into
+ * one fma (FP_CONTRACT is asked off, -cl-mad-enable allows it back).
+ *
+ * Appended to every BMUofN program (meshsom.bmu_opencl.kernel_source) and compiled where the
+ * device has float64 (-DEPOCH_SUMS=1; COMPONENT: meshsom.metrics.COMPONENT), so that the layout's probe builds and checks them too.
+ * Needs the defines REAL, D and COMPONENT.
+ */
+
+#if EPOCH_SUMS
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#pragma OPENCL FP_CONTRACT OFF
+
+__kernel void unit_sums(__global const REAL *X,        /* (N, D) */
+                        __global const int *index,     /* (NV, D) */
+                        __global const REAL *sign,     /* (NV, D) */
+                        __global const int *variation, /* (N,) winning variation of each row */
+                        __global const int *order,     /* (N,) rows grouped by unit, ascending within one */
+                        __global const int *offsets,   /* (M + 1,) unit u: order[offsets[u] .. offsets[u + 1]) */
+                        const int M,
+                        __global double *sums)         /* (M, D) */
+{
+    const int g = get_global_id(0);
+    if (g >= M * D)
+        return;
+    const int u = g / D, k = g % D;
+    const int p0 = offsets[u], p1 = offsets[u + 1];
+    double s = 0.0;
+    for (int p = p0; p < p1; ++p) {
+        const int r = order[p], v = variation[r];
+        s += (double)(sign[v * D + k] * X[(size_t)r * D + index[v * D + k]]);
+    }
+    sums[g] = s;
+}
+
+__kernel void row_errors(__global const REAL *X,        /* (N, D) */
+                         const int N,
+                         __global const int *index,     /* (NV, D) */
+                         __global const REAL *sign,     /* (NV, D) */
+                         __global const int *variation, /* (N,) */
+                         __global const int *unit,      /* (N,) */
+                         __global const REAL *W,        /* (M, D) */
+                         __global double *q,            /* (N,) */
+                         __global double *qc)           /* (N,) */
+{
+    const int r = get_global_id(0);
+    if (r >= N)
+        return;
+    const int v = variation[r];
+    const size_t x0 = (size_t)r * D, w0 = (size_t)unit[r] * D;
+    double q2 = 0.0, c = 0.0;
+    int k = 0;
+    for (int j = 0; j < D / COMPONENT; ++j) {
+        double s2 = 0.0;
+        for (int i = 0; i < COMPONENT; ++i, ++k) {
+            const double d = (double)(sign[v * D + k] * X[x0 + index[v * D + k]]) - (double)W[w0 + k];
+            const double dd = d * d;
+            s2 += dd;
+            q2 += dd;
+        }
+        c += sqrt(s2);
+    }
+    for (; k < D; ++k) {
+        const double d = (double)(sign[v * D + k] * X[x0 + index[v * D + k]]) - (double)W[w0 + k];
+        q2 += d * d;
+    }
+    q[r] = sqrt(q2);
+    qc[r] = D % COMPONENT ? NAN : c / (D / COMPONENT);
+}
+#endif
