@@ -428,7 +428,7 @@ def gemm_local_bytes(params: KernelParams, dtype) -> int:
     """
     size = np.dtype(dtype).itemsize
     vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    tiles = 2 * _max_kt(params, dtype) * (params.tile_rows + vw + params.tile_units) * size
+    tiles = 2 * _max_kt(params, dtype) * (params.tile_rows + params.tile_units + 2 * vw) * size
     return tiles + params.tile_rows * 2 * (size + 4)
 
 
@@ -616,10 +616,10 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     return kernels[function]
 
 
-def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP):
+def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP):
     """Enqueue the "gemm" kernel over (unit splits, row tiles) and its reduction kernel.
 
-    ``bufs``: X, WT (DP, MP), wnorm, index, sign; ``outs``: unit, variation, dist2, second.
+    ``bufs``: X, W (M, D), wnorm (MP,), index, sign; ``outs``: unit, variation, dist2, second.
     """
     rows = N * n
     params = KernelParams(kernel="gemm", vector_width=defines["VW"], tile_rows=defines["TM"], tile_units=defines["TN"],
@@ -631,7 +631,8 @@ def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP):
              for size in (itemsize, 4, itemsize, 4)]
     row_tiles = -(-rows // defines["TM"])
     kernel(queue, (splits * defines["WGN"], row_tiles * defines["WGM"]), (defines["WGN"], defines["WGM"]),
-           bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split), *parts)
+           bufs[0], np.int32(N), bufs[1], np.int32(M), bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split),
+           *parts)
     reduce = get_kernel(context, defines, GEMM_REDUCE, guard=False)  # one program: built with the main kernel
     group = min(REDUCE_GROUP, context.devices[0].max_work_group_size)
     reduce(queue, (-(-N // group) * group,), (group,),
@@ -871,8 +872,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     wnorm = np.full(MP, np.inf, X.dtype)
     wnorm[:M] = np.einsum("ij,ij->i", W, W)
     if defines["KERNEL"] == "gemm":
-        WT = np.zeros((defines["DP"], MP), X.dtype)
-        WT[:D, :M] = W.T
+        WT = W  # read as it is: the kernel zero-pads its local tiles (no host transpose, kernels/bmu_gpu.cl)
     elif defines["KERNEL"] == "cpu":
         # tiled codebook (MP / tile, D, tile): one tile's D x tile block is contiguous
         padded = np.zeros((MP, D), X.dtype)
@@ -896,7 +896,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
         bufs = [xbuf, upload(context, WT), upload(context, wnorm), ibuf, sbuf]
         outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
         if defines["KERNEL"] == "gemm":
-            _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, MP)
+            _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP)
         else:
             kernel(queue, (global_size,), (wg,),
                    bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)

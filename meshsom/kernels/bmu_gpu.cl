@@ -5,9 +5,10 @@
  * (CLBlast's layout), a work-group of WGN x WGM work-items computes a tile of TM virtual
  * rows x TN units: every work-item accumulates RM = TM / WGM rows x RN = TN / WGN units in
  * registers. Along D the tiles of X (gathered with the signs once per tile, zero past D)
- * and of the transposed codebook WT (DP, MP) are staged through local memory in chunks of
- * KT dimensions, double-buffered: the global loads of chunk c + 1 are in flight (in
- * registers) while chunk c is multiplied, with one barrier per chunk.
+ * and of the codebook W (M, D; zero past D and past M, so the host makes no transposed or
+ * padded copy) are staged through local memory in chunks of KT dimensions, double-buffered:
+ * the global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied,
+ * with one barrier per chunk.
  *
  * A work-item owns the rows (i * WGM + ty) * VW + l and the units (j * WGN + tx) * VW + l
  * (i < RM / VW, j < RN / VW, l < VW): its operands are VW-wide vector loads from local
@@ -43,14 +44,15 @@
 #define XVEC (RM / VW)          /* row vectors per work-item */
 #define WVEC (RN / VW)          /* unit vectors per work-item */
 #define XSTRIDE (TM + VW)       /* local X row of one dimension, padded: fewer bank conflicts on the stores */
+#define WSTRIDE (TN + VW)       /* local W row of one dimension, likewise */
 #define XLOADS ((TM * KT + WGS - 1) / WGS)  /* X elements each work-item stages per chunk */
 #define WLOADS ((TN * KT + WGS - 1) / WGS)  /* W elements each work-item stages per chunk */
 #define NCHUNK (DP / KT)
 
 /* Global loads of chunk k0 into registers (the macros' locals are named apart from the
  * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
- * past D), W from the zero-padded transposed codebook. Consecutive work-items take
- * consecutive dimensions of one row of X and consecutive units of W. */
+ * past D), W zero past M or D. Consecutive work-items take consecutive dimensions of one row of
+ * X and of one unit of W. */
 #define LOAD_CHUNK(k0)                                                                   \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
@@ -63,8 +65,8 @@
     }                                                                                    \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
-        const int col = t % TN, kw = (k0) + t / TN;                                      \
-        wreg[e] = t < TN * KT ? WT[(size_t)kw * MP + m0 + col] : 0;                      \
+        const int kw = (k0) + t % KT, u = m0 + t / KT;                                   \
+        wreg[e] = t < TN * KT && u < M && kw < D ? W[(size_t)u * D + kw] : 0;            \
     }
 
 /* Registers to local buffer b. */
@@ -77,13 +79,14 @@
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (t < TN * KT)                                                                 \
-            Ws[(b) * KT * TN + t] = wreg[e];                                             \
+            Ws[(b) * KT * WSTRIDE + (t % KT) * WSTRIDE + t / KT] = wreg[e];              \
     }
 
 __kernel __attribute__((reqd_work_group_size(WGN, WGM, 1)))
 void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
                    const int N,
-                   __global const REAL *WT,       /* (DP, MP): transposed codebook, zero-padded */
+                   __global const REAL *W,        /* (M, D) codebook */
+                   const int M,
                    __global const REAL *wnorm,    /* (MP,): ||w||^2, +inf on padding */
                    const int MP,                  /* padded unit count, a multiple of TN */
                    __global const int *index,     /* (NV, D) */
@@ -104,7 +107,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
     const int tile1 = min(tile0 + tiles_per_split, MP / TN);
 
     __local realv Xv[2 * KT * XSTRIDE / VW];
-    __local realv Wv[2 * KT * TN / VW];
+    __local realv Wv[2 * KT * WSTRIDE / VW];
     __local REAL *Xs = (__local REAL *)Xv;
     __local REAL *Ws = (__local REAL *)Wv;
     __local REAL run_best[TM], run_second[TM];
@@ -141,7 +144,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
                 LOAD_CHUNK((c + 1) * KT)
             }
             __local const realv *xb = Xv + b * (KT * XSTRIDE / VW);
-            __local const realv *wb = Wv + b * (KT * TN / VW);
+            __local const realv *wb = Wv + b * (KT * WSTRIDE / VW);
 #pragma unroll
             for (int kk = 0; kk < KT; ++kk) {
                 REAL xr[RM];
@@ -151,7 +154,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
                     VSTORE(xb[kk * (XSTRIDE / VW) + i * WGM + ty], 0, xr + i * VW);
 #pragma unroll
                 for (int j = 0; j < WVEC; ++j)
-                    w[j] = wb[kk * (TN / VW) + j * WGN + tx];
+                    w[j] = wb[kk * (WSTRIDE / VW) + j * WGN + tx];
 #pragma unroll
                 for (int i = 0; i < RM; ++i)
 #pragma unroll
@@ -226,7 +229,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
  * the device has it, as meshsom.bmu_numpy.exact_dist2 does on the host). */
 __kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
                                    const int N,
-                                   __global const REAL *WT,       /* (DP, MP) */
+                                   __global const REAL *W,        /* (M, D) */
                                    const int MP,
                                    __global const int *index,     /* (NV, D) */
                                    __global const REAL *sign,     /* (NV, D) */
@@ -269,7 +272,7 @@ __kernel void bmu_of_n_gemm_reduce(__global const REAL *X,        /* (N, D) */
     EXACT dist2 = 0;
     for (int k = 0; k < D; ++k) {
         const EXACT diff = (EXACT)(sign[best_v * D + k] * X[(size_t)row * D + index[best_v * D + k]])
-                           - (EXACT)WT[(size_t)k * MP + best_u];
+                           - (EXACT)W[(size_t)best_u * D + k];
         dist2 = fma(diff, diff, dist2);
     }
     out_unit[row] = best_u;
