@@ -100,6 +100,8 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 "local_mem_kb": dev.local_mem_size // 2**10,
                 "max_work_group_size": dev.max_work_group_size,
                 "bmu_kernel": kernel,
+                "epoch_sums": ("device (float64)" if "cl_khr_fp64" in dev.extensions
+                               else "host (the device has no float64)"),
                 "driver": dev.driver_version.strip(),
                 "kernel_target": _kernel_target(dev),
             })
@@ -182,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
             )
             target = f", kernel target CPU {d['kernel_target']}" if d.get("kernel_target") else ""
             print(f"        driver {d['driver']}{target}; BMUofN kernel: {d['bmu_kernel']}")
+            print(f"        per-unit sums and per-row errors of an epoch: on the {d['epoch_sums']}")
             for v in d.get("layouts", []):
                 where = "not in this device's chain" if v["chain"] is None else f"chain position {v['chain'] + 1}"
                 if v["ok"]:
