@@ -121,7 +121,7 @@ def test_model_packs_what_it_needs_and_no_local_path(quick_run, children):
     np.testing.assert_allclose(np.array(example["inputs"] if isinstance(example, dict) else example), raw[:5])
     # nothing names the store, the run's folder or the temporary packing folder (but MLmodel's
     # artifact_path: where the tracking server's artifact store keeps the model, local here)
-    text = "".join((local / f).read_text(errors="replace") for f in files if not f.endswith((".npy", ".pkl")))
+    text = "\n".join((local / f).read_text(errors="replace") for f in files if not f.endswith((".npy", ".pkl")))
     text = "\n".join(line for line in text.splitlines() if not line.startswith("artifact_path: "))
     import tempfile
 
