@@ -169,7 +169,7 @@ class Engine:
         return bmu_numpy(X, W, index, sign)
 
 
-    def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None) -> tuple[np.ndarray, np.ndarray]:
+    def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None, blocks=None) -> tuple[np.ndarray, np.ndarray]:
         """Per unit, the sum of the varied vectors it won and how many it won (a batch epoch's map step).
 
         On an OpenCL device with float64, where an OpenCL layout ran the search, the sums are taken
@@ -184,6 +184,9 @@ class Engine:
             This engine's answer for X against W.
         index, sign : (n, D) or None
             The variation table of the search.
+        blocks : list of (start, stop) or None
+            Row blocks summed apart and then added in order (:func:`meshsom.som.blocks_sums`);
+            None: one block.
 
         Returns
         -------
@@ -191,8 +194,8 @@ class Engine:
         counts : (M,) float64
         """
         X, W, index, sign = validate(X, W, index, sign)
-        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign)
-        return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W))
+        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign, blocks=blocks)
+        return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W), blocks)
 
     def row_errors(self, X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +212,7 @@ class Engine:
         found = self._on_device("row_errors_opencl", X, W, bmu, index, sign) if component == COMPONENT else None
         return found if found is not None else row_errors(X, W, bmu, index, sign, component)
 
-    def _on_device(self, function: str, X, W, bmu, index, sign):
+    def _on_device(self, function: str, X, W, bmu, index, sign, **options):
         """``meshsom.bmu_opencl.<function>`` on this engine's device for validated arrays, or None
         where it does not run there (NumPy backend, NumPy fallback for the workload, or an earlier
         failure; a failure now is recorded in :attr:`sums_on_host` with one warning line)."""
@@ -220,7 +223,8 @@ class Engine:
 
         try:
             return getattr(bmu_opencl, function)(X, W, bmu, index, sign, context=self.context,
-                                                 params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]))
+                                                 params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]),
+                                                 **options)
         except DeviceError as err:
             self.sums_on_host = getattr(err, "reason", str(err))
             log.warning("per-unit sums and errors run on the host from now on: %s", self.sums_on_host)

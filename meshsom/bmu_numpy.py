@@ -49,6 +49,11 @@ class BMUResult:
     def __len__(self) -> int:
         return len(self.unit)
 
+    def rows(self, start: int, stop: int) -> "BMUResult":
+        """The results of rows ``start..stop`` (views)."""
+        return type(self)(self.unit[start:stop], self.variation[start:stop], self.dist2[start:stop],
+                          self.second[start:stop])
+
     @classmethod
     def concatenate(cls, parts) -> "BMUResult":
         """The results of consecutive row blocks as one."""
@@ -170,37 +175,49 @@ def varied(X: np.ndarray, index: np.ndarray, sign: np.ndarray, variation) -> np.
     return out
 
 
-def unit_order(unit: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rows grouped by unit, in row order within a unit (a stable counting order).
+def unit_order(unit: np.ndarray, M: int, blocks=None) -> tuple[np.ndarray, np.ndarray]:
+    """Rows grouped by (block, unit), in row order within a group (a stable counting order).
 
     Parameters
     ----------
     unit : (N,) int
         Units in 0..M-1.
     M : int
+    blocks : list of (start, stop) or None
+        Consecutive row ranges covering 0..N (:func:`meshsom.som.row_blocks`); None: one block.
 
     Returns
     -------
     order : (N,) int64
-        Row numbers, sorted by unit, ascending within a unit.
-    offsets : (M + 1,) int64
-        Rows of unit u are ``order[offsets[u]:offsets[u + 1]]``.
+        Row numbers, block after block, sorted by unit within a block, ascending within a unit.
+    offsets : (B * M + 1,) int64
+        Rows of unit u in block b are ``order[offsets[b * M + u]:offsets[b * M + u + 1]]``.
     """
     unit = np.asarray(unit)
-    key = unit.astype(np.uint16) if M <= 1 << 16 else unit  # 16-bit keys: NumPy sorts stably by radix
-    order = np.argsort(key, kind="stable")
-    offsets = np.zeros(M + 1, np.int64)
-    np.cumsum(np.bincount(unit, minlength=M), out=offsets[1:])
+    blocks = [(0, len(unit))] if blocks is None else blocks
+    orders, counts = [], []
+    for a, b in blocks:
+        part = unit[a:b]
+        key = part.astype(np.uint16) if M <= 1 << 16 else part  # 16-bit keys: NumPy sorts stably by radix
+        orders.append(np.argsort(key, kind="stable") + a)
+        counts.append(np.bincount(part, minlength=M))
+    offsets = np.zeros(len(blocks) * M + 1, np.int64)
+    if blocks:
+        np.cumsum(np.concatenate(counts), out=offsets[1:])
+    order = np.concatenate(orders) if orders else np.zeros(0, np.int64)
+    if len(order) != len(unit):
+        raise ValueError(f"blocks must cover the {len(unit)} rows once, received {blocks[:3]}...")
     return order, offsets
 
 
-def unit_sums(X, unit, variation, index, sign, M: int) -> tuple[np.ndarray, np.ndarray]:
+def unit_sums(X, unit, variation, index, sign, M: int, blocks=None) -> tuple[np.ndarray, np.ndarray]:
     """Per unit, the sum of the varied vectors it won, and how many it won: the reference of the
     OpenCL ``unit_sums`` kernel (``kernels/epoch_sums.cl``), which gives the same bits.
 
-    Each sum is taken in float64 from 0, adding one vector after another in row order (a
+    Each block's sum is taken in float64 from 0, adding one vector after another in row order (a
     sparse (M, N) one-hot matrix in :func:`unit_order`'s order times the varied vectors: SciPy's
-    CSR product adds each row's entries in that order).
+    CSR product adds each row's entries in that order); the blocks' sums are then added in block
+    order, as an epoch reduces row blocks (:func:`meshsom.som.add_sums`).
 
     Parameters
     ----------
@@ -212,6 +229,8 @@ def unit_sums(X, unit, variation, index, sign, M: int) -> tuple[np.ndarray, np.n
         The variation table the winners were found with.
     M : int
         Units.
+    blocks : list of (start, stop) or None
+        Consecutive row ranges covering 0..N; None: one block.
 
     Returns
     -------
@@ -222,24 +241,36 @@ def unit_sums(X, unit, variation, index, sign, M: int) -> tuple[np.ndarray, np.n
 
     X = np.asarray(X)
     N, D = X.shape
-    order, offsets = unit_order(unit, M)
-    counts = np.diff(offsets).astype(np.float64)
-    if N == 0:
-        return np.zeros((M, D)), counts
-    xv = varied(X, np.asarray(index, np.int64), np.asarray(sign, X.dtype), variation)
-    one_hot = csr_matrix((np.ones(N), order, offsets), shape=(M, N))
-    return np.asarray(one_hot @ xv.astype(np.float64, copy=False)), counts
+    unit, variation = np.asarray(unit), np.asarray(variation)
+    sums, counts = np.zeros((M, D)), np.zeros(M)
+    for a, b in [(0, N)] if blocks is None else blocks:
+        order, offsets = unit_order(unit[a:b], M)
+        counts += np.diff(offsets)
+        if b > a:
+            xv = varied(X[a:b], np.asarray(index, np.int64), np.asarray(sign, X.dtype), variation[a:b])
+            one_hot = csr_matrix((np.ones(b - a), order, offsets), shape=(M, b - a))
+            sums += one_hot @ xv.astype(np.float64, copy=False)
+    return sums, counts
+
+
+#: Rows per block of :func:`exact_dist2` (bounds its float64 temporaries to this many rows x D).
+EXACT_BLOCK = 16384
 
 
 def exact_dist2(X, W, index, sign, unit, variation) -> np.ndarray:
-    """Squared distance of each varied vector to its unit, computed directly in float64.
+    """Squared distance of each varied vector to its unit, computed directly in float64
+    (:data:`EXACT_BLOCK` rows at a time).
 
     Returns
     -------
     (N,) float64
     """
-    diff = varied(X, index, sign, variation).astype(np.float64) - W[unit].astype(np.float64)
-    return np.einsum("ij,ij->i", diff, diff)
+    out = np.empty(len(X))
+    for a in range(0, len(X), EXACT_BLOCK):
+        b = min(len(X), a + EXACT_BLOCK)
+        diff = varied(X[a:b], index, sign, variation[a:b]).astype(np.float64) - W[unit[a:b]].astype(np.float64)
+        out[a:b] = np.einsum("ij,ij->i", diff, diff)
+    return out
 
 
 def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> BMUResult:

@@ -958,7 +958,8 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
     return BMUResult(unit, variation, dist2, second.astype(np.int64))
 
 
-def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M: int) -> tuple[np.ndarray, np.ndarray]:
+def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M: int,
+                     blocks=None) -> tuple[np.ndarray, np.ndarray]:
     """Run the built per-unit sums kernel on validated arrays (the rows resident where X is read-only).
 
     Takes and returns what :func:`meshsom.bmu_numpy.unit_sums` does, with X, index and sign as
@@ -972,7 +973,7 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
     """
     cl = _cl()
     N, D = X.shape
-    order, offsets = unit_order(unit, M)
+    order, offsets = unit_order(unit, M, blocks)
     sums = np.empty((M, D), np.float64)
     if N:
         try:
@@ -981,7 +982,7 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, ibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)), upload(context, order.astype(np.int32)),
-                   upload(context, offsets.astype(np.int32)), np.int32(M), out)
+                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M), out)
             cl.enqueue_copy(queue, sums, out)
             queue.finish()
         except cl.Error as err:
@@ -990,11 +991,11 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
                               f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
     else:
         sums[:] = 0
-    return sums, np.diff(offsets).astype(np.float64)
+    return sums, np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
 
 
 def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
-                     params: KernelParams | None = None, queue=None) -> tuple[np.ndarray, np.ndarray]:
+                     params: KernelParams | None = None, queue=None, blocks=None) -> tuple[np.ndarray, np.ndarray]:
     """Per-unit sums and counts of a search's winners on the device: same bits as
     :func:`meshsom.bmu_numpy.unit_sums`.
 
@@ -1013,6 +1014,8 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
         The variation table the winners were found with.
     context, device, params, queue
         As :func:`bmu_opencl`.
+    blocks : list of (start, stop) or None
+        Row blocks whose sums are added in order (one launch for all); None: one block.
 
     Returns
     -------
@@ -1025,7 +1028,8 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
         The device has no float64, or the build or the kernel failed.
     """
     X, W, index, sign, context, kernel = _epoch_kernel(UNIT_SUMS, X, W, index, sign, context, device, params)
-    return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W))
+    return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W),
+                            blocks)
 
 
 def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation) -> tuple[np.ndarray, np.ndarray]:

@@ -302,9 +302,7 @@ def row_errors(X, W, bmu: BMUResult, index=None, sign=None, component: int = COM
     slices = D // component if D % component == 0 else 0
     for start in range(0, N, ROW_ERRORS_BLOCK):
         stop = min(N, start + ROW_ERRORS_BLOCK)
-        block = BMUResult(bmu.unit[start:stop], bmu.variation[start:stop], bmu.dist2[start:stop],
-                          bmu.second[start:stop])
-        squares = np.ascontiguousarray(residuals(X[start:stop], W, block, index, sign).T)
+        squares = np.ascontiguousarray(residuals(X[start:stop], W, bmu.rows(start, stop), index, sign).T)
         squares *= squares  # (D, rows)
         total = np.zeros(stop - start)
         for k in range(D):

@@ -345,8 +345,9 @@ def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: in
     from meshsom.metrics import row_errors
 
     kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
-    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M)
-    want, want_counts = unit_sums(X, unit, variation, index, sign, M)
+    blocks = [(0, len(X) // 2), (len(X) // 2, len(X))]  # two row blocks, added in order
+    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M, blocks)
+    want, want_counts = unit_sums(X, unit, variation, index, sign, M, blocks)
     if not np.array_equal(counts, want_counts):
         return "wrong per-unit counts"
     bad = np.flatnonzero((sums != want).any(axis=1))

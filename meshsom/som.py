@@ -197,6 +197,40 @@ def block_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=Non
             **error_sums(X, W, bmu, rows, cols, topology, index, sign, distances=distances)}
 
 
+def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None, backend="auto",
+                block_rows: int = BLOCK_ROWS) -> dict:
+    """:func:`block_sums` of every row block of X (:func:`row_blocks`) added in block order
+    (:func:`add_sums`): the same bits, in one search, one per-unit sums pass and one per-row
+    errors pass over the whole of X (one launch each on an OpenCL device, over rows that stay
+    resident there when X is read-only).
+
+    Parameters
+    ----------
+    X : (N, D) float32
+    W : (M, D) float32
+    index, sign : (n, D) or None
+    backend : str or Engine
+    block_rows : int
+
+    Returns
+    -------
+    dict
+        As :func:`block_sums`, summed over blocks; ``bmu`` of every row.
+    """
+    engine = resolve_backend(backend)
+    blocks = row_blocks(len(X), block_rows)
+    bmu = engine.search(X, W, index, sign)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks)
+    q, qc = engine.row_errors(X, W, bmu, index, sign)
+    total = {"sums": sums, "counts": counts}
+    for i, (a, b) in enumerate(blocks):
+        part = error_sums(X[a:b], W, bmu.rows(a, b), rows, cols, topology, index, sign, distances=(q[a:b], qc[a:b]))
+        for key in ("n", "t_bad", "q_sum", "qc_sum"):
+            total[key] = part[key] if i == 0 else total[key] + part[key]
+    total["bmu"] = bmu
+    return total
+
+
 #: Keys of :func:`block_sums` that add over blocks.
 SUM_KEYS = ("sums", "counts", "n", "t_bad", "q_sum", "qc_sum")
 
@@ -730,17 +764,8 @@ class SOM:
                 callback(info.epoch, self, info)
 
         if self.training == "batch":
-            # block views made once, so that read-only blocks stay resident on an OpenCL device
-            blocks = [X[a:b] for a, b in row_blocks(len(X))]
-
-            def step(W):
-                total, bmus = None, []
-                for block in blocks:
-                    part = block_sums(block, W, self.rows, self.cols, self.topology, index, sign, backend=engine)
-                    bmus.append(part["bmu"])
-                    total = add_sums(total, part)
-                total["bmu"] = BMUResult.concatenate(bmus)
-                return total
+            def step(W):  # the row blocks of the pipeline, reduced in one pass (X stays resident on OpenCL)
+                return blocks_sums(X, W, self.rows, self.cols, self.topology, index, sign, backend=engine)
 
             train_batch(W, step, self.rows, self.cols, self.epochs, self.sigma_start_, self.sigma_end,
                         self.topology, self.decay, callbacks=(report,))

@@ -270,3 +270,49 @@ def test_block_sums_take_the_errors_on_the_device(ctx, monkeypatch):
     assert got["q_sum"] == pytest.approx(ref["q_sum"], rel=1e-13)
     assert got["qc_sum"] == pytest.approx(ref["qc_sum"], rel=1e-13)
     assert got["sums"].tobytes() == ref["sums"].tobytes()
+
+
+# ----------------------------------------------------------------------------- a whole epoch's blocks
+
+
+def test_unit_order_by_block():
+    unit = np.array([2, 0, 2, 1, 0, 2, 2])
+    order, offsets = unit_order(unit, 3, [(0, 3), (3, 7)])
+    np.testing.assert_array_equal(order, [1, 0, 2, 4, 3, 5, 6])
+    np.testing.assert_array_equal(offsets, [0, 1, 1, 3, 4, 5, 7])
+    with pytest.raises(ValueError, match="cover the 7 rows"):
+        unit_order(unit, 3, [(0, 3)])
+
+
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+@pytest.mark.parametrize("n", [1, 3])
+def test_blocks_sums_equal_the_block_by_block_reduction(ctx, backend, n):
+    """One pass over all blocks gives the bits of block_sums per block added in order (the pipeline's
+    reduction), errors included."""
+    from meshsom.bmu import resolve_backend
+    from meshsom.som import add_sums, block_sums, blocks_sums, row_blocks
+
+    rng = np.random.default_rng(12 + n)
+    N, D, rows, cols = 700, 9, 5, 6
+    X = rng.normal(size=(N, D)).astype(np.float32)
+    X.flags.writeable = False
+    W = rng.normal(size=(rows * cols, D)).astype(np.float32)
+    index, sign = block_table(D)
+    index, sign = (index[:n], sign[:n]) if n > 1 else (None, None)
+    engine = resolve_backend(backend, context=ctx if backend == "opencl" else None)
+    got = blocks_sums(X, W, rows, cols, "toroidal", index, sign, backend=engine, block_rows=97)
+    total = None
+    for a, b in row_blocks(N, 97):
+        total = add_sums(total, block_sums(X[a:b], W, rows, cols, "toroidal", index, sign, backend=engine))
+    assert got["sums"].tobytes() == total["sums"].tobytes()
+    assert got["counts"].tobytes() == total["counts"].tobytes()
+    for key in ("n", "t_bad", "q_sum", "qc_sum"):
+        assert got[key] == total[key], key
+    assert len(got["bmu"]) == N
+    if backend == "opencl":
+        from meshsom.bmu_opencl import has_fp64
+
+        assert engine.sums_on_host == "" or not has_fp64(ctx)  # the blocked kernel ran
+    # one block of all rows: the same sums to rounding
+    one = blocks_sums(X, W, rows, cols, "toroidal", index, sign, backend=engine, block_rows=N)
+    np.testing.assert_allclose(one["sums"], got["sums"], rtol=1e-12, atol=1e-12)

@@ -2,12 +2,13 @@
  * sums of the winning varied vectors (the reduce input) and per-row Q / QC distances (the
  * errors), so that only (M, D) sums and two (N,) columns come back, not N x D residuals.
  *
- * unit_sums: the same bits as meshsom.bmu_numpy.unit_sums. Per (unit u, dimension k) the varied
- * values sign[v, k] * X[r, index[v, k]] of the rows r that u won (v: each row's winning
- * variation), converted to double and added one after another to 0 in row order. The rows of
- * each unit come from a stable counting order made on the host (order, offsets:
- * meshsom.bmu_numpy.unit_order). One work-item per (u, k), k fastest, so that the work-items of
- * one unit read one row together.
+ * unit_sums: the same bits as meshsom.bmu_numpy.unit_sums. Per (unit u, dimension k) and per row
+ * block, the varied values sign[v, k] * X[r, index[v, k]] of the block's rows r that u won (v: each
+ * row's winning variation), converted to double and added one after another to 0 in row order;
+ * the blocks' sums then added in block order (an epoch's reduction of row blocks, one launch for
+ * all of them). The rows of each (block, unit) come from a stable counting order made on the host
+ * (order, offsets: meshsom.bmu_numpy.unit_order). One work-item per (u, k), k fastest, so that the
+ * work-items of one unit read one row together.
  *
  * row_errors: meshsom.metrics.row_errors. Per row, the residual d_k = x_v[k] - w_u[k] in double;
  * q = sqrt of the d_k^2 added in k order from 0; qc = the mean over the D / COMPONENT slices of
@@ -28,22 +29,28 @@ __kernel void unit_sums(__global const REAL *X,        /* (N, D) */
                         __global const int *index,     /* (NV, D) */
                         __global const REAL *sign,     /* (NV, D) */
                         __global const int *variation, /* (N,) winning variation of each row */
-                        __global const int *order,     /* (N,) rows grouped by unit, ascending within one */
-                        __global const int *offsets,   /* (M + 1,) unit u: order[offsets[u] .. offsets[u + 1]) */
+                        __global const int *order,     /* (N,) rows grouped by (block, unit), ascending within one */
+                        __global const int *offsets,   /* (B * M + 1,) unit u of block b: order[offsets[b * M + u] ..
+                                                          offsets[b * M + u + 1]) */
                         const int M,
+                        const int B,                   /* row blocks */
                         __global double *sums)         /* (M, D) */
 {
     const int g = get_global_id(0);
     if (g >= M * D)
         return;
     const int u = g / D, k = g % D;
-    const int p0 = offsets[u], p1 = offsets[u + 1];
-    double s = 0.0;
-    for (int p = p0; p < p1; ++p) {
-        const int r = order[p], v = variation[r];
-        s += (double)(sign[v * D + k] * X[(size_t)r * D + index[v * D + k]]);
+    double total = 0.0;
+    for (int b = 0; b < B; ++b) {
+        const int p0 = offsets[b * M + u], p1 = offsets[b * M + u + 1];
+        double s = 0.0;
+        for (int p = p0; p < p1; ++p) {
+            const int r = order[p], v = variation[r];
+            s += (double)(sign[v * D + k] * X[(size_t)r * D + index[v * D + k]]);
+        }
+        total += s;
     }
-    sums[g] = s;
+    sums[g] = total;
 }
 
 __kernel void row_errors(__global const REAL *X,        /* (N, D) */
