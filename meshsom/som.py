@@ -843,5 +843,7 @@ class SOM:
             index, sign = self.index_, self.sign_
         bmu = self.transform(X, index, sign)
         X = self._validate_X(X, self.n_features_in_)
+        engine = resolve_backend(getattr(self, "engine_", None) or self.backend_, self.device)
+        distances = engine.row_errors(X, self.weights_, bmu, index, sign)  # where training took them
         return errors_of(error_sums(X, self.weights_, bmu, self.rows, self.cols, self.topology, index, sign,
-                                    neighbourhood))
+                                    neighbourhood, distances=distances))
