@@ -169,7 +169,8 @@ class Engine:
         return bmu_numpy(X, W, index, sign)
 
 
-    def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None, blocks=None) -> tuple[np.ndarray, np.ndarray]:
+    def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None, blocks=None,
+                  init=None) -> tuple[np.ndarray, np.ndarray]:
         """Per unit, the sum of the varied vectors it won and how many it won (a batch epoch's map step).
 
         On an OpenCL device with float64, where an OpenCL layout ran the search, the sums are taken
@@ -187,6 +188,8 @@ class Engine:
         blocks : list of (start, stop) or None
             Row blocks summed apart and then added in order (:func:`meshsom.som.blocks_sums`);
             None: one block.
+        init : (M, D) float64 or None
+            Running sums of earlier rows the blocks are added to (None: zeros).
 
         Returns
         -------
@@ -194,8 +197,8 @@ class Engine:
         counts : (M,) float64
         """
         X, W, index, sign = validate(X, W, index, sign)
-        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign, blocks=blocks)
-        return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W), blocks)
+        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign, blocks=blocks, init=init)
+        return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W), blocks, init)
 
     def row_errors(self, X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT
                    ) -> tuple[np.ndarray, np.ndarray]:

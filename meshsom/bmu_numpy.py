@@ -210,14 +210,14 @@ def unit_order(unit: np.ndarray, M: int, blocks=None) -> tuple[np.ndarray, np.nd
     return order, offsets
 
 
-def unit_sums(X, unit, variation, index, sign, M: int, blocks=None) -> tuple[np.ndarray, np.ndarray]:
+def unit_sums(X, unit, variation, index, sign, M: int, blocks=None, init=None) -> tuple[np.ndarray, np.ndarray]:
     """Per unit, the sum of the varied vectors it won, and how many it won: the reference of the
     OpenCL ``unit_sums`` kernel (``kernels/epoch_sums.cl``), which gives the same bits.
 
     Each block's sum is taken in float64 from 0, adding one vector after another in row order (a
     sparse (M, N) one-hot matrix in :func:`unit_order`'s order times the varied vectors: SciPy's
     CSR product adds each row's entries in that order); the blocks' sums are then added in block
-    order, as an epoch reduces row blocks (:func:`meshsom.som.add_sums`).
+    order to ``init``, as an epoch reduces row blocks (:func:`meshsom.som.add_sums`).
 
     Parameters
     ----------
@@ -231,6 +231,8 @@ def unit_sums(X, unit, variation, index, sign, M: int, blocks=None) -> tuple[np.
         Units.
     blocks : list of (start, stop) or None
         Consecutive row ranges covering 0..N; None: one block.
+    init : (M, D) float64 or None
+        The running sums of earlier rows to add to (None: zeros); counts start from 0.
 
     Returns
     -------
@@ -242,7 +244,8 @@ def unit_sums(X, unit, variation, index, sign, M: int, blocks=None) -> tuple[np.
     X = np.asarray(X)
     N, D = X.shape
     unit, variation = np.asarray(unit), np.asarray(variation)
-    sums, counts = np.zeros((M, D)), np.zeros(M)
+    sums = np.zeros((M, D)) if init is None else np.array(init, np.float64)
+    counts = np.zeros(M)
     for a, b in [(0, N)] if blocks is None else blocks:
         order, offsets = unit_order(unit[a:b], M)
         counts += np.diff(offsets)

@@ -959,7 +959,7 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
 
 
 def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M: int,
-                     blocks=None) -> tuple[np.ndarray, np.ndarray]:
+                     blocks=None, init=None) -> tuple[np.ndarray, np.ndarray]:
     """Run the built per-unit sums kernel on validated arrays (the rows resident where X is read-only).
 
     Takes and returns what :func:`meshsom.bmu_numpy.unit_sums` does, with X, index and sign as
@@ -975,6 +975,7 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
     N, D = X.shape
     order, offsets = unit_order(unit, M, blocks)
     sums = np.empty((M, D), np.float64)
+    init = np.zeros((M, D)) if init is None else np.ascontiguousarray(init, np.float64)
     if N:
         try:
             xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
@@ -982,7 +983,8 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, ibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)), upload(context, order.astype(np.int32)),
-                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M), out)
+                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M),
+                   upload(context, init), out)
             cl.enqueue_copy(queue, sums, out)
             queue.finish()
         except cl.Error as err:
@@ -990,12 +992,13 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
             raise DeviceError(f"{device_name(context)}: per-unit sums kernel failed ({type(err).__name__}: "
                               f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
     else:
-        sums[:] = 0
+        sums[:] = init
     return sums, np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
 
 
 def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
-                     params: KernelParams | None = None, queue=None, blocks=None) -> tuple[np.ndarray, np.ndarray]:
+                     params: KernelParams | None = None, queue=None, blocks=None,
+                     init=None) -> tuple[np.ndarray, np.ndarray]:
     """Per-unit sums and counts of a search's winners on the device: same bits as
     :func:`meshsom.bmu_numpy.unit_sums`.
 
@@ -1016,6 +1019,8 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
         As :func:`bmu_opencl`.
     blocks : list of (start, stop) or None
         Row blocks whose sums are added in order (one launch for all); None: one block.
+    init : (M, D) float64 or None
+        Running sums of earlier passes the blocks are added to (None: zeros).
 
     Returns
     -------
@@ -1029,7 +1034,7 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
     """
     X, W, index, sign, context, kernel = _epoch_kernel(UNIT_SUMS, X, W, index, sign, context, device, params)
     return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W),
-                            blocks)
+                            blocks, init)
 
 
 def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation) -> tuple[np.ndarray, np.ndarray]:

@@ -197,38 +197,68 @@ def block_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=Non
             **error_sums(X, W, bmu, rows, cols, topology, index, sign, distances=distances)}
 
 
+#: Most bytes of rows that one pass of :meth:`SOM.fit`'s epoch searches at once (whole row blocks,
+#: at least one): keeps each device buffer under the allocation limit of common GPUs (NVIDIA's
+#: OpenCL allows a quarter of the device memory in one buffer).
+PASS_BYTES = 1 << 30
+
+#: The scalar error sums of :func:`block_sums`.
+ERROR_KEYS = ("n", "t_bad", "q_sum", "qc_sum")
+
+
+def pass_ranges(n: int, row_bytes: int, block_rows: int = BLOCK_ROWS, pass_bytes: int | None = None
+                ) -> list[tuple[int, int]]:
+    """Row ranges of whole row blocks (:func:`row_blocks`) of at most ``pass_bytes`` (one block at least).
+
+    Parameters
+    ----------
+    n : int
+        Rows.
+    row_bytes : int
+        Bytes of one row.
+    pass_bytes : int or None
+        None: :data:`PASS_BYTES`.
+    """
+    pass_bytes = PASS_BYTES if pass_bytes is None else pass_bytes
+    per = max(1, pass_bytes // max(1, row_bytes * block_rows)) * block_rows
+    return [(a, min(n, a + per)) for a in range(0, n, per)]
+
+
 def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None, backend="auto",
-                block_rows: int = BLOCK_ROWS) -> dict:
+                block_rows: int = BLOCK_ROWS, total: dict | None = None) -> dict:
     """:func:`block_sums` of every row block of X (:func:`row_blocks`) added in block order
-    (:func:`add_sums`): the same bits, in one search, one per-unit sums pass and one per-row
-    errors pass over the whole of X (one launch each on an OpenCL device, over rows that stay
-    resident there when X is read-only).
+    (:func:`add_sums`) to ``total``: the same bits, in one search, one per-unit sums pass and one
+    per-row errors pass over the whole of X (one launch each on an OpenCL device, over rows that
+    stay resident there when X is read-only).
 
     Parameters
     ----------
     X : (N, D) float32
+        Rows of whole blocks (the blocks of an epoch, or a pass of them: :func:`pass_ranges`).
     W : (M, D) float32
     index, sign : (n, D) or None
     backend : str or Engine
     block_rows : int
+    total : dict or None
+        What earlier passes of the same epoch returned (None: the first pass).
 
     Returns
     -------
     dict
-        As :func:`block_sums`, summed over blocks; ``bmu`` of every row.
+        As :func:`block_sums`, summed over the blocks (and ``total``); ``bmu`` of every row so far.
     """
     engine = resolve_backend(backend)
     blocks = row_blocks(len(X), block_rows)
     bmu = engine.search(X, W, index, sign)
-    sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks,
+                                    init=None if total is None else total["sums"])
     q, qc = engine.row_errors(X, W, bmu, index, sign)
-    total = {"sums": sums, "counts": counts}
-    for i, (a, b) in enumerate(blocks):
+    errors = None if total is None else {key: total[key] for key in ERROR_KEYS}
+    for a, b in blocks:
         part = error_sums(X[a:b], W, bmu.rows(a, b), rows, cols, topology, index, sign, distances=(q[a:b], qc[a:b]))
-        for key in ("n", "t_bad", "q_sum", "qc_sum"):
-            total[key] = part[key] if i == 0 else total[key] + part[key]
-    total["bmu"] = bmu
-    return total
+        errors = {key: part[key] if errors is None else errors[key] + part[key] for key in ERROR_KEYS}
+    return {"sums": sums, "counts": counts if total is None else total["counts"] + counts, **errors,
+            "bmu": bmu if total is None else BMUResult.concatenate([total["bmu"], bmu])}
 
 
 #: Keys of :func:`block_sums` that add over blocks.
@@ -764,8 +794,16 @@ class SOM:
                 callback(info.epoch, self, info)
 
         if self.training == "batch":
-            def step(W):  # the row blocks of the pipeline, reduced in one pass (X stays resident on OpenCL)
-                return blocks_sums(X, W, self.rows, self.cols, self.topology, index, sign, backend=engine)
+            # the row blocks of the pipeline, reduced in passes of whole blocks (one for up to PASS_BYTES
+            # of rows); the pass views are made once, so that they stay resident on an OpenCL device
+            passes = [X[a:b] for a, b in pass_ranges(len(X), X.shape[1] * X.itemsize)]
+
+            def step(W):
+                total = None
+                for part in passes:
+                    total = blocks_sums(part, W, self.rows, self.cols, self.topology, index, sign, backend=engine,
+                                        total=total)
+                return total
 
             train_batch(W, step, self.rows, self.cols, self.epochs, self.sigma_start_, self.sigma_end,
                         self.topology, self.decay, callbacks=(report,))

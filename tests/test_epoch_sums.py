@@ -294,7 +294,7 @@ def test_blocks_sums_equal_the_block_by_block_reduction(ctx, backend, n):
 
     rng = np.random.default_rng(12 + n)
     N, D, rows, cols = 700, 9, 5, 6
-    X = rng.normal(size=(N, D)).astype(np.float32)
+    X = (rng.normal(size=(N, D)) * 10.0 ** rng.uniform(-8, 8, size=(N, 1))).astype(np.float32)  # sums round
     X.flags.writeable = False
     W = rng.normal(size=(rows * cols, D)).astype(np.float32)
     index, sign = block_table(D)
@@ -313,6 +313,61 @@ def test_blocks_sums_equal_the_block_by_block_reduction(ctx, backend, n):
         from meshsom.bmu_opencl import has_fp64
 
         assert engine.sums_on_host == "" or not has_fp64(ctx)  # the blocked kernel ran
-    # one block of all rows: the same sums to rounding
+    # one block of all rows: the same sums to rounding, but not the same bits (the blocks matter)
     one = blocks_sums(X, W, rows, cols, "toroidal", index, sign, backend=engine, block_rows=N)
-    np.testing.assert_allclose(one["sums"], got["sums"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(one["sums"], got["sums"], rtol=1e-12)
+    assert one["sums"].tobytes() != got["sums"].tobytes()
+
+
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_passes_chained_through_total_equal_one_pass(ctx, backend):
+    """Blocks reduced in passes (each pass adds to the running total) give the bits of one pass."""
+    from meshsom.bmu import resolve_backend
+    from meshsom.som import blocks_sums
+
+    rng = np.random.default_rng(13)
+    N, D, rows, cols = 600, 36, 4, 5
+    # magnitudes over 16 decades: float64 sums of float32 values round (small ones are exact, so
+    # the order of additions would not show)
+    X = (rng.normal(size=(N, D)) * 10.0 ** rng.uniform(-8, 8, size=(N, 1))).astype(np.float32)
+    X.flags.writeable = False
+    W = rng.normal(size=(rows * cols, D)).astype(np.float32)
+    index, sign = block_table(D)
+    engine = resolve_backend(backend, context=ctx if backend == "opencl" else None)
+    one = blocks_sums(X, W, rows, cols, "toroidal", index[:3], sign[:3], backend=engine, block_rows=97)
+    total = None
+    for a, b in [(0, 194), (194, 485), (485, N)]:  # whole blocks of 97 rows per pass
+        total = blocks_sums(X[a:b], W, rows, cols, "toroidal", index[:3], sign[:3], backend=engine, block_rows=97,
+                            total=total)
+    for key in ("sums", "counts"):
+        assert total[key].tobytes() == one[key].tobytes(), key
+    for key in ("n", "t_bad", "q_sum", "qc_sum"):
+        assert total[key] == one[key], key
+    np.testing.assert_array_equal(total["bmu"].unit, one["bmu"].unit)
+
+
+def test_pass_ranges_are_whole_blocks():
+    from meshsom.som import pass_ranges
+
+    assert pass_ranges(1000, 40, block_rows=100, pass_bytes=8000) == [(0, 200), (200, 400), (400, 600), (600, 800),
+                                                                         (800, 1000)]
+    assert pass_ranges(250, 40, block_rows=100, pass_bytes=10) == [(0, 100), (100, 200), (200, 250)]
+    assert pass_ranges(250, 40, block_rows=100) == [(0, 250)]
+
+
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_fit_in_passes_equals_fit_in_one(ctx, backend, monkeypatch):
+    """SOM.fit with one row block per pass (as on a device with little memory) trains the same codebook."""
+    from meshsom import som as som_module
+    from meshsom.som import BLOCK_ROWS, SOM, pass_ranges
+
+    rng = np.random.default_rng(14)
+    X = (rng.normal(size=(2 * BLOCK_ROWS + 500, 9)) * 10.0 ** rng.uniform(-8, 8, size=(2 * BLOCK_ROWS + 500, 1))
+         ).astype(np.float32)  # magnitudes over 16 decades: the order of float64 additions shows
+    index, sign = block_table(9)
+    kwargs = dict(rows=4, cols=5, epochs=3, backend=backend, random_state=0)
+    one = SOM(**kwargs).fit(X, index[:3], sign[:3])
+    monkeypatch.setattr(som_module, "PASS_BYTES", 1)
+    assert len(pass_ranges(len(X), 36)) == 3
+    split = SOM(**kwargs).fit(X, index[:3], sign[:3])
+    assert split.weights_.tobytes() == one.weights_.tobytes()

@@ -5,8 +5,8 @@
  * unit_sums: the same bits as meshsom.bmu_numpy.unit_sums. Per (unit u, dimension k) and per row
  * block, the varied values sign[v, k] * X[r, index[v, k]] of the block's rows r that u won (v: each
  * row's winning variation), converted to double and added one after another to 0 in row order;
- * the blocks' sums then added in block order (an epoch's reduction of row blocks, one launch for
- * all of them). The rows of each (block, unit) come from a stable counting order made on the host
+ * the blocks' sums then added in block order to the running total of earlier passes, init (an
+ * epoch's reduction of row blocks, one launch for all the blocks of a pass). The rows of each (block, unit) come from a stable counting order made on the host
  * (order, offsets: meshsom.bmu_numpy.unit_order). One work-item per (u, k), k fastest, so that the
  * work-items of one unit read one row together.
  *
@@ -34,13 +34,14 @@ __kernel void unit_sums(__global const REAL *X,        /* (N, D) */
                                                           offsets[b * M + u + 1]) */
                         const int M,
                         const int B,                   /* row blocks */
+                        __global const double *init,   /* (M, D) running total of earlier passes (zeros: none) */
                         __global double *sums)         /* (M, D) */
 {
     const int g = get_global_id(0);
     if (g >= M * D)
         return;
     const int u = g / D, k = g % D;
-    double total = 0.0;
+    double total = init[g];
     for (int b = 0; b < B; ++b) {
         const int p0 = offsets[b * M + u], p1 = offsets[b * M + u + 1];
         double s = 0.0;
