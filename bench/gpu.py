@@ -19,8 +19,9 @@ read-only, as the training pipeline's cached chunks are, so after the warm-up ep
 codebook and its norms go to the device (:class:`meshsom.bmu_opencl.ResidentRows`); beside
 it the default kernel on a writable X, copied to the device every epoch (as before); and
 XPySom with its CuPy backend (planar map, construction and host-to-device copy included),
-each timed in steady state: best of the repeats after a warm-up call. Table (a) keeps
-writable X: its passes include the row copies, as the PyTorch "with copies" column does.
+each timed in steady state: best of the repeats after a warm-up call; and where the default
+epoch's time goes (search, per-unit sums, the host's update). Table (a) keeps writable X: its
+passes include the row copies, as the PyTorch "with copies" column does.
 
 (c) Training epochs as the pipeline runs them (``SOM.fit``: the search, the per-unit sums and
 the T / Q / QC error sums of every epoch, the update), seconds per epoch in steady state (the
@@ -231,7 +232,8 @@ def epoch_table(args, ctx):
         say(f"note: XPySom + CuPy not importable ({err}): n/a")
     say(f"\n(b) seconds per epoch, map {rows}x{cols}; meshsom: partial_sums + batch_update, OpenCL engine, "
         f"rows resident (read-only X) unless 'copied'")
-    say(f"{'N':>9} {'D':>4} {'default':>9} {'BMUofN (n)':>14} {'copied':>9} {'XPySom+CuPy':>12} {'xpysom/default':>15}")
+    say(f"{'N':>9} {'D':>4} {'default':>9} {'BMUofN (n)':>14} {'copied':>9} {'XPySom+CuPy':>12} "
+        f"{'xpysom/default':>15}  default epoch: search / sums / update ms")
     for N, n, D in workloads(EPOCH_WORKLOADS, args.quick):
         X, W = data(N, D, M)
         index, sign = block_table(n, D)
@@ -250,8 +252,25 @@ def epoch_table(args, ctx):
             peer = f"{t_x:12.4f} {t_x / t_default:15.2f}"
         else:
             peer = f"{'n/a':>12} {'n/a':>15}"
-        say(f"{N:>9} {D:>4} {t_default:9.4f} {f'{t_n:.4f} ({n})':>14} {t_copied:9.4f} {peer}")
+        parts = epoch_parts(X, W, ident, engine, rows, cols, repeat)
+        say(f"{N:>9} {D:>4} {t_default:9.4f} {f'{t_n:.4f} ({n})':>14} {t_copied:9.4f} {peer}  {parts}")
         del X  # frees the rows' device copy too
+
+
+def epoch_parts(X, W, table, engine, rows, cols, repeat) -> str:
+    """Where a default-kernel epoch's time goes (resident rows): the search, the per-unit sums
+    (device or host, as the engine took them) and the host's batch_update, each the best of
+    ``repeat`` after the epochs timed before."""
+    from meshsom.som import batch_update
+
+    index, sign = table
+    bmu = engine.search(X, W, index, sign)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign)
+    t_search = best_time(lambda: engine.search(X, W, index, sign), repeat)
+    t_sums = best_time(lambda: engine.unit_sums(X, W, bmu, index, sign), repeat)
+    t_update = best_time(lambda: batch_update(W, sums, counts, 5.0, rows, cols, "toroidal"), repeat)
+    where = "host" if engine.sums_on_host else "device"
+    return f"{1e3 * t_search:.2f} / {1e3 * t_sums:.2f} ({where}) / {1e3 * t_update:.2f}"
 
 
 def export_levels(store: str, out: str) -> None:

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, bmu_numpy, unit_sums, validate
-from meshsom.metrics import COMPONENT, row_errors
 from meshsom.errors import DeviceError
+from meshsom.metrics import COMPONENT, row_errors
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,8 @@ class Engine:
             layout = ",".join(sorted({self.used[w] for w in works if w in self.used}))
         fallback = "; ".join(c for w in works for c in self.fallbacks.get(w, ()))
         if self.sums_on_host:
-            fallback = "; ".join(c for c in (fallback, f"per-unit sums and errors on the host: {self.sums_on_host}") if c)
+            host = f"per-unit sums and errors on the host: {self.sums_on_host}"
+            fallback = "; ".join(c for c in (fallback, host) if c)
         return {"backend": self.backend, "device": self.device, "layout": layout, "fallback": fallback}
 
     def prepare(self, D: int, n: int, dtype=np.float32) -> str:
@@ -167,7 +168,6 @@ class Engine:
                               f"({detail}); {ADVICE}")
         self.used[work] = NUMPY_LAYOUT
         return bmu_numpy(X, W, index, sign)
-
 
     def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None, blocks=None,
                   init=None) -> tuple[np.ndarray, np.ndarray]:
