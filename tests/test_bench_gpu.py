@@ -1,0 +1,66 @@
+"""The GPU run's training table works end to end on PoCL (it runs once per lent GPU, so it must not rot):
+levels exported from a real store, then ``bench/gpu.py --only-training --quick`` on them."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+@pytest.fixture(scope="module")
+def levels(tmp_path_factory):
+    """A quick-config store encoded at levels 1-3 and its export for ``--levels``."""
+    from pipelines.cli import main
+
+    folder = tmp_path_factory.mktemp("bench-gpu")
+    store = folder / "quick.zarr"
+    code = main(["run", str(ROOT / "configs" / "quick.yaml"), "--store", str(store), "--no-tracking",
+                 "--backend", "numpy", "--set", "encoding.levels=[1,2,3]", "--set", "som.epochs=1",
+                 "--set", "som.rows=4", "--set", "som.cols=5"])
+    assert code == 0
+    from bench.gpu import main as bench
+
+    npz = folder / "levels.npz"
+    assert bench(["--export-levels", str(store), str(npz)]) == 0
+    return store, npz
+
+
+def test_export_holds_the_stores_standardized_levels_and_the_tables(levels):
+    from bench.gpu import PAPER_MAPS
+    from meshsom.store import open_store
+    from meshsom.variations import variation_table
+    from pipelines.train import load_level
+
+    store, npz = levels
+    found = np.load(npz)
+    group = open_store(store)
+    for level in (1, 2, 3):
+        assert found[f"X{level}"].tobytes() == load_level(group, level).tobytes()
+    for level, kernel in PAPER_MAPS:
+        index, sign = variation_table(level, mirror=False, kernel=kernel)
+        np.testing.assert_array_equal(found[f"index_{level}_{kernel}"], index)
+        np.testing.assert_array_equal(found[f"sign_{level}_{kernel}"], sign)
+
+
+def test_training_table_runs_every_map(levels, capsys):
+    from bench.gpu import main as bench
+    from meshsom.bmu_opencl import get_context, has_fp64
+    from tests.test_bmu import _opencl_context
+
+    _opencl_context()  # skips without an OpenCL device
+    _, npz = levels
+    assert bench(["--only-training", "--quick", "--levels", str(npz)]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.strip().startswith(("paper level", "level 3 x 1e6"))]
+    assert len(rows) == 5, out
+    on_device = has_fp64(get_context(None))
+    for line in rows:
+        head, where = line.split("  ")[:-1], line.split("  ")[-1].strip()
+        assert float(" ".join(head).split()[-1]) > 0, line  # seconds per epoch
+        assert where == "device" if on_device else where.startswith("host ("), line
