@@ -183,9 +183,11 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     Returns
     -------
     dict
-        :func:`meshsom.som.block_sums` without the BMUs (``sums``, ``counts``, ``n``, ``t_bad``,
-        ``q_sum``, ``qc_sum``), and what computed it: ``backend``, ``device``, ``layout``,
-        ``fallback`` (:meth:`meshsom.bmu.Engine.describe`).
+        :func:`meshsom.som.block_sums` without the BMUs (``counts``, ``n``, ``t_bad``, ``q_sum``,
+        ``qc_sum``), the sums of the units the block won only (``won`` (k,) int32 and ``sums``
+        (k, D): a block of 16,384 rows wins a fraction of an 18,000-unit map, and this is what
+        travels to the client every epoch), and what computed it: ``backend``, ``device``,
+        ``layout``, ``fallback`` (:meth:`meshsom.bmu.Engine.describe`).
     """
     from meshsom.som import block_sums
     from meshsom.variations import variation_table
@@ -198,6 +200,8 @@ def chunk_pass(job: TrainJob, start: int, stop: int, W: np.ndarray, write_bmus: 
     engine = _engine(job.backend, job.device, job.layout)
     out = block_sums(X, W, job.rows, job.cols, job.topology, index, sign, backend=engine)
     bmu = out.pop("bmu")
+    won = np.flatnonzero(out["counts"])
+    out["won"], out["sums"] = won.astype(np.int32), out["sums"][won]
     out.update(engine.describe(X.shape[1], 1 if index is None else len(index), X.dtype))
     if write_bmus:
         from meshsom.store import open_store, run_group, write_bmu_rows
@@ -238,15 +242,35 @@ def _pass(client, job: TrainJob, ranges, W: np.ndarray, retries: int = PASS_RETR
     raise AssertionError("unreachable")
 
 
+def add_won_sums(total: dict | None, part: dict) -> dict:
+    """Add one :func:`chunk_pass` result (sums of its won units only) to a running total with dense
+    (M, D) sums, in place (None: the first block).
+
+    Bit for bit :func:`meshsom.som.add_sums` of the dense sums: a unit the block did not win would
+    add 0.0, which leaves a sum as it is (a sum is never -0.0: each block's starts from 0.0).
+    """
+    from meshsom.som import SUM_KEYS
+
+    part = dict(part)
+    won, sums = part.pop("won"), part.pop("sums")
+    if total is None:
+        total = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in part.items()}
+        total["sums"] = np.zeros((len(part["counts"]), sums.shape[1]))
+    else:
+        for k in SUM_KEYS:
+            if k != "sums":
+                total[k] += part[k]
+    total["sums"][won] += sums
+    return total
+
+
 def _reduce(futures) -> dict:
-    """Add the blocks' sums in block order (:func:`meshsom.som.add_sums`), fetching one at a time.
+    """Add the blocks' sums in block order (as :func:`meshsom.som.add_sums`), fetching one at a time.
 
     The order makes the float64 sums (and so the codebook) independent of which worker finished
     first, and equal to ``SOM.fit``'s; fetching one result at a time keeps the client's memory at
     two (M, D) arrays however many blocks there are.
     """
-    from meshsom.som import add_sums
-
     total = None
     layouts: set = set()
     fallbacks: list = []
@@ -254,7 +278,7 @@ def _reduce(futures) -> dict:
         part = fut.result()
         layouts.update(filter(None, part["layout"].split(",")))
         fallbacks += [f for f in part["fallback"].split("; ") if f and f not in fallbacks]
-        total = add_sums(total, part)
+        total = add_won_sums(total, part)
         fut.release()
     total["layout"] = ",".join(sorted(layouts))
     total["fallback"] = "; ".join(fallbacks)

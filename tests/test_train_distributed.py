@@ -107,3 +107,28 @@ def test_streamed_domain_stage_equals_in_memory_computation(client, store):
     ev = som.evaluate(vectors)
     assert metrics["domain_q_error"] == pytest.approx(ev["q_error"], rel=1e-4)
     assert metrics["domain_t_error"] == pytest.approx(ev["t_error"])
+
+
+def test_won_unit_sums_add_like_dense_sums():
+    """What a training task sends (the sums of the units its block won) adds, block after block,
+    to the bits of add_sums over the blocks' dense sums."""
+    from meshsom.som import add_sums, block_sums, row_blocks
+    from pipelines.train import add_won_sums
+
+    rng = np.random.default_rng(21)
+    N, D, rows, cols = 900, 9, 6, 8
+    X = (rng.normal(size=(N, D)) * 10.0 ** rng.uniform(-8, 8, size=(N, 1))).astype(np.float32)
+    W = (rng.normal(size=(rows * cols, D)) * 1e3).astype(np.float32)  # many units win nothing
+    index, sign = variation_table(1, kernel="bmuofn")
+    dense = won = None
+    for a, b in row_blocks(N, 128):
+        part = block_sums(X[a:b], W, rows, cols, "toroidal", index, sign, backend="numpy")
+        part.pop("bmu")
+        dense = add_sums(dense, part)
+        keep = np.flatnonzero(part["counts"])
+        assert len(keep) < rows * cols
+        won = add_won_sums(won, {**part, "won": keep.astype(np.int32), "sums": part["sums"][keep]})
+    for key in ("sums", "counts"):
+        assert won[key].tobytes() == dense[key].tobytes(), key
+    for key in ("n", "t_bad", "q_sum", "qc_sum"):
+        assert won[key] == dense[key], key
