@@ -418,12 +418,12 @@ def main(argv=None) -> int:
             bmu_opencl.DEFAULT_PARAMS["gpu"] = tuned
     if not args.only_training:
         bmu_table(args, ctx, torch, gemm)
-    if not args.no_epoch and not args.only_training:
-        epoch_table(args, ctx)
-    if args.levels:
+    if args.levels:  # before (b): short, and item 2 of issue 13 asks for it
         training_table(args)
     else:
         say("\n(c) training epochs: skipped (no --levels; see --export-levels)")
+    if not args.no_epoch and not args.only_training:
+        epoch_table(args, ctx)
     say(f"\ntotal {time.perf_counter() - started:.0f} s")
     return 0
 
