@@ -903,11 +903,17 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
         for host, buf in zip((unit, variation, dist2, second), outs):
             cl.enqueue_copy(queue, host, buf)
         queue.finish()
-    except cl.Error as err:  # pyopencl's error records do not pickle: one line of text instead
-        resident_rows(context).discard(X)  # a later try copies the rows afresh
-        raise DeviceError(f"{device_name(context)}: BMUofN kernel launch failed ({type(err).__name__}: "
-                          f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+    except cl.Error as err:
+        raise _launch_failed(context, X, "BMUofN kernel launch", err) from None
     return unit, variation, dist2, second
+
+
+def _launch_failed(context, X, what: str, err) -> DeviceError:
+    """The error of a failed launch on rows X, as one readable line (pyopencl's error records do not
+    pickle); X's resident copy is dropped, so that a later try copies the rows afresh."""
+    resident_rows(context).discard(X)
+    first = str(err).splitlines()[0] if str(err) else type(err).__name__
+    return DeviceError(f"{device_name(context)}: {what} failed ({type(err).__name__}: {first})")
 
 
 def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = None,
@@ -988,9 +994,7 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
             cl.enqueue_copy(queue, sums, out)
             queue.finish()
         except cl.Error as err:
-            resident_rows(context).discard(X)
-            raise DeviceError(f"{device_name(context)}: per-unit sums kernel failed ({type(err).__name__}: "
-                              f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+            raise _launch_failed(context, X, "per-unit sums kernel", err) from None
     else:
         sums[:] = init
     return sums, np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
@@ -1064,9 +1068,7 @@ def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation
                 cl.enqueue_copy(queue, host, buf)
             queue.finish()
         except cl.Error as err:
-            resident_rows(context).discard(X)
-            raise DeviceError(f"{device_name(context)}: per-row errors kernel failed ({type(err).__name__}: "
-                              f"{str(err).splitlines()[0] if str(err) else err.__class__.__name__})") from None
+            raise _launch_failed(context, X, "per-row errors kernel", err) from None
     return q, qc
 
 
