@@ -190,11 +190,7 @@ def block_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=Non
         of :func:`meshsom.metrics.error_sums` (``n``, ``t_bad``, ``q_sum``, ``qc_sum``) and ``bmu``
         (:class:`BMUResult` of the block).
     """
-    engine = resolve_backend(backend)
-    sums, counts, bmu = partial_sums(X, W, index, sign, backend=engine)
-    distances = engine.row_errors(X, W, bmu, index, sign)
-    return {"sums": sums, "counts": counts, "bmu": bmu,
-            **error_sums(X, W, bmu, rows, cols, topology, index, sign, distances=distances)}
+    return blocks_sums(X, W, rows, cols, topology, index, sign, backend, block_rows=max(1, len(X)))
 
 
 #: Most bytes of rows that one pass of :meth:`SOM.fit`'s epoch searches at once (whole row blocks,
@@ -248,7 +244,7 @@ def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=No
         As :func:`block_sums`, summed over the blocks (and ``total``); ``bmu`` of every row so far.
     """
     engine = resolve_backend(backend)
-    blocks = row_blocks(len(X), block_rows)
+    blocks = row_blocks(len(X), block_rows) or [(0, 0)]  # no rows: one empty block, zero sums
     bmu = engine.search(X, W, index, sign)
     sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks,
                                     init=None if total is None else total["sums"])
@@ -262,7 +258,7 @@ def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=No
 
 
 #: Keys of :func:`block_sums` that add over blocks.
-SUM_KEYS = ("sums", "counts", "n", "t_bad", "q_sum", "qc_sum")
+SUM_KEYS = ("sums", "counts", *ERROR_KEYS)
 
 
 def add_sums(total: dict | None, part: dict) -> dict:
