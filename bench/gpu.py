@@ -13,21 +13,25 @@ GEMM (8192^3, TF32 off) measured in the same run; the PyTorch baseline (per vari
 rows in chunks of 65,536; TF32 off) with the data already on the GPU and with the copies;
 and whether units and variations agree with PyTorch on every row.
 
-(b) Seconds per epoch: meshsom ``partial_sums`` + ``batch_update`` with the OpenCL engine
-(the default kernel and BMUofN with n variations, as bench/epoch.py) on resident rows: X is
+(b) Seconds per epoch: meshsom's search, per-unit sums and update with the OpenCL engine (the
+default kernel and BMUofN with n variations, as bench/epoch.py) on resident rows: X is
 read-only, as the training pipeline's cached chunks are, so after the warm-up epoch only the
-codebook and its norms go to the device (:class:`meshsom.bmu_opencl.ResidentRows`); beside
-it the default kernel on a writable X, copied to the device every epoch (as before); and
+codebook's norms (and the codebook, unless the update ran on the device and left it there) go
+to the device (:class:`meshsom.bmu_opencl.ResidentRows`); the update runs where ``SOM(update=
+"auto")`` runs it (on a GPU with float64: on the device, the sums never leaving it), each epoch
+starting from the codebook the one before made; beside it the default kernel on a writable X,
+copied to the device every epoch, with the host's update (as before); and
 XPySom with its CuPy backend (planar map, construction and host-to-device copy included),
 each timed in steady state: best of the repeats after a warm-up call; and where the default
-epoch's time goes (search, per-unit sums, the host's update). Table (a) keeps writable X: its
+epoch's time goes (search, per-unit sums, the update, each on the device or the host). Table (a) keeps writable X: its
 passes include the row copies, as the PyTorch "with copies" column does.
 
 (c) Training epochs as the pipeline runs them (``SOM.fit``: the search, the per-unit sums and
 the T / Q / QC error sums of every epoch, the update), seconds per epoch in steady state (the
 median of the epochs after the first): the paper config's four maps (120 x 150, its levels and
 kernels), and a 1,000,000-row level-3 map (the paper's level-3 rows repeated with a little seeded
-noise, BMUofN). Each row says where the per-unit sums and errors were taken (device or host).
+noise, BMUofN). Each row says where the per-unit sums and errors were taken and where the update
+ran (device or host).
 The standardized level vectors come from a store of ``meshsom run configs/paper.yaml``,
 exported once where the pipeline's dependencies are installed:
 
@@ -218,6 +222,24 @@ def xpysom_epoch(cupy, XPySom, X, rows, cols):
     cupy.cuda.Device().synchronize()
 
 
+def device_epoch(X, W, index, sign, engine, rows, cols, sigma=5.0):
+    """One epoch as ``SOM.fit`` runs it without the error sums: the search, the per-unit sums and the
+    update, the sums kept on the device and updated there where ``update="auto"`` says so."""
+    on_device = engine.update_on_device("auto")
+    bmu = engine.search(X, W, index, sign)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign, keep=on_device)
+    return engine.batch_update(W, sums, counts, sigma, rows, cols, "toroidal")
+
+
+def chained(epoch, W):
+    """A callable running ``epoch(W)`` from the codebook the previous call made (as training does)."""
+    state = [W]
+
+    def run():
+        state[0] = epoch(state[0])
+    return run
+
+
 def epoch_table(args, ctx):
     from meshsom.bmu import resolve_backend
 
@@ -230,8 +252,9 @@ def epoch_table(args, ctx):
     except ImportError as err:
         cupy = XPySom = None
         say(f"note: XPySom + CuPy not importable ({err}): n/a")
-    say(f"\n(b) seconds per epoch, map {rows}x{cols}; meshsom: partial_sums + batch_update, OpenCL engine, "
-        f"rows resident (read-only X) unless 'copied'")
+    where = "device" if engine.update_on_device("auto") else "host"
+    say(f"\n(b) seconds per epoch, map {rows}x{cols}; meshsom: search + per-unit sums + update (on the {where}), "
+        f"OpenCL engine, rows resident (read-only X) unless 'copied' (copied: host update)")
     say(f"{'N':>9} {'D':>4} {'default':>9} {'BMUofN (n)':>14} {'copied':>9} {'XPySom+CuPy':>12} "
         f"{'xpysom/default':>15}  default epoch: search / sums / update ms")
     for N, n, D in workloads(EPOCH_WORKLOADS, args.quick):
@@ -242,10 +265,12 @@ def epoch_table(args, ctx):
         meshsom_epoch(X, W, *ident, engine, rows, cols)  # warm-up: builds the program
         t_copied = best_time(lambda: meshsom_epoch(X, W, *ident, engine, rows, cols), repeat)  # writable X
         X.flags.writeable = False  # X owns its rows: from now on they stay on the device
-        meshsom_epoch(X, W, *ident, engine, rows, cols)  # warm-up: sends the rows
-        t_default = best_time(lambda: meshsom_epoch(X, W, *ident, engine, rows, cols), repeat)
-        meshsom_epoch(X, W, index, sign, engine, rows, cols)
-        t_n = best_time(lambda: meshsom_epoch(X, W, index, sign, engine, rows, cols), repeat)
+        default = chained(lambda W: device_epoch(X, W, *ident, engine, rows, cols), W)
+        default()  # warm-up: sends the rows
+        t_default = best_time(default, repeat)
+        varied = chained(lambda W: device_epoch(X, W, index, sign, engine, rows, cols), W)
+        varied()
+        t_n = best_time(varied, repeat)
         if XPySom is not None:
             xpysom_epoch(cupy, XPySom, X, rows, cols)  # warm-up: CuPy compiles its kernels
             t_x = best_time(lambda: xpysom_epoch(cupy, XPySom, X, rows, cols), repeat)
@@ -258,19 +283,21 @@ def epoch_table(args, ctx):
 
 
 def epoch_parts(X, W, table, engine, rows, cols, repeat) -> str:
-    """Where a default-kernel epoch's time goes (resident rows): the search, the per-unit sums
-    (device or host, as the engine took them) and the host's batch_update, each the best of
-    ``repeat`` after the epochs timed before."""
-    from meshsom.som import batch_update
-
+    """Where a default-kernel epoch's time goes (resident rows): the search, the per-unit sums and
+    the update (each on the device or the host, as :func:`device_epoch` takes them), each the best
+    of ``repeat`` after the epochs timed before; the search against a codebook the update left on
+    the device."""
     index, sign = table
+    on_device = engine.update_on_device("auto")
     bmu = engine.search(X, W, index, sign)
-    sums, counts = engine.unit_sums(X, W, bmu, index, sign)
-    t_search = best_time(lambda: engine.search(X, W, index, sign), repeat)
-    t_sums = best_time(lambda: engine.unit_sums(X, W, bmu, index, sign), repeat)
-    t_update = best_time(lambda: batch_update(W, sums, counts, 5.0, rows, cols, "toroidal"), repeat)
+    sums, counts = engine.unit_sums(X, W, bmu, index, sign, keep=on_device)
+    new = engine.batch_update(W, sums, counts, 5.0, rows, cols, "toroidal")
+    t_search = best_time(lambda: engine.search(X, new, index, sign), repeat)
+    t_sums = best_time(lambda: engine.unit_sums(X, W, bmu, index, sign, keep=on_device), repeat)
+    t_update = best_time(lambda: engine.batch_update(W, sums, counts, 5.0, rows, cols, "toroidal"), repeat)
     where = "host" if engine.sums_on_host else "device"
-    return f"{1e3 * t_search:.2f} / {1e3 * t_sums:.2f} ({where}) / {1e3 * t_update:.2f}"
+    updated = "device" if on_device and not engine.update_on_host else "host"
+    return f"{1e3 * t_search:.2f} / {1e3 * t_sums:.2f} ({where}) / {1e3 * t_update:.2f} ({updated})"
 
 
 def export_levels(store: str, out: str) -> None:
@@ -292,7 +319,7 @@ def export_levels(store: str, out: str) -> None:
 
 def fit_epochs(X, index, sign, epochs: int, device) -> tuple[float, str]:
     """SOM.fit on the paper's map with the OpenCL engine: the median seconds of the epochs after
-    the first, and where the per-unit sums and errors ran."""
+    the first, and where the per-unit sums and errors and the update ran."""
     from meshsom.som import SOM
 
     rows, cols = MAP
@@ -301,6 +328,7 @@ def fit_epochs(X, index, sign, epochs: int, device) -> tuple[float, str]:
     som.fit(X, index, sign, callbacks=[lambda epoch, som, info: seconds.append(info.seconds)])
     engine = som.engine_
     where = f"host ({engine.sums_on_host})" if engine.sums_on_host else "device"
+    where += f"; update on the {som.update_}" + (f" ({engine.update_on_host})" if engine.update_on_host else "")
     return float(np.median(seconds[1:] if len(seconds) > 1 else seconds)), where
 
 
@@ -309,7 +337,7 @@ def training_table(args) -> None:
     rows, cols = MAP
     say(f"\n(c) training epochs (SOM.fit: search, per-unit sums, T/Q/QC error sums, update), map {rows}x{cols}, "
         f"OpenCL engine; median seconds of the epochs after the first")
-    say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9}  sums and errors on")
+    say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9}  sums and errors on; update")
     for level, kernel in PAPER_MAPS:
         X = levels[f"X{level}"]
         index, sign = levels[f"index_{level}_{kernel}"], levels[f"sign_{level}_{kernel}"]

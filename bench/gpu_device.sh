@@ -14,7 +14,7 @@
 # loader bundled in the pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd
 # files); 3. lists the OpenCL devices; 4. every kernel layout's probe verdict and GFLOP/s;
 # 5. bench/gpu.py --device nvidia --autotune --levels (tables a, b, c); 6. the BMU, probe and
-# epoch-sums tests on the NVIDIA device.
+# epoch-sums and device-update tests on the NVIDIA device.
 set -u
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}
@@ -59,6 +59,6 @@ levels=.gpu/paper-levels.npz
 step "bench/gpu.py --device nvidia --autotune $levels_arg"
 timeout 360 python3 bench/gpu.py --device nvidia --autotune $levels_arg
 
-step "tests: tests/test_bmu.py, tests/test_probe.py and tests/test_epoch_sums.py on the NVIDIA device (8 pytest workers)"
-timeout 120 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py
+step "tests: tests/test_bmu.py, test_probe.py, test_epoch_sums.py and test_device_update.py on the NVIDIA device (8 pytest workers)"
+timeout 120 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py tests/test_device_update.py
 step "done"

@@ -36,6 +36,10 @@ NUMPY_DEVICE = "numpy/BLAS (CPU)"
 NUMPY_LAYOUT = "numpy"
 #: What a user can do when OpenCL does not work (the end of every OpenCL error line).
 ADVICE = "run with --backend numpy (opencl.backend: numpy), or pick another device with --device (opencl.device)"
+#: Where a batch epoch's update may run (:meth:`Engine.update_on_device`): "auto" (on the device
+#: where it is a GPU with float64), "device" (wherever an OpenCL device with float64 took the
+#: sums), "host" (always the host's :func:`meshsom.som.batch_update`).
+UPDATES = ("auto", "host", "device")
 
 
 @dataclass
@@ -62,6 +66,9 @@ class Engine:
     sums_on_host : str
         Why per-unit sums and per-row errors are taken on the host on this OpenCL device ("" while
         they run on it: :meth:`unit_sums`, :meth:`row_errors`).
+    update_on_host : str
+        Why an epoch's update asked on the device runs on the host ("" while none was refused:
+        :meth:`update_on_device`, :meth:`batch_update`).
     """
 
     backend: str
@@ -73,6 +80,7 @@ class Engine:
     fallbacks: dict = field(default_factory=dict)
     failed: set = field(default_factory=set)
     sums_on_host: str = ""
+    update_on_host: str = ""
 
     def describe(self, D: int | None = None, n: int | None = None, dtype=np.float32) -> dict:
         """What computed the results: ``backend``, ``device``, ``layout``, ``fallback``.
@@ -99,6 +107,8 @@ class Engine:
         if self.sums_on_host:
             host = f"per-unit sums and errors on the host: {self.sums_on_host}"
             fallback = "; ".join(c for c in (fallback, host) if c)
+        if self.update_on_host:
+            fallback = "; ".join(c for c in (fallback, f"epoch update on the host: {self.update_on_host}") if c)
         return {"backend": self.backend, "device": self.device, "layout": layout, "fallback": fallback}
 
     def prepare(self, D: int, n: int, dtype=np.float32) -> str:
@@ -170,7 +180,7 @@ class Engine:
         return bmu_numpy(X, W, index, sign)
 
     def unit_sums(self, X, W, bmu: BMUResult, index=None, sign=None, blocks=None,
-                  init=None) -> tuple[np.ndarray, np.ndarray]:
+                  init=None, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Per unit, the sum of the varied vectors it won and how many it won (a batch epoch's map step).
 
         On an OpenCL device with float64, where an OpenCL layout ran the search, the sums are taken
@@ -188,16 +198,19 @@ class Engine:
         blocks : list of (start, stop) or None
             Row blocks summed apart and then added in order (:func:`meshsom.som.blocks_sums`);
             None: one block.
-        init : (M, D) float64 or None
+        init : (M, D) float64, DeviceArray or None
             Running sums of earlier rows the blocks are added to (None: zeros).
+        keep : bool
+            Where the sums are taken on the device, leave them there
+            (:class:`meshsom.bmu_opencl.DeviceArray`) for :meth:`batch_update`.
 
         Returns
         -------
-        sums : (M, D) float64
+        sums : (M, D) float64, or a DeviceArray (``keep``, on the device)
         counts : (M,) float64
         """
         X, W, index, sign = validate(X, W, index, sign)
-        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign, blocks=blocks, init=init)
+        found = self._on_device("unit_sums_opencl", X, W, bmu, index, sign, blocks=blocks, init=init, keep=keep)
         return found if found is not None else unit_sums(X, bmu.unit, bmu.variation, index, sign, len(W), blocks, init)
 
     def row_errors(self, X, W, bmu: BMUResult, index=None, sign=None, component: int = COMPONENT
@@ -214,6 +227,85 @@ class Engine:
         X, W, index, sign = validate(X, W, index, sign)
         found = self._on_device("row_errors_opencl", X, W, bmu, index, sign) if component == COMPONENT else None
         return found if found is not None else row_errors(X, W, bmu, index, sign, component)
+
+    def update_on_device(self, policy: str = "auto") -> bool:
+        """Whether a batch epoch should keep its sums on the device and update there (:data:`UPDATES`).
+
+        ``"auto"``: on an OpenCL GPU with float64 (a CPU device gains nothing over the host's BLAS,
+        and the host's update keeps every backend's codebook bit for bit equal). ``"device"``: on any
+        OpenCL device with float64; where there is none, one warning line and the host
+        (:attr:`update_on_host` says why). ``"host"``: never.
+
+        Raises
+        ------
+        ValueError
+            An unknown policy.
+        """
+        if policy not in UPDATES:
+            raise ValueError(f"update must be one of {', '.join(UPDATES)}; received {policy!r}")
+        if policy == "host":
+            return False
+        if self.backend != "opencl":
+            reason = "the NumPy/BLAS backend has no device"
+        elif self.sums_on_host or self.update_on_host:
+            reason = self.sums_on_host or self.update_on_host
+        else:
+            from meshsom import bmu_opencl
+
+            device = self.context.devices[0]
+            if not bmu_opencl.has_fp64(self.context):
+                reason = f"{self.device} has no float64 (cl_khr_fp64)"
+            elif policy == "device" or not device.type & bmu_opencl._cl().device_type.CPU:
+                return True
+            else:
+                return False
+        if policy == "device" and not self.update_on_host:
+            self.update_on_host = reason
+            log.warning("epoch updates run on the host: %s", reason)
+        return False
+
+    def batch_update(self, W, sums, counts, sigma: float, rows: int, cols: int, topology: str = "toroidal",
+                     min_weight: float | None = None) -> np.ndarray:
+        """The update of a batch epoch (:func:`meshsom.som.batch_update`) where its sums are.
+
+        Sums :meth:`unit_sums` kept on the device (``keep``) are smoothed and divided there
+        (:func:`meshsom.bmu_opencl.batch_update_opencl`, the same as the host to rounding), and the
+        new codebook stays resident for the next search; host sums, and device sums after a
+        failure on the device (one warning line, :attr:`update_on_host`), are updated on the host.
+
+        Parameters
+        ----------
+        W : (M, D) float
+        sums : (M, D) float64 or DeviceArray
+        counts : (M,) float64
+        sigma : float
+        rows, cols : int
+        topology : str
+        min_weight : float or None
+            None: :data:`meshsom.som.MIN_WEIGHT`.
+
+        Returns
+        -------
+        (M, D) W's dtype (read-only when made on the device)
+        """
+        from meshsom import som
+
+        min_weight = som.MIN_WEIGHT if min_weight is None else min_weight
+        if self.backend == "opencl" and not isinstance(sums, np.ndarray):
+            from meshsom import bmu_opencl
+
+            if isinstance(sums, bmu_opencl.DeviceArray):
+                som.check_update_shapes(W, sums.shape, counts, rows, cols)
+                if not self.update_on_host:
+                    try:
+                        return bmu_opencl.batch_update_opencl(
+                            W, sums, counts, som.gaussian_kernel_1d(rows, sigma, topology),
+                            som.gaussian_kernel_1d(cols, sigma, topology), min_weight)
+                    except DeviceError as err:
+                        self.update_on_host = getattr(err, "reason", str(err))
+                        log.warning("epoch updates run on the host from now on: %s", self.update_on_host)
+                sums = sums.get()
+        return som.batch_update(W, sums, counts, sigma, rows, cols, topology, min_weight)
 
     def _on_device(self, function: str, X, W, bmu, index, sign, **options):
         """``meshsom.bmu_opencl.<function>`` on this engine's device for validated arrays, or None

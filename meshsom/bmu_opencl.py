@@ -27,6 +27,13 @@ at a freed one's address never matches), and held within a byte budget per conte
 first. Writable arrays are copied every call, as before. The promise a caller makes by
 passing a read-only array is that its values do not change while it lives (do not set it
 writable again and write to it).
+
+Device epochs: an epoch's per-unit sums can stay on the device (:class:`DeviceArray`, from
+:func:`launch_unit_sums` with ``keep``), the update smooths and divides them there
+(:func:`batch_update_opencl`, ``kernels/batch_update.cl``), and the new codebook it brings back
+keeps its device copy (:class:`ResidentCodebooks`), so that the next search does not send it up
+again: an epoch then moves the winners, the per-row errors and the float32 codebook, not the
+(M, D) float64 sums.
 """
 
 from __future__ import annotations
@@ -163,6 +170,12 @@ UNIT_SUMS = "unit_sums"
 ROW_ERRORS = "row_errors"
 #: Work-group size of those kernels (one work-item per unit and dimension, or per row).
 SUMS_GROUP = 64
+#: The kernels of an epoch's update on the device (``kernels/batch_update.cl``, built with the
+#: epoch's reductions): a Gaussian sum along one grid axis, and the division into the codebook.
+SMOOTH_AXIS = "smooth_axis"
+DIVIDE_CODEBOOK = "divide_codebook"
+#: Codebooks an update on the device leaves resident per context (the newest ones).
+CODEBOOKS_KEPT = 2
 
 #: The layouts: kernel and tiling. "cpu": the cache-blocked kernel with 2 x 16 units against 8
 #: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
@@ -280,11 +293,12 @@ def device_name(context) -> str:
 
 def kernel_source(kernel: str = "gemm") -> str:
     """Text of a kernel variant's program: ``kernels/bmu_common.cl``, its own ``.cl`` file (see
-    :data:`KERNELS`), then ``kernels/epoch_sums.cl`` (:data:`UNIT_SUMS`, :data:`ROW_ERRORS`; built
-    where the device has float64)."""
+    :data:`KERNELS`), then ``kernels/epoch_sums.cl`` (:data:`UNIT_SUMS`, :data:`ROW_ERRORS`) and
+    ``kernels/batch_update.cl`` (:data:`SMOOTH_AXIS`, :data:`DIVIDE_CODEBOOK`), both built where the
+    device has float64."""
     kernels = resources.files("meshsom").joinpath("kernels")
     return "\n".join(kernels.joinpath(name).read_text()
-                     for name in ("bmu_common.cl", KERNELS[kernel][0], "epoch_sums.cl"))
+                     for name in ("bmu_common.cl", KERNELS[kernel][0], "epoch_sums.cl", "batch_update.cl"))
 
 
 def _largest_divisor(D: int, cap: int) -> int:
@@ -584,7 +598,7 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         text = kernel_source(defines["KERNEL"])
-        # the key's last items: kernels/epoch_sums.cl is built where the device has float64
+        # the key's last items: kernels/epoch_sums.cl and batch_update.cl are built where the device has float64
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
         device = context.devices[0]
         if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
@@ -823,6 +837,110 @@ def resident_rows(context) -> ResidentRows:
     return _RESIDENT[context]
 
 
+class ResidentCodebooks:
+    """Device copies of the codebooks an update on the device made, on one context (the newest
+    :data:`CODEBOOKS_KEPT`), so that the next search reads the copy instead of sending W up again.
+
+    Keyed by the array's identity through a weak reference, as :class:`ResidentRows`; only
+    :func:`immutable` arrays are held (the update returns its codebook read-only).
+
+    Attributes
+    ----------
+    hits : int
+        Searches (and error passes) that found their codebook on the device.
+    """
+
+    def __init__(self, keep: int = CODEBOOKS_KEPT):
+        self.keep = int(keep)
+        self.hits = 0
+        self._entries: "OrderedDict[int, tuple]" = OrderedDict()
+        self._lock = threading.Lock()
+
+    def __contains__(self, W) -> bool:
+        with self._lock:
+            entry = self._entries.get(id(W))
+            return entry is not None and entry[0]() is W
+
+    def add(self, W: np.ndarray, buffer) -> None:
+        """Hold ``buffer`` as the device copy of the read-only codebook W."""
+        if not immutable(W):
+            raise ValueError("only a read-only codebook can stay on the device; received a writable array")
+        with self._lock:
+            self._entries[id(W)] = (weakref.ref(W), buffer, W.shape, W.dtype)
+            self._entries.move_to_end(id(W))
+            while len(self._entries) > self.keep:
+                self._entries.popitem(last=False)
+
+    def buffer(self, context, W: np.ndarray):
+        """W's device copy where it is held, else a fresh copy (:func:`upload`)."""
+        with self._lock:
+            entry = self._entries.get(id(W))
+            if entry is not None and entry[0]() is W and entry[2:] == (W.shape, W.dtype):
+                self.hits += 1
+                return entry[1]
+        return upload(context, np.ascontiguousarray(W))
+
+
+_CODEBOOKS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def resident_codebooks(context) -> ResidentCodebooks:
+    """The :class:`ResidentCodebooks` of a context (made on first use)."""
+    if context not in _CODEBOOKS:
+        _CODEBOOKS[context] = ResidentCodebooks()
+    return _CODEBOOKS[context]
+
+
+@dataclass(frozen=True)
+class DeviceArray:
+    """An array held in a device buffer: an epoch's per-unit sums kept next to the rows, for the
+    update on the device (:func:`batch_update_opencl`). ``np.asarray`` (or :meth:`get`) copies it
+    to the host.
+
+    Attributes
+    ----------
+    buffer : pyopencl.Buffer
+    shape : tuple
+    dtype : numpy dtype
+    context : pyopencl.Context
+    defines : dict
+        The program that made it (:func:`_defines`): the update runs in the same program.
+    layout : str
+        That program's layout name.
+    """
+
+    buffer: object
+    shape: tuple
+    dtype: np.dtype
+    context: object
+    defines: dict
+    layout: str
+
+    @property
+    def nbytes(self) -> int:
+        return int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
+
+    def get(self) -> np.ndarray:
+        """A host copy.
+
+        Raises
+        ------
+        DeviceError
+            The copy failed (a lost device), as one readable line.
+        """
+        cl = _cl()
+        host = np.empty(self.shape, self.dtype)
+        try:
+            cl.enqueue_copy(_queue(self.context), host, self.buffer)
+        except cl.Error as err:
+            raise DeviceError(f"{device_name(self.context)}: copying {self.shape} sums to the host failed ({err})") from None
+        return host
+
+    def __array__(self, dtype=None, copy=None):
+        host = self.get()
+        return host if dtype is None else host.astype(dtype)
+
+
 def row_buffers(context, X: np.ndarray, index: np.ndarray, sign: np.ndarray) -> tuple:
     """Device buffers of X, the int32 index and the sign table (see :meth:`ResidentRows.buffers`).
 
@@ -848,7 +966,8 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     X : (N, D), W : (M, D), index : (n, D) int64, sign : (n, D)
         As :func:`meshsom.bmu_numpy.validate` returns them (same dtype for X, W and sign). A
         read-only X (:func:`immutable`) stays resident on the device with its tables
-        (:func:`row_buffers`); W and its norms go up every call.
+        (:func:`row_buffers`); W's norms go up every call, and W too unless the "gemm" layout
+        finds it resident (:class:`ResidentCodebooks`).
 
     Returns
     -------
@@ -893,7 +1012,9 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     try:
         mf = cl.mem_flags
         xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
-        bufs = [xbuf, upload(context, WT), upload(context, wnorm), ibuf, sbuf]
+        # gemm reads W itself: a codebook an update on the device made is already there
+        wbuf = resident_codebooks(context).buffer(context, W) if WT is W else upload(context, WT)
+        bufs = [xbuf, wbuf, upload(context, wnorm), ibuf, sbuf]
         outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
         if defines["KERNEL"] == "gemm":
             _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP)
@@ -965,12 +1086,19 @@ def bmu_opencl(X, W, index=None, sign=None, context=None, device: str | None = N
 
 
 def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M: int,
-                     blocks=None, init=None) -> tuple[np.ndarray, np.ndarray]:
+                     blocks=None, init=None, keep: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Run the built per-unit sums kernel on validated arrays (the rows resident where X is read-only).
 
     Takes and returns what :func:`meshsom.bmu_numpy.unit_sums` does, with X, index and sign as
     :func:`meshsom.bmu_numpy.validate` returns them; the (M, D) float64 sums and (M,) counts are
-    the host's, bit for bit.
+    the host's, bit for bit. ``init`` may be a :class:`DeviceArray` (the sums of an earlier pass
+    kept on the device).
+
+    Parameters
+    ----------
+    keep : (defines, layout) or None
+        The program's defines and layout name: keep the sums on the device and return them as a
+        :class:`DeviceArray` (for :func:`batch_update_opencl`); None: copy them to the host.
 
     Raises
     ------
@@ -980,36 +1108,44 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
     cl = _cl()
     N, D = X.shape
     order, offsets = unit_order(unit, M, blocks)
-    sums = np.empty((M, D), np.float64)
-    init = np.zeros((M, D)) if init is None else np.ascontiguousarray(init, np.float64)
-    if N:
-        try:
-            xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
-            out = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, sums.nbytes)
+    counts = np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
+    on_device = isinstance(init, DeviceArray)
+    if not on_device:
+        init = np.zeros((M, D)) if init is None else np.ascontiguousarray(init, np.float64)
+    if not N and keep is None:
+        return np.array(init, np.float64), counts
+    try:
+        ibuf = init.buffer if on_device else upload(context, init)
+        if not N:
+            out = ibuf
+        else:
+            xbuf, xibuf, sbuf = row_buffers(context, X, index, sign)
+            out = cl.Buffer(context, cl.mem_flags.READ_WRITE, M * D * 8)
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
-            kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, ibuf, sbuf,
+            kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, xibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)), upload(context, order.astype(np.int32)),
-                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M),
-                   upload(context, init), out)
-            cl.enqueue_copy(queue, sums, out)
+                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M), ibuf, out)
+        if keep is not None:
             queue.finish()
-        except cl.Error as err:
-            raise _launch_failed(context, X, "per-unit sums kernel", err) from None
-    else:
-        sums[:] = init
-    return sums, np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
+            return DeviceArray(out, (M, D), np.dtype(np.float64), context, *keep), counts
+        sums = np.empty((M, D), np.float64)
+        cl.enqueue_copy(queue, sums, out)
+        queue.finish()
+    except cl.Error as err:
+        raise _launch_failed(context, X, "per-unit sums kernel", err) from None
+    return sums, counts
 
 
 def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
                      params: KernelParams | None = None, queue=None, blocks=None,
-                     init=None) -> tuple[np.ndarray, np.ndarray]:
+                     init=None, keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Per-unit sums and counts of a search's winners on the device: same bits as
     :func:`meshsom.bmu_numpy.unit_sums`.
 
     The kernel is part of the layout's program (:func:`kernel_source`), so it is built, and
     probed, with the search; where X is read-only its resident device copy is read
     (:class:`ResidentRows`), so a training epoch sends the rows to the device once and brings
-    back only the (M, D) sums.
+    back only the (M, D) sums (or, with ``keep``, nothing: the update runs on the device).
 
     Parameters
     ----------
@@ -1023,12 +1159,14 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
         As :func:`bmu_opencl`.
     blocks : list of (start, stop) or None
         Row blocks whose sums are added in order (one launch for all); None: one block.
-    init : (M, D) float64 or None
+    init : (M, D) float64, DeviceArray or None
         Running sums of earlier passes the blocks are added to (None: zeros).
+    keep : bool
+        Leave the sums on the device: ``sums`` is then a :class:`DeviceArray`.
 
     Returns
     -------
-    sums : (M, D) float64
+    sums : (M, D) float64 (or DeviceArray)
     counts : (M,) float64
 
     Raises
@@ -1036,9 +1174,10 @@ def unit_sums_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, 
     DeviceError
         The device has no float64, or the build or the kernel failed.
     """
-    X, W, index, sign, context, kernel = _epoch_kernel(UNIT_SUMS, X, W, index, sign, context, device, params)
+    X, W, index, sign, context, kernel, defines, layout = _epoch_kernel(UNIT_SUMS, X, W, index, sign, context,
+                                                                         device, params)
     return launch_unit_sums(context, queue or _queue(context), kernel, X, index, sign, bmu.unit, bmu.variation, len(W),
-                            blocks, init)
+                            blocks, init, keep=(defines, layout) if keep else None)
 
 
 def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation) -> tuple[np.ndarray, np.ndarray]:
@@ -1063,7 +1202,8 @@ def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-N // group) * group,), (group,), xbuf, np.int32(N), ibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)),
-                   upload(context, np.ascontiguousarray(unit, np.int32)), upload(context, W), *outs)
+                   upload(context, np.ascontiguousarray(unit, np.int32)),
+                   resident_codebooks(context).buffer(context, W), *outs)
             for host, buf in zip((q, qc), outs):
                 cl.enqueue_copy(queue, host, buf)
             queue.finish()
@@ -1073,7 +1213,8 @@ def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation
 
 
 def _epoch_kernel(function, X, W, index, sign, context, device, params):
-    """Validated arrays, context and a built kernel of ``kernels/epoch_sums.cl`` (see :func:`unit_sums_opencl`)."""
+    """Validated arrays, context, a built kernel of ``kernels/epoch_sums.cl`` (see :func:`unit_sums_opencl`),
+    the program's defines and its layout name."""
     X, W, index, sign = validate(X, W, index, sign)
     context = context or get_context(device)
     if not has_fp64(context):
@@ -1081,7 +1222,7 @@ def _epoch_kernel(function, X, W, index, sign, context, device, params):
                           f"are taken on the host")
     params = params or default_params(context)
     defines = _defines(X.shape[1], len(index), X.dtype, params)
-    return X, W, index, sign, context, get_kernel(context, defines, function, layout=params.name)
+    return X, W, index, sign, context, get_kernel(context, defines, function, layout=params.name), defines, params.name
 
 
 def row_errors_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
@@ -1095,8 +1236,82 @@ def row_errors_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None,
     -------
     q, qc : (N,) float64
     """
-    X, W, index, sign, context, kernel = _epoch_kernel(ROW_ERRORS, X, W, index, sign, context, device, params)
+    X, W, index, sign, context, kernel = _epoch_kernel(ROW_ERRORS, X, W, index, sign, context, device, params)[:6]
     return launch_row_errors(context, queue or _queue(context), kernel, X, W, index, sign, bmu.unit, bmu.variation)
+
+
+def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, min_weight: float,
+                        queue=None) -> np.ndarray:
+    """The update of a batch epoch on the device where its sums are (``kernels/batch_update.cl``):
+    :func:`meshsom.som.batch_update`, the same to rounding.
+
+    The sums are smoothed along the columns and then the rows, the counts likewise, and divided
+    into the new codebook there; it comes back read-only and keeps its device copy
+    (:class:`ResidentCodebooks`), so the next search on this context does not send it up.
+
+    Parameters
+    ----------
+    W : (M, D) float32 or float64
+        The prototypes before the update (the dtype of the sums' program).
+    sums : DeviceArray
+        (M, D) float64, from :func:`unit_sums_opencl` with ``keep``.
+    counts : (M,) float64
+    row_kernel : (rows, rows) float64
+    col_kernel : (cols, cols) float64
+        Gaussian weights between the cells of each grid axis (:func:`meshsom.som.gaussian_kernel_1d`).
+    min_weight : float
+        Units whose smoothed count is not above this keep their prototype.
+    queue : pyopencl.CommandQueue or None
+
+    Returns
+    -------
+    (M, D) W's dtype, read-only
+
+    Raises
+    ------
+    DeviceError
+        The shapes disagree with the program, or an OpenCL error (as one readable line).
+    """
+    cl = _cl()
+    context = sums.context
+    rows, cols = len(row_kernel), len(col_kernel)
+    M, D = sums.shape
+    W = np.ascontiguousarray(W)
+    real = np.float64 if sums.defines["REAL"] == "double" else np.float32
+    if W.shape != (M, D) or W.dtype != real or np.shape(counts) != (M,) or rows * cols != M:
+        raise DeviceError(f"{device_name(context)}: the update on the device expects W ({M}, {D}) {np.dtype(real).name}, "
+                          f"counts ({M},) and a {rows} x {cols} grid of {M} units; received W {W.shape} {W.dtype}, "
+                          f"counts {np.shape(counts)}, grid {rows} x {cols}")
+    smooth = get_kernel(context, sums.defines, SMOOTH_AXIS, layout=sums.layout)
+    divide = get_kernel(context, sums.defines, DIVIDE_CODEBOOK, layout=sums.layout)
+    queue = queue or _queue(context)
+    group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
+
+    def along(src, A, L, B, kern, dst):  # one work-item per output
+        smooth(queue, (-(-A * L * B // group) * group,), (group,), src, np.int32(A), np.int32(L), np.int32(B), kern, dst)
+
+    new = np.empty((M, D), real)
+    try:
+        mf = cl.mem_flags
+        rk = upload(context, np.ascontiguousarray(row_kernel, np.float64))
+        ck = upload(context, np.ascontiguousarray(col_kernel, np.float64))
+        half, num = (cl.Buffer(context, mf.READ_WRITE, M * D * 8) for _ in range(2))
+        along(sums.buffer, rows, cols, D, ck, half)
+        along(half, 1, rows, cols * D, rk, num)
+        once, den = (cl.Buffer(context, mf.READ_WRITE, M * 8) for _ in range(2))
+        along(upload(context, np.ascontiguousarray(counts, np.float64)), rows, cols, 1, ck, once)
+        along(once, 1, rows, cols, rk, den)
+        out = cl.Buffer(context, mf.READ_WRITE, new.nbytes)
+        divide(queue, (-(-M * D // group) * group,), (group,), num, den, resident_codebooks(context).buffer(context, W),
+               np.int32(M), np.float64(min_weight), out)
+        cl.enqueue_copy(queue, new, out)
+        queue.finish()
+    except cl.Error as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise DeviceError(f"{device_name(context)}: the update on the device failed ({type(err).__name__}: {first})") from None
+    new.flags.writeable = False
+    resident_codebooks(context).add(new, out)
+    return new
 
 
 _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()

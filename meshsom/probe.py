@@ -5,7 +5,8 @@ SIGABRT) on some kernels for CPUs LLVM does not know, and no Python ``try`` catc
 before a kernel is built in the user's process for the first time, :func:`check` builds it in a
 *child* process, runs it on a small known answer (random rows against a small codebook, with
 random variations, compared with a float64 NumPy search; where the device has float64, the
-program's per-unit sums kernel too, compared bit for bit with :func:`meshsom.bmu_numpy.unit_sums`)
+program's per-unit sums kernel too, compared bit for bit with :func:`meshsom.bmu_numpy.unit_sums`,
+its per-row errors kernel and its update kernels, compared to rounding with the host's)
 and reports a :class:`Verdict`; a compiler abort or a hang then kills only the child.
 
 Verdicts are cached on disk, one JSON file per key, so the probe costs once per machine and
@@ -43,7 +44,7 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 #: Bumped when the probe's check changes, so old verdicts are not reused.
-PROBE_VERSION = 2
+PROBE_VERSION = 3
 #: Seconds a probe child may take (build + check) before it is killed and the layout rejected.
 PROBE_TIMEOUT_S = 300.0
 #: Rows and extra units of the known-answer check (units: two whole tiles plus this, so the
@@ -56,6 +57,13 @@ PROBE_RTOL = 1e-4
 #: Relative tolerance between the per-row Q / QC distances of the device and of the host (the
 #: same order of operations; a device may fuse a square and its add).
 PROBE_ERRORS_RTOL = 1e-12
+#: Relative tolerance between the codebook an update on the device makes and the host's
+#: :func:`meshsom.som.batch_update` (smoothing sums added in another order), per data type.
+PROBE_UPDATE_RTOL = {"float": 1e-6, "double": 1e-12}
+#: Rows of the grid the update check smooths on (its columns: as many as the probe's units allow).
+PROBE_UPDATE_ROWS = 4
+#: Radius of that smoothing, in cells.
+PROBE_UPDATE_SIGMA = 1.5
 #: Workload of the optional throughput figure (``meshsom doctor``): rows, units, variations, D.
 TIMING_WORKLOAD = (4096, 2048, 3, 36)
 #: Timed runs of that workload after a warm-up (the best counts).
@@ -338,8 +346,9 @@ def compare(X, W, index, sign, unit, variation) -> str:
 
 
 def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: int) -> str:
-    """Empty when the program's per-unit sums kernel gives the host's sums bit for bit and its per-row
-    errors kernel the host's distances to :data:`PROBE_ERRORS_RTOL`; else why not."""
+    """Empty when the program's per-unit sums kernel gives the host's sums bit for bit, its per-row
+    errors kernel the host's distances to :data:`PROBE_ERRORS_RTOL` and its update kernels the
+    host's codebook (:func:`compare_update`); else why not."""
     from meshsom import bmu_opencl
     from meshsom.bmu_numpy import BMUResult, unit_sums
     from meshsom.metrics import row_errors
@@ -362,6 +371,35 @@ def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: in
         if not np.allclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True):
             r = int(np.flatnonzero(~np.isclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True))[0])
             return f"wrong per-row {name} distances (row {r}: {got[r]:.17g}, host {ref[r]:.17g})"
+    return compare_update(context, queue, defines, X, index, sign, unit, variation, W)
+
+
+def compare_update(context, queue, defines, X, index, sign, unit, variation, W) -> str:
+    """Empty when the program's update kernels (sums kept on the device, smoothed and divided there)
+    give the host's :func:`meshsom.som.batch_update` to :data:`PROBE_UPDATE_RTOL`; else why not.
+
+    The units are folded onto a :data:`PROBE_UPDATE_ROWS`-row toroidal grid of the first units,
+    so that some units win nothing and others several rows."""
+    from meshsom import bmu_opencl
+    from meshsom.bmu_numpy import unit_sums
+    from meshsom.som import MIN_WEIGHT, batch_update, gaussian_kernel_1d
+
+    rows = PROBE_UPDATE_ROWS
+    cols = len(W) // rows
+    M = rows * cols
+    folded = unit % M
+    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
+    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, folded, variation, M,
+                                               keep=(defines, "probe"))
+    W = np.ascontiguousarray(W[:M])
+    got = bmu_opencl.batch_update_opencl(W, sums, counts, gaussian_kernel_1d(rows, PROBE_UPDATE_SIGMA),
+                                         gaussian_kernel_1d(cols, PROBE_UPDATE_SIGMA), MIN_WEIGHT, queue)
+    want = batch_update(W, *unit_sums(X, folded, variation, index, sign, M), PROBE_UPDATE_SIGMA, rows, cols)
+    rtol = PROBE_UPDATE_RTOL[defines["REAL"]]
+    close = np.isclose(got, want, rtol=rtol, atol=0)
+    if not close.all():
+        u, k = np.argwhere(~close)[0]
+        return f"wrong codebook from the update on the device (unit {u}, dimension {k}: {got[u, k]!r}, host {want[u, k]!r})"
     return ""
 
 

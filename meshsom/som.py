@@ -35,7 +35,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from meshsom.bmu import find_bmus, resolve_backend
+from meshsom.bmu import UPDATES, find_bmus, resolve_backend
 from meshsom.bmu_numpy import BMUResult, identity_table
 from meshsom.metrics import TOPOLOGIES, error_sums, errors_of
 
@@ -221,7 +221,7 @@ def pass_ranges(n: int, row_bytes: int, block_rows: int = BLOCK_ROWS, pass_bytes
 
 
 def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None, backend="auto",
-                block_rows: int = BLOCK_ROWS, total: dict | None = None) -> dict:
+                block_rows: int = BLOCK_ROWS, total: dict | None = None, keep: bool = False) -> dict:
     """:func:`block_sums` of every row block of X (:func:`row_blocks`) added in block order
     (:func:`add_sums`) to ``total``: the same bits, in one search, one per-unit sums pass and one
     per-row errors pass over the whole of X (one launch each on an OpenCL device, over rows that
@@ -237,6 +237,10 @@ def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=No
     block_rows : int
     total : dict or None
         What earlier passes of the same epoch returned (None: the first pass).
+    keep : bool
+        Leave the per-unit sums on the device where the engine takes them there
+        (:meth:`meshsom.bmu.Engine.unit_sums`): ``sums`` is then a
+        :class:`meshsom.bmu_opencl.DeviceArray`, for :meth:`meshsom.bmu.Engine.batch_update`.
 
     Returns
     -------
@@ -247,7 +251,7 @@ def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=No
     blocks = row_blocks(len(X), block_rows) or [(0, 0)]  # no rows: one empty block, zero sums
     bmu = engine.search(X, W, index, sign)
     sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks,
-                                    init=None if total is None else total["sums"])
+                                    init=None if total is None else total["sums"], keep=keep)
     q, qc = engine.row_errors(X, W, bmu, index, sign)
     errors = None if total is None else {key: total[key] for key in ERROR_KEYS}
     for a, b in blocks:
@@ -273,8 +277,22 @@ def add_sums(total: dict | None, part: dict) -> dict:
     return total
 
 
+#: Units whose smoothed count is not above this keep their prototype in :func:`batch_update`.
+MIN_WEIGHT = 1e-12
+
+
+def check_update_shapes(W, sums_shape: tuple, counts, rows: int, cols: int) -> None:
+    """Raise ValueError unless W and sums are (rows*cols, D) and counts (rows*cols,)."""
+    M = rows * cols
+    if np.shape(W)[0] != M or tuple(sums_shape) != np.shape(W) or np.shape(counts) != (M,):
+        raise ValueError(
+            f"expected W and sums of shape ({M}, D) and counts of shape ({M},) for a {rows} x {cols} map; "
+            f"received {np.shape(W)}, {tuple(sums_shape)}, {np.shape(counts)}"
+        )
+
+
 def batch_update(W, sums, counts, sigma: float, rows: int, cols: int, topology: str = "toroidal",
-                 min_weight: float = 1e-12) -> np.ndarray:
+                 min_weight: float = MIN_WEIGHT) -> np.ndarray:
     """The reduce step of a batch epoch: smoothed sums over smoothed counts.
 
     Parameters
@@ -292,14 +310,13 @@ def batch_update(W, sums, counts, sigma: float, rows: int, cols: int, topology: 
     Returns
     -------
     (M, D) same dtype as W
+
+    See Also
+    --------
+    meshsom.bmu.Engine.batch_update : the same where an OpenCL device kept the sums.
     """
     W = np.asarray(W)
-    M = rows * cols
-    if W.shape[0] != M or np.shape(sums) != W.shape or np.shape(counts) != (M,):
-        raise ValueError(
-            f"expected W and sums of shape ({M}, D) and counts of shape ({M},) for a {rows} x {cols} map; "
-            f"received {W.shape}, {np.shape(sums)}, {np.shape(counts)}"
-        )
+    check_update_shapes(W, np.shape(sums), counts, rows, cols)
     num = smooth(sums, sigma, rows, cols, topology)
     den = smooth(counts, sigma, rows, cols, topology)
     keep = den <= min_weight
@@ -568,7 +585,7 @@ def init_weights(X, rows: int, cols: int, init: str, seed=None, block_rows: int 
 
 def train_batch(W, step: Callable[[np.ndarray], dict], rows: int, cols: int, epochs: int, sigma_start: float,
                 sigma_end: float, topology: str = "toroidal", decay: str = "exponential", start_epoch: int = 0,
-                callbacks: Iterable[Callable] = ()) -> np.ndarray:
+                callbacks: Iterable[Callable] = (), update: Callable = None) -> np.ndarray:
     """The batch-SOM driver: radius schedule, map step, update and callbacks, epoch by epoch.
 
     Parameters
@@ -584,6 +601,9 @@ def train_batch(W, step: Callable[[np.ndarray], dict], rows: int, cols: int, epo
     callbacks : iterable of callables
         Each called as ``callback(info, W)`` after every epoch with an :class:`EpochInfo` (the
         errors of the search against the codebook before the update) and the updated codebook.
+    update : callable or None
+        ``update(W, sums, counts, sigma, rows, cols, topology) -> W``; None: :func:`batch_update`
+        (:meth:`meshsom.bmu.Engine.batch_update` updates where the step kept its sums on a device).
 
     Returns
     -------
@@ -591,11 +611,12 @@ def train_batch(W, step: Callable[[np.ndarray], dict], rows: int, cols: int, epo
         The codebook after the last epoch.
     """
     callbacks = tuple(callbacks)
+    update = update or batch_update
     for epoch in range(start_epoch, epochs):
         t0 = time.perf_counter()
         sigma = sigma_schedule(epoch, epochs, sigma_start, sigma_end, decay)
         part = step(W)
-        W = batch_update(W, part["sums"], part["counts"], sigma, rows, cols, topology)
+        W = update(W, part["sums"], part["counts"], sigma, rows, cols, topology)
         info = EpochInfo(epoch, sigma, part.get("bmu"), errors_of(part), time.perf_counter() - t0, part)
         for callback in callbacks:
             callback(info, W)
@@ -667,6 +688,11 @@ class SOM:
     layout : str or None
         OpenCL kernel layouts to try in order, comma-separated (one name: that layout alone);
         None: the device's fallback chain.
+    update : {"auto", "host", "device"}
+        Where a batch epoch's update runs (:meth:`meshsom.bmu.Engine.update_on_device`). On the
+        device the per-unit sums never leave it and the new codebook stays there for the next
+        search; the codebook equals the host's to rounding, not bit for bit (so ``"auto"`` uses
+        the device on GPUs only, and ``"host"`` keeps a map bitwise equal to the pipeline's).
 
     Attributes
     ----------
@@ -680,13 +706,15 @@ class SOM:
         Which BMU backend and device ran.
     engine_ : meshsom.bmu.Engine
         The resolved backend; ``engine_.describe()`` also names the kernel layouts and fallbacks.
+    update_ : str
+        Where the last epoch's update ran in batch training: "device" or "host".
     """
 
     def __init__(self, rows: int = 120, cols: int = 150, topology: str = "toroidal", epochs: int = 20,
                  sigma_start: float | None = None, sigma_end: float = 1.0, init: str = "random",
                  training: str = "batch", learning_rate: float = 0.5, learning_rate_end: float = 0.01,
                  decay: str = "exponential", random_state: int | None = 0, backend: str = "auto",
-                 device: str | None = None, layout: str | None = None):
+                 device: str | None = None, layout: str | None = None, update: str = "auto"):
         self.rows = rows
         self.cols = cols
         self.topology = topology
@@ -702,6 +730,7 @@ class SOM:
         self.backend = backend
         self.device = device
         self.layout = layout
+        self.update = update
 
     def __getstate__(self) -> dict:
         """Pickle without the resolved engine (its OpenCL context belongs to this process);
@@ -724,6 +753,8 @@ class SOM:
                 raise ValueError(f"{name} must be > 0, received {getattr(self, name)}")
         if self.sigma_start is not None and self.sigma_start <= 0:
             raise ValueError(f"sigma_start must be > 0 or None, received {self.sigma_start}")
+        if self.update not in UPDATES:
+            raise ValueError(f"update must be one of {', '.join(UPDATES)}; received {self.update!r}")
 
     @staticmethod
     def _validate_X(X, D: int | None = None) -> np.ndarray:
@@ -756,7 +787,8 @@ class SOM:
         sign : (n, D) float32 or None
         callbacks : iterable of callables
             Each called as ``callback(epoch, som, info)`` with an :class:`EpochInfo`
-            after every epoch.
+            after every epoch (``som.weights_`` is then read-only where the update ran on a
+            device; after ``fit`` it is the codebook's own writable array).
 
         Returns
         -------
@@ -793,16 +825,22 @@ class SOM:
             # the row blocks of the pipeline, reduced in passes of whole blocks (one for up to PASS_BYTES
             # of rows); the pass views are made once, so that they stay resident on an OpenCL device
             passes = [X[a:b] for a, b in pass_ranges(len(X), X.shape[1] * X.itemsize)]
+            on_device = engine.update_on_device(self.update)
 
             def step(W):
                 total = None
                 for part in passes:
                     total = blocks_sums(part, W, self.rows, self.cols, self.topology, index, sign, backend=engine,
-                                        total=total)
+                                        total=total, keep=on_device)
                 return total
 
             train_batch(W, step, self.rows, self.cols, self.epochs, self.sigma_start_, self.sigma_end,
-                        self.topology, self.decay, callbacks=(report,))
+                        self.topology, self.decay, callbacks=(report,),
+                        update=engine.batch_update if on_device else batch_update)
+            fell_back = engine.update_on_host or engine.sums_on_host
+            self.update_ = "device" if on_device and not fell_back else "host"
+            if not self.weights_.flags.writeable:  # the device's read-only codebook: the map's own copy
+                self.weights_ = self.weights_.copy()
             return self
         for epoch in range(self.epochs):
             t0 = time.perf_counter()

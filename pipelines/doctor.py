@@ -102,6 +102,9 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 "bmu_kernel": kernel,
                 "epoch_sums": ("device (float64)" if "cl_khr_fp64" in dev.extensions
                                else "host (the device has no float64)"),
+                "epoch_update": ("host (no float64)" if "cl_khr_fp64" not in dev.extensions
+                                 else "host (SOM update='auto' on a CPU device; 'device' runs it there)"
+                                 if dev.type & cl.device_type.CPU else "device (SOM update='auto' on a GPU)"),
                 "driver": dev.driver_version.strip(),
                 "kernel_target": _kernel_target(dev),
             })
@@ -185,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
             target = f", kernel target CPU {d['kernel_target']}" if d.get("kernel_target") else ""
             print(f"        driver {d['driver']}{target}; BMUofN kernel: {d['bmu_kernel']}")
             print(f"        per-unit sums and per-row errors of an epoch: on the {d['epoch_sums']}")
+            print(f"        SOM.fit's epoch update: on the {d['epoch_update']}; the pipeline's: on the client's host")
             for v in d.get("layouts", []):
                 where = "not in this device's chain" if v["chain"] is None else f"chain position {v['chain'] + 1}"
                 if v["ok"]:

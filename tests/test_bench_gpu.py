@@ -59,8 +59,12 @@ def test_training_table_runs_every_map(levels, capsys):
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.strip().startswith(("paper level", "level 3 x 1e6"))]
     assert len(rows) == 5, out
-    on_device = has_fp64(get_context(None))
+    context = get_context(None)
+    on_device = has_fp64(context)
+    gpu = not context.devices[0].type & __import__("pyopencl").device_type.CPU
     for line in rows:
         head, where = line.split("  ")[:-1], line.split("  ")[-1].strip()
         assert float(" ".join(head).split()[-1]) > 0, line  # seconds per epoch
-        assert where == "device" if on_device else where.startswith("host ("), line
+        sums, update = where.split("; ", 1)
+        assert sums == "device" if on_device else sums.startswith("host ("), line
+        assert update == f"update on the {'device' if on_device and gpu else 'host'}", line  # update="auto"
