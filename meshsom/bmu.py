@@ -25,7 +25,7 @@ import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, bmu_numpy, unit_sums, validate
 from meshsom.errors import DeviceError
-from meshsom.metrics import COMPONENT, row_errors
+from meshsom.metrics import COMPONENT, row_errors, tied_with_neighbour, topographic_errors
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ class Engine:
         (layout, workload) pairs not to try again.
     sums_on_host : str
         Why per-unit sums and per-row errors are taken on the host on this OpenCL device ("" while
-        they run on it: :meth:`unit_sums`, :meth:`row_errors`).
+        they run on it: :meth:`unit_sums`, :meth:`row_errors`, :meth:`topographic_errors`).
     update_on_host : str
         Why an epoch's update asked on the device runs on the host ("" while none was refused:
         :meth:`update_on_device`, :meth:`batch_update`).
@@ -227,6 +227,25 @@ class Engine:
         X, W, index, sign = validate(X, W, index, sign)
         found = self._on_device("row_errors_opencl", X, W, bmu, index, sign) if component == COMPONENT else None
         return found if found is not None else row_errors(X, W, bmu, index, sign, component)
+
+    def topographic_errors(self, X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None,
+                           sign=None, neighbourhood: int = 8) -> np.ndarray:
+        """Per row, whether it is a topographic error, with the tie rule
+        (:func:`meshsom.metrics.topographic_errors`, :func:`meshsom.metrics.tied_with_neighbour`).
+
+        On the device where :meth:`unit_sums` runs there (the same to rounding); else on the host.
+
+        Returns
+        -------
+        (N,) bool
+        """
+        X, W, index, sign = validate(X, W, index, sign)
+        found = self._on_device("topographic_errors_opencl", X, W, bmu, index, sign, rows=rows, cols=cols,
+                                topology=topology, neighbourhood=neighbourhood)
+        if found is not None:
+            return found
+        tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
+        return topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied)
 
     def update_on_device(self, policy: str = "auto") -> bool:
         """Whether a batch epoch should keep its sums on the device and update there (:data:`UPDATES`).

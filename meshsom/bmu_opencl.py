@@ -165,9 +165,11 @@ GEMM_REDUCE = "bmu_of_n_gemm_reduce"
 #: Work-group size of the "gemm" reduction kernel (one work-item per row).
 REDUCE_GROUP = 64
 #: The kernels of an epoch's reductions (``kernels/epoch_sums.cl``), part of every layout's
-#: program where the device has float64: per-unit sums and per-row Q / QC distances.
+#: program where the device has float64: per-unit sums, per-row Q / QC distances and per-row
+#: topographic errors (with the tie rule).
 UNIT_SUMS = "unit_sums"
 ROW_ERRORS = "row_errors"
+TOPOGRAPHIC_ERRORS = "topographic_errors"
 #: Work-group size of those kernels (one work-item per unit and dimension, or per row).
 SUMS_GROUP = 64
 #: The kernels of an epoch's update on the device (``kernels/batch_update.cl``, built with the
@@ -1238,6 +1240,72 @@ def row_errors_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None,
     """
     X, W, index, sign, context, kernel = _epoch_kernel(ROW_ERRORS, X, W, index, sign, context, device, params)[:6]
     return launch_row_errors(context, queue or _queue(context), kernel, X, W, index, sign, bmu.unit, bmu.variation)
+
+
+def launch_topographic_errors(context, queue, kernel, X, W, index, sign, unit, variation, second, rows: int,
+                              cols: int, topology: str, neighbourhood: int, tie_rtol: float) -> np.ndarray:
+    """Run the built per-row topographic errors kernel on validated arrays (the rows resident where X is
+    read-only, the codebook where an update on the device left it).
+
+    Takes and returns what :func:`meshsom.metrics.topographic_errors` with
+    :func:`meshsom.metrics.tied_with_neighbour` does, the same to rounding.
+
+    Returns
+    -------
+    (N,) bool
+
+    Raises
+    ------
+    DeviceError
+        An OpenCL error, as one readable line.
+    """
+    from meshsom.metrics import _check_neighbourhood, _check_topology
+
+    _check_topology(topology)
+    _check_neighbourhood(neighbourhood)
+    cl = _cl()
+    N = len(X)
+    bad = np.zeros(N, np.uint8)
+    if N:
+        try:
+            xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
+            out = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, bad.nbytes)
+            group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
+            kernel(queue, (-(-N // group) * group,), (group,), xbuf, np.int32(N), ibuf, sbuf,
+                   *(upload(context, np.ascontiguousarray(a, np.int32)) for a in (variation, unit, second)),
+                   resident_codebooks(context).buffer(context, W), np.int32(rows), np.int32(cols),
+                   np.int32(topology == "toroidal"), np.int32(neighbourhood), np.float64(tie_rtol), out)
+            cl.enqueue_copy(queue, bad, out)
+            queue.finish()
+        except cl.Error as err:
+            raise _launch_failed(context, X, "per-row topographic errors kernel", err) from None
+    return bad.astype(bool)
+
+
+def topographic_errors_opencl(X, W, bmu: BMUResult, index=None, sign=None, context=None, device: str | None = None,
+                              params: KernelParams | None = None, queue=None, rows: int = 0, cols: int = 0,
+                              topology: str = "toroidal", neighbourhood: int = 8, tie_rtol: float | None = None
+                              ) -> np.ndarray:
+    """Per row, whether it is a topographic error (its second-best unit is no grid neighbour of its
+    best, and no neighbour ties with it) on the device: :func:`meshsom.metrics.topographic_errors`
+    with :func:`meshsom.metrics.tied_with_neighbour`, the same to rounding.
+
+    Parameters and errors as :func:`unit_sums_opencl`; ``rows``, ``cols``, ``topology`` and
+    ``neighbourhood`` describe the map, ``tie_rtol`` None: :data:`meshsom.metrics.TIE_RTOL`.
+
+    Returns
+    -------
+    (N,) bool
+    """
+    from meshsom.metrics import TIE_RTOL
+
+    if rows * cols != len(W):
+        raise ValueError(f"a {rows} x {cols} map has {rows * cols} units; received W with {len(W)}")
+    X, W, index, sign, context, kernel = _epoch_kernel(TOPOGRAPHIC_ERRORS, X, W, index, sign, context, device,
+                                                       params)[:6]
+    return launch_topographic_errors(context, queue or _queue(context), kernel, X, W, index, sign, bmu.unit,
+                                     bmu.variation, bmu.second, rows, cols, topology, neighbourhood,
+                                     TIE_RTOL if tie_rtol is None else tie_rtol)
 
 
 def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, min_weight: float,

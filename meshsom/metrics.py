@@ -226,7 +226,7 @@ def tied_with_neighbour(X, W, bmu: BMUResult, rows: int, cols: int, topology: st
 
 
 def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
-               neighbourhood: int = 8, component: int = COMPONENT, distances=None) -> dict:
+               neighbourhood: int = 8, component: int = COMPONENT, distances=None, bad=None) -> dict:
     """The sums behind the T-, Q- and QC-errors of one block of vectors (add blocks, divide by ``n``).
 
     Parameters
@@ -234,6 +234,9 @@ def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toro
     distances : (q, qc) of (N,) float64, or None
         The per-row distances of :func:`row_errors` where they were taken already (on an OpenCL
         device: :meth:`meshsom.bmu.Engine.row_errors`); None: computed here.
+    bad : (N,) bool or None
+        The per-row topographic errors (:func:`topographic_errors` with the tie rule) where they were
+        taken already (:meth:`meshsom.bmu.Engine.topographic_errors`); None: computed here.
 
     Returns
     -------
@@ -243,10 +246,12 @@ def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toro
         ``component``-value slice; NaN when D is not a multiple of ``component``).
     """
     q, qc = distances if distances is not None else row_errors(X, W, bmu, index, sign, component)
-    tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
+    if bad is None:
+        tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
+        bad = topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied)
     return {
         "n": int(len(q)),
-        "t_bad": int(topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied).sum()),
+        "t_bad": int(np.count_nonzero(bad)),
         "q_sum": float(q.sum()),
         "qc_sum": float(qc.sum()),
     }

@@ -6,7 +6,7 @@ before a kernel is built in the user's process for the first time, :func:`check`
 *child* process, runs it on a small known answer (random rows against a small codebook, with
 random variations, compared with a float64 NumPy search; where the device has float64, the
 program's per-unit sums kernel too, compared bit for bit with :func:`meshsom.bmu_numpy.unit_sums`,
-its per-row errors kernel and its update kernels, compared to rounding with the host's)
+its per-row errors, topographic errors and update kernels, compared with the host's)
 and reports a :class:`Verdict`; a compiler abort or a hang then kills only the child.
 
 Verdicts are cached on disk, one JSON file per key, so the probe costs once per machine and
@@ -58,7 +58,8 @@ PROBE_RTOL = 1e-4
 #: same order of operations; a device may fuse a square and its add).
 PROBE_ERRORS_RTOL = 1e-12
 #: Relative tolerance between the codebook an update on the device makes and the host's
-#: :func:`meshsom.som.batch_update` (smoothing sums added in another order), per data type.
+#: :func:`meshsom.som.batch_update` (smoothing sums added in another order), per data type; of
+#: each value and of the codebook's largest.
 PROBE_UPDATE_RTOL = {"float": 1e-6, "double": 1e-12}
 #: Rows of the grid the update check smooths on (its columns: as many as the probe's units allow).
 PROBE_UPDATE_ROWS = 4
@@ -371,7 +372,44 @@ def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: in
         if not np.allclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True):
             r = int(np.flatnonzero(~np.isclose(got, ref, rtol=PROBE_ERRORS_RTOL, atol=0, equal_nan=True))[0])
             return f"wrong per-row {name} distances (row {r}: {got[r]:.17g}, host {ref[r]:.17g})"
-    return compare_update(context, queue, defines, X, index, sign, unit, variation, W)
+    return (compare_topographic(context, queue, defines, X, index, sign, unit, variation, W)
+            or compare_update(context, queue, defines, X, index, sign, unit, variation, W))
+
+
+def compare_topographic(context, queue, defines, X, index, sign, unit, variation, W) -> str:
+    """Empty when the program's topographic errors kernel flags the rows the host flags
+    (:func:`meshsom.metrics.topographic_errors` with the tie rule); else why not.
+
+    The units are folded onto a :data:`PROBE_UPDATE_ROWS`-row toroidal grid, each row's second-best
+    unit is the nearest other unit (float64), and one row's best unit gets a neighbour tied with its
+    second, so that both a tie and a near miss are decided."""
+    from meshsom import bmu_opencl
+    from meshsom.bmu_numpy import BMUResult
+    from meshsom.metrics import (TIE_RTOL, are_neighbours, neighbour_units, tied_with_neighbour, topographic_errors,
+                                 winning_vectors)
+
+    rows = PROBE_UPDATE_ROWS
+    cols = len(W) // rows
+    M = rows * cols
+    best = unit % M
+    W = np.array(W[:M])
+    xv = winning_vectors(X, variation, index, sign)
+    d = ((xv[:, None, :] - W[None].astype(np.float64)) ** 2).sum(-1)
+    d[np.arange(len(best)), best] = np.inf
+    second = d.argmin(axis=1)
+    far = np.flatnonzero(~are_neighbours(best, second, rows, cols))
+    if len(far):
+        W[neighbour_units(best[far[:1]], rows, cols)[0, 0]] = W[second[far[0]]]  # a tie
+    bmu = BMUResult(best, variation, np.zeros(len(best)), second)
+    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.TOPOGRAPHIC_ERRORS, guard=False)
+    got = bmu_opencl.launch_topographic_errors(context, queue, kernel, X, W, index, sign, best, variation, second,
+                                               rows, cols, "toroidal", 8, TIE_RTOL)
+    want = topographic_errors(best, second, rows, cols, "toroidal", 8,
+                              tied_with_neighbour(X, W, bmu, rows, cols, "toroidal", index, sign))
+    if not np.array_equal(got, want):
+        r = int(np.flatnonzero(got != want)[0])
+        return f"wrong topographic errors on {int((got != want).sum())} of {len(X)} rows (row {r}: {got[r]}, host {want[r]})"
+    return ""
 
 
 def compare_update(context, queue, defines, X, index, sign, unit, variation, W) -> str:
@@ -396,7 +434,8 @@ def compare_update(context, queue, defines, X, index, sign, unit, variation, W) 
                                          gaussian_kernel_1d(cols, PROBE_UPDATE_SIGMA), MIN_WEIGHT, queue)
     want = batch_update(W, *unit_sums(X, folded, variation, index, sign, M), PROBE_UPDATE_SIGMA, rows, cols)
     rtol = PROBE_UPDATE_RTOL[defines["REAL"]]
-    close = np.isclose(got, want, rtol=rtol, atol=0)
+    # relative to the codebook's scale too: a smoothed sum of terms of both signs can cancel
+    close = np.isclose(got, want, rtol=rtol, atol=rtol * float(np.abs(want).max()))
     if not close.all():
         u, k = np.argwhere(~close)[0]
         return f"wrong codebook from the update on the device (unit {u}, dimension {k}: {got[u, k]!r}, host {want[u, k]!r})"

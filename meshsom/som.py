@@ -223,9 +223,9 @@ def pass_ranges(n: int, row_bytes: int, block_rows: int = BLOCK_ROWS, pass_bytes
 def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None, backend="auto",
                 block_rows: int = BLOCK_ROWS, total: dict | None = None, keep: bool = False) -> dict:
     """:func:`block_sums` of every row block of X (:func:`row_blocks`) added in block order
-    (:func:`add_sums`) to ``total``: the same bits, in one search, one per-unit sums pass and one
-    per-row errors pass over the whole of X (one launch each on an OpenCL device, over rows that
-    stay resident there when X is read-only).
+    (:func:`add_sums`) to ``total``: the same bits, in one search, one per-unit sums pass, one
+    per-row Q / QC distances pass and one topographic errors pass (the tie rule) over the whole of X
+    (one launch each on an OpenCL device, over rows that stay resident there when X is read-only).
 
     Parameters
     ----------
@@ -253,9 +253,11 @@ def blocks_sums(X, W, rows: int, cols: int, topology: str = "toroidal", index=No
     sums, counts = engine.unit_sums(X, W, bmu, index, sign, blocks=blocks,
                                     init=None if total is None else total["sums"], keep=keep)
     q, qc = engine.row_errors(X, W, bmu, index, sign)
+    bad = engine.topographic_errors(X, W, bmu, rows, cols, topology, index, sign)
     errors = None if total is None else {key: total[key] for key in ERROR_KEYS}
     for a, b in blocks:
-        part = error_sums(X[a:b], W, bmu.rows(a, b), rows, cols, topology, index, sign, distances=(q[a:b], qc[a:b]))
+        part = error_sums(X[a:b], W, bmu.rows(a, b), rows, cols, topology, index, sign, distances=(q[a:b], qc[a:b]),
+                          bad=bad[a:b])
         errors = {key: part[key] if errors is None else errors[key] + part[key] for key in ERROR_KEYS}
     return {"sums": sums, "counts": counts if total is None else total["counts"] + counts, **errors,
             "bmu": bmu if total is None else BMUResult.concatenate([total["bmu"], bmu])}
@@ -917,5 +919,7 @@ class SOM:
         X = self._validate_X(X, self.n_features_in_)
         engine = resolve_backend(getattr(self, "engine_", None) or self.backend_, self.device)
         distances = engine.row_errors(X, self.weights_, bmu, index, sign)  # where training took them
+        bad = engine.topographic_errors(X, self.weights_, bmu, self.rows, self.cols, self.topology, index, sign,
+                                        neighbourhood)
         return errors_of(error_sums(X, self.weights_, bmu, self.rows, self.cols, self.topology, index, sign,
-                                    neighbourhood, distances=distances))
+                                    neighbourhood, distances=distances, bad=bad))

@@ -81,9 +81,10 @@ def test_update_on_the_device_is_the_dense_gaussian(ctx, params, rows, cols, D, 
     assert got.dtype == W.dtype and not got.flags.writeable
     want = dense_update(W, host_sums, host_counts, sigma, rows, cols, topology)
     rtol = 1e-6 if dtype == np.float32 else 1e-12
-    np.testing.assert_allclose(got, want, rtol=rtol, atol=1e-6 * rtol)
+    scale = rtol * np.abs(want).max()  # smoothed sums of both signs can cancel
+    np.testing.assert_allclose(got, want, rtol=rtol, atol=scale)
     host = batch_update(W, host_sums, host_counts, sigma, rows, cols, topology)
-    np.testing.assert_allclose(got, host, rtol=rtol, atol=0)
+    np.testing.assert_allclose(got, host, rtol=rtol, atol=scale)
     if sigma < 0.1:
         assert got[1].tobytes() == W[1].tobytes()  # kept its prototype, bit for bit
 

@@ -247,15 +247,17 @@ def test_device_row_errors_are_the_host_row_errors(ctx, N, D, M, n, dtype):
 
 
 def test_block_sums_take_the_errors_on_the_device(ctx, monkeypatch):
-    """block_sums with the OpenCL engine: per-row errors from the device kernel, the NumPy engine's sums."""
+    """block_sums with the OpenCL engine: per-row errors and the tie check from the device kernels, the
+    NumPy engine's sums."""
     from meshsom import bmu, bmu_opencl
     from meshsom.som import block_sums
 
     if not bmu_opencl.has_fp64(ctx):
         pytest.skip("the OpenCL device has no float64")
     host_calls = []
-    real = bmu.row_errors
-    monkeypatch.setattr(bmu, "row_errors", lambda *a, **k: host_calls.append(1) or real(*a, **k))
+    for name in ("row_errors", "tied_with_neighbour"):
+        real = getattr(bmu, name)
+        monkeypatch.setattr(bmu, name, lambda *a, real=real, **k: host_calls.append(1) or real(*a, **k))
     rng = np.random.default_rng(11)
     X = rng.normal(size=(2500, 36)).astype(np.float32)
     X.flags.writeable = False
@@ -265,8 +267,8 @@ def test_block_sums_take_the_errors_on_the_device(ctx, monkeypatch):
     got = block_sums(X, W, 6, 8, "toroidal", index[:3], sign[:3], backend=engine)
     assert host_calls == []
     ref = block_sums(X, W, 6, 8, "toroidal", index[:3], sign[:3], backend="numpy")
-    assert host_calls == [1]
-    assert got["n"] == ref["n"] and got["t_bad"] == ref["t_bad"]
+    assert host_calls == [1, 1]
+    assert got["n"] == ref["n"] and got["t_bad"] == ref["t_bad"] > 0
     assert got["q_sum"] == pytest.approx(ref["q_sum"], rel=1e-13)
     assert got["qc_sum"] == pytest.approx(ref["qc_sum"], rel=1e-13)
     assert got["sums"].tobytes() == ref["sums"].tobytes()
@@ -371,3 +373,70 @@ def test_fit_in_passes_equals_fit_in_one(ctx, backend, monkeypatch):
     assert len(pass_ranges(len(X), 36)) == 3
     split = SOM(**kwargs).fit(X, index[:3], sign[:3])
     assert split.weights_.tobytes() == one.weights_.tobytes()
+
+
+# ----------------------------------------------------------------------------- topographic errors
+
+
+def loop_topographic(X, W, bmu, index, sign, rows, cols, topology, neighbourhood, rtol):
+    """Independent: one row at a time, from grid coordinates, with the tie rule written out."""
+    steps = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)
+             if (a, b) != (0, 0) and (neighbourhood == 8 or a == 0 or b == 0)]
+    out = np.zeros(len(X), bool)
+    for r in range(len(X)):
+        (ur, uc), (sr, sc) = divmod(int(bmu.unit[r]), cols), divmod(int(bmu.second[r]), cols)
+        dr, dc = abs(ur - sr), abs(uc - sc)
+        if topology == "toroidal":
+            dr, dc = min(dr, rows - dr), min(dc, cols - dc)
+        if (max(dr, dc) if neighbourhood == 8 else dr + dc) == 1:
+            continue
+        v = bmu.variation[r]
+        xv = np.array([np.float64(sign[v, k] * X[r, index[v, k]]) for k in range(X.shape[1])])
+        w2 = W[bmu.second[r]].astype(np.float64)
+        d_second = ((xv - w2) ** 2).sum()
+        near = []
+        for a, b in steps:
+            nr, nc = ur + a, uc + b
+            if topology == "toroidal":
+                nr, nc = nr % rows, nc % cols
+            elif not (0 <= nr < rows and 0 <= nc < cols):
+                continue
+            near.append(((xv - W[nr * cols + nc].astype(np.float64)) ** 2).sum())
+        out[r] = not min(near) <= d_second + rtol * (xv @ xv + w2 @ w2)
+    return out
+
+
+@pytest.mark.parametrize("topology, neighbourhood, dtype", [
+    ("toroidal", 8, np.float32), ("planar", 8, np.float32), ("toroidal", 4, np.float64), ("planar", 4, np.float32),
+])
+def test_device_topographic_errors_are_the_tie_rule(ctx, params, topology, neighbourhood, dtype):
+    """Every layout's program: the flags of an independent row-by-row check, on a map where some units
+    share a prototype with a distant unit (ties for second place, as on extruded blocks)."""
+    from meshsom.bmu_numpy import bmu_numpy
+    from meshsom.bmu_opencl import has_fp64, topographic_errors_opencl
+    from meshsom.metrics import TIE_RTOL, tied_with_neighbour, topographic_errors
+
+    if not has_fp64(ctx):
+        pytest.skip("the OpenCL device has no float64")
+    rows, cols, D, n = 6, 8, 9, 3
+    rng = np.random.default_rng(neighbourhood + rows)
+    W = rng.normal(size=(rows * cols, D))
+    hubs = np.array([20, 28, 36, 44])
+    W[hubs + 1] = W[hubs] + rng.normal(scale=0.3, size=(4, D))  # a hub's right neighbour is near it ...
+    W[hubs - 17] = W[hubs + 1]  # ... and shares its prototype with a unit two rows up (reported second)
+    W = W.astype(dtype)
+    at_hub = rng.random(800) < 0.5
+    near = np.where(at_hub, rng.choice(hubs, 800), rng.integers(0, rows * cols, 800))
+    X = (W[near] + rng.normal(size=(800, D)) * np.where(at_hub, 0.02, 0.3)[:, None]).astype(dtype)
+    index, sign = table(D, n, seed=4)
+    sign = sign.astype(dtype)
+    bmu = bmu_numpy(X, W, index, sign)
+    got = topographic_errors_opencl(X, W, bmu, index, sign, context=ctx, params=params, rows=rows, cols=cols,
+                                    topology=topology, neighbourhood=neighbourhood)
+    want = loop_topographic(X, W, bmu, index, sign, rows, cols, topology, neighbourhood, TIE_RTOL)
+    host = topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood,
+                              tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood))
+    np.testing.assert_array_equal(host, want)
+    np.testing.assert_array_equal(got, want)
+    assert 0 < want.sum() < len(X)
+    assert want.sum() < topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood).sum()  # ties

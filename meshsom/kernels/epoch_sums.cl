@@ -16,6 +16,16 @@
  * when COMPONENT does not divide D. The same to rounding: a compiler may fuse d * d + s into
  * one fma (FP_CONTRACT is asked off, -cl-mad-enable allows it back).
  *
+ * topographic_errors: meshsom.metrics.topographic_errors with the tie rule of
+ * meshsom.metrics.tied_with_neighbour. Per row: 0 where its second-best unit is a grid neighbour of
+ * its best unit (8 or 4 neighbours, offsets wrapped on a torus); else the squared distances of the
+ * varied row to the second-best unit and to every neighbour of the best unit, in double (squares
+ * added in dimension order), and 0 where the nearest neighbour lies within tie_rtol * (||x_v||^2 +
+ * ||w_second||^2) of the second-best distance (a tie), 1 otherwise. On the host this check costs
+ * 9 float64 distances per row whose second-best is not a neighbour (16 s an epoch at 1e6 rows of
+ * D = 144 on 2 cores when most are not); here it runs next to the resident rows. The same to
+ * rounding: a tie that lies within rounding of its threshold may be decided otherwise.
+ *
  * Appended to every BMUofN program (meshsom.bmu_opencl.kernel_source) and compiled where the
  * device has float64 (-DEPOCH_SUMS=1; COMPONENT: meshsom.metrics.COMPONENT), so that the layout's probe builds and checks them too.
  * Needs the defines REAL, D and COMPONENT.
@@ -87,5 +97,79 @@ __kernel void row_errors(__global const REAL *X,        /* (N, D) */
     }
     q[r] = sqrt(q2);
     qc[r] = D % COMPONENT ? NAN : c / (D / COMPONENT);
+}
+
+/* squared distance of row r's varied vector (variation v) to prototype w, in double, dimension order */
+static double varied_dist2(__global const REAL *X, const size_t x0, __global const int *index,
+                           __global const REAL *sign, const int v, __global const REAL *W, const size_t w0)
+{
+    double s = 0.0;
+    for (int k = 0; k < D; ++k) {
+        const double d = (double)(sign[v * D + k] * X[x0 + index[v * D + k]]) - (double)W[w0 + k];
+        s += d * d;
+    }
+    return s;
+}
+
+/* Python's divmod for a possibly negative unit number */
+static int floor_div(const int a, const int b) { return a / b - (a % b != 0 && (a < 0) != (b < 0)); }
+
+__kernel void topographic_errors(__global const REAL *X,        /* (N, D) */
+                                 const int N,
+                                 __global const int *index,     /* (NV, D) */
+                                 __global const REAL *sign,     /* (NV, D) */
+                                 __global const int *variation, /* (N,) */
+                                 __global const int *unit,      /* (N,) */
+                                 __global const int *second,    /* (N,) */
+                                 __global const REAL *W,        /* (M, D) */
+                                 const int rows,
+                                 const int cols,
+                                 const int toroidal,            /* 1: offsets wrap */
+                                 const int neighbourhood,       /* 8 or 4 */
+                                 const double tie_rtol,
+                                 __global uchar *bad)           /* (N,) */
+{
+    const int r = get_global_id(0);
+    if (r >= N)
+        return;
+    const int u = unit[r], s = second[r];
+    const int ur = floor_div(u, cols), uc = u - ur * cols, sr = floor_div(s, cols), sc = s - sr * cols;
+    int dr = abs(ur - sr), dc = abs(uc - sc);
+    if (toroidal) {
+        dr = min(dr, rows - dr);
+        dc = min(dc, cols - dc);
+    }
+    if ((neighbourhood == 8 ? max(dr, dc) : dr + dc) == 1) {
+        bad[r] = 0;
+        return;
+    }
+    if (s < 0) {
+        bad[r] = 1;
+        return;
+    }
+    const int v = variation[r];
+    const size_t x0 = (size_t)r * D, s0 = (size_t)s * D;
+    const double d_second = varied_dist2(X, x0, index, sign, v, W, s0);
+    double xx = 0.0, ww = 0.0;
+    for (int k = 0; k < D; ++k) {
+        const double x = (double)(sign[v * D + k] * X[x0 + index[v * D + k]]), w = (double)W[s0 + k];
+        xx += x * x;
+        ww += w * w;
+    }
+    double d_nbr = INFINITY;
+    for (int di = -1; di <= 1; ++di)
+        for (int dj = -1; dj <= 1; ++dj) {
+            if ((di == 0 && dj == 0) || (neighbourhood == 4 && di != 0 && dj != 0))
+                continue;
+            int nr = ur + di, nc = uc + dj;
+            if (toroidal) {
+                nr = (nr + rows) % rows;
+                nc = (nc + cols) % cols;
+            } else if (nr < 0 || nr >= rows || nc < 0 || nc >= cols) {
+                continue;
+            }
+            d_nbr = fmin(d_nbr, varied_dist2(X, x0, index, sign, v, W, (size_t)(nr * cols + nc) * D));
+        }
+    bad[r] = !(d_nbr <= d_second + tie_rtol * (xx + ww));
 }
 #endif
