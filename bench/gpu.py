@@ -317,41 +317,48 @@ def export_levels(store: str, out: str) -> None:
     say(f"wrote {out}: " + ", ".join(f"{k} {v.shape}" for k, v in arrays.items()))
 
 
-def fit_epochs(X, index, sign, epochs: int, device) -> tuple[float, str]:
-    """SOM.fit on the paper's map with the OpenCL engine: the median seconds of the epochs after
-    the first, and where the per-unit sums and errors and the update ran."""
+def fit_epochs(X, index, sign, epochs: int, device, update: str = "auto", evaluate: bool = False):
+    """SOM.fit on the paper's map with the OpenCL engine (the paper config's SOM settings): the median
+    seconds of the epochs after the first, where the per-unit sums and errors and the update ran, and
+    (``evaluate``) the trained map's T / Q / QC-errors on X, as ``meshsom run`` reports them."""
     from meshsom.som import SOM
 
     rows, cols = MAP
     seconds = []
-    som = SOM(rows, cols, epochs=epochs, backend="opencl", device=device, random_state=0)
+    som = SOM(rows, cols, epochs=epochs, backend="opencl", device=device, random_state=0, update=update)
     som.fit(X, index, sign, callbacks=[lambda epoch, som, info: seconds.append(info.seconds)])
     engine = som.engine_
     where = f"host ({engine.sums_on_host})" if engine.sums_on_host else "device"
     where += f"; update on the {som.update_}" + (f" ({engine.update_on_host})" if engine.update_on_host else "")
-    return float(np.median(seconds[1:] if len(seconds) > 1 else seconds)), where
+    errors = som.evaluate(X, index, sign) if evaluate else None
+    return float(np.median(seconds[1:] if len(seconds) > 1 else seconds)), where, errors
 
 
 def training_table(args) -> None:
     levels = np.load(args.levels)
     rows, cols = MAP
     say(f"\n(c) training epochs (SOM.fit: search, per-unit sums, T/Q/QC error sums, update), map {rows}x{cols}, "
-        f"OpenCL engine; median seconds of the epochs after the first")
-    say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9}  sums and errors on; update")
+        f"OpenCL engine; median seconds of the epochs after the first, with the update where update='auto' "
+        f"runs it and on the host; the trained map's T / Q / QC (the paper maps: configs/paper.yaml's settings)")
+    say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9} {'host upd.':>9} {'T / Q / QC':>22}  "
+        f"sums and errors on; update")
     for level, kernel in PAPER_MAPS:
         X = levels[f"X{level}"]
         index, sign = levels[f"index_{level}_{kernel}"], levels[f"sign_{level}_{kernel}"]
         epochs = 3 if args.quick else PAPER_EPOCHS
-        t, where = fit_epochs(X, index, sign, epochs, args.device)
+        t, where, e = fit_epochs(X, index, sign, epochs, args.device, evaluate=True)
+        t_host = fit_epochs(X, index, sign, epochs, args.device, update="host")[0]
+        errors = f"{e['t_error']:.4f} / {e['q_error']:.4f} / {e['qc_error']:.4f}"
         say(f"{f'paper level {level} {kernel}':>22} {len(X):>9} {f'{len(index)}x{X.shape[1]}':>7} {epochs:>6} "
-            f"{t:9.4f}  {where}")
+            f"{t:9.4f} {t_host:9.4f} {errors:>22}  {where}")
     X3 = levels["X3"]
     N = LARGE_ROWS // QUICK_DIVISOR if args.quick else LARGE_ROWS
     rng = np.random.default_rng(LARGE_SEED)
     X = X3[np.arange(N) % len(X3)] + rng.normal(scale=LARGE_NOISE, size=(N, X3.shape[1])).astype(np.float32)
     index, sign = levels["index_3_bmuofn"], levels["sign_3_bmuofn"]
-    t, where = fit_epochs(X, index, sign, LARGE_EPOCHS, args.device)
-    say(f"{'level 3 x 1e6 bmuofn':>22} {N:>9} {f'{len(index)}x{X.shape[1]}':>7} {LARGE_EPOCHS:>6} {t:9.4f}  {where}")
+    t, where, _ = fit_epochs(X, index, sign, LARGE_EPOCHS, args.device)
+    say(f"{'level 3 x 1e6 bmuofn':>22} {N:>9} {f'{len(index)}x{X.shape[1]}':>7} {LARGE_EPOCHS:>6} {t:9.4f} "
+        f"{'':>9} {'':>22}  {where}")
 
 
 def autotune(args, ctx):

@@ -69,6 +69,10 @@ class Engine:
     update_on_host : str
         Why an epoch's update asked on the device runs on the host ("" while none was refused:
         :meth:`update_on_device`, :meth:`batch_update`).
+    search_only : set
+        Layouts whose programs are built without the epoch's kernels: the full program failed its
+        probe and the search alone passed (:meth:`search`); the epoch's reductions then run on the
+        host (:attr:`sums_on_host`).
     """
 
     backend: str
@@ -81,6 +85,7 @@ class Engine:
     failed: set = field(default_factory=set)
     sums_on_host: str = ""
     update_on_host: str = ""
+    search_only: set = field(default_factory=set)
 
     def describe(self, D: int | None = None, n: int | None = None, dtype=np.float32) -> dict:
         """What computed the results: ``backend``, ``device``, ``layout``, ``fallback``.
@@ -131,8 +136,8 @@ class Engine:
         for name in self.layouts:
             if (name, work) in self.failed:
                 continue
-            verdict = bmu_opencl.probe_layout(self.context, name, D, n, dtype)
-            if verdict.ok:
+            verdict = bmu_opencl.probe_layout(self.context, name, D, n, dtype, name not in self.search_only)
+            if verdict.ok or self._search_alone(name, work, verdict.reason, announce=True):
                 return name
             self._failed(name, work, verdict.reason, announce=True)
         if self.strict:
@@ -149,22 +154,59 @@ class Engine:
         log.log(logging.WARNING if announce else logging.DEBUG, "BMUofN kernel layout %r failed on %s (D=%d, n=%d): %s; using %s", name, self.device,
                     work[0], work[1], reason, f"layout {nxt!r}" if later else ("no layout (none is left)" if self.strict else "NumPy/BLAS"))
 
+    def _params(self, name: str):
+        """The tiling of layout ``name`` on this engine's device, without the epoch's kernels where
+        they failed (:attr:`search_only`)."""
+        from dataclasses import replace
+
+        from meshsom import bmu_opencl
+
+        params = bmu_opencl.layout_params(self.context.devices[0], name)
+        return replace(params, epoch_kernels=False) if name in self.search_only else params
+
+    def _search_alone(self, name: str, work: tuple, reason: str, announce: bool) -> bool:
+        """After layout ``name``'s full program failed: whether its search alone passes its probe
+        (then the layout runs without the epoch's kernels, which move to the host with one warning
+        line). Not tried where the program had no epoch kernels, or the failure was a hang (it
+        would cost the probe's whole time limit again)."""
+        from meshsom import bmu_opencl
+        from meshsom.probe import HANG_REASON
+
+        if name in self.search_only or not bmu_opencl.has_fp64(self.context) or reason.startswith(HANG_REASON):
+            return False
+        verdict = bmu_opencl.probe_layout(self.context, name, work[0], work[1], work[2], epoch_kernels=False)
+        if not verdict.ok:
+            return False
+        self.search_only.add(name)
+        if not self.sums_on_host:
+            self.sums_on_host = f"the epoch kernels of layout {name!r} fail on this device ({reason})"
+            log.log(logging.WARNING if announce else logging.DEBUG,
+                    "layout %r on %s: its search works but the epoch's kernels do not (%s); the search runs on the "
+                    "device, per-unit sums, errors and updates on the host", name, self.device, reason)
+        return True
+
     def search(self, X, W, index=None, sign=None) -> BMUResult:
-        """BMUofN of every row of X with this engine (the fallback chain on OpenCL)."""
+        """BMUofN of every row of X with this engine (the fallback chain on OpenCL).
+
+        A layout whose program fails only because of the epoch's kernels runs its search alone
+        (:attr:`search_only`)."""
         if self.backend == "numpy":
             return bmu_numpy(X, W, index, sign)
         from meshsom import bmu_opencl
 
         X, W, index, sign = validate(X, W, index, sign)
         work = (X.shape[1], len(index), X.dtype.name)
-        device = self.context.devices[0]
         reasons = []
         for name in self.layouts:
             if (name, work) in self.failed:
                 continue
             try:
-                result = bmu_opencl.bmu_opencl(X, W, index, sign, context=self.context,
-                                               params=bmu_opencl.layout_params(device, name))
+                try:
+                    result = bmu_opencl.bmu_opencl(X, W, index, sign, context=self.context, params=self._params(name))
+                except bmu_opencl.KernelLayoutError as err:  # the build or its probe, not a launch
+                    if not self._search_alone(name, work, err.reason, announce=not err.cached):
+                        raise
+                    result = bmu_opencl.bmu_opencl(X, W, index, sign, context=self.context, params=self._params(name))
             except DeviceError as err:
                 reason = getattr(err, "reason", str(err))
                 reasons.append(f"{name}: {reason}")
@@ -337,8 +379,7 @@ class Engine:
 
         try:
             return getattr(bmu_opencl, function)(X, W, bmu, index, sign, context=self.context,
-                                                 params=bmu_opencl.layout_params(self.context.devices[0], self.used[work]),
-                                                 **options)
+                                                 params=self._params(self.used[work]), **options)
         except DeviceError as err:
             self.sums_on_host = getattr(err, "reason", str(err))
             log.warning("per-unit sums and errors run on the host from now on: %s", self.sums_on_host)

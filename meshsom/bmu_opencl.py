@@ -118,6 +118,10 @@ class KernelParams:
     groups_per_cu : int
         "gemm", ``unit_splits=0``: the splits make at least this many work-groups per compute
         unit when the row tiles alone are fewer.
+    epoch_kernels : bool
+        Build the epoch's kernels (``kernels/epoch_sums.cl``, ``kernels/batch_update.cl``) into the
+        program where the device has float64; False: the search alone (what an engine falls back
+        to when they fail their probe and the search does not, :meth:`meshsom.bmu.Engine.search`).
     """
 
     kernel: str = "tiled"
@@ -138,6 +142,7 @@ class KernelParams:
     max_kt: int = 16
     unit_splits: int = 0
     groups_per_cu: int = 2
+    epoch_kernels: bool = True
 
     def __post_init__(self):
         if self.kernel not in KERNELS:
@@ -506,6 +511,7 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
         "UB": params.unit_blocks,
         "D": D,
         "NV": n,
+        "EPOCH": int(params.epoch_kernels),
     }
     if params.kernel == "cpu" and step * staged <= params.panel_bytes:
         rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
@@ -524,7 +530,7 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     }
 
 
-def probe_layout(context, name: str, D: int, n: int, dtype=np.float32):
+def probe_layout(context, name: str, D: int, n: int, dtype=np.float32, epoch_kernels: bool = True):
     """The probe verdict (:func:`meshsom.probe.check`) of layout ``name`` for a workload, building nothing here.
 
     Parameters
@@ -535,6 +541,8 @@ def probe_layout(context, name: str, D: int, n: int, dtype=np.float32):
     D, n : int
         Dimension and variations.
     dtype : numpy dtype
+    epoch_kernels : bool
+        With the epoch's kernels (:attr:`KernelParams.epoch_kernels`).
 
     Returns
     -------
@@ -543,7 +551,7 @@ def probe_layout(context, name: str, D: int, n: int, dtype=np.float32):
     from meshsom.probe import check
 
     device = context.devices[0]
-    defines = _defines(int(D), int(n), np.dtype(dtype), layout_params(device, name))
+    defines = _defines(int(D), int(n), np.dtype(dtype), replace(layout_params(device, name), epoch_kernels=epoch_kernels))
     return check(device, device_selector(device), defines, kernel_source(defines["KERNEL"]), BUILD_OPTIONS, layout=name)
 
 
@@ -596,11 +604,13 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     """
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
-    key = tuple(sorted(defines.items())) + (("EPOCH_SUMS", int(has_fp64(context))), ("COMPONENT", COMPONENT))
+    key = tuple(sorted(defines.items())) + (("EPOCH_SUMS", int(has_fp64(context) and bool(defines.get("EPOCH", 1)))),
+                                            ("COMPONENT", COMPONENT))
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         text = kernel_source(defines["KERNEL"])
-        # the key's last items: kernels/epoch_sums.cl and batch_update.cl are built where the device has float64
+        # the key's last items: kernels/epoch_sums.cl and batch_update.cl are built where the device has
+        # float64 (and the layout asks for them: EPOCH)
         options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
         device = context.devices[0]
         if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT

@@ -7,6 +7,7 @@ import importlib.metadata
 import os
 import platform
 import sys
+from dataclasses import replace
 
 PACKAGES = (
     "meshsom", "numpy", "scipy", "trimesh", "shapely", "pymeshlab", "zarr", "dask", "distributed",
@@ -38,23 +39,33 @@ def kernel_verdicts(device) -> list[dict]:
     list of dict
         Per layout: ``layout``, ``ok``, ``reason``, ``gflops`` (a short run of the workload
         :data:`meshsom.probe.TIMING_WORKLOAD`), ``seconds`` (probe wall time), ``chain`` (the
-        position in the device's fallback chain, None when not in it).
+        position in the device's fallback chain, None when not in it), ``search_only`` (the program
+        failed with the epoch's kernels and passed without: ``reason`` says why).
     """
     import numpy as np
 
     from meshsom.bmu_opencl import (BUILD_OPTIONS, DEFAULT_PARAMS, _defines, device_selector, kernel_source,
                                     layout_chain, layout_params)
-    from meshsom.probe import TIMING_WORKLOAD, check
+    from meshsom.probe import HANG_REASON, TIMING_WORKLOAD, check
 
     _, _, n, D = TIMING_WORKLOAD
     chain = layout_chain(device)
     out = []
     for name in DEFAULT_PARAMS:
-        defines = _defines(D, n, np.dtype(np.float32), layout_params(device, name))
-        v = check(device, device_selector(device), defines, kernel_source(defines["KERNEL"]), BUILD_OPTIONS,
-                  layout=name, timing=True)
-        out.append({"layout": name, "ok": v.ok, "reason": v.reason, "gflops": v.gflops, "seconds": round(v.seconds, 2),
-                    "chain": chain.index(name) if name in chain else None})
+        def probe(epoch_kernels: bool, name=name):
+            defines = _defines(D, n, np.dtype(np.float32), replace(layout_params(device, name), epoch_kernels=epoch_kernels))
+            return check(device, device_selector(device), defines, kernel_source(defines["KERNEL"]), BUILD_OPTIONS,
+                         layout=name, timing=True)
+
+        v = probe(True)
+        entry = {"layout": name, "ok": v.ok, "reason": v.reason, "gflops": v.gflops, "seconds": round(v.seconds, 2),
+                 "chain": chain.index(name) if name in chain else None, "search_only": False}
+        if not v.ok and not v.reason.startswith(HANG_REASON):
+            alone = probe(False)  # as meshsom.bmu.Engine does: the search without the epoch's kernels
+            if alone.ok:
+                entry.update(ok=True, gflops=alone.gflops, search_only=True,
+                             seconds=round(v.seconds + alone.seconds, 2))
+        out.append(entry)
     return out
 
 
@@ -194,6 +205,9 @@ def run(args: argparse.Namespace) -> int:
                 if v["ok"]:
                     rate = f"{v['gflops']:.1f} GFLOP/s" if v["gflops"] else "untimed"
                     print(f"        layout {v['layout']:10s} ok      {rate:>16s}  ({where}; checked in {v['seconds']} s)")
+                    if v.get("search_only"):
+                        print(f"          search only: its epoch kernels fail ({v['reason']}); sums, errors and "
+                              f"updates on the host")
                 else:
                     print(f"        layout {v['layout']:10s} FAILED  ({where}): {v['reason']}")
             if "layouts_error" in d:

@@ -3,6 +3,7 @@ levels exported from a real store, then ``bench/gpu.py --only-training --quick``
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -48,23 +49,36 @@ def test_export_holds_the_stores_standardized_levels_and_the_tables(levels):
         np.testing.assert_array_equal(found[f"sign_{level}_{kernel}"], sign)
 
 
+ROW = re.compile(r"\s*(?P<map>paper level \d \w+|level 3 x 1e6 bmuofn)\s+(?P<N>\d+)\s+\d+x\d+\s+\d+\s+"
+                 r"(?P<t>[\d.]+)\s+(?:(?P<host>[\d.]+)\s+(?P<T>[\d.]+) / (?P<Q>[\d.]+) / (?P<QC>[\d.]+)\s+)?"
+                 r"(?P<where>(device|host).*)$")
+
+
 def test_training_table_runs_every_map(levels, capsys):
-    from bench.gpu import main as bench
+    """Table (c) on PoCL: every map, seconds per epoch, where each part ran, and the paper maps'
+    T / Q / QC equal to SOM.fit's with the host's update (what a GPU run is compared with)."""
+    from bench.gpu import MAP, main as bench
     from meshsom.bmu_opencl import get_context, has_fp64
+    from meshsom.som import SOM
     from tests.test_bmu import _opencl_context
 
     _opencl_context()  # skips without an OpenCL device
     _, npz = levels
     assert bench(["--only-training", "--quick", "--levels", str(npz)]) == 0
     out = capsys.readouterr().out
-    rows = [line for line in out.splitlines() if line.strip().startswith(("paper level", "level 3 x 1e6"))]
-    assert len(rows) == 5, out
+    rows = [ROW.match(line) for line in out.splitlines() if line.strip().startswith(("paper level", "level 3 x 1e6"))]
+    assert len(rows) == 5 and all(rows), out
     context = get_context(None)
     on_device = has_fp64(context)
     gpu = not context.devices[0].type & __import__("pyopencl").device_type.CPU
-    for line in rows:
-        head, where = line.split("  ")[:-1], line.split("  ")[-1].strip()
-        assert float(" ".join(head).split()[-1]) > 0, line  # seconds per epoch
-        sums, update = where.split("; ", 1)
-        assert sums == "device" if on_device else sums.startswith("host ("), line
-        assert update == f"update on the {'device' if on_device and gpu else 'host'}", line  # update="auto"
+    for row in rows:
+        assert float(row["t"]) > 0, row.string  # seconds per epoch
+        sums, update = row["where"].split("; ", 1)
+        assert sums == "device" if on_device else sums.startswith("host ("), row.string
+        assert update == f"update on the {'device' if on_device and gpu else 'host'}", row.string  # update="auto"
+        assert (row["host"] is None) == row["map"].startswith("level 3 x 1e6"), row.string
+    found = np.load(npz)
+    X, index, sign = found["X3"], found["index_3_bmuofn"], found["sign_3_bmuofn"]
+    want = SOM(*MAP, epochs=3, backend="numpy", random_state=0).fit(X, index, sign).evaluate(X)
+    got = {k: float(rows[3][k]) for k in ("T", "Q", "QC")}
+    assert got == {k: round(want[f"{k.lower()}_error"], 4) for k in ("T", "Q", "QC")}

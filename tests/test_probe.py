@@ -232,3 +232,44 @@ def test_explicit_layout_runs_alone(ctx, monkeypatch, forget_programs):
     X, W, index, sign = data()
     with pytest.raises(DeviceError, match="tiled: kernels/bmu.cl failed to build"):
         engine.search(X, W, index, sign)
+
+
+def test_epoch_kernels_that_fail_leave_the_search_on_the_device(ctx, monkeypatch, forget_programs, caplog):
+    """A layout whose program fails only in the epoch's kernels keeps its search (built without them);
+    sums, errors and updates run on the host, with one warning line, and the map is NumPy's bit for bit."""
+    from meshsom.bmu_opencl import has_fp64, layout_chain, probe_layout
+    from meshsom.probe import ENV_INJECT
+    from meshsom.som import SOM
+
+    if not has_fp64(ctx):
+        pytest.skip("no float64: the programs hold no epoch kernels")
+    first = layout_chain(ctx.devices[0])[0]
+    monkeypatch.setenv(ENV_INJECT, f"{first}=epoch-error")
+    full = probe_layout(ctx, first, 9, 6)
+    assert not full.ok and "injected build failure of the epoch kernels" in full.reason
+    assert probe_layout(ctx, first, 9, 6, epoch_kernels=False).ok
+    X = data(N=2000)[0]
+    engine = resolve_backend("opencl", context=ctx)
+    assert engine.prepare(9, 1) == first and engine.search_only == {first}
+    with caplog.at_level(logging.WARNING, logger="meshsom.bmu"):
+        som = SOM(5, 6, epochs=3, backend=engine, update="device").fit(X)
+    assert engine.describe()["layout"] == first and som.update_ == "host"
+    assert "the epoch kernels of layout" in engine.describe()["fallback"]
+    lines = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(lines) == 2 and "its search works but the epoch's kernels do not" in lines[0]
+    assert lines[1].startswith("epoch updates run on the host")  # update="device" was asked for
+    ref = SOM(5, 6, epochs=3, backend="numpy").fit(X)
+    assert som.weights_.tobytes() == ref.weights_.tobytes()
+
+
+def test_a_search_that_fails_is_not_rescued_by_dropping_the_epoch_kernels(ctx, monkeypatch, forget_programs):
+    from meshsom.bmu_opencl import layout_chain
+
+    chain = layout_chain(ctx.devices[0])
+    from meshsom.probe import ENV_INJECT
+
+    monkeypatch.setenv(ENV_INJECT, f"{chain[0]}=error")
+    X, W, index, sign = data()
+    engine = resolve_backend("opencl", context=ctx)
+    engine.search(X, W, index, sign)
+    assert engine.search_only == set() and engine.describe(9, 6)["layout"] == chain[1]

@@ -35,6 +35,10 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #pragma OPENCL FP_CONTRACT OFF
 
+#ifdef MESHSOM_INJECT_EPOCH_ERROR /* test hook (MESHSOM_KERNEL_INJECT "<layout>=epoch-error"): these kernels fail */
+#error "injected build failure of the epoch kernels (MESHSOM_KERNEL_INJECT test hook)"
+#endif
+
 __kernel void unit_sums(__global const REAL *X,        /* (N, D) */
                         __global const int *index,     /* (NV, D) */
                         __global const REAL *sign,     /* (NV, D) */
