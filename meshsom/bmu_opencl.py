@@ -1122,21 +1122,23 @@ def launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M:
     order, offsets = unit_order(unit, M, blocks)
     counts = np.diff(offsets).reshape(-1, M).sum(axis=0).astype(np.float64)
     on_device = isinstance(init, DeviceArray)
-    if not on_device:
-        init = np.zeros((M, D)) if init is None else np.ascontiguousarray(init, np.float64)
+    if not on_device and init is not None:
+        init = np.ascontiguousarray(init, np.float64)
     if not N and keep is None:
-        return np.array(init, np.float64), counts
+        return (np.zeros((M, D)) if init is None else np.array(init, np.float64)), counts
     try:
-        ibuf = init.buffer if on_device else upload(context, init)
+        # no earlier passes: the kernel starts from 0 (no (M, D) zeros sent up)
+        ibuf = init.buffer if on_device else None if init is None else upload(context, init)
         if not N:
-            out = ibuf
+            out = ibuf if ibuf is not None else upload(context, np.zeros((M, D)))
         else:
             xbuf, xibuf, sbuf = row_buffers(context, X, index, sign)
             out = cl.Buffer(context, cl.mem_flags.READ_WRITE, M * D * 8)
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, xibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)), upload(context, order.astype(np.int32)),
-                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M), ibuf, out)
+                   upload(context, offsets.astype(np.int32)), np.int32(M), np.int32(len(offsets) // M),
+                   out if ibuf is None else ibuf, np.int32(ibuf is not None), out)
         if keep is not None:
             queue.finish()
             return DeviceArray(out, (M, D), np.dtype(np.float64), context, *keep), counts

@@ -48,14 +48,15 @@ __kernel void unit_sums(__global const REAL *X,        /* (N, D) */
                                                           offsets[b * M + u + 1]) */
                         const int M,
                         const int B,                   /* row blocks */
-                        __global const double *init,   /* (M, D) running total of earlier passes (zeros: none) */
+                        __global const double *init,   /* (M, D) running total of earlier passes */
+                        const int has_init,            /* 0: no earlier passes (init is not read) */
                         __global double *sums)         /* (M, D) */
 {
     const int g = get_global_id(0);
     if (g >= M * D)
         return;
     const int u = g / D, k = g % D;
-    double total = init[g];
+    double total = has_init ? init[g] : 0.0;
     for (int b = 0; b < B; ++b) {
         const int p0 = offsets[b * M + u], p1 = offsets[b * M + u + 1];
         double s = 0.0;
