@@ -741,6 +741,10 @@ class SOM:
         state.pop("engine_", None)
         return state
 
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle; a map pickled before a parameter existed gets its default."""
+        self.__dict__.update({"update": "auto", **state})
+
     # ------------------------------------------------------------------ validation
     def _validate_params(self) -> None:
         for name, valid in (("topology", TOPOLOGIES), ("init", INITS), ("training", TRAININGS), ("decay", DECAYS)):

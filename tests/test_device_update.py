@@ -235,3 +235,19 @@ def test_a_failing_update_falls_back_to_the_host_with_one_warning(ctx, monkeypat
     assert som.update_ == "host" and "epoch update on the host" in engine.describe()["fallback"]
     ref = SOM(5, 5, epochs=3, backend=resolve_backend("opencl", context=ctx), update="host").fit(X)
     assert som.weights_.tobytes() == ref.weights_.tobytes()  # the host's update from the first epoch on
+
+
+def test_a_map_pickled_before_the_update_parameter_trains_again():
+    import pickle
+
+    from meshsom.som import SOM
+
+    X = np.random.default_rng(3).normal(size=(200, 3)).astype(np.float32)
+    som = SOM(3, 4, epochs=2, backend="numpy").fit(X)
+    state = som.__getstate__()
+    del state["update"]  # as a map pickled by an earlier meshsom
+    old = SOM.__new__(SOM)
+    old.__setstate__(state)
+    assert old.update == "auto"
+    again = pickle.loads(pickle.dumps(old)).fit(X)
+    assert again.weights_.tobytes() == som.weights_.tobytes() and again.update_ == "host"
