@@ -843,9 +843,9 @@ class SOM:
             train_batch(W, step, self.rows, self.cols, self.epochs, self.sigma_start_, self.sigma_end,
                         self.topology, self.decay, callbacks=(report,),
                         update=engine.batch_update if on_device else batch_update)
-            fell_back = engine.update_on_host or engine.sums_on_host
-            self.update_ = "device" if on_device and not fell_back else "host"
-            if not self.weights_.flags.writeable:  # the device's read-only codebook: the map's own copy
+            # only an update on the device returns its codebook read-only (it keeps the device copy)
+            self.update_ = "host" if self.weights_.flags.writeable else "device"
+            if self.update_ == "device":  # the map's own, writable copy
                 self.weights_ = self.weights_.copy()
             return self
         for epoch in range(self.epochs):

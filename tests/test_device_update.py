@@ -5,6 +5,7 @@ dense Gaussian on the torus, against the host's batch_update, in SOM.fit, and fo
 from __future__ import annotations
 
 import logging
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -251,3 +252,22 @@ def test_a_map_pickled_before_the_update_parameter_trains_again():
     assert old.update == "auto"
     again = pickle.loads(pickle.dumps(old)).fit(X)
     assert again.weights_.tobytes() == som.weights_.tobytes() and again.update_ == "host"
+
+
+def test_update_says_host_where_the_search_fell_back_to_numpy(ctx, monkeypatch):
+    """update="device" on an engine whose layouts all fail: NumPy search, host sums, host update."""
+    from meshsom import bmu_opencl
+    from meshsom.bmu import resolve_backend
+    from meshsom.som import SOM
+
+    def no_layout(*args, **kwargs):
+        raise bmu_opencl.KernelLayoutError("cpu", "test device", "injected")
+
+    monkeypatch.setattr(bmu_opencl, "bmu_opencl", no_layout)
+    monkeypatch.setattr(bmu_opencl, "probe_layout", lambda *a, **k: SimpleNamespace(ok=False))
+    X = np.random.default_rng(4).normal(size=(300, 9)).astype(np.float32)
+    engine = resolve_backend("auto", context=ctx)
+    som = SOM(4, 5, epochs=2, backend=engine, update="device").fit(X)
+    assert engine.describe()["layout"] == "numpy" and som.update_ == "host"
+    ref = SOM(4, 5, epochs=2, backend="numpy").fit(X)
+    assert som.weights_.tobytes() == ref.weights_.tobytes()
