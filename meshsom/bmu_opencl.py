@@ -118,6 +118,9 @@ class KernelParams:
     groups_per_cu : int
         "gemm", ``unit_splits=0``: the splits make at least this many work-groups per compute
         unit when the row tiles alone are fewer.
+    smooth_outputs : int
+        Outputs per work-item of the update's smoothing kernel (``SMOOTH_RJ`` of
+        ``kernels/batch_update.cl``): each value it reads serves this many outputs.
     epoch_kernels : bool
         Build the epoch's kernels (``kernels/epoch_sums.cl``, ``kernels/batch_update.cl``) into the
         program where the device has float64; False: the search alone (what an engine falls back
@@ -142,6 +145,7 @@ class KernelParams:
     max_kt: int = 16
     unit_splits: int = 0
     groups_per_cu: int = 2
+    smooth_outputs: int = 1
     epoch_kernels: bool = True
 
     def __post_init__(self):
@@ -150,7 +154,8 @@ class KernelParams:
         if self.vector_width not in (2, 4, 8, 16):
             raise ValueError(f"vector_width must be 2, 4, 8 or 16, received {self.vector_width}")
         for name in ("unit_blocks", "max_rows", "work_group", "max_dt", "panel", "panel_bytes", "cache_tiles",
-                     "tile_rows", "tile_units", "group_rows", "group_units", "max_kt", "groups_per_cu"):
+                     "tile_rows", "tile_units", "group_rows", "group_units", "max_kt", "groups_per_cu",
+                     "smooth_outputs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
         if self.unit_splits < 0:
@@ -200,7 +205,7 @@ DEFAULT_PARAMS = {
     "cpu-narrow": KernelParams(kernel="cpu", name="cpu-narrow", vector_width=8, unit_blocks=2, max_rows=6, panel=192,
                                cache_tiles=32),
     "gpu": KernelParams(kernel="gemm", name="gpu", vector_width=4, tile_rows=128, tile_units=128, group_rows=16,
-                        group_units=16, max_kt=16),
+                        group_units=16, max_kt=16, smooth_outputs=4),
     "tiled": KernelParams(kernel="tiled", name="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
                           work_group=64, max_dt=64),
 }
@@ -512,6 +517,7 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
         "D": D,
         "NV": n,
         "EPOCH": int(params.epoch_kernels),
+        "SMOOTH_RJ": params.smooth_outputs,
     }
     if params.kernel == "cpu" and step * staged <= params.panel_bytes:
         rows = max(step, min(params.panel // n, params.panel_bytes // staged) // step * step)
@@ -1367,8 +1373,11 @@ def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, mi
     queue = queue or _queue(context)
     group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
 
-    def along(src, A, L, B, kern, dst):  # one work-item per output
-        smooth(queue, (-(-A * L * B // group) * group,), (group,), src, np.int32(A), np.int32(L), np.int32(B), kern, dst)
+    rj = int(sums.defines.get("SMOOTH_RJ", 1))
+
+    def along(src, A, L, B, kern, dst):  # one work-item per run of SMOOTH_RJ outputs along the axis
+        items = A * -(-L // rj) * B
+        smooth(queue, (-(-items // group) * group,), (group,), src, np.int32(A), np.int32(L), np.int32(B), kern, dst)
 
     new = np.empty((M, D), real)
     try:

@@ -209,7 +209,7 @@ KERNEL_PARAMS = {
     "cpu": {"kernel": "cpu"},
     "cpu-narrow": {"kernel": "cpu", "vector_width": 8, "unit_blocks": 2, "max_rows": 6, "cache_tiles": 32},
     "gemm-gpu": {"kernel": "gemm", "vector_width": 4, "tile_rows": 128, "tile_units": 128, "group_rows": 16,
-                 "group_units": 16, "max_kt": 16},
+                 "group_units": 16, "max_kt": 16, "smooth_outputs": 4},
     "gemm-split": {"kernel": "gemm", "vector_width": 2, "tile_rows": 16, "tile_units": 24, "group_rows": 4,
                    "group_units": 4, "max_kt": 8, "unit_splits": 3},
     "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
