@@ -19,7 +19,7 @@ ran (:meth:`Engine.describe`), so results can say what computed them.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -157,8 +157,6 @@ class Engine:
     def _params(self, name: str):
         """The tiling of layout ``name`` on this engine's device, without the epoch's kernels where
         they failed (:attr:`search_only`)."""
-        from dataclasses import replace
-
         from meshsom import bmu_opencl
 
         params = bmu_opencl.layout_params(self.context.devices[0], name)
