@@ -105,7 +105,7 @@ __kernel void row_errors(__global const REAL *X,        /* (N, D) */
 }
 
 /* squared distance of row r's varied vector (variation v) to prototype w, in double, dimension order */
-static double varied_dist2(__global const REAL *X, const size_t x0, __global const int *index,
+inline double varied_dist2(__global const REAL *X, const size_t x0, __global const int *index,
                            __global const REAL *sign, const int v, __global const REAL *W, const size_t w0)
 {
     double s = 0.0;
@@ -117,7 +117,7 @@ static double varied_dist2(__global const REAL *X, const size_t x0, __global con
 }
 
 /* Python's divmod for a possibly negative unit number */
-static int floor_div(const int a, const int b) { return a / b - (a % b != 0 && (a < 0) != (b < 0)); }
+inline int floor_div(const int a, const int b) { return a / b - (a % b != 0 && (a < 0) != (b < 0)); }
 
 __kernel void topographic_errors(__global const REAL *X,        /* (N, D) */
                                  const int N,
