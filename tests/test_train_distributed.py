@@ -132,3 +132,37 @@ def test_won_unit_sums_add_like_dense_sums():
         assert won[key].tobytes() == dense[key].tobytes(), key
     for key in ("n", "t_bad", "q_sum", "qc_sum"):
         assert won[key] == dense[key], key
+
+
+def test_each_block_runs_on_one_worker_every_epoch(client, store, monkeypatch):
+    """Each row block goes to the same worker every epoch, so each worker reads, standardizes (and, on
+    OpenCL, uploads) only its own blocks; left to the scheduler, blocks wander and every worker ends
+    up holding every block."""
+    from meshsom import som as som_module
+    from pipelines.train import block_workers
+
+    n = load_level(open_store(store), 1).shape[0]
+    block = -(-n // 6)  # six blocks
+    real = som_module.row_blocks
+    monkeypatch.setattr(som_module, "BLOCK_ROWS", block)  # the BMU arrays' chunks: one per block
+    monkeypatch.setattr(som_module, "row_blocks", lambda n, block_rows=block: real(n, block_rows))
+    ranges = real(n, block)
+    assert len(ranges) == 6
+    result = train_spec(client, job(store, name="placed", epochs=5))
+    assert len(result["history"]) == 5
+
+    def held(store=store):
+        from pipelines.train import _CHUNKS
+
+        return sorted((k[3], k[4]) for k in _CHUNKS if k[0] == store and k[1] == 1)
+
+    where = {r: [w for w, rs in client.run(held).items() if r in rs] for r in ranges}
+    homes = block_workers(client, len(ranges))
+    assert all(where[r] == [home] for r, home in zip(ranges, homes)), where
+    assert len(set(homes)) == 2
+    # every block wrote its BMUs: the final codebook's own answer for every row
+    from meshsom.bmu_numpy import bmu_numpy
+
+    cb = load_codebook(open_store(store), "placed")
+    index, sign = variation_table(1, kernel="bmuofn")
+    np.testing.assert_array_equal(cb.bmu.unit, bmu_numpy(load_level(open_store(store), 1), cb.weights, index, sign).unit)
