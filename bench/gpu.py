@@ -222,10 +222,10 @@ def xpysom_epoch(cupy, XPySom, X, rows, cols):
     cupy.cuda.Device().synchronize()
 
 
-def device_epoch(X, W, index, sign, engine, rows, cols, sigma=5.0):
+def device_epoch(X, W, index, sign, engine, rows, cols, sigma=5.0, update="auto"):
     """One epoch as ``SOM.fit`` runs it without the error sums: the search, the per-unit sums and the
-    update, the sums kept on the device and updated there where ``update="auto"`` says so."""
-    on_device = engine.update_on_device("auto")
+    update, the sums kept on the device and updated there where ``update`` says so."""
+    on_device = engine.update_on_device(update)
     bmu = engine.search(X, W, index, sign)
     sums, counts = engine.unit_sums(X, W, bmu, index, sign, keep=on_device)
     return engine.batch_update(W, sums, counts, sigma, rows, cols, "toroidal")
@@ -252,7 +252,7 @@ def epoch_table(args, ctx):
     except ImportError as err:
         cupy = XPySom = None
         say(f"note: XPySom + CuPy not importable ({err}): n/a")
-    where = "device" if engine.update_on_device("auto") else "host"
+    where = "device" if engine.update_on_device(args.update) else "host"
     say(f"\n(b) seconds per epoch, map {rows}x{cols}; meshsom: search + per-unit sums + update (on the {where}), "
         f"OpenCL engine, rows resident (read-only X) unless 'copied' (copied: host update)")
     say(f"{'N':>9} {'D':>4} {'default':>9} {'BMUofN (n)':>14} {'copied':>9} {'XPySom+CuPy':>12} "
@@ -265,10 +265,10 @@ def epoch_table(args, ctx):
         meshsom_epoch(X, W, *ident, engine, rows, cols)  # warm-up: builds the program
         t_copied = best_time(lambda: meshsom_epoch(X, W, *ident, engine, rows, cols), repeat)  # writable X
         X.flags.writeable = False  # X owns its rows: from now on they stay on the device
-        default = chained(lambda W: device_epoch(X, W, *ident, engine, rows, cols), W)
+        default = chained(lambda W: device_epoch(X, W, *ident, engine, rows, cols, update=args.update), W)
         default()  # warm-up: sends the rows
         t_default = best_time(default, repeat)
-        varied = chained(lambda W: device_epoch(X, W, index, sign, engine, rows, cols), W)
+        varied = chained(lambda W: device_epoch(X, W, index, sign, engine, rows, cols, update=args.update), W)
         varied()
         t_n = best_time(varied, repeat)
         if XPySom is not None:
@@ -277,18 +277,18 @@ def epoch_table(args, ctx):
             peer = f"{t_x:12.4f} {t_x / t_default:15.2f}"
         else:
             peer = f"{'n/a':>12} {'n/a':>15}"
-        parts = epoch_parts(X, W, ident, engine, rows, cols, repeat)
+        parts = epoch_parts(X, W, ident, engine, rows, cols, repeat, args.update)
         say(f"{N:>9} {D:>4} {t_default:9.4f} {f'{t_n:.4f} ({n})':>14} {t_copied:9.4f} {peer}  {parts}")
         del X  # frees the rows' device copy too
 
 
-def epoch_parts(X, W, table, engine, rows, cols, repeat) -> str:
+def epoch_parts(X, W, table, engine, rows, cols, repeat, update="auto") -> str:
     """Where a default-kernel epoch's time goes (resident rows): the search, the per-unit sums and
     the update (each on the device or the host, as :func:`device_epoch` takes them), each the best
     of ``repeat`` after the epochs timed before; the search against a codebook the update left on
     the device."""
     index, sign = table
-    on_device = engine.update_on_device("auto")
+    on_device = engine.update_on_device(update)
     bmu = engine.search(X, W, index, sign)
     sums, counts = engine.unit_sums(X, W, bmu, index, sign, keep=on_device)
     new = engine.batch_update(W, sums, counts, 5.0, rows, cols, "toroidal")
@@ -338,15 +338,16 @@ def training_table(args) -> None:
     levels = np.load(args.levels)
     rows, cols = MAP
     say(f"\n(c) training epochs (SOM.fit: search, per-unit sums, T/Q/QC error sums, update), map {rows}x{cols}, "
-        f"OpenCL engine; median seconds of the epochs after the first, with the update where update='auto' "
-        f"runs it and on the host; the trained map's T / Q / QC (the paper maps: configs/paper.yaml's settings)")
+        f"OpenCL engine; median seconds of the epochs after the first, with the update where --update "
+        f"({args.update}) puts it and on the host; the trained map's T / Q / QC (the paper maps: configs/paper.yaml's "
+        f"settings)")
     say(f"{'map':>22} {'N':>9} {'n x D':>7} {'epochs':>6} {'s/epoch':>9} {'host upd.':>9} {'T / Q / QC':>22}  "
         f"sums and errors on; update")
     for level, kernel in PAPER_MAPS:
         X = levels[f"X{level}"]
         index, sign = levels[f"index_{level}_{kernel}"], levels[f"sign_{level}_{kernel}"]
         epochs = 3 if args.quick else PAPER_EPOCHS
-        t, where, e = fit_epochs(X, index, sign, epochs, args.device, evaluate=True)
+        t, where, e = fit_epochs(X, index, sign, epochs, args.device, update=args.update, evaluate=True)
         t_host = fit_epochs(X, index, sign, epochs, args.device, update="host")[0]
         errors = f"{e['t_error']:.4f} / {e['q_error']:.4f} / {e['qc_error']:.4f}"
         say(f"{f'paper level {level} {kernel}':>22} {len(X):>9} {f'{len(index)}x{X.shape[1]}':>7} {epochs:>6} "
@@ -356,7 +357,7 @@ def training_table(args) -> None:
     rng = np.random.default_rng(LARGE_SEED)
     X = X3[np.arange(N) % len(X3)] + rng.normal(scale=LARGE_NOISE, size=(N, X3.shape[1])).astype(np.float32)
     index, sign = levels["index_3_bmuofn"], levels["sign_3_bmuofn"]
-    t, where, _ = fit_epochs(X, index, sign, LARGE_EPOCHS, args.device)
+    t, where, _ = fit_epochs(X, index, sign, LARGE_EPOCHS, args.device, update=args.update)
     say(f"{'level 3 x 1e6 bmuofn':>22} {N:>9} {f'{len(index)}x{X.shape[1]}':>7} {LARGE_EPOCHS:>6} {t:9.4f} "
         f"{'':>9} {'':>22}  {where}")
 
@@ -421,6 +422,9 @@ def main(argv=None) -> int:
     parser.add_argument("--keep-default", action="store_true",
                         help="with --autotune: run the tables with the default tiling, not the tuned one")
     parser.add_argument("--levels", default=None, help="an .npz of --export-levels: table (c), training epochs")
+    parser.add_argument("--update", default="auto", choices=["auto", "host", "device"],
+                        help="where meshsom's epochs update in tables (b) and (c) (SOM's update; 'auto': "
+                             "on a GPU with float64)")
     parser.add_argument("--only-training", action="store_true", help="table (c) alone")
     parser.add_argument("--export-levels", nargs=2, metavar=("STORE", "NPZ"),
                         help="write a paper store's level vectors and variation tables for --levels, and stop")

@@ -82,3 +82,26 @@ def test_training_table_runs_every_map(levels, capsys):
     want = SOM(*MAP, epochs=3, backend="numpy", random_state=0).fit(X, index, sign).evaluate(X)
     got = {k: float(rows[3][k]) for k in ("T", "Q", "QC")}
     assert got == {k: round(want[f"{k.lower()}_error"], 4) for k in ("T", "Q", "QC")}
+
+
+def test_all_tables_with_the_update_on_the_device(levels, capsys, monkeypatch):
+    """Tables (a), (c) and (b) end to end with --update device, as a GPU runs them ("auto" there), on a
+    small map: the code paths of the GPU run, which CI's CPU device otherwise leaves to the host."""
+    import bench.gpu as gpu
+    from meshsom.bmu_opencl import get_context, has_fp64
+    from tests.test_bmu import _opencl_context
+
+    _opencl_context()
+    if not has_fp64(get_context(None)):
+        pytest.skip("no float64: the update stays on the host")
+    monkeypatch.setattr(gpu, "MAP", (6, 8))
+    monkeypatch.setattr(gpu, "BMU_WORKLOADS", [(300, 3, 9)])
+    monkeypatch.setattr(gpu, "EPOCH_WORKLOADS", [(300, 3, 9), (200, 3, 36)])
+    monkeypatch.setattr(gpu, "LARGE_ROWS", 500 * gpu.QUICK_DIVISOR)
+    _, npz = levels
+    assert gpu.main(["--quick", "--repeat", "1", "--no-old", "--update", "device", "--levels", str(npz)]) == 0
+    out = capsys.readouterr().out
+    training = [ROW.match(line) for line in out.splitlines() if line.strip().startswith(("paper level", "level 3 x"))]
+    assert len(training) == 5 and all(r and r["where"] == "device; update on the device" for r in training), out
+    epochs = [line for line in out.splitlines() if re.match(r"\s+(300|200)\s+(9|36)\s", line)]
+    assert len(epochs) == 2 and all(line.endswith("(device)") and line.count("(device)") == 2 for line in epochs), out
