@@ -358,9 +358,11 @@ def compare_sums(context, queue, defines, X, index, sign, unit, variation, M: in
     from meshsom.bmu_numpy import BMUResult, unit_sums
     from meshsom.metrics import row_errors
 
-    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
-    blocks = [(0, len(X) // 2), (len(X) // 2, len(X))]  # two row blocks, added in order
-    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, unit, variation, M, blocks)
+    # the program is built (the search's, unguarded, in this child): its other kernels come from it
+    half = -(-len(X) // 2)
+    blocks = [(0, half), (half, len(X))]  # two row blocks (the device's order), added in order
+    sums, counts = bmu_opencl.launch_unit_sums(context, queue, defines, X, index, sign, unit, variation, M, blocks,
+                                               order_on_device=True)
     want, want_counts = unit_sums(X, unit, variation, index, sign, M, blocks)
     if not np.array_equal(counts, want_counts):
         return "wrong per-unit counts"
@@ -430,9 +432,8 @@ def compare_update(context, queue, defines, X, index, sign, unit, variation, W) 
     cols = len(W) // rows
     M = rows * cols
     folded = unit % M
-    kernel = bmu_opencl.get_kernel(context, defines, bmu_opencl.UNIT_SUMS, guard=False)
-    sums, counts = bmu_opencl.launch_unit_sums(context, queue, kernel, X, index, sign, folded, variation, M,
-                                               keep=(defines, "probe"))
+    sums, counts = bmu_opencl.launch_unit_sums(context, queue, defines, X, index, sign, folded, variation, M,
+                                               keep=True, layout="probe")
     W = np.ascontiguousarray(W[:M])
     got = bmu_opencl.batch_update_opencl(W, sums, counts, gaussian_kernel_1d(rows, PROBE_UPDATE_SIGMA),
                                          gaussian_kernel_1d(cols, PROBE_UPDATE_SIGMA), MIN_WEIGHT, queue)

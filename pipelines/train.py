@@ -42,6 +42,8 @@ CHUNK_CACHE_BYTES = 1 << 30
 #: Times a pass is run again when a worker dies under the client's own transfers, and the wait.
 PASS_RETRIES = 3
 PASS_RETRY_WAIT_S = 1.0
+#: Seconds between checks, while waiting for a block pinned to a worker, that the worker is still there.
+PLACEMENT_CHECK_S = 2.0
 
 log = logging.getLogger(__name__)
 
@@ -219,6 +221,10 @@ def _codebook(W: np.ndarray) -> np.ndarray:
     return W
 
 
+class WorkerLost(OSError):
+    """A worker that row blocks are pinned to left the cluster during a pass (the pass runs again)."""
+
+
 def block_workers(client, n_blocks: int) -> list:
     """The worker each row block runs on in every pass: the cluster's workers in address order,
     round robin over the blocks (None for all: no worker yet).
@@ -227,10 +233,11 @@ def block_workers(client, n_blocks: int) -> list:
     that worker's cache (:func:`load_chunk`) and, on OpenCL, resident on its device: left to
     itself the scheduler moves blocks between workers from epoch to epoch, and each worker ends
     up reading, standardizing and uploading every block (measured with 2 workers: each held all
-    4 blocks of a run). The placement is a preference (``allow_other_workers``): a block whose
-    worker is gone runs elsewhere.
+    4 blocks of a run). The placement is strict, as only strict restrictions keep Dask's work
+    stealing off a task; a pass whose worker leaves runs again on the workers there are
+    (:class:`WorkerLost`, :func:`_pass`).
     """
-    workers = sorted(client.scheduler_info().get("workers", {}))
+    workers = sorted(client.nthreads())  # asked of the scheduler now (scheduler_info() may be stale)
     return [workers[i % len(workers)] if workers else None for i in range(n_blocks)]
 
 
@@ -244,6 +251,7 @@ def _pass(client, job: TrainJob, ranges, W: np.ndarray, retries: int = PASS_RETR
     tasks of a dead worker; this covers the client's own transfers.
     """
     for attempt in range(retries + 1):
+        futures = []
         try:
             # The codebook travels as a task's input, not by scatter: if the worker holding it dies,
             # the scheduler recomputes it from the graph instead of losing it.
@@ -251,10 +259,15 @@ def _pass(client, job: TrainJob, ranges, W: np.ndarray, retries: int = PASS_RETR
                 warnings.filterwarnings("ignore", message=".*[Ll]arge (object|graph).*")
                 wf = client.submit(_codebook, W, pure=False)
             homes = block_workers(client, len(ranges))
-            return _reduce([client.submit(chunk_pass, job, a, b, wf, True, pure=False,
-                                          workers=None if home is None else [home], allow_other_workers=True)
-                            for (a, b), home in zip(ranges, homes)])
-        except OSError as err:  # distributed's CommClosedError is an OSError
+            futures = [client.submit(chunk_pass, job, a, b, wf, True, pure=False,
+                                     **({} if home is None else {"workers": [home]}))
+                       for (a, b), home in zip(ranges, homes)]
+            return _reduce(futures, client, homes)
+        except OSError as err:  # distributed's CommClosedError is an OSError, and so is WorkerLost
+            try:
+                client.cancel(futures)  # blocks pinned to a lost worker would wait forever
+            except Exception:  # noqa: BLE001 - the pass runs again (or fails) either way
+                pass
             if attempt == retries:
                 raise
             log.warning("training pass of %s interrupted (%s); running it again", job.run, err)
@@ -284,18 +297,32 @@ def add_won_sums(total: dict | None, part: dict) -> dict:
     return total
 
 
-def _reduce(futures) -> dict:
+def _result(client, fut, home):
+    """``fut.result()``; for a block pinned to worker ``home``, checked every :data:`PLACEMENT_CHECK_S`
+    that the worker is still in the cluster (else :class:`WorkerLost`)."""
+    if client is None or home is None:
+        return fut.result()
+    while True:
+        try:
+            return fut.result(timeout=PLACEMENT_CHECK_S)
+        except TimeoutError:
+            if home not in client.nthreads():
+                raise WorkerLost(f"worker {home} left the cluster") from None
+
+
+def _reduce(futures, client=None, homes=None) -> dict:
     """Add the blocks' sums in block order (as :func:`meshsom.som.add_sums`), fetching one at a time.
 
     The order makes the float64 sums (and so the codebook) independent of which worker finished
     first, and equal to ``SOM.fit``'s; fetching one result at a time keeps the client's memory at
-    two (M, D) arrays however many blocks there are.
+    two (M, D) arrays however many blocks there are. With ``client`` and ``homes`` (the worker each
+    block is pinned to), a block whose worker left raises :class:`WorkerLost`.
     """
     total = None
     layouts: set = set()
     fallbacks: list = []
-    for fut in futures:
-        part = fut.result()
+    for i, fut in enumerate(futures):
+        part = _result(client, fut, None if homes is None else homes[i])
         layouts.update(filter(None, part["layout"].split(",")))
         fallbacks += [f for f in part["fallback"].split("; ") if f and f not in fallbacks]
         total = add_won_sums(total, part)

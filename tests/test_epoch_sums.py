@@ -101,8 +101,10 @@ def params(request):
     (500, 144, 70, 3, np.float32, False),
     (700, 12, 40, 2, np.float64, True),
 ])
-def test_device_sums_are_the_host_sums(ctx, params, N, D, M, n, dtype, frozen):
-    """Every layout's program: the sums kernel gives the host's bits, resident rows or copied."""
+@pytest.mark.parametrize("order_on_device", [False, True])
+def test_device_sums_are_the_host_sums(ctx, params, N, D, M, n, dtype, frozen, order_on_device):
+    """Every layout's program: the sums kernel gives the host's bits, resident rows or copied, with
+    the order of the rows by unit made on the host or on the device."""
     from meshsom.bmu_opencl import has_fp64, unit_sums_opencl
 
     if not has_fp64(ctx):
@@ -115,8 +117,10 @@ def test_device_sums_are_the_host_sums(ctx, params, N, D, M, n, dtype, frozen):
     unit, variation = winners(N, M, n, seed=N)
     bmu = BMUResult(unit, variation, np.zeros(N), unit)
     for _ in range(2):  # the second call reads the resident rows
-        sums, counts = unit_sums_opencl(X, W, bmu, index, sign, context=ctx, params=params)
-        want, want_counts = unit_sums(X, unit, variation, index, sign.astype(dtype), M)
+        blocks = [(a, min(N, a + 400)) for a in range(0, N, 400)]
+        sums, counts = unit_sums_opencl(X, W, bmu, index, sign, context=ctx, params=params, blocks=blocks,
+                                        order_on_device=order_on_device)
+        want, want_counts = unit_sums(X, unit, variation, index, sign.astype(dtype), M, blocks)
         np.testing.assert_array_equal(counts, want_counts)
         assert sums.tobytes() == want.tobytes()
 
@@ -440,3 +444,35 @@ def test_device_topographic_errors_are_the_tie_rule(ctx, params, topology, neigh
     np.testing.assert_array_equal(got, want)
     assert 0 < want.sum() < len(X)
     assert want.sum() < topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood).sum()  # ties
+
+
+# ----------------------------------------------------------------------------- the order on the device
+
+
+def test_uniform_block_rows():
+    from meshsom.bmu_opencl import uniform_block_rows
+
+    assert uniform_block_rows(None, 10) == 10 and uniform_block_rows(None, 0) is None
+    assert uniform_block_rows([(0, 4), (4, 8), (8, 10)], 10) == 4
+    assert uniform_block_rows([(0, 10)], 10) == 10
+    assert uniform_block_rows([(0, 4), (4, 10)], 10) is None  # the last is longer
+    assert uniform_block_rows([(0, 3), (4, 10)], 10) is None  # a gap
+    assert uniform_block_rows([(0, 0)], 0) is None
+
+
+@pytest.mark.parametrize("N, M, block", [(1000, 50, 300), (5000, 70_000, 1000), (3000, 40, 3000), (129, 7, 64),
+                                          (20_000, 300, 16384)])
+def test_device_unit_order_is_the_host_order(ctx, params, N, M, block):
+    """The stable order of rows by (block, unit) made on the device: the host's, row for row (units
+    skewed, as flat walls make them; blocks of whole chunks and not; M above 16 bits)."""
+    from meshsom.bmu_opencl import has_fp64, unit_order_opencl
+    from meshsom.som import row_blocks
+
+    if not has_fp64(ctx):
+        pytest.skip("the OpenCL device has no float64: no epoch kernels")
+    unit, _ = winners(N, M, 1, seed=N + M)
+    blocks = row_blocks(N, block)
+    order, offsets = unit_order_opencl(unit, M, blocks, context=ctx, params=params)
+    want, want_offsets = unit_order(unit, M, blocks)
+    np.testing.assert_array_equal(offsets, want_offsets)
+    np.testing.assert_array_equal(order, want)

@@ -166,3 +166,20 @@ def test_each_block_runs_on_one_worker_every_epoch(client, store, monkeypatch):
     cb = load_codebook(open_store(store), "placed")
     index, sign = variation_table(1, kernel="bmuofn")
     np.testing.assert_array_equal(cb.bmu.unit, bmu_numpy(load_level(open_store(store), 1), cb.weights, index, sign).unit)
+
+
+def test_a_block_pinned_to_a_worker_that_left_raises_worker_lost(client, monkeypatch):
+    """A block pinned to a worker that is no longer in the cluster would wait forever: the pass
+    notices (every PLACEMENT_CHECK_S) and raises WorkerLost, which runs the pass again."""
+    import operator
+
+    from pipelines import train
+
+    monkeypatch.setattr(train, "PLACEMENT_CHECK_S", 0.2)
+    gone = "tcp://127.0.0.1:9"  # no worker there
+    fut = client.submit(operator.add, 1, 2, workers=[gone], pure=False)
+    with pytest.raises(train.WorkerLost, match="left the cluster"):
+        train._result(client, fut, gone)
+    client.cancel(fut)
+    home = sorted(client.nthreads())[0]
+    assert train._result(client, client.submit(operator.add, 1, 2, workers=[home], pure=False), home) == 3

@@ -6,8 +6,8 @@
  * block, the varied values sign[v, k] * X[r, index[v, k]] of the block's rows r that u won (v: each
  * row's winning variation), converted to double and added one after another to 0 in row order;
  * the blocks' sums then added in block order to the running total of earlier passes, init (an
- * epoch's reduction of row blocks, one launch for all the blocks of a pass). The rows of each (block, unit) come from a stable counting order made on the host
- * (order, offsets: meshsom.bmu_numpy.unit_order). One work-item per (u, k), k fastest, so that the
+ * epoch's reduction of row blocks, one launch for all the blocks of a pass). The rows of each (block, unit) come from a stable counting order
+ * (order, offsets: meshsom.bmu_numpy.unit_order, or the same made here by stable_unit_order). One work-item per (u, k), k fastest, so that the
  * work-items of one unit read one row together.
  *
  * row_errors: meshsom.metrics.row_errors. Per row, the residual d_k = x_v[k] - w_u[k] in double;
@@ -38,6 +38,90 @@
 #ifdef MESHSOM_INJECT_EPOCH_ERROR /* test hook (MESHSOM_KERNEL_INJECT "<layout>=epoch-error"): these kernels fail */
 #error "injected build failure of the epoch kernels (MESHSOM_KERNEL_INJECT test hook)"
 #endif
+
+/* The stable order of rows by (block, unit) that unit_sums reads, made on the device (the same as
+ * meshsom.bmu_numpy.unit_order, for blocks of block_rows rows): unit_counts counts the rows of each
+ * (block, unit) (counts zeroed by the host), exclusive_scan turns the counts into offsets (one
+ * work-group), stable_unit_order writes each row at its unit's cursor (a copy of the offsets), one
+ * work-group per block walking its rows in chunks of ORDER_GROUP in row order: a row's place is
+ * the cursor plus the rows of the same unit before it in the chunk, so rows stay in row order
+ * within a unit; unit_totals adds each unit's counts over the blocks. */
+#define ORDER_GROUP 64
+
+__kernel void unit_counts(__global const int *unit, const int N, const int block_rows, const int M,
+                          __global int *counts)         /* (B * M), zeroed */
+{
+    const int r = get_global_id(0);
+    if (r < N)
+        atomic_inc(&counts[(r / block_rows) * M + unit[r]]);
+}
+
+__kernel __attribute__((reqd_work_group_size(ORDER_GROUP, 1, 1)))
+void exclusive_scan(__global const int *counts, const int n, __global int *offsets) /* (n + 1) */
+{
+    __local int part[ORDER_GROUP];
+    const int lid = get_local_id(0);
+    const int seg = (n + ORDER_GROUP - 1) / ORDER_GROUP, a = min(n, lid * seg), b = min(n, a + seg);
+    int s = 0;
+    for (int i = a; i < b; ++i)
+        s += counts[i];
+    part[lid] = s;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (lid == 0) {
+        int acc = 0;
+        for (int i = 0; i < ORDER_GROUP; ++i) {
+            const int t = part[i];
+            part[i] = acc;
+            acc += t;
+        }
+        offsets[n] = acc;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int acc = part[lid];
+    for (int i = a; i < b; ++i) {
+        offsets[i] = acc;
+        acc += counts[i];
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(ORDER_GROUP, 1, 1)))
+void stable_unit_order(__global const int *unit, const int N, const int block_rows, const int M,
+                       __global int *cursor,            /* (B * M): offsets[:-1], advanced here */
+                       __global int *order)             /* (N,) */
+{
+    __local int chunk[ORDER_GROUP];
+    const int lid = get_local_id(0), b = get_group_id(0);
+    const int r0 = b * block_rows, r1 = min(N, r0 + block_rows);
+    for (int c = r0; c < r1; c += ORDER_GROUP) {
+        const int r = c + lid;
+        const int u = r < r1 ? unit[r] : -1;
+        chunk[lid] = u;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        int rank = 0, last = 1;
+        for (int j = 0; j < ORDER_GROUP; ++j) {
+            const int same = chunk[j] == u;
+            rank += same && j < lid;
+            last &= !(same && j > lid);
+        }
+        if (u >= 0)
+            order[cursor[b * M + u] + rank] = r;
+        barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
+        if (u >= 0 && last)
+            cursor[b * M + u] += rank + 1;
+        barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);
+    }
+}
+
+__kernel void unit_totals(__global const int *offsets, const int B, const int M, __global int *totals) /* (M,) */
+{
+    const int u = get_global_id(0);
+    if (u >= M)
+        return;
+    int t = 0;
+    for (int b = 0; b < B; ++b)
+        t += offsets[b * M + u + 1] - offsets[b * M + u];
+    totals[u] = t;
+}
 
 __kernel void unit_sums(__global const REAL *X,        /* (N, D) */
                         __global const int *index,     /* (NV, D) */
