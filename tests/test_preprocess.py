@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import shapely
 import trimesh
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from conftest import box
@@ -136,8 +136,32 @@ def star_polygons(draw):
     return np.stack([radii * np.cos(angles), radii * np.sin(angles)], axis=1)
 
 
+def bends(shell: np.ndarray) -> np.ndarray:
+    """Degrees each corner of a polygon turns (0: collinear)."""
+    e = np.roll(shell, -1, axis=0) - shell
+    a = np.degrees(np.arctan2(e[:, 1], e[:, 0]))
+    return np.abs((np.diff(np.concatenate([a, a[:1]])) + 180.0) % 360.0 - 180.0)
+
+
+#: Cases hypothesis found in a fresh clone's CI: walls with an edge of a few centimetres (radii >= 1,
+#: angular gaps >= 0.05), which the fold clean-up (max_fold_v) collapses by default.
+SHORT_EDGE_SHELLS = [
+    (np.array([[1.0, 0.0], [0.87758256, 0.47942554], [0.76282528, 0.64660467], [0.64099686, 0.7675435],
+               [0.09284258, 1.30921217], [-0.17824606, 0.98398595], [-0.41614684, 0.90929743],
+               [-0.80114362, 0.59847214], [-0.9899925, 0.14112001], [-0.93645669, -0.35078323],
+               [-0.65364362, -0.7568025], [0.28366219, -0.95892427]]), 1.0, True),
+    (np.array([[1.0, 0.0], [-0.41614684, 0.90929743], [0.03760215, -0.99929279], [0.09994388, -0.99499308],
+               [0.56732437, -1.91784855]]), 7.0, False),
+    (np.array([[1.0, 0.0], [0.54030231, 0.84147098], [-0.83229367, 1.81859485], [-0.9899925, 0.14112001],
+               [-1.14387634, -1.32440437]]), 1.0, True),
+]
+
+
 @settings(max_examples=40, deadline=None)
 @given(star_polygons(), st.floats(0.5, 30.0), st.booleans())
+@example(*SHORT_EDGE_SHELLS[0])
+@example(*SHORT_EDGE_SHELLS[1])
+@example(*SHORT_EDGE_SHELLS[2])
 def test_extruded_polygons_stay_closed_outward_and_volume_equal(shell, height, subdivide):
     if shell is None or not shapely.Polygon(shell).is_valid:
         return
@@ -146,17 +170,21 @@ def test_extruded_polygons_stay_closed_outward_and_volume_equal(shell, height, s
         v, f = trimesh.remesh.subdivide(v, f)
     volume = shapely.Polygon(shell).area * height
     n = len(shell)
-    # Exact without flattening (no vertex may move or vanish) ...
-    exact = preprocess(v, f, PreprocessParams(flatten_collinear=False))
+    # Exact without flattening and without the fold clean-up's collapses (no vertex may move or vanish) ...
+    exact = preprocess(v, f, PreprocessParams(flatten_collinear=False, max_fold_v=0.0, planar_angle_deg=1e-6))
     assert validate(exact.vertices, exact.faces) is None
     assert exact.volume_out == pytest.approx(volume, rel=1e-9)
     if not subdivide:  # (subdivision midpoints stay when flattening is off)
         assert len(exact.faces) == 4 * n - 4
-    # ... and within the volume tolerance when nearly collinear corners are flattened.
+    # ... and within the volume tolerance with the defaults (nearly collinear corners flattened,
+    # short edges with extreme folds collapsed: then walls may tilt and keep more triangles)
     r = preprocess(v, f)
     assert validate(r.vertices, r.faces) is None
     assert r.volume_out == pytest.approx(volume, rel=PreprocessParams().volume_rtol)
-    assert len(r.faces) <= 4 * n - 4
+    if not r.repairs and bends(shell).min() > 2 * PreprocessParams().planar_angle_deg:
+        # (a corner bent by less than the planar angle merges its two walls into one region, which
+        # keeps subdivision midpoints where flattening the corner would move the volume too far)
+        assert len(r.faces) <= 4 * n - 4
 
 
 def test_open_floor_is_capped_and_recorded():
