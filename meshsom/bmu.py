@@ -25,7 +25,7 @@ import numpy as np
 
 from meshsom.bmu_numpy import BMUResult, bmu_numpy, unit_sums, validate
 from meshsom.errors import DeviceError
-from meshsom.metrics import COMPONENT, row_errors, tied_with_neighbour, topographic_errors
+from meshsom.metrics import COMPONENT, row_errors, tie_ruled_errors
 
 log = logging.getLogger(__name__)
 
@@ -271,7 +271,7 @@ class Engine:
     def topographic_errors(self, X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None,
                            sign=None, neighbourhood: int = 8) -> np.ndarray:
         """Per row, whether it is a topographic error, with the tie rule
-        (:func:`meshsom.metrics.topographic_errors`, :func:`meshsom.metrics.tied_with_neighbour`).
+        (:func:`meshsom.metrics.tie_ruled_errors`).
 
         On the device where :meth:`unit_sums` runs there (the same to rounding); else on the host.
 
@@ -282,10 +282,8 @@ class Engine:
         X, W, index, sign = validate(X, W, index, sign)
         found = self._on_device("topographic_errors_opencl", X, W, bmu, index, sign, rows=rows, cols=cols,
                                 topology=topology, neighbourhood=neighbourhood)
-        if found is not None:
-            return found
-        tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
-        return topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied)
+        return found if found is not None else tie_ruled_errors(X, W, bmu, rows, cols, topology, index, sign,
+                                                                neighbourhood)
 
     def update_on_device(self, policy: str = "auto") -> bool:
         """Whether a batch epoch should keep its sums on the device and update there (:data:`UPDATES`).

@@ -941,10 +941,6 @@ class DeviceArray:
     defines: dict
     layout: str
 
-    @property
-    def nbytes(self) -> int:
-        return int(np.prod(self.shape)) * np.dtype(self.dtype).itemsize
-
     def get(self) -> np.ndarray:
         """A host copy.
 
@@ -1056,8 +1052,9 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
 
 def _launch_failed(context, X, what: str, err) -> DeviceError:
     """The error of a failed launch on rows X, as one readable line (pyopencl's error records do not
-    pickle); X's resident copy is dropped, so that a later try copies the rows afresh."""
-    resident_rows(context).discard(X)
+    pickle); X's resident copy is dropped, so that a later try copies the rows afresh (None: no rows)."""
+    if X is not None:
+        resident_rows(context).discard(X)
     first = str(err).splitlines()[0] if str(err) else type(err).__name__
     return DeviceError(f"{device_name(context)}: {what} failed ({type(err).__name__}: {first})")
 
@@ -1510,8 +1507,7 @@ def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, mi
         cl.enqueue_copy(queue, new, out)
         queue.finish()
     except cl.Error as err:
-        first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise DeviceError(f"{device_name(context)}: the update on the device failed ({type(err).__name__}: {first})") from None
+        raise _launch_failed(context, None, "the update on the device", err) from None
     new.flags.writeable = False
     resident_codebooks(context).add(new, out)
     return new

@@ -225,6 +225,19 @@ def tied_with_neighbour(X, W, bmu: BMUResult, rows: int, cols: int, topology: st
     return out
 
 
+def tie_ruled_errors(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
+                     neighbourhood: int = 8) -> np.ndarray:
+    """Per vector, whether it is a topographic error under the tie rule: :func:`topographic_errors`
+    with :func:`tied_with_neighbour` (the host's reference of the OpenCL ``topographic_errors`` kernel).
+
+    Returns
+    -------
+    (N,) bool
+    """
+    tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
+    return topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied)
+
+
 def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toroidal", index=None, sign=None,
                neighbourhood: int = 8, component: int = COMPONENT, distances=None, bad=None) -> dict:
     """The sums behind the T-, Q- and QC-errors of one block of vectors (add blocks, divide by ``n``).
@@ -235,7 +248,7 @@ def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toro
         The per-row distances of :func:`row_errors` where they were taken already (on an OpenCL
         device: :meth:`meshsom.bmu.Engine.row_errors`); None: computed here.
     bad : (N,) bool or None
-        The per-row topographic errors (:func:`topographic_errors` with the tie rule) where they were
+        The per-row topographic errors (:func:`tie_ruled_errors`) where they were
         taken already (:meth:`meshsom.bmu.Engine.topographic_errors`); None: computed here.
 
     Returns
@@ -247,8 +260,7 @@ def error_sums(X, W, bmu: BMUResult, rows: int, cols: int, topology: str = "toro
     """
     q, qc = distances if distances is not None else row_errors(X, W, bmu, index, sign, component)
     if bad is None:
-        tied = tied_with_neighbour(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
-        bad = topographic_errors(bmu.unit, bmu.second, rows, cols, topology, neighbourhood, tied)
+        bad = tie_ruled_errors(X, W, bmu, rows, cols, topology, index, sign, neighbourhood)
     return {
         "n": int(len(q)),
         "t_bad": int(np.count_nonzero(bad)),

@@ -259,7 +259,7 @@ def test_block_sums_take_the_errors_on_the_device(ctx, monkeypatch):
     if not bmu_opencl.has_fp64(ctx):
         pytest.skip("the OpenCL device has no float64")
     host_calls = []
-    for name in ("row_errors", "tied_with_neighbour"):
+    for name in ("row_errors", "tie_ruled_errors"):
         real = getattr(bmu, name)
         monkeypatch.setattr(bmu, name, lambda *a, real=real, **k: host_calls.append(1) or real(*a, **k))
     rng = np.random.default_rng(11)
