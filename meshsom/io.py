@@ -1,4 +1,4 @@
-"""Reading meshes: every format trimesh reads, and CityJSON 1.0 to 2.0.
+"""Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0 and CityJSONSeq, plain or gzipped.
 
 A reader turns one input file into a stream of :class:`RawMesh` (one per
 building or mesh object) and :class:`Rejection` (an object, or the whole file,
@@ -16,16 +16,25 @@ dependency set; ingestion needs only the building boundaries as index arrays,
 which a direct walk of the JSON gives with one NumPy gather per building. The
 reader follows the CityJSON 1.0, 1.1 and 2.0 specifications for the parts it
 uses (transform, Solid, MultiSolid, CompositeSolid, MultiSurface,
-CompositeSurface, holes, LoD, BuildingPart parents/children).
+CompositeSurface, holes, LoD, BuildingPart parents/children), and CityJSON Text
+Sequences (CityJSONSeq, ``.city.jsonl``: a header line, then one CityJSONFeature per
+line, read a line at a time so a whole city never sits in memory at once).
+
+Any input may be gzip-compressed (``tile.city.json.gz``, the form the 3D BAG serves its
+tiles in; ``.obj.gz``): it is recognised by its content, and decompressed under the size
+guards of :class:`ReaderOptions`.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import gzip
 import io
 import json
 import math
 import os
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -40,6 +49,17 @@ from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 #: File name endings read as CityJSON.
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson")
+#: File name endings read as CityJSON Text Sequences (CityJSONSeq).
+CITYJSONSEQ_SUFFIXES = (".city.jsonl", ".jsonl")
+#: A readable name followed by this is a gzip-compressed input (gzip data is recognised by its
+#: content whatever the name).
+GZIP_SUFFIX = ".gz"
+GZIP_MAGIC = b"\x1f\x8b"
+#: Bytes decompressed per read of a gzip input (the size guards are checked between reads).
+GZIP_CHUNK_BYTES = 1 << 20
+#: Decompressed bytes a gzip input may always reach, whatever its compression ratio
+#: (:attr:`ReaderOptions.max_expansion` applies above this).
+GZIP_FREE_BYTES = 1 << 20
 SUPPORTED_CITYJSON_VERSIONS = ("1.0", "1.1", "2.0")
 #: Largest integer CityJSON coordinate taken (exact in float64, no int64 overflow in re-centring).
 MAX_GRID_COORDINATE = 2**53
@@ -57,7 +77,9 @@ class ReaderOptions:
     Attributes
     ----------
     lod : str
-        "highest", "lowest", or an exact LoD such as "1", "2" or "2.2" (CityJSON).
+        "highest", "lowest", or an exact LoD such as "1", "2" or "2.2" (CityJSON). "highest" and
+        "lowest" choose among a building's LoDs of 1 and above when it has any (LoD 0 is a
+        footprint, not a volume); LoD 0 is read when asked for by name ("0").
     parts : str
         "merge": one mesh per Building with its BuildingParts merged in;
         "separate": one mesh per Building geometry and one per BuildingPart.
@@ -81,7 +103,18 @@ class ReaderOptions:
     footprint_simplify : float
         Tolerance (metres) with which extruded footprints are simplified.
     max_vertices : int
-        Refuse a file declaring more vertices than this (memory guard).
+        Refuse a file declaring more vertices than this (memory guard); in a CityJSONSeq file,
+        a feature declaring more.
+    max_bytes : int
+        Refuse a file whose content (decompressed) is larger than this (memory guard: a CityJSON
+        file is parsed whole, about 10 times its size in memory). A CityJSONSeq file is read a
+        line at a time, so only a single line is held to this.
+    max_expansion : float
+        Refuse a gzip input that decompresses to more than this many times its compressed size
+        (plus :data:`GZIP_FREE_BYTES`): real CityJSON and meshes compress 5 to 30 times, a
+        decompression bomb a thousand times. Checked as it decompresses, so a bomb is refused
+        having allocated at most this many times its compressed size (a CityJSONSeq file: one
+        line's worth).
     """
 
     lod: str = "highest"
@@ -93,6 +126,8 @@ class ReaderOptions:
     footprint_seam_width: float = 0.01
     footprint_simplify: float = 0.01
     max_vertices: int = 50_000_000
+    max_bytes: int = 4 << 30
+    max_expansion: float = 200.0
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -110,6 +145,10 @@ class ReaderOptions:
             raise ValueError(f"footprint_seam_width must be >= 0 (metres), received {self.footprint_seam_width}")
         if not self.footprint_grid >= 0:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
+        if not self.max_bytes > 0:
+            raise ValueError(f"max_bytes must be > 0, received {self.max_bytes}")
+        if not self.max_expansion >= 1:
+            raise ValueError(f"max_expansion must be >= 1 (decompressed / compressed size), received {self.max_expansion}")
 
 
 @dataclass(frozen=True)
@@ -184,18 +223,124 @@ def recentre(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return vertices - origin, origin
 
 
-def input_kind(path: Path) -> str:
-    """'cityjson' or 'trimesh' by file name; InputFileError for anything else."""
+def format_name(path: Path) -> str:
+    """The file name that says its format: the name, less a final ``.gz``, in lower case."""
     name = path.name.lower()
-    if any(name.endswith(s) for s in CITYJSON_SUFFIXES):
+    return name[: -len(GZIP_SUFFIX)] if name.endswith(GZIP_SUFFIX) else name
+
+
+def input_kind(path: Path) -> str:
+    """'cityjson', 'cityjsonseq' or 'trimesh' by file name (a final ``.gz`` aside); InputFileError
+    for anything else."""
+    name = format_name(path)
+    if name.endswith(CITYJSONSEQ_SUFFIXES):
+        return "cityjsonseq"
+    if name.endswith(CITYJSON_SUFFIXES):
         return "cityjson"
     if name.endswith(TRIMESH_SUFFIXES):
         return "trimesh"
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl")
     raise InputFileError(
         str(path),
         f"unknown file type {path.suffix or '(no extension)'!r}; expected one of "
-        f"{', '.join(TRIMESH_SUFFIXES + ('.city.json', '.json'))}",
+        f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}",
     )
+
+
+def _gzip_limit(path: Path, compressed: int, options: ReaderOptions) -> int:
+    return int(min(options.max_bytes, options.max_expansion * compressed + GZIP_FREE_BYTES))
+
+
+def _too_large(path: Path, limit: int, compressed: int | None, options: ReaderOptions, what: str = "content") -> InputFileError:
+    if compressed is not None and limit < options.max_bytes:
+        return InputFileError(
+            str(path), f"gzip data expands to more than {limit:,} bytes, over {options.max_expansion:g} times its "
+            f"{compressed:,} compressed bytes (a decompression bomb?; ReaderOptions.max_expansion)")
+    return InputFileError(str(path), f"{what} is larger than {options.max_bytes:,} bytes (ReaderOptions.max_bytes)"
+                          + ("; CityJSONSeq (.city.jsonl, e.g. from `cjseq cat`) is read a line at a time" if what == "content" else ""))
+
+
+def _gzip_error(path: Path, err: Exception) -> InputFileError:
+    if isinstance(err, EOFError):
+        return InputFileError(str(path), "gzip data ends early (a truncated download?)")
+    return InputFileError(str(path), f"is not valid gzip data ({type(err).__name__}: {err})")
+
+
+def read_input_bytes(path: Path, options: ReaderOptions = ReaderOptions()) -> bytes | bytearray:
+    """The whole content of an input file, decompressed when it is gzip data (by its first bytes).
+
+    Raises
+    ------
+    InputFileError
+        The file is empty, larger than ``options.max_bytes`` (decompressed), expands more than
+        ``options.max_expansion`` times, or is corrupt or truncated gzip data.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise InputFileError(str(path), "file is empty")
+    with open(path, "rb") as fh:
+        if fh.read(2) != GZIP_MAGIC:
+            if size > options.max_bytes:
+                raise _too_large(path, options.max_bytes, None, options)
+            fh.seek(0)
+            return fh.read()
+        fh.seek(0)
+        limit = _gzip_limit(path, size, options)
+        data = bytearray()
+        try:
+            with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
+                while chunk := gz.read(min(GZIP_CHUNK_BYTES, limit + 1 - len(data))):
+                    data += chunk
+                    if len(data) > limit:
+                        raise _too_large(path, limit, size, options)
+        except (OSError, EOFError, zlib.error) as err:
+            raise _gzip_error(path, err) from None
+    if not data:
+        raise InputFileError(str(path), "file is empty (gzip data of no bytes)")
+    return data
+
+
+def input_lines(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[tuple[int, bytes | None]]:
+    """The lines of an input file, numbered from 1, read one at a time (gzip data decompressed).
+
+    A line longer than ``options.max_bytes`` is passed over without being held, and given as None.
+
+    Raises
+    ------
+    InputFileError
+        The file is empty, gzip data expands more than ``options.max_expansion`` times in all, or
+        is corrupt or truncated.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise InputFileError(str(path), "file is empty")
+    with open(path, "rb") as fh:
+        compressed = fh.read(2) == GZIP_MAGIC
+        fh.seek(0)
+        stream = gzip.GzipFile(fileobj=fh, mode="rb") if compressed else fh
+        limit = _gzip_limit(path, size, options) if compressed else None
+        total, number = 0, 0
+        try:
+            with stream:
+                while True:  # a line in pieces, so that neither a long line nor a bomb is held whole
+                    pieces, length = [], 0
+                    while piece := stream.readline(GZIP_CHUNK_BYTES):
+                        total += len(piece)
+                        if limit is not None and total > limit:
+                            raise _too_large(path, limit, size, options)
+                        length += len(piece)
+                        if length <= options.max_bytes:
+                            pieces.append(piece)
+                        else:
+                            pieces = None
+                        if piece.endswith(b"\n"):
+                            break
+                    if not length:
+                        return
+                    number += 1
+                    yield number, None if pieces is None else b"".join(pieces)
+        except (OSError, EOFError, zlib.error) as err:
+            raise _gzip_error(path, err) from None
 
 
 @dataclass(frozen=True)
@@ -306,8 +451,10 @@ def read_file(
         kind = input_kind(path)
         if kind == "cityjson":
             yield from read_cityjson(path, options, name)
+        elif kind == "cityjsonseq":
+            yield from read_cityjsonseq(path, options, name)
         else:
-            yield from read_trimesh(path, name)
+            yield from read_trimesh(path, name, options)
     except InputFileError as err:
         yield Rejection(name or str(path), str(path), err.problem)
 
@@ -329,8 +476,8 @@ def _labels_beside(path: Path) -> dict[str, str]:
         ) from None
 
 
-def read_trimesh(path: Path, name: str | None = None) -> Iterator[RawMesh]:
-    """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh.
+def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh]:
+    """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh (gzipped or not: ``house.obj.gz``).
 
     A scene yields one mesh per geometry node, with the node's transform
     applied, id ``name#node`` (``name`` defaults to the file name). Labels come from a ``labels.csv`` (columns
@@ -342,13 +489,10 @@ def read_trimesh(path: Path, name: str | None = None) -> Iterator[RawMesh]:
     """
     import trimesh
 
-    if path.stat().st_size == 0:
-        raise InputFileError(str(path), "file is empty")
-    file_type = path.suffix.lower().lstrip(".")
-    with open(path, "rb") as fh:
-        # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
-        # reads what there is, where a read from the file would first allocate the claimed size.
-        data = io.BytesIO(fh.read())
+    file_type = Path(format_name(path)).suffix.lstrip(".")
+    # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
+    # reads what there is, where a read from the file would first allocate the claimed size.
+    data = io.BytesIO(read_input_bytes(path, options))
     try:
         loaded = trimesh.load(
             data, file_type=file_type, resolver=FolderResolver(path.parent, str(path)),
@@ -357,7 +501,7 @@ def read_trimesh(path: Path, name: str | None = None) -> Iterator[RawMesh]:
     except InputFileError:
         raise
     except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
-        raise InputFileError(str(path), f"cannot be read as {path.suffix} ({type(err).__name__}: {err})") from None
+        raise InputFileError(str(path), f"cannot be read as .{file_type} ({type(err).__name__}: {err})") from None
     label = _labels_beside(path).get(path.name)
     name = name or path.name
     if isinstance(loaded, trimesh.Scene):
@@ -502,51 +646,79 @@ def _type(obj) -> str:
     return otype if isinstance(otype, str) else ""
 
 
-def _check_cityjson_header(cj, path: Path, options: ReaderOptions) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+def _parse_json(data: bytes, where: str):
+    """``json.loads`` of UTF-8 bytes; InputFileError naming ``where`` for anything unreadable."""
+    try:
+        return json.loads(data.decode("utf-8"))
+    except json.JSONDecodeError as err:
+        raise InputFileError(where, f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
+    except UnicodeDecodeError as err:
+        raise InputFileError(where, f"is not UTF-8 text ({err.reason} at byte {err.start})") from None
+    except ValueError as err:  # e.g. an integer literal of more than 4300 digits
+        raise InputFileError(where, f"invalid JSON ({err})") from None
+    except RecursionError:
+        raise InputFileError(where, "invalid JSON: arrays or objects nested too deeply") from None
+
+
+def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = False
+                           ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The vertices, scale and translate of a CityJSON document (or a CityJSONSeq header line)."""
     if not isinstance(cj, dict) or cj.get("type") != "CityJSON":
-        raise InputFileError(str(path), "is JSON but not CityJSON (no \"type\": \"CityJSON\")")
+        what = "its first line is not a CityJSON header" if seq else "is JSON but not CityJSON"
+        found = cj.get("type") if isinstance(cj, dict) else type(cj).__name__
+        raise InputFileError(where, f"{what} (expected \"type\": \"CityJSON\", found {found!r})")
     version = str(cj.get("version", ""))
     major_minor = ".".join(version.split(".")[:2])
     if major_minor not in SUPPORTED_CITYJSON_VERSIONS:
         raise InputFileError(
-            str(path), f"CityJSON version {version!r} is not supported; expected one of {', '.join(SUPPORTED_CITYJSON_VERSIONS)}"
+            where, f"CityJSON version {version!r} is not supported; expected one of {', '.join(SUPPORTED_CITYJSON_VERSIONS)}"
         )
-    verts = cj.get("vertices")
+    verts = cj.get("vertices", [] if seq else None)
     if not isinstance(verts, list):
-        raise InputFileError(str(path), "has no \"vertices\" array")
+        raise InputFileError(where, "has no \"vertices\" array")
     if len(verts) > options.max_vertices:
-        raise InputFileError(str(path), f"declares {len(verts)} vertices, more than the limit of {options.max_vertices}")
-    if not isinstance(cj.get("CityObjects"), dict):
-        raise InputFileError(str(path), "has no \"CityObjects\" object")
+        raise InputFileError(where, f"declares {len(verts)} vertices, more than the limit of {options.max_vertices}")
+    if not isinstance(cj.get("CityObjects", {} if seq else None), dict):
+        raise InputFileError(where, "has no \"CityObjects\" object")
     transform = cj.get("transform")
     scale = translate = None
     if transform is None:
-        if major_minor != "1.0":
+        if major_minor != "1.0" or seq:
             raise InputFileError(
-                str(path), f"has no \"transform\"; CityJSON {major_minor} requires one (integer vertices × scale + translate)"
+                where, f"has no \"transform\"; {'CityJSONSeq' if seq else 'CityJSON ' + major_minor} requires one "
+                "(integer vertices × scale + translate)"
             )
     else:
         try:
             scale = np.asarray(transform["scale"], np.float64).reshape(3)
             translate = np.asarray(transform["translate"], np.float64).reshape(3)
         except (KeyError, TypeError, ValueError):
-            raise InputFileError(str(path), "\"transform\" must hold \"scale\" and \"translate\", three numbers each") from None
+            raise InputFileError(where, "\"transform\" must hold \"scale\" and \"translate\", three numbers each") from None
         if not (np.isfinite(scale).all() and np.isfinite(translate).all() and (scale > 0).all()):
-            raise InputFileError(str(path), f"\"transform\" has invalid values: scale {scale.tolist()}, translate {translate.tolist()}")
+            raise InputFileError(where, f"\"transform\" has invalid values: scale {scale.tolist()}, translate {translate.tolist()}")
+    return _vertex_array(verts, where, scale is not None, options), scale, translate
+
+
+def _vertex_array(verts, where: str, integer: bool, options: ReaderOptions) -> np.ndarray:
+    """(V, 3) int64 (with a transform) or float64 vertices of a "vertices" member."""
+    if not isinstance(verts, list):
+        raise InputFileError(where, "has no \"vertices\" array")
+    if len(verts) > options.max_vertices:
+        raise InputFileError(where, f"declares {len(verts)} vertices, more than the limit of {options.max_vertices}")
     try:
-        vertices = np.asarray(verts, dtype=np.float64 if scale is None else np.int64).reshape(-1, 3) if verts else np.zeros((0, 3))
+        vertices = np.asarray(verts, dtype=np.int64 if integer else np.float64).reshape(-1, 3) if verts else np.zeros((0, 3))
         if len(verts) and (not isinstance(verts[0], list) or len(vertices) != len(verts)):
             raise ValueError
     except (TypeError, ValueError, OverflowError):
-        kind = "integers" if scale is not None else "numbers"
-        raise InputFileError(str(path), f"\"vertices\" must be a list of [x, y, z] {kind}") from None
-    return vertices, scale, translate
+        kind = "integers" if integer else "numbers"
+        raise InputFileError(where, f"\"vertices\" must be a list of [x, y, z] {kind}") from None
+    return vertices
 
 
 def read_cityjson(
     path: Path, options: ReaderOptions = ReaderOptions(), name: str | None = None
 ) -> Iterator[RawMesh | Rejection]:
-    """Read the buildings of a CityJSON 1.0, 1.1 or 2.0 file.
+    """Read the buildings of a CityJSON 1.0, 1.1 or 2.0 file (gzipped or not).
 
     One mesh per Building (BuildingParts merged in, or kept apart with
     ``options.parts == "separate"``), from the geometries at the chosen LoD.
@@ -556,23 +728,107 @@ def read_cityjson(
     A merged Building whose geometry comes from several objects (the Building
     and its BuildingParts) lists them in ``RawMesh.parts`` and tags every face
     with its object (``RawMesh.face_part``), for the union in preprocessing.
+
+    Raises
+    ------
+    InputFileError
+        The file cannot be read, is not CityJSON, or holds no object of ``options.object_types``
+        (naming the types it holds).
     """
-    if path.stat().st_size == 0:
-        raise InputFileError(str(path), "file is empty")
-    try:
-        with open(path, "rb") as fh:
-            cj = json.loads(fh.read().decode("utf-8"))
-    except json.JSONDecodeError as err:
-        raise InputFileError(str(path), f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
-    except UnicodeDecodeError as err:
-        raise InputFileError(str(path), f"is not UTF-8 text ({err.reason} at byte {err.start})") from None
-    except ValueError as err:  # e.g. an integer literal of more than 4300 digits
-        raise InputFileError(str(path), f"invalid JSON ({err})") from None
-    except RecursionError:
-        raise InputFileError(str(path), "invalid JSON: arrays or objects nested too deeply") from None
-    vertices, scale, translate = _check_cityjson_header(cj, path, options)
+    cj = _parse_json(read_input_bytes(path, options), str(path))
+    vertices, scale, translate = _check_cityjson_header(cj, str(path), options)
     objects: dict = cj["CityObjects"]
+    found = False
+    for item in _object_meshes(objects, vertices, scale, translate, options, name or path.name, str(path)):
+        found = True
+        yield item
+    if not found:
+        raise _no_buildings(path, options, {_type(o) for o in objects.values()})
+
+
+def _no_buildings(path: Path, options: ReaderOptions, types: set) -> InputFileError:
+    types = sorted(t or "(no type)" for t in types)
+    return InputFileError(
+        str(path), f"holds no {' or '.join(options.object_types)} object (found "
+        f"{', '.join(types[:8]) + (f' and {len(types) - 8} more types' if len(types) > 8 else '') if types else 'no objects'})")
+
+
+def read_cityjsonseq(
+    path: Path, options: ReaderOptions = ReaderOptions(), name: str | None = None
+) -> Iterator[RawMesh | Rejection]:
+    """Read the buildings of a CityJSON Text Sequence (CityJSONSeq, ``.city.jsonl``; gzipped or not).
+
+    The first line is a CityJSON object (version, ``transform``, usually no objects and no
+    vertices); every further line is a CityJSONFeature: a Building with its BuildingParts and
+    their own vertices, under the header's transform. Lines are read one at a time. Meshes are
+    as :func:`read_cityjson` makes them from the same objects (same ids, coordinates and faces).
+
+    A line that cannot be read (bad JSON, not a CityJSONFeature, bad vertices) is a Rejection
+    with id ``name#featureid`` (``name:line N`` when it has no id) and the reason, and the reader
+    goes on; an object id seen on an earlier line is a Rejection too. Blank lines are skipped.
+
+    Raises
+    ------
+    InputFileError
+        The file or its header cannot be read, or it holds no object of ``options.object_types``.
+    """
     name = name or path.name
+    source = str(path)
+    header = None
+    first_line: dict[str, int] = {}
+    types: set = set()
+    found = False
+    for number, line in input_lines(path, options):
+        if line is None:
+            long = f"line {number}: is longer than {options.max_bytes:,} bytes (ReaderOptions.max_bytes); not read"
+            if header is None:
+                raise InputFileError(source, long)
+            yield Rejection(f"{name}:line {number}", source, long)
+            continue
+        if not line.strip():
+            continue
+        where = f"{path} line {number}"
+        if header is None:
+            cj = _parse_json(line, where)
+            header = _check_cityjson_header(cj, where, options, seq=True)
+            objects, vertices = cj.get("CityObjects") or {}, header[0]
+        else:
+            fid = None
+            try:
+                feature = _parse_json(line, where)
+                if isinstance(feature, dict) and isinstance(feature.get("id"), str):
+                    fid = feature["id"]
+                if not isinstance(feature, dict) or feature.get("type") != "CityJSONFeature":
+                    found_type = feature.get("type") if isinstance(feature, dict) else type(feature).__name__
+                    raise InputFileError(where, f"is not a CityJSONFeature (\"type\": {found_type!r})")
+                objects = feature.get("CityObjects")
+                if not isinstance(objects, dict):
+                    raise InputFileError(where, "has no \"CityObjects\" object")
+                vertices = _vertex_array(feature.get("vertices"), where, True, options)
+            except InputFileError as err:
+                yield Rejection(f"{name}#{fid}" if fid else f"{name}:line {number}", source, f"line {number}: {err.problem}")
+                continue
+        types.update(_type(o) for o in objects.values())
+        for item in _object_meshes(objects, vertices, header[1], header[2], options, name, source):
+            found = True
+            first = first_line.setdefault(item.id, number)
+            if first != number:
+                yield Rejection(item.id, source, f"line {number}: object id repeated (first on line {first}); "
+                                "the later one is not read")
+            elif isinstance(item, Rejection):
+                yield dataclasses.replace(item, reason=f"line {number}: {item.reason}")
+            else:
+                yield item
+    if header is None:
+        raise InputFileError(source, "holds only blank lines (expected a CityJSON header line, then CityJSONFeatures)")
+    if not found:
+        raise _no_buildings(path, options, types)
+
+
+def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOptions, name: str, source: str
+                   ) -> Iterator[RawMesh | Rejection]:
+    """The meshes (or rejections) of the buildings among ``objects``: one per Building with its
+    parts merged, or one per Building geometry and BuildingPart (``options.parts``)."""
     groups: list[tuple[str, list[str]]] = []
     for oid, obj in objects.items():
         if not isinstance(obj, dict):
@@ -605,9 +861,9 @@ def read_cityjson(
         label = attrs.get(options.label_attribute) if isinstance(attrs, dict) else None
         label = None if label is None else str(label)
         try:
-            yield _building_mesh(mesh_id, str(path), members, objects, vertices, scale, translate, options, label)
+            yield _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label)
         except InputFileError as err:
-            yield Rejection(mesh_id, str(path), err.problem, 0, label)
+            yield Rejection(mesh_id, source, err.problem, 0, label)
 
 
 def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label) -> RawMesh:
@@ -630,10 +886,14 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         types = sorted({str(g.get("type")) for g in geoms})
         raise InputFileError(mesh_id, f"has no surface or solid geometry (found {', '.join(types)})")
     lods = sorted({str(g.get("lod")) for g in usable}, key=_lod_key)
+    # LoD 0 is a footprint or roof outline, never a volume: "highest" and "lowest" pass it over
+    # where a building has anything else (the 3D BAG gives every Building a LoD 0 footprint
+    # beside its LoD 1.2, 1.3 and 2.2 solids)
+    volumes = [lo for lo in lods if not _lod_key(lo) < 1] or lods
     if options.lod == "highest":
-        want = lods[-1]
+        want = volumes[-1]
     elif options.lod == "lowest":
-        want = lods[0]
+        want = volumes[0]
     else:
         matches = [lo for lo in lods if lo == options.lod or _lod_key(lo) == _lod_key(options.lod)]
         if not matches:

@@ -282,14 +282,15 @@ def check_inputs(given, cfg, config_path: Path | None) -> list[tuple[str, str]]:
 
 
 def _print_skipped(skipped: list[tuple[str, str]]) -> None:
-    from meshsom.io import CITYJSON_SUFFIXES, TRIMESH_SUFFIXES
+    from meshsom.io import CITYJSON_SUFFIXES, CITYJSONSEQ_SUFFIXES, GZIP_SUFFIX, TRIMESH_SUFFIXES
 
     for path, why in skipped[:SKIPPED_SHOWN]:
         print(f"      skipped: {Path(path).name} ({why.split(';')[0]})")  # the list of types once, below
     if len(skipped) > SKIPPED_SHOWN:
         print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
     if any(why.startswith("unknown file type") for _, why in skipped):
-        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)})")
+        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES + CITYJSONSEQ_SUFFIXES)}, "
+              f"each also gzipped as {GZIP_SUFFIX})")
 
 
 def _nothing_ingested(store: str, remove: bool) -> None:

@@ -100,3 +100,82 @@ def prism_surfaces(ring, z0, z1, offset=0, floor=True, roof=True):
 #: A real footprint (Zürich, LV95 mm) of 83.6 m²: the old buffer trick of --extrude-lod1 emptied it.
 HEXAGON_MM = [[3798148, 514420], [3802684, 515176], [3802485, 516191], [3806120, 516813],
               [3807915, 506553], [3799688, 505181]]
+
+
+# ----------------------------------------------------------------------------- other containers of the same objects
+
+
+def _renumbered(node, new_index: dict):
+    """A geometry's ``boundaries`` with every vertex index replaced through ``new_index`` (assigned in
+    order of first appearance)."""
+    if isinstance(node, list):
+        return [_renumbered(x, new_index) for x in node]
+    return new_index.setdefault(node, len(new_index))
+
+
+def to_cityjsonseq(document: dict, keep_order: bool = False) -> list[dict]:
+    """A CityJSON document as CityJSONSeq lines (what ``cjseq cat`` writes, written independently
+    of the reader): a header with the transform and no objects, then one CityJSONFeature per
+    object without parents, holding it and its descendants with their own vertices, numbered as
+    they first appear in the boundaries (``keep_order``: in the document's order)."""
+    header = {k: v for k, v in document.items() if k not in ("CityObjects", "vertices")}
+    header.update({"version": "2.0", "CityObjects": {}, "vertices": []})
+    objects, vertices = document["CityObjects"], document["vertices"]
+    lines = [header]
+    for oid, obj in objects.items():
+        if obj.get("parents"):
+            continue
+        members, stack = [], [oid]
+        while stack:
+            m = stack.pop(0)
+            if m not in members and m in objects:
+                members.append(m)
+                stack += objects[m].get("children", [])
+        new_index: dict = {}
+        feature_objects = {}
+        for m in members:
+            copy = dict(objects[m])
+            copy["geometry"] = [{**g, "boundaries": _renumbered(g["boundaries"], new_index)} for g in objects[m].get("geometry", [])]
+            feature_objects[m] = copy
+        old = sorted(new_index, key=new_index.get)
+        if keep_order:
+            new_index = {v: k for k, v in enumerate(sorted(old))}
+            for m in members:
+                feature_objects[m]["geometry"] = [{**g, "boundaries": _renumbered(g["boundaries"], new_index)}
+                                                  for g in objects[m].get("geometry", [])]
+            old = sorted(old)
+        lines.append({"type": "CityJSONFeature", "id": oid, "CityObjects": feature_objects,
+                      "vertices": [vertices[i] for i in old]})
+    return lines
+
+
+def write_lines(path, lines: list[dict], compress: bool = False):
+    """Write JSON objects one per line (gzip-compressed with ``compress``)."""
+    import gzip
+
+    data = "".join(json.dumps(line, separators=(",", ":")) + "\n" for line in lines).encode()
+    path.write_bytes(gzip.compress(data, mtime=0) if compress else data)
+    return path
+
+
+def to_3dbag_layout(document: dict) -> dict:
+    """A CityJSON document of Buildings with solids rearranged as the 3D BAG publishes them: each
+    Building keeps only a LoD 0 MultiSurface (its lowest solid's floor polygons) and its solids
+    move to a BuildingPart child ``<id>-0``."""
+    out = json.loads(json.dumps(document))
+    objects = {}
+    vz = [v[2] for v in out["vertices"]]
+    for oid, obj in out["CityObjects"].items():
+        solids = [g for g in obj.get("geometry", []) if g["type"] == "Solid"]
+        if obj["type"] != "Building" or not solids:
+            objects[oid] = obj
+            continue
+        lowest = min(solids, key=lambda g: float(g["lod"]))
+        shell = lowest["boundaries"][0]
+        bottom = min(vz[i] for poly in shell for ring in poly for i in ring)
+        floor = [poly for poly in shell if all(vz[i] == bottom for ring in poly for i in ring)]
+        objects[oid] = {**obj, "geometry": [{"type": "MultiSurface", "lod": "0", "boundaries": floor}],
+                        "children": [f"{oid}-0"]}
+        objects[f"{oid}-0"] = {"type": "BuildingPart", "parents": [oid], "geometry": solids}
+    out["CityObjects"] = objects
+    return out

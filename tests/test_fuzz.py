@@ -40,7 +40,7 @@ SECONDS_PER_INPUT = 5.0
 MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json")
+SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -204,6 +204,9 @@ MAGIC = {
     ".glb": [b"", b"glTF" + struct.pack("<II", 2, 64), b"glTF" + struct.pack("<III", 2, 64, 40) + b"JSON"],
     ".gltf": [b"", b'{"asset": {"version": "2.0"}, ', b'{"buffers": [{"uri": "../secret.bin", "byteLength": 4096}], '],
     ".city.json": [b"", b'{"type": "CityJSON", "version": "2.0", ', b'{"type":"CityJSON","version":"1.0","vertices":[[0,0,0]],'],
+    ".city.jsonl": [b"", b'{"type":"CityJSON","version":"2.0","transform":{"scale":[1,1,1],"translate":[0,0,0]},'
+                    b'"CityObjects":{},"vertices":[]}\n{"type":"CityJSONFeature","id":"a",', b"\n\n{"],
+    ".city.json.gz": [b"", b"\x1f\x8b", b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\xff"],
 }
 
 
@@ -345,15 +348,47 @@ def test_mutated_cityjson_structure(folder, city_bytes):
     check()
 
 
-def test_mutated_cityjson_bytes(folder, city_bytes):
-    @settings(FUZZ, max_examples=100)
-    @given(data=mutated(city_bytes))
+def mutants_are_accounted_for(path: Path, seed: bytes, max_examples: int = 100) -> None:
+    """Every mutation of ``seed`` written to ``path`` gives meshes or rejections (at least one), each
+    preprocessed into a record, within the time and memory bounds."""
+    @settings(FUZZ, max_examples=max_examples)
+    @given(data=mutated(seed))
     def check(data):
-        items, records, _ = read_bounded(_write(folder / "mutant.city.json", data))
+        items, records, _ = read_bounded(_write(path, data))
         assert items, "a file must be accounted for: at least one mesh or one rejection"
         assert len(records) == len(items)
 
     check()
+
+
+def test_mutated_cityjson_bytes(folder, city_bytes):
+    mutants_are_accounted_for(folder / "mutant.city.json", city_bytes)
+
+
+@pytest.fixture(scope="module")
+def seq_bytes(city_bytes) -> bytes:
+    from cityjson_samples import to_cityjsonseq
+
+    return b"".join(json.dumps(line).encode() + b"\n" for line in to_cityjsonseq(json.loads(city_bytes)))
+
+
+def test_mutated_cityjsonseq_bytes(folder, seq_bytes):
+    """Mutated CityJSONSeq: every line's building is read, or rejected naming its line; nothing else."""
+    items, records, _ = read_all(_write(folder / "valid.city.jsonl", seq_bytes))
+    assert [r["status"] for r in records] == ["accepted", "accepted"]
+    mutants_are_accounted_for(folder / "mutant.city.jsonl", seq_bytes)
+
+
+@pytest.mark.parametrize("suffix", [".city.json.gz", ".city.jsonl.gz", ".obj.gz"])
+def test_mutated_gzip_bytes(folder, city_bytes, seq_bytes, suffix):
+    """Flipped, truncated and inserted bytes in the compressed stream (header, deflate data, CRC)."""
+    import gzip
+
+    plain = {".city.json.gz": city_bytes, ".city.jsonl.gz": seq_bytes, ".obj.gz": _valid_files()[".obj"]}[suffix]
+    seed = gzip.compress(plain, mtime=0)
+    items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
+    assert records and all(r["status"] == "accepted" for r in records)
+    mutants_are_accounted_for(folder / f"mutant{suffix}", seed, max_examples=60)
 
 
 def _write(path: Path, data: bytes) -> Path:

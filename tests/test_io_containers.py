@@ -1,0 +1,322 @@
+"""The same buildings in other containers: CityJSONSeq (``.city.jsonl``), gzip (``.city.json.gz``, the
+form the 3D BAG serves its tiles in, ``.obj.gz``) and the 3D BAG's Building / BuildingPart layout.
+
+Each container is written from the bundled real files by an independent converter
+(``cityjson_samples.to_cityjsonseq``, ``to_3dbag_layout``, ``gzip.compress``), and the reader must
+give exactly the meshes (ids, coordinates, origins, faces, parts, notes) and rejections it gives
+for the original file.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from cityjson_samples import CUBE_VERTS, cube_solid, doc, to_3dbag_layout, to_cityjsonseq, write, write_lines
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
+from meshsom.store import read_manifest
+from pipelines.cli import main
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "real"
+REAL = [("3dbag-multilod", "multi_lod.city.json"), ("delft-lod1-3dfier", "delft.city.json"),
+        ("zurich-lod2-subset", "zurich_subset_lod2.city.json")]
+
+
+def _items(path, **opts):
+    return list(read_file(path, ReaderOptions(**opts)))
+
+
+def _strip_line(reason: str) -> str:
+    return reason.split(": ", 1)[1] if reason.startswith("line ") else reason
+
+
+def assert_same_items(got, expected, exact: bool = True):
+    """Same meshes and rejections, by id (a CityJSONSeq rejection's reason starts with its line);
+    ``exact``: the same vertex arrays and faces, else the same triangles in any vertex order.
+    The order of the items does not count (``parts="separate"`` lists a file's objects in file
+    order, a CityJSONSeq file's by feature)."""
+    got, expected = sorted(got, key=lambda i: i.id), sorted(expected, key=lambda i: i.id)
+    assert [(type(i).__name__, i.id) for i in got] == [(type(i).__name__, i.id) for i in expected]
+    for g, e in zip(got, expected):
+        if isinstance(e, Rejection):
+            assert _strip_line(g.reason) == e.reason and g.label == e.label
+            continue
+        assert (g.id, g.label, g.lod, g.parts, g.notes) == (e.id, e.label, e.lod, e.parts, e.notes), g.id
+        np.testing.assert_array_equal(g.origin, e.origin)
+        assert (g.face_part is None) == (e.face_part is None)
+        if exact:
+            np.testing.assert_array_equal(g.vertices, e.vertices)
+            np.testing.assert_array_equal(g.faces, e.faces)
+            if e.face_part is not None:
+                np.testing.assert_array_equal(g.face_part, e.face_part)
+        else:
+            assert _triangles(g) == _triangles(e), g.id
+
+
+def _triangles(mesh) -> list:
+    """The mesh's triangles as coordinates, each from its smallest corner (orientation kept), sorted,
+    with the part each comes from: what a container that orders vertices differently must keep."""
+    out = []
+    for k, face in enumerate(mesh.faces):
+        corners = [tuple(mesh.vertices[i]) for i in face]
+        first = corners.index(min(corners))
+        part = -1 if mesh.face_part is None else int(mesh.face_part[k])
+        out.append((part, *corners[first:], *corners[:first]))
+    return sorted(out)
+
+
+def _real(folder, name) -> Path:
+    path = DATA / folder / name
+    if not path.exists():
+        pytest.skip(f"{path} not bundled")
+    return path
+
+
+# ----------------------------------------------------------------------------- CityJSONSeq and gzip
+
+
+@pytest.mark.parametrize("folder,name", REAL)
+@pytest.mark.parametrize("parts", ["merge", "separate"])
+def test_cityjsonseq_and_gzip_read_as_the_original(tmp_path, folder, name, parts):
+    original = _real(folder, name)
+    expected = _items(original, parts=parts)
+    assert sum(isinstance(i, RawMesh) for i in expected) >= 10
+    document = json.loads(original.read_text())
+    stem = name.removesuffix(".city.json")
+    # vertices in the file's order (exactly the same arrays), or renumbered as they first appear
+    # (cjseq's order: the same triangles, their vertices listed in another order)
+    seq = write_lines(tmp_path / f"{stem}.city.jsonl", to_cityjsonseq(document, keep_order=True))
+    seq_gz = write_lines(tmp_path / f"{stem}.city.jsonl.gz", to_cityjsonseq(document), compress=True)
+    tile_gz = tmp_path / f"{stem}.city.json.gz"
+    tile_gz.write_bytes(gzip.compress(original.read_bytes(), mtime=0))
+    for path, exact in ((seq, True), (seq_gz, False), (tile_gz, True)):
+        got = _items(path, parts=parts)
+        assert_same_items([_renamed(i, name) for i in got], expected, exact)
+
+
+def _renamed(item, name: str):
+    """``item`` with the id prefix of the original file (the container's name differs)."""
+    import dataclasses
+
+    return dataclasses.replace(item, id=name + "#" + item.id.split("#", 1)[1], source="")
+
+
+def test_mesh_ids_name_the_container_file(tmp_path):
+    original = _real(*REAL[0])
+    seq = write_lines(tmp_path / "tile.city.jsonl.gz", to_cityjsonseq(json.loads(original.read_text())), compress=True)
+    ids = [i.id for i in read_file(seq, ReaderOptions(), "sub/tile.city.jsonl.gz")]
+    assert ids and all(i.startswith("sub/tile.city.jsonl.gz#") for i in ids)
+    assert [i.split("#")[1] for i in ids] == list(json.loads(original.read_text())["CityObjects"])
+
+
+def test_gzip_data_is_recognised_by_its_content(tmp_path):
+    """A gzipped tile saved without its .gz (a browser that kept the encoded body) reads the same."""
+    original = _real(*REAL[0])
+    disguised = tmp_path / "tile.city.json"
+    disguised.write_bytes(gzip.compress(original.read_bytes()))
+    assert_same_items([_renamed(i, original.name) for i in _items(disguised)], _items(original))
+    plain = tmp_path / "plain.city.json.gz"  # named .gz, not compressed: read as it is
+    plain.write_bytes(original.read_bytes())
+    assert_same_items([_renamed(i, original.name) for i in _items(plain)], _items(original))
+
+
+def test_gzipped_mesh_files_read_as_the_plain_ones(tmp_path):
+    box = trimesh.creation.box((3.0, 4.0, 5.0))
+    for fmt in ("obj", "ply", "stl", "off", "glb"):
+        plain = tmp_path / f"box.{fmt}"
+        box.export(str(plain))
+        packed = tmp_path / f"packed.{fmt}.gz"
+        packed.write_bytes(gzip.compress(plain.read_bytes()))
+        (e,), (g,) = _items(plain), _items(packed)
+        np.testing.assert_array_equal(g.vertices, e.vertices)
+        np.testing.assert_array_equal(g.faces, e.faces)
+        np.testing.assert_array_equal(g.origin, e.origin)
+        assert g.id == e.id.replace(f"box.{fmt}", f"packed.{fmt}.gz")
+
+
+def test_folders_find_compressed_and_sequence_files(tmp_path):
+    (tmp_path / "in" / "sub").mkdir(parents=True)
+    for name in ("a.city.json.gz", "sub/b.city.jsonl", "sub/c.city.jsonl.gz", "d.obj.gz", "e.json.gz"):
+        (tmp_path / "in" / name).write_bytes(b"x")
+    (tmp_path / "in" / "notes.txt.gz").write_bytes(b"x")
+    skipped = []
+    files, rejected = expand_inputs([tmp_path / "in"], skipped)
+    assert sorted(f.name for f in files) == ["a.city.json.gz", "d.obj.gz", "e.json.gz", "sub/b.city.jsonl", "sub/c.city.jsonl.gz"]
+    assert rejected == [] and [Path(p).name for p, _ in skipped] == ["notes.txt.gz"]
+    assert ".gz" in skipped[0][1]
+
+
+# ----------------------------------------------------------------------------- the 3D BAG layout
+
+
+def test_3dbag_layout_reads_its_solids_not_its_lod0_footprint(tmp_path):
+    """3D BAG tiles: a Building with a LoD 0 footprint, its solids (1.2, 1.3, 2.2) on a BuildingPart."""
+    original = _real(*REAL[0])
+    document = json.loads(original.read_text())
+    bag = write(tmp_path / "bag.city.json", to_3dbag_layout(document))
+    for lod, expected_lod in (("highest", "2.2"), ("lowest", "1.2"), ("1.3", "1.3")):
+        expected = _items(original, lod=lod)
+        got = _items(bag, lod=lod)
+        assert len(got) == 10 and all(isinstance(i, RawMesh) and i.lod == expected_lod for i in got)
+        assert_same_items([_renamed(i, original.name) for i in got], expected)
+        seq = write_lines(tmp_path / "bag.city.jsonl.gz", to_cityjsonseq(to_3dbag_layout(document)), compress=True)
+        assert_same_items([_renamed(i, original.name) for i in _items(seq, lod=lod)], expected, exact=False)
+    # the footprint itself when asked for by name: open, so preprocessing rejects it (not the reader)
+    footprints = _items(bag, lod="0")
+    assert len(footprints) == 10 and all(isinstance(i, RawMesh) and i.lod == "0" for i in footprints)
+
+
+def test_lod0_only_building_is_still_read_at_lod0(tmp_path):
+    d = doc({"B": {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "0", "boundaries": [[[0, 1, 2, 3]]]}]}},
+            [[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]])
+    (m,) = _items(write(tmp_path / "f.city.json", d), lod="highest")
+    assert m.lod == "0" and len(m.faces) == 2
+
+
+# ----------------------------------------------------------------------------- bad lines, bad headers
+
+
+def _cube_feature(fid, dx=0):
+    verts = [[x + dx, y, z] for x, y, z in CUBE_VERTS]
+    return {"type": "CityJSONFeature", "id": fid, "CityObjects": {fid: {"type": "Building", "geometry": [cube_solid()]}},
+            "vertices": verts}
+
+
+def _header(**extra):
+    return {"type": "CityJSON", "version": "2.0", "transform": {"scale": [0.001] * 3, "translate": [85000.0, 446000.0, 0.0]},
+            "CityObjects": {}, "vertices": [], **extra}
+
+
+def test_bad_lines_are_rejected_by_line_and_the_rest_is_read(tmp_path):
+    lines = [json.dumps(_header()), json.dumps(_cube_feature("a")), "", "{not json",
+             json.dumps({"type": "CityJSON", "id": "x"}), json.dumps({**_cube_feature("v"), "vertices": [[0, 0]]}),
+             json.dumps(_cube_feature("a", dx=5000)), json.dumps(_cube_feature("b", dx=9000)),
+             json.dumps({"type": "CityJSONFeature", "id": "r", "CityObjects": {"r": {"type": "Road"}}, "vertices": []})]
+    path = tmp_path / "t.city.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    items = _items(path)
+    got = {(type(i).__name__, i.id): getattr(i, "reason", None) for i in items}
+    assert set(got) == {("RawMesh", "t.city.jsonl#a"), ("Rejection", "t.city.jsonl:line 4"), ("Rejection", "t.city.jsonl#x"),
+                        ("Rejection", "t.city.jsonl#v"), ("Rejection", "t.city.jsonl#a"), ("RawMesh", "t.city.jsonl#b")}
+    assert got["Rejection", "t.city.jsonl:line 4"].startswith("line 4: invalid JSON")
+    assert got["Rejection", "t.city.jsonl#x"] == "line 5: is not a CityJSONFeature (\"type\": 'CityJSON')"
+    assert got["Rejection", "t.city.jsonl#v"].startswith("line 6: \"vertices\" must be a list of [x, y, z] integers")
+    assert got["Rejection", "t.city.jsonl#a"] == "line 7: object id repeated (first on line 2); the later one is not read"
+    (b,) = [i for i in items if i.id.endswith("#b")]
+    np.testing.assert_allclose(b.origin, [85000.0 + 9.5, 446000.5, 0.5])  # the header's transform applied
+
+
+def test_object_rejections_in_a_sequence_name_their_line(tmp_path):
+    bad = _cube_feature("c")
+    bad["CityObjects"]["c"]["geometry"][0]["boundaries"][0][0][0] = [0, 1, 99]
+    path = write_lines(tmp_path / "t.city.jsonl", [_header(), _cube_feature("a"), bad])
+    (ok, rej) = _items(path)
+    assert isinstance(ok, RawMesh) and isinstance(rej, Rejection) and rej.id == "t.city.jsonl#c"
+    assert rej.reason == "line 3: vertex index 99 out of range (the file has 8 vertices)"
+
+
+@pytest.mark.parametrize("first,reason", [
+    ({"type": "CityJSONFeature", "id": "a"}, "line 1: its first line is not a CityJSON header (expected \"type\": \"CityJSON\", found 'CityJSONFeature')"),
+    ({"type": "CityJSON", "version": "2.0", "CityObjects": {}, "vertices": []}, "line 1: has no \"transform\"; CityJSONSeq requires one"),
+    ({"type": "CityJSON", "version": "3.0", "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]}}, "line 1: CityJSON version '3.0' is not supported"),
+])
+def test_a_bad_header_rejects_the_file_naming_it(tmp_path, first, reason):
+    path = write_lines(tmp_path / "t.city.jsonl", [first, _cube_feature("a")])
+    (rej,) = _items(path)
+    assert isinstance(rej, Rejection) and rej.id == str(path)
+    assert rej.reason.startswith(reason.split(": ", 1)[1]), rej.reason
+
+
+def test_files_with_no_buildings_are_rejected_naming_what_they_hold(tmp_path):
+    d = doc({"R": {"type": "Road", "geometry": []}, "T": {"type": "TINRelief", "geometry": []}}, [])
+    (rej,) = _items(write(tmp_path / "terrain.city.json", d))
+    assert rej.reason == "holds no Building object (found Road, TINRelief)"
+    seq = write_lines(tmp_path / "terrain.city.jsonl", [_header(), {"type": "CityJSONFeature", "id": "R",
+                                                                     "CityObjects": {"R": {"type": "Road"}}, "vertices": []}])
+    (rej,) = _items(seq)
+    assert rej.reason == "holds no Building object (found Road)"
+    blank = tmp_path / "blank.city.jsonl"
+    blank.write_text("\n\n")
+    (rej,) = _items(blank)
+    assert "only blank lines" in rej.reason
+
+
+# ----------------------------------------------------------------------------- size guards
+
+
+def test_gzip_bomb_is_refused_having_allocated_little(tmp_path):
+    bomb = tmp_path / "bomb.city.json.gz"
+    with gzip.open(bomb, "wb", compresslevel=9) as fh:
+        for _ in range(256):
+            fh.write(b" " * (1 << 20))  # 256 MB of spaces: a valid JSON prefix, ~1000x compressed
+    assert bomb.stat().st_size < (1 << 20)
+    for name in ("bomb.city.json.gz", "bomb.city.jsonl.gz", "bomb.obj.gz"):
+        path = bomb.rename(tmp_path / name)
+        bomb = path
+        tracemalloc.start()
+        try:
+            (rej,) = _items(path)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert isinstance(rej, Rejection) and "decompression bomb" in rej.reason and "max_expansion" in rej.reason, rej
+        # what the expansion rule lets through (a sequence: one line's worth), not the 256 MB
+        bound = 1.25 * ReaderOptions().max_expansion * path.stat().st_size + (8 << 20)  # with bytearray growth
+        assert peak < bound, f"{path.name}: peak {peak / 2**20:.0f} MB"
+
+
+def test_max_bytes_bounds_plain_files_and_sequence_lines(tmp_path):
+    original = _real(*REAL[0])
+    (rej,) = _items(original, max_bytes=1000)
+    assert rej.reason == ("content is larger than 1,000 bytes (ReaderOptions.max_bytes); CityJSONSeq (.city.jsonl, "
+                          "e.g. from `cjseq cat`) is read a line at a time")
+    seq = write_lines(tmp_path / "t.city.jsonl", to_cityjsonseq(json.loads(original.read_text())))
+    longest = max(len(line) for line in seq.read_bytes().splitlines(keepends=True))
+    assert sum(isinstance(i, RawMesh) for i in _items(seq, max_bytes=longest)) == 10
+    items = _items(seq, max_bytes=longest - 1)  # the longest line alone is rejected
+    (rej,) = [i for i in items if isinstance(i, Rejection)]
+    assert len(items) == 10 and rej.id.startswith("t.city.jsonl:line ")
+    assert rej.reason.endswith(f"is longer than {longest - 1:,} bytes (ReaderOptions.max_bytes); not read")
+
+
+@pytest.mark.parametrize("damage,reason", [
+    (lambda b: b[: len(b) // 2], "gzip data ends early (a truncated download?)"),
+    (lambda b: b[:10] + bytes(x ^ 0x5A for x in b[10:40]) + b[40:], "is not valid gzip data"),
+])
+def test_damaged_gzip_is_a_rejection(tmp_path, damage, reason):
+    original = _real(*REAL[1])
+    for suffix in (".city.json.gz", ".city.jsonl.gz"):
+        data = gzip.compress(original.read_bytes() if suffix == ".city.json.gz" else b"".join(
+            json.dumps(line).encode() + b"\n" for line in to_cityjsonseq(json.loads(original.read_text()))))
+        path = tmp_path / f"d{suffix}"
+        path.write_bytes(damage(data))
+        items = _items(path)
+        assert isinstance(items[-1], Rejection) and items[-1].id == str(path)
+        assert items[-1].reason.startswith(reason), items[-1].reason
+
+
+# ----------------------------------------------------------------------------- the command line
+
+
+def test_ingest_of_a_3dbag_style_folder(tmp_path, data_dir):
+    """`meshsom ingest` on a folder of a gzipped 3D BAG tile and its CityJSONSeq: every building of
+    both accepted, with the same preprocessed triangles as the plain file."""
+    original = _real(*REAL[0])
+    document = to_3dbag_layout(json.loads(original.read_text()))
+    (tmp_path / "tiles").mkdir()
+    (tmp_path / "tiles" / "10-284-556.city.json.gz").write_bytes(gzip.compress(json.dumps(document).encode()))
+    write_lines(tmp_path / "tiles" / "10-284-556.city.jsonl", to_cityjsonseq(document))
+    assert main(["ingest", str(tmp_path / "tiles"), "--out", str(tmp_path / "bag.zarr")]) == 0
+    assert main(["ingest", str(original), "--out", str(tmp_path / "plain.zarr")]) == 0
+    records = read_manifest(tmp_path / "bag.zarr")["records"]
+    faces = {r["id"].split("#")[1]: r["faces_out"] for r in read_manifest(tmp_path / "plain.zarr")["records"]}
+    assert len(records) == 20 and all(r["status"] == "accepted" for r in records)
+    assert sorted({r["id"].split("#")[0] for r in records}) == ["10-284-556.city.json.gz", "10-284-556.city.jsonl"]
+    for r in records:
+        assert r["faces_out"] == faces[r["id"].split("#")[1]] > 0, r["id"]
