@@ -15,7 +15,7 @@ of the city (Python objects per surface and vertex) and pulls in its own
 dependency set; ingestion needs only the building boundaries as index arrays,
 which a direct walk of the JSON gives with one NumPy gather per building. The
 reader follows the CityJSON 1.0, 1.1 and 2.0 specifications for the parts it
-uses (transform, Solid, MultiSolid, CompositeSolid, MultiSurface,
+uses (transform, Solid, MultiSolid, CompositeSolid, MultiSurface, GeometryInstance,
 CompositeSurface, holes, LoD, BuildingPart parents/children), and CityJSON Text
 Sequences (CityJSONSeq, ``.city.jsonl``: a header line, then one CityJSONFeature per
 line, read a line at a time so a whole city never sits in memory at once).
@@ -739,7 +739,8 @@ def read_cityjson(
     vertices, scale, translate = _check_cityjson_header(cj, str(path), options)
     objects: dict = cj["CityObjects"]
     found = False
-    for item in _object_meshes(objects, vertices, scale, translate, options, name or path.name, str(path)):
+    templates = Templates.of(cj)
+    for item in _object_meshes(objects, vertices, scale, translate, options, name or path.name, str(path), templates):
         found = True
         yield item
     if not found:
@@ -792,6 +793,7 @@ def read_cityjsonseq(
             cj = _parse_json(line, where)
             header = _check_cityjson_header(cj, where, options, seq=True)
             objects, vertices = cj.get("CityObjects") or {}, header[0]
+            templates = Templates.of(cj)
         else:
             fid = None
             try:
@@ -809,7 +811,7 @@ def read_cityjsonseq(
                 yield Rejection(f"{name}#{fid}" if fid else f"{name}:line {number}", source, f"line {number}: {err.problem}")
                 continue
         types.update(_type(o) for o in objects.values())
-        for item in _object_meshes(objects, vertices, header[1], header[2], options, name, source):
+        for item in _object_meshes(objects, vertices, header[1], header[2], options, name, source, templates):
             found = True
             first = first_line.setdefault(item.id, number)
             if first != number:
@@ -825,8 +827,8 @@ def read_cityjsonseq(
         raise _no_buildings(path, options, types)
 
 
-def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOptions, name: str, source: str
-                   ) -> Iterator[RawMesh | Rejection]:
+def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOptions, name: str, source: str,
+                   templates: "Templates | None" = None) -> Iterator[RawMesh | Rejection]:
     """The meshes (or rejections) of the buildings among ``objects``: one per Building with its
     parts merged, or one per Building geometry and BuildingPart (``options.parts``)."""
     groups: list[tuple[str, list[str]]] = []
@@ -861,12 +863,118 @@ def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOpt
         label = attrs.get(options.label_attribute) if isinstance(attrs, dict) else None
         label = None if label is None else str(label)
         try:
-            yield _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label)
+            yield _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label, templates)
         except InputFileError as err:
             yield Rejection(mesh_id, source, err.problem, 0, label)
 
 
-def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label) -> RawMesh:
+@dataclass(frozen=True)
+class Templates:
+    """A CityJSON document's ``geometry-templates``: the template geometries and their vertices.
+
+    Attributes
+    ----------
+    geometries : list of dict
+    vertices : (T, 3) float64
+        ``vertices-templates``, real coordinates (no transform applies to them).
+    problem : str or None
+        Why the templates cannot be used (malformed), said by each building that uses them.
+    """
+
+    geometries: list
+    vertices: np.ndarray = field(repr=False)
+    problem: str | None = None
+
+    @classmethod
+    def of(cls, cj: dict) -> "Templates | None":
+        """The templates of a parsed CityJSON document (or CityJSONSeq header); None without any."""
+        member = cj.get("geometry-templates")
+        if member is None:
+            return None
+        geometries = member.get("templates") if isinstance(member, dict) else None
+        verts = member.get("vertices-templates") if isinstance(member, dict) else None
+        try:
+            if not isinstance(geometries, list) or not isinstance(verts, list):
+                raise ValueError
+            vertices = np.asarray(verts, np.float64).reshape(-1, 3) if verts else np.zeros((0, 3))
+            if len(verts) and (not isinstance(verts[0], list) or len(vertices) != len(verts)):
+                raise ValueError
+        except (TypeError, ValueError, OverflowError):
+            return cls([], np.zeros((0, 3)), "\"geometry-templates\" must hold \"templates\" (a list of geometries) and "
+                       "\"vertices-templates\" (a list of [x, y, z] numbers)")
+        if not np.isfinite(vertices).all():
+            return cls([], np.zeros((0, 3)), "\"vertices-templates\" holds NaN or infinite coordinates")
+        return cls(geometries, vertices)
+
+
+def _nested_plus(node, offset: int):
+    """``boundaries`` with ``offset`` added to every vertex index (non-integers left for the checks after)."""
+    if isinstance(node, list):
+        return [_nested_plus(x, offset) for x in node]
+    return node + offset if isinstance(node, int) and not isinstance(node, bool) else node
+
+
+def _placed_instances(mesh_id: str, geoms: list, vertices: np.ndarray, scale, translate, templates: "Templates | None"
+                      ) -> tuple[list, np.ndarray]:
+    """Every GeometryInstance of ``geoms`` replaced by its template, placed: each template vertex
+    ``t`` goes to ``M[:3, :3] t + M[:3, 3] + p`` (CityJSON: the 4 x 4 row-major
+    ``transformationMatrix`` M, the reference point p, a vertex of the file). The placed vertices
+    are appended to ``vertices`` (on the file's integer grid, rounded to it, when there is a
+    transform) and the template's boundaries renumbered to them.
+
+    Returns
+    -------
+    geoms : list of dict
+    vertices : (V', 3) array, same dtype as ``vertices``
+    """
+    out, blocks, n = [], [vertices], len(vertices)
+    for g in geoms:
+        if g.get("type") != "GeometryInstance":
+            out.append(g)
+            continue
+        if templates is None:
+            raise InputFileError(mesh_id, "has GeometryInstance geometry but the file has no \"geometry-templates\"")
+        if templates.problem:
+            raise InputFileError(mesh_id, f"has GeometryInstance geometry; {templates.problem}")
+        k, ref = g.get("template"), g.get("boundaries")
+        if not (isinstance(k, int) and 0 <= k < len(templates.geometries)):
+            raise InputFileError(mesh_id, f"GeometryInstance template {k!r} is not one of the file's "
+                                 f"{len(templates.geometries)} templates")
+        if not (isinstance(ref, list) and len(ref) == 1 and isinstance(ref[0], int) and 0 <= ref[0] < len(vertices)):
+            raise InputFileError(mesh_id, f"GeometryInstance boundaries must be [index of the reference point] "
+                                 f"(one of {len(vertices)} vertices), received {str(ref)[:60]}")
+        try:
+            matrix = np.asarray(g.get("transformationMatrix"), np.float64).reshape(4, 4)
+        except (TypeError, ValueError):
+            matrix = None
+        if matrix is None or not np.isfinite(matrix).all():
+            raise InputFileError(mesh_id, "GeometryInstance transformationMatrix must be 16 finite numbers (4 x 4, row-major)")
+        template = templates.geometries[k]
+        if not isinstance(template, dict) or template.get("type") not in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES:
+            found = template.get("type") if isinstance(template, dict) else type(template).__name__
+            raise InputFileError(mesh_id, f"GeometryInstance template {k} is a {found!r}, not a surface or solid geometry")
+        flat = _indices(mesh_id, [i for poly in _polygons_of(template, mesh_id) for ring in poly for i in ring])
+        bad = (flat < 0) | (flat >= len(templates.vertices))
+        if bad.any():
+            raise InputFileError(mesh_id, f"GeometryInstance template {k} uses vertex {flat[bad][0]} of "
+                                 f"{len(templates.vertices)} vertices-templates")
+        point = vertices[ref[0]].astype(np.float64)
+        if scale is not None:
+            point = point * scale + translate
+        with np.errstate(over="ignore", invalid="ignore"):
+            placed = templates.vertices @ matrix[:3, :3].T + matrix[:3, 3] + point
+            if scale is not None:
+                placed = np.round((placed - translate) / scale)
+        if not np.isfinite(placed).all() or (scale is not None and np.abs(placed).max(initial=0) > MAX_GRID_COORDINATE):
+            raise InputFileError(mesh_id, f"GeometryInstance of template {k} is placed beyond the coordinate range")
+        blocks.append(placed.astype(vertices.dtype))
+        out.append({**template, "boundaries": _nested_plus(template.get("boundaries", []), n)})
+        n += len(placed)
+    return out, np.concatenate(blocks) if len(blocks) > 1 else vertices
+
+
+def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label,
+                   templates: "Templates | None" = None) -> RawMesh:
     geoms, geom_member = [], []
     for k, m in enumerate(members):
         member_geoms = objects[m].get("geometry", [])
@@ -876,10 +984,8 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
                 geom_member.append(k)
     if not geoms:
         raise InputFileError(mesh_id, "has no geometry")
-    if any(g.get("type") == "GeometryInstance" for g in geoms) and not any(
-        g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES for g in geoms
-    ):
-        raise InputFileError(mesh_id, "has only GeometryInstance (template) geometry, which is not supported")
+    if any(g.get("type") == "GeometryInstance" for g in geoms):
+        geoms, vertices = _placed_instances(mesh_id, geoms, vertices, scale, translate, templates)
     usable_at = [i for i, g in enumerate(geoms) if g.get("type") in SURFACE_TYPES + SOLID_TYPES + MULTISOLID_TYPES]
     usable = [geoms[i] for i in usable_at]
     if not usable:

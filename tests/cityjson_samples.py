@@ -179,3 +179,26 @@ def to_3dbag_layout(document: dict) -> dict:
         objects[f"{oid}-0"] = {"type": "BuildingPart", "parents": [oid], "geometry": solids}
     out["CityObjects"] = objects
     return out
+
+
+def instanced_box_doc(instance: dict, with_templates: bool = True) -> dict:
+    """Building T, an instance of a 1 m cube template; building S, the same box written out as a Solid."""
+    import numpy as np
+
+    cube = [[float(x) / 1000 for x in v] for v in CUBE_VERTS]  # CUBE_VERTS are 0 / 1000 on the mm grid
+    angle = np.pi / 2
+    m = np.array([[2 * np.cos(angle), -2 * np.sin(angle), 0, 0.25], [2 * np.sin(angle), 2 * np.cos(angle), 0, 0.5],
+                  [0, 0, 3, 0], [0, 0, 0, 1]])
+    ref = [5000, 7000, 1000]  # the reference point, on the file's grid (mm)
+    # independently: world = M t + p, then to the mm grid of the transform (translate 2600000, 1200000, 400)
+    world = np.array(cube) @ m[:3, :3].T + m[:3, 3] + (np.array(ref) * 0.001 + [2600000.0, 1200000.0, 400.0])
+    grid = np.round((world - [2600000.0, 1200000.0, 400.0]) / 0.001).astype(int).tolist()
+    solid = cube_solid(offset=1, lod="2")
+    instance = {"type": "GeometryInstance", "template": 0, "boundaries": [0], "transformationMatrix": m.reshape(-1).tolist(),
+                **instance}
+    d = doc({"T": {"type": "Building", "geometry": [instance]}, "S": {"type": "Building", "geometry": [solid]}},
+            [ref] + grid)
+    if with_templates:
+        d["geometry-templates"] = {"templates": [{"type": "Solid", "lod": "2", "boundaries": cube_solid()["boundaries"]}],
+                                   "vertices-templates": cube}
+    return d

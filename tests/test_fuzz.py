@@ -335,12 +335,16 @@ def mutated_json(draw, document):
     return document
 
 
-def test_mutated_cityjson_structure(folder, city_bytes):
-    document = json.loads(city_bytes)
-    items, records, _ = read_all(_write(folder / "valid.city.json", city_bytes))
+@pytest.mark.parametrize("seed", ["blocks", "instances"])
+def test_mutated_cityjson_structure(folder, city_bytes, seed):
+    """``instances``: a building placed from a geometry template (GeometryInstance) and one written out."""
+    from cityjson_samples import instanced_box_doc
+
+    document = json.loads(city_bytes) if seed == "blocks" else instanced_box_doc({})
+    items, records, _ = read_all(_write(folder / "valid.city.json", json.dumps(document).encode()))
     assert [r["status"] for r in records] == ["accepted", "accepted"]
 
-    @settings(FUZZ, max_examples=150)
+    @settings(FUZZ, max_examples=150 if seed == "blocks" else 80)
     @given(d=mutated_json(document))
     def check(d):
         read_bounded(_write(folder / "mutant.city.json", json.dumps(d).encode()))

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cityjson_samples import CUBE_VERTS, cube_solid, doc, to_3dbag_layout, to_cityjsonseq, write, write_lines
+from cityjson_samples import CUBE_VERTS, cube_solid, doc, instanced_box_doc, to_3dbag_layout, to_cityjsonseq, write, write_lines
 from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 from meshsom.store import read_manifest
 from pipelines.cli import main
@@ -320,3 +320,31 @@ def test_ingest_of_a_3dbag_style_folder(tmp_path, data_dir):
     assert sorted({r["id"].split("#")[0] for r in records}) == ["10-284-556.city.json.gz", "10-284-556.city.jsonl"]
     for r in records:
         assert r["faces_out"] == faces[r["id"].split("#")[1]] > 0, r["id"]
+
+
+# ----------------------------------------------------------------------------- geometry templates
+
+
+def test_geometry_instances_are_placed_as_the_specification_says(tmp_path):
+    path = write(tmp_path / "t.city.json", instanced_box_doc({}))
+    t, s = _items(path)
+    assert isinstance(t, RawMesh) and isinstance(s, RawMesh) and t.lod == "2"
+    np.testing.assert_array_equal(t.origin, s.origin)
+    assert _triangles(t) == _triangles(s)
+    # CityJSONSeq: the templates on the header line, the reference point among the feature's vertices
+    seq = write_lines(tmp_path / "t.city.jsonl", to_cityjsonseq(instanced_box_doc({})))
+    t2, s2 = _items(seq)
+    assert (t2.id, s2.id) == ("t.city.jsonl#T", "t.city.jsonl#S")
+    assert _triangles(t2) == _triangles(t) and _triangles(s2) == _triangles(s)
+
+
+@pytest.mark.parametrize("instance,with_templates,reason", [
+    ({}, False, "has GeometryInstance geometry but the file has no \"geometry-templates\""),
+    ({"template": 3}, True, "GeometryInstance template 3 is not one of the file's 1 templates"),
+    ({"boundaries": [99]}, True, "GeometryInstance boundaries must be [index of the reference point] (one of 9 vertices)"),
+    ({"transformationMatrix": [1, 0, 0]}, True, "GeometryInstance transformationMatrix must be 16 finite numbers"),
+])
+def test_bad_geometry_instances_are_rejected_with_the_reason(tmp_path, instance, with_templates, reason):
+    t, s = _items(write(tmp_path / "t.city.json", instanced_box_doc(instance, with_templates)))
+    assert isinstance(t, Rejection) and t.id == "t.city.json#T" and t.reason.startswith(reason), t.reason
+    assert isinstance(s, RawMesh)
