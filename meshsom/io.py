@@ -683,11 +683,9 @@ def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = F
     transform = cj.get("transform")
     scale = translate = None
     if transform is None:
-        if major_minor != "1.0" or seq:
-            raise InputFileError(
-                where, f"has no \"transform\"; {'CityJSONSeq' if seq else 'CityJSON ' + major_minor} requires one "
-                "(integer vertices × scale + translate)"
-            )
+        # CityJSON 1.1 and 2.0 require one, but files without it exist (cjio's own test data):
+        # their vertices are read as coordinates, as in CityJSON 1.0
+        pass
     else:
         try:
             scale = np.asarray(transform["scale"], np.float64).reshape(3)
@@ -806,7 +804,7 @@ def read_cityjsonseq(
                 objects = feature.get("CityObjects")
                 if not isinstance(objects, dict):
                     raise InputFileError(where, "has no \"CityObjects\" object")
-                vertices = _vertex_array(feature.get("vertices"), where, True, options)
+                vertices = _vertex_array(feature.get("vertices"), where, header[1] is not None, options)
             except InputFileError as err:
                 yield Rejection(f"{name}#{fid}" if fid else f"{name}:line {number}", source, f"line {number}: {err.problem}")
                 continue

@@ -458,6 +458,10 @@ def _cap_planar_loops(v, f, dist, repairs):
     that is not planar within ``dist``, or whose polygon cannot be triangulated from its own
     vertices (self-intersecting), is left open and the mesh is then rejected.
 
+    Where loops touch (a vertex with two open edges out) or a hole spans two planes (a row house
+    whose party wall and floor are both missing: one loop, bent along the wall's bottom edge that
+    no face has), the boundary is decomposed into planar loops first (:func:`_planar_loops`).
+
     The cap is held to :func:`validate`'s own test: the 2D triangulation works on coordinates
     rounded by the projection, where three vertices on one straight edge of the loop (exactly
     collinear in 3D) can form a triangle of tiny positive area; such a triangle has zero area in
@@ -468,7 +472,10 @@ def _cap_planar_loops(v, f, dist, repairs):
 
     he = half_edges(f)
     _, edge_of, counts = edge_table(f)
-    loops = _walk_loops(he[counts[edge_of] == 1])
+    directed = he[counts[edge_of] == 1]
+    loops = _walk_loops(directed)
+    if loops is None or any(_off_plane(v[loop]) > dist for loop in loops):
+        loops = _planar_loops(v, directed, dist, _edge_keys(f))
     if not loops:
         return f
     planes = []
@@ -1172,6 +1179,101 @@ def _walk_loops(directed: np.ndarray) -> list[np.ndarray] | None:
             return None
         loops.append(np.array(loop, np.int64))
     return loops
+
+
+def _edge_keys(f: np.ndarray) -> set:
+    """The mesh's edges as ``(min, max)`` vertex pairs."""
+    e = np.sort(half_edges(f), axis=1)
+    return set(map(tuple, np.unique(e, axis=0).tolist()))
+
+
+def _off_plane(p: np.ndarray) -> float:
+    """Largest distance of the points ``p`` (k, 3) from their best-fitting plane (0 for k < 4)."""
+    if len(p) < 4:
+        return 0.0
+    q = p - p.mean(axis=0)
+    normal = np.linalg.svd(q, full_matrices=False)[2][-1]
+    return float(np.abs(q @ normal).max())
+
+
+def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256) -> list[np.ndarray] | None:
+    """Open boundary edges (a -> b) decomposed into closed loops that each lie in one plane.
+
+    1. Loops are walked edge to edge; where a vertex has several open edges out (loops touching
+       at a vertex), the walk takes the edge whose end stays nearest to the plane of the loop so
+       far, and a walk that comes back to one of its own vertices splits that loop off.
+    2. A loop not planar within ``dist`` is cut along a chord between two of its vertices into two
+       loops that are (the chord becomes the edge the two caps share), the chord that leaves them
+       flattest; a chord that is already an edge of the mesh is never used (three faces would
+       share it). Up to two cuts: a hole across three planes. Each piece keeps at least four
+       vertices, so that it is a polygon that is planar, not a triangle (planar whatever the
+       hole): a hole is closed only where walls or floors are missing whole, and a bent hole of
+       a few triangles is left to ``repair`` (pymeshlab).
+
+    Returns None where a walk ends at a vertex with no open edge out, where some loop cannot be
+    made planar, or above ``max_edges`` open edges (a mesh that open is not a missing wall).
+    """
+    if len(directed) > max_edges:
+        return None
+    out: dict[int, list[int]] = {}
+    for k, a in enumerate(directed[:, 0].tolist()):
+        out.setdefault(a, []).append(k)
+    used = np.zeros(len(directed), bool)
+    walked: list[list[int]] = []
+    # start where there is no choice (deterministic: edge order)
+    for start in sorted(range(len(directed)), key=lambda k: (len(out[int(directed[k, 0])]) > 1, k)):
+        if used[start]:
+            continue
+        used[start] = True
+        loop = [int(directed[start, 0])]
+        cur = int(directed[start, 1])
+        while True:
+            if cur in loop:  # back at the start, or at a vertex passed before: a loop closes
+                at = loop.index(cur)
+                walked.append(loop[at:])
+                loop = loop[:at]
+                if not loop:
+                    break
+            choices = [k for k in out.get(cur, []) if not used[k]]
+            if not choices:
+                return None
+            if len(choices) > 1 and len(loop) >= 2:
+                pts = v[loop + [cur]]
+                choices.sort(key=lambda k: _off_plane(np.vstack([pts, v[directed[k, 1]]])))
+            used[choices[0]] = True
+            loop.append(cur)
+            cur = int(directed[choices[0], 1])
+    loops: list[list[int]] = []
+    for loop in walked:
+        pieces = _cut_flat(v, loop, dist, edges, cuts=2)
+        if pieces is None:
+            return None
+        loops += pieces
+    return [np.array(loop, np.int64) for loop in loops]
+
+
+def _cut_flat(v, loop: list[int], dist: float, edges: set, cuts: int) -> list[list[int]] | None:
+    """``loop`` as loops that each lie in one plane within ``dist``, cut along at most ``cuts`` chords
+    (the flattest such cut first; None where there is none)."""
+    if _off_plane(v[loop]) <= dist:
+        return [loop]
+    if cuts == 0:
+        return None
+    n = len(loop)
+    candidates = []
+    for i in range(n):
+        for j in range(i + 3, min(n, i + n - 2)):  # both pieces of at least four vertices
+            if (min(loop[i], loop[j]), max(loop[i], loop[j])) in edges:
+                continue
+            a, b = loop[i:j + 1], loop[j:] + loop[:i + 1]
+            da, db = _off_plane(v[a]), _off_plane(v[b])
+            if min(da, db) <= dist:  # one side flat: the other is flat too, or is cut again
+                candidates.append((max(da, db), i, j, a, b) if da <= db else (max(da, db), i, j, b, a))
+    for _, _, _, flat, rest in sorted(candidates, key=lambda c: c[:3]):
+        more = _cut_flat(v, rest, dist, edges, cuts - 1)
+        if more is not None:
+            return [flat, *more]
+    return None
 
 
 def _area2d(ring):

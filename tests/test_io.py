@@ -118,10 +118,16 @@ def test_bad_files_are_rejected_with_reason(tmp_path, name, content, reason):
     assert reason in rej[0].reason
 
 
-def test_missing_transform_in_2_0_is_rejected(tmp_path):
-    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS, transform=False)
-    _, (rej,) = _read(write(tmp_path / "t.city.json", d))
-    assert 'has no "transform"' in rej.reason and "2.0 requires one" in rej.reason
+@pytest.mark.parametrize("version", ["1.1", "2.0"])
+def test_missing_transform_reads_vertices_as_coordinates(tmp_path, version):
+    """1.1 and 2.0 require a transform, but files without one exist (cjio's test data): their
+    vertices are coordinates, as in 1.0; integers or not, they are not scaled."""
+    verts = [[x / 1000 + 85000.25, y / 1000 + 446000.5, z / 1000] for x, y, z in CUBE_VERTS]
+    d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, verts, version=version, transform=False)
+    (m,), rej = _read(write(tmp_path / "t.city.json", d))
+    assert rej == []
+    np.testing.assert_allclose(m.origin, [85000.75, 446001.0, 0.5])
+    np.testing.assert_allclose(np.ptp(m.vertices, axis=0), [1, 1, 1])
 
 
 def test_out_of_range_vertex_index_rejects_that_building_only(tmp_path):

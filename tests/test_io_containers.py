@@ -223,7 +223,8 @@ def test_object_rejections_in_a_sequence_name_their_line(tmp_path):
 
 @pytest.mark.parametrize("first,reason", [
     ({"type": "CityJSONFeature", "id": "a"}, "line 1: its first line is not a CityJSON header (expected \"type\": \"CityJSON\", found 'CityJSONFeature')"),
-    ({"type": "CityJSON", "version": "2.0", "CityObjects": {}, "vertices": []}, "line 1: has no \"transform\"; CityJSONSeq requires one"),
+    ({"type": "CityJSON", "version": "2.0", "transform": {"scale": [0, 1, 1], "translate": [0, 0, 0]}},
+     "line 1: \"transform\" has invalid values"),
     ({"type": "CityJSON", "version": "3.0", "transform": {"scale": [1, 1, 1], "translate": [0, 0, 0]}}, "line 1: CityJSON version '3.0' is not supported"),
 ])
 def test_a_bad_header_rejects_the_file_naming_it(tmp_path, first, reason):

@@ -669,3 +669,81 @@ def test_real_data_fold_v_tail_below_one_in_ten_thousand(data_dir, folder, name,
     v_all = np.concatenate(v_all)
     assert n_accepted == accepted
     assert (v_all > 100).mean() < 1e-4
+
+
+# ---------------------------------------------------------------------------- row houses: missing party walls
+
+
+def _polygons_mesh(polygons):
+    """Vertices and fan-triangulated faces of convex polygons given as (k, 3) corner lists (outward,
+    counter-clockwise), sharing vertices by coordinates."""
+    corners = np.concatenate([np.asarray(p, float) for p in polygons])
+    v, inverse = np.unique(corners, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    faces, at = [], 0
+    for p in polygons:
+        ids = inverse[at:at + len(p)]
+        faces += [[ids[0], ids[k], ids[k + 1]] for k in range(1, len(p) - 1)]
+        at += len(p)
+    return v, np.array(faces, np.int64)
+
+
+def row_house(x0, x1, depth=8.0, eaves=6.0, ridge=9.0, gables=(True, True), floor=True):
+    """A gabled house of a row (ridge along x): front and back walls, two roof slopes, and the
+    gables at x0 and x1 (the party walls a row-house model leaves out) and the floor, each optional.
+
+    Returns
+    -------
+    v, f, volume
+        The volume of the closed house (independent of any mesh).
+    """
+    m = depth / 2
+    front = [[x0, 0, 0], [x1, 0, 0], [x1, 0, eaves], [x0, 0, eaves]]
+    back = [[x1, depth, 0], [x0, depth, 0], [x0, depth, eaves], [x1, depth, eaves]]
+    roof_front = [[x0, 0, eaves], [x1, 0, eaves], [x1, m, ridge], [x0, m, ridge]]
+    roof_back = [[x1, depth, eaves], [x0, depth, eaves], [x0, m, ridge], [x1, m, ridge]]
+    gable0 = [[x0, depth, 0], [x0, 0, 0], [x0, 0, eaves], [x0, m, ridge], [x0, depth, eaves]]
+    gable1 = [[x1, 0, 0], [x1, depth, 0], [x1, depth, eaves], [x1, m, ridge], [x1, 0, eaves]]
+    bottom = [[x0, 0, 0], [x0, depth, 0], [x1, depth, 0], [x1, 0, 0]]
+    polygons = [front, back, roof_front, roof_back] + [g for g, keep in zip((gable0, gable1), gables) if keep]
+    v, f = _polygons_mesh(polygons + ([bottom] if floor else []))
+    return v, f, (x1 - x0) * (depth * eaves + depth * (ridge - eaves) / 2)
+
+
+@pytest.mark.parametrize("gables, floor, loops", [
+    ((False, False), True, 2),    # a middle house: two party walls, each its own loop
+    ((True, False), False, 2),    # an end house without a floor: wall and floor, one bent loop
+    ((False, False), False, 3),   # a middle house without a floor: one loop across three planes
+])
+def test_row_house_without_party_walls_is_closed_exactly(gables, floor, loops):
+    v, f, volume = row_house(0.0, 5.5, gables=gables, floor=floor)
+    r = preprocess(v, f)
+    assert any(f"capped {loops} open planar loop" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, volume)
+
+
+def test_holes_touching_at_a_corner_are_capped_each():
+    """Two missing triangles of the box, of different sides, meeting at one corner only: two loops
+    through one vertex (which has two open edges out)."""
+    v, f = box(2.0, 3.0, 4.0)
+    corner = 0
+    around = [k for k in range(len(f)) if corner in f[k]]
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    pick = None
+    for a in around:
+        for b in around:
+            shared = set(f[a]) & set(f[b])
+            if a < b and shared == {corner} and abs(normals[a] @ normals[b]) < 1e-9:
+                pick = (a, b)
+    assert pick is not None
+    r = preprocess(v, np.delete(f, pick, axis=0))
+    assert any("capped 2 open planar loop" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, 24.0)
+
+
+def test_a_bent_hole_of_two_triangles_is_not_guessed(cube):
+    """Pieces of a cut are polygons of four or more vertices: two missing triangles of adjacent
+    sides (a four-vertex loop bent along the cube's edge) are left to `repair`."""
+    v, f = cube
+    with pytest.raises(MeshError, match="open boundary"):
+        preprocess(v, f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]])

@@ -116,9 +116,9 @@ def test_union_at_national_grid_offsets_keeps_precision():
 
 
 def test_failed_union_says_so_and_falls_back(tmp_path):
-    """A part that is open (two walls missing: a hole that is not planar) cannot be united."""
+    """A part that is open (only two walls: a hole across four planes, not capped) cannot be united."""
     corners, solid = box_solid((0, 0, 0), (10 * M, 10 * M, 5 * M), 0)
-    solid["boundaries"][0] = solid["boundaries"][0][:4]  # drop two adjacent walls
+    solid["boundaries"][0] = solid["boundaries"][0][2:4]  # two adjacent walls: no floor, roof or other walls
     corners2, solid2 = box_solid((20 * M, 0, 0), (30 * M, 10 * M, 5 * M), 8)
     objects = {"B": {"type": "Building", "children": ["P0", "P1"]},
                "P0": {"type": "BuildingPart", "parents": ["B"], "geometry": [solid]},
@@ -135,7 +135,9 @@ def test_open_because_the_reader_dropped_a_self_crossing_quad(tmp_path):
     walls = solid["boundaries"][0]
     q = walls[2][0]
     walls[2] = [[q[0], q[1], q[3], q[2]]]  # bowtie: the ring crosses itself
-    del walls[3]  # and the next wall is missing: the hole is not planar, so it cannot be capped
+    # and the roof and the next two walls are missing: a hole across four planes, not capped
+    del walls[3:5]
+    del walls[1]
     raw, record, mesh = _ingest(tmp_path, doc({"X": {"type": "Building", "geometry": [solid]}}, corners))
     assert any("dropped 1 polygon" in n and "self-crossing" in n for n in raw.notes)
     assert mesh is None and record["reason"].startswith("open boundary")
