@@ -289,8 +289,8 @@ def _print_skipped(skipped: list[tuple[str, str]]) -> None:
     if len(skipped) > SKIPPED_SHOWN:
         print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
     if any(why.startswith("unknown file type") for _, why in skipped):
-        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES + CITYJSONSEQ_SUFFIXES)}, "
-              f"each also gzipped as {GZIP_SUFFIX})")
+        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)}")
+        print(f"       {' '.join(CITYJSONSEQ_SUFFIXES)}, each also gzipped: {GZIP_SUFFIX})")
 
 
 def _nothing_ingested(store: str, remove: bool) -> None:
