@@ -747,3 +747,26 @@ def test_a_bent_hole_of_two_triangles_is_not_guessed(cube):
     v, f = cube
     with pytest.raises(MeshError, match="open boundary"):
         preprocess(v, f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]])
+
+
+def _cracked_box():
+    """A 1 m box whose floor triangles use a copy of one corner 1 mm away (a crack along the walls'
+    bottom edges that rounding to a file's grid leaves): a loop of almost no area, not capped."""
+    v, f = box()
+    corner = 1
+    copy = len(v)
+    v = np.vstack([v, v[corner] + [0.001, 0.0, 0.0]])
+    floor = (v[f][:, :, 2] == 0).all(axis=1)
+    f = f.copy()
+    f[floor] = np.where(f[floor] == corner, copy, f[floor])
+    return v, f
+
+
+def test_cracks_a_millimetre_wide_are_zipped():
+    v, f = _cracked_box()
+    r = preprocess(v, f)
+    assert any("merged 1 open-boundary vertices within 0.002 m" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, 1.0)  # the copy goes to the corner (the lower index): the box exactly
+    for off in (0, 0.0009):  # off, or narrower than the crack: rejected
+        with pytest.raises(MeshError, match="open boundary|non-manifold"):
+            preprocess(v, f, PreprocessParams(zip_tol=off))
