@@ -34,6 +34,7 @@ import io
 import json
 import math
 import os
+import re
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -480,8 +481,10 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh (gzipped or not: ``house.obj.gz``).
 
     A scene yields one mesh per geometry node, with the node's transform
-    applied, id ``name#node`` (``name`` defaults to the file name). Labels come from a ``labels.csv`` (columns
-    ``file``, ``label``) in the same folder, when there is one.
+    applied, id ``name#node`` (``name`` defaults to the file name); so does an OBJ of several
+    objects (``o`` lines: a city's buildings), one mesh per object. Labels come from a
+    ``labels.csv`` (columns ``file``, ``label``; ``file#node`` for one object of a file) in the
+    same folder, when there is one.
 
     Materials and textures are not loaded (only geometry is used), and the
     external files a glTF names (buffers) are looked up by :class:`FolderResolver`,
@@ -494,15 +497,19 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     # reads what there is, where a read from the file would first allocate the claimed size.
     data = io.BytesIO(read_input_bytes(path, options))
     try:
+        # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the
+        # materials (a building's roof and walls often have their own)
+        per_object = {"split_objects": True, "group_material": False} if file_type == "obj" else {}
         loaded = trimesh.load(
             data, file_type=file_type, resolver=FolderResolver(path.parent, str(path)),
-            process=False, force=None, skip_materials=True,
+            process=False, force=None, skip_materials=True, **per_object,
         )
     except InputFileError:
         raise
     except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
         raise InputFileError(str(path), f"cannot be read as .{file_type} ({type(err).__name__}: {err})") from None
-    label = _labels_beside(path).get(path.name)
+    labels = _labels_beside(path)
+    label = labels.get(path.name)
     name = name or path.name
     if isinstance(loaded, trimesh.Scene):
         items = []
@@ -512,18 +519,27 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             if not isinstance(geom, trimesh.Trimesh):
                 continue
             v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
-            items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64)))
+            items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64), labels.get(f"{path.name}#{node}", label)))
         if not items:
             raise InputFileError(str(path), "holds no triangle mesh (only points, lines or nothing)")
+        if file_type == "obj":  # objects of no faces (only points or lines) are not in the scene
+            found = {node for node in loaded.graph.nodes_geometry}
+            for obj_name in dict.fromkeys(re.findall(rb"^o[ \t]+(.+?)[ \t]*\r?$", data.getvalue(), re.M)):
+                text = obj_name.decode("utf-8", "replace")
+                if text not in found:
+                    items.append((f"{name}#{text}", np.zeros((0, 3)), np.zeros((0, 3), np.int64), labels.get(f"{path.name}#{text}", label)))
     elif isinstance(loaded, trimesh.Trimesh):
-        items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64))]
+        items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), label)]
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
-    for mesh_id, v, f in items:
+    for mesh_id, v, f, item_label in items:
         if len(f) == 0:
-            raise InputFileError(str(path), "holds no faces")
+            if len(items) == 1:
+                raise InputFileError(str(path), "holds no faces")
+            yield Rejection(mesh_id, str(path), "holds no faces", 0, item_label)
+            continue
         local, origin = recentre(v)
-        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, label, None)
+        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None)
 
 
 class FolderResolver:

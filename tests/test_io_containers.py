@@ -349,3 +349,40 @@ def test_bad_geometry_instances_are_rejected_with_the_reason(tmp_path, instance,
     t, s = _items(write(tmp_path / "t.city.json", instanced_box_doc(instance, with_templates)))
     assert isinstance(t, Rejection) and t.id == "t.city.json#T" and t.reason.startswith(reason), t.reason
     assert isinstance(s, RawMesh)
+
+
+# ----------------------------------------------------------------------------- OBJ of a city
+
+
+def _city_obj(meshes, empty: str | None = None) -> str:
+    """An OBJ file with one object ("o") per mesh, world coordinates, roof and wall materials mixed
+    within each object (as 3D BAG and 3dfier OBJ exports are)."""
+    lines, base = ["mtllib city.mtl"], 1
+    for m in meshes:
+        lines.append(f"o {m.id.split('#', 1)[1]}")
+        lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in (m.vertices + m.origin).tolist()]
+        for k, face in enumerate(m.faces.tolist()):
+            if k % 3 == 0:
+                lines.append(f"usemtl {'roof' if k % 2 else 'wall'}")
+            lines.append("f " + " ".join(str(i + base) for i in face))
+        base += len(m.vertices)
+    if empty:
+        lines += [f"o {empty}", "v 0 0 0", "v 1 0 0", f"l {base} {base + 1}"]
+    return "\n".join(lines) + "\n"
+
+
+def test_an_obj_of_a_city_gives_one_mesh_per_object(tmp_path):
+    meshes = [i for i in _items(_real(*REAL[0])) if isinstance(i, RawMesh)]
+    (tmp_path / "tile.obj").write_text(_city_obj(meshes, empty="a_line"))
+    first = meshes[0].id.split("#", 1)[1]
+    (tmp_path / "labels.csv").write_text(f"file,label\ntile.obj,row\ntile.obj#{first},detached\n")
+    items = _items(tmp_path / "tile.obj")
+    got = {i.id: i for i in items}
+    assert set(got) == {"tile.obj#" + m.id.split("#", 1)[1] for m in meshes} | {"tile.obj#a_line"}
+    assert isinstance(got["tile.obj#a_line"], Rejection) and got["tile.obj#a_line"].reason == "holds no faces"
+    for m in meshes:
+        g = got["tile.obj#" + m.id.split("#", 1)[1]]
+        world = np.sort(np.round((g.vertices + g.origin)[g.faces].reshape(-1, 3), 6), axis=0)
+        np.testing.assert_allclose(world, np.sort(np.round((m.vertices + m.origin)[m.faces].reshape(-1, 3), 6), axis=0))
+        assert len(g.faces) == len(m.faces)
+        assert g.label == ("detached" if m.id.endswith("#" + first) else "row")
