@@ -1,4 +1,5 @@
-"""Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0 and CityJSONSeq, plain or gzipped.
+"""Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq and CityGML
+(:mod:`meshsom.citygml`), plain or gzipped.
 
 A reader turns one input file into a stream of :class:`RawMesh` (one per
 building or mesh object) and :class:`Rejection` (an object, or the whole file,
@@ -50,6 +51,8 @@ from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 #: File name endings read as CityJSON.
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson")
+#: File name endings read as CityGML (:mod:`meshsom.citygml`).
+CITYGML_SUFFIXES = (".gml", ".citygml")
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).
 CITYJSONSEQ_SUFFIXES = (".city.jsonl", ".jsonl")
 #: A readable name followed by this is a gzip-compressed input (gzip data is recognised by its
@@ -231,8 +234,8 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq' or 'trimesh' by file name (a final ``.gz`` aside); InputFileError
-    for anything else."""
+    """'cityjson', 'cityjsonseq', 'citygml' or 'trimesh' by file name (a final ``.gz`` aside);
+    InputFileError for anything else."""
     name = format_name(path)
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
@@ -240,7 +243,9 @@ def input_kind(path: Path) -> str:
         return "cityjson"
     if name.endswith(TRIMESH_SUFFIXES):
         return "trimesh"
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl")
+    if name.endswith(CITYGML_SUFFIXES):
+        return "citygml"
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl") + CITYGML_SUFFIXES
     raise InputFileError(
         str(path),
         f"unknown file type {path.suffix or '(no extension)'!r}; expected one of "
@@ -454,6 +459,10 @@ def read_file(
             yield from read_cityjson(path, options, name)
         elif kind == "cityjsonseq":
             yield from read_cityjsonseq(path, options, name)
+        elif kind == "citygml":
+            from meshsom.citygml import read_citygml
+
+            yield from read_citygml(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

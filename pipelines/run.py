@@ -282,7 +282,7 @@ def check_inputs(given, cfg, config_path: Path | None) -> list[tuple[str, str]]:
 
 
 def _print_skipped(skipped: list[tuple[str, str]]) -> None:
-    from meshsom.io import CITYJSON_SUFFIXES, CITYJSONSEQ_SUFFIXES, GZIP_SUFFIX, TRIMESH_SUFFIXES
+    from meshsom.io import CITYGML_SUFFIXES, CITYJSON_SUFFIXES, CITYJSONSEQ_SUFFIXES, GZIP_SUFFIX, TRIMESH_SUFFIXES
 
     for path, why in skipped[:SKIPPED_SHOWN]:
         print(f"      skipped: {Path(path).name} ({why.split(';')[0]})")  # the list of types once, below
@@ -290,7 +290,7 @@ def _print_skipped(skipped: list[tuple[str, str]]) -> None:
         print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
     if any(why.startswith("unknown file type") for _, why in skipped):
         print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)}")
-        print(f"       {' '.join(CITYJSONSEQ_SUFFIXES)}, each also gzipped: {GZIP_SUFFIX})")
+        print(f"       {' '.join(CITYJSONSEQ_SUFFIXES + CITYGML_SUFFIXES)}, each also gzipped: {GZIP_SUFFIX})")
 
 
 def _nothing_ingested(store: str, remove: bool) -> None:

@@ -40,7 +40,7 @@ SECONDS_PER_INPUT = 5.0
 MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz")
+SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -207,6 +207,8 @@ MAGIC = {
     ".city.jsonl": [b"", b'{"type":"CityJSON","version":"2.0","transform":{"scale":[1,1,1],"translate":[0,0,0]},'
                     b'"CityObjects":{},"vertices":[]}\n{"type":"CityJSONFeature","id":"a",', b"\n\n{"],
     ".city.json.gz": [b"", b"\x1f\x8b", b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\xff"],
+    ".gml": [b"", b'<CityModel xmlns:gml="http://www.opengis.net/gml"><cityObjectMember><Building gml:id="a">',
+             b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY e SYSTEM "../secret.bin">]><CityModel>&e;'],
 }
 
 
@@ -381,6 +383,26 @@ def test_mutated_cityjsonseq_bytes(folder, seq_bytes):
     items, records, _ = read_all(_write(folder / "valid.city.jsonl", seq_bytes))
     assert [r["status"] for r in records] == ["accepted", "accepted"]
     mutants_are_accounted_for(folder / "mutant.city.jsonl", seq_bytes)
+
+
+def test_mutated_citygml_bytes(folder, city_bytes):
+    """Mutated CityGML (with boundary surfaces and xlink:href solids)."""
+    from test_citygml import to_citygml
+
+    seed = to_citygml(json.loads(city_bytes), href=True).encode()
+    items, records, _ = read_all(_write(folder / "valid.gml", seed))
+    assert [r["status"] for r in records] == ["accepted", "accepted"]
+    mutants_are_accounted_for(folder / "mutant.gml", seed)
+
+
+def test_xml_entity_bomb_is_a_rejection_and_external_entities_are_not_read(folder):
+    laughs = b'<?xml version="1.0"?><!DOCTYPE l [<!ENTITY a "' + b"x" * 64 + b'">' + b"".join(
+        b'<!ENTITY %s "%s">' % (bytes([98 + k]), (b"&" + bytes([97 + k]) + b";") * 10) for k in range(9)) + b"]><CityModel>&j;</CityModel>"
+    (rej,) = read_bounded(_write(folder / "laughs.gml", laughs))[0]
+    assert isinstance(rej, Rejection) and "XML" in rej.reason
+    external = b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY e SYSTEM "file:///etc/passwd">]><CityModel>&e;</CityModel>'
+    (rej,) = read_bounded(_write(folder / "external.gml", external))[0]
+    assert isinstance(rej, Rejection)
 
 
 @pytest.mark.parametrize("suffix", [".city.json.gz", ".city.jsonl.gz", ".obj.gz"])

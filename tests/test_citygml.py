@@ -1,0 +1,242 @@
+"""CityGML buildings read as the same buildings in CityJSON.
+
+The bundled real CityJSON files are written out as CityGML by an independent converter (below):
+CityGML 1.0, 2.0 and 3.0 namespaces; solids written out or referring (``xlink:href``) to the
+polygons of the boundary surfaces; ``posList``, ``pos`` or GML 2 ``coordinates``; BuildingParts.
+The reader must give the triangles (in world coordinates), ids, parts, LoDs and labels the CityJSON
+reader gives.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "real"
+NAMESPACES = {
+    "1.0": ("http://www.opengis.net/citygml/1.0", "http://www.opengis.net/citygml/building/1.0", "http://www.opengis.net/citygml/generics/1.0"),
+    "2.0": ("http://www.opengis.net/citygml/2.0", "http://www.opengis.net/citygml/building/2.0", "http://www.opengis.net/citygml/generics/2.0"),
+    "3.0": ("http://www.opengis.net/citygml/3.0", "http://www.opengis.net/citygml/building/3.0", "http://www.opengis.net/citygml/generics/3.0"),
+}
+
+
+def _coords(points, style: str) -> str:
+    flat = " ".join(repr(float(x)) for p in points for x in p)
+    if style == "posList":
+        return f'<gml:posList srsDimension="3">{flat}</gml:posList>'
+    if style == "pos":
+        return "".join(f"<gml:pos>{p[0]!r} {p[1]!r} {p[2]!r}</gml:pos>" for p in map(lambda q: [float(x) for x in q], points))
+    return "<gml:coordinates>" + " ".join(",".join(repr(float(x)) for x in p) for p in points) + "</gml:coordinates>"
+
+
+def _polygon(rings, world, style, pid=None) -> str:
+    parts = []
+    for k, ring in enumerate(rings):
+        points = [world[i] for i in ring] + [world[ring[0]]]  # closed, as GML writes rings
+        tag = "exterior" if k == 0 else "interior"
+        parts.append(f"<gml:{tag}><gml:LinearRing>{_coords(points, style)}</gml:LinearRing></gml:{tag}>")
+    return f'<gml:Polygon{f" gml:id={chr(34)}{pid}{chr(34)}" if pid else ""}>{"".join(parts)}</gml:Polygon>'
+
+
+def to_citygml(document: dict, version: str = "2.0", style: str = "posList", href: bool = False) -> str:
+    """A CityJSON document's Buildings (and BuildingParts) as CityGML, each geometry at its integer
+    LoD: a Solid as ``lod{N}Solid`` (with ``href``: boundary surfaces holding the polygons and a
+    Solid referring to them), a MultiSurface as ``lod{N}MultiSurface``."""
+    core, bldg, gen = NAMESPACES[version]
+    t = document.get("transform")
+    world = np.asarray(document["vertices"], float)
+    if t:
+        world = world * t["scale"] + t["translate"]
+    world = world.tolist()
+    objects = document["CityObjects"]
+    counter = [0]
+
+    def geometry_xml(geoms) -> str:
+        out = []
+        for g in geoms:
+            lod = int(float(g["lod"]))
+            if g["type"] == "Solid":
+                polys = [p for shell in g["boundaries"][:1] for p in shell]
+            elif g["type"] == "MultiSurface":
+                polys = g["boundaries"]
+            else:
+                continue
+            if g["type"] == "Solid" and href:
+                ids = []
+                members = []
+                for p in polys:
+                    counter[0] += 1
+                    ids.append(f"poly{counter[0]}")
+                    members.append(f"<gml:surfaceMember>{_polygon(p, world, style, ids[-1])}</gml:surfaceMember>")
+                out.append(f"<bldg:boundedBy><bldg:WallSurface><bldg:lod{lod}MultiSurface><gml:MultiSurface>{''.join(members)}"
+                           f"</gml:MultiSurface></bldg:lod{lod}MultiSurface></bldg:WallSurface></bldg:boundedBy>")
+                refs = "".join(f'<gml:surfaceMember xlink:href="#{i}"/>' for i in ids)
+                out.append(f"<bldg:lod{lod}Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{refs}"
+                           f"</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod{lod}Solid>")
+            elif g["type"] == "Solid":
+                members = "".join(f"<gml:surfaceMember>{_polygon(p, world, style)}</gml:surfaceMember>" for p in polys)
+                out.append(f"<bldg:lod{lod}Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{members}"
+                           f"</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod{lod}Solid>")
+            else:
+                members = "".join(f"<gml:surfaceMember>{_polygon(p, world, style)}</gml:surfaceMember>" for p in polys)
+                out.append(f"<bldg:lod{lod}MultiSurface><gml:MultiSurface>{members}</gml:MultiSurface></bldg:lod{lod}MultiSurface>")
+        return "".join(out)
+
+    members = []
+    for oid, obj in objects.items():
+        if obj.get("type") != "Building":
+            continue
+        label = (obj.get("attributes") or {}).get("family")
+        attr = (f'<gen:stringAttribute name="family"><gen:value>{label}</gen:value></gen:stringAttribute>'
+                if label is not None else "")
+        parts = "".join(
+            f'<bldg:consistsOfBuildingPart><bldg:BuildingPart gml:id="{c}">{geometry_xml(objects[c].get("geometry", []))}'
+            f"</bldg:BuildingPart></bldg:consistsOfBuildingPart>" for c in obj.get("children", []) if c in objects)
+        members.append(f'<core:cityObjectMember><bldg:Building gml:id="{oid}">{attr}{geometry_xml(obj.get("geometry", []))}'
+                       f"{parts}</bldg:Building></core:cityObjectMember>")
+    return (f'<?xml version="1.0" encoding="UTF-8"?>\n<core:CityModel xmlns:core="{core}" xmlns:bldg="{bldg}" '
+            f'xmlns:gen="{gen}" xmlns:gml="http://www.opengis.net/gml" xmlns:xlink="http://www.w3.org/1999/xlink">\n'
+            + "\n".join(members) + "\n</core:CityModel>\n")
+
+
+def _triangles_world(mesh) -> list:
+    out = []
+    world = np.round(mesh.vertices + mesh.origin, 4)
+    for k, face in enumerate(mesh.faces):
+        corners = [tuple(world[i]) for i in face]
+        first = corners.index(min(corners))
+        part = -1 if mesh.face_part is None else mesh.parts[mesh.face_part[k]]
+        out.append((str(part), *corners[first:], *corners[:first]))
+    return sorted(out)
+
+
+def assert_same_buildings(got, expected, name):
+    got = {i.id.split("#", 1)[1]: i for i in got}
+    expected = {i.id.split("#", 1)[1]: i for i in expected}
+    assert set(got) == set(expected)
+    for key, e in expected.items():
+        g = got[key]
+        assert g.id == f"{name}#{key}" and type(g) is type(e), (g, e)
+        if isinstance(e, Rejection):
+            assert g.reason.split(";")[0].split(" at LoD")[0] == e.reason.split(";")[0].split(" at LoD")[0]
+            continue
+        assert (g.label, g.lod, g.parts) == (e.label, str(int(float(e.lod))), e.parts), key
+        assert _triangles_world(g) == _triangles_world(e), key
+
+
+REAL = [("delft-lod1-3dfier", "delft.city.json"), ("zurich-lod2-subset", "zurich_subset_lod2.city.json")]
+
+
+@pytest.mark.parametrize("version,style,href", [("2.0", "posList", False), ("2.0", "posList", True),
+                                                ("1.0", "pos", True), ("3.0", "coordinates", False)])
+@pytest.mark.parametrize("folder,name", REAL)
+def test_citygml_reads_as_the_same_cityjson(tmp_path, folder, name, version, style, href):
+    original = DATA / folder / name
+    document = json.loads(original.read_text())
+    expected = list(read_file(original, ReaderOptions()))
+    path = tmp_path / "city.gml"
+    path.write_text(to_citygml(document, version, style, href))
+    got = list(read_file(path, ReaderOptions()))
+    assert sum(isinstance(i, RawMesh) for i in got) == sum(isinstance(i, RawMesh) for i in expected) > 40
+    assert_same_buildings(got, expected, "city.gml")
+
+
+def test_citygml_parts_kept_apart_and_gzipped(tmp_path):
+    original = DATA / REAL[1][0] / REAL[1][1]
+    document = json.loads(original.read_text())
+    path = tmp_path / "city.gml.gz"
+    path.write_bytes(gzip.compress(to_citygml(document).encode()))
+    expected = list(read_file(original, ReaderOptions(parts="separate")))
+    got = list(read_file(path, ReaderOptions(parts="separate")))
+    assert len(got) == len(expected) > 100
+    assert_same_buildings(got, expected, "city.gml.gz")
+
+
+def test_citygml_labels_from_generic_attributes(tmp_path):
+    from meshsom.generate import GeneratorParams, generate_corpus
+    from meshsom.io import write_cityjson
+
+    blocks = generate_corpus(GeneratorParams(n_blocks=3, seed=1))
+    write_cityjson(tmp_path / "s.city.json", blocks)
+    (tmp_path / "s.gml").write_text(to_citygml(json.loads((tmp_path / "s.city.json").read_text())))
+    got = list(read_file(tmp_path / "s.gml"))
+    assert [m.label for m in got] == [b.label for b in blocks] and all(m.label for m in got)
+
+
+@pytest.mark.parametrize("text,reason", [
+    (b"<html><body/></html>", "is XML but not CityGML (root element 'html', expected CityModel)"),
+    (b"<CityModel><cityObjectMember><Road/></cityObjectMember></CityModel>", "holds no Building"),
+    (b"<CityModel><cityObjectMember><Building", "invalid XML at line 1"),
+    (b"not xml", "invalid XML at line 1, column 0"),
+])
+def test_bad_citygml_files_are_rejections_naming_the_problem(tmp_path, text, reason):
+    path = tmp_path / "bad.gml"
+    path.write_bytes(text)
+    (rej,) = read_file(path)
+    assert isinstance(rej, Rejection) and rej.id == str(path) and rej.reason.startswith(reason), rej
+
+
+def test_a_building_with_bad_coordinates_is_rejected_alone(tmp_path):
+    good = '<gml:posList>0 0 0 1 0 0 1 1 0 0 0 0</gml:posList>'
+    xml = ('<CityModel xmlns:gml="http://www.opengis.net/gml"><cityObjectMember><Building gml:id="bad"><lod1MultiSurface>'
+           '<gml:Polygon><gml:exterior><gml:LinearRing><gml:posList>0 0 x</gml:posList></gml:LinearRing></gml:exterior>'
+           '</gml:Polygon></lod1MultiSurface></Building></cityObjectMember><cityObjectMember><Building gml:id="flat">'
+           f'<lod1MultiSurface><gml:Polygon><gml:exterior><gml:LinearRing>{good}</gml:LinearRing></gml:exterior>'
+           '</gml:Polygon></lod1MultiSurface></Building></cityObjectMember></CityModel>')
+    (tmp_path / "b.gml").write_text(xml)
+    bad, flat = read_file(tmp_path / "b.gml")
+    assert isinstance(bad, Rejection) and bad.id == "b.gml#bad" and "coordinates must be numbers" in bad.reason
+    assert isinstance(flat, RawMesh) and flat.id == "b.gml#flat" and len(flat.faces) == 1
+
+
+def _poly(pid, *points):
+    flat = "\n\t\t".join(" ".join(f"{c:.1f}" for c in p) for p in (*points, points[0]))
+    return (f'<bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:Polygon gml:id="{pid}"><gml:exterior>'
+            f"<gml:LinearRing><gml:posList>{flat}</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon>"
+            f"</gml:surfaceMember></gml:MultiSurface></bldg:lod2MultiSurface>")
+
+
+def test_a_handwritten_lod2_house_as_tools_write_it(tmp_path):
+    """As CityGML editors and the SIG3D examples write a house: the default namespace for core, the
+    solid first, referring to polygons defined further down in boundary surfaces, coordinates
+    across lines, an address point and ADE properties with links that are not polygons."""
+    x0, y0, z0 = 458875.0, 5438350.0, 112.0
+    c = {k: (x0 + dx, y0 + dy, z0 + dz) for k, (dx, dy, dz) in {
+        "a": (0, 0, 0), "b": (10, 0, 0), "c": (10, 5, 0), "d": (0, 5, 0), "A": (0, 0, 3), "B": (10, 0, 3), "C": (10, 5, 3),
+        "D": (0, 5, 3), "r": (0, 2.5, 5), "s": (10, 2.5, 5)}.items()}
+    surfaces = {"ground": ("GroundSurface", "adcb"), "south": ("WallSurface", "abBA"), "east": ("WallSurface", "bcCsB"),
+                "north": ("WallSurface", "cdDC"), "west": ("WallSurface", "daArD"), "roofs": ("RoofSurface", "ABsr"),
+                "roofn": ("RoofSurface", "CDrs")}
+    refs = "".join(f'<gml:surfaceMember xlink:href="#{pid}"/>' for pid in surfaces)
+    bounded = "".join(f"<bldg:boundedBy><bldg:{kind}><gml:name>{pid}</gml:name>{_poly(pid, *[c[k] for k in corners])}"
+                      f'<energy:construction xlink:href="#Construction1"/></bldg:{kind}></bldg:boundedBy>'
+                      for pid, (kind, corners) in surfaces.items())
+    xml = f"""<?xml version="1.0" encoding="utf-8"?>
+<CityModel xmlns="http://www.opengis.net/citygml/2.0" xmlns:gml="http://www.opengis.net/gml"
+ xmlns:xlink="http://www.w3.org/1999/xlink" xmlns:bldg="http://www.opengis.net/citygml/building/2.0"
+ xmlns:energy="http://www.sig3d.org/citygml/2.0/energy/0.7.0">
+ <gml:boundedBy><gml:Envelope srsDimension="3"><gml:lowerCorner>458868 5438343 112</gml:lowerCorner></gml:Envelope></gml:boundedBy>
+ <cityObjectMember><bldg:Building gml:id="GML_house"><gml:name>Example</gml:name>
+  <bldg:measuredHeight uom="m">5.0</bldg:measuredHeight>
+  <bldg:lod2Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{refs}</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod2Solid>
+  {bounded}
+  <bldg:address><Address><multiPoint><gml:MultiPoint><gml:pointMember><gml:Point><gml:pos srsDimension="3">458880.0 5438352.6 112.0</gml:pos>
+  </gml:Point></gml:pointMember></gml:MultiPoint></multiPoint></Address></bldg:address>
+  <energy:thermalZone><energy:ThermalZone gml:id="ZONE_1"><energy:delimitsBy xlink:href="#ZONE_1"/></energy:ThermalZone></energy:thermalZone>
+ </bldg:Building></cityObjectMember>
+</CityModel>
+"""
+    (tmp_path / "house.gml").write_text(xml)
+    (house,) = read_file(tmp_path / "house.gml")
+    assert isinstance(house, RawMesh) and house.id == "house.gml#GML_house" and house.lod == "2" and house.notes == ()
+    from meshsom.preprocess import preprocess
+
+    r = preprocess(house.vertices, house.faces)
+    assert r.volume_out == pytest.approx(10 * 5 * 3 + 0.5 * 5 * 2 * 10, rel=1e-9)
+    np.testing.assert_allclose(house.origin, [x0 + 5, y0 + 2.5, z0 + 2.5])
