@@ -264,3 +264,39 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
         raise InputFileError(str(path), f"cannot be parsed as XML ({type(err).__name__}: {err})") from None
     if not found:
         raise InputFileError(str(path), "holds no Building (CityGML bldg:Building)")
+
+
+def write_citygml(path, meshes, label_attribute: str = "family") -> None:
+    """Write meshes as CityGML 2.0: one ``bldg:Building`` each, with its label as a generic
+    attribute and its triangles as a ``lod{N}Solid`` (N the mesh's LoD, 1 when it has none);
+    gzip-compressed when ``path`` ends in ``.gz``.
+
+    Parameters
+    ----------
+    path : path
+    meshes : iterable of objects with ``id``, ``vertices (V, 3) float64`` (world coordinates),
+        ``faces (F, 3) int64``, ``label`` and ``lod``.
+    label_attribute : str
+    """
+    import gzip
+    from xml.sax.saxutils import escape, quoteattr
+
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "wt", encoding="utf-8") as fh:
+        fh.write('<?xml version="1.0" encoding="UTF-8"?>\n<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
+                 'xmlns:bldg="http://www.opengis.net/citygml/building/2.0" xmlns:gen="http://www.opengis.net/citygml/generics/2.0" '
+                 'xmlns:gml="http://www.opengis.net/gml">\n')
+        for m in meshes:
+            lod = int(float(m.lod)) if m.lod not in (None, "") else 1
+            corners = np.asarray(m.vertices, np.float64)[np.asarray(m.faces)]
+            closed = np.concatenate([corners, corners[:, :1]], axis=1).reshape(len(corners), -1)
+            members = "".join(
+                '<gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing><gml:posList srsDimension="3">'
+                + " ".join(repr(float(x)) for x in row) + "</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember>"
+                for row in closed)
+            label = ("" if m.label is None else f'<gen:stringAttribute name={quoteattr(label_attribute)}>'
+                     f"<gen:value>{escape(str(m.label))}</gen:value></gen:stringAttribute>")
+            fh.write(f"<core:cityObjectMember><bldg:Building gml:id={quoteattr(str(m.id))}>{label}<bldg:lod{lod}Solid><gml:Solid>"
+                     f"<gml:exterior><gml:CompositeSurface>{members}</gml:CompositeSurface></gml:exterior></gml:Solid>"
+                     f"</bldg:lod{lod}Solid></bldg:Building></core:cityObjectMember>\n")
+        fh.write("</core:CityModel>\n")

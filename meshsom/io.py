@@ -1267,8 +1267,52 @@ def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, op
 # ----------------------------------------------------------------------------- writing
 
 
+def _quantised(meshes, scale: float):
+    """Each mesh's vertices on one integer grid (``translate`` the floor of the smallest
+    coordinate), as the CityJSON writers store them."""
+    allv = np.concatenate([m.vertices for m in meshes])
+    translate = np.floor(allv.min(axis=0))
+    return translate, [np.round((m.vertices - translate) / scale).astype(np.int64) for m in meshes]
+
+
+def _building_object(m, offset: int, label_attribute: str) -> dict:
+    shell = [[[int(a) + offset, int(b) + offset, int(c) + offset]] for a, b, c in m.faces]
+    return {
+        "type": "Building",
+        "attributes": {label_attribute: m.label} if m.label is not None else {},
+        "geometry": [{"type": "Solid", "lod": str(m.lod or "1"), "boundaries": [shell]}],
+    }
+
+
+def write_cityjsonseq(path: str | os.PathLike, meshes, scale: float = 0.001, label_attribute: str = "family") -> None:
+    """Write meshes as CityJSONSeq (a CityJSON 2.0 header line, then one CityJSONFeature per mesh:
+    a Building with a Solid, its own vertices); gzip-compressed when ``path`` ends in ``.gz``.
+
+    Parameters
+    ----------
+    path : path
+    meshes : iterable of objects with ``id``, ``vertices (V, 3) float64`` (world coordinates),
+        ``faces (F, 3) int64``, ``label`` and ``lod``.
+    scale : float
+        Vertex quantisation (metres per integer unit).
+    label_attribute : str
+    """
+    meshes = list(meshes)
+    translate, grids = _quantised(meshes, scale)
+    header = {"type": "CityJSON", "version": "2.0", "transform": {"scale": [scale] * 3, "translate": translate.tolist()},
+              "CityObjects": {}, "vertices": [], "metadata": {"title": "meshsom synthetic corpus"}}
+    opener = gzip.open if str(path).endswith(GZIP_SUFFIX) else open
+    with opener(path, "wt", encoding="utf-8") as fh:
+        fh.write(json.dumps(header, separators=(",", ":")) + "\n")
+        for m, grid in zip(meshes, grids):
+            feature = {"type": "CityJSONFeature", "id": m.id, "CityObjects": {m.id: _building_object(m, 0, label_attribute)},
+                       "vertices": grid.tolist()}
+            fh.write(json.dumps(feature, separators=(",", ":")) + "\n")
+
+
 def write_cityjson(path: str | os.PathLike, meshes, scale: float = 0.001, label_attribute: str = "family") -> None:
-    """Write meshes as a CityJSON 2.0 file (one Building with a Solid each).
+    """Write meshes as a CityJSON 2.0 file (one Building with a Solid each); gzip-compressed when
+    ``path`` ends in ``.gz``.
 
     Parameters
     ----------
@@ -1281,21 +1325,12 @@ def write_cityjson(path: str | os.PathLike, meshes, scale: float = 0.001, label_
         Attribute the label is written to.
     """
     meshes = list(meshes)
-    allv = np.concatenate([m.vertices for m in meshes])
-    translate = np.floor(allv.min(axis=0))
+    translate, all_int = _quantised(meshes, scale)
     objects = {}
-    all_int = []
     offset = 0
-    for m in meshes:
-        vi = np.round((m.vertices - translate) / scale).astype(np.int64)
-        all_int.append(vi)
-        shell = [[[int(a) + offset, int(b) + offset, int(c) + offset]] for a, b, c in m.faces]
+    for m, vi in zip(meshes, all_int):
+        objects[m.id] = _building_object(m, offset, label_attribute)
         offset += len(vi)
-        objects[m.id] = {
-            "type": "Building",
-            "attributes": {label_attribute: m.label} if m.label is not None else {},
-            "geometry": [{"type": "Solid", "lod": str(m.lod or "1"), "boundaries": [shell]}],
-        }
     doc = {
         "type": "CityJSON",
         "version": "2.0",
@@ -1304,7 +1339,7 @@ def write_cityjson(path: str | os.PathLike, meshes, scale: float = 0.001, label_
         "vertices": np.concatenate(all_int).tolist(),
         "metadata": {"title": "meshsom synthetic corpus"},
     }
-    with open(path, "w") as fh:
+    with (gzip.open if str(path).endswith(GZIP_SUFFIX) else open)(path, "wt", encoding="utf-8") as fh:
         json.dump(doc, fh, separators=(",", ":"))
 
 
