@@ -20,13 +20,13 @@ Details of the encoding:
   vertex.
 - A label comes from a generic attribute (``gen:stringAttribute`` and the like) named
   :attr:`meshsom.io.ReaderOptions.label_attribute`.
-- Parsing streams (``xml.etree.ElementTree.iterparse``), each building cleared once read; no DTD
-  or external entity is fetched.
+- Parsing streams (``xml.etree.ElementTree.iterparse`` on :func:`meshsom.io.open_input`: gzip
+  decompressed as it is read), each building cleared once read; no DTD or external entity is
+  fetched.
 """
 
 from __future__ import annotations
 
-import io
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -210,51 +210,19 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
 def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
     """Read the buildings of a CityGML file: RawMesh or Rejection items, as :func:`meshsom.io.read_cityjson`.
 
+    The file is parsed as a stream (:func:`meshsom.io.open_input`): only the building being read
+    is held.
+
     Raises
     ------
     InputFileError
         The file is not XML, not CityGML (no CityModel) or holds no Building.
     """
-    import dataclasses
+    from meshsom.io import open_input
 
-    from meshsom.io import Rejection, _object_meshes, read_input_bytes
-
-    name = name or path.name
-    data = read_input_bytes(path, options)
-    found = root_checked = False
-    ordinal = 0
     try:
-        stack = []
-        for event, element in ET.iterparse(io.BytesIO(data), events=("start", "end")):
-            local = _local(element.tag)
-            if event == "start":
-                if not root_checked:
-                    root_checked = True
-                    if local != "CityModel":
-                        raise InputFileError(str(path), f"is XML but not CityGML (root element {local!r}, expected CityModel)")
-                stack.append(local)
-                continue
-            stack.pop()
-            if local == "cityObjectMember":
-                element.clear()  # roads, terrain, ... read and let go
-            if local != "Building" or "Building" in stack:
-                continue
-            ordinal += 1
-            element_id = _gml_id(element) or f"building-{ordinal}"
-            if _gml_id(element) is None:
-                element.set("{http://www.opengis.net/gml}id", element_id)
-            mesh_id = f"{name}#{element_id}"
-            try:
-                objects, vertices, notes = building_objects(element, mesh_id, options.label_attribute)
-            except InputFileError as err:
-                yield Rejection(mesh_id, str(path), err.problem)
-            else:
-                for item in _object_meshes(objects, vertices, None, None, options, name, str(path)):
-                    if notes and not isinstance(item, Rejection):
-                        item = dataclasses.replace(item, notes=item.notes + tuple(notes))
-                    yield item
-            found = True
-            element.clear()
+        with open_input(path, options) as stream:
+            yield from _buildings(stream, path, name or path.name, options)
     except InputFileError:
         raise
     except ET.ParseError as err:
@@ -262,6 +230,45 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
         raise InputFileError(str(path), f"invalid XML at line {line}, column {column}: {str(err).split(':')[0]}") from None
     except (LookupError, ValueError, RecursionError) as err:  # an unknown encoding, bytes not in it, deep nesting
         raise InputFileError(str(path), f"cannot be parsed as XML ({type(err).__name__}: {err})") from None
+
+
+def _buildings(stream, path: Path, name: str, options) -> Iterator:
+    """The meshes and rejections of the Buildings parsed from ``stream``, as :func:`read_citygml`."""
+    import dataclasses
+
+    from meshsom.io import Rejection, _object_meshes
+
+    found = False
+    ordinal = 0
+    stack: list[str] = []  # local names of the open elements
+    for event, element in ET.iterparse(stream, events=("start", "end")):
+        local = _local(element.tag)
+        if event == "start":
+            if not stack and local != "CityModel":
+                raise InputFileError(str(path), f"is XML but not CityGML (root element {local!r}, expected CityModel)")
+            stack.append(local)
+            continue
+        stack.pop()
+        if local == "cityObjectMember":
+            element.clear()  # roads, terrain, ... read and let go
+        if local != "Building" or "Building" in stack:
+            continue
+        ordinal += 1
+        element_id = _gml_id(element) or f"building-{ordinal}"
+        if _gml_id(element) is None:
+            element.set("{http://www.opengis.net/gml}id", element_id)
+        mesh_id = f"{name}#{element_id}"
+        try:
+            objects, vertices, notes = building_objects(element, mesh_id, options.label_attribute)
+        except InputFileError as err:
+            yield Rejection(mesh_id, str(path), err.problem)
+        else:
+            for item in _object_meshes(objects, vertices, None, None, options, name, str(path)):
+                if notes and not isinstance(item, Rejection):
+                    item = dataclasses.replace(item, notes=item.notes + tuple(notes))
+                yield item
+        found = True
+        element.clear()
     if not found:
         raise InputFileError(str(path), "holds no Building (CityGML bldg:Building)")
 

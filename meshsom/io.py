@@ -28,6 +28,7 @@ guards of :class:`ReaderOptions`.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import gzip
@@ -304,6 +305,53 @@ def read_input_bytes(path: Path, options: ReaderOptions = ReaderOptions()) -> by
     if not data:
         raise InputFileError(str(path), "file is empty (gzip data of no bytes)")
     return data
+
+
+class _GuardedStream(io.RawIOBase):
+    """A binary stream over gzip data that refuses to expand beyond ``limit`` bytes (see
+    :attr:`ReaderOptions.max_expansion`)."""
+
+    def __init__(self, stream, path: Path, limit: int, compressed: int, options: ReaderOptions):
+        self.stream, self.path, self.limit, self.compressed, self.options = stream, path, limit, compressed, options
+        self.total = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        try:
+            data = self.stream.read(min(len(buffer), GZIP_CHUNK_BYTES))
+        except (OSError, EOFError, zlib.error) as err:
+            raise _gzip_error(self.path, err) from None
+        self.total += len(data)
+        if self.total > self.limit:
+            raise _too_large(self.path, self.limit, self.compressed, self.options)
+        buffer[:len(data)] = data
+        return len(data)
+
+
+@contextlib.contextmanager
+def open_input(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[io.BufferedIOBase]:
+    """A binary stream of an input file's content, decompressed when it is gzip data (by its first
+    bytes), for readers that parse as they read (nothing is held whole).
+
+    Raises
+    ------
+    InputFileError
+        The file is empty; while reading, gzip data that expands more than
+        ``options.max_expansion`` times, or is corrupt or truncated.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        raise InputFileError(str(path), "file is empty")
+    with open(path, "rb") as fh:
+        compressed = fh.read(2) == GZIP_MAGIC
+        fh.seek(0)
+        if not compressed:
+            yield fh
+            return
+        with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
+            yield io.BufferedReader(_GuardedStream(gz, path, _gzip_limit(path, size, options), size, options))
 
 
 def input_lines(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[tuple[int, bytes | None]]:

@@ -257,7 +257,7 @@ def test_gzip_bomb_is_refused_having_allocated_little(tmp_path):
         for _ in range(256):
             fh.write(b" " * (1 << 20))  # 256 MB of spaces: a valid JSON prefix, ~1000x compressed
     assert bomb.stat().st_size < (1 << 20)
-    for name in ("bomb.city.json.gz", "bomb.city.jsonl.gz", "bomb.obj.gz"):
+    for name in ("bomb.city.json.gz", "bomb.city.jsonl.gz", "bomb.obj.gz", "bomb.gml.gz"):
         path = bomb.rename(tmp_path / name)
         bomb = path
         tracemalloc.start()

@@ -1,0 +1,89 @@
+"""Reading a city: seconds and peak memory per container, for the same buildings.
+
+    .venv/bin/python bench/read.py [--blocks 20000] [--seed 0]
+
+Writes one synthetic city (``meshsom generate`` blocks with LoD2 roofs, on Swiss LV95 offsets) as
+CityJSON, CityJSONSeq, CityGML and gzipped CityJSON / CityJSONSeq, then reads every building of
+each file with :func:`meshsom.io.read_file`, as ``meshsom ingest`` does, in a child process of its
+own, and prints per container: file size, wall seconds (best of ``--repeat``), buildings per
+second, and the peak memory the read allocates (``tracemalloc``: Python objects and NumPy arrays,
+in a pass of its own). The reference for memory is the city's own vertex and face arrays
+(float64 / int64), measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+FORMATS = [("CityJSON", "city.city.json", "cityjson"), ("CityJSON, gzip", "city.city.json.gz", "cityjson"),
+           ("CityJSONSeq", "city.city.jsonl", "cityjsonseq"), ("CityJSONSeq, gzip", "city.city.jsonl.gz", "cityjsonseq"),
+           ("CityGML 2.0", "city.gml", "citygml")]
+
+
+def child(path: str, repeat: int) -> None:
+    """Read every building of ``path``: ``repeat`` timed passes, then one under tracemalloc; print
+    JSON with the best seconds and the peak traced allocation (Python objects and NumPy arrays)."""
+    import tracemalloc
+
+    from meshsom.io import RawMesh, read_file
+
+    best, count = float("inf"), 0
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        count = sum(isinstance(item, RawMesh) for item in read_file(Path(path)))
+        best = min(best, time.perf_counter() - t0)
+    tracemalloc.start()
+    sum(1 for _ in read_file(Path(path)))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    print(json.dumps({"seconds": best, "meshes": count, "peak_mb": peak / 2**20}))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--blocks", type=int, default=20000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(args.child, args.repeat)
+        return
+    from meshsom.citygml import write_citygml
+    from meshsom.generate import BLOCK_FAMILIES, ROOF_FAMILIES, GeneratorParams, generate_corpus
+    from meshsom.io import write_cityjson, write_cityjsonseq
+
+    params = GeneratorParams(n_blocks=args.blocks, seed=args.seed, families=BLOCK_FAMILIES + ROOF_FAMILIES,
+                             origin=(2600000.0, 1200000.0, 400.0))
+    t0 = time.perf_counter()
+    blocks = generate_corpus(params)
+    arrays_mb = sum(b.vertices.nbytes + b.faces.nbytes for b in blocks) / 2**20
+    print(f"{len(blocks)} buildings, {sum(len(b.faces) for b in blocks):,} triangles, generated in "
+          f"{time.perf_counter() - t0:.1f} s; their vertex and face arrays: {arrays_mb:.1f} MB")
+    writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml}
+    with tempfile.TemporaryDirectory(prefix="meshsom-read-") as tmp:
+        print("\n| container | file MB | read s | buildings/s | peak alloc MB | peak / arrays |")
+        print("|---|---:|---:|---:|---:|---:|")
+        for label, name, kind in FORMATS:
+            path = Path(tmp) / name
+            writers[kind](path, blocks)
+            out = subprocess.run([sys.executable, __file__, "--child", str(path), "--repeat", str(args.repeat)],
+                                 capture_output=True, text=True, check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            assert r["meshes"] == len(blocks), (label, r)
+            print(f"| {label} | {path.stat().st_size / 2**20:.1f} | {r['seconds']:.2f} | {r['meshes'] / r['seconds']:,.0f} | "
+                  f"{r['peak_mb']:.0f} | {r['peak_mb'] / arrays_mb:.1f}x |")
+
+
+if __name__ == "__main__":
+    main()
