@@ -365,36 +365,22 @@ def input_lines(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterato
         The file is empty, gzip data expands more than ``options.max_expansion`` times in all, or
         is corrupt or truncated.
     """
-    size = path.stat().st_size
-    if size == 0:
-        raise InputFileError(str(path), "file is empty")
-    with open(path, "rb") as fh:
-        compressed = fh.read(2) == GZIP_MAGIC
-        fh.seek(0)
-        stream = gzip.GzipFile(fileobj=fh, mode="rb") if compressed else fh
-        limit = _gzip_limit(path, size, options) if compressed else None
-        total, number = 0, 0
-        try:
-            with stream:
-                while True:  # a line in pieces, so that neither a long line nor a bomb is held whole
-                    pieces, length = [], 0
-                    while piece := stream.readline(GZIP_CHUNK_BYTES):
-                        total += len(piece)
-                        if limit is not None and total > limit:
-                            raise _too_large(path, limit, size, options)
-                        length += len(piece)
-                        if length <= options.max_bytes:
-                            pieces.append(piece)
-                        else:
-                            pieces = None
-                        if piece.endswith(b"\n"):
-                            break
-                    if not length:
-                        return
-                    number += 1
-                    yield number, None if pieces is None else b"".join(pieces)
-        except (OSError, EOFError, zlib.error) as err:
-            raise _gzip_error(path, err) from None
+    with open_input(path, options) as stream:
+        number = 0
+        while True:  # a line in pieces, so that neither a long line nor a bomb is held whole
+            pieces, length = [], 0
+            while piece := stream.readline(GZIP_CHUNK_BYTES):
+                length += len(piece)
+                if length <= options.max_bytes:
+                    pieces.append(piece)
+                else:
+                    pieces = None
+                if piece.endswith(b"\n"):
+                    break
+            if not length:
+                return
+            number += 1
+            yield number, None if pieces is None else b"".join(pieces)
 
 
 @dataclass(frozen=True)
