@@ -27,6 +27,7 @@ Details of the encoding:
 
 from __future__ import annotations
 
+import functools
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -48,7 +49,9 @@ _LOD = re.compile(r"^lod(\d)")
 _XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
 
 
+@functools.lru_cache(maxsize=4096)
 def _local(tag) -> str:
+    """An element's name without its namespace (a file holds few distinct tags: cached)."""
     return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
