@@ -538,7 +538,10 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     file_type = Path(format_name(path)).suffix.lstrip(".")
     # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
     # reads what there is, where a read from the file would first allocate the claimed size.
-    data = io.BytesIO(read_input_bytes(path, options))
+    content = read_input_bytes(path, options)
+    if file_type == "obj":
+        content = triangulated_obj(bytes(content)) or content
+    data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the
         # materials (a building's roof and walls often have their own)
@@ -583,6 +586,57 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             continue
         local, origin = recentre(v)
         yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None)
+
+
+#: An OBJ face line of four or more vertices.
+_OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
+
+
+def triangulated_obj(data: bytes) -> bytes | None:
+    """OBJ text whose non-convex polygon faces (``f`` lines of four or more vertices) are
+    triangulated in their own plane (:func:`meshsom.polygons.triangulate_polygon_3d`); None when
+    it has none.
+
+    trimesh splits every polygon into a fan from its first vertex, right for a convex polygon and
+    wrong for any other: the L- or U-shaped roofs and floors that CAD and Blender exports keep as
+    one polygon would fold over themselves (and leave the mesh open). Convex polygons are left to
+    trimesh; texture and normal references of a replaced face are dropped (only geometry is read).
+    """
+    from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_3d
+
+    if not _OBJ_POLYGON.search(data):
+        return None
+    out, vertices, changed = [], [], False
+    for line in data.splitlines():
+        head = line.lstrip()[:2]
+        if head == b"v " or head == b"v\t":
+            try:
+                vertices.append([float(x) for x in line.split()[1:4]])
+            except ValueError:
+                vertices.append([math.nan] * 3)
+        elif head in (b"f ", b"f\t"):
+            refs = line.split()[1:]
+            if len(refs) >= 4:
+                try:
+                    ids = [int(r.split(b"/")[0]) for r in refs]
+                    ids = [i - 1 if i > 0 else len(vertices) + i for i in ids]
+                    points = np.array([vertices[i] for i in ids], np.float64)
+                except (ValueError, IndexError):
+                    points = None  # left for trimesh to judge
+                if points is not None and len(points[0]) == 3 and np.isfinite(points).all():
+                    normal = newell_normal(points - points.mean(axis=0))
+                    flat = (points - points.mean(axis=0)) @ plane_frame(normal / (np.linalg.norm(normal) or 1.0)).T
+                    d1 = np.roll(flat, -1, axis=0) - flat
+                    d2 = np.roll(d1, -1, axis=0)
+                    turns = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+                    if not ((turns > 0).all() or (turns < 0).all()):
+                        tri = triangulate_polygon_3d([points])
+                        if len(tri):
+                            out += [b"f %d %d %d" % tuple(ids[k] + 1 for k in t) for t in tri.tolist()]
+                            changed = True
+                            continue
+        out.append(line)
+    return b"\n".join(out) + b"\n" if changed else None
 
 
 class FolderResolver:

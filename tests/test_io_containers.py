@@ -409,3 +409,44 @@ def test_generate_writes_every_container_and_reads_back_the_blocks(tmp_path, fmt
         assert isinstance(g, RawMesh) and g.label == b.label
         world = np.sort((g.vertices + g.origin)[g.faces].reshape(-1, 3), axis=0)
         np.testing.assert_allclose(world, np.sort(b.vertices[b.faces].reshape(-1, 3), axis=0), atol=6e-4, rtol=0)
+
+
+def _prism_obj(ring, height, relative: bool) -> str:
+    """A prism over ``ring`` (counter-clockwise, 2D) as OBJ with its floor and roof one polygon each
+    and quad walls, references as v/vt/vn (``relative``: negative, counted back from the last vertex)."""
+    n = len(ring)
+    lines = ["o prism", "vt 0 0", "vn 0 0 1"] + [f"v {x} {y} 0" for x, y in ring] + [f"v {x} {y} {height}" for x, y in ring]
+
+    def ref(i):  # i: 0-based vertex of this prism
+        return f"{i - 2 * n}/1/1" if relative else f"{i + 1}/1/1"
+
+    lines.append("f " + " ".join(ref(i) for i in reversed(range(n))))
+    lines.append("f " + " ".join(ref(n + i) for i in range(n)))
+    for i in range(n):
+        j = (i + 1) % n
+        lines.append(f"f {ref(i)} {ref(j)} {ref(n + j)} {ref(n + i)}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("relative", [False, True])
+@pytest.mark.parametrize("ring", [
+    [(0, 0), (5, 0), (5, 3), (4, 3), (4, 1), (3, 1), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)],  # a comb
+    [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)],  # an L
+    [(0, 0), (4, 0), (4, 4), (0, 4)],  # convex: left to trimesh
+])
+def test_obj_polygons_that_are_not_convex_are_triangulated_in_their_plane(tmp_path, ring, relative):
+    """CAD and Blender exports keep an L- or U-shaped roof as one polygon; a fan from its first
+    vertex folds over itself (the comb was rejected as open)."""
+    from meshsom.preprocess import preprocess
+
+    (tmp_path / "p.obj").write_text(_prism_obj(ring, 2.5, relative))
+    (m,) = _items(tmp_path / "p.obj")
+    area = 0.5 * abs(sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(ring, ring[1:] + ring[:1])))
+    v = m.vertices + m.origin
+    tri = v[m.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    roof = np.isclose(tri[:, :, 2], 2.5).all(axis=1)
+    assert len(m.faces) == 2 * (len(ring) - 2) + 2 * len(ring)
+    assert (n[roof, 2] > 0).all() and 0.5 * n[roof, 2].sum() == pytest.approx(area)  # no triangle folds back
+    r = preprocess(m.vertices, m.faces)
+    assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
