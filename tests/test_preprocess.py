@@ -1,5 +1,7 @@
 """Preprocessing: answers known by hand (triangle counts of planar polygons, volumes), watertightness."""
 
+import itertools
+
 import numpy as np
 import pytest
 import shapely
@@ -688,9 +690,10 @@ def _polygons_mesh(polygons):
     return v, np.array(faces, np.int64)
 
 
-def row_house(x0, x1, depth=8.0, eaves=6.0, ridge=9.0, gables=(True, True), floor=True):
+def row_house(x0, x1, depth=8.0, eaves=6.0, ridge=9.0, gables=(True, True), floor=True, roof_front=True):
     """A gabled house of a row (ridge along x): front and back walls, two roof slopes, and the
-    gables at x0 and x1 (the party walls a row-house model leaves out) and the floor, each optional.
+    gables at x0 and x1 (the party walls a row-house model leaves out), the floor and the front
+    roof slope, each optional.
 
     Returns
     -------
@@ -705,7 +708,8 @@ def row_house(x0, x1, depth=8.0, eaves=6.0, ridge=9.0, gables=(True, True), floo
     gable0 = [[x0, depth, 0], [x0, 0, 0], [x0, 0, eaves], [x0, m, ridge], [x0, depth, eaves]]
     gable1 = [[x1, 0, 0], [x1, depth, 0], [x1, depth, eaves], [x1, m, ridge], [x1, 0, eaves]]
     bottom = [[x0, 0, 0], [x0, depth, 0], [x1, depth, 0], [x1, 0, 0]]
-    polygons = [front, back, roof_front, roof_back] + [g for g, keep in zip((gable0, gable1), gables) if keep]
+    polygons = [front, back, roof_back] + ([roof_front] if roof_front else []) + [
+        g for g, keep in zip((gable0, gable1), gables) if keep]
     v, f = _polygons_mesh(polygons + ([bottom] if floor else []))
     return v, f, (x1 - x0) * (depth * eaves + depth * (ridge - eaves) / 2)
 
@@ -719,6 +723,19 @@ def test_row_house_without_party_walls_is_closed_exactly(gables, floor, loops):
     v, f, volume = row_house(0.0, 5.5, gables=gables, floor=floor)
     r = preprocess(v, f)
     assert any(f"capped {loops} open planar loop" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, volume)
+
+
+@pytest.mark.parametrize("missing", [m for k in range(1, 5) for m in itertools.combinations(
+    ("gable0", "gable1", "floor", "roof_front"), k)])
+@pytest.mark.parametrize("size", [(0.0, 5.5, 8.0, 6.0, 9.0), (-3.2, 9.7, 11.3, 3.1, 7.4)])
+def test_any_whole_polygons_missing_from_a_row_house_close_it_exactly(missing, size):
+    """Every set of whole polygons left out (party walls, floor, a roof slope), in any combination
+    of separate, touching and bent holes: closed to the exact volume."""
+    x0, x1, depth, eaves, ridge = size
+    v, f, volume = row_house(x0, x1, depth, eaves, ridge, gables=("gable0" not in missing, "gable1" not in missing),
+                             floor="floor" not in missing, roof_front="roof_front" not in missing)
+    r = preprocess(v, f)
     _check_closed_outward(r, volume)
 
 
