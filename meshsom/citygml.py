@@ -219,7 +219,8 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
     Raises
     ------
     InputFileError
-        The file is not XML, not CityGML (no CityModel) or holds no Building.
+        The file is not XML or holds no Building. The root may be a CityModel or anything else
+        that holds Buildings (a WFS FeatureCollection, as German LoD2 downloads come).
     """
     from meshsom.io import open_input
 
@@ -243,18 +244,18 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
 
     found = False
     ordinal = 0
+    root = None
     stack: list[str] = []  # local names of the open elements
     for event, element in ET.iterparse(stream, events=("start", "end")):
         local = _local(element.tag)
         if event == "start":
-            if not stack and local != "CityModel":
-                raise InputFileError(str(path), f"is XML but not CityGML (root element {local!r}, expected CityModel)")
+            root = root or local
             stack.append(local)
             continue
         stack.pop()
-        if local == "cityObjectMember":
-            element.clear()  # roads, terrain, ... read and let go
         if local != "Building" or "Building" in stack:
+            if len(stack) == 1:
+                element.clear()  # a member of the CityModel (or of a WFS FeatureCollection) read: let go
             continue
         ordinal += 1
         element_id = _gml_id(element) or f"building-{ordinal}"
@@ -273,7 +274,8 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
         found = True
         element.clear()
     if not found:
-        raise InputFileError(str(path), "holds no Building (CityGML bldg:Building)")
+        what = "CityGML" if root == "CityModel" else f"XML with root element {root!r}"
+        raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}")
 
 
 def write_citygml(path, meshes, label_attribute: str = "family") -> None:

@@ -147,6 +147,18 @@ def test_citygml_reads_as_the_same_cityjson(tmp_path, folder, name, version, sty
     assert_same_buildings(got, expected, "city.gml")
 
 
+def test_a_wfs_feature_collection_of_buildings_reads_as_a_citymodel(tmp_path):
+    """German LoD2 downloads come from WFS services: the buildings are members of a
+    wfs:FeatureCollection, not of a CityModel."""
+    original = DATA / REAL[0][0] / REAL[0][1]
+    xml = to_citygml(json.loads(original.read_text()))
+    xml = xml.replace("<core:CityModel ", '<wfs:FeatureCollection xmlns:wfs="http://www.opengis.net/wfs/2.0" ')
+    xml = xml.replace("</core:CityModel>", "</wfs:FeatureCollection>").replace("core:cityObjectMember", "wfs:member")
+    (tmp_path / "wfs.gml").write_text(xml)
+    expected = list(read_file(original, ReaderOptions()))
+    assert_same_buildings(list(read_file(tmp_path / "wfs.gml")), expected, "wfs.gml")
+
+
 def test_citygml_parts_kept_apart_and_gzipped(tmp_path):
     original = DATA / REAL[1][0] / REAL[1][1]
     document = json.loads(original.read_text())
@@ -170,8 +182,8 @@ def test_citygml_labels_from_generic_attributes(tmp_path):
 
 
 @pytest.mark.parametrize("text,reason", [
-    (b"<html><body/></html>", "is XML but not CityGML (root element 'html', expected CityModel)"),
-    (b"<CityModel><cityObjectMember><Road/></cityObjectMember></CityModel>", "holds no Building"),
+    (b"<html><body/></html>", "holds no Building (CityGML bldg:Building); it is XML with root element 'html'"),
+    (b"<CityModel><cityObjectMember><Road/></cityObjectMember></CityModel>", "holds no Building (CityGML bldg:Building); it is CityGML"),
     (b"<CityModel><cityObjectMember><Building", "invalid XML at line 1"),
     (b"not xml", "invalid XML at line 1, column 0"),
 ])
@@ -240,3 +252,13 @@ def test_a_handwritten_lod2_house_as_tools_write_it(tmp_path):
     r = preprocess(house.vertices, house.faces)
     assert r.volume_out == pytest.approx(10 * 5 * 3 + 0.5 * 5 * 2 * 10, rel=1e-9)
     np.testing.assert_allclose(house.origin, [x0 + 5, y0 + 2.5, z0 + 2.5])
+
+
+def test_buildings_directly_under_the_root_are_read(tmp_path):
+    ring = "0 0 0 1 0 0 1 1 0 0 0 0"
+    xml = ('<CityModel xmlns:gml="http://www.opengis.net/gml"><Building gml:id="a"><lod1MultiSurface><gml:Polygon><gml:exterior>'
+           f'<gml:LinearRing><gml:posList>{ring}</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></lod1MultiSurface>'
+           '</Building></CityModel>')
+    (tmp_path / "r.gml").write_text(xml)
+    (m,) = read_file(tmp_path / "r.gml")
+    assert isinstance(m, RawMesh) and m.id == "r.gml#a" and len(m.faces) == 1
