@@ -174,6 +174,7 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     members = [(bid, building)] + [(_gml_id(p), p) for p in building.iter() if _local(p.tag) in PART_NAMES]
     objects: dict = {}
     rings: list[np.ndarray] = []
+    n_points = 0
     missing = 0
     for k, (oid, obj) in enumerate(members):
         oid = oid or (f"{bid}-part{k}" if k else bid)
@@ -185,9 +186,9 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
             for poly in polys:
                 indexed = []
                 for ring in poly:
-                    start = sum(len(r) for r in rings)
                     rings.append(ring)
-                    indexed.append(list(range(start, start + len(ring))))
+                    indexed.append(list(range(n_points, n_points + len(ring))))
+                    n_points += len(ring)
                 if indexed:
                     boundaries.append(indexed)
             geometry.append({"type": "MultiSurface", "lod": lod, "boundaries": boundaries})
