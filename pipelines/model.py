@@ -166,6 +166,11 @@ def predict_units(X, weights: np.ndarray, stats: dict, index: np.ndarray, sign: 
 class MapModel(PythonModel):
     """The pyfunc model of one triangle map (its state is read from the artifacts when loaded)."""
 
+    # predict takes a table or an array (no type hint MLflow validates fits both; the logged
+    # signature describes the input): without this, every process that defines the class (the
+    # run, and each that loads the model) prints MLflow's advice to add type hints
+    _skip_type_hint_validation = True
+
     def load_context(self, context) -> None:
         with open(context.artifacts["map"]) as fh:
             self.meta = json.load(fh)
