@@ -525,7 +525,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
 
     A scene yields one mesh per geometry node, with the node's transform
     applied, id ``name#node`` (``name`` defaults to the file name); so does an OBJ of several
-    objects (``o`` lines: a city's buildings), one mesh per object. Labels come from a
+    objects (``o`` lines: a city's buildings), one mesh per object, and an OBJ of several groups
+    (``g``) and no objects when every group is closed on its own (:func:`_closed_groups`). Labels come from a
     ``labels.csv`` (columns ``file``, ``label``; ``file#node`` for one object of a file) in the
     same folder, when there is one.
 
@@ -550,6 +551,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             data, file_type=file_type, resolver=FolderResolver(path.parent, str(path)),
             process=False, force=None, skip_materials=True, **per_object,
         )
+        if file_type == "obj" and isinstance(loaded, trimesh.Trimesh):
+            loaded = _closed_groups(data, loaded)
     except InputFileError:
         raise
     except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
@@ -586,6 +589,33 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             continue
         local, origin = recentre(v)
         yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None)
+
+
+def _closed_groups(data: io.BytesIO, whole):
+    """An OBJ of no objects (``o``) but several groups (``g``), split into one mesh per group when
+    every group is closed on its own (a SketchUp export of a district: a group per building);
+    else ``whole``. A single building's groups (its roof, its walls) are each open, so a building
+    is never cut into pieces.
+    """
+    import trimesh
+
+    text = data.getvalue()
+    if re.search(rb"^[ \t]*o[ \t]", text, re.M) or len(set(re.findall(rb"^[ \t]*g[ \t]+(.+?)[ \t]*\r?$", text, re.M))) < 2:
+        return whole
+    data.seek(0)
+    groups = trimesh.load(data, file_type="obj", process=False, force=None, skip_materials=True,
+                          split_groups=True, group_material=False)
+    if not isinstance(groups, trimesh.Scene) or len(groups.geometry) < 2:
+        return whole
+    for geom in groups.geometry.values():
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            return whole
+        _, at = np.unique(np.asarray(geom.vertices), axis=0, return_inverse=True)
+        f = at.reshape(-1)[np.asarray(geom.faces)]
+        edges = np.sort(np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        if (np.unique(edges, axis=0, return_counts=True)[1] != 2).any():
+            return whole
+    return groups
 
 
 #: An OBJ face line of four or more vertices.

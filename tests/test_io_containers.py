@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from conftest import box
 from cityjson_samples import CUBE_VERTS, cube_solid, doc, instanced_box_doc, to_3dbag_layout, to_cityjsonseq, write, write_lines
 from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 from meshsom.store import read_manifest
@@ -450,3 +451,20 @@ def test_obj_polygons_that_are_not_convex_are_triangulated_in_their_plane(tmp_pa
     assert (n[roof, 2] > 0).all() and 0.5 * n[roof, 2].sum() == pytest.approx(area)  # no triangle folds back
     r = preprocess(m.vertices, m.faces)
     assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
+
+
+def test_obj_groups_are_buildings_only_when_each_is_closed(tmp_path):
+    """No objects, a group (g) per building, as SketchUp exports a district: one mesh per group.
+    A single building whose roof and walls are groups of their own stays one mesh."""
+    meshes = [i for i in _items(_real(*REAL[0])) if isinstance(i, RawMesh)]
+    (tmp_path / "district.obj").write_text(_city_obj(meshes).replace("\no ", "\ng "))
+    got = _items(tmp_path / "district.obj")
+    assert sorted(i.id for i in got) == sorted("district.obj#" + m.id.split("#", 1)[1] for m in meshes)
+    assert all(isinstance(i, RawMesh) for i in got)
+    v, f = box(2.0, 3.0, 4.0)
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
+    for k, (a, b, c) in enumerate(f.tolist()):
+        lines += [f"g side{k // 2}", f"f {a + 1} {b + 1} {c + 1}"]
+    (tmp_path / "house.obj").write_text("\n".join(lines) + "\n")
+    (m,) = _items(tmp_path / "house.obj")
+    assert m.id == "house.obj" and len(m.faces) == 12
