@@ -22,6 +22,44 @@ from meshsom.errors import ConfigError, MeshError, StoreError
 log = logging.getLogger(__name__)
 
 
+#: What to try for the commonest rejections, by how their reason starts (:func:`rejection_kinds`).
+REJECTION_HINTS = (
+    ("open boundary", "--repair fills holes with pymeshlab; --extrude-lod1 makes closed blocks of footprints"),
+    ("non-manifold", "--repair (pymeshlab's non-manifold repair)"),
+    ("holds no Building", "files of other city objects (terrain, roads, furniture): nothing to ingest"),
+    ("has no geometry at LoD", "--lod highest, or one of the LoDs the building has"),
+    ("has no surface or solid geometry", "--lod: the building may have volumes at another LoD"),
+)
+#: Rejection kinds printed by ``meshsom ingest`` (the most frequent first), and single rejections after them.
+KINDS_SHOWN = 8
+REJECTIONS_SHOWN = 5
+
+
+def rejection_kinds(records: Iterable[dict]) -> list[tuple[str, int, str | None]]:
+    """The rejected records grouped by the kind of their reason, the most frequent first.
+
+    A reason's kind is its first clause with its numbers written ``N`` (and a CityJSONSeq line
+    number and the object types a file holds instead of buildings dropped), so "open boundary: 17
+    edges ..." and "open boundary: 23 edges ..." are one.
+
+    Returns
+    -------
+    list of (kind, count, hint)
+        ``hint``: what to try (:data:`REJECTION_HINTS`), or None.
+    """
+    import re
+    from collections import Counter
+
+    kinds = Counter()
+    for r in records:
+        if r.get("status") == "rejected":
+            first = re.sub(r"^line \d+: ", "", str(r.get("reason") or "no reason given")).split("; ")[0]
+            first = re.sub(r" \(found [^)]*\)$", "", first)  # the object types a file holds instead
+            kinds[re.sub(r"\d[\d,.]*", "N", first).strip()] += 1
+    return [(kind, n, next((h for start, h in REJECTION_HINTS if kind.startswith(start)), None))
+            for kind, n in kinds.most_common()]
+
+
 @dataclass(frozen=True)
 class IngestResult:
     """What an ingestion did.
@@ -328,10 +366,19 @@ def run(args: argparse.Namespace) -> int:
 
             print(f"  {describe_fold_statistics(s['folds'])}")
         rejected = [r for r in result.records if r["status"] == "rejected"]
-        for r in rejected[:20]:
+        if rejected:
+            print(f"  rejected, by kind of reason (each record, with its whole reason, in {result.store}/manifest.json):")
+            kinds = rejection_kinds(rejected)
+            for kind, n, hint in kinds[:KINDS_SHOWN]:
+                print(f"    {n:6,d} x {kind}")
+                if hint:
+                    print(f"             hint: {hint}")
+            if len(kinds) > KINDS_SHOWN:
+                print(f"    ({len(kinds) - KINDS_SHOWN} more kinds)")
+        for r in rejected[:REJECTIONS_SHOWN]:
             print(f"  rejected {r['id']}: {r['reason']}")
-        if len(rejected) > 20:
-            print(f"  ... {len(rejected) - 20} more in {result.store}/manifest.json")
+        if len(rejected) > REJECTIONS_SHOWN:
+            print(f"  ... {len(rejected) - REJECTIONS_SHOWN} more")
     return 0 if s["accepted"] > 0 else 1
 
 

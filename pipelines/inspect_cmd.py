@@ -12,7 +12,6 @@ import argparse
 import json
 import textwrap
 import warnings
-from collections import Counter
 
 #: Rejection reasons listed (the most frequent first).
 REASONS_SHOWN = 5
@@ -31,7 +30,8 @@ def describe_store(path) -> dict:
     Returns
     -------
     dict
-        ``store``, ``manifest`` (``summary``, ``reasons``: [reason, count] most frequent first,
+        ``store``, ``manifest`` (``summary``, ``reasons``: [kind of reason, count] most frequent
+        first (:func:`pipelines.ingest.rejection_kinds`),
         ``first_rejections``: [id, reason]), ``arrays`` (``name``, ``shape``, ``dtype``,
         ``chunks``, ``bytes`` stored), ``runs`` (``name``, ``rows``, ``cols``, ``topology``,
         ``level``, ``kernel``, ``epochs``, ``epochs_done``, ``t_error``, ``q_error``,
@@ -49,12 +49,14 @@ def describe_store(path) -> dict:
     except StoreError:
         manifest = {"summary": {}, "records": []}
     rejected = [r for r in manifest.get("records", []) if r.get("status") == "rejected"]
-    reasons = Counter(str(r.get("reason") or "no reason given") for r in rejected)
+    from pipelines.ingest import rejection_kinds
+
+    reasons = rejection_kinds(rejected)
     out = {
         "store": str(path),
         "manifest": {
             "summary": dict(manifest.get("summary", {})),
-            "reasons": [[reason, n] for reason, n in reasons.most_common()],
+            "reasons": [[kind, n] for kind, n, _ in reasons],
             "first_rejections": [[r.get("id"), r.get("reason")] for r in rejected[:REASONS_SHOWN]],
         },
         "arrays": _arrays(group),

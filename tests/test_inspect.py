@@ -77,7 +77,7 @@ def test_inspect_counts_rejections_and_their_reasons(tmp_path, capsys):
     store = tmp_path / "s.zarr"
     create_store(store)
     records = [{"id": f"m{i}", "source": "x.obj", "status": "accepted", "reason": ""} for i in range(3)]
-    records += [{"id": f"open{i}", "source": "y.obj", "status": "rejected", "reason": "not closed: 4 boundary edges"}
+    records += [{"id": f"open{i}", "source": "y.obj", "status": "rejected", "reason": f"not closed: {4 + 2 * i} boundary edges"}
                 for i in range(2)]
     records += [{"id": "flat", "source": "z.obj", "status": "rejected", "reason": "zero volume " + "x" * 200}]
     write_manifest(store, records)
@@ -85,7 +85,7 @@ def test_inspect_counts_rejections_and_their_reasons(tmp_path, capsys):
     text = capsys.readouterr().out
     _fits(text)
     assert "manifest: 6 inputs, 3 accepted, 3 rejected" in text
-    assert "    2 x not closed: 4 boundary edges" in text
+    assert "    2 x not closed: N boundary edges" in text  # one kind, whatever the count
     assert "first rejected: open0: not closed" in text
     assert "trained maps (0)" in text and "no ring levels encoded" in text
 

@@ -468,3 +468,27 @@ def test_obj_groups_are_buildings_only_when_each_is_closed(tmp_path):
     (tmp_path / "house.obj").write_text("\n".join(lines) + "\n")
     (m,) = _items(tmp_path / "house.obj")
     assert m.id == "house.obj" and len(m.faces) == 12
+
+
+def test_ingest_groups_rejections_by_kind_with_what_to_try(tmp_path, capsys):
+    """`meshsom ingest` of a city's worth of rejections lists their kinds, counted, with a hint;
+    the whole reasons stay in the manifest."""
+    objects, vertices = {}, []
+    for k in range(3):  # boxes missing two triangles of adjacent sides: a bent hole, not guessed at
+        v, f = box(2.0 + k, 3.0, 4.0)
+        keep = f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]]
+        base = len(vertices)
+        vertices += (np.round(v * 1000).astype(int) + [10000 * k, 0, 0]).tolist()
+        objects[f"open{k}"] = {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "2",
+                                                                 "boundaries": [[[int(i) + base for i in t]] for t in keep]}]}
+    (tmp_path / "in").mkdir()
+    write(tmp_path / "in" / "city.city.json", doc(objects, vertices))
+    write(tmp_path / "in" / "terrain.city.json", doc({"T": {"type": "TINRelief", "geometry": []}}, []))
+    assert main(["ingest", str(tmp_path / "in"), "--out", str(tmp_path / "s.zarr")]) == 1
+    out = capsys.readouterr().out
+    assert "4 meshes: 0 accepted, 4 rejected" in out
+    assert "     3 x open boundary: N edges have only one face (a hole that is not planar)" in out
+    assert "hint: --repair fills holes with pymeshlab" in out
+    assert "     1 x holds no Building object\n" in out
+    reasons = [r["reason"] for r in read_manifest(tmp_path / "s.zarr")["records"]]
+    assert sum(r.startswith("open boundary: ") and r[15].isdigit() for r in reasons) == 3
