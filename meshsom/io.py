@@ -247,9 +247,10 @@ def input_kind(path: Path) -> str:
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl") + CITYGML_SUFFIXES
+    suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     raise InputFileError(
         str(path),
-        f"unknown file type {path.suffix or '(no extension)'!r}; expected one of "
+        f"unknown file type {suffix or '(no extension)'!r}; expected one of "
         f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}",
     )
 

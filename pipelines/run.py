@@ -179,6 +179,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
                 _nothing_ingested(store, remove=not (resume and existed))
             group = open_store(store, mode="r+")
             manifest = read_manifest(store)
+            _print_rejection_kinds(manifest["records"])
             fingerprint = dataset_fingerprint(manifest)
             ids = read_tracking(group) if resume else {}
             if ids.get("uri") not in (None, tracker.uri):
@@ -291,6 +292,23 @@ def _print_skipped(skipped: list[tuple[str, str]]) -> None:
     if any(why.startswith("unknown file type") for _, why in skipped):
         print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)}")
         print(f"       {' '.join(CITYJSONSEQ_SUFFIXES + CITYGML_SUFFIXES)}, each also gzipped: {GZIP_SUFFIX})")
+
+
+#: Kinds of rejection reasons ``meshsom run`` prints after its ingest line (``meshsom inspect`` shows more).
+RUN_KINDS_SHOWN = 3
+
+
+def _print_rejection_kinds(records) -> None:
+    """The most frequent kinds of rejection reasons (:func:`pipelines.ingest.rejection_kinds`), one
+    line each, cut to 80 columns."""
+    from pipelines.ingest import rejection_kinds
+
+    kinds = rejection_kinds(records)
+    for kind, n, _ in kinds[:RUN_KINDS_SHOWN]:
+        line = f"        {n:5,d} x {kind}"
+        print(line if len(line) <= 80 else line[:79] + "~")
+    if len(kinds) > RUN_KINDS_SHOWN:
+        print(f"        ({len(kinds) - RUN_KINDS_SHOWN} more kinds: meshsom inspect)")
 
 
 def _nothing_ingested(store: str, remove: bool) -> None:

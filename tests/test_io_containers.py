@@ -492,3 +492,22 @@ def test_ingest_groups_rejections_by_kind_with_what_to_try(tmp_path, capsys):
     assert "     1 x holds no Building object\n" in out
     reasons = [r["reason"] for r in read_manifest(tmp_path / "s.zarr")["records"]]
     assert sum(r.startswith("open boundary: ") and r[15].isdigit() for r in reasons) == 3
+
+
+def test_run_prints_the_commonest_kinds_of_rejection_in_80_columns(capsys):
+    from pipelines.run import RUN_KINDS_SHOWN, _print_rejection_kinds
+
+    records = [{"status": "accepted"}] * 3 + [
+        {"status": "rejected", "reason": f"open boundary: {n} edges have only one face (a hole that is not planar)"}
+        for n in (4, 9, 17)] + [{"status": "rejected", "reason": f"kind {k} " + "x" * 100} for k in "abc"]
+    _print_rejection_kinds(records)
+    lines = capsys.readouterr().out.splitlines()
+    assert all(len(line) <= 80 for line in lines)
+    assert lines[0].startswith("            3 x open boundary: N edges have only one face")
+    assert len(lines) == RUN_KINDS_SHOWN + 1 and lines[-1] == "        (1 more kinds: meshsom inspect)"
+
+
+def test_unknown_compressed_files_name_both_suffixes(tmp_path):
+    (tmp_path / "notes.txt.gz").write_bytes(b"x")
+    (rej,) = read_file(tmp_path / "notes.txt.gz")
+    assert rej.reason.startswith("unknown file type '.txt.gz'; expected one of .obj")
