@@ -368,6 +368,8 @@ def mutants_are_accounted_for(path: Path, seed: bytes, max_examples: int = 100) 
 
 
 def test_mutated_cityjson_bytes(folder, city_bytes):
+    items, records, _ = read_all(_write(folder / "valid.city.json", city_bytes))
+    assert [r["status"] for r in records] == ["accepted", "accepted"]  # the unmutated seed is valid
     mutants_are_accounted_for(folder / "mutant.city.json", city_bytes)
 
 
