@@ -274,8 +274,8 @@ def _gzip_error(path: Path, err: Exception) -> InputFileError:
     return InputFileError(str(path), f"is not valid gzip data ({type(err).__name__}: {err})")
 
 
-def read_input_bytes(path: Path, options: ReaderOptions = ReaderOptions()) -> bytes | bytearray:
-    """The whole content of an input file, decompressed when it is gzip data (by its first bytes).
+def read_input_bytes(path: Path, options: ReaderOptions = ReaderOptions()) -> bytearray:
+    """The whole content of an input file, decompressed when it is gzip data (:func:`open_input`).
 
     Raises
     ------
@@ -283,26 +283,14 @@ def read_input_bytes(path: Path, options: ReaderOptions = ReaderOptions()) -> by
         The file is empty, larger than ``options.max_bytes`` (decompressed), expands more than
         ``options.max_expansion`` times, or is corrupt or truncated gzip data.
     """
-    size = path.stat().st_size
-    if size == 0:
-        raise InputFileError(str(path), "file is empty")
-    with open(path, "rb") as fh:
-        if fh.read(2) != GZIP_MAGIC:
-            if size > options.max_bytes:
+    if path.stat().st_size > options.max_bytes:
+        raise _too_large(path, options.max_bytes, None, options)
+    data = bytearray()
+    with open_input(path, options) as stream:
+        while chunk := stream.read(GZIP_CHUNK_BYTES):
+            data += chunk
+            if len(data) > options.max_bytes:
                 raise _too_large(path, options.max_bytes, None, options)
-            fh.seek(0)
-            return fh.read()
-        fh.seek(0)
-        limit = _gzip_limit(path, size, options)
-        data = bytearray()
-        try:
-            with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
-                while chunk := gz.read(min(GZIP_CHUNK_BYTES, limit + 1 - len(data))):
-                    data += chunk
-                    if len(data) > limit:
-                        raise _too_large(path, limit, size, options)
-        except (OSError, EOFError, zlib.error) as err:
-            raise _gzip_error(path, err) from None
     if not data:
         raise InputFileError(str(path), "file is empty (gzip data of no bytes)")
     return data
