@@ -15,6 +15,15 @@ Details of the encoding:
   often it is referenced: a Solid usually refers (``xlink:href="#id"``) to the polygons of the
   Wall/Roof/GroundSurfaces it is bounded by. Installations (chimneys, dormers as
   BuildingInstallation) and rooms are left out, as the CityJSON reader leaves them out.
+- Where an object has a solid at a LoD, that LoD is the solid's polygons alone: the thematic
+  surfaces beside it may hold what is not shell (roof overhangs, recessed windows). Without a
+  solid, every surface at the LoD is read.
+- ``gml:OrientableSurface orientation="-"`` is its base surface reversed: a party wall that a
+  Building and its BuildingPart share is written once and referred to so by the second.
+- Planar pieces are ``gml:Polygon`` and the patches of ``gml:Surface`` (``PolygonPatch``,
+  ``Rectangle``) and ``gml:TriangulatedSurface`` (``Triangle``).
+- The CRS is the ``srsName`` of the building's geometry, else of the model's envelope
+  (:mod:`meshsom.crs`: latitude and longitude, as Japan's PLATEAU gives them, are read in metres).
 - Rings are ``gml:posList`` (``srsDimension`` 3), a sequence of ``gml:pos``, or GML 2
   ``gml:coordinates``; the closing point is dropped; equal coordinates of one building are one
   vertex.
@@ -45,6 +54,11 @@ NOT_SHELL = ("BuildingInstallation", "IntBuildingInstallation", "Room", "Buildin
              "BuildingConstructiveElement", "interiorRoom", "interiorFurniture", "outerBuildingInstallation",
              "interiorBuildingInstallation", "buildingInstallation", "buildingRoom", "buildingFurniture",
              "buildingConstructiveElement")
+#: Local names of the planar pieces a surface is made of: polygons, and the patches of a
+#: ``gml:Surface`` / ``gml:TriangulatedSurface`` (all have an exterior ring and may have interiors).
+POLYGON_NAMES = ("Polygon", "PolygonPatch", "Triangle", "Rectangle")
+#: Local names of the GML solids: where an object has one at a LoD, it is that LoD's shell.
+SOLID_NAMES = ("Solid", "CompositeSolid", "MultiSolid")
 _LOD = re.compile(r"^lod(\d)")
 _XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
 
@@ -112,12 +126,25 @@ def _polygon(element, where: str) -> list[np.ndarray]:
 
 def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int]:
     """Every polygon of one city object (not of its parts), by LoD; and the count of references
-    (``xlink:href``, to a polygon or to a whole surface or solid) not found in the building."""
-    by_lod: dict[str, list] = {}
+    (``xlink:href``, to a polygon or to a whole surface or solid) not found in the building.
+
+    Where the object has a solid at a LoD (``lod2Solid``, a ``gml:Solid``), that LoD's polygons
+    are the solid's alone: the solid is the closed shell, while the thematic surfaces at the same
+    LoD may hold more (roof overhangs, recessed windows, surfaces of the ground). Otherwise they
+    are the polygons of every surface at that LoD.
+    """
+    by_lod: dict[tuple[str, bool], list] = {}
     seen: set = set()
     missing = 0
 
-    def walk(element, lod: str | None):
+    def add(polygon, lod: str, reverse: bool, solid: bool):
+        key = (id(polygon), reverse, solid)
+        if key not in seen:
+            seen.add(key)
+            rings = _polygon(polygon, where)
+            by_lod.setdefault((lod, solid), []).append([r[::-1] for r in rings] if reverse else rings)
+
+    def walk(element, lod: str | None, reverse: bool, solid: bool):
         nonlocal missing
         for child in element:
             name = _local(child.tag)
@@ -125,27 +152,29 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
                 continue  # a part's geometry is its own; installations and rooms are not the shell
             match = _LOD.match(name)
             child_lod = match.group(1) if match else lod
+            child_solid = solid or name in SOLID_NAMES or (match is not None and name.endswith("Solid"))
+            # gml:OrientableSurface orientation="-": its base surface, reversed (a party wall
+            # that two parts share is written once and referred to so by the second part)
+            child_reverse = reverse != (name == "OrientableSurface" and child.attrib.get("orientation", "+").strip() == "-")
             href = child.attrib.get(_XLINK_HREF)
             if href and child_lod is not None:
                 target = by_id.get(href.lstrip("#"))
                 if target is None:
                     missing += 1
-                elif id(target) not in seen:
-                    seen.add(id(target))
-                    if _local(target.tag) == "Polygon":
-                        by_lod.setdefault(child_lod, []).append(_polygon(target, where))
-                    else:  # a surface, solid or patch referred to whole
-                        walk(target, child_lod)
+                elif _local(target.tag) in POLYGON_NAMES:
+                    add(target, child_lod, child_reverse, child_solid)
+                elif (id(target), child_reverse, child_solid) not in seen:  # a surface, solid or patch referred to whole
+                    seen.add((id(target), child_reverse, child_solid))
+                    walk(target, child_lod, child_reverse, child_solid or _local(target.tag) in SOLID_NAMES)
                 continue
-            if name == "Polygon" and child_lod is not None:
-                if id(child) not in seen:
-                    seen.add(id(child))
-                    by_lod.setdefault(child_lod, []).append(_polygon(child, where))
+            if name in POLYGON_NAMES and child_lod is not None:
+                add(child, child_lod, child_reverse, child_solid)
                 continue
-            walk(child, child_lod)
+            walk(child, child_lod, child_reverse, child_solid)
 
-    walk(obj, None)
-    return by_lod, missing
+    walk(obj, None, False, False)
+    lods = dict.fromkeys(lod for lod, _ in by_lod)
+    return {lod: by_lod[(lod, True)] if (lod, True) in by_lod else by_lod[(lod, False)] for lod in lods}, missing
 
 
 def _label(obj, attribute: str) -> str | None:
@@ -243,9 +272,12 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
 
     from meshsom.io import Rejection, _object_meshes
 
+    from meshsom.io import file_crs
+
     found = False
     ordinal = 0
     root = None
+    file_srs = None  # the srsName of the model's own envelope: the CRS of geometry that names none
     stack: list[str] = []  # local names of the open elements
     for event, element in ET.iterparse(stream, events=("start", "end")):
         local = _local(element.tag)
@@ -255,6 +287,8 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
             continue
         stack.pop()
         if local != "Building" or "Building" in stack:
+            if local == "Envelope" and "Building" not in stack and file_srs is None:
+                file_srs = element.attrib.get("srsName")
             if len(stack) == 1:
                 element.clear()  # a member of the CityModel (or of a WFS FeatureCollection) read: let go
             continue
@@ -268,7 +302,9 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
         except InputFileError as err:
             yield Rejection(mesh_id, str(path), err.problem)
         else:
-            for item in _object_meshes(objects, vertices, None, None, options, name, str(path)):
+            srs = next((e.attrib["srsName"] for e in element.iter() if "srsName" in e.attrib), file_srs)
+            crs = file_crs(srs, options)
+            for item in _object_meshes(objects, vertices, None, None, options, name, str(path), crs=crs):
                 if notes and not isinstance(item, Rejection):
                     item = dataclasses.replace(item, notes=item.notes + tuple(notes))
                 yield item

@@ -40,13 +40,16 @@ import re
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 from urllib.parse import urlparse
 
 import numpy as np
 
 from meshsom.errors import InputFileError
 from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
+
+if TYPE_CHECKING:
+    from meshsom.crs import CoordinateSystem
 
 #: File name endings read by trimesh.
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
@@ -120,6 +123,11 @@ class ReaderOptions:
         decompression bomb a thousand times. Checked as it decompresses, so a bomb is refused
         having allocated at most this many times its compressed size (a CityJSONSeq file: one
         line's worth).
+    crs : str or None
+        The CRS of inputs that declare none (OBJ, PLY, a CityJSON file without
+        ``metadata.referenceSystem``, GML without ``srsName``), as pyproj reads it (``"EPSG:4979"``,
+        ``"EPSG:2263"``). A CRS a file declares is used for that file. Geographic coordinates are
+        converted to metres about each building's centre, feet to metres (:mod:`meshsom.crs`).
     """
 
     lod: str = "highest"
@@ -133,6 +141,7 @@ class ReaderOptions:
     max_vertices: int = 50_000_000
     max_bytes: int = 4 << 30
     max_expansion: float = 200.0
+    crs: str | None = None
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -152,6 +161,13 @@ class ReaderOptions:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
         if not self.max_bytes > 0:
             raise ValueError(f"max_bytes must be > 0, received {self.max_bytes}")
+        if self.crs is not None:
+            from meshsom.crs import UnknownCRS, coordinate_system
+
+            try:
+                coordinate_system(self.crs)
+            except UnknownCRS as err:
+                raise ValueError(f"crs: {err}") from None
         if not self.max_expansion >= 1:
             raise ValueError(f"max_expansion must be >= 1 (decompressed / compressed size), received {self.max_expansion}")
 
@@ -549,6 +565,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     labels = _labels_beside(path)
     label = labels.get(path.name)
     name = name or path.name
+    crs = file_crs(None, options)
     if isinstance(loaded, trimesh.Scene):
         items = []
         for node in loaded.graph.nodes_geometry:
@@ -577,7 +594,12 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             yield Rejection(mesh_id, str(path), "holds no faces", 0, item_label)
             continue
         local, origin = recentre(v)
-        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None)
+        try:
+            local, notes = _in_metres(mesh_id, local, origin, crs)
+        except InputFileError as err:
+            yield Rejection(mesh_id, str(path), err.problem, 0, item_label)
+            continue
+        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None, notes=tuple(notes))
 
 
 def _closed_groups(data: io.BytesIO, whole):
@@ -870,11 +892,19 @@ def read_cityjson(
     objects: dict = cj["CityObjects"]
     found = False
     templates = Templates.of(cj)
-    for item in _object_meshes(objects, vertices, scale, translate, options, name or path.name, str(path), templates):
+    crs = file_crs(_reference_system(cj), options)
+    for item in _object_meshes(objects, vertices, scale, translate, options, name or path.name, str(path), templates, crs):
         found = True
         yield item
     if not found:
         raise _no_buildings(path, options, {_type(o) for o in objects.values()})
+
+
+def _reference_system(cj: dict):
+    """A CityJSON document's ``metadata.referenceSystem`` (1.0: ``"urn:ogc:def:crs:EPSG::7415"``;
+    1.1 and 2.0: ``"https://www.opengis.net/def/crs/EPSG/0/7415"``), or None."""
+    metadata = cj.get("metadata")
+    return metadata.get("referenceSystem") if isinstance(metadata, dict) else None
 
 
 def _no_buildings(path: Path, options: ReaderOptions, types: set) -> InputFileError:
@@ -924,6 +954,7 @@ def read_cityjsonseq(
             header = _check_cityjson_header(cj, where, options, seq=True)
             objects, vertices = cj.get("CityObjects") or {}, header[0]
             templates = Templates.of(cj)
+            crs = file_crs(_reference_system(cj), options)
         else:
             fid = None
             try:
@@ -941,7 +972,7 @@ def read_cityjsonseq(
                 yield Rejection(f"{name}#{fid}" if fid else f"{name}:line {number}", source, f"line {number}: {err.problem}")
                 continue
         types.update(_type(o) for o in objects.values())
-        for item in _object_meshes(objects, vertices, header[1], header[2], options, name, source, templates):
+        for item in _object_meshes(objects, vertices, header[1], header[2], options, name, source, templates, crs):
             found = True
             first = first_line.setdefault(item.id, number)
             if first != number:
@@ -957,8 +988,49 @@ def read_cityjsonseq(
         raise _no_buildings(path, options, types)
 
 
+def file_crs(declared, options: ReaderOptions) -> tuple["CoordinateSystem | None", str | None]:
+    """The CRS a file's buildings are in: the one it declares, else ``options.crs``.
+
+    Returns
+    -------
+    crs : CoordinateSystem or None
+        None when there is none, or the declared one is unknown (coordinates then read as metres).
+    note : str or None
+        Says that a declared CRS is unknown (recorded with every mesh of the file).
+    """
+    from meshsom.crs import UnknownCRS, coordinate_system
+
+    reference = declared if isinstance(declared, str) and declared.strip() else options.crs
+    if reference is None:
+        return None, None
+    try:
+        return coordinate_system(reference), None
+    except UnknownCRS as err:
+        return None, f"{err}; its coordinates are read as metres"
+
+
+def _in_metres(mesh_id: str, local: np.ndarray, origin: np.ndarray, crs: tuple) -> tuple[np.ndarray, list[str]]:
+    """A building's local coordinates in metres (:func:`meshsom.crs.to_metres`), and notes.
+
+    Raises
+    ------
+    InputFileError
+        No CRS is known and the coordinates look like degrees (:func:`meshsom.crs.looks_geographic`).
+    """
+    from meshsom.crs import looks_geographic, to_metres
+
+    system, unknown = crs
+    if system is None:
+        why = looks_geographic(local, origin)
+        if why is not None:
+            raise InputFileError(mesh_id, why)
+        return local, [unknown] if unknown else []
+    local, note = to_metres(local, origin, system)
+    return local, [note] if note else []
+
+
 def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOptions, name: str, source: str,
-                   templates: "Templates | None" = None) -> Iterator[RawMesh | Rejection]:
+                   templates: "Templates | None" = None, crs: tuple = (None, None)) -> Iterator[RawMesh | Rejection]:
     """The meshes (or rejections) of the buildings among ``objects``: one per Building with its
     parts merged, or one per Building geometry and BuildingPart (``options.parts``)."""
     groups: list[tuple[str, list[str]]] = []
@@ -993,7 +1065,7 @@ def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOpt
         label = attrs.get(options.label_attribute) if isinstance(attrs, dict) else None
         label = None if label is None else str(label)
         try:
-            yield _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label, templates)
+            yield _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label, templates, crs)
         except InputFileError as err:
             yield Rejection(mesh_id, source, err.problem, 0, label)
 
@@ -1104,7 +1176,7 @@ def _placed_instances(mesh_id: str, geoms: list, vertices: np.ndarray, scale, tr
 
 
 def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate, options, label,
-                   templates: "Templates | None" = None) -> RawMesh:
+                   templates: "Templates | None" = None, crs: tuple = (None, None)) -> RawMesh:
     geoms, geom_member = [], []
     for k, m in enumerate(members):
         member_geoms = objects[m].get("geometry", [])
@@ -1175,7 +1247,7 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         raise InputFileError(mesh_id, "coordinates overflow float64 after the transform or re-centring")
     import shapely.errors
 
-    notes: list[str] = []
+    local, notes = _in_metres(mesh_id, local, origin, crs)
     try:
         faces, face_poly, dropped = _triangulate_polygons(polygons, inverse, local)
         if dropped:

@@ -29,6 +29,7 @@ REJECTION_HINTS = (
     ("holds no Building", "files of other city objects (terrain, roads, furniture): nothing to ingest"),
     ("has no geometry at LoD", "--lod highest, or one of the LoDs the building has"),
     ("has no surface or solid geometry", "--lod: the building may have volumes at another LoD"),
+    ("its coordinates look like degrees", "--crs with the data's CRS (EPSG:4979 for WGS 84 latitude, longitude, height)"),
 )
 #: Rejection kinds printed by ``meshsom ingest`` (the most frequent first), and single rejections after them.
 KINDS_SHOWN = 8
@@ -318,6 +319,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lod", help="CityJSON LoD: highest, lowest or a value such as 2.2")
     p.add_argument("--parts", choices=("merge", "separate"), help="BuildingParts merged into their Building, or kept apart")
     p.add_argument("--extrude-lod1", action="store_true", default=None, help="replace each building by its extruded footprint (LoD1 block)")
+    p.add_argument("--crs", help="CRS of inputs that declare none, e.g. EPSG:4979 (degrees are converted to metres)")
     p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
     p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
     p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
@@ -344,7 +346,7 @@ def run(args: argparse.Namespace) -> int:
         reader, params, chunk_rows = ReaderOptions(), cfg.preprocess, cfg.store.chunk_rows
         paths, generator = list(args.inputs), None
     try:
-        changes = {k: v for k, v in (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1)) if v is not None}
+        changes = {k: v for k, v in (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs)) if v is not None}
         reader = replace(reader, **changes)
         if args.repair:
             params = replace(params, repair=True)

@@ -262,3 +262,98 @@ def test_buildings_directly_under_the_root_are_read(tmp_path):
     (tmp_path / "r.gml").write_text(xml)
     (m,) = read_file(tmp_path / "r.gml")
     assert isinstance(m, RawMesh) and m.id == "r.gml#a" and len(m.faces) == 1
+
+
+def _ring_xml(points) -> str:
+    flat = " ".join(f"{c:.1f}" for p in (*points, points[0]) for c in p)
+    return f"<gml:LinearRing><gml:posList>{flat}</gml:posList></gml:LinearRing>"
+
+
+def _house_and_garage(patches: bool) -> str:
+    """The SIG3D 'building and garage' case: a flat-roofed house (10 x 5 x 3 m) and a garage part
+    (4 x 5 x 2.5 m) against its east wall. The party wall is written once, in the house (its
+    lower east wall); the garage's solid refers to it as ``gml:OrientableSurface orientation="-"``.
+    Each solid refers to polygons defined in boundary surfaces; the house's roof surface also holds
+    a 0.5 m overhang that is not in the solid. With ``patches`` the garage's polygons are
+    ``gml:Surface`` / ``gml:PolygonPatch`` and the house's ground a ``gml:TriangulatedSurface``."""
+    P = {"a": (0, 0, 0), "b": (10, 0, 0), "c": (10, 5, 0), "d": (0, 5, 0), "A": (0, 0, 3), "B": (10, 0, 3),
+         "C": (10, 5, 3), "D": (0, 5, 3), "m": (10, 0, 2.5), "n": (10, 5, 2.5),
+         "e": (14, 0, 0), "f": (14, 5, 0), "E": (14, 0, 2.5), "F": (14, 5, 2.5)}
+    x0, y0 = 513000.0, 5402000.0
+    pts = {k: (x0 + x, y0 + y, 100.0 + z) for k, (x, y, z) in P.items()}
+    house = {"h_ground": "adcb", "h_south": "abBA", "h_east_low": "bcnm", "h_east_high": "mnCB", "h_north": "cdDC",
+             "h_west": "daAD", "h_roof": "ABCD"}
+    garage = {"g_ground": "bcfe", "g_south": "beEm", "g_east": "efFE", "g_north": "fcnF", "g_roof": "mEFn"}
+
+    def polygon(pid, corners):
+        ring = [pts[k] for k in corners]
+        if patches and pid.startswith("g_"):
+            return (f'<gml:Surface gml:id="{pid}"><gml:patches><gml:PolygonPatch><gml:exterior>{_ring_xml(ring)}'
+                    f"</gml:exterior></gml:PolygonPatch></gml:patches></gml:Surface>")
+        if patches and pid == "h_ground":
+            tri = [ring[:3], [ring[0], ring[2], ring[3]]]
+            return (f'<gml:TriangulatedSurface gml:id="{pid}"><gml:trianglePatches>'
+                    + "".join(f"<gml:Triangle><gml:exterior>{_ring_xml(t)}</gml:exterior></gml:Triangle>" for t in tri)
+                    + "</gml:trianglePatches></gml:TriangulatedSurface>")
+        return f'<gml:Polygon gml:id="{pid}"><gml:exterior>{_ring_xml(ring)}</gml:exterior></gml:Polygon>'
+
+    def bounded(surfaces, extra=""):
+        return "".join(f"<bldg:boundedBy><bldg:WallSurface><bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember>"
+                       f"{polygon(pid, corners)}</gml:surfaceMember>{extra if pid == 'h_roof' else ''}</gml:MultiSurface>"
+                       f"</bldg:lod2MultiSurface></bldg:WallSurface></bldg:boundedBy>" for pid, corners in surfaces.items())
+
+    (ax, ay, az), (cx, cy, _) = pts["A"], pts["C"]
+    overhang = [(ax - 0.5, ay - 0.5, az), (cx + 0.5, ay - 0.5, az), (cx + 0.5, cy + 0.5, az), (ax - 0.5, cy + 0.5, az)]
+    roof_ring = [pts[k] for k in "ABCD"]
+    overhang_xml = (f"<gml:surfaceMember><gml:Polygon><gml:exterior>{_ring_xml(overhang)}</gml:exterior><gml:interior>"
+                    f"{_ring_xml(roof_ring[::-1])}</gml:interior></gml:Polygon></gml:surfaceMember>")
+    house_solid = "".join(f'<gml:surfaceMember xlink:href="#{pid}"/>' for pid in house)
+    garage_solid = ("".join(f'<gml:surfaceMember xlink:href="#{pid}"/>' for pid in garage)
+                    + '<gml:surfaceMember><gml:OrientableSurface orientation="-"><gml:baseSurface xlink:href="#h_east_low"/>'
+                      "</gml:OrientableSurface></gml:surfaceMember>")
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" xmlns:bldg="http://www.opengis.net/citygml/building/2.0"
+ xmlns:gml="http://www.opengis.net/gml" xmlns:xlink="http://www.w3.org/1999/xlink">
+<core:cityObjectMember><bldg:Building gml:id="house">
+ <bldg:lod2Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{house_solid}</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod2Solid>
+ {bounded(house, overhang_xml)}
+ <bldg:consistsOfBuildingPart><bldg:BuildingPart gml:id="garage">
+  <bldg:lod2Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{garage_solid}</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod2Solid>
+  {bounded(garage)}
+  <bldg:boundedBy><bldg:WallSurface><bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:OrientableSurface orientation="-">
+  <gml:baseSurface xlink:href="#h_east_low"/></gml:OrientableSurface></gml:surfaceMember></gml:MultiSurface></bldg:lod2MultiSurface>
+  </bldg:WallSurface></bldg:boundedBy>
+ </bldg:BuildingPart></bldg:consistsOfBuildingPart>
+</bldg:Building></core:cityObjectMember>
+</core:CityModel>
+"""
+
+
+@pytest.mark.parametrize("patches", [False, True])
+def test_a_party_wall_shared_through_an_orientable_surface(tmp_path, patches):
+    """The garage's wall is the house's, reversed: read so, each part is closed on its own, and the
+    merged building is exactly both volumes (the overhang outside the solids is not read)."""
+    from meshsom.preprocess import preprocess
+
+    (tmp_path / "hg.gml").write_text(_house_and_garage(patches))
+    (merged,) = read_file(tmp_path / "hg.gml")
+    assert isinstance(merged, RawMesh) and merged.parts == ("house", "garage"), merged
+    assert preprocess(merged.vertices, merged.faces).volume_out == pytest.approx(150 + 50, rel=1e-9)
+    house, garage = read_file(tmp_path / "hg.gml", ReaderOptions(parts="separate"))
+    assert (house.id, garage.id) == ("hg.gml#house", "hg.gml#garage")
+    assert preprocess(house.vertices, house.faces).volume_out == pytest.approx(150, rel=1e-9)
+    assert preprocess(garage.vertices, garage.faces).volume_out == pytest.approx(50, rel=1e-9)
+    # the garage holds the party wall once (its solid and its wall surface both refer to it)
+    assert len(garage.faces) == 12
+
+
+def test_thematic_surfaces_are_used_where_an_object_has_no_solid(tmp_path):
+    """Without the solids, the boundary surfaces are the shell (with the overhang: then not closed)."""
+    xml = _house_and_garage(False)
+    import re
+
+    xml = re.sub(r"<bldg:lod2Solid>.*?</bldg:lod2Solid>", "", xml, flags=re.S)
+    (tmp_path / "hg.gml").write_text(xml)
+    house, garage = read_file(tmp_path / "hg.gml", ReaderOptions(parts="separate"))
+    assert len(house.faces) > 14  # the 7 quads' 14 triangles, and the overhang's
+    assert len(garage.faces) == 12

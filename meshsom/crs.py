@@ -1,0 +1,241 @@
+"""Coordinate reference systems of the inputs: every building is read in metres.
+
+Preprocessing, the encoding's tolerances and the footprint extrusion all work in metres. Most city
+models are in a projected CRS in metres (RD New, UTM, Swiss LV95), which is read as it is. Two
+common classes are not:
+
+- **Geographic CRSs** (latitude, longitude in degrees, height in metres): Japan's PLATEAU
+  (EPSG:6697), and CityJSON or CityGML exported in WGS 84 (EPSG:4326, 4979). Read as they are, a
+  building 20 m wide spans 2e-4 on x and y and 20 on z: a needle. Each building is converted to a
+  local east-north-up frame in metres about its own centre (geodetic -> geocentric -> ENU on the
+  CRS's ellipsoid), exact to far below a millimetre over a building's extent.
+- **Projected CRSs in feet** (New York's EPSG:2263 in US survey feet, other US state planes):
+  scaled to metres, horizontal and vertical axes each by their own unit.
+
+The CRS is the one the file declares (CityJSON ``metadata.referenceSystem``, a GML ``srsName``),
+else :attr:`meshsom.io.ReaderOptions.crs`. It is identified with pyproj (EPSG codes, OGC URNs and
+URLs, compound CRSs); the German AdV names (``urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH``) are
+metric projected CRSs. A mesh's ``origin`` stays in the file's own coordinates.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+#: AdV (German surveying authorities) CRS names used in German CityGML: all in metres.
+_ADV = re.compile(r"^urn:adv:crs:(ETRS89_UTM\d+|DE_DHDN_3GK\d|ETRS89_3GK\d|DE_RD83_3GK\d|DE_PD83_3GK\d)", re.I)
+
+
+@dataclass(frozen=True)
+class CoordinateSystem:
+    """What the reader needs to know of a CRS.
+
+    Attributes
+    ----------
+    name : str
+        The CRS as pyproj names it (``"JGD2011 + JGD2011 (vertical) height"``), or as declared.
+    declared : str
+        The reference as the file gives it.
+    geographic : bool
+        Latitude and longitude in degrees.
+    latitude_first : bool
+        Geographic only: the first axis is latitude (EPSG's order for EPSG:4326, 4979, 6697).
+    horizontal_m : float
+        Metres per unit of the first two axes (projected CRSs).
+    vertical_m : float
+        Metres per unit of the third axis (1 when the CRS has none: heights read as metres).
+    unit : str
+        The horizontal unit's name (``"metre"``, ``"US survey foot"``, ``"degree"``).
+    semi_major : float
+        The ellipsoid's semi-major axis (m), geographic only.
+    flattening : float
+        The ellipsoid's flattening, geographic only.
+    """
+
+    name: str
+    declared: str
+    geographic: bool = False
+    latitude_first: bool = True
+    horizontal_m: float = 1.0
+    vertical_m: float = 1.0
+    unit: str = "metre"
+    semi_major: float = 6378137.0
+    flattening: float = 1 / 298.257222101
+
+    @property
+    def metric(self) -> bool:
+        """Read as it is: projected, in metres on all three axes."""
+        return not self.geographic and self.horizontal_m == 1.0 and self.vertical_m == 1.0
+
+
+class UnknownCRS(ValueError):
+    """A CRS reference that pyproj does not know (the message says what was received)."""
+
+
+@functools.lru_cache(maxsize=64)
+def coordinate_system(reference: str) -> CoordinateSystem:
+    """Identify a CRS reference.
+
+    Parameters
+    ----------
+    reference : str
+        ``"EPSG:7415"``, ``"urn:ogc:def:crs:EPSG::4979"``,
+        ``"https://www.opengis.net/def/crs/EPSG/0/6697"``, a compound URN, WKT, ...
+
+    Returns
+    -------
+    CoordinateSystem
+
+    Raises
+    ------
+    UnknownCRS
+        pyproj cannot identify it, or it is neither geographic nor projected (a geocentric CRS).
+    """
+    text = str(reference).strip()
+    if _ADV.match(text):
+        return CoordinateSystem(name=text, declared=text)
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_user_input(text)
+    except pyproj.exceptions.CRSError as err:
+        raise UnknownCRS(f"CRS {text!r} is not known to pyproj ({str(err).splitlines()[0][:120]})") from None
+    horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
+    axes = crs.axis_info
+    if horizontal.is_geographic and len(horizontal.axis_info) >= 2:
+        first = horizontal.axis_info[0].direction.lower()
+        vertical = axes[2].unit_conversion_factor if len(axes) > 2 else 1.0
+        ellipsoid = horizontal.ellipsoid
+        return CoordinateSystem(
+            name=crs.name, declared=text, geographic=True, latitude_first=first in ("north", "south"),
+            vertical_m=float(vertical), unit=horizontal.axis_info[0].unit_name,
+            semi_major=float(ellipsoid.semi_major_metre), flattening=1.0 / float(ellipsoid.inverse_flattening),
+        )
+    if horizontal.is_projected and len(horizontal.axis_info) >= 2:
+        factor = float(horizontal.axis_info[0].unit_conversion_factor)
+        vertical = float(axes[2].unit_conversion_factor) if len(axes) > 2 else factor
+        return CoordinateSystem(name=crs.name, declared=text, horizontal_m=factor, vertical_m=vertical,
+                                unit=horizontal.axis_info[0].unit_name)
+    kind = "geocentric" if crs.is_geocentric else crs.type_name
+    raise UnknownCRS(f"CRS {text!r} ({crs.name}) is {kind}; expected a projected or geographic CRS")
+
+
+def geocentric(geodetic: np.ndarray, semi_major: float, flattening: float) -> np.ndarray:
+    """Geocentric (ECEF) coordinates of geodetic ones.
+
+    Parameters
+    ----------
+    geodetic : (V, 3) float64
+        Latitude (degrees), longitude (degrees), ellipsoidal height (metres).
+    semi_major, flattening : float
+        The ellipsoid.
+
+    Returns
+    -------
+    (V, 3) float64
+        X, Y, Z in metres.
+    """
+    lat = np.radians(geodetic[:, 0])
+    lon = np.radians(geodetic[:, 1])
+    h = geodetic[:, 2]
+    e2 = flattening * (2.0 - flattening)
+    sin_lat = np.sin(lat)
+    n = semi_major / np.sqrt(1.0 - e2 * sin_lat**2)
+    return np.stack([
+        (n + h) * np.cos(lat) * np.cos(lon),
+        (n + h) * np.cos(lat) * np.sin(lon),
+        (n * (1.0 - e2) + h) * sin_lat,
+    ], axis=1)
+
+
+def east_north_up(geodetic: np.ndarray, centre: np.ndarray, semi_major: float, flattening: float) -> np.ndarray:
+    """Local east-north-up coordinates (metres) of geodetic points about a geodetic centre.
+
+    Parameters
+    ----------
+    geodetic : (V, 3) float64
+        Latitude, longitude (degrees), height (metres).
+    centre : (3,) float64
+        The same, of the frame's origin.
+    semi_major, flattening : float
+
+    Returns
+    -------
+    (V, 3) float64
+        East, north, up (metres): a right-handed frame with z up, as projected data reads.
+    """
+    points = geocentric(np.asarray(geodetic, np.float64), semi_major, flattening)
+    origin = geocentric(np.asarray(centre, np.float64).reshape(1, 3), semi_major, flattening)[0]
+    lat, lon = np.radians(centre[0]), np.radians(centre[1])
+    rotation = np.array([
+        [-np.sin(lon), np.cos(lon), 0.0],
+        [-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)],
+        [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
+    ])
+    return (points - origin) @ rotation.T
+
+
+def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> tuple[np.ndarray, str | None]:
+    """A building's coordinates in metres, in a frame with z up.
+
+    Parameters
+    ----------
+    local : (V, 3) float64
+        Coordinates relative to ``origin``, in the CRS's units and axis order.
+    origin : (3,) float64
+        The building's centre in the CRS (it stays the mesh's world position).
+    crs : CoordinateSystem
+
+    Returns
+    -------
+    local_m : (V, 3) float64
+        Projected: each axis scaled by its unit. Geographic: east, north, up about ``origin``.
+    note : str or None
+        What was done, in words, when anything was (``None`` for a metric projected CRS).
+    """
+    if crs.metric:
+        return local, None
+    if not crs.geographic:
+        scale = np.array([crs.horizontal_m, crs.horizontal_m, crs.vertical_m])
+        return local * scale, (f"coordinates in {crs.unit} ({crs.name}) scaled to metres "
+                               f"(x {crs.horizontal_m:.10g}, z x {crs.vertical_m:.10g})")
+    order = [0, 1] if crs.latitude_first else [1, 0]
+    centre = origin[[order[0], order[1], 2]]
+    swapped = ""
+    if abs(centre[0]) > 90 and abs(centre[1]) <= 90:  # declared latitude-first, written longitude-first
+        order = order[::-1]
+        centre = origin[[order[0], order[1], 2]]
+        swapped = "; its axes were read in the other order, as the first is beyond +/-90 degrees"
+    geodetic = (local + origin)[:, [order[0], order[1], 2]]
+    geodetic[:, 2] *= crs.vertical_m
+    centre = centre * np.array([1.0, 1.0, crs.vertical_m])
+    enu = east_north_up(geodetic, centre, crs.semi_major, crs.flattening)
+    return enu, (f"geographic coordinates ({crs.name}) converted to metres, east-north-up about the "
+                 f"building's centre{swapped}")
+
+
+def looks_geographic(local: np.ndarray, origin: np.ndarray) -> str | None:
+    """Why coordinates of no declared CRS look like degrees, or None.
+
+    A building whose x and y span less than 0.01 while z spans over 100 times as much, at
+    |x|, |y| <= 180, is a building in latitude and longitude (metres of a real building span
+    the same order on all axes).
+
+    Parameters
+    ----------
+    local : (V, 3) float64
+    origin : (3,) float64
+    """
+    if len(local) == 0:
+        return None
+    span = local.max(axis=0) - local.min(axis=0)
+    flat = max(span[0], span[1])
+    if (0 < flat < 0.01 and span[2] > 100 * flat and abs(origin[0]) <= 180 and abs(origin[1]) <= 180):
+        return (f"its coordinates look like degrees of latitude and longitude (x and y span {flat:.2g}, "
+                f"z spans {span[2]:.3g}) and the file declares no CRS; declare it (CityJSON "
+                f"metadata.referenceSystem, GML srsName) or give one (--crs EPSG:4979, reader.crs)")
+    return None
