@@ -547,6 +547,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     content = read_input_bytes(path, options)
     if file_type == "obj":
         content = triangulated_obj(bytes(content)) or content
+    elif file_type == "off":
+        content = triangulated_off(bytes(content)) or content
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the
@@ -629,6 +631,56 @@ def _closed_groups(data: io.BytesIO, whole):
     return groups
 
 
+#: The first token of an OFF file (``OFF``, ``COFF``, ``NOFF``, ``STOFF``...; 3D only), and the
+#: counts some writers glue to it (ModelNet's ``OFF490 518 0``).
+_OFF_HEADER = re.compile(rb"^(?:ST)?C?N?OFF(?=\d|$)")
+
+
+def triangulated_off(data: bytes) -> bytes | None:
+    """An OFF file as a plain OFF of triangles: every polygon face triangulated in its own plane
+    (:func:`meshsom.polygons.triangulate_polygon_3d`); None when the file is not one this reads
+    (then trimesh judges it).
+
+    trimesh fans OFF polygons from their first vertex (wrong for an L-shaped roof) and fails on
+    face lines with trailing blanks, as val3dity's and CGAL's files have them. Comments (``#``),
+    colours after the vertex indices, extra vertex columns (COFF, NOFF) and counts glued to the
+    header are read. A degenerate polygon (no area) is dropped.
+    """
+    from meshsom.polygons import triangulate_polygon_3d
+
+    lines = [line.split(b"#", 1)[0].split() for line in data.splitlines()]
+    lines = [t for t in lines if t]
+    if not lines or not _OFF_HEADER.match(lines[0][0]):
+        return None
+    head = _OFF_HEADER.match(lines[0][0])
+    rest = ([lines[0][0][head.end():]] if head.end() < len(lines[0][0]) else []) + lines[0][1:]
+    body = lines[1:]
+    if len(rest) < 2:
+        if not body:
+            return None
+        rest, body = body[0], body[1:]
+    try:
+        n_vertices, n_faces = int(rest[0]), int(rest[1])
+        if n_vertices < 0 or n_faces < 0 or len(body) < n_vertices + n_faces:
+            return None  # counts that the file does not hold: trimesh says what is wrong
+        vertices = np.array([[float(x) for x in t[:3]] for t in body[:n_vertices]], np.float64).reshape(-1, 3)
+        faces = [[int(i) for i in t[1:1 + int(t[0])]] for t in body[n_vertices:n_vertices + n_faces]]
+    except (ValueError, IndexError):
+        return None
+    if any(len(f) < 3 or min(f) < 0 or max(f) >= n_vertices for f in faces) or not np.isfinite(vertices).all():
+        return None
+    triangles = []
+    for f in faces:
+        if len(f) == 3:
+            triangles.append(f)
+        else:
+            triangles += np.asarray(f)[triangulate_polygon_3d([vertices[f]])].tolist()
+    out = [b"OFF", b"%d %d 0" % (n_vertices, len(triangles))]
+    out += [b" ".join(t[:3]) for t in body[:n_vertices]]
+    out += [b"3 %d %d %d" % tuple(t) for t in triangles]
+    return b"\n".join(out) + b"\n"
+
+
 #: An OBJ face line of four or more vertices.
 _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
 
@@ -664,9 +716,11 @@ def triangulated_obj(data: bytes) -> bytes | None:
                     points = np.array([vertices[i] for i in ids], np.float64)
                 except (ValueError, IndexError):
                     points = None  # left for trimesh to judge
+                normal = None
                 if points is not None and len(points[0]) == 3 and np.isfinite(points).all():
                     normal = newell_normal(points - points.mean(axis=0))
-                    flat = (points - points.mean(axis=0)) @ plane_frame(normal / (np.linalg.norm(normal) or 1.0)).T
+                if normal is not None and np.linalg.norm(normal) > 0:  # a degenerate polygon is left to trimesh
+                    flat = (points - points.mean(axis=0)) @ plane_frame(normal).T
                     d1 = np.roll(flat, -1, axis=0) - flat
                     d2 = np.roll(d1, -1, axis=0)
                     turns = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]

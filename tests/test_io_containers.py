@@ -453,6 +453,57 @@ def test_obj_polygons_that_are_not_convex_are_triangulated_in_their_plane(tmp_pa
     assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
 
 
+def _prism_off(ring, height, style: str) -> str:
+    """The prism of :func:`_prism_obj` as OFF, in the styles writers use: ``plain``; ``val3dity``
+    (comments, blank lines, a blank after every face line: trimesh's reader fails on those);
+    ``coff`` (vertex and face colours); ``glued`` (ModelNet's counts glued to the header)."""
+    n = len(ring)
+    verts = [(x, y, 0.0) for x, y in ring] + [(x, y, float(height)) for x, y in ring]
+    faces = [list(reversed(range(n))), [n + i for i in range(n)]]
+    faces += [[i, (i + 1) % n, n + (i + 1) % n, n + i] for i in range(n)]
+    colour = " 200 30 30 255" if style == "coff" else ""
+    blank = " " if style == "val3dity" else ""
+    head = {"plain": ["OFF", f"{2 * n} {len(faces)} 0"], "val3dity": ["OFF", "# a prism", f"{2 * n} {len(faces)} 0", ""],
+            "coff": ["COFF", f"{2 * n} {len(faces)} 0"], "glued": [f"OFF{2 * n} {len(faces)} 0"]}[style]
+    lines = head + [f"{x} {y} {z}{colour}" for x, y, z in verts]
+    lines += [f"{len(f)} " + " ".join(map(str, f)) + colour + blank for f in faces]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("style", ["plain", "val3dity", "coff", "glued"])
+@pytest.mark.parametrize("ring", [
+    [(0, 0), (5, 0), (5, 3), (4, 3), (4, 1), (3, 1), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)],  # a comb
+    [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)],  # an L
+    [(0, 0), (4, 0), (4, 4), (0, 4)],
+])
+def test_off_polygons_are_triangulated_in_their_plane(tmp_path, ring, style):
+    """OFF keeps polygons too (val3dity's and CGAL's files, ModelNet): triangulated in their plane,
+    and read whatever the blanks, comments and colours around them."""
+    from meshsom.preprocess import preprocess
+
+    (tmp_path / "p.off").write_text(_prism_off(ring, 2.5, style))
+    (m,) = _items(tmp_path / "p.off")
+    assert isinstance(m, RawMesh), m
+    area = 0.5 * abs(sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(ring, ring[1:] + ring[:1])))
+    tri = (m.vertices + m.origin)[m.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    roof = np.isclose(tri[:, :, 2], 2.5).all(axis=1)
+    assert len(m.faces) == 2 * (len(ring) - 2) + 2 * len(ring)
+    assert (n[roof, 2] > 0).all() and 0.5 * n[roof, 2].sum() == pytest.approx(area)
+    r = preprocess(m.vertices, m.faces)
+    assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
+
+
+@pytest.mark.parametrize("text,reason", [
+    ("OFF\n8 6 0\n0 0 0\n", "cannot be read as .off"),  # fewer vertices than declared
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2 7\n", "cannot be read as .off"),  # an index beyond the vertices
+])
+def test_bad_off_files_are_still_rejections(tmp_path, text, reason):
+    (tmp_path / "bad.off").write_text(text)
+    (r,) = _items(tmp_path / "bad.off")
+    assert isinstance(r, Rejection) and reason in r.reason, r
+
+
 def test_obj_groups_are_buildings_only_when_each_is_closed(tmp_path):
     """No objects, a group (g) per building, as SketchUp exports a district: one mesh per group.
     A single building whose roof and walls are groups of their own stays one mesh."""
