@@ -53,7 +53,10 @@ PART_NAMES = ("BuildingPart",)
 NOT_SHELL = ("BuildingInstallation", "IntBuildingInstallation", "Room", "BuildingRoom", "BuildingFurniture",
              "BuildingConstructiveElement", "interiorRoom", "interiorFurniture", "outerBuildingInstallation",
              "interiorBuildingInstallation", "buildingInstallation", "buildingRoom", "buildingFurniture",
-             "buildingConstructiveElement")
+             "buildingConstructiveElement",
+             # the surfaces of a building's inside (CityGML 2.0 LoD4 rooms; 3.0 at any LoD: the storeys
+             # of a parking garage): not its outer shell
+             "FloorSurface", "CeilingSurface", "InteriorWallSurface")
 #: Local names of the planar pieces a surface is made of: polygons, and the patches of a
 #: ``gml:Surface`` / ``gml:TriangulatedSurface`` (all have an exterior ring and may have interiors).
 POLYGON_NAMES = ("Polygon", "PolygonPatch", "Triangle", "Rectangle")

@@ -357,3 +357,25 @@ def test_thematic_surfaces_are_used_where_an_object_has_no_solid(tmp_path):
     house, garage = read_file(tmp_path / "hg.gml", ReaderOptions(parts="separate"))
     assert len(house.faces) > 14  # the 7 quads' 14 triangles, and the overhang's
     assert len(garage.faces) == 12
+
+
+def test_the_surfaces_of_the_inside_are_not_shell(tmp_path):
+    """A storey's floor slab (CityGML 3.0 FloorSurface; LoD4 ceilings and interior walls) inside
+    a house described by its boundary surfaces alone is left out: the house stays one closed shell."""
+    import re
+
+    from meshsom.preprocess import preprocess
+
+    xml = re.sub(r"<bldg:lod2Solid>.*?</bldg:lod2Solid>", "", _house_and_garage(False), flags=re.S)
+    xml = re.sub(r"<gml:surfaceMember><gml:Polygon><gml:exterior>.*?</gml:Polygon></gml:surfaceMember>", "", xml, flags=re.S)
+    (tmp_path / "plain.gml").write_text(xml)
+    slab = [(513000.0 + x, 5402000.0 + y, 101.5) for x, y in [(0, 0), (10, 0), (10, 5), (0, 5)]]
+    inside = "".join(
+        f"<bldg:boundedBy><bldg:{kind}><bldg:lod2MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:Polygon>"
+        f"<gml:exterior>{_ring_xml(slab)}</gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"
+        f"</bldg:lod2MultiSurface></bldg:{kind}></bldg:boundedBy>" for kind in ("FloorSurface", "CeilingSurface"))
+    (tmp_path / "storeys.gml").write_text(xml.replace('<bldg:Building gml:id="house">', '<bldg:Building gml:id="house">' + inside))
+    plain, _ = read_file(tmp_path / "plain.gml", ReaderOptions(parts="separate"))
+    house, _ = read_file(tmp_path / "storeys.gml", ReaderOptions(parts="separate"))
+    assert len(house.faces) == len(plain.faces) == 14
+    assert preprocess(house.vertices, house.faces).volume_out == pytest.approx(150, rel=1e-9)
