@@ -484,6 +484,10 @@ def read_file(
     (the path when no name is given); a CityJSON object that cannot be read
     yields a Rejection for that object and the reader goes on with the others.
 
+    Ids are unique: an object whose id an earlier one of the file has (a building repeated in a
+    CityJSONSeq made of overlapping tiles, a ``gml:id`` given twice) is a Rejection with the id
+    ``"<id> (2)"`` (the count of the id so far) and that reason; the first is read.
+
     Parameters
     ----------
     path : path
@@ -491,7 +495,18 @@ def read_file(
     name : str, optional
         The start of the mesh ids (:attr:`InputFile.name`); default: the file name.
     """
-    path = Path(path)
+    seen: dict[str, int] = {}
+    for item in _read_file(Path(path), options, name):
+        count = seen[item.id] = seen.get(item.id, 0) + 1
+        if count == 1:
+            yield item
+        else:
+            reason = item.reason if isinstance(item, Rejection) else (
+                f"id repeated: an earlier object of the file has the id {item.id!r}; the later one is not read")
+            yield Rejection(f"{item.id} ({count})", item.source, reason, 0, item.label)
+
+
+def _read_file(path: Path, options: ReaderOptions, name: str | None) -> Iterator[RawMesh | Rejection]:
     try:
         kind = input_kind(path)
         if kind == "cityjson":

@@ -1,7 +1,5 @@
 """Ingestion end to end: readers + preprocessing + store + manifest, through the CLI."""
 
-import json
-import shutil
 
 import numpy as np
 import pytest
@@ -145,6 +143,32 @@ def test_ids_carry_sub_folders_and_collisions_are_errors(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and str(tmp_path / "in" / "a" / "x.city.json") in err and str(tmp_path / "in" / "b" / "x.city.json") in err
     assert not (tmp_path / "clash.zarr").exists()
+
+
+def test_an_id_repeated_within_a_file_is_a_rejection_not_a_failed_run(tmp_path):
+    """A CityJSONSeq made of overlapping tiles repeats the buildings on their borders; a CityGML
+    file may give one gml:id twice. The first is read, the repeat is listed as rejected (the run
+    used to fail on the id check of the assembly)."""
+    from cityjson_samples import to_cityjsonseq, write_lines
+    from test_citygml import to_citygml
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    two = doc({"A": {"type": "Building", "geometry": [cube_solid()]},
+               "B": {"type": "Building", "geometry": [cube_solid(8)]}}, CUBE_VERTS + [[x + 3000, y, z] for x, y, z in CUBE_VERTS])
+    lines = to_cityjsonseq(two)
+    write_lines(folder / "tiles.city.jsonl", lines + [lines[1]])  # A again, as the next tile has it
+    gml = to_citygml(two)
+    (folder / "twice.gml").write_text(gml.replace('gml:id="B"', 'gml:id="A"'))
+    store = tmp_path / "dup.zarr"
+    assert main(["ingest", str(folder), "--out", str(store)]) == 0
+    by_id = {r["id"]: r for r in read_manifest(store)["records"]}
+    assert sorted(by_id) == ["tiles.city.jsonl#A", "tiles.city.jsonl#A (2)", "tiles.city.jsonl#B",
+                             "twice.gml#A", "twice.gml#A (2)"]
+    assert [by_id[k]["status"] for k in sorted(by_id)] == ["accepted", "rejected", "accepted", "accepted", "rejected"]
+    assert by_id["tiles.city.jsonl#A (2)"]["reason"] == "line 4: object id repeated (first on line 2); the later one is not read"
+    assert by_id["twice.gml#A (2)"]["reason"].startswith("id repeated: an earlier object of the file has the id 'twice.gml#A'")
+    assert sorted(mesh_table(open_store(store)).ids) == ["tiles.city.jsonl#A", "tiles.city.jsonl#B", "twice.gml#A"]
 
 
 def test_union_recorded_in_the_manifest(tmp_path):

@@ -204,11 +204,11 @@ def test_bad_lines_are_rejected_by_line_and_the_rest_is_read(tmp_path):
     items = _items(path)
     got = {(type(i).__name__, i.id): getattr(i, "reason", None) for i in items}
     assert set(got) == {("RawMesh", "t.city.jsonl#a"), ("Rejection", "t.city.jsonl:line 4"), ("Rejection", "t.city.jsonl#x"),
-                        ("Rejection", "t.city.jsonl#v"), ("Rejection", "t.city.jsonl#a"), ("RawMesh", "t.city.jsonl#b")}
+                        ("Rejection", "t.city.jsonl#v"), ("Rejection", "t.city.jsonl#a (2)"), ("RawMesh", "t.city.jsonl#b")}
     assert got["Rejection", "t.city.jsonl:line 4"].startswith("line 4: invalid JSON")
     assert got["Rejection", "t.city.jsonl#x"] == "line 5: is not a CityJSONFeature (\"type\": 'CityJSON')"
     assert got["Rejection", "t.city.jsonl#v"].startswith("line 6: \"vertices\" must be a list of [x, y, z] integers")
-    assert got["Rejection", "t.city.jsonl#a"] == "line 7: object id repeated (first on line 2); the later one is not read"
+    assert got["Rejection", "t.city.jsonl#a (2)"] == "line 7: object id repeated (first on line 2); the later one is not read"
     (b,) = [i for i in items if i.id.endswith("#b")]
     np.testing.assert_allclose(b.origin, [85000.0 + 9.5, 446000.5, 0.5])  # the header's transform applied
 
