@@ -359,10 +359,20 @@ def open_input(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator
             yield io.BufferedReader(_GuardedStream(gz, path, _gzip_limit(path, size, options), size, options))
 
 
-def input_lines(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterator[tuple[int, bytes | None]]:
+def input_lines(path: Path, options: ReaderOptions = ReaderOptions(),
+                byte_range: tuple[int, int, int] | None = None) -> Iterator[tuple[int, bytes | None]]:
     """The lines of an input file, numbered from 1, read one at a time (gzip data decompressed).
 
     A line longer than ``options.max_bytes`` is passed over without being held, and given as None.
+
+    Parameters
+    ----------
+    path : Path
+    options : ReaderOptions
+    byte_range : (start, stop, first_line), optional
+        Only the lines that start at byte offsets ``start <= offset < stop`` of a file that is not
+        gzip (``start`` a line's start, as :func:`cityjsonseq_ranges` gives it), numbered from
+        ``first_line``.
 
     Raises
     ------
@@ -370,22 +380,86 @@ def input_lines(path: Path, options: ReaderOptions = ReaderOptions()) -> Iterato
         The file is empty, gzip data expands more than ``options.max_expansion`` times in all, or
         is corrupt or truncated.
     """
-    with open_input(path, options) as stream:
-        number = 0
-        while True:  # a line in pieces, so that neither a long line nor a bomb is held whole
-            pieces, length = [], 0
-            while piece := stream.readline(GZIP_CHUNK_BYTES):
-                length += len(piece)
-                if length <= options.max_bytes:
-                    pieces.append(piece)
-                else:
-                    pieces = None
-                if piece.endswith(b"\n"):
-                    break
-            if not length:
-                return
-            number += 1
-            yield number, None if pieces is None else b"".join(pieces)
+    if byte_range is None:
+        with open_input(path, options) as stream:
+            yield from _numbered_lines(stream, options, 1, None)
+        return
+    start, stop, first = byte_range
+    with open(path, "rb") as stream:
+        stream.seek(start)
+        yield from _numbered_lines(stream, options, first, stop - start)
+
+
+def _numbered_lines(stream, options: ReaderOptions, first: int, left: int | None) -> Iterator[tuple[int, bytes | None]]:
+    number = first - 1
+    while left is None or left > 0:  # a line in pieces, so that neither a long line nor a bomb is held whole
+        pieces, length = [], 0
+        while piece := stream.readline(GZIP_CHUNK_BYTES):
+            length += len(piece)
+            if length <= options.max_bytes:
+                pieces.append(piece)
+            else:
+                pieces = None
+            if piece.endswith(b"\n"):
+                break
+        if not length:
+            return
+        if left is not None:
+            left -= length
+        number += 1
+        yield number, None if pieces is None else b"".join(pieces)
+
+
+#: Bytes read at a time when :func:`cityjsonseq_ranges` counts lines.
+COUNT_CHUNK_BYTES = 16 << 20
+
+
+def cityjsonseq_ranges(path: Path, target_bytes: int, options: ReaderOptions = ReaderOptions()
+                       ) -> list[tuple[int, int, int]] | None:
+    """Split a large CityJSONSeq file into byte ranges of whole lines, each for one read task.
+
+    Parameters
+    ----------
+    path : Path
+    target_bytes : int
+        About the size of a range (a range ends at the first line end past it).
+    options : ReaderOptions
+
+    Returns
+    -------
+    list of (start, stop, first_line) or None
+        Ranges covering every line after the header line once, in order, for
+        :func:`read_file` (``byte_range``); None when the file is smaller than twice
+        ``target_bytes``, gzip (not seekable), or does not start with its header line.
+    """
+    size = path.stat().st_size
+    if target_bytes < 1 or size < 2 * target_bytes:
+        return None
+    with open(path, "rb") as fh:
+        if fh.read(2) == GZIP_MAGIC:
+            return None
+        fh.seek(0)
+        header = fh.readline(options.max_bytes + 1)
+        if not header.strip() or not header.endswith(b"\n"):
+            return None
+        starts = [fh.tell()]
+        while starts[-1] + target_bytes < size:
+            fh.seek(starts[-1] + target_bytes - 1)
+            fh.readline()  # to the end of the line that holds the target
+            if fh.tell() >= size:
+                break
+            starts.append(fh.tell())
+        # line numbers: one pass counting line ends
+        fh.seek(0)
+        numbers, counted, offset = [], 0, 0
+        for start in starts:
+            while offset < start:
+                chunk = fh.read(min(COUNT_CHUNK_BYTES, start - offset))
+                counted += chunk.count(b"\n")
+                offset += len(chunk)
+            numbers.append(counted + 1)
+    stops = starts[1:] + [size]
+    return [(a, b, n) for a, b, n in zip(starts, stops, numbers)]
 
 
 @dataclass(frozen=True)
@@ -476,7 +550,8 @@ def expand_inputs(inputs: list[str | os.PathLike],
 
 
 def read_file(
-    path: str | os.PathLike, options: ReaderOptions = ReaderOptions(), name: str | None = None
+    path: str | os.PathLike, options: ReaderOptions = ReaderOptions(), name: str | None = None,
+    byte_range: tuple[int, int, int] | None = None,
 ) -> Iterator[RawMesh | Rejection]:
     """Read every mesh of one file.
 
@@ -494,25 +569,30 @@ def read_file(
     options : ReaderOptions
     name : str, optional
         The start of the mesh ids (:attr:`InputFile.name`); default: the file name.
+    byte_range : (start, stop, first_line), optional
+        A CityJSONSeq file only: read the features on the lines of this range
+        (:func:`cityjsonseq_ranges`), ids unique within it; a range without buildings yields nothing.
     """
     seen: dict[str, int] = {}
-    for item in _read_file(Path(path), options, name):
+    for item in _read_file(Path(path), options, name, byte_range):
         count = seen[item.id] = seen.get(item.id, 0) + 1
-        if count == 1:
-            yield item
-        else:
-            reason = item.reason if isinstance(item, Rejection) else (
-                f"id repeated: an earlier object of the file has the id {item.id!r}; the later one is not read")
-            yield Rejection(f"{item.id} ({count})", item.source, reason, 0, item.label)
+        yield item if count == 1 else repeated(item, f"{item.id} ({count})")
 
 
-def _read_file(path: Path, options: ReaderOptions, name: str | None) -> Iterator[RawMesh | Rejection]:
+def repeated(item: RawMesh | Rejection, new_id: str) -> Rejection:
+    """The Rejection of an object whose id an earlier object of its file has, under ``new_id``."""
+    reason = item.reason if isinstance(item, Rejection) else (
+        f"id repeated: an earlier object of the file has the id {item.id!r}; the later one is not read")
+    return Rejection(new_id, item.source, reason, 0, item.label)
+
+
+def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range) -> Iterator[RawMesh | Rejection]:
     try:
         kind = input_kind(path)
         if kind == "cityjson":
             yield from read_cityjson(path, options, name)
         elif kind == "cityjsonseq":
-            yield from read_cityjsonseq(path, options, name)
+            yield from read_cityjsonseq(path, options, name, byte_range)
         elif kind == "citygml":
             from meshsom.citygml import read_citygml
 
@@ -984,7 +1064,8 @@ def _no_buildings(path: Path, options: ReaderOptions, types: set) -> InputFileEr
 
 
 def read_cityjsonseq(
-    path: Path, options: ReaderOptions = ReaderOptions(), name: str | None = None
+    path: Path, options: ReaderOptions = ReaderOptions(), name: str | None = None,
+    byte_range: tuple[int, int, int] | None = None,
 ) -> Iterator[RawMesh | Rejection]:
     """Read the buildings of a CityJSON Text Sequence (CityJSONSeq, ``.city.jsonl``; gzipped or not).
 
@@ -997,6 +1078,9 @@ def read_cityjsonseq(
     with id ``name#featureid`` (``name:line N`` when it has no id) and the reason, and the reader
     goes on; an object id seen on an earlier line is a Rejection too. Blank lines are skipped.
 
+    With ``byte_range`` (:func:`cityjsonseq_ranges`) only the features on the lines of that range
+    are read (the header line is read first), and a range without buildings yields nothing.
+
     Raises
     ------
     InputFileError
@@ -1008,7 +1092,13 @@ def read_cityjsonseq(
     first_line: dict[str, int] = {}
     types: set = set()
     found = False
-    for number, line in input_lines(path, options):
+    def lines():
+        if byte_range is not None:
+            with contextlib.closing(input_lines(path, options)) as head:
+                yield next(((n, line) for n, line in head if line is None or line.strip()), (1, b""))
+        yield from input_lines(path, options, byte_range)
+
+    for number, line in lines():
         if line is None:
             long = f"line {number}: is longer than {options.max_bytes:,} bytes (ReaderOptions.max_bytes); not read"
             if header is None:
@@ -1053,7 +1143,7 @@ def read_cityjsonseq(
                 yield item
     if header is None:
         raise InputFileError(source, "holds only blank lines (expected a CityJSON header line, then CityJSONFeatures)")
-    if not found:
+    if not found and byte_range is None:
         raise _no_buildings(path, options, types)
 
 

@@ -71,8 +71,9 @@ class Shard:
 # ----------------------------------------------------------------------------- worker side
 
 
-def read_source(path: str, reader, name: str | None = None) -> list:
-    """Every RawMesh / Rejection of one file, in the reader's order.
+def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None) -> list:
+    """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file), in the
+    reader's order.
 
     Parameters
     ----------
@@ -80,6 +81,8 @@ def read_source(path: str, reader, name: str | None = None) -> list:
     reader : meshsom.io.ReaderOptions
     name : str, optional
         The start of the mesh ids (``meshsom.io.InputFile.name``).
+    byte_range : (start, stop, first_line), optional
+        :func:`meshsom.io.cityjsonseq_ranges`.
 
     Returns
     -------
@@ -89,7 +92,7 @@ def read_source(path: str, reader, name: str | None = None) -> list:
     from meshsom.io import Rejection, read_file
 
     try:
-        return list(read_file(path, reader, name))
+        return list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range)))
     except OSError as err:
         return [Rejection(name or str(path), str(path), f"cannot be read ({err.strerror or err})")]
 
@@ -113,9 +116,55 @@ def generate_items(generator, start: int, stop: int) -> list:
     return out
 
 
-def slice_items(items: list, start: int, stop: int) -> list:
-    """Items ``start..stop`` of a source's list."""
-    return items[start:stop]
+def slice_items(items: list, start: int, stop: int, repeats: dict | None = None) -> list:
+    """Items ``start..stop`` of a source's list; those listed in ``repeats`` (``{str(index): new
+    id}``, :func:`repeated_ids`) as rejections of a repeated id."""
+    from meshsom.io import repeated
+
+    repeats = repeats or {}
+    return [repeated(item, repeats[str(k)]) if str(k) in repeats else item
+            for k, item in zip(range(start, stop), items[start:stop])]
+
+
+def item_ids(items: list) -> list[str]:
+    """The ids of a source's items."""
+    return [item.id for item in items]
+
+
+def repeated_ids(sources: list[dict], ids: list[list[str]]) -> list[dict[str, str]]:
+    """Ids that an earlier range of the same file has (each range's reader saw only its own).
+
+    Parameters
+    ----------
+    sources : list of dict
+        The plan's sources (``path``, and ``range`` for a range of a file).
+    ids : list of list of str
+        Every source's item ids, in order.
+
+    Returns
+    -------
+    list of dict
+        Per source, ``{str(index): new id}`` of its items to be rejected as repeats: the new id is
+        ``"<id> (k)"`` with the smallest k >= 2 that no item of the file has.
+    """
+    taken: dict[str, set] = {}
+    for src, source_ids in zip(sources, ids):
+        taken.setdefault(src.get("path", ""), set()).update(source_ids)
+    seen: dict[str, set] = {}
+    out = []
+    for src, source_ids in zip(sources, ids):
+        file_seen, file_taken = seen.setdefault(src.get("path", ""), set()), taken.get(src.get("path", ""), set())
+        renames = {}
+        for k, item_id in enumerate(source_ids):
+            if item_id in file_seen and "range" in src:
+                n = 2
+                while f"{item_id} ({n})" in file_taken:
+                    n += 1
+                renames[str(k)] = f"{item_id} ({n})"
+                file_taken.add(renames[str(k)])
+            file_seen.add(item_id)
+        out.append(renames)
+    return out
 
 
 def shard_done(store: str, name: str) -> bool:
@@ -310,6 +359,7 @@ def _fingerprint(cfg, levels: Sequence[int]) -> dict:
         "preprocess": to_dict(cfg.preprocess),
         "levels": [int(lv) for lv in levels],
         "shard_meshes": int(cfg.dask.shard_meshes),
+        "read_bytes": int(cfg.dask.read_bytes),
         "chunk_rows": int(cfg.store.chunk_rows),
     }
     return json.loads(json.dumps(doc))
@@ -328,6 +378,19 @@ def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
             f"{path}: a finished store without rings for level(s) {missing}; run without resume to rebuild it"
         )
     return read_manifest(path)["summary"]
+
+
+def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
+    """A Rejection for each file read in ranges that gave nothing at all (no range holds a
+    building): read whole, such a file is a rejection that says what it holds instead."""
+    from meshsom.io import Rejection
+
+    by_file: dict[str, list] = {}
+    for i, src in enumerate(sources):
+        if "range" in src:
+            by_file.setdefault(src["path"], [src["name"], 0])[1] += counts[i]
+    return [Rejection(name, path, f"holds no object of the types {', '.join(reader.object_types)}")
+            for path, (name, n) in by_file.items() if n == 0]
 
 
 def _rejection_record(rejection, params) -> dict:
@@ -415,8 +478,10 @@ def run_corpus(client, cfg, store, resume: bool = False,
         When shards fail; the others are finished and kept, so a resumed run
         only redoes the failed ones.
     """
+    from distributed import as_completed
+
     from meshsom.errors import StoreError
-    from meshsom.io import expand_inputs
+    from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
     )
@@ -447,15 +512,25 @@ def run_corpus(client, cfg, store, resume: bool = False,
     if plan is None:
         files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
         root = root or create_store(path, overwrite=True)
-        sources = [{"kind": "file", "path": str(f.path), "name": f.name} for f in files]
+        sources = []
+        for f in files:  # a large CityJSONSeq file: a source per range, read in parallel
+            ranges = cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if (
+                input_kind(f.path) == "cityjsonseq") else None
+            sources += ([{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
+                        if ranges else [{"kind": "file", "path": str(f.path), "name": f.name}])
         for i, src in enumerate(sources):
-            read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], pure=False,
-                                            key=f"corpus-read-{run_id}-{i}")
-        counts = {}
-        for k, (i, n) in enumerate(zip(read_futures, client.gather([client.submit(len, f, pure=False)
-                                                                      for f in read_futures.values()])), 1):
-            counts[i] = int(n)
+            read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], src.get("range"),
+                                            pure=False, key=f"corpus-read-{run_id}-{i}")
+        ids = [None] * len(sources)
+        id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
+        for k, future in enumerate(as_completed(id_futures), 1):
+            ids[id_futures[future]] = future.result()
             report("read", k, len(read_futures))
+        counts = {i: len(source_ids) for i, source_ids in enumerate(ids)}
+        for src, renames in zip(sources, repeated_ids(sources, ids)):
+            if renames:
+                src["repeats"] = renames
+        missing += _files_of_no_buildings(sources, counts, cfg.corpus.reader)
         size = int(cfg.dask.shard_meshes)
         shards = [Shard(f"s{i:04d}-{a:08d}", i, a, min(counts[i], a + size))
                   for i in range(len(sources)) for a in range(0, counts[i], size)]
@@ -483,8 +558,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         else:
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"),
-                                                        pure=False, key=f"corpus-read-{run_id}-{sh.source}")
-            items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, pure=False,
+                                                        src.get("range"), pure=False, key=f"corpus-read-{run_id}-{sh.source}")
+            items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
         return client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,
                              key=f"corpus-shard-{run_id}-{sh.name}")

@@ -35,6 +35,10 @@ class DaskConfig:
         Memory limit per local worker (Dask syntax, e.g. "4GB").
     shard_meshes : int
         Meshes per ingest/encode task.
+    read_bytes : int
+        A CityJSONSeq file (not gzipped) of more than twice this many bytes is read by several
+        tasks in parallel, each about this many bytes of whole lines, so that no worker holds a
+        whole city's meshes (:func:`meshsom.io.cityjsonseq_ranges`).
     dashboard : bool
         Serve the Dask dashboard (bokeh pages) of a LocalCluster on a free loopback port, and
         print its link; false: no dashboard is served.
@@ -44,6 +48,7 @@ class DaskConfig:
     workers: int = 0
     memory_limit: str = "4GB"
     shard_meshes: int = 64
+    read_bytes: int = 256 << 20
     dashboard: bool = True
 
     def __post_init__(self):
@@ -51,6 +56,8 @@ class DaskConfig:
             raise ValueError(f"workers must be >= 0 (0: one per core), received {self.workers}")
         if self.shard_meshes < 1:
             raise ValueError(f"shard_meshes must be >= 1, received {self.shard_meshes}")
+        if self.read_bytes < 1:
+            raise ValueError(f"read_bytes must be >= 1, received {self.read_bytes}")
         if self.scheduler is not None and "://" not in self.scheduler:
             raise ValueError(f"scheduler must be an address like tcp://host:8786, received {self.scheduler!r}")
 

@@ -241,3 +241,56 @@ def test_ingest_then_encode_is_bitwise_the_corpus_stage_of_run(two_workers, loca
                  "--scaling", "robust", "--robust-clip", "4", "--json"]) == 0
     assert_same_store(robust, tmp_path / "r2.zarr", exact_stats=True)
     assert stats(robust)["level1"]["scaling"] == "robust" and stats(robust)["level1"]["clip"] == 4.0
+
+
+def test_a_large_cityjsonseq_file_is_read_by_several_tasks(cluster_client, tmp_path):
+    """A city in one CityJSONSeq file: read in byte ranges by tasks of their own (no worker holds
+    the whole city), the store is the one a single reader of the file gives. A building repeated
+    far from its first copy (another range) is still a rejection of its own; so is a bad line."""
+    from cityjson_samples import to_cityjsonseq, write_lines
+
+    lines = to_cityjsonseq(json.loads(ZURICH.read_text()))
+    seq = tmp_path / "city.city.jsonl"
+    write_lines(seq, lines[:20] + ["{not json"] + lines[20:] + [lines[3]])
+    stores, reads = {}, {}
+    for read_bytes in (1 << 30, 3000):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(seq)]}, "encoding": {"levels": [1, 2]},
+                                "dask": {"shard_meshes": 7, "read_bytes": read_bytes}, "store": {"chunk_rows": CHUNK}})
+        stores[read_bytes] = store = tmp_path / f"r{read_bytes}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_bytes] = {total for stage, _, total in calls if stage == "read"}
+    whole, ranged = stores[1 << 30], stores[3000]
+    assert reads[1 << 30] == {1} and min(reads[3000]) > 10  # read tasks: one, or one per range
+    a, b = read_manifest(whole)["records"], read_manifest(ranged)["records"]
+    assert [(r["id"], r["status"]) for r in a] == [(r["id"], r["status"]) for r in b]
+    assert len(a) == N_ZURICH + 2
+    repeat = a[-1]["id"]
+    assert repeat.endswith(" (2)") and a[-1]["status"] == "rejected"
+    assert a[-1]["reason"].startswith(f"line {len(lines) + 2}: object id repeated (first on line 4)")  # + the bad line
+    assert b[-1]["reason"].startswith("id repeated: an earlier object of the file has the id")  # found across ranges
+    assert [r for r in a if r["id"] != repeat] == [r for r in b if r["id"] != repeat]
+    for name, array in arrays(whole).items():
+        assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(ranged)[name][:])), name
+
+
+def test_repeated_ids_across_ranges_get_the_next_free_number():
+    sources = [{"path": "a", "range": [0, 1, 2]}, {"path": "a", "range": [1, 2, 3]}, {"path": "b"}]
+    ids = [["x", "x (2)", "y"], ["x", "z", "y"], ["x"]]
+    assert corpus.repeated_ids(sources, ids) == [{}, {"0": "x (3)", "2": "y (2)"}, {}]
+
+
+def test_a_file_read_in_ranges_that_holds_no_building_is_listed(cluster_client, tmp_path):
+    from cityjson_samples import write_lines
+
+    road = {"type": "CityJSONFeature", "id": "r", "CityObjects": {"r": {"type": "Road", "geometry": []}}, "vertices": []}
+    header = {"type": "CityJSON", "version": "2.0", "transform": {"scale": [0.001] * 3, "translate": [0, 0, 0]},
+              "CityObjects": {}, "vertices": []}
+    seq = tmp_path / "roads.city.jsonl"
+    write_lines(seq, [header] + [{**road, "id": f"r{k}", "CityObjects": {f"r{k}": road["CityObjects"]["r"]}} for k in range(200)])
+    cfg = build(RunConfig, {"corpus": {"paths": [str(seq)]}, "encoding": {"levels": [1]},
+                            "dask": {"read_bytes": 1000}, "store": {"chunk_rows": CHUNK}})
+    corpus.run_corpus(cluster_client, cfg, tmp_path / "roads.zarr")
+    (record,) = read_manifest(tmp_path / "roads.zarr")["records"]
+    assert record["id"] == "roads.city.jsonl" and record["status"] == "rejected"
+    assert record["reason"] == "holds no object of the types Building"

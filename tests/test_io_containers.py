@@ -562,3 +562,64 @@ def test_unknown_compressed_files_name_both_suffixes(tmp_path):
     (tmp_path / "notes.txt.gz").write_bytes(b"x")
     (rej,) = read_file(tmp_path / "notes.txt.gz")
     assert rej.reason.startswith("unknown file type '.txt.gz'; expected one of .obj")
+
+
+# ----------------------------------------------------------------------------- byte ranges
+
+
+def _same_items(got, expected):
+    assert [(type(i).__name__, i.id) for i in got] == [(type(i).__name__, i.id) for i in expected]
+    for g, e in zip(got, expected):
+        if isinstance(e, Rejection):
+            assert g.reason == e.reason
+        else:
+            np.testing.assert_array_equal(g.vertices, e.vertices)
+            np.testing.assert_array_equal(g.faces, e.faces)
+            np.testing.assert_array_equal(g.origin, e.origin)
+
+
+@pytest.mark.parametrize("target", [1, 700, 5000, 40_000])
+def test_byte_ranges_of_a_cityjsonseq_file_read_as_the_whole_file(tmp_path, target):
+    """A city in one CityJSONSeq file is read by several tasks, each a range of whole lines: the
+    ranges cover every feature once, in order, with its line number (blank lines and bad lines
+    included), and together give what one reader of the whole file gives."""
+    from meshsom.io import cityjsonseq_ranges
+
+    document = json.loads(_real(*REAL[1]).read_text())
+    lines = [json.dumps(x) for x in to_cityjsonseq(document)]
+    lines[5:5] = ["", "{not json", "   "]
+    lines.insert(40, lines[12])  # a feature repeated (its second copy is rejected by line number)
+    path = tmp_path / "city.city.jsonl"
+    path.write_text("\n".join(lines) + "\n")
+    expected = _items(path)
+    ranges = cityjsonseq_ranges(path, target)
+    assert ranges is not None and ranges[0][0] == len(lines[0]) + 1 and ranges[0][2] == 2
+    assert ranges[-1][1] == path.stat().st_size
+    assert all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))  # contiguous, no line twice
+    text = path.read_bytes()
+    assert all(text[a - 1:a] == b"\n" and text[:a].count(b"\n") + 1 == n for a, _, n in ranges)  # line starts, numbered
+    if target == 1:
+        assert len(ranges) == len(lines) - 1  # every line its own range
+    got = [i for r in ranges for i in read_file(path, ReaderOptions(), None, r)]
+    # the repeat is found by the whole-file reader; across ranges that is the pipeline's work
+    repeat = next(i for i in expected if i.id.endswith(" (2)"))
+    assert repeat.reason.startswith("line 41: object id repeated (first on line 13)")
+    ids = [i.id for i in got]
+    if len(set(ids)) < len(ids):  # the repeat fell in another range than its first copy: read as a mesh
+        second = [k for k, i in enumerate(ids) if i == repeat.id[:-4]][1]
+        assert isinstance(got[second], RawMesh)
+        del got[second]
+        expected.remove(repeat)
+    _same_items(got, expected)
+
+
+def test_small_or_gzipped_cityjsonseq_files_are_not_split(tmp_path):
+    from meshsom.io import cityjsonseq_ranges
+
+    lines = to_cityjsonseq(json.loads(_real(*REAL[1]).read_text()))
+    write_lines(tmp_path / "a.city.jsonl", lines)
+    write_lines(tmp_path / "b.city.jsonl", lines, compress=True)
+    size = (tmp_path / "a.city.jsonl").stat().st_size
+    assert cityjsonseq_ranges(tmp_path / "a.city.jsonl", size // 2 + 1) is None
+    assert len(cityjsonseq_ranges(tmp_path / "a.city.jsonl", size // 2)) == 2
+    assert cityjsonseq_ranges(tmp_path / "b.city.jsonl", 10) is None
