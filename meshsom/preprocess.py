@@ -14,8 +14,13 @@ Steps
    components); drop faces that collapse, and duplicate faces (a pair walked in opposite directions
    is an internal wall between merged parts and goes altogether).
 3. Optionally cap open boundary loops that are planar (LoD1 blocks often miss their floor; a
-   polygon dropped by a reader leaves a planar hole). Any other open boundary, or an edge with
-   more than two faces, rejects the mesh (after an optional pymeshlab repair).
+   polygon dropped by a reader leaves a planar hole), after splitting T-junctions and zipping
+   cracks where the loops do not close. Where the mesh is still open, T-junctions whose vertex is
+   up to ``zip_tol`` metres off its edge (coordinates rounded to a file's grid) are split and the
+   capping runs again; where it is closed but an edge has more than two faces, fins that a cap
+   doubled are removed, then edges where two solids touch are split apart (each solid keeps its
+   own copy of the edge). Any other open boundary, or an edge with more than two faces, rejects
+   the mesh (after an optional pymeshlab repair).
 4. Orient every face consistently (parity components of the dual graph), then each shell outward
    (positive signed volume).
 4a. Clean folds: collapse edges shorter than ``min_edge_length`` metres (every chain of short
@@ -124,8 +129,10 @@ class PreprocessParams:
         Open-boundary vertices closer than this, in metres (absolute), are merged where the mesh
         is still open after capping and T-junction splitting, and the closing runs again: the
         cracks a millimetre wide that coordinates rounded to a file's grid leave between a wall
-        and its neighbour (default 0.002). Kept only where it closes more than it opens. 0
-        disables it.
+        and its neighbour (default 0.002). Kept only where it closes more than it opens. Where the
+        mesh is still open after that, an open edge is split at an open-boundary vertex within this
+        distance of it (a T-junction whose vertex the rounding moved off the edge by more than
+        ``tjunction_tol``), and the closing runs again. 0 disables both.
     """
 
     weld_tol: float = 1e-8
@@ -411,15 +418,8 @@ def _clean(vertices, faces, params, source, repairs):
         # walls (footprint spikes); then cap again.
         trial_repairs = list(repairs)
         g = _split_t_junctions(v, f, tol * diag, trial_repairs)
-        g = _drop_duplicates(g, trial_repairs)
-        _, _, c = edge_table(g)
-        if (c > 2).any():
-            g = _remove_fins(v, g, params.planar_dist * diag, trial_repairs)
-            _, _, c = edge_table(g)
-        if (c == 1).any() and params.cap_planar_holes:
-            g = _cap_planar_loops(v, g, params.planar_dist * diag, trial_repairs)
-            _, _, c = edge_table(g)
-        if (c == 1).sum() + (c > 2).sum() < (counts == 1).sum() + (counts > 2).sum():
+        g, c = _fins_then_caps(v, _drop_duplicates(g, trial_repairs), params, diag, trial_repairs)
+        if _fewer_bad_edges(c, counts):
             f, counts, repairs[:] = g, c, trial_repairs
     if (counts == 1).any() and params.zip_tol > 0:
         # still open: cracks between open vertices a rounding apart, zipped; then the same again
@@ -427,19 +427,64 @@ def _clean(vertices, faces, params, source, repairs):
         g = _zip_cracks(v, f, params.zip_tol, trial_repairs)
         if g is not None:
             g = _split_t_junctions(v, g, params.tjunction_tol * diag, trial_repairs)
-            g = _drop_duplicates(g, trial_repairs)
-            _, _, c = edge_table(g)
-            if (c == 1).any() and params.cap_planar_holes:
-                g = _cap_planar_loops(v, g, params.planar_dist * diag, trial_repairs)
-                _, _, c = edge_table(g)
-            if len(g) >= params.min_faces and (c == 1).sum() + (c > 2).sum() < (counts == 1).sum() + (counts > 2).sum():
+            g, c = _fins_then_caps(v, _drop_duplicates(g, trial_repairs), params, diag, trial_repairs, fins=False)
+            if len(g) >= params.min_faces and _fewer_bad_edges(c, counts):
                 f, counts, repairs[:] = g, c, trial_repairs
+    if (counts == 1).any() and params.zip_tol > 0:
+        # still open: T-junctions whose vertex a rounding to the file's grid put off the edge by more
+        # than tjunction_tol (a millimetre beside a wall ten metres long), split within zip_tol
+        trial_repairs = list(repairs)
+        g = _split_t_junctions(v, f, params.zip_tol, trial_repairs)
+        if len(trial_repairs) > len(repairs):  # else nothing to split, and capping fails again
+            trial_repairs[-1] += f" within {params.zip_tol:g} m of their edge (rounded coordinates)"
+            g, c = _fins_then_caps(v, _drop_duplicates(g, trial_repairs), params, diag, trial_repairs)
+            if len(g) >= params.min_faces and _fewer_bad_edges(c, counts):
+                f, counts, repairs[:] = g, c, trial_repairs
+    if (counts > 2).any() and not (counts == 1).any():
+        # closed, but edges with four (six...) faces: fins that a cap doubled, then solids touching
+        # along an edge (split apart, so each keeps its own copy of the edge)
+        trial_repairs = list(repairs)
+        g, c = _fins_then_caps(v, _remove_fins(v, f, params.planar_dist * diag, trial_repairs), params, diag,
+                               trial_repairs, fins=False)
+        w = v
+        if (c > 2).any() and not (c == 1).any():
+            split = _split_touching_edges(v, g, trial_repairs)
+            if split is not None:
+                w, g = split
+                _, _, c = edge_table(g)
+        if len(g) >= params.min_faces and not (c == 1).any() and not (c > 2).any():
+            v, f, counts, repairs[:] = w, g, c, trial_repairs
     if (counts > 2).any():
         raise MeshError(source, f"non-manifold: {int((counts > 2).sum())} edges are shared by more than two faces")
     if (counts == 1).any():
         raise MeshError(source, f"open boundary: {int((counts == 1).sum())} edges have only one face (a hole that is not planar)")
     f = _orient(v, f, source, repairs)
     return _compact(v, f)
+
+
+def _fins_then_caps(v, g, params, diag, repairs, fins: bool = True):
+    """``g`` with its zero-thickness fins removed (``fins``; where an edge has more than two faces)
+    and its planar holes capped (where it is open); and its edge counts.
+
+    Returns
+    -------
+    g : (F, 3) int64
+    counts : (E,) int64
+        Faces per edge of ``g`` (:func:`meshsom.topology.edge_table`).
+    """
+    _, _, c = edge_table(g)
+    if fins and (c > 2).any():
+        g = _remove_fins(v, g, params.planar_dist * diag, repairs)
+        _, _, c = edge_table(g)
+    if (c == 1).any() and params.cap_planar_holes:
+        g = _cap_planar_loops(v, g, params.planar_dist * diag, repairs)
+        _, _, c = edge_table(g)
+    return g, c
+
+
+def _fewer_bad_edges(c: np.ndarray, counts: np.ndarray) -> bool:
+    """Whether edge counts ``c`` have fewer open or non-manifold edges than ``counts``."""
+    return bool((c == 1).sum() + (c > 2).sum() < (counts == 1).sum() + (counts > 2).sum())
 
 
 def _drop_duplicates(f, repairs):
@@ -488,26 +533,55 @@ def _cap_planar_loops(v, f, dist, repairs):
     3D and would reject the mesh after capping. It is flipped away (:func:`_flip_flat_triangles`);
     a cap that still has one is not used.
     """
-    import shapely
-
     he = half_edges(f)
     _, edge_of, counts = edge_table(f)
     directed = he[counts[edge_of] == 1]
     loops = _walk_loops(directed)
-    if loops is None or any(_off_plane(v[loop]) > dist for loop in loops):
-        loops = _planar_loops(v, directed, dist, _edge_keys(f))
-    if not loops:
+    if loops is not None and all(_off_plane(v[loop]) <= dist for loop in loops):
+        cap = _cap_loops(v, loops, dist)
+    else:
+        edges = _edge_keys(f)
+        loops = _planar_loops(v, directed, dist, edges)
+        cap = _cap_loops(v, loops, dist) if loops else None
+        if cap is None and loops and _has_through_chord(v, loops, directed, dist):
+            # A chord through another vertex of its loop is an edge with a vertex inside it: the
+            # piece beside it has a spike, which is capped only by chance. Cut without such chords.
+            loops = _planar_loops(v, directed, dist, edges, through=False)
+            cap = _cap_loops(v, loops, dist) if loops else None
+    if cap is None:
         return f
+    repairs.append(f"capped {len(loops)} open planar loop(s) with {len(cap)} triangles (missing floor or polygon)")
+    return np.concatenate([f, cap])
+
+
+def _cap_loops(v, loops, dist):
+    """Triangles that cap the planar ``loops`` (each run the way the mesh's open edges run), or None.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    loops : list of (k,) int64
+        Closed loops of open edges, each planar within ``dist``.
+    dist : float
+
+    Returns
+    -------
+    cap : (T, 3) int64 or None
+        None where some loop is not planar, has no area, or its polygon cannot be triangulated
+        from its own vertices, or a triangle of zero area cannot be flipped away.
+    """
+    import shapely
+
     planes = []
     for loop in loops:
         p = v[loop]
         n = newell_normal(p - p.mean(axis=0))
         norm = np.linalg.norm(n)
         if not norm > 0:
-            return f
+            return None
         n = n / norm
         if np.abs((p - p.mean(axis=0)) @ n).max() > dist:
-            return f
+            return None
         planes.append((n, float(p.mean(axis=0) @ n)))
     # Group loops by plane (normals may point either way: loops of holes run the other way).
     group = list(range(len(loops)))
@@ -527,7 +601,7 @@ def _cap_planar_loops(v, f, dist, repairs):
         rings = {k: (v[loops[k]] - origin) @ frame.T for k in members}
         areas = {k: _area2d(rings[k]) for k in members}
         if min(abs(a) for a in areas.values()) <= dist * dist:
-            return f
+            return None
         shells: list[tuple[int, list[int]]] = []
         polys = {}
         for k in sorted(members, key=lambda k: -abs(areas[k])):
@@ -543,15 +617,11 @@ def _cap_planar_loops(v, f, dist, repairs):
             ids = np.concatenate([loops[s_k], *[loops[h] for h in holes]])
             _, tri = triangulate_polygon_2d(rings[s_k], [rings[h] for h in holes])
             if len(tri) != len(ids) + 2 * len(holes) - 2 or (tri >= len(ids)).any():
-                return f
+                return None
             # The boundary edges run a -> b in the mesh, so the cap must run b -> a: the cap
             # faces the way opposite to the loop's own orientation (fixed again by _orient).
             caps.append(ids[tri] if areas[s_k] < 0 else ids[tri][:, ::-1])
-    cap = _flip_flat_triangles(v, np.concatenate(caps))
-    if cap is None:
-        return f
-    repairs.append(f"capped {len(loops)} open planar loop(s) with {len(cap)} triangles (missing floor or polygon)")
-    return np.concatenate([f, cap])
+    return _flip_flat_triangles(v, np.concatenate(caps))
 
 
 def _flip_flat_triangles(v, tri):
@@ -665,6 +735,102 @@ def _split_t_junctions(v, f, tol, repairs, rounds=4):
     return f
 
 
+def _split_touching_edges(v, f, repairs):
+    """Split the edges where closed solids touch, so that each keeps its own copy of the edge.
+
+    Two blocks that meet along an edge (a footprint that touches itself at a corner, extruded; two
+    row houses' volumes touching at a ridge) give an edge with four faces. Around such an edge the
+    faces, in the order of their angle about it, alternate in the way they walk it (a -> b,
+    b -> a, ...); each face is paired with the neighbour on the side its solid lies (the side its
+    normal points away from, for an outward-oriented mesh; the other side for an inward one), and
+    the edge's vertices are duplicated for every fan of faces that the pairing separates. Nothing
+    moves: the surface is the same, only no longer glued along the edge. An edge whose faces do
+    not alternate, or two of whose faces are coplanar (a fin), is not split.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed (no edge with one face), with edges shared by more than two faces.
+    repairs : list of str
+        Appended to.
+
+    Returns
+    -------
+    v : (W, 3) float64
+        ``v`` followed by the copies of the split vertices.
+    f : (F, 3) int64
+        The faces, with split vertices renumbered; None (instead of the pair) where some edge
+        cannot be split so.
+    """
+    n = len(f)
+    he = half_edges(f)
+    edges, edge_of, counts = edge_table(f)
+    volume = signed_volume(v, f)
+    if not volume != 0:
+        return None
+    order = np.argsort(edge_of, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    twin = np.full(3 * n, -1, np.int64)
+    two = np.flatnonzero(counts == 2)
+    h0, h1 = order[starts[two]], order[starts[two] + 1]
+    twin[h0], twin[h1] = h1, h0
+    for e in np.flatnonzero(counts > 2):  # a handful of edges
+        hs = order[starts[e]:starts[e + 1]]
+        a, b = edges[e]
+        d = v[b] - v[a]
+        d = d / np.linalg.norm(d)
+        w = v[f[hs // 3, (hs % 3 + 2) % 3]] - v[a]
+        w = w - np.outer(w @ d, d)
+        u = w[0] / np.linalg.norm(w[0])
+        theta = np.arctan2(w @ np.cross(d, u), w @ u)
+        k = np.argsort(theta)
+        hs, theta = hs[k], theta[k]
+        along = he[hs, 0] == a  # walks a -> b: its normal points to increasing angle
+        gaps = np.diff(np.concatenate([theta, [theta[0] + 2 * np.pi]]))
+        if (along == np.roll(along, -1)).any() or not (gaps > 1e-9).all():
+            return None
+        # outward: a face walking a -> b has its solid at decreasing angle, so it pairs with the
+        # face before it; inward, with the one after it
+        step = -1 if volume > 0 else 1
+        i = np.flatnonzero(along)
+        j = (i + step) % len(hs)
+        twin[hs[i]], twin[hs[j]] = hs[j], hs[i]
+    # corners (face, vertex) glued across every (paired) edge; a split vertex gets one copy per
+    # connected fan of corners
+    h = np.arange(3 * n)
+    nxt = 3 * (h // 3) + (h % 3 + 1) % 3  # the corner at the half-edge's end
+    t = twin[h]
+    same = he[t, 0] == he[h, 0]  # twin walks the same way (not yet consistently oriented)
+    src_t = np.where(same, t, 3 * (t // 3) + (t % 3 + 1) % 3)
+    dst_t = np.where(same, 3 * (t // 3) + (t % 3 + 1) % 3, t)
+    rows = np.concatenate([h, nxt])
+    cols = np.concatenate([src_t, dst_t])
+    graph = sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(3 * n, 3 * n))
+    _, label = connected_components(graph, directed=False)
+    corner_vertex = f.reshape(-1)
+    split = np.zeros(len(v), bool)
+    split[edges[counts > 2].reshape(-1)] = True
+    # per split vertex, its first fan keeps the index, the others get new vertices
+    fans = np.unique(label[split[corner_vertex]])
+    fan_vertex = np.zeros(label.max() + 1, np.int64)
+    fan_vertex[label] = corner_vertex
+    fv = fan_vertex[fans]
+    first = np.ones(len(fans), bool)
+    o = np.argsort(fv, kind="stable")
+    first[o[1:]] = fv[o[1:]] != fv[o[:-1]]
+    new_index = np.full(label.max() + 1, -1, np.int64)
+    new_index[fans[first]] = fv[first]
+    new_index[fans[~first]] = len(v) + np.arange(int((~first).sum()))
+    out = np.where(split[corner_vertex], new_index[label], corner_vertex).reshape(-1, 3)
+    v = np.concatenate([v, v[fv[~first]]])
+    repairs.append(
+        f"split {int((counts > 2).sum())} edges where solids touch (faces of more than two around them), "
+        f"duplicating {int((~first).sum())} vertices"
+    )
+    return v, out
+
+
 def _remove_fins(v, f, dist, repairs):
     """Remove zero-thickness fins: coplanar faces of opposite orientation that overlap.
 
@@ -679,13 +845,16 @@ def _remove_fins(v, f, dist, repairs):
     area2 = np.linalg.norm(cross, axis=1)
     normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
     remove = np.zeros(len(f), bool)
+    done = np.zeros(len(f), bool)  # faces of a plane already looked at: each plane once
     for e in np.flatnonzero(counts > 2):
         around = np.flatnonzero(edge_of == e) // 3
         for i, a in enumerate(around):
             for b in around[i + 1:]:
-                if normal[a] @ normal[b] > -0.999999 or remove[a] or remove[b]:
+                if normal[a] @ normal[b] > -0.999999 or remove[a] or remove[b] or done[a]:
                     continue
-                remove |= _opposite_overlap(v, f, normal, a, dist)
+                inside, plane = _opposite_overlap(v, f, normal, a, dist)
+                remove |= inside
+                done |= plane
     if remove.any():
         repairs.append(f"removed {int(remove.sum())} faces of zero-thickness fins (overlapping opposite walls)")
     return f[~remove]
@@ -710,6 +879,8 @@ def _opposite_overlap(v, f, normal, a, dist):
     inside : (F,) bool
         Faces of the plane, of either orientation, lying inside the area that faces of both
         orientations cover (a zero-thickness sheet); all False when they do not overlap.
+    coplanar : (F,) bool
+        The faces of the plane.
     """
     import shapely
 
@@ -719,13 +890,13 @@ def _opposite_overlap(v, f, normal, a, dist):
     idx = np.flatnonzero(coplanar)
     up = normal[idx] @ n > 0
     if up.all() or not up.any():
-        return inside
+        return inside, coplanar
     polys = shapely.polygons(v[f[idx]] @ plane_frame(n).T)
     overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
     if overlap.area <= dist * dist:
-        return inside
+        return inside, coplanar
     inside[idx[shapely.area(shapely.intersection(polys, overlap)) >= 0.999 * shapely.area(polys)]] = True
-    return inside
+    return inside, coplanar
 
 
 def _clean_folds(v, f, params, diag, volume_in, source, repairs):
@@ -886,7 +1057,7 @@ def _remove_flat_overlaps(v, f, params, diag, repairs):
     remove = np.zeros(len(f), bool)
     for a in np.unique(t[exact]):
         if not remove[a]:
-            remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)
+            remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)[0]
     if remove.any():
         repairs.append(
             f"removed {int(remove.sum())} faces of zero-thickness fins or faces folded flat onto each other "
@@ -1248,7 +1419,7 @@ def _off_plane(p: np.ndarray) -> float:
     return float(np.abs(q @ normal).max())
 
 
-def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256) -> list[np.ndarray] | None:
+def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256, through: bool = True) -> list[np.ndarray] | None:
     """Open boundary edges (a -> b) decomposed into closed loops that each lie in one plane.
 
     1. Loops are walked edge to edge; where a vertex has several open edges out (loops touching
@@ -1261,6 +1432,10 @@ def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256) -> list[n
        vertices, so that it is a polygon that is planar, not a triangle (planar whatever the
        hole): a hole is closed only where walls or floors are missing whole, and a bent hole of
        a few triangles is left to ``repair`` (pymeshlab).
+
+    With ``through`` False, no chord passes through another vertex of its loop
+    (:func:`_through_vertex`): the chord to that vertex is used instead (walls missing below
+    different heights on three sides, whose bent loop has a corner on the line of another chord).
 
     Returns None where a walk ends at a vertex with no open edge out, where some loop cannot be
     made planar, or above ``max_edges`` open edges (a mesh that open is not a missing wall).
@@ -1297,35 +1472,121 @@ def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256) -> list[n
             cur = int(directed[choices[0], 1])
     loops: list[list[int]] = []
     for loop in walked:
-        pieces = _cut_flat(v, loop, dist, edges, cuts=2)
+        pieces = _cut_flat(v, loop, dist, edges, cuts=2, through=through, search={})
         if pieces is None:
             return None
         loops += pieces
     return [np.array(loop, np.int64) for loop in loops]
 
 
-def _cut_flat(v, loop: list[int], dist: float, edges: set, cuts: int) -> list[list[int]] | None:
+#: Most planarity measures one loop's cut search may take (:func:`_cut_flat`): a bound on the time a
+#: loop bent every which way (no missing wall) costs before it is left open; real cuts take hundreds.
+CUT_SEARCH_BUDGET = 100_000
+
+
+def _cut_flat(v, loop: list[int], dist: float, edges: set, cuts: int, through: bool = True,
+              search: dict | None = None) -> list[list[int]] | None:
     """``loop`` as loops that each lie in one plane within ``dist``, cut along at most ``cuts`` chords
-    (the flattest such cut first; None where there is none)."""
-    if _off_plane(v[loop]) <= dist:
+    (the flattest such cut first; with ``through`` False, no chord through another vertex of the
+    loop; None where there is none).
+
+    ``search`` holds the planarity of the pieces measured so far (the recursion measures the same
+    pieces again and again) and their count; past :data:`CUT_SEARCH_BUDGET` measures the search
+    gives up (None).
+    """
+    search = {} if search is None else search
+
+    def off_plane(piece: list[int]) -> float:
+        key = tuple(piece)
+        if key not in search:
+            search["measures"] = search.get("measures", 0) + 1
+            if search["measures"] > CUT_SEARCH_BUDGET:
+                raise _SearchSpent
+            search[key] = _off_plane(v[piece])
+        return search[key]
+
+    try:
+        return _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane)
+    except _SearchSpent:
+        return None
+
+
+class _SearchSpent(Exception):
+    """:data:`CUT_SEARCH_BUDGET` spent."""
+
+
+def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):
+    if off_plane(loop) <= dist:
         return [loop]
     if cuts == 0:
         return None
     n = len(loop)
     candidates = []
+    p = v[loop]
     for i in range(n):
         for j in range(i + 3, min(n, i + n - 2)):  # both pieces of at least four vertices
             if (min(loop[i], loop[j]), max(loop[i], loop[j])) in edges:
                 continue
+            if not through and _through_vertex(p, i, j, dist):
+                continue
             a, b = loop[i:j + 1], loop[j:] + loop[:i + 1]
-            da, db = _off_plane(v[a]), _off_plane(v[b])
+            da, db = off_plane(a), off_plane(b)
             if min(da, db) <= dist:  # one side flat: the other is flat too, or is cut again
                 candidates.append((max(da, db), i, j, a, b) if da <= db else (max(da, db), i, j, b, a))
     for _, _, _, flat, rest in sorted(candidates, key=lambda c: c[:3]):
-        more = _cut_flat(v, rest, dist, edges, cuts - 1)
+        more = _cut_flat_search(v, rest, dist, edges, cuts - 1, through, off_plane)
         if more is not None:
             return [flat, *more]
     return None
+
+
+def _has_through_chord(v, loops, directed, dist) -> bool:
+    """Whether a chord of the planar ``loops`` (a side that is no open edge) passes through a vertex.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    loops : list of (k,) int64
+        Loops from :func:`_planar_loops`.
+    directed : (E, 2) int64
+        The open edges (a -> b) they were made from.
+    dist : float
+    """
+    open_edges = set(map(tuple, directed.tolist()))
+    ids = np.unique(np.concatenate(loops))
+    for loop in loops:
+        for a, b in zip(loop.tolist(), np.roll(loop, -1).tolist()):
+            if (a, b) not in open_edges:
+                p = np.vstack([v[[a, b]], v[ids[(ids != a) & (ids != b)]]])
+                if _through_vertex(p, 0, 1, dist):
+                    return True
+    return False
+
+
+def _through_vertex(p: np.ndarray, i: int, j: int, dist: float) -> bool:
+    """Whether the chord ``p[i] -> p[j]`` of a loop passes through another of its vertices.
+
+    Such a chord would be an edge of two caps with a vertex of the loop inside it (a T-junction),
+    and the piece beside it a polygon with a spike (there and back along the chord's line).
+
+    Parameters
+    ----------
+    p : (n, 3) float64
+        The loop's vertices, in order.
+    i, j : int
+        The chord's ends.
+    dist : float
+        Largest distance from the chord's line of a vertex on it.
+    """
+    d = p[j] - p[i]
+    dd = float(d @ d)
+    if not dd > 0:
+        return True
+    others = np.delete(p, [i, j], axis=0) - p[i]
+    t = others @ d / dd
+    off = np.linalg.norm(others - t[:, None] * d, axis=1)
+    length = math.sqrt(dd)
+    return bool(((off <= dist) & (t * length > dist) & ((1 - t) * length > dist)).any())
 
 
 def _area2d(ring):

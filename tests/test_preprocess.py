@@ -243,8 +243,10 @@ def test_bad_meshes_are_rejected_with_reason(cube, case, reason):
     elif case == "open_side":
         f = f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]]  # two triangles of different walls: a bent hole
     elif case == "fin":
-        v = np.concatenate([v, v + [1.0, 1.0, 0.0]])  # two cubes touching along one edge
-        f = np.concatenate([f, f + 8])
+        # a triangle hanging off the edge x = 1, y = 0 (three faces there, which cannot be paired;
+        # two cubes touching along an edge are split apart: test_solids_touching_along_an_edge...)
+        v = np.concatenate([v, [[2.0, -1.0, 0.5]]])
+        f = np.concatenate([f, [[1, 5, 8]]])
     elif case == "flat":
         v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 0]], float)
         f = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
@@ -787,3 +789,102 @@ def test_cracks_a_millimetre_wide_are_zipped():
     for off in (0, 0.0009):  # off, or narrower than the crack: rejected
         with pytest.raises(MeshError, match="open boundary|non-manifold"):
             preprocess(v, f, PreprocessParams(zip_tol=off))
+
+
+# Defects of real LoD2 city models (3D Rotterdam, Zürich): each built by hand, with its answer.
+
+
+def _two_boxes_touching_along_an_edge():
+    """A 1 m cube and a 2 x 1 x 1 m box meeting along the vertical edge x = y = 1 only (a footprint
+    that touches itself at a corner, extruded): after welding, that edge has four faces."""
+    v0, f0 = box(1.0, 1.0, 1.0)
+    v1, f1 = box(2.0, 1.0, 1.0)
+    return np.vstack([v0, v1 + [1.0, 1.0, 0.0]]), np.vstack([f0, f1 + len(v0)])
+
+
+@pytest.mark.parametrize("inward", [False, True])
+def test_solids_touching_along_an_edge_are_split_apart(inward):
+    v, f = _two_boxes_touching_along_an_edge()
+    f = f[:, ::-1] if inward else f
+    _, _, counts = edge_table(weld(v, 1e-9)[1][f])
+    assert (counts == 4).sum() == 1  # the defect: one edge with four faces
+    r = preprocess(v, f)
+    assert any("split 1 edges where solids touch" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, 1.0 + 2.0)
+    # two shells, each a box of its own, whose copies of the shared edge sit at the same place
+    assert len(r.faces) == 24 and len(r.vertices) == 16
+    assert len(np.unique(r.vertices, axis=0)) == 14
+
+
+def _box_with_t_vertex_off_the_roof_edge(off):
+    """A 20 x 10 x 6 m box whose front wall is two polygons split at x = 8 m, the left one missing,
+    where the top corner of the split is ``off`` metres above the roof's edge (a coordinate rounded
+    to a file's grid): the roof's edge does not have it, so the open loop, planar, crosses itself
+    (up the split, along the roof's edge past it, back along the right wall's top)."""
+    m = [8.0, 0.0, 6.0 + off]
+    polygons = [
+        [[8, 0, 0], [0, 0, 0], [0, 10, 0], [20, 10, 0], [20, 0, 0]],  # floor (with the split's foot)
+        [[20, 10, 6], [0, 10, 6], [0, 0, 6], [20, 0, 6]],  # roof, fanned from (20, 10, 6)
+        [[8, 0, 0], [20, 0, 0], [20, 0, 6], m],  # front wall, right (the left one is missing)
+        [[20, 10, 0], [0, 10, 0], [0, 10, 6], [20, 10, 6]],  # back
+        [[0, 10, 0], [0, 0, 0], [0, 0, 6], [0, 10, 6]],  # left
+        [[20, 0, 0], [20, 10, 0], [20, 10, 6], [20, 0, 6]],  # right
+    ]
+    return _polygons_mesh(polygons)
+
+
+def test_t_junction_a_rounding_off_its_edge_is_split():
+    off = 0.0008  # 0.8 mm: above tjunction_tol x diagonal (0.23 mm), below zip_tol (2 mm)
+    v, f = _box_with_t_vertex_off_the_roof_edge(off)
+    r = preprocess(v, f, PreprocessParams(retriangulate=False))
+    assert any("within 0.002 m of their edge" in x for x in r.repairs), r.repairs
+    assert any("capped 1 open planar loop" in x for x in r.repairs), r.repairs
+    # the roof triangle (0,0,6) (20,0,6) (20,10,6) becomes a fan from (20,10,6) through the vertex,
+    # the missing wall the quad (0,0,0) (8,0,0) (8,0,6+off) (0,0,6): the box plus the pyramid on the
+    # wall's triangle (0,0,6) (20,0,6) (8,0,6+off), apex (20,10,6) 10 m away
+    assert validate(r.vertices, r.faces) is None
+    assert _volume(r.vertices, r.faces) == pytest.approx(20 * 10 * 6 + (20 * off / 2) * 10 / 3, rel=1e-12)
+    # re-triangulated: the vertex is collinear within planar_dist in both planes and goes
+    r = preprocess(v, f)
+    _check_closed_outward(r, 1200.0)
+    assert len(r.faces) == 12
+    with pytest.raises(MeshError, match="open boundary"):  # farther than zip_tol: not guessed
+        preprocess(*_box_with_t_vertex_off_the_roof_edge(0.003))
+
+
+def _box_missing_wall_bottoms():
+    """A 4 x 3 x 6 m box whose left, front and right walls stop at 5, 3 and 1 m above the floor
+    (a row house's walls cut where its neighbours stand): one open loop across three planes, and
+    the chord that would split off the left wall passes through the front wall's corner at 3 m."""
+    polygons = [
+        [[0, 0, 0], [0, 3, 0], [4, 3, 0], [4, 0, 0]],  # floor
+        [[0, 0, 6], [4, 0, 6], [4, 3, 6], [0, 3, 6]],  # roof
+        [[4, 3, 0], [0, 3, 0], [0, 3, 6], [4, 3, 6]],  # back, whole
+        [[0, 3, 5], [0, 0, 5], [0, 0, 6], [0, 3, 6]],  # left, above 5 m
+        [[0, 0, 3], [4, 0, 3], [4, 0, 6], [0, 0, 6]],  # front, above 3 m
+        [[4, 0, 1], [4, 3, 1], [4, 3, 6], [4, 0, 6]],  # right, above 1 m
+    ]
+    return _polygons_mesh(polygons)
+
+
+def test_wall_bottoms_missing_on_three_sides_are_capped_without_a_chord_through_a_corner():
+    v, f = _box_missing_wall_bottoms()
+    r = preprocess(v, f)
+    assert any("capped 3 open planar loop" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, 4 * 3 * 6)
+    assert len(r.faces) == 12  # re-triangulated back into the box
+
+
+def test_dangling_wall_in_a_missing_walls_plane_is_removed(cube):
+    """A box without its front wall, and a lone wall polygon 0.3 x 2 m standing in that plane on
+    the front's bottom edge (a neighbour's wall): capping doubles it, along the same diagonal,
+    whose edge then has four faces (a closed mesh that is not manifold); the fin goes."""
+    v, f = cube
+    front = [k for k in range(len(f)) if (v[f[k], 1] == 0).all()]
+    f = np.delete(f, front, axis=0)
+    v = np.vstack([v, [[0.3, 0, 0], [0.3, 0, 2], [0, 0, 2]]])
+    # the dangling polygon shares the box's corner 0 and the floor edge's point (0.3, 0, 0)
+    f = np.vstack([f, [[0, 8, 10], [8, 9, 10]]])
+    r = preprocess(v, f)
+    assert any("removed 4 faces of zero-thickness fins" in x for x in r.repairs), r.repairs
+    _check_closed_outward(r, 1.0)
