@@ -53,8 +53,9 @@ if TYPE_CHECKING:
 
 #: File name endings read by trimesh.
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
-#: File name endings read as CityJSON.
-CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson")
+#: File name endings read as CityJSON (a ``.json`` holding a GeoJSON / JSON-FG Feature or
+#: FeatureCollection is read as :mod:`meshsom.geojson`).
+CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson", ".geojson")
 #: File name endings read as CityGML (:mod:`meshsom.citygml`).
 CITYGML_SUFFIXES = (".gml", ".citygml")
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).
@@ -128,6 +129,17 @@ class ReaderOptions:
         ``metadata.referenceSystem``, GML without ``srsName``), as pyproj reads it (``"EPSG:4979"``,
         ``"EPSG:2263"``). A CRS a file declares is used for that file. Geographic coordinates are
         converted to metres about each building's centre, feet to metres (:mod:`meshsom.crs`).
+    height_attributes : tuple of str
+        GeoJSON footprints (:mod:`meshsom.geojson`): the properties that may hold a building's
+        height (of its top, metres above the ground), the first present used.
+    base_attributes : tuple of str
+        The properties that may hold the height of its bottom above the ground (0 when absent; a
+        building on stilts, a bridge's deck). The ground is the footprint's lowest z, else 0.
+    levels_attributes : tuple of str
+        The properties that may hold a storey count, used (times ``storey_height``) where no
+        height is given.
+    storey_height : float
+        Metres per storey.
     """
 
     lod: str = "highest"
@@ -142,6 +154,10 @@ class ReaderOptions:
     max_bytes: int = 4 << 30
     max_expansion: float = 200.0
     crs: str | None = None
+    height_attributes: tuple[str, ...] = ("height", "measuredHeight", "building:height")
+    base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
+    levels_attributes: tuple[str, ...] = ("building:levels", "num_floors")
+    storey_height: float = 3.0
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -159,6 +175,8 @@ class ReaderOptions:
             raise ValueError(f"footprint_seam_width must be >= 0 (metres), received {self.footprint_seam_width}")
         if not self.footprint_grid >= 0:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
+        if not self.storey_height > 0:
+            raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
         if not self.max_bytes > 0:
             raise ValueError(f"max_bytes must be > 0, received {self.max_bytes}")
         if self.crs is not None:
@@ -262,7 +280,7 @@ def input_kind(path: Path) -> str:
         return "trimesh"
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl") + CITYGML_SUFFIXES
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     raise InputFileError(
         str(path),
@@ -1037,6 +1055,16 @@ def read_cityjson(
         (naming the types it holds).
     """
     cj = _parse_json(read_input_bytes(path, options), str(path))
+    from meshsom.geojson import is_geojson, read_geojson
+
+    if is_geojson(cj):
+        found = False
+        for item in read_geojson(cj, path, options, name):
+            found = True
+            yield item
+        if not found:
+            raise InputFileError(str(path), "is a GeoJSON FeatureCollection of no features")
+        return
     vertices, scale, translate = _check_cityjson_header(cj, str(path), options)
     objects: dict = cj["CityObjects"]
     found = False

@@ -40,7 +40,8 @@ SECONDS_PER_INPUT = 5.0
 MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml")
+SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
+            ".geojson")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -207,6 +208,8 @@ MAGIC = {
     ".city.jsonl": [b"", b'{"type":"CityJSON","version":"2.0","transform":{"scale":[1,1,1],"translate":[0,0,0]},'
                     b'"CityObjects":{},"vertices":[]}\n{"type":"CityJSONFeature","id":"a",', b"\n\n{"],
     ".city.json.gz": [b"", b"\x1f\x8b", b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\xff"],
+    ".geojson": [b"", b'{"type": "FeatureCollection", "features": [{"type": "Feature", "geometry": ',
+                 b'{"type": "Feature", "place": {"type": "Polyhedron", "coordinates": [[[[['],
     ".gml": [b"", b'<CityModel xmlns:gml="http://www.opengis.net/gml"><cityObjectMember><Building gml:id="a">',
              b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY e SYSTEM "../secret.bin">]><CityModel>&e;'],
 }
@@ -328,8 +331,8 @@ def mutated_json(draw, document):
         for key in where[:-1]:
             parent = parent[key]
         op = draw(st.sampled_from(["replace", "replace", "delete", "duplicate"]))
-        if op == "replace":
-            parent[where[-1]] = draw(JSON_HOSTILE)
+        if op == "replace":  # a copy: sampled lists and dicts are shared, and later steps edit in place
+            parent[where[-1]] = json.loads(json.dumps(draw(JSON_HOSTILE)))
         elif op == "delete":
             del parent[where[-1]]
         elif isinstance(parent, list):
@@ -395,6 +398,44 @@ def test_mutated_citygml_bytes(folder, city_bytes):
     items, records, _ = read_all(_write(folder / "valid.gml", seed))
     assert [r["status"] for r in records] == ["accepted", "accepted"]
     mutants_are_accounted_for(folder / "mutant.gml", seed)
+
+
+def _geojson_seed() -> dict:
+    """OSM-like footprints in longitude/latitude (a height as text, a courtyard, a storey count)
+    and a JSON-FG prism and polyhedron in a projected CRS."""
+    lon, lat = 4.357, 52.011
+    d = 1e-4
+
+    def ring(x0, y0, w, h):
+        return [[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h], [x0, y0]]
+
+    cube = [[[[list(map(float, CUBE_VERTS[i])) for i in q] + [list(map(float, CUBE_VERTS[q[0]]))]] for q in CUBE_QUADS]]
+    return {"type": "FeatureCollection", "coordRefSys": "EPSG:28992", "features": [
+        {"type": "Feature", "id": "a", "geometry": {"type": "Polygon", "coordinates": [ring(lon, lat, d, d)]},
+         "properties": {"height": "9 m"}},
+        {"type": "Feature", "id": "b", "geometry": {"type": "Polygon", "coordinates": [
+            ring(lon + 2 * d, lat, 3 * d, 3 * d), ring(lon + 3 * d, lat + d, d, d)[::-1]]},
+         "properties": {"building:levels": 3}},
+        {"type": "Feature", "id": "c", "geometry": None, "place": {
+            "type": "Prism", "base": {"type": "Polygon", "coordinates": [ring(85000, 447000, 10, 6)]}, "upper": 7}},
+        {"type": "Feature", "id": "e", "geometry": None, "place": {"type": "Polyhedron", "coordinates": cube}},
+    ]}
+
+
+def test_mutated_geojson(folder):
+    """Mutated GeoJSON / JSON-FG, structure and bytes: features read or rejected, nothing else."""
+    document = _geojson_seed()
+    seed = json.dumps(document).encode()
+    items, records, _ = read_all(_write(folder / "valid.geojson", seed))
+    assert [r["status"] for r in records] == ["accepted"] * 4
+
+    @settings(FUZZ, max_examples=120)
+    @given(d=mutated_json(document))
+    def check(d):
+        read_bounded(_write(folder / "mutant.geojson", json.dumps(d).encode()))
+
+    check()
+    mutants_are_accounted_for(folder / "mutant.fg.json", seed)
 
 
 def test_xml_entity_bomb_is_a_rejection_and_external_entities_are_not_read(folder):

@@ -1,0 +1,268 @@
+"""Reading buildings from GeoJSON and JSON-FG (``.geojson``, ``.fg.json``, any ``.json`` holding a
+``Feature`` or ``FeatureCollection``; plain or gzipped).
+
+Footprints with a height are the most common open building data (OpenStreetMap, Overture Maps,
+national footprint layers); JSON-FG, OGC's extension of GeoJSON, adds solids. Each feature becomes
+the objects the CityJSON reader works on (:func:`meshsom.io._object_meshes`), so LoD choice,
+triangulation, CRS handling and rejections behave as for CityJSON:
+
+- **JSON-FG solids**: a feature's ``place`` of type ``Polyhedron`` (shells of polygons) or
+  ``MultiPolyhedron`` is a Solid or MultiSolid (LoD ``"2"``); a ``Prism`` (a ``Polygon`` or
+  ``MultiPolygon`` base extruded from ``lower``, default 0, to ``upper``) is a Solid (LoD ``"1"``).
+- **GeoJSON footprints**: a ``Polygon`` or ``MultiPolygon`` (``place``, else ``geometry``) with a
+  height property (:attr:`meshsom.io.ReaderOptions.height_attributes`: ``height``,
+  ``measuredHeight``, ``building:height``; numbers or text such as ``"12.5 m"``) is extruded, as
+  OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (0 when absent) to
+  ground + height, the ground being the footprint's lowest z (0 for a 2D footprint) (LoD ``"1"``);
+  without a height, a storey count (``building:levels``, ``num_floors``) times ``storey_height``
+  (3 m) is used, with a note.
+- A 3D ``Polygon`` / ``MultiPolygon`` without any height is read as a MultiSurface (LoD ``"2"``):
+  a solid written as its faces.
+- **CRS** (:mod:`meshsom.crs`): ``place`` is in the JSON-FG ``coordRefSys`` (the feature's, else the
+  collection's); ``geometry`` is WGS 84 longitude, latitude (RFC 7946: ``OGC:CRS84h``) unless an
+  old-style ``crs`` member names another, or its coordinates go beyond +/-180 (projected data
+  written without one: then :attr:`meshsom.io.ReaderOptions.crs`, else metres).
+- Ids are ``name#<feature id>`` (``name#feature-<N>``, N counted from 1, for a feature without
+  one); a label is the property :attr:`meshsom.io.ReaderOptions.label_attribute`.
+- Any other feature (a road's LineString, no geometry) is a rejection that says what it holds.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+#: Coordinates beyond this (in any CRS unit) are refused: no building lies there, and float64
+#: sums of such values lose their metres.
+MAX_COORDINATE = 1e12
+#: The CRS of GeoJSON ``geometry`` (RFC 7946): longitude, latitude, ellipsoidal height.
+GEOJSON_CRS = "OGC:CRS84h"
+_NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+
+
+def is_geojson(document) -> bool:
+    """Whether a parsed JSON document is a GeoJSON / JSON-FG Feature or FeatureCollection."""
+    return isinstance(document, dict) and document.get("type") in ("Feature", "FeatureCollection")
+
+
+def _reference(value) -> str | None:
+    """A CRS reference of a ``coordRefSys`` (a URI, or ``{"type": "Reference", "href": ...}``) or of
+    an old GeoJSON ``crs`` member (``{"type": "name", "properties": {"name": ...}}``)."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, dict):
+        if isinstance(value.get("href"), str):
+            return value["href"]
+        props = value.get("properties")
+        if isinstance(props, dict) and isinstance(props.get("name"), str):
+            return props["name"]
+    return None
+
+
+def _number(value) -> float | None:
+    """A property's number: 12, 12.5, "12.5", "12 m" (OpenStreetMap); None otherwise."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (int, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, str):
+        match = _NUMBER.match(value)
+        if match and math.isfinite(float(match.group(1))):
+            return float(match.group(1))
+    return None
+
+
+def _first(props: dict, names) -> tuple[str, float] | None:
+    for name in names:
+        value = _number(props.get(name))
+        if value is not None:
+            return name, value
+    return None
+
+
+class _Vertices:
+    """The vertices of one feature, appended ring by ring; indices for CityJSON-like boundaries."""
+
+    def __init__(self):
+        self.points: list[list[float]] = []
+
+    def ring(self, coords, where: str, z: float | None = None) -> list[int]:
+        try:
+            ring = np.asarray(coords, np.float64)
+        except (TypeError, ValueError):
+            raise InputFileError(where, "a ring's coordinates are not lists of numbers") from None
+        if ring.ndim != 2 or ring.shape[1] not in (2, 3) or len(ring) < 3:
+            raise InputFileError(where, f"a ring must be 3 or more positions of 2 or 3 numbers; received shape {ring.shape}")
+        if np.array_equal(ring[0], ring[-1]):
+            ring = ring[:-1]
+        if z is not None:
+            ring = np.column_stack([ring[:, :2], np.full(len(ring), z)])
+        elif ring.shape[1] == 2:
+            raise InputFileError(where, "a solid's positions need three coordinates (x, y, z)")
+        if not (np.isfinite(ring).all() and np.abs(ring).max() < MAX_COORDINATE):
+            raise InputFileError(where, f"coordinates must be finite numbers of magnitude below {MAX_COORDINATE:g}")
+        start = len(self.points)
+        self.points.extend(ring.tolist())
+        return list(range(start, len(self.points)))
+
+
+def _polygons(geometry: dict, where: str) -> list:
+    """The polygons (lists of rings of positions) of a Polygon or MultiPolygon."""
+    coords = geometry.get("coordinates")
+    if not isinstance(coords, list):
+        raise InputFileError(where, f"its {geometry.get('type')} has no coordinates")
+    return [coords] if geometry.get("type") == "Polygon" else coords
+
+
+def _signed_area(ring: list[list[float]]) -> float:
+    p = np.asarray(ring, np.float64)[:, :2]
+    p = p - p.mean(axis=0)
+    return 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+
+
+def _extruded(polygons: list, z0: float, z1: float, where: str, verts: _Vertices) -> dict:
+    """A Solid of footprint polygons extruded from ``z0`` to ``z1`` (outer rings counter-clockwise,
+    holes clockwise, seen from above: the shell faces outward)."""
+    if not z1 > z0:
+        raise InputFileError(where, f"its extrusion has no height (from {z0:g} to {z1:g})")
+    faces = []
+    for poly in polygons:
+        if not isinstance(poly, list) or not poly:
+            raise InputFileError(where, "a polygon has no rings")
+        rings = []
+        for k, ring in enumerate(poly):
+            bottom = verts.ring(ring, where, z0)
+            pts = [verts.points[i] for i in bottom]
+            if (_signed_area(pts) > 0) != (k == 0):
+                bottom = bottom[::-1]
+            top = verts.ring([verts.points[i] for i in bottom], where, z1)
+            rings.append((bottom, top))
+        faces.append([b[::-1] for b, _ in rings])  # the floor, facing down
+        faces.append([t for _, t in rings])  # the roof, facing up
+        for bottom, top in rings:
+            n = len(bottom)
+            faces += [[[bottom[i], bottom[(i + 1) % n], top[(i + 1) % n], top[i]]] for i in range(n)]
+    return {"type": "Solid", "lod": "1", "boundaries": [faces]}
+
+
+def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray, str, list[str]]:
+    """One feature as a CityJSON-like Building object over its own vertices.
+
+    Returns
+    -------
+    obj : dict
+        ``{"type": "Building", "geometry": [...], "attributes": {...}}``.
+    vertices : (V, 3) float64
+    member : str
+        ``"place"`` or ``"geometry"``: which member the geometry came from (for the CRS).
+    notes : list of str
+
+    Raises
+    ------
+    InputFileError
+        The feature holds no building geometry, or its geometry cannot be read.
+    """
+    props = feature.get("properties") if isinstance(feature.get("properties"), dict) else {}
+    place, geometry = feature.get("place"), feature.get("geometry")
+    member, geom = ("place", place) if isinstance(place, dict) else ("geometry", geometry)
+    if not isinstance(geom, dict):
+        raise InputFileError(where, "has no geometry (place and geometry are null)")
+    kind = geom.get("type")
+    verts = _Vertices()
+    notes: list[str] = []
+    if kind == "Polyhedron" or kind == "MultiPolyhedron":
+        coords = geom.get("coordinates")
+        solids = [coords] if kind == "Polyhedron" else coords
+        if not isinstance(solids, list) or not all(isinstance(s, list) for s in solids):
+            raise InputFileError(where, f"its {kind} has no coordinates")
+        boundaries = [[[[verts.ring(r, where) for r in poly] for poly in shell] for shell in solid] for solid in solids]
+        g = {"type": "Solid", "lod": "2", "boundaries": boundaries[0]} if kind == "Polyhedron" else {
+            "type": "MultiSolid", "lod": "2", "boundaries": boundaries}
+    elif kind == "Prism":
+        base = geom.get("base")
+        if not isinstance(base, dict) or base.get("type") not in ("Polygon", "MultiPolygon"):
+            found = base.get("type") if isinstance(base, dict) else type(base).__name__
+            raise InputFileError(where, f"its Prism's base is {found}; expected a Polygon or MultiPolygon")
+        lower, upper = _number(geom.get("lower", 0.0)), _number(geom.get("upper"))
+        if lower is None or upper is None or max(abs(lower), abs(upper)) >= MAX_COORDINATE:
+            raise InputFileError(where, "its Prism needs numbers \"upper\" (and \"lower\", default 0)")
+        g = _extruded(_polygons(base, where), lower, upper, where, verts)
+    elif kind in ("Polygon", "MultiPolygon"):
+        polygons = _polygons(geom, where)
+        height = _first(props, options.height_attributes)
+        if height is None:
+            levels = _first(props, options.levels_attributes)
+            if levels is not None and levels[1] > 0:
+                height = (levels[0], levels[1] * options.storey_height)
+                notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
+        if height is not None:
+            zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
+                  for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
+            bottom = _first(props, options.base_attributes)
+            ground = min(zs) if zs else 0.0
+            g = _extruded(polygons, ground + (bottom[1] if bottom else 0.0), ground + height[1], where, verts)
+        else:
+            try:
+                boundaries = [[verts.ring(r, where) for r in poly] for poly in polygons]
+            except InputFileError as err:
+                if "three coordinates" not in err.problem:
+                    raise
+                names = ", ".join(options.height_attributes + options.levels_attributes)
+                raise InputFileError(where, f"is a footprint without a height (no property {names})") from None
+            g = {"type": "MultiSurface", "lod": "2", "boundaries": boundaries}
+    else:
+        raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
+    label = props.get(options.label_attribute)
+    obj = {"type": "Building", "geometry": [g], "attributes": {} if label is None else {options.label_attribute: label}}
+    return obj, np.asarray(verts.points, np.float64).reshape(-1, 3), member, notes
+
+
+def read_geojson(document: dict, path: Path, options, name: str | None = None) -> Iterator:
+    """The buildings of a parsed GeoJSON / JSON-FG document: RawMesh or Rejection items, as
+    :func:`meshsom.io.read_cityjson` gives them (a Rejection per feature that cannot be read)."""
+    import dataclasses
+
+    from meshsom.io import Rejection, _object_meshes, file_crs
+
+    name = name or path.name
+    features = [document] if document.get("type") == "Feature" else document.get("features")
+    if not isinstance(features, list):
+        raise InputFileError(str(path), "is a FeatureCollection without a \"features\" list")
+    collection_crs = _reference(document.get("coordRefSys"))
+    old_crs = _reference(document.get("crs"))
+    for k, feature in enumerate(features, 1):
+        if not isinstance(feature, dict) or feature.get("type") != "Feature":
+            yield Rejection(f"{name}#feature-{k}", str(path), "is not a GeoJSON Feature")
+            continue
+        fid = feature.get("id")
+        oid = str(fid) if isinstance(fid, (str, int)) and not isinstance(fid, bool) else f"feature-{k}"
+        mesh_id = f"{name}#{oid}"
+        try:
+            try:
+                obj, vertices, member, notes = feature_object(feature, mesh_id, options)
+            except (TypeError, ValueError, AttributeError, KeyError, IndexError) as err:  # nesting not as GeoJSON says
+                raise InputFileError(mesh_id, f"its geometry is not nested as GeoJSON / JSON-FG says "
+                                              f"({type(err).__name__}: {str(err)[:80]})") from None
+        except InputFileError as err:
+            label = (feature.get("properties") or {}).get(options.label_attribute) if isinstance(
+                feature.get("properties"), dict) else None
+            yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
+            continue
+        if member == "place":
+            declared = _reference(feature.get("coordRefSys")) or collection_crs
+        elif old_crs is not None:
+            declared = old_crs
+        elif len(vertices) and np.abs(vertices[:, :2]).max() <= 180 and options.crs is None:
+            declared = GEOJSON_CRS
+        else:
+            declared = None  # beyond +/-180: projected, written without a crs member
+        for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=file_crs(declared, options)):
+            if notes and not isinstance(item, Rejection):
+                item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
+            yield item
