@@ -61,6 +61,20 @@ def rejection_kinds(records: Iterable[dict]) -> list[tuple[str, int, str | None]
             for kind, n in kinds.most_common()]
 
 
+def note_kinds(records: Iterable[dict]) -> list[tuple[str, int]]:
+    """The reader's notes of the records (coordinates converted, heights from storeys, polygons
+    dropped...) grouped as :func:`rejection_kinds` groups reasons, the most frequent first."""
+    import re
+    from collections import Counter
+
+    # numbers written N, except inside parentheses (a CRS's name: "WGS 84", "JGD2011")
+    number_or_group = re.compile(r"\([^()]*(?:\([^()]*\)[^()]*)*\)|\b\d[\d,.]*")
+    kinds = Counter(number_or_group.sub(lambda m: m.group(0) if m.group(0).startswith("(") else "N",
+                                        str(n).split("; ")[0]).strip()
+                    for r in records for n in r.get("notes") or ())
+    return kinds.most_common()
+
+
 @dataclass(frozen=True)
 class IngestResult:
     """What an ingestion did.
@@ -367,6 +381,11 @@ def run(args: argparse.Namespace) -> int:
             from meshsom.standardize import describe_fold_statistics
 
             print(f"  {describe_fold_statistics(s['folds'])}")
+        noted = note_kinds(result.records)
+        if noted:
+            print("  read with notes (each record's own in its notes):")
+            for kind, n in noted[:KINDS_SHOWN]:
+                print(f"    {n:6,d} x {kind}")
         rejected = [r for r in result.records if r["status"] == "rejected"]
         if rejected:
             print(f"  rejected, by kind of reason (each record, with its whole reason, in {result.store}/manifest.json):")

@@ -151,7 +151,10 @@ def test_geojson_files_through_meshsom_ingest(tmp_path):
     features = [_feature(f"b{k}", {"type": "Polygon", "coordinates": [_closed(_lonlat([(x + 30 * k, y) for x, y in L_SHAPE]))]},
                          height=5 + k) for k in range(3)]
     (folder / "district.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": features}))
-    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "g.zarr"),
-                          "--json"], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "g.zarr")],
+                         capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    assert json.loads(out.stdout.strip().splitlines()[-1])["accepted"] == 3
+    assert "3 meshes: 3 accepted, 0 rejected" in out.stdout
+    # what the reader did, counted by kind (the CRS named whole, its numbers kept)
+    assert "read with notes" in out.stdout
+    assert "3 x geographic coordinates (WGS 84 longitude-latitude-height) converted" in out.stdout, out.stdout
