@@ -290,8 +290,9 @@ def _print_skipped(skipped: list[tuple[str, str]]) -> None:
     if len(skipped) > SKIPPED_SHOWN:
         print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
     if any(why.startswith("unknown file type") for _, why in skipped):
-        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES + CITYJSON_SUFFIXES)}")
-        print(f"       {' '.join(CITYJSONSEQ_SUFFIXES + CITYGML_SUFFIXES)}, each also gzipped: {GZIP_SUFFIX})")
+        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES)}")
+        print(f"       {' '.join(CITYJSON_SUFFIXES + CITYJSONSEQ_SUFFIXES + CITYGML_SUFFIXES)},")
+        print(f"       each also gzipped: {GZIP_SUFFIX})")
 
 
 #: Kinds of rejection reasons ``meshsom run`` prints after its ingest line (``meshsom inspect`` shows more).
