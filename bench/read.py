@@ -9,6 +9,10 @@ own, and prints per container: file size, wall seconds (best of ``--repeat``), b
 second, and the peak memory the read allocates (``tracemalloc``: Python objects and NumPy arrays,
 in a pass of its own). The reference for memory is the city's own vertex and face arrays
 (float64 / int64), measured in the same run.
+
+A second table is what one read task of the pipeline holds (it keeps its meshes until its shards
+take them): the CityJSONSeq file read whole by one task, or in byte ranges (``dask.read_bytes``) of
+a quarter and a sixteenth of the file, one task each.
 """
 
 from __future__ import annotations
@@ -49,15 +53,44 @@ def child(path: str, repeat: int) -> None:
     print(json.dumps({"seconds": best, "meshes": count, "peak_mb": peak / 2**20}))
 
 
+def ranges_child(path: str, target: int) -> None:
+    """What one read task of the pipeline holds (its list of meshes, :func:`pipelines.corpus.read_source`):
+    the whole CityJSONSeq file in one task, or its byte ranges of about ``target`` bytes, one at a
+    time; print JSON with the seconds (all ranges), the ranges, and the largest task's peak allocation."""
+    import tracemalloc
+
+    from meshsom.io import cityjsonseq_ranges
+    from pipelines.corpus import read_source
+
+    from meshsom.io import ReaderOptions
+
+    t0 = time.perf_counter()
+    ranges = cityjsonseq_ranges(Path(path), target) if target else None
+    count = sum(len(read_source(path, ReaderOptions(), None, r)) for r in ranges or [None])
+    seconds = time.perf_counter() - t0
+    peak = 0
+    for r in ranges or [None]:  # again, traced
+        tracemalloc.start()
+        items = read_source(path, ReaderOptions(), None, r)
+        peak = max(peak, tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        del items
+    print(json.dumps({"seconds": seconds, "meshes": count, "ranges": len(ranges or [None]), "peak_mb": peak / 2**20}))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--blocks", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--ranges-child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child(args.child, args.repeat)
+        return
+    if args.ranges_child:
+        ranges_child(args.ranges_child[0], int(args.ranges_child[1]))
         return
     from meshsom.citygml import write_citygml
     from meshsom.generate import BLOCK_FAMILIES, ROOF_FAMILIES, GeneratorParams, generate_corpus
@@ -83,6 +116,19 @@ def main() -> None:
             assert r["meshes"] == len(blocks), (label, r)
             print(f"| {label} | {path.stat().st_size / 2**20:.1f} | {r['seconds']:.2f} | {r['meshes'] / r['seconds']:,.0f} | "
                   f"{r['peak_mb']:.0f} | {r['peak_mb'] / arrays_mb:.1f}x |")
+        # the pipeline's read tasks keep their meshes: one task for the whole file, or one per range
+        path = Path(tmp) / "city.city.jsonl"
+        size = path.stat().st_size
+        print("\nOne pipeline read task (it keeps its meshes until its shards take them), CityJSONSeq:")
+        print("\n| dask.read_bytes | read tasks | read s (all tasks, one after another) | largest task's peak alloc MB |")
+        print("|---:|---:|---:|---:|")
+        for target in (0, size // 4, size // 16):
+            out = subprocess.run([sys.executable, __file__, "--ranges-child", str(path), str(target)],
+                                 capture_output=True, text=True, check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            assert r["meshes"] == len(blocks), r
+            what = "whole file" if not target else f"{target / 2**20:.1f} MB"
+            print(f"| {what} | {r['ranges']} | {r['seconds']:.2f} | {r['peak_mb']:.0f} |")
 
 
 if __name__ == "__main__":
