@@ -201,8 +201,8 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
         return local, None
     if not crs.geographic:
         scale = np.array([crs.horizontal_m, crs.horizontal_m, crs.vertical_m])
-        return local * scale, (f"coordinates in {crs.unit} ({crs.name}) scaled to metres "
-                               f"(x {crs.horizontal_m:.10g}, z x {crs.vertical_m:.10g})")
+        return local * scale, (f"scaled to metres from {crs.unit} ({crs.name}; x and y times {crs.horizontal_m:.10g}, "
+                               f"z times {crs.vertical_m:.10g})")
     order = [0, 1] if crs.latitude_first else [1, 0]
     centre = origin[[order[0], order[1], 2]]
     swapped = ""
@@ -214,7 +214,7 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
     geodetic[:, 2] *= crs.vertical_m
     centre = centre * np.array([1.0, 1.0, crs.vertical_m])
     enu = east_north_up(geodetic, centre, crs.semi_major, crs.flattening)
-    return enu, (f"geographic coordinates ({crs.name}) converted to metres, east-north-up about the "
+    return enu, (f"converted to metres from geographic coordinates ({crs.name}), east-north-up about the "
                  f"building's centre{swapped}")
 
 

@@ -180,6 +180,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             group = open_store(store, mode="r+")
             manifest = read_manifest(store)
             _print_rejection_kinds(manifest["records"])
+            _print_note_kinds(manifest["records"])
             fingerprint = dataset_fingerprint(manifest)
             ids = read_tracking(group) if resume else {}
             if ids.get("uri") not in (None, tracker.uri):
@@ -310,6 +311,16 @@ def _print_rejection_kinds(records) -> None:
         print(line if len(line) <= 80 else line[:79] + "~")
     if len(kinds) > RUN_KINDS_SHOWN:
         print(f"        ({len(kinds) - RUN_KINDS_SHOWN} more kinds: meshsom inspect)")
+
+
+def _print_note_kinds(records) -> None:
+    """The most frequent kinds of the reader's notes (:func:`pipelines.ingest.note_kinds`: coordinates
+    converted from a CRS, heights from storeys), one line each, cut to 80 columns."""
+    from pipelines.ingest import note_kinds
+
+    for kind, n in note_kinds(records)[:RUN_KINDS_SHOWN]:
+        line = f"        {n:5,d} x read: {kind}"
+        print(line if len(line) <= 80 else line[:79] + "~")
 
 
 def _nothing_ingested(store: str, remove: bool) -> None:

@@ -157,4 +157,4 @@ def test_geojson_files_through_meshsom_ingest(tmp_path):
     assert "3 meshes: 3 accepted, 0 rejected" in out.stdout
     # what the reader did, counted by kind (the CRS named whole, its numbers kept)
     assert "read with notes" in out.stdout
-    assert "3 x geographic coordinates (WGS 84 longitude-latitude-height) converted" in out.stdout, out.stdout
+    assert "3 x converted to metres from geographic coordinates (WGS 84 longitude-latitude-height)" in out.stdout, out.stdout

@@ -558,6 +558,19 @@ def test_run_prints_the_commonest_kinds_of_rejection_in_80_columns(capsys):
     assert len(lines) == RUN_KINDS_SHOWN + 1 and lines[-1] == "        (1 more kinds: meshsom inspect)"
 
 
+def test_run_prints_the_commonest_notes_of_the_reader_in_80_columns(capsys):
+    from pipelines.run import _print_note_kinds
+
+    crs = "converted to metres from geographic coordinates (JGD2011 + JGD2011 (vertical) height), east-north-up about the building's centre"
+    records = [{"status": "accepted", "notes": [crs]}] * 5 + [
+        {"status": "accepted", "notes": [crs, f"height from building:levels = {n} storeys x 3 m"]} for n in (2, 7)]
+    _print_note_kinds(records)
+    lines = capsys.readouterr().out.splitlines()
+    assert all(len(line) <= 80 for line in lines) and len(lines) == 2
+    assert lines[0].startswith("            7 x read: converted to metres from geographic coordinates (JGD2011")
+    assert lines[1] == "            2 x read: height from building:levels = N storeys x N m"
+
+
 def test_unknown_compressed_files_name_both_suffixes(tmp_path):
     (tmp_path / "notes.txt.gz").write_bytes(b"x")
     (rej,) = read_file(tmp_path / "notes.txt.gz")
