@@ -1419,6 +1419,33 @@ def _off_plane(p: np.ndarray) -> float:
     return float(np.abs(q @ normal).max())
 
 
+def _off_planes(v: np.ndarray, pieces: list[list[int]]) -> np.ndarray:
+    """:func:`_off_plane` of many pieces of a loop at once, bit for bit (one batched SVD per length).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    pieces : list of list of int
+        Vertex indices of each piece.
+
+    Returns
+    -------
+    (len(pieces),) float64
+    """
+    out = np.zeros(len(pieces))
+    by_length: dict[int, list[int]] = {}
+    for k, piece in enumerate(pieces):
+        by_length.setdefault(len(piece), []).append(k)
+    for length, ks in by_length.items():
+        if length < 4:
+            continue
+        q = v[np.array([pieces[k] for k in ks], np.int64)]
+        q = q - q.mean(axis=1, keepdims=True)
+        normal = np.linalg.svd(q, full_matrices=False)[2][:, -1, :]
+        out[ks] = np.abs(np.matmul(q, normal[:, :, None])[..., 0]).max(axis=1)
+    return out
+
+
 def _planar_loops(v, directed, dist, edges: set, max_edges: int = 256, through: bool = True) -> list[np.ndarray] | None:
     """Open boundary edges (a -> b) decomposed into closed loops that each lie in one plane.
 
@@ -1496,14 +1523,15 @@ def _cut_flat(v, loop: list[int], dist: float, edges: set, cuts: int, through: b
     """
     search = {} if search is None else search
 
-    def off_plane(piece: list[int]) -> float:
-        key = tuple(piece)
-        if key not in search:
-            search["measures"] = search.get("measures", 0) + 1
+    def off_plane(*pieces: list[int]) -> list[float]:
+        new = list({tuple(p): p for p in pieces if tuple(p) not in search}.values())
+        if new:
+            search["measures"] = search.get("measures", 0) + len(new)
             if search["measures"] > CUT_SEARCH_BUDGET:
                 raise _SearchSpent
-            search[key] = _off_plane(v[piece])
-        return search[key]
+            for piece, d in zip(new, _off_planes(v, new).tolist()):
+                search[tuple(piece)] = d
+        return [search[tuple(p)] for p in pieces]
 
     try:
         return _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane)
@@ -1516,12 +1544,12 @@ class _SearchSpent(Exception):
 
 
 def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):
-    if off_plane(loop) <= dist:
+    if off_plane(loop)[0] <= dist:
         return [loop]
     if cuts == 0:
         return None
     n = len(loop)
-    candidates = []
+    chords = []
     p = v[loop]
     for i in range(n):
         for j in range(i + 3, min(n, i + n - 2)):  # both pieces of at least four vertices
@@ -1529,10 +1557,12 @@ def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):
                 continue
             if not through and _through_vertex(p, i, j, dist):
                 continue
-            a, b = loop[i:j + 1], loop[j:] + loop[:i + 1]
-            da, db = off_plane(a), off_plane(b)
-            if min(da, db) <= dist:  # one side flat: the other is flat too, or is cut again
-                candidates.append((max(da, db), i, j, a, b) if da <= db else (max(da, db), i, j, b, a))
+            chords.append((i, j, loop[i:j + 1], loop[j:] + loop[:i + 1]))
+    measured = off_plane(*[c[2] for c in chords], *[c[3] for c in chords])  # all at once
+    candidates = []
+    for (i, j, a, b), da, db in zip(chords, measured[:len(chords)], measured[len(chords):]):
+        if min(da, db) <= dist:  # one side flat: the other is flat too, or is cut again
+            candidates.append((max(da, db), i, j, a, b) if da <= db else (max(da, db), i, j, b, a))
     for _, _, _, flat, rest in sorted(candidates, key=lambda c: c[:3]):
         more = _cut_flat_search(v, rest, dist, edges, cuts - 1, through, off_plane)
         if more is not None:
