@@ -32,7 +32,8 @@ def describe_store(path) -> dict:
     dict
         ``store``, ``manifest`` (``summary``, ``reasons``: [kind of reason, count] most frequent
         first (:func:`pipelines.ingest.rejection_kinds`),
-        ``first_rejections``: [id, reason]), ``arrays`` (``name``, ``shape``, ``dtype``,
+        ``first_rejections``: [id, reason], ``notes``: [kind of the reader's note, count] most
+        frequent first (:func:`pipelines.ingest.note_kinds`)), ``arrays`` (``name``, ``shape``, ``dtype``,
         ``chunks``, ``bytes`` stored), ``runs`` (``name``, ``rows``, ``cols``, ``topology``,
         ``level``, ``kernel``, ``epochs``, ``epochs_done``, ``t_error``, ``q_error``,
         ``qc_error``, ``engine``, ``domain``), ``levels`` (``level``, ``stats``: the scaling,
@@ -49,7 +50,7 @@ def describe_store(path) -> dict:
     except StoreError:
         manifest = {"summary": {}, "records": []}
     rejected = [r for r in manifest.get("records", []) if r.get("status") == "rejected"]
-    from pipelines.ingest import rejection_kinds
+    from pipelines.ingest import note_kinds, rejection_kinds
 
     reasons = rejection_kinds(rejected)
     out = {
@@ -58,6 +59,7 @@ def describe_store(path) -> dict:
             "summary": dict(manifest.get("summary", {})),
             "reasons": [[kind, n] for kind, n, _ in reasons],
             "first_rejections": [[r.get("id"), r.get("reason")] for r in rejected[:REASONS_SHOWN]],
+            "notes": [[kind, n] for kind, n in note_kinds(manifest.get("records", []))],
         },
         "arrays": _arrays(group),
         "runs": [],
@@ -138,6 +140,9 @@ def render(info: dict, width: int = 80) -> str:
     for mesh, reason in info["manifest"]["first_rejections"][:1]:
         out.append(textwrap.fill(f"first rejected: {mesh}: {reason}", width, initial_indent="  ",
                                  subsequent_indent="    "))
+    for note, n in info["manifest"].get("notes", [])[:REASONS_SHOWN]:
+        text = f"read: {note}"
+        out.append(f"  {n:5d} x {text if len(text) <= REASON_CHARS else text[: REASON_CHARS - 1] + '~'}")
 
     rows = [[a["name"], " x ".join(map(str, a["shape"])), a["dtype"], " x ".join(map(str, a["chunks"])),
              _size(a["bytes"])] for a in info["arrays"]]

@@ -76,7 +76,8 @@ def test_inspect_counts_rejections_and_their_reasons(tmp_path, capsys):
 
     store = tmp_path / "s.zarr"
     create_store(store)
-    records = [{"id": f"m{i}", "source": "x.obj", "status": "accepted", "reason": ""} for i in range(3)]
+    records = [{"id": f"m{i}", "source": "x.obj", "status": "accepted", "reason": "",
+                "notes": [f"height from building:levels = {i + 2} storeys x 3 m"]} for i in range(3)]
     records += [{"id": f"open{i}", "source": "y.obj", "status": "rejected", "reason": f"not closed: {4 + 2 * i} boundary edges"}
                 for i in range(2)]
     records += [{"id": "flat", "source": "z.obj", "status": "rejected", "reason": "zero volume " + "x" * 200}]
@@ -87,6 +88,7 @@ def test_inspect_counts_rejections_and_their_reasons(tmp_path, capsys):
     assert "manifest: 6 inputs, 3 accepted, 3 rejected" in text
     assert "    2 x not closed: N boundary edges" in text  # one kind, whatever the count
     assert "first rejected: open0: not closed" in text
+    assert "    3 x read: height from building:levels = N storeys x N m" in text  # the reader's notes, by kind
     assert "trained maps (0)" in text and "no ring levels encoded" in text
 
 
