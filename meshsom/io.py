@@ -51,6 +51,8 @@ from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
 if TYPE_CHECKING:
     from meshsom.crs import CoordinateSystem
 
+#: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
+UP_AXES = ("z", "y")
 #: File name endings read by trimesh.
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 #: File name endings read as CityJSON (a ``.json`` holding a GeoJSON / JSON-FG Feature or
@@ -140,6 +142,11 @@ class ReaderOptions:
         height is given.
     storey_height : float
         Metres per storey.
+    up_axis : str
+        The up axis of mesh files (OBJ, PLY, STL, OFF, glTF), which do not say it: "z" (as city
+        models are), or "y" (glTF by its specification, and many OBJ exports from Blender, SketchUp
+        or game tools): their coordinates are then turned a quarter about x, (x, y, z) -> (x, -z, y),
+        so that z is up.
     """
 
     lod: str = "highest"
@@ -158,6 +165,7 @@ class ReaderOptions:
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors")
     storey_height: float = 3.0
+    up_axis: str = "z"
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -175,6 +183,8 @@ class ReaderOptions:
             raise ValueError(f"footprint_seam_width must be >= 0 (metres), received {self.footprint_seam_width}")
         if not self.footprint_grid >= 0:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
+        if self.up_axis not in UP_AXES:
+            raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)}; received {self.up_axis!r}")
         if not self.storey_height > 0:
             raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
         if not self.max_bytes > 0:
@@ -708,6 +718,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 raise InputFileError(str(path), "holds no faces")
             yield Rejection(mesh_id, str(path), "holds no faces", 0, item_label)
             continue
+        if options.up_axis == "y":  # a quarter turn about x: y up -> z up (a rotation: orientation kept)
+            v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
         local, origin = recentre(v)
         try:
             local, notes = _in_metres(mesh_id, local, origin, crs)

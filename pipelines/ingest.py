@@ -334,6 +334,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--parts", choices=("merge", "separate"), help="BuildingParts merged into their Building, or kept apart")
     p.add_argument("--extrude-lod1", action="store_true", default=None, help="replace each building by its extruded footprint (LoD1 block)")
     p.add_argument("--crs", help="CRS of inputs that declare none, e.g. EPSG:4979 (degrees are converted to metres)")
+    p.add_argument("--up", choices=("z", "y"), help="up axis of mesh files (glTF and many OBJ exports: y); default z")
     p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
     p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
     p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
@@ -360,7 +361,9 @@ def run(args: argparse.Namespace) -> int:
         reader, params, chunk_rows = ReaderOptions(), cfg.preprocess, cfg.store.chunk_rows
         paths, generator = list(args.inputs), None
     try:
-        changes = {k: v for k, v in (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs)) if v is not None}
+        given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
+                 ("up_axis", args.up))
+        changes = {k: v for k, v in given if v is not None}
         reader = replace(reader, **changes)
         if args.repair:
             params = replace(params, repair=True)

@@ -1,10 +1,8 @@
-import json
-
 import numpy as np
 import pytest
 import trimesh
 
-from cityjson_samples import CUBE_QUADS, CUBE_VERTS, HEXAGON_MM, cube_solid, doc, two_buildings, write
+from cityjson_samples import CUBE_VERTS, HEXAGON_MM, cube_solid, doc, two_buildings, write
 from meshsom.errors import InputFileError
 from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 
@@ -171,6 +169,22 @@ def test_trimesh_formats_and_labels_csv(tmp_path, cube):
         assert _volume(m) == pytest.approx(1.0), p
         assert np.allclose(m.origin, [2.6e6 + 0.5, 1.2e6 + 0.5, 400.5]), p
         assert m.label == ("box" if p.suffix == ".obj" else None)
+
+
+@pytest.mark.parametrize("ext", ["glb", "obj"])
+def test_y_up_mesh_files_are_turned_z_up(tmp_path, ext):
+    """A house 4 m wide, 6 m deep and 9 m tall written y-up (glTF's axes; Blender's OBJ export): with
+    up_axis "y" it stands 9 m tall in z, the same volume, outward; the default reads it as given."""
+    box = trimesh.creation.box(bounds=[[0, 0, 0], [4, 9, 6]])  # y is the up axis here: 9 m
+    box.export(tmp_path / f"house.{ext}")
+    (as_given,) = read_file(tmp_path / f"house.{ext}")
+    (turned,) = read_file(tmp_path / f"house.{ext}", ReaderOptions(up_axis="y"))
+    assert np.ptp(as_given.vertices, axis=0) == pytest.approx([4, 9, 6])
+    assert np.ptp(turned.vertices, axis=0) == pytest.approx([4, 6, 9])
+    assert _volume(turned) == pytest.approx(_volume(as_given)) == pytest.approx(4 * 9 * 6)
+    np.testing.assert_allclose(turned.origin, [2, -3, 4.5])  # (x, -z, y) of the centre (2, 4.5, 3)
+    with pytest.raises(ValueError, match="up_axis must be one of z, y"):
+        ReaderOptions(up_axis="x")
 
 
 # ---------------------------------------------------------------------------- --extrude-lod1 footprints
