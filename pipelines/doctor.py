@@ -10,7 +10,7 @@ import sys
 from dataclasses import replace
 
 PACKAGES = (
-    "meshsom", "numpy", "scipy", "trimesh", "shapely", "pymeshlab", "zarr", "dask", "distributed",
+    "meshsom", "numpy", "scipy", "trimesh", "shapely", "pyproj", "pymeshlab", "zarr", "dask", "distributed",
     "pyopencl", "pocl-binary-distribution", "mlflow", "matplotlib", "pyyaml", "tqdm",
 )
 ENV_VARS = (
