@@ -1,5 +1,6 @@
-"""Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq and CityGML
-(:mod:`meshsom.citygml`), plain or gzipped.
+"""Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq, CityGML
+(:mod:`meshsom.citygml`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; every
+building in metres, whatever its file's CRS (:mod:`meshsom.crs`).
 
 A reader turns one input file into a stream of :class:`RawMesh` (one per
 building or mesh object) and :class:`Rejection` (an object, or the whole file,
