@@ -189,7 +189,7 @@ def _label(obj, attribute: str) -> str | None:
     return None
 
 
-def building_objects(building, where: str, label_attribute: str) -> tuple[dict, np.ndarray, list[str]]:
+def building_objects(building, where: str, label_attribute: str) -> tuple[dict, np.ndarray, list[str], str | None]:
     """One CityGML Building as CityJSON-like objects (the Building and its BuildingParts, each with
     a MultiSurface per LoD) over shared vertices.
 
@@ -200,8 +200,16 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     vertices : (V, 3) float64
         Real coordinates (no transform).
     notes : list of str
+    srs_name : str or None
+        The first ``srsName`` of the building's geometry (its CRS), when it names one.
     """
-    by_id = {_gml_id(e): e for e in building.iter() if _gml_id(e)}
+    by_id, srs_name = {}, None
+    for e in building.iter():  # one pass: the ids that xlink:href refers to, and the CRS
+        gml_id = _gml_id(e)
+        if gml_id:
+            by_id[gml_id] = e
+        if srs_name is None:
+            srs_name = e.attrib.get("srsName")
     bid = _gml_id(building)
     members = [(bid, building)] + [(_gml_id(p), p) for p in building.iter() if _local(p.tag) in PART_NAMES]
     objects: dict = {}
@@ -240,7 +248,7 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
         for g in entry["geometry"]:
             g["boundaries"] = [[[int(inverse[i]) for i in ring] for ring in poly] for poly in g["boundaries"]]
     notes = [f"{missing} polygon reference(s) (xlink:href) outside the building were not read"] if missing else []
-    return objects, vertices, notes
+    return objects, vertices, notes, srs_name
 
 
 def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
@@ -301,12 +309,11 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
             element.set("{http://www.opengis.net/gml}id", element_id)
         mesh_id = f"{name}#{element_id}"
         try:
-            objects, vertices, notes = building_objects(element, mesh_id, options.label_attribute)
+            objects, vertices, notes, srs = building_objects(element, mesh_id, options.label_attribute)
         except InputFileError as err:
             yield Rejection(mesh_id, str(path), err.problem)
         else:
-            srs = next((e.attrib["srsName"] for e in element.iter() if "srsName" in e.attrib), file_srs)
-            crs = file_crs(srs, options)
+            crs = file_crs(srs or file_srs, options)
             for item in _object_meshes(objects, vertices, None, None, options, name, str(path), crs=crs):
                 if notes and not isinstance(item, Rejection):
                     item = dataclasses.replace(item, notes=item.notes + tuple(notes))

@@ -590,7 +590,8 @@ def read_file(
 
     Ids are unique: an object whose id an earlier one of the file has (a building repeated in a
     CityJSONSeq made of overlapping tiles, a ``gml:id`` given twice) is a Rejection with the id
-    ``"<id> (2)"`` (the count of the id so far) and that reason; the first is read.
+    ``"<id> (2)"`` (:func:`free_id`: the next number no earlier item has) and that reason; the
+    first is read.
 
     Parameters
     ----------
@@ -602,10 +603,20 @@ def read_file(
         A CityJSONSeq file only: read the features on the lines of this range
         (:func:`cityjsonseq_ranges`), ids unique within it; a range without buildings yields nothing.
     """
-    seen: dict[str, int] = {}
+    seen: set[str] = set()
     for item in _read_file(Path(path), options, name, byte_range):
-        count = seen[item.id] = seen.get(item.id, 0) + 1
-        yield item if count == 1 else repeated(item, f"{item.id} ({count})")
+        if item.id in seen:
+            item = repeated(item, free_id(item.id, seen))
+        seen.add(item.id)
+        yield item
+
+
+def free_id(item_id: str, taken: set) -> str:
+    """``"<item_id> (k)"`` with the smallest k >= 2 that is not in ``taken``: the id of a repeat."""
+    k = 2
+    while f"{item_id} ({k})" in taken:
+        k += 1
+    return f"{item_id} ({k})"
 
 
 def repeated(item: RawMesh | Rejection, new_id: str) -> Rejection:
@@ -1067,9 +1078,9 @@ def read_cityjson(
         The file cannot be read, is not CityJSON, or holds no object of ``options.object_types``
         (naming the types it holds).
     """
-    cj = _parse_json(read_input_bytes(path, options), str(path))
     from meshsom.geojson import is_geojson, read_geojson
 
+    cj = _parse_json(read_input_bytes(path, options), str(path))
     if is_geojson(cj):
         found = False
         for item in read_geojson(cj, path, options, name):

@@ -147,6 +147,8 @@ def repeated_ids(sources: list[dict], ids: list[list[str]]) -> list[dict[str, st
         Per source, ``{str(index): new id}`` of its items to be rejected as repeats: the new id is
         ``"<id> (k)"`` with the smallest k >= 2 that no item of the file has.
     """
+    from meshsom.io import free_id
+
     taken: dict[str, set] = {}
     for src, source_ids in zip(sources, ids):
         taken.setdefault(src.get("path", ""), set()).update(source_ids)
@@ -157,10 +159,7 @@ def repeated_ids(sources: list[dict], ids: list[list[str]]) -> list[dict[str, st
         renames = {}
         for k, item_id in enumerate(source_ids):
             if item_id in file_seen and "range" in src:
-                n = 2
-                while f"{item_id} ({n})" in file_taken:
-                    n += 1
-                renames[str(k)] = f"{item_id} ({n})"
+                renames[str(k)] = free_id(item_id, file_taken)
                 file_taken.add(renames[str(k)])
             file_seen.add(item_id)
         out.append(renames)

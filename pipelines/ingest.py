@@ -54,25 +54,33 @@ def rejection_kinds(records: Iterable[dict]) -> list[tuple[str, int, str | None]
     kinds = Counter()
     for r in records:
         if r.get("status") == "rejected":
-            first = re.sub(r"^line \d+: ", "", str(r.get("reason") or "no reason given")).split("; ")[0]
-            first = re.sub(r" \(found [^)]*\)$", "", first)  # the object types a file holds instead
-            kinds[re.sub(r"\d[\d,.]*", "N", first).strip()] += 1
+            first = re.sub(r"^line \d+: ", "", str(r.get("reason") or "no reason given"))
+            first = re.sub(r" \(found [^)]*\)$", "", first.split("; ")[0])  # the object types a file holds instead
+            kinds[_kind(first, _NUMBER)] += 1
     return [(kind, n, next((h for start, h in REJECTION_HINTS if kind.startswith(start)), None))
             for kind, n in kinds.most_common()]
+
+
+#: A number of a reason or note, written ``N`` in its kind.
+_NUMBER = r"\d[\d,.]*"
+#: The same, but a group in parentheses (a CRS's name: "WGS 84", "JGD2011") kept whole.
+_NUMBER_OUTSIDE_GROUPS = r"\([^()]*(?:\([^()]*\)[^()]*)*\)|\b\d[\d,.]*"
+
+
+def _kind(text: str, pattern: str) -> str:
+    """``text`` with what ``pattern`` matches written ``N`` (groups in parentheses it matches kept)."""
+    import re
+
+    return re.sub(pattern, lambda m: m.group(0) if m.group(0).startswith("(") else "N", text).strip()
 
 
 def note_kinds(records: Iterable[dict]) -> list[tuple[str, int]]:
     """The reader's notes of the records (coordinates converted, heights from storeys, polygons
     dropped...) grouped as :func:`rejection_kinds` groups reasons, the most frequent first."""
-    import re
     from collections import Counter
 
-    # numbers written N, except inside parentheses (a CRS's name: "WGS 84", "JGD2011")
-    number_or_group = re.compile(r"\([^()]*(?:\([^()]*\)[^()]*)*\)|\b\d[\d,.]*")
-    kinds = Counter(number_or_group.sub(lambda m: m.group(0) if m.group(0).startswith("(") else "N",
-                                        str(n).split("; ")[0]).strip()
-                    for r in records for n in r.get("notes") or ())
-    return kinds.most_common()
+    return Counter(_kind(str(n).split("; ")[0], _NUMBER_OUTSIDE_GROUPS)
+                   for r in records for n in r.get("notes") or ()).most_common()
 
 
 @dataclass(frozen=True)

@@ -306,9 +306,7 @@ def _print_rejection_kinds(records) -> None:
     from pipelines.ingest import rejection_kinds
 
     kinds = rejection_kinds(records)
-    for kind, n, _ in kinds[:RUN_KINDS_SHOWN]:
-        line = f"        {n:5,d} x {kind}"
-        print(line if len(line) <= 80 else line[:79] + "~")
+    _print_kinds([(kind, n) for kind, n, _ in kinds], "")
     if len(kinds) > RUN_KINDS_SHOWN:
         print(f"        ({len(kinds) - RUN_KINDS_SHOWN} more kinds: meshsom inspect)")
 
@@ -318,8 +316,13 @@ def _print_note_kinds(records) -> None:
     converted from a CRS, heights from storeys), one line each, cut to 80 columns."""
     from pipelines.ingest import note_kinds
 
-    for kind, n in note_kinds(records)[:RUN_KINDS_SHOWN]:
-        line = f"        {n:5,d} x read: {kind}"
+    _print_kinds(note_kinds(records), "read: ")
+
+
+def _print_kinds(kinds: list[tuple[str, int]], prefix: str) -> None:
+    """The first :data:`RUN_KINDS_SHOWN` ``(kind, count)``, one line each, cut to 80 columns."""
+    for kind, n in kinds[:RUN_KINDS_SHOWN]:
+        line = f"        {n:5,d} x {prefix}{kind}"
         print(line if len(line) <= 80 else line[:79] + "~")
 
 

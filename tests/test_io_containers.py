@@ -545,6 +545,18 @@ def test_ingest_groups_rejections_by_kind_with_what_to_try(tmp_path, capsys):
     assert sum(r.startswith("open boundary: ") and r[15].isdigit() for r in reasons) == 3
 
 
+def test_a_repeat_takes_an_id_no_earlier_item_has(tmp_path):
+    """A repeat's id is the next free "<id> (k)": an object whose own id is "a (2)", coming after a
+    repeated "a", does not collide with it (the assembly would stop the run on a collision)."""
+    lines = [_header(), _cube_feature("a"), _cube_feature("a", dx=5000), _cube_feature("a (2)", dx=9000),
+             _cube_feature("a", dx=12000)]
+    path = tmp_path / "t.city.jsonl"
+    path.write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    got = [(type(i).__name__, i.id.split("#", 1)[1]) for i in _items(path)]
+    assert got == [("RawMesh", "a"), ("Rejection", "a (2)"), ("Rejection", "a (2) (2)"), ("Rejection", "a (3)")]
+    assert len({i for _, i in got}) == len(got)
+
+
 def test_run_prints_the_commonest_kinds_of_rejection_in_80_columns(capsys):
     from pipelines.run import RUN_KINDS_SHOWN, _print_rejection_kinds
 
