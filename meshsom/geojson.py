@@ -86,7 +86,7 @@ def _first(props: dict, names) -> tuple[str, float] | None:
     return None
 
 
-class _Vertices:
+class FeatureVertices:
     """The vertices of one feature, appended ring by ring; indices for CityJSON-like boundaries."""
 
     def __init__(self):
@@ -111,6 +111,10 @@ class _Vertices:
         self.points.extend(ring.tolist())
         return list(range(start, len(self.points)))
 
+    def array(self) -> np.ndarray:
+        """The vertices, (V, 3) float64."""
+        return np.asarray(self.points, np.float64).reshape(-1, 3)
+
 
 def _polygons(geometry: dict, where: str) -> list:
     """The polygons (lists of rings of positions) of a Polygon or MultiPolygon."""
@@ -126,7 +130,7 @@ def _signed_area(ring: list[list[float]]) -> float:
     return 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
 
 
-def _extruded(polygons: list, z0: float, z1: float, where: str, verts: _Vertices) -> dict:
+def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVertices) -> dict:
     """A Solid of footprint polygons extruded from ``z0`` to ``z1`` (outer rings counter-clockwise,
     holes clockwise, seen from above: the shell faces outward)."""
     if not z1 > z0:
@@ -149,6 +153,56 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: _Vertices
             n = len(bottom)
             faces += [[[bottom[i], bottom[(i + 1) % n], top[(i + 1) % n], top[i]]] for i in range(n)]
     return {"type": "Solid", "lod": "1", "boundaries": [faces]}
+
+
+def no_height(options) -> str:
+    """The reason a footprint without a height is refused."""
+    names = ", ".join(options.height_attributes + options.levels_attributes)
+    return f"is a footprint without a height (no property {names})"
+
+
+def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices
+                    ) -> tuple[dict | None, list[str]]:
+    """Footprint polygons extruded by their height property (LoD ``"1"``), as the module says.
+
+    Parameters
+    ----------
+    polygons : list
+        Polygons as GeoJSON nests them: lists of rings of positions (2 or 3 numbers).
+    props : dict
+        The feature's properties.
+    where : str
+    options : ReaderOptions
+    verts : FeatureVertices
+        Receives the vertices.
+
+    Returns
+    -------
+    solid : dict or None
+        The CityJSON-like Solid; None when ``props`` give no height (nothing is added to ``verts``).
+    notes : list of str
+        Says so where the height came from a storey count.
+    """
+    notes: list[str] = []
+    height = _first(props, options.height_attributes)
+    if height is None:
+        levels = _first(props, options.levels_attributes)
+        if levels is not None and levels[1] > 0:
+            height = (levels[0], levels[1] * options.storey_height)
+            notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
+    if height is None:
+        return None, notes
+    zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
+          for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
+    bottom = _first(props, options.base_attributes)
+    ground = min(zs) if zs else 0.0
+    return _extruded(polygons, ground + (bottom[1] if bottom else 0.0), ground + height[1], where, verts), notes
+
+
+def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:
+    """3D polygons (lists of rings of positions) as a MultiSurface (LoD ``"2"``): a solid written
+    as its faces, closed (or refused) by preprocessing."""
+    return {"type": "MultiSurface", "lod": "2", "boundaries": [[verts.ring(r, where) for r in poly] for poly in polygons]}
 
 
 def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray, str, list[str]]:
@@ -174,7 +228,7 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
     if not isinstance(geom, dict):
         raise InputFileError(where, "has no geometry (place and geometry are null)")
     kind = geom.get("type")
-    verts = _Vertices()
+    verts = FeatureVertices()
     notes: list[str] = []
     if kind == "Polyhedron" or kind == "MultiPolyhedron":
         coords = geom.get("coordinates")
@@ -195,32 +249,24 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
         g = _extruded(_polygons(base, where), lower, upper, where, verts)
     elif kind in ("Polygon", "MultiPolygon"):
         polygons = _polygons(geom, where)
-        height = _first(props, options.height_attributes)
-        if height is None:
-            levels = _first(props, options.levels_attributes)
-            if levels is not None and levels[1] > 0:
-                height = (levels[0], levels[1] * options.storey_height)
-                notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
-        if height is not None:
-            zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
-                  for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
-            bottom = _first(props, options.base_attributes)
-            ground = min(zs) if zs else 0.0
-            g = _extruded(polygons, ground + (bottom[1] if bottom else 0.0), ground + height[1], where, verts)
-        else:
+        g, notes = footprint_solid(polygons, props, where, options, verts)
+        if g is None:
             try:
-                boundaries = [[verts.ring(r, where) for r in poly] for poly in polygons]
+                g = surfaces(polygons, where, verts)
             except InputFileError as err:
                 if "three coordinates" not in err.problem:
                     raise
-                names = ", ".join(options.height_attributes + options.levels_attributes)
-                raise InputFileError(where, f"is a footprint without a height (no property {names})") from None
-            g = {"type": "MultiSurface", "lod": "2", "boundaries": boundaries}
+                raise InputFileError(where, no_height(options)) from None
     else:
         raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
+    return building(g, props, options), verts.array(), member, notes
+
+
+def building(geometry: dict, props: dict, options) -> dict:
+    """A CityJSON-like Building object of one geometry, labelled by the property
+    :attr:`meshsom.io.ReaderOptions.label_attribute`."""
     label = props.get(options.label_attribute)
-    obj = {"type": "Building", "geometry": [g], "attributes": {} if label is None else {options.label_attribute: label}}
-    return obj, np.asarray(verts.points, np.float64).reshape(-1, 3), member, notes
+    return {"type": "Building", "geometry": [geometry], "attributes": {} if label is None else {options.label_attribute: label}}
 
 
 def read_geojson(document: dict, path: Path, options, name: str | None = None) -> Iterator:

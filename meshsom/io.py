@@ -1,5 +1,6 @@
 """Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq, CityGML
-(:mod:`meshsom.citygml`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; every
+(:mod:`meshsom.citygml`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; GIS files
+(GeoPackage, Shapefile, FileGDB, FlatGeobuf, GeoJSONSeq, GeoParquet: :mod:`meshsom.gis`); every
 building in metres, whatever its file's CRS (:mod:`meshsom.crs`).
 
 A reader turns one input file into a stream of :class:`RawMesh` (one per
@@ -61,6 +62,8 @@ TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson", ".geojson")
 #: File name endings read as CityGML (:mod:`meshsom.citygml`).
 CITYGML_SUFFIXES = (".gml", ".citygml")
+#: The files that come with a shapefile (``x.shp``), read with it.
+SHAPEFILE_SIDECARS = (".dbf", ".shx", ".prj", ".cpg", ".qix", ".sbn", ".sbx", ".qmd")
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).
 CITYJSONSEQ_SUFFIXES = (".city.jsonl", ".jsonl")
 #: A readable name followed by this is a gzip-compressed input (gzip data is recognised by its
@@ -143,6 +146,12 @@ class ReaderOptions:
         height is given.
     storey_height : float
         Metres per storey.
+    layer : str or None
+        GIS files (:mod:`meshsom.gis`: GeoPackage, FileGDB, ...): the layer to read; None reads
+        every layer with geometry.
+    id_attributes : tuple of str
+        GIS files: the properties that may hold a building's id, the first whose values are given
+        and unique over the layer used (else GDAL's feature id).
     up_axis : str
         The up axis of mesh files (OBJ, PLY, STL, OFF, glTF), which do not say it: "z" (as city
         models are), or "y" (glTF by its specification, and many OBJ exports from Blender, SketchUp
@@ -166,6 +175,8 @@ class ReaderOptions:
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors")
     storey_height: float = 3.0
+    layer: str | None = None
+    id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
 
     def __post_init__(self):
@@ -188,6 +199,8 @@ class ReaderOptions:
             raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)}; received {self.up_axis!r}")
         if not self.storey_height > 0:
             raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
+        if self.layer is not None and not (isinstance(self.layer, str) and self.layer.strip()):
+            raise ValueError(f"layer must be a layer's name (or null for every layer), received {self.layer!r}")
         if not self.max_bytes > 0:
             raise ValueError(f"max_bytes must be > 0, received {self.max_bytes}")
         if self.crs is not None:
@@ -280,9 +293,13 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml' or 'trimesh' by file name (a final ``.gz`` aside);
-    InputFileError for anything else."""
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis' or 'trimesh' by file name (a final ``.gz``
+    aside); InputFileError for anything else."""
+    from meshsom.gis import GIS_SUFFIXES
+
     name = format_name(path)
+    if name.endswith(GIS_SUFFIXES):
+        return "gis"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -296,7 +313,7 @@ def input_kind(path: Path) -> str:
     raise InputFileError(
         str(path),
         f"unknown file type {suffix or '(no extension)'!r}; expected one of "
-        f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}",
+        f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}",
     )
 
 
@@ -539,16 +556,21 @@ def expand_inputs(inputs: list[str | os.PathLike],
     rejected: list[Rejection] = []
     for item in inputs:
         p = Path(item)
-        if p.is_dir():
+        if p.is_dir() and not _is_gdb(p):
             found = []
             root = p.resolve()
             for q in sorted(p.rglob("*")):
-                if q.is_file():
+                if any(_is_gdb(p / d) for d in q.relative_to(p).parents if d != Path(".")):
+                    continue  # inside a File Geodatabase: the folder is read as one input
+                if q.is_file() or _is_gdb(q):
                     try:
                         input_kind(q)
                     except InputFileError as err:
                         if skipped is not None:
-                            why = "mesh labels, read with the meshes" if q.name == "labels.csv" else err.problem
+                            why = ("mesh labels, read with the meshes" if q.name == "labels.csv" else
+                                   f"read with the shapefile {q.with_suffix('.shp').name}" if (
+                                       q.suffix.lower() in SHAPEFILE_SIDECARS and q.with_suffix(".shp").is_file())
+                                   else err.problem)
                             skipped.append((str(q), why))
                         continue
                     if not q.resolve().is_relative_to(root):
@@ -558,7 +580,7 @@ def expand_inputs(inputs: list[str | os.PathLike],
             if not found:
                 rejected.append(Rejection(str(p), str(p), "folder holds no readable mesh or CityJSON file"))
             files.extend(found)
-        elif p.is_file():
+        elif p.is_file() or _is_gdb(p):
             try:
                 input_kind(p)
             except InputFileError as err:
@@ -576,6 +598,11 @@ def expand_inputs(inputs: list[str | os.PathLike],
             )
         first[f.name] = f.path
     return files, rejected
+
+
+def _is_gdb(path: Path) -> bool:
+    """Whether ``path`` is an Esri File Geodatabase: a folder named ``*.gdb``, read as one input."""
+    return path.name.lower().endswith(".gdb") and path.is_dir()
 
 
 def read_file(
@@ -637,6 +664,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range)
             from meshsom.citygml import read_citygml
 
             yield from read_citygml(path, options, name)
+        elif kind == "gis":
+            from meshsom.gis import read_gis
+
+            yield from read_gis(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

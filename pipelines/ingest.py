@@ -343,6 +343,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--extrude-lod1", action="store_true", default=None, help="replace each building by its extruded footprint (LoD1 block)")
     p.add_argument("--crs", help="CRS of inputs that declare none, e.g. EPSG:4979 (degrees are converted to metres)")
     p.add_argument("--up", choices=("z", "y"), help="up axis of mesh files (glTF and many OBJ exports: y); default z")
+    p.add_argument("--layer", help="GIS files (GeoPackage, FileGDB, ...): the layer to read; default every layer")
+    p.add_argument("--height-attribute", action="append", metavar="NAME",
+                   help="footprints: a property holding the building's height above the ground, tried before the "
+                        "defaults (height, measuredHeight, building:height); may be given more than once")
     p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
     p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
     p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
@@ -370,8 +374,11 @@ def run(args: argparse.Namespace) -> int:
         paths, generator = list(args.inputs), None
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
-                 ("up_axis", args.up))
+                 ("up_axis", args.up), ("layer", args.layer))
         changes = {k: v for k, v in given if v is not None}
+        if args.height_attribute:
+            changes["height_attributes"] = tuple(args.height_attribute) + tuple(
+                a for a in reader.height_attributes if a not in args.height_attribute)
         reader = replace(reader, **changes)
         if args.repair:
             params = replace(params, repair=True)

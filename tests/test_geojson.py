@@ -13,39 +13,12 @@ import json
 import sys
 
 import numpy as np
-import pyproj
 import pytest
 
 from meshsom.io import RawMesh, Rejection, read_file
 from meshsom.preprocess import preprocess
 
-CENTRE = (52.0116, 4.3571, 0.0)  # Delft: latitude, longitude, height
-
-
-def _lonlat(ring_m):
-    """A footprint ring drawn in metres east/north of CENTRE, as GeoJSON [longitude, latitude]."""
-    lat0, lon0, h0 = CENTRE
-    t = pyproj.Transformer.from_pipeline(
-        f"+proj=pipeline +step +inv +proj=topocentric +lat_0={lat0} +lon_0={lon0} +h_0={h0} +ellps=WGS84 "
-        f"+step +inv +proj=cart +ellps=WGS84 +step +proj=unitconvert +xy_in=rad +xy_out=deg")
-    e, n = np.asarray(ring_m, float).T
-    lon, lat, _ = t.transform(e, n, np.zeros_like(e))
-    return [[float(x), float(y)] for x, y in zip(lon, lat)]
-
-
-def _area(ring):
-    x, y = np.asarray(ring, float).T
-    return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
-
-
-def _closed(ring):
-    return [list(p) for p in ring] + [list(ring[0])]
-
-
-L_SHAPE = [(0, 0), (20, 0), (20, 8), (8, 8), (8, 15), (0, 15)]
-COURT_OUT = [(30, 0), (50, 0), (50, 20), (30, 20)]
-COURT_IN = [(36, 6), (36, 14), (44, 14), (44, 6)]
-
+from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat
 
 def _feature(fid, geometry, **props):
     f = {"type": "Feature", "geometry": geometry, "properties": props}
@@ -65,14 +38,14 @@ def _by_id(items):
 def test_osm_like_footprints_in_longitude_latitude(tmp_path):
     """RFC 7946 GeoJSON: WGS 84 longitude/latitude, heights in metres as numbers or text."""
     features = [
-        _feature("L", {"type": "Polygon", "coordinates": [_closed(_lonlat(L_SHAPE))]}, height="12.5 m", family="L"),
-        _feature("court", {"type": "Polygon", "coordinates": [_closed(_lonlat(COURT_OUT)), _closed(_lonlat(COURT_IN))]},
+        _feature("L", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height="12.5 m", family="L"),
+        _feature("court", {"type": "Polygon", "coordinates": [closed(lonlat(COURT_OUT)), closed(lonlat(COURT_IN))]},
                  **{"building:levels": "4"}),
-        _feature("raised", {"type": "MultiPolygon", "coordinates": [[_closed(_lonlat([(60, 0), (70, 0), (70, 5), (60, 5)]))],
-                                                                    [_closed(_lonlat([(75, 0), (80, 0), (80, 5), (75, 5)]))]]},
+        _feature("raised", {"type": "MultiPolygon", "coordinates": [[closed(lonlat([(60, 0), (70, 0), (70, 5), (60, 5)]))],
+                                                                    [closed(lonlat([(75, 0), (80, 0), (80, 5), (75, 5)]))]]},
                  height=9, min_height=3),
-        _feature(None, {"type": "Polygon", "coordinates": [_closed(_lonlat(L_SHAPE))]}),  # no height
-        _feature("road", {"type": "LineString", "coordinates": _lonlat([(0, -5), (50, -5)])}),
+        _feature(None, {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}),  # no height
+        _feature("road", {"type": "LineString", "coordinates": lonlat([(0, -5), (50, -5)])}),
         _feature("nothing", None, height=3),
     ]
     path = tmp_path / "osm.geojson"
@@ -80,8 +53,8 @@ def test_osm_like_footprints_in_longitude_latitude(tmp_path):
     got = _by_id(read_file(path))
     assert sorted(got) == ["L", "court", "feature-4", "nothing", "raised", "road"]
     assert got["L"].label == "L" and got["L"].lod == "1"
-    assert _volume(got["L"]) == pytest.approx(_area(L_SHAPE) * 12.5, rel=1e-5)
-    assert _volume(got["court"]) == pytest.approx((_area(COURT_OUT) - _area(COURT_IN)) * 4 * 3.0, rel=1e-5)
+    assert _volume(got["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-5)
+    assert _volume(got["court"]) == pytest.approx((area(COURT_OUT) - area(COURT_IN)) * 4 * 3.0, rel=1e-5)
     assert any("4 storeys x 3 m" in n for n in got["court"].notes)
     assert any("geographic coordinates" in n for n in got["L"].notes)
     assert _volume(got["raised"]) == pytest.approx((50 + 25) * 6, rel=1e-5)  # from 3 m up to 9 m (OSM's meaning)
@@ -93,45 +66,36 @@ def test_osm_like_footprints_in_longitude_latitude(tmp_path):
 
 def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
     ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]  # RD New metres: beyond +/-180, read as metres
-    doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [_closed(ring)]}, height=6)]}
+    doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}
     (tmp_path / "rd.json").write_text(json.dumps(doc))
     (m,) = read_file(tmp_path / "rd.json")
     assert m.id == "rd.json#1" and m.notes == ()
-    assert _volume(m) == pytest.approx(_area(L_SHAPE) * 6, rel=1e-12)
+    assert _volume(m) == pytest.approx(area(L_SHAPE) * 6, rel=1e-12)
     feet = 1200 / 3937
     doc["crs"] = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::2263"}}  # old GeoJSON: a named CRS
-    doc["features"][0]["geometry"]["coordinates"] = [_closed([(x / feet, y / feet) for x, y in ring])]
+    doc["features"][0]["geometry"]["coordinates"] = [closed([(x / feet, y / feet) for x, y in ring])]
     doc["features"][0]["properties"]["height"] = 6 / feet
     with gzip.open(tmp_path / "ny.geojson.gz", "wt") as fh:
         json.dump(doc, fh)
     (m,) = read_file(tmp_path / "ny.geojson.gz")
-    assert _volume(m) == pytest.approx(_area(L_SHAPE) * 6, rel=1e-9)
-
-
-def _gabled_house():
-    """A 10 x 6 m house, walls 4 m, ridge 7 m along x: JSON-FG Polyhedron faces (outward)."""
-    a, b, c, d = (0, 0, 0), (10, 0, 0), (10, 6, 0), (0, 6, 0)
-    A, B, C, D = (0, 0, 4), (10, 0, 4), (10, 6, 4), (0, 6, 4)
-    r, s = (0, 3, 7), (10, 3, 7)
-    faces = [[a, d, c, b], [a, b, B, A], [b, c, C, s, B], [c, d, D, C], [d, a, A, r, D], [A, B, s, r], [C, D, r, s]]
-    return faces, 10 * 6 * 4 + 0.5 * 6 * 3 * 10
+    assert _volume(m) == pytest.approx(area(L_SHAPE) * 6, rel=1e-9)
 
 
 def test_json_fg_solids_and_prisms(tmp_path):
-    faces, house_volume = _gabled_house()
+    faces, house_volume = gabled_house()
     x0, y0 = 479800.0, 5705800.0
-    shell = [[_closed([(x0 + x, y0 + y, 100 + z) for x, y, z in face])] for face in faces]
+    shell = [[closed([(x0 + x, y0 + y, 100 + z) for x, y, z in face])] for face in faces]
     features = [
         {"type": "Feature", "id": "house", "featureType": "app:building", "geometry": None,
          "place": {"type": "Polyhedron", "coordinates": [shell]}, "properties": {"family": "gabled"}},
         {"type": "Feature", "id": "two", "geometry": None,
-         "place": {"type": "MultiPolyhedron", "coordinates": [[shell], [[[_closed([(x0 + 20 + x, y0 + y, 100 + z) for x, y, z in face])]
+         "place": {"type": "MultiPolyhedron", "coordinates": [[shell], [[[closed([(x0 + 20 + x, y0 + y, 100 + z) for x, y, z in face])]
                                                                         for face in faces]]]}},
         {"type": "Feature", "id": "prism", "geometry": None,
-         "place": {"type": "Prism", "base": {"type": "Polygon", "coordinates": [_closed([(x0 + x, y0 + y) for x, y in L_SHAPE])]},
+         "place": {"type": "Prism", "base": {"type": "Polygon", "coordinates": [closed([(x0 + x, y0 + y) for x, y in L_SHAPE])]},
                    "lower": 100, "upper": 107.5}},
         {"type": "Feature", "id": "flat", "geometry": None, "place": {"type": "Prism", "lower": 5, "upper": 5,
-                                                                       "base": {"type": "Polygon", "coordinates": [_closed(L_SHAPE)]}}},
+                                                                       "base": {"type": "Polygon", "coordinates": [closed(L_SHAPE)]}}},
     ]
     doc = {"type": "FeatureCollection", "coordRefSys": "http://www.opengis.net/def/crs/EPSG/0/25832", "features": features}
     (tmp_path / "b.fg.json").write_text(json.dumps(doc))
@@ -139,7 +103,7 @@ def test_json_fg_solids_and_prisms(tmp_path):
     assert got["house"].label == "gabled" and got["house"].lod == "2"
     assert _volume(got["house"]) == pytest.approx(house_volume, rel=1e-12)
     assert _volume(got["two"]) == pytest.approx(2 * house_volume, rel=1e-12)
-    assert _volume(got["prism"]) == pytest.approx(_area(L_SHAPE) * 7.5, rel=1e-12)
+    assert _volume(got["prism"]) == pytest.approx(area(L_SHAPE) * 7.5, rel=1e-12)
     assert isinstance(got["flat"], Rejection) and "no height" in got["flat"].reason
 
 
@@ -148,7 +112,7 @@ def test_geojson_files_through_meshsom_ingest(tmp_path):
 
     folder = tmp_path / "in"
     folder.mkdir()
-    features = [_feature(f"b{k}", {"type": "Polygon", "coordinates": [_closed(_lonlat([(x + 30 * k, y) for x, y in L_SHAPE]))]},
+    features = [_feature(f"b{k}", {"type": "Polygon", "coordinates": [closed(lonlat([(x + 30 * k, y) for x, y in L_SHAPE]))]},
                          height=5 + k) for k in range(3)]
     (folder / "district.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": features}))
     out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "g.zarr")],

@@ -1,0 +1,471 @@
+"""Reading buildings from GIS files: GeoPackage, Shapefile, FlatGeobuf, Esri File Geodatabase and
+GeoJSONSeq through GDAL (fiona), GeoParquet through pyarrow.
+
+Footprint layers with heights (national cadastres, OpenStreetMap extracts, Overture Maps' and
+Microsoft's building footprints) and 3D layers (the 3D BAG's ``lod22_3d``, Esri multipatches, 3D
+shapefiles) come in these formats. Each feature becomes a CityJSON-like Building over its own
+vertices, read as :mod:`meshsom.geojson` reads a GeoJSON feature, so the same properties, LoD
+choice, triangulation, CRS handling and rejections apply:
+
+- **Footprints**: a 2D geometry, or a 3D one whose polygons all lie within
+  :data:`FOOTPRINT_TILT_DEG` of horizontal (footprints draped on the terrain), with a height
+  property (:attr:`meshsom.io.ReaderOptions.height_attributes`; a storey count otherwise) is
+  extruded from its lowest z (:func:`meshsom.geojson.footprint_solid`). Without either it is a
+  rejection that names the properties looked for.
+- **3D surfaces**: a ``PolyhedralSurface``, ``TIN``, or 3D ``(Multi)Polygon`` with faces that are
+  not horizontal (walls) is read as a MultiSurface of its polygons (LoD ``"2"``), closed or refused
+  by preprocessing like any other building. Geometry collections are read through.
+- Any other geometry (points, lines; curves, which GDAL keeps as arcs) is a rejection saying what
+  it holds.
+- **Layers**: every layer with geometry is read, or only :attr:`meshsom.io.ReaderOptions.layer`.
+  Ids are ``name#<id>``, or ``name#<layer>/<id>`` when the file has several layers with geometry;
+  ``<id>`` is the first property of :attr:`meshsom.io.ReaderOptions.id_attributes` whose values
+  are given and unique over the layer, else the feature id (GDAL's FID; a GeoParquet row from 1).
+- **CRS**: the layer's (GDAL's) or the GeoParquet column's (``crs`` absent means OGC:CRS84, as
+  the GeoParquet specification says; ``null`` means unknown); else
+  :attr:`meshsom.io.ReaderOptions.crs`. GDAL and GeoParquet give x = easting or longitude
+  whatever the CRS's own axis order, and heights in the CRS's vertical unit (feet for EPSG:2263).
+
+GDAL's geometries come through fiona, which gives TINs, polyhedral surfaces and Esri multipatches
+as (collections of) MultiPolygons (pyogrio, GDAL's faster binding, refuses layers of those types).
+GeoParquet's WKB is decoded here (:func:`wkb_polygons`), as GEOS (shapely) has no polyhedral
+surfaces or TINs. Features are streamed (GeoParquet in batches of :data:`BATCH_FEATURES`): a file
+of millions of footprints is not held.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import struct
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+#: File name endings read through GDAL (fiona). ``.gdb`` is a folder (Esri File Geodatabase);
+#: ``.shz`` and ``.shp.zip`` are zipped shapefiles.
+OGR_SUFFIXES = (".gpkg", ".shp", ".shz", ".shp.zip", ".fgb", ".gdb", ".geojsonl", ".geojsons", ".geojsonseq")
+#: File name endings read as GeoParquet (through pyarrow).
+PARQUET_SUFFIXES = (".parquet", ".geoparquet")
+GIS_SUFFIXES = OGR_SUFFIXES + PARQUET_SUFFIXES
+#: Features decoded at a time.
+BATCH_FEATURES = 4096
+#: A polygon whose normal is within this many degrees of vertical is horizontal: a geometry of
+#: only such polygons is a footprint (perhaps draped on the terrain), one with any steeper (a
+#: wall) is a 3D surface.
+FOOTPRINT_TILT_DEG = 45.0
+#: WKB collections nested deeper than this are refused.
+MAX_WKB_DEPTH = 16
+#: The CRS of GeoParquet geometry whose column metadata has no ``crs`` member.
+GEOPARQUET_DEFAULT_CRS = "OGC:CRS84"
+
+_WKB_NAMES = {1: "Point", 2: "LineString", 3: "Polygon", 4: "MultiPoint", 5: "MultiLineString", 6: "MultiPolygon",
+              7: "GeometryCollection", 8: "CircularString", 9: "CompoundCurve", 10: "CurvePolygon",
+              11: "MultiCurve", 12: "MultiSurface", 13: "Curve", 14: "Surface", 15: "PolyhedralSurface", 16: "TIN",
+              17: "Triangle"}
+_WKB_COLLECTIONS = {4, 5, 6, 7, 11, 12, 15, 16}
+_WKB_POLYGONS = {3, 17}
+_SOLID_KINDS = {"PolyhedralSurface", "TIN", "Triangle"}
+_SURFACE_KINDS = {"Polygon", "MultiPolygon", "GeometryCollection", "MultiSurface"} | _SOLID_KINDS
+
+
+def wkb_polygons(data: bytes, where: str) -> tuple[list[list[np.ndarray]], set[str], bool]:
+    """The polygons of a WKB geometry, however nested.
+
+    Reads ISO WKB (type codes 1000 + n for Z, 2000 + n for M, 3000 + n for ZM), extended WKB
+    (PostGIS flags and SRID) and either byte order, at every nesting level.
+
+    Parameters
+    ----------
+    data : bytes
+    where : str
+        Names the feature in errors.
+
+    Returns
+    -------
+    polygons : list of list of ndarray
+        Each polygon's rings (the outer first), each an (n, 2) or (n, 3) float64 array of its
+        positions (x, y and z where the geometry has z; m dropped). Polygons of Polygon,
+        MultiPolygon, Triangle, PolyhedralSurface, TIN and of any collection of them.
+    kinds : set of str
+        The geometry types met (``"TIN"``, ``"LineString"``, ...).
+    has_z : bool
+
+    Raises
+    ------
+    InputFileError
+        The bytes are not WKB, end early, nest deeper than :data:`MAX_WKB_DEPTH`, or hold a curve.
+    """
+    polygons: list[list[np.ndarray]] = []
+    kinds: set[str] = set()
+    state = {"z": False}
+    buf = memoryview(bytes(data))
+    end = _wkb_geometry(buf, 0, 0, polygons, kinds, state, where)
+    if end != len(buf):
+        raise InputFileError(where, f"its WKB geometry has {len(buf) - end} bytes after its end")
+    return polygons, kinds, state["z"]
+
+
+def _wkb_need(buf, pos: int, size: int, where: str) -> None:
+    if size < 0 or pos + size > len(buf):
+        raise InputFileError(where, f"its WKB geometry ends early (needs {size} bytes at byte {pos} of {len(buf)})")
+
+
+def _wkb_geometry(buf, pos: int, depth: int, polygons: list, kinds: set, state: dict, where: str) -> int:
+    """Read one WKB geometry at ``pos``; returns the position after it."""
+    if depth > MAX_WKB_DEPTH:
+        raise InputFileError(where, f"its WKB geometry nests deeper than {MAX_WKB_DEPTH} collections")
+    _wkb_need(buf, pos, 5, where)
+    if buf[pos] not in (0, 1):
+        raise InputFileError(where, f"is not WKB (byte order marker {buf[pos]} at byte {pos}; expected 0 or 1)")
+    order = "<" if buf[pos] == 1 else ">"
+    code = struct.unpack_from(order + "I", buf, pos + 1)[0]
+    pos += 5
+    z, m = bool(code & 0x80000000), bool(code & 0x40000000)
+    if code & 0x20000000:  # extended WKB: an SRID follows
+        _wkb_need(buf, pos, 4, where)
+        pos += 4
+    code &= 0x0FFFFFFF
+    base, dims_code = code % 1000, code // 1000
+    z, m = z or dims_code in (1, 3), m or dims_code in (2, 3)
+    name = _WKB_NAMES.get(base)
+    if name is None or dims_code > 3:
+        raise InputFileError(where, f"its WKB geometry has the unknown type code {code}")
+    kinds.add(name)
+    state["z"] = state["z"] or z
+    dims = 2 + z + m
+    keep = 3 if z else 2
+
+    def count(at: int) -> tuple[int, int]:
+        _wkb_need(buf, at, 4, where)
+        return struct.unpack_from(order + "I", buf, at)[0], at + 4
+
+    if base == 1:
+        _wkb_need(buf, pos, 8 * dims, where)
+        return pos + 8 * dims
+    if base == 2:
+        n, pos = count(pos)
+        _wkb_need(buf, pos, 8 * dims * n, where)
+        return pos + 8 * dims * n
+    if base in _WKB_POLYGONS:
+        n_rings, pos = count(pos)
+        rings = []
+        for _ in range(n_rings):
+            n, pos = count(pos)
+            _wkb_need(buf, pos, 8 * dims * n, where)
+            ring = np.frombuffer(buf, dtype=order + "f8", count=n * dims, offset=pos).reshape(n, dims)
+            rings.append(np.array(ring[:, :keep], np.float64))
+            pos += 8 * dims * n
+        if rings:
+            polygons.append(rings)
+        return pos
+    if base in _WKB_COLLECTIONS:
+        n, pos = count(pos)
+        _wkb_need(buf, pos, 5 * n, where)  # each member at least its header
+        for _ in range(n):
+            pos = _wkb_geometry(buf, pos, depth + 1, polygons, kinds, state, where)
+        return pos
+    raise InputFileError(where, f"holds a {name} (a curved geometry); expected polygons (write it with its arcs "
+                                f"as segments, e.g. ogr2ogr -nlt CONVERT_TO_LINEAR)")
+
+
+def horizontal(polygons: list[list[np.ndarray]]) -> bool:
+    """Whether every polygon's plane is within :data:`FOOTPRINT_TILT_DEG` of horizontal.
+
+    Parameters
+    ----------
+    polygons : list of list of (n, 2 or 3) ndarray
+        As :func:`wkb_polygons` gives them; 2D polygons are horizontal.
+
+    Returns
+    -------
+    bool
+        Polygons with no area (no normal) do not count.
+    """
+    cos_tilt = math.cos(math.radians(FOOTPRINT_TILT_DEG))
+    for poly in polygons:
+        ring = poly[0]
+        if ring.shape[1] < 3:
+            continue
+        nxt = np.roll(ring, -1, axis=0)
+        normal = np.array([  # Newell's normal: exact for planar rings, a best fit for others
+            np.sum((ring[:, 1] - nxt[:, 1]) * (ring[:, 2] + nxt[:, 2])),
+            np.sum((ring[:, 2] - nxt[:, 2]) * (ring[:, 0] + nxt[:, 0])),
+            np.sum((ring[:, 0] - nxt[:, 0]) * (ring[:, 1] + nxt[:, 1])),
+        ])
+        size = float(np.linalg.norm(normal))
+        if size > 0 and abs(normal[2]) < cos_tilt * size:
+            return False
+    return True
+
+
+def fiona_polygons(geometry, where: str) -> tuple[list[list[np.ndarray]], set[str], bool]:
+    """The polygons of a geometry as fiona gives it (GeoJSON-like: ``type``, ``coordinates``,
+    ``geometries``), as :func:`wkb_polygons` returns them."""
+    polygons: list[list[np.ndarray]] = []
+    kinds: set[str] = set()
+    has_z = False
+    stack = [(geometry, 0)]
+    while stack:
+        g, depth = stack.pop()
+        if depth > MAX_WKB_DEPTH:
+            raise InputFileError(where, f"its geometry nests deeper than {MAX_WKB_DEPTH} collections")
+        kind = g["type"]
+        kinds.add(kind)
+        if kind == "GeometryCollection":
+            stack.extend((member, depth + 1) for member in reversed(list(g["geometries"] or [])))
+            continue
+        if kind not in ("Polygon", "MultiPolygon"):
+            continue
+        coords = g["coordinates"] or []
+        for poly in ([coords] if kind == "Polygon" else coords):
+            rings = []
+            for ring in poly:
+                try:
+                    array = np.asarray(ring, np.float64)
+                except (TypeError, ValueError):
+                    raise InputFileError(where, "a ring's positions are not all of the same dimension") from None
+                if array.ndim != 2 or array.shape[1] not in (2, 3):
+                    raise InputFileError(where, f"a ring must be positions of 2 or 3 numbers; received shape {array.shape}")
+                has_z = has_z or array.shape[1] == 3
+                rings.append(array)
+            if rings:
+                polygons.append(rings)
+    return polygons, kinds, has_z
+
+
+def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: bool, props: dict, where: str,
+                   options) -> tuple[dict, np.ndarray, list[str]]:
+    """One feature as a CityJSON-like Building object over its own vertices (as the module says).
+
+    Parameters
+    ----------
+    polygons, kinds, has_z
+        As :func:`wkb_polygons` or :func:`fiona_polygons` give them.
+    props : dict
+        The feature's properties.
+    where : str
+    options : ReaderOptions
+
+    Returns
+    -------
+    obj : dict
+    vertices : (V, 3) float64
+    notes : list of str
+
+    Raises
+    ------
+    InputFileError
+        No polygons, or a footprint without a height.
+    """
+    from meshsom.geojson import FeatureVertices, building, footprint_solid, no_height, surfaces
+
+    if not polygons:
+        other = sorted(kinds - _SURFACE_KINDS)
+        raise InputFileError(where, f"holds a {', '.join(other)}, not a building's polygons or solid" if other else
+                             "has no geometry (it is empty)")
+    nested = [[ring.tolist() for ring in poly] for poly in polygons]
+    verts = FeatureVertices()
+    if not has_z or (not kinds & _SOLID_KINDS and horizontal(polygons)):
+        solid, notes = footprint_solid(nested, props, where, options, verts)
+        if solid is None:
+            raise InputFileError(where, no_height(options))
+    else:
+        solid, notes = surfaces(nested, where, verts), []
+    return building(solid, props, options), verts.array(), notes
+
+
+@dataclasses.dataclass(frozen=True)
+class Layer:
+    """A layer of a GIS file.
+
+    Attributes
+    ----------
+    name : str
+    crs : str or None
+        As GDAL or the GeoParquet metadata give it (``"EPSG:28992"``, WKT, PROJJSON); None when
+        unknown.
+    features : int
+        The feature count (-1 where the driver cannot tell without reading them all).
+    """
+
+    name: str
+    crs: str | None
+    features: int
+
+
+def read_gis(path: Path, options, name: str | None = None) -> Iterator:
+    """Read the buildings of a GIS file: RawMesh or Rejection items, as :func:`meshsom.io.read_cityjson`.
+
+    Raises
+    ------
+    InputFileError
+        The file cannot be opened, is gzip-compressed, has no layer with geometry (or not the
+        layer asked for), or holds no features.
+    """
+    name = name or path.name
+    parquet = path.name.lower().endswith(PARQUET_SUFFIXES)
+    if path.is_file():
+        with open(path, "rb") as fh:
+            if fh.read(2) == b"\x1f\x8b":
+                raise InputFileError(str(path), "is gzip-compressed; GIS files are read uncompressed (gunzip it first)")
+    layers = _parquet_layers(path) if parquet else _ogr_layers(path)
+    if not layers:
+        raise InputFileError(str(path), "holds no layer with geometry")
+    if options.layer is not None:
+        chosen = [layer for layer in layers if layer.name == options.layer]
+        if not chosen:
+            raise InputFileError(str(path), f"has no layer {options.layer!r}; its layers with geometry are "
+                                            f"{', '.join(repr(layer.name) for layer in layers)}")
+        layers = chosen
+    found = False
+    for layer in layers:
+        prefix = f"{layer.name}/" if len(layers) > 1 else ""
+        records = _parquet_records(path, options) if parquet else _ogr_records(path, layer.name, options)
+        for oid, props, wkb in records:
+            found = True
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, wkb, layer, options)
+    if not found:
+        raise InputFileError(str(path), "holds no features" + (f" in layer {options.layer!r}" if options.layer else ""))
+
+
+def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, layer: Layer, options) -> Iterator:
+    from meshsom.io import Rejection, _object_meshes, file_crs
+
+    mesh_id = f"{name}#{oid}"
+    try:
+        if geometry is None:
+            raise InputFileError(mesh_id, "has no geometry")
+        polygons, kinds, has_z = (wkb_polygons(geometry, mesh_id) if isinstance(geometry, (bytes, bytearray, memoryview))
+                                  else fiona_polygons(geometry, mesh_id))
+        obj, vertices, notes = feature_object(polygons, kinds, has_z, props, mesh_id, options)
+    except InputFileError as err:
+        label = props.get(options.label_attribute)
+        yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
+        return
+    system, unknown = file_crs(layer.crs, options)
+    if system is not None and system.geographic:
+        system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
+    for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=(system, unknown)):
+        if notes and not isinstance(item, Rejection):
+            item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
+        yield item
+
+
+def _gdal_error(path: Path, err: Exception) -> InputFileError:
+    text = " ".join(str(err).split())
+    return InputFileError(str(path), f"cannot be read through GDAL ({type(err).__name__}: {text[:200]})")
+
+
+def _gdal_errors():
+    import fiona.errors
+
+    return (fiona.errors.FionaError, fiona.errors.DriverError, OSError, RuntimeError, ValueError)
+
+
+def _ogr_layers(path: Path) -> list[Layer]:
+    import fiona
+    import fiona.errors
+
+    try:
+        layers = []
+        for layer_name in fiona.listlayers(path):
+            with fiona.open(path, layer=layer_name) as collection:
+                try:
+                    if collection.schema.get("geometry") in (None, "None"):
+                        continue  # an attribute table
+                except fiona.errors.UnsupportedGeometryTypeError:
+                    pass  # a multipatch ('3D Unknown'): its features are read all the same
+                crs = collection.crs
+                layers.append(Layer(str(layer_name), crs.to_string() if crs else None, len(collection)))
+        return layers
+    except _gdal_errors() as err:
+        raise _gdal_error(path, err) from None
+
+
+def _unique_column(values: list) -> bool:
+    return all(v is not None and str(v) != "" for v in values) and len({str(v) for v in values}) == len(values)
+
+
+def _ogr_records(path: Path, layer: str, options) -> Iterator[tuple[str, dict, object]]:
+    """(id, properties, geometry) of each feature of a layer, streamed."""
+    import fiona
+
+    try:
+        id_field = None
+        if options.id_attributes:
+            with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
+                values: dict[str, list] = {c: [] for c in options.id_attributes}
+                for feature in collection:
+                    props = dict(feature.properties)
+                    for candidate, column in values.items():
+                        column.append(props.get(candidate))
+            id_field = next((c for c, column in values.items() if column and _unique_column(column)), None)
+        with fiona.open(path, layer=layer) as collection:
+            for feature in collection:
+                props = dict(feature.properties)
+                yield str(props.get(id_field) if id_field else feature.id), props, feature.geometry
+    except _gdal_errors() as err:
+        raise _gdal_error(path, err) from None
+
+
+def _parquet_geo(path: Path) -> tuple[str, dict]:
+    """The primary geometry column of a GeoParquet file and its metadata."""
+    import pyarrow.parquet as pq
+
+    try:
+        schema = pq.read_schema(path)
+    except (OSError, ValueError) as err:
+        raise InputFileError(str(path), f"cannot be read as Parquet ({type(err).__name__}: {str(err)[:200]})") from None
+    raw = (schema.metadata or {}).get(b"geo")
+    if raw is None:
+        raise InputFileError(str(path), "is Parquet without GeoParquet metadata (no \"geo\" key); expected GeoParquet "
+                                        "with a WKB geometry column")
+    try:
+        geo = json.loads(raw)
+        column = geo["primary_column"]
+        meta = geo["columns"][column]
+    except (ValueError, KeyError, TypeError):
+        raise InputFileError(str(path), "has GeoParquet metadata without a primary column's entry") from None
+    encoding = str(meta.get("encoding", "WKB"))
+    if encoding.upper() != "WKB":
+        raise InputFileError(str(path), f"stores its geometry as {encoding!r}; only WKB GeoParquet is read "
+                                        f"(rewrite it with WKB encoding, e.g. geopandas to_parquet)")
+    return column, meta
+
+
+def _parquet_layers(path: Path) -> list[Layer]:
+    import pyarrow.parquet as pq
+
+    column, meta = _parquet_geo(path)
+    if "crs" not in meta:
+        crs = GEOPARQUET_DEFAULT_CRS
+    elif meta["crs"] is None:
+        crs = None
+    else:
+        crs = meta["crs"] if isinstance(meta["crs"], str) else json.dumps(meta["crs"])
+    return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows))]
+
+
+def _parquet_records(path: Path, options) -> Iterator[tuple[str, dict, bytes | None]]:
+    import pyarrow.parquet as pq
+
+    column, _ = _parquet_geo(path)
+    pf = pq.ParquetFile(path)
+    names = pf.schema_arrow.names
+    id_field = None
+    for candidate in options.id_attributes:
+        if candidate in names and candidate != column:
+            if _unique_column(pq.read_table(path, columns=[candidate]).column(0).to_pylist()):
+                id_field = candidate
+                break
+    row_number = 0
+    for batch in pf.iter_batches(batch_size=BATCH_FEATURES):
+        for row in batch.to_pylist():
+            row_number += 1
+            wkb = row.pop(column, None)
+            yield str(row.get(id_field) if id_field else row_number), row, wkb

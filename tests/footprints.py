@@ -1,0 +1,46 @@
+"""Footprints and solids drawn in metres, shared by the GeoJSON and GIS reader tests.
+
+Footprints in longitude/latitude are placed on the ellipsoid by PROJ (pyproj, independent of
+meshsom's geodesy); volumes are computed by hand (shoelace area x height).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyproj
+
+CENTRE = (52.0116, 4.3571, 0.0)  # Delft: latitude, longitude, height
+
+
+def lonlat(ring_m):
+    """A footprint ring drawn in metres east/north of CENTRE, as GeoJSON [longitude, latitude]."""
+    lat0, lon0, h0 = CENTRE
+    t = pyproj.Transformer.from_pipeline(
+        f"+proj=pipeline +step +inv +proj=topocentric +lat_0={lat0} +lon_0={lon0} +h_0={h0} +ellps=WGS84 "
+        f"+step +inv +proj=cart +ellps=WGS84 +step +proj=unitconvert +xy_in=rad +xy_out=deg")
+    e, n = np.asarray(ring_m, float).T
+    lon, lat, _ = t.transform(e, n, np.zeros_like(e))
+    return [[float(x), float(y)] for x, y in zip(lon, lat)]
+
+
+def area(ring):
+    x, y = np.asarray(ring, float).T
+    return 0.5 * abs(float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)))
+
+
+def closed(ring):
+    return [list(p) for p in ring] + [list(ring[0])]
+
+
+L_SHAPE = [(0, 0), (20, 0), (20, 8), (8, 8), (8, 15), (0, 15)]
+COURT_OUT = [(30, 0), (50, 0), (50, 20), (30, 20)]
+COURT_IN = [(36, 6), (36, 14), (44, 14), (44, 6)]
+
+
+def gabled_house():
+    """A 10 x 6 m house, walls 4 m, ridge 7 m along x: JSON-FG Polyhedron faces (outward)."""
+    a, b, c, d = (0, 0, 0), (10, 0, 0), (10, 6, 0), (0, 6, 0)
+    A, B, C, D = (0, 0, 4), (10, 0, 4), (10, 6, 4), (0, 6, 4)
+    r, s = (0, 3, 7), (10, 3, 7)
+    faces = [[a, d, c, b], [a, b, B, A], [b, c, C, s, B], [c, d, D, C], [d, a, A, r, D], [A, B, s, r], [C, D, r, s]]
+    return faces, 10 * 6 * 4 + 0.5 * 6 * 3 * 10

@@ -1,0 +1,361 @@
+"""Buildings from GIS files (meshsom.gis): GeoPackage, Shapefile (also multipatch), FlatGeobuf,
+File Geodatabase and GeoJSONSeq written by GDAL (fiona), GeoParquet written by pyarrow.
+
+The WKB decoder is checked against what GEOS (shapely) encodes, and against a writer of the OGC's
+layouts written here for the types GEOS lacks. Footprint volumes are computed by hand, placed on
+the ellipsoid by PROJ (tests/footprints.py). 3D layers are made from the bundled Zürich LoD2
+CityJSON file's own polygons, and every building part must come out as the CityJSON reader gives
+it: accepted with the same volume, or rejected by both.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import fiona
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import shapely
+from hypothesis import given, settings, strategies as st
+
+from meshsom.errors import InputFileError
+from meshsom.gis import horizontal, wkb_polygons
+from meshsom.io import ReaderOptions, Rejection, expand_inputs, read_file
+from meshsom.preprocess import preprocess
+
+from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat
+
+ZURICH = Path(__file__).resolve().parents[1] / "data/real/zurich-lod2-subset/zurich_subset_lod2.city.json"
+
+
+# ----------------------------------------------------------------------------- WKB, as the OGC lays it out
+
+
+def _wkb_ring(ring, order):
+    ring = [tuple(p) for p in ring]
+    if ring[0] != ring[-1]:
+        ring = ring + [ring[0]]
+    dims = len(ring[0])
+    return struct.pack(order + "I", len(ring)) + b"".join(struct.pack(order + "d" * dims, *p) for p in ring)
+
+
+def _wkb_polygon(rings, order="<", code=1003):
+    return bytes([1 if order == "<" else 0]) + struct.pack(order + "II", code, len(rings)) + b"".join(
+        _wkb_ring(r, order) for r in rings)
+
+
+def _wkb_collection(code, members, order="<"):
+    return bytes([1 if order == "<" else 0]) + struct.pack(order + "II", code, len(members)) + b"".join(members)
+
+
+def polyhedral_surface(polygons, order="<"):
+    """ISO WKB PolyhedralSurface Z (1015) of polygons (lists of rings of (x, y, z))."""
+    return _wkb_collection(1015, [_wkb_polygon(p, order) for p in polygons], order)
+
+
+def tin(triangles, order="<"):
+    """ISO WKB TIN Z (1016) of Triangle Z (1017) members."""
+    return _wkb_collection(1016, [_wkb_polygon([t], order, 1017) for t in triangles], order)
+
+
+def _rings_of(geom):
+    """Each polygon of a shapely geometry as its rings' coordinate arrays (the outer first)."""
+    out = []
+    for part in shapely.get_parts(geom):
+        if isinstance(part, shapely.GeometryCollection):
+            out += _rings_of(part)
+        elif isinstance(part, (shapely.Polygon, shapely.MultiPolygon)):
+            for poly in shapely.get_parts(part):
+                out.append([np.asarray(poly.exterior.coords)] + [np.asarray(r.coords) for r in poly.interiors])
+    return out
+
+
+def test_wkb_polygons_read_what_geos_writes():
+    hole = shapely.Polygon([(0, 0), (10, 0), (10, 10), (0, 10)], [[(2, 2), (2, 4), (4, 4), (4, 2)]])
+    z = shapely.Polygon([(0, 0, 1), (5, 0, 1.5), (5, 5, 2), (0, 5, 2.5)])
+    multi = shapely.MultiPolygon([z, shapely.Polygon([(7, 0, 3), (9, 0, 3), (9, 2, 4)])])
+    mixed = shapely.GeometryCollection([z, shapely.LineString([(0, 0, 0), (1, 1, 1)]), shapely.Point(3, 3, 3), multi])
+    for geom, has_z, kinds in [(hole, False, {"Polygon"}), (z, True, {"Polygon"}), (multi, True, {"MultiPolygon", "Polygon"}),
+                               (mixed, True, {"GeometryCollection", "Polygon", "LineString", "Point", "MultiPolygon"})]:
+        for flavor in ("iso", "extended"):
+            for byte_order in (0, 1):
+                data = shapely.to_wkb(shapely.set_srid(geom, 2056), output_dimension=3 if has_z else 2, flavor=flavor,
+                                      byte_order=byte_order, include_srid=flavor == "extended")
+                polygons, got_kinds, got_z = wkb_polygons(data, "x")
+                want = _rings_of(geom)
+                assert got_z == has_z and got_kinds == kinds
+                assert len(polygons) == len(want)
+                for p, q in zip(polygons, want):
+                    assert len(p) == len(q) and all(np.array_equal(a, b) for a, b in zip(p, q))
+
+
+def test_wkb_surfaces_measures_and_damage():
+    faces, _ = gabled_house()
+    rings = [[list(f) + [f[0]]] for f in faces]
+    for order in ("<", ">"):
+        polygons, kinds, has_z = wkb_polygons(polyhedral_surface(rings, order), "x")
+        assert kinds == {"PolyhedralSurface", "Polygon"} and has_z
+        assert [p[0].tolist() for p in polygons] == [[list(map(float, q)) for q in r[0]] for r in rings]
+    triangles = [[(0, 0, 0), (1, 0, 0), (0, 1, 0)], [(0, 0, 0), (0, 1, 0), (0, 0, 1)]]
+    polygons, kinds, _ = wkb_polygons(tin(triangles), "x")
+    assert kinds == {"TIN", "Triangle"} and [p[0][:3].tolist() for p in polygons] == [[list(map(float, q)) for q in t] for t in triangles]
+    # XYZM (3003): m dropped; XYM (2003): two coordinates kept
+    zm = _wkb_polygon([[(0, 0, 1, 9), (1, 0, 1, 9), (1, 1, 1, 9)]], code=3003)
+    assert wkb_polygons(zm, "x")[0][0][0].tolist() == [[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 0, 1]]
+    xym = _wkb_polygon([[(0, 0, 9), (1, 0, 9), (1, 1, 9)]], code=2003)
+    polygons, _, has_z = wkb_polygons(xym, "x")
+    assert not has_z and polygons[0][0].shape == (4, 2)
+    good = polyhedral_surface(rings)
+    for damaged, problem in [(good[:-5], "ends early"), (good + b"\0", "bytes after its end"), (b"\7" + good[1:], "is not WKB"),
+                             (struct.pack("<BII", 1, 8, 0), "curved geometry"), (struct.pack("<BI", 1, 99), "unknown type code"),
+                             (struct.pack("<BII", 1, 1015, 10**9), "ends early")]:
+        with pytest.raises(InputFileError, match=problem):
+            wkb_polygons(damaged, "x")
+    deep = _wkb_polygon([[(0, 0), (1, 0), (1, 1)]])
+    for _ in range(40):
+        deep = _wkb_collection(7, [deep])
+    with pytest.raises(InputFileError, match="nests deeper"):
+        wkb_polygons(deep, "x")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=200), st.integers(0, 120))
+def test_wkb_damage_is_an_input_error_never_a_crash(noise, cut):
+    """Random bytes, and real WKB cut short or with bytes overwritten: a clear error or polygons."""
+    faces, _ = gabled_house()
+    good = polyhedral_surface([[list(f) + [f[0]]] for f in faces])
+    for data in (noise, good[:cut], good[:cut] + noise + good[cut + len(noise):]):
+        try:
+            wkb_polygons(data, "x")
+        except InputFileError:
+            pass
+
+
+def test_horizontal_tells_footprints_from_solids():
+    faces, _ = gabled_house()
+    house = [[np.asarray(f + [f[0]], float)] for f in faces]
+    assert not horizontal(house)
+    draped = [[np.array([(0, 0, 10.0), (20, 0, 10.4), (20, 8, 10.9), (0, 8, 10.5)])]]  # on sloping ground
+    assert horizontal(draped) and horizontal([[np.array([(0, 0), (1, 0), (1, 1.0)])]])
+
+
+# ----------------------------------------------------------------------------- footprints in GDAL's formats
+
+FOOTPRINT_SCHEMA = {"geometry": "MultiPolygon", "properties": {
+    "id": "str", "height": "float", "min_height": "float", "num_floors": "int", "family": "str"}}
+
+
+def _footprints(ring_to_crs):
+    """The footprints of the GeoJSON test as MultiPolygons with properties, in a CRS."""
+    def multi(*polygons):
+        return {"type": "MultiPolygon", "coordinates": [[closed(ring_to_crs(r)) for r in p] for p in polygons]}
+    return [
+        ("L", multi([L_SHAPE]), {"height": 12.5, "family": "L"}),
+        ("court", multi([COURT_OUT, COURT_IN]), {"num_floors": 4}),
+        ("raised", multi([[(60, 0), (70, 0), (70, 5), (60, 5)]], [[(75, 0), (80, 0), (80, 5), (75, 5)]]),
+         {"height": 9.0, "min_height": 3.0}),
+        ("nohigh", multi([L_SHAPE]), {}),
+    ]
+
+
+def _write_fiona(path, driver, features, crs, schema=FOOTPRINT_SCHEMA, **options):
+    with fiona.open(path, "w", driver=driver, schema=schema, crs=crs, **options) as out:
+        for fid, geometry, props in features:
+            row = {k: None for k in schema["properties"]} | {"id": fid} | props
+            out.write({"geometry": geometry, "properties": row})
+
+
+def _write_geoparquet(path, features, crs="absent", wkb=None):
+    """GeoParquet 1.1 as its specification lays it out: a WKB column and the "geo" metadata."""
+    geometries = wkb or [shapely.to_wkb(shapely.geometry.shape(g)) for _, g, _ in features]
+    columns = {"id": [f for f, _, _ in features],
+               "height": [p.get("height") for _, _, p in features],
+               "min_height": [p.get("min_height") for _, _, p in features],
+               "num_floors": [p.get("num_floors") for _, _, p in features],
+               "family": [p.get("family") for _, _, p in features],
+               "geometry": geometries}
+    column_meta = {"encoding": "WKB", "geometry_types": []}
+    if crs != "absent":
+        column_meta["crs"] = crs
+    table = pa.table(columns).replace_schema_metadata(
+        {b"geo": json.dumps({"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": column_meta}}).encode()})
+    pq.write_table(table, path)
+
+
+def _volume(mesh) -> float:
+    return preprocess(mesh.vertices, mesh.faces).volume_out
+
+
+def _by_id(items):
+    return {i.id.split("#", 1)[1]: i for i in items}
+
+
+def _check_footprints(got):
+    assert sorted(got) == ["L", "court", "nohigh", "raised"]
+    assert got["L"].label == "L" and got["L"].lod == "1"
+    assert _volume(got["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-5)
+    assert _volume(got["court"]) == pytest.approx((area(COURT_OUT) - area(COURT_IN)) * 4 * 3.0, rel=1e-5)
+    assert any("4 storeys x 3 m" in n for n in got["court"].notes)
+    assert _volume(got["raised"]) == pytest.approx((50 + 25) * 6, rel=1e-5)  # from 3 m up to 9 m
+    assert isinstance(got["nohigh"], Rejection) and "height" in got["nohigh"].reason
+
+
+@pytest.mark.parametrize("driver,name", [("GPKG", "b.gpkg"), ("ESRI Shapefile", "b.shp"), ("FlatGeobuf", "b.fgb"),
+                                         ("OpenFileGDB", "b.gdb"), ("GeoJSONSeq", "b.geojsonl"), (None, "b.parquet")])
+def test_footprints_in_longitude_latitude(tmp_path, driver, name):
+    """WGS 84 footprints: GDAL and GeoParquet give longitude first, whatever EPSG:4326's axis order."""
+    features = _footprints(lonlat)
+    path = tmp_path / name
+    if driver is None:
+        _write_geoparquet(path, features)  # no "crs": OGC:CRS84, as the specification says
+    else:  # GeoJSONSeq: GDAL writes 7 decimals (1 cm) unless told
+        _write_fiona(path, driver, features, "EPSG:4326", **({"COORDINATE_PRECISION": 15} if driver == "GeoJSONSeq" else {}))
+    got = _by_id(read_file(path))
+    _check_footprints(got)
+    assert any("geographic coordinates" in n for n in got["L"].notes)
+    assert np.ptp(got["raised"].vertices[:, 2]) == pytest.approx(6, abs=1e-4)
+
+
+def test_projected_feet_and_unknown_crs(tmp_path):
+    feet = 1200 / 3937  # US survey foot
+    ring = lambda r: [((984000 + x / feet), (190000 + y / feet)) for x, y in r]  # noqa: E731 (New York, EPSG:2263)
+    features = [(f, g, {k: (v / feet if k in ("height", "min_height") else v) for k, v in p.items()})
+                for f, g, p in _footprints(ring)]
+    features[1][2]["num_floors"] = None
+    features[1][2]["height"] = 12 / feet
+    _write_fiona(tmp_path / "ny.gpkg", "GPKG", features, "EPSG:2263")
+    got = _by_id(read_file(tmp_path / "ny.gpkg"))
+    assert _volume(got["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
+    assert _volume(got["raised"]) == pytest.approx((50 + 25) * 6, rel=1e-9)
+    assert any("scaled to metres from US survey foot" in n for n in got["L"].notes)
+    # a shapefile without its .prj, in degrees: refused with the hint, read with --crs
+    _write_fiona(tmp_path / "deg.shp", "ESRI Shapefile", _footprints(lonlat), "EPSG:4326")
+    (tmp_path / "deg.prj").unlink()
+    got = _by_id(read_file(tmp_path / "deg.shp"))
+    assert isinstance(got["L"], Rejection) and "look like degrees" in got["L"].reason
+    _check_footprints(_by_id(read_file(tmp_path / "deg.shp", ReaderOptions(crs="EPSG:4326"))))
+    # GeoParquet: "crs": null is unknown (read as metres); PROJJSON is honoured
+    rd = lambda r: [(84600 + x, 447400 + y) for x, y in r]  # noqa: E731 (RD New)
+    _write_geoparquet(tmp_path / "rd.parquet", _footprints(rd), crs=None)
+    _check_footprints(_by_id(read_file(tmp_path / "rd.parquet")))
+    import pyproj
+
+    _write_geoparquet(tmp_path / "ny.parquet", features, crs=pyproj.CRS("EPSG:2263").to_json_dict())
+    assert _volume(_by_id(read_file(tmp_path / "ny.parquet"))["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
+
+
+# ----------------------------------------------------------------------------- 3D layers from real LoD2
+
+
+def _zurich_parts():
+    """(part id, polygons as lists of rings of (x, y, z)) of every BuildingPart of the Zürich file."""
+    cj = json.loads(ZURICH.read_text())
+    scale, translate = np.array(cj["transform"]["scale"]), np.array(cj["transform"]["translate"])
+    vertices = np.asarray(cj["vertices"], float) * scale + translate
+    parts = []
+    for oid, obj in cj["CityObjects"].items():
+        for g in obj.get("geometry", []):
+            parts.append((oid, [[vertices[ring].tolist() for ring in poly] for poly in g["boundaries"]]))
+    return parts
+
+
+def _volume_or_none(mesh):
+    try:
+        return _volume(mesh)
+    except Exception:  # preprocessing refuses it (MeshError)
+        return None
+
+
+def test_3d_layers_read_as_the_cityjson_reader_reads_the_same_polygons(tmp_path):
+    parts = _zurich_parts()[44:104]  # 60 parts (the slowest refusals, parts 12 and 41-42, left out)
+    reference = {oid: mesh for oid, mesh in _by_id(read_file(ZURICH, ReaderOptions(parts="separate"))).items()
+                 if oid in dict(parts)}
+    volumes = {oid: _volume_or_none(mesh) for oid, mesh in reference.items()}
+    schema = {"geometry": "3D MultiPolygon", "properties": {"id": "str"}}
+    features = [(oid, {"type": "MultiPolygon", "coordinates": [[closed(r) for r in poly] for poly in polygons]}, {})
+                for oid, polygons in parts]
+    _write_fiona(tmp_path / "bag.gpkg", "GPKG", features, "EPSG:2056", schema)  # as the 3D BAG's lod22_3d layer
+    _write_fiona(tmp_path / "patch.shp", "ESRI Shapefile", features, "EPSG:2056", schema, SHPT="MULTIPATCH")
+    _write_geoparquet(tmp_path / "ps.parquet", [(oid, None, {}) for oid, _ in parts], crs=None,
+                      wkb=[polyhedral_surface([[closed(r) for r in poly] for poly in polygons]) for _, polygons in parts])
+    assert sum(v is not None for v in volumes.values()) >= 25  # real LoD2: most parts close, some are refused
+    for name in ("bag.gpkg", "patch.shp", "ps.parquet"):
+        got = _by_id(read_file(tmp_path / name))
+        assert sorted(got) == sorted(reference), name
+        for oid, want in reference.items():
+            mesh = got[oid]
+            assert mesh.lod == "2" and mesh.notes == ()
+            volume = _volume_or_none(mesh)
+            if volumes[oid] is None:
+                assert volume is None, (name, oid)
+                continue
+            assert volume == pytest.approx(volumes[oid], rel=1e-9), (name, oid)
+            assert np.allclose(np.unique(mesh.vertices + mesh.origin, axis=0), np.unique(want.vertices + want.origin, axis=0),
+                               rtol=0, atol=1e-6)
+
+
+def test_layers_ids_and_folders(tmp_path):
+    parts = _zurich_parts()[:3]
+    gpkg = tmp_path / "city" / "bag.gpkg"
+    gpkg.parent.mkdir()
+    solid = {"geometry": "3D MultiPolygon", "properties": {"identificatie": "str"}}
+    flat = {"geometry": "Polygon", "properties": {"identificatie": "str", "hoogte": "float"}}
+    with fiona.open(gpkg, "w", driver="GPKG", layer="lod22_3d", schema=solid, crs="EPSG:2056") as out:
+        for oid, polygons in parts:
+            out.write({"geometry": {"type": "MultiPolygon", "coordinates": [[closed(r) for r in p] for p in polygons]},
+                       "properties": {"identificatie": oid}})
+    with fiona.open(gpkg, "w", driver="GPKG", layer="pand", schema=flat, crs="EPSG:2056") as out:
+        for k in range(3):  # repeated ids: the feature ids are used
+            out.write({"geometry": {"type": "Polygon", "coordinates": [closed([(2677000 + x + 40 * k, 1241800 + y) for x, y in L_SHAPE])]},
+                       "properties": {"identificatie": "same", "hoogte": 7.5}})
+    got = _by_id(read_file(gpkg))
+    assert sorted(got) == sorted([f"lod22_3d/{oid}" for oid, _ in parts] + ["pand/1", "pand/2", "pand/3"])
+    assert all(isinstance(got[f"pand/{k}"], Rejection) for k in (1, 2, 3))  # "hoogte" is not a default height
+    heights = ReaderOptions(layer="pand", height_attributes=("hoogte",))
+    got = _by_id(read_file(gpkg, heights))
+    assert sorted(got) == ["1", "2", "3"] and _volume(got["2"]) == pytest.approx(area(L_SHAPE) * 7.5, rel=1e-9)
+    (bad,) = read_file(gpkg, ReaderOptions(layer="lod13_3d"))
+    assert isinstance(bad, Rejection) and "has no layer 'lod13_3d'" in bad.reason and "'pand'" in bad.reason
+    # a folder: the FileGDB folder is one input, a shapefile's sidecars are read with it
+    _write_fiona(tmp_path / "city" / "fp.shp", "ESRI Shapefile", _footprints(lonlat), "EPSG:4326")
+    _write_fiona(tmp_path / "city" / "fp.gdb", "OpenFileGDB", _footprints(lonlat), "EPSG:4326")
+    skipped = []
+    files, rejected = expand_inputs([tmp_path / "city"], skipped)
+    assert [f.name for f in files] == ["bag.gpkg", "fp.gdb", "fp.shp"] and not rejected
+    assert {Path(p).suffix for p, why in skipped if why == "read with the shapefile fp.shp"} >= {".dbf", ".shx", ".prj"}
+    # damaged and unreadable files are rejections that say so
+    (tmp_path / "junk.gpkg").write_bytes(b"SQLite format 3\0" + bytes(2000))
+    (tmp_path / "zipped.gpkg").write_bytes(gzip.compress(gpkg.read_bytes()))
+    pq.write_table(pa.table({"x": [1, 2]}), tmp_path / "plain.parquet")
+    for name, problem in [("junk.gpkg", "cannot be read through GDAL"), ("zipped.gpkg", "gzip-compressed"),
+                          ("plain.parquet", "without GeoParquet metadata")]:
+        (item,) = read_file(tmp_path / name)
+        assert isinstance(item, Rejection) and problem in item.reason, (name, item)
+
+
+def test_gis_files_through_meshsom_ingest(tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    flat = {"geometry": "Polygon", "properties": {"code": "str", "hoogte": "float"}}
+    with fiona.open(folder / "district.gpkg", "w", driver="GPKG", layer="pand", schema=flat, crs="EPSG:28992") as out:
+        for k in range(3):
+            out.write({"geometry": {"type": "Polygon", "coordinates": [closed([(84600 + x + 30 * k, 447400 + y) for x, y in L_SHAPE])]},
+                       "properties": {"code": f"b{k}", "hoogte": 5.0 + k}})
+    with fiona.open(folder / "more.gdb", "w", driver="OpenFileGDB", layer="pand", schema=flat, crs="EPSG:28992") as out:
+        out.write({"geometry": {"type": "Polygon", "coordinates": [closed([(84700 + x, 447400 + y) for x, y in L_SHAPE])]},
+                   "properties": {"code": "g", "hoogte": 4.0}})
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "g.zarr"),
+                          "--layer", "pand", "--height-attribute", "hoogte"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "4 meshes: 4 accepted, 0 rejected" in out.stdout, out.stdout
+    manifest = json.loads((tmp_path / "g.zarr" / "manifest.json").read_text())
+    volumes = {r["id"]: r["volume"] for r in manifest["records"]}
+    assert volumes == pytest.approx({"district.gpkg#1": area(L_SHAPE) * 5, "district.gpkg#2": area(L_SHAPE) * 6,
+                                     "district.gpkg#3": area(L_SHAPE) * 7, "more.gdb#1": area(L_SHAPE) * 4}, rel=1e-9)
