@@ -3,7 +3,9 @@
     .venv/bin/python bench/read.py [--blocks 20000] [--seed 0]
 
 Writes one synthetic city (``meshsom generate`` blocks with LoD2 roofs, on Swiss LV95 offsets) as
-CityJSON, CityJSONSeq, CityGML and gzipped CityJSON / CityJSONSeq, then reads every building of
+CityJSON, CityJSONSeq, CityGML, gzipped CityJSON / CityJSONSeq, and as 3D GIS layers (each building
+a MultiPolygon Z of its triangles, as the 3D BAG's GeoPackage layers hold them: GeoPackage written
+by GDAL, GeoParquet by pyarrow), then reads every building of
 each file with :func:`meshsom.io.read_file`, as ``meshsom ingest`` does, in a child process of its
 own, and prints per container: file size, wall seconds (best of ``--repeat``), buildings per
 second, and the peak memory the read allocates (``tracemalloc``: Python objects and NumPy arrays,
@@ -26,12 +28,43 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 FORMATS = [("CityJSON", "city.city.json", "cityjson"), ("CityJSON, gzip", "city.city.json.gz", "cityjson"),
            ("CityJSONSeq", "city.city.jsonl", "cityjsonseq"), ("CityJSONSeq, gzip", "city.city.jsonl.gz", "cityjsonseq"),
-           ("CityGML 2.0", "city.gml", "citygml")]
+           ("CityGML 2.0", "city.gml", "citygml"), ("GeoPackage, 3D", "city.gpkg", "gpkg"),
+           ("GeoParquet, 3D", "city.parquet", "parquet")]
+
+
+def _multipolygon(mesh) -> dict:
+    corners = mesh.vertices[mesh.faces]
+    return {"type": "MultiPolygon", "coordinates": [[np.concatenate([c, c[:1]]).tolist()] for c in corners]}
+
+
+def write_gpkg(path, meshes) -> None:
+    """Each mesh a feature: MultiPolygon Z of its triangles, EPSG:2056, written by GDAL (fiona)."""
+    import fiona
+
+    schema = {"geometry": "3D MultiPolygon", "properties": {"id": "str"}}
+    with fiona.open(path, "w", driver="GPKG", schema=schema, crs="EPSG:2056") as out:
+        out.writerecords({"geometry": _multipolygon(m), "properties": {"id": str(m.id)}} for m in meshes)
+
+
+def write_geoparquet(path, meshes) -> None:
+    """The same as GeoParquet (WKB by GEOS, the "geo" metadata of GeoParquet 1.1)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import pyproj
+    import shapely
+
+    wkb = [shapely.to_wkb(shapely.geometry.shape(_multipolygon(m))) for m in meshes]
+    geo = {"version": "1.1.0", "primary_column": "geometry",
+           "columns": {"geometry": {"encoding": "WKB", "geometry_types": [], "crs": pyproj.CRS("EPSG:2056").to_json_dict()}}}
+    table = pa.table({"id": [str(m.id) for m in meshes], "geometry": wkb})
+    pq.write_table(table.replace_schema_metadata({b"geo": json.dumps(geo).encode()}), path)
 
 
 def child(path: str, repeat: int) -> None:
@@ -103,7 +136,8 @@ def main() -> None:
     arrays_mb = sum(b.vertices.nbytes + b.faces.nbytes for b in blocks) / 2**20
     print(f"{len(blocks)} buildings, {sum(len(b.faces) for b in blocks):,} triangles, generated in "
           f"{time.perf_counter() - t0:.1f} s; their vertex and face arrays: {arrays_mb:.1f} MB")
-    writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml}
+    writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml, "gpkg": write_gpkg,
+               "parquet": write_geoparquet}
     with tempfile.TemporaryDirectory(prefix="meshsom-read-") as tmp:
         print("\n| container | file MB | read s | buildings/s | peak alloc MB | peak / arrays |")
         print("|---|---:|---:|---:|---:|---:|")

@@ -90,7 +90,8 @@ class FeatureVertices:
     """The vertices of one feature, appended ring by ring; indices for CityJSON-like boundaries."""
 
     def __init__(self):
-        self.points: list[list[float]] = []
+        self.parts: list[np.ndarray] = []
+        self.count = 0
 
     def ring(self, coords, where: str, z: float | None = None) -> list[int]:
         try:
@@ -107,13 +108,14 @@ class FeatureVertices:
             raise InputFileError(where, "a solid's positions need three coordinates (x, y, z)")
         if not (np.isfinite(ring).all() and np.abs(ring).max() < MAX_COORDINATE):
             raise InputFileError(where, f"coordinates must be finite numbers of magnitude below {MAX_COORDINATE:g}")
-        start = len(self.points)
-        self.points.extend(ring.tolist())
-        return list(range(start, len(self.points)))
+        start = self.count
+        self.parts.append(ring)
+        self.count += len(ring)
+        return list(range(start, self.count))
 
     def array(self) -> np.ndarray:
         """The vertices, (V, 3) float64."""
-        return np.asarray(self.points, np.float64).reshape(-1, 3)
+        return np.concatenate(self.parts).reshape(-1, 3) if self.parts else np.zeros((0, 3))
 
 
 def _polygons(geometry: dict, where: str) -> list:
@@ -142,10 +144,10 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVe
         rings = []
         for k, ring in enumerate(poly):
             bottom = verts.ring(ring, where, z0)
-            pts = [verts.points[i] for i in bottom]
+            pts = verts.array()[bottom]
             if (_signed_area(pts) > 0) != (k == 0):
-                bottom = bottom[::-1]
-            top = verts.ring([verts.points[i] for i in bottom], where, z1)
+                bottom, pts = bottom[::-1], pts[::-1]
+            top = verts.ring(pts, where, z1)
             rings.append((bottom, top))
         faces.append([b[::-1] for b, _ in rings])  # the floor, facing down
         faces.append([t for _, t in rings])  # the roof, facing up

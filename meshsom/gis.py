@@ -40,7 +40,7 @@ import json
 import math
 import struct
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -186,21 +186,24 @@ def horizontal(polygons: list[list[np.ndarray]]) -> bool:
     bool
         Polygons with no area (no normal) do not count.
     """
-    cos_tilt = math.cos(math.radians(FOOTPRINT_TILT_DEG))
-    for poly in polygons:
-        ring = poly[0]
-        if ring.shape[1] < 3:
-            continue
-        nxt = np.roll(ring, -1, axis=0)
-        normal = np.array([  # Newell's normal: exact for planar rings, a best fit for others
-            np.sum((ring[:, 1] - nxt[:, 1]) * (ring[:, 2] + nxt[:, 2])),
-            np.sum((ring[:, 2] - nxt[:, 2]) * (ring[:, 0] + nxt[:, 0])),
-            np.sum((ring[:, 0] - nxt[:, 0]) * (ring[:, 1] + nxt[:, 1])),
-        ])
-        size = float(np.linalg.norm(normal))
-        if size > 0 and abs(normal[2]) < cos_tilt * size:
-            return False
-    return True
+    outer = [poly[0] for poly in polygons if poly[0].shape[1] == 3 and len(poly[0])]
+    if not outer:
+        return True
+    ring = np.concatenate(outer)
+    sizes = np.array([len(r) for r in outer])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    following = np.arange(1, len(ring) + 1)
+    following[starts + sizes - 1] = starts  # each ring's last vertex is followed by its first
+    nxt = ring[following]
+    terms = np.stack([  # Newell's normal: exact for planar rings, a best fit for others
+        (ring[:, 1] - nxt[:, 1]) * (ring[:, 2] + nxt[:, 2]),
+        (ring[:, 2] - nxt[:, 2]) * (ring[:, 0] + nxt[:, 0]),
+        (ring[:, 0] - nxt[:, 0]) * (ring[:, 1] + nxt[:, 1]),
+    ], axis=1)
+    normal = np.add.reduceat(terms, starts, axis=0)
+    size = np.linalg.norm(normal, axis=1)
+    steep = (size > 0) & (np.abs(normal[:, 2]) < math.cos(math.radians(FOOTPRINT_TILT_DEG)) * size)
+    return not steep.any()
 
 
 def fiona_polygons(geometry, where: str) -> tuple[list[list[np.ndarray]], set[str], bool]:
@@ -268,14 +271,13 @@ def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: boo
         other = sorted(kinds - _SURFACE_KINDS)
         raise InputFileError(where, f"holds a {', '.join(other)}, not a building's polygons or solid" if other else
                              "has no geometry (it is empty)")
-    nested = [[ring.tolist() for ring in poly] for poly in polygons]
     verts = FeatureVertices()
     if not has_z or (not kinds & _SOLID_KINDS and horizontal(polygons)):
-        solid, notes = footprint_solid(nested, props, where, options, verts)
+        solid, notes = footprint_solid([[ring.tolist() for ring in poly] for poly in polygons], props, where, options, verts)
         if solid is None:
             raise InputFileError(where, no_height(options))
     else:
-        solid, notes = surfaces(nested, where, verts), []
+        solid, notes = surfaces(polygons, where, verts), []
     return building(solid, props, options), verts.array(), notes
 
 
@@ -298,22 +300,13 @@ class Layer:
     features: int
 
 
-def read_gis(path: Path, options, name: str | None = None) -> Iterator:
-    """Read the buildings of a GIS file: RawMesh or Rejection items, as :func:`meshsom.io.read_cityjson`.
-
-    Raises
-    ------
-    InputFileError
-        The file cannot be opened, is gzip-compressed, has no layer with geometry (or not the
-        layer asked for), or holds no features.
-    """
-    name = name or path.name
-    parquet = path.name.lower().endswith(PARQUET_SUFFIXES)
+def _chosen_layers(path: Path, options) -> list[Layer]:
+    """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
     if path.is_file():
         with open(path, "rb") as fh:
             if fh.read(2) == b"\x1f\x8b":
                 raise InputFileError(str(path), "is gzip-compressed; GIS files are read uncompressed (gunzip it first)")
-    layers = _parquet_layers(path) if parquet else _ogr_layers(path)
+    layers = _parquet_layers(path) if _is_parquet(path) else _ogr_layers(path)
     if not layers:
         raise InputFileError(str(path), "holds no layer with geometry")
     if options.layer is not None:
@@ -322,13 +315,80 @@ def read_gis(path: Path, options, name: str | None = None) -> Iterator:
             raise InputFileError(str(path), f"has no layer {options.layer!r}; its layers with geometry are "
                                             f"{', '.join(repr(layer.name) for layer in layers)}")
         layers = chosen
+    return layers
+
+
+def _is_parquet(path: Path) -> bool:
+    return path.name.lower().endswith(PARQUET_SUFFIXES)
+
+
+def gis_ranges(path: Path, target_features: int, options) -> list[list] | None:
+    """Split a large GIS file into feature ranges, each for one read task.
+
+    Parameters
+    ----------
+    path : Path
+    target_features : int
+        Features per range.
+    options : ReaderOptions
+
+    Returns
+    -------
+    list of ["features", layer, prefix, id_field, start, stop] or None
+        Ranges covering every feature of the layers read once, in order, for :func:`read_gis`
+        (``feature_range``; JSON, for a pipeline's plan): ``prefix`` starts the ids (the layer's
+        name and a slash where several layers are read), ``id_field`` is the property the ids
+        come from (None: feature ids), decided here once for the whole layer. None when no
+        layer has more than twice ``target_features`` features (or a count is unknown), or the
+        file cannot be read (its reader then says why).
+    """
+    try:
+        layers = _chosen_layers(path, options)
+    except InputFileError:
+        return None
+    if target_features < 1 or not any(layer.features > 2 * target_features for layer in layers) or any(
+            layer.features < 0 for layer in layers):
+        return None
+    ranges = []
+    for layer in layers:
+        prefix = f"{layer.name}/" if len(layers) > 1 else ""
+        id_field = _id_field(path, layer.name, options)
+        for start in range(0, layer.features, target_features):
+            ranges.append(["features", layer.name, prefix, id_field, start, min(start + target_features, layer.features)])
+    return ranges
+
+
+def read_gis(path: Path, options, name: str | None = None, feature_range: Sequence | None = None) -> Iterator:
+    """Read the buildings of a GIS file: RawMesh or Rejection items, as :func:`meshsom.io.read_cityjson`.
+
+    Parameters
+    ----------
+    path : Path
+    options : ReaderOptions
+    name : str, optional
+    feature_range : sequence, optional
+        One of :func:`gis_ranges`: only those features (a range of no features yields nothing).
+
+    Raises
+    ------
+    InputFileError
+        The file cannot be opened, is gzip-compressed, has no layer with geometry (or not the
+        layer asked for), or holds no features.
+    """
+    name = name or path.name
+    layers = _chosen_layers(path, options)
+    if feature_range is not None:
+        _, layer_name, prefix, id_field, start, stop = feature_range
+        (layer,) = [layer for layer in layers if layer.name == layer_name]
+        for oid, props, geometry in _records(path, layer.name, id_field, int(start), int(stop)):
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options)
+        return
     found = False
     for layer in layers:
         prefix = f"{layer.name}/" if len(layers) > 1 else ""
-        records = _parquet_records(path, options) if parquet else _ogr_records(path, layer.name, options)
-        for oid, props, wkb in records:
+        for oid, props, geometry in _records(path, layer.name, _id_field(path, layer.name, options), 0, None):
             found = True
-            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, wkb, layer, options)
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options)
     if not found:
         raise InputFileError(str(path), "holds no features" + (f" in layer {options.layer!r}" if options.layer else ""))
 
@@ -391,22 +451,46 @@ def _unique_column(values: list) -> bool:
     return all(v is not None and str(v) != "" for v in values) and len({str(v) for v in values}) == len(values)
 
 
-def _ogr_records(path: Path, layer: str, options) -> Iterator[tuple[str, dict, object]]:
-    """(id, properties, geometry) of each feature of a layer, streamed."""
+def _id_field(path: Path, layer: str, options) -> str | None:
+    """The first of ``options.id_attributes`` whose values are given and unique over the layer."""
+    if not options.id_attributes:
+        return None
+    if _is_parquet(path):
+        import pyarrow.parquet as pq
+
+        column, _ = _parquet_geo(path)
+        names = pq.read_schema(path).names
+        for candidate in options.id_attributes:
+            if candidate in names and candidate != column and _unique_column(
+                    pq.read_table(path, columns=[candidate]).column(0).to_pylist()):
+                return candidate
+        return None
+    import fiona
+
+    values: dict[str, list] = {c: [] for c in options.id_attributes}
+    try:
+        with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
+            for feature in collection:
+                props = dict(feature.properties)
+                for candidate, column in values.items():
+                    column.append(props.get(candidate))
+    except _gdal_errors() as err:
+        raise _gdal_error(path, err) from None
+    return next((c for c, column in values.items() if column and _unique_column(column)), None)
+
+
+def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int | None
+             ) -> Iterator[tuple[str, dict, object]]:
+    """(id, properties, geometry) of features ``start`` to ``stop`` of a layer, streamed: fiona's
+    geometry (GeoJSON-like) or GeoParquet's WKB."""
+    if _is_parquet(path):
+        yield from _parquet_records(path, id_field, start, stop)
+        return
     import fiona
 
     try:
-        id_field = None
-        if options.id_attributes:
-            with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
-                values: dict[str, list] = {c: [] for c in options.id_attributes}
-                for feature in collection:
-                    props = dict(feature.properties)
-                    for candidate, column in values.items():
-                        column.append(props.get(candidate))
-            id_field = next((c for c, column in values.items() if column and _unique_column(column)), None)
         with fiona.open(path, layer=layer) as collection:
-            for feature in collection:
+            for feature in collection.filter(start, stop):
                 props = dict(feature.properties)
                 yield str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:
@@ -451,21 +535,22 @@ def _parquet_layers(path: Path) -> list[Layer]:
     return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows))]
 
 
-def _parquet_records(path: Path, options) -> Iterator[tuple[str, dict, bytes | None]]:
+def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None
+                     ) -> Iterator[tuple[str, dict, bytes | None]]:
     import pyarrow.parquet as pq
 
     column, _ = _parquet_geo(path)
-    pf = pq.ParquetFile(path)
-    names = pf.schema_arrow.names
-    id_field = None
-    for candidate in options.id_attributes:
-        if candidate in names and candidate != column:
-            if _unique_column(pq.read_table(path, columns=[candidate]).column(0).to_pylist()):
-                id_field = candidate
-                break
-    row_number = 0
-    for batch in pf.iter_batches(batch_size=BATCH_FEATURES):
-        for row in batch.to_pylist():
-            row_number += 1
-            wkb = row.pop(column, None)
-            yield str(row.get(id_field) if id_field else row_number), row, wkb
+    row = 0  # rows counted from 1
+    for batch in pq.ParquetFile(path).iter_batches(batch_size=BATCH_FEATURES):
+        first = row
+        row += batch.num_rows
+        if row <= start:
+            continue
+        skip = max(start - first, 0)
+        if stop is not None:
+            batch = batch.slice(0, max(min(stop - first, batch.num_rows), 0))
+        for k, values in enumerate(batch.slice(skip).to_pylist(), first + skip + 1):
+            wkb = values.pop(column, None)
+            yield str(values.get(id_field) if id_field else k), values, wkb
+        if stop is not None and row >= stop:
+            return

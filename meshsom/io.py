@@ -607,7 +607,7 @@ def _is_gdb(path: Path) -> bool:
 
 def read_file(
     path: str | os.PathLike, options: ReaderOptions = ReaderOptions(), name: str | None = None,
-    byte_range: tuple[int, int, int] | None = None,
+    byte_range: tuple[int, int, int] | None = None, feature_range: list | None = None,
 ) -> Iterator[RawMesh | Rejection]:
     """Read every mesh of one file.
 
@@ -629,9 +629,11 @@ def read_file(
     byte_range : (start, stop, first_line), optional
         A CityJSONSeq file only: read the features on the lines of this range
         (:func:`cityjsonseq_ranges`), ids unique within it; a range without buildings yields nothing.
+    feature_range : list, optional
+        A GIS file only: read the features of this range (:func:`meshsom.gis.gis_ranges`).
     """
     seen: set[str] = set()
-    for item in _read_file(Path(path), options, name, byte_range):
+    for item in _read_file(Path(path), options, name, byte_range, feature_range):
         if item.id in seen:
             item = repeated(item, free_id(item.id, seen))
         seen.add(item.id)
@@ -653,7 +655,8 @@ def repeated(item: RawMesh | Rejection, new_id: str) -> Rejection:
     return Rejection(new_id, item.source, reason, 0, item.label)
 
 
-def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range) -> Iterator[RawMesh | Rejection]:
+def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range, feature_range=None
+               ) -> Iterator[RawMesh | Rejection]:
     try:
         kind = input_kind(path)
         if kind == "cityjson":
@@ -667,7 +670,7 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range)
         elif kind == "gis":
             from meshsom.gis import read_gis
 
-            yield from read_gis(path, options, name)
+            yield from read_gis(path, options, name, feature_range)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1560,8 +1563,15 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
     tri_starts = ring_start[poly_first_ring[simple_tri]]
     out = [inverse[tri_starts[:, None] + np.arange(3)]]
     out_poly = [np.flatnonzero(simple_tri)]
+    quads = np.flatnonzero((rings_per_poly == 1) & (sizes[poly_first_ring] == 4))
+    quad_tri, done = _split_quads(inverse[ring_start[poly_first_ring[quads]][:, None] + np.arange(4)], local)
+    out.append(quad_tri.reshape(-1, 3))
+    out_poly.append(np.repeat(quads[done], 2))
+    rest = np.ones(len(polygons), bool)
+    rest[simple_tri] = False
+    rest[quads[done]] = False
     dropped = 0
-    for p in np.flatnonzero(~simple_tri):
+    for p in np.flatnonzero(rest):
         r0 = poly_first_ring[p]
         rings_idx = [inverse[ring_start[r]:ring_start[r + 1]] for r in range(r0, r0 + rings_per_poly[p])]
         rings_idx = [_drop_spikes(_drop_closing_vertex(r), local) for r in rings_idx]
@@ -1578,7 +1588,68 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
         if len(tri):
             out.append(ids[tri])
             out_poly.append(np.full(len(tri), p, np.int64))
-    return np.concatenate(out).astype(np.int64).reshape(-1, 3), np.concatenate(out_poly).astype(np.int64), dropped
+    faces = [f.astype(np.int64).reshape(-1, 3) for f in out]
+    order = np.argsort(np.concatenate(out_poly[1:]), kind="stable")  # after the plain triangles, in polygon order
+    faces = np.concatenate([faces[0], np.concatenate(faces[1:])[order]])
+    return faces, np.concatenate([out_poly[0], np.concatenate(out_poly[1:])[order]]).astype(np.int64), dropped
+
+
+#: A quad this close (relative) to being not convex or to having a spike is split one by one, as any
+#: other polygon; diagonals this close to equal are measured as that path measures them: the
+#: vectorised split decides exactly as the one-by-one path does.
+QUAD_TIE_TOL = 1e-9
+
+
+def _split_quads(quads: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two triangles for each plain convex quad, all at once, as :func:`triangulate_polygon_3d` splits it.
+
+    Parameters
+    ----------
+    quads : (Q, 4) int64
+        The vertex indices of one-ring polygons of four vertices.
+    local : (V, 3) float64
+
+    Returns
+    -------
+    triangles : (D, 2, 3) int64
+        Vertex indices, for the quads split here.
+    done : (Q,) bool
+        The quads split here; the others (repeated vertices, spikes, not convex, degenerate, or
+        within :data:`QUAD_TIE_TOL` of those) are left to the one-by-one path.
+    """
+    if len(quads) == 0:
+        return np.zeros((0, 2, 3), np.int64), np.zeros(0, bool)
+    p = local[quads]
+    distinct = (quads != np.roll(quads, 1, axis=1)).all(axis=1)
+    d_in = p - np.roll(p, 1, axis=1)
+    d_out = np.roll(p, -1, axis=1) - p
+    norms = np.linalg.norm(d_in, axis=2) * np.linalg.norm(d_out, axis=2)
+    cos = np.einsum("qij,qij->qi", d_in, d_out) / np.where(norms > 0, norms, 1.0)
+    centred = p - p.mean(axis=1, keepdims=True)
+    normal = np.cross(centred, np.roll(centred, -1, axis=1)).sum(axis=1)
+    size = np.linalg.norm(normal, axis=1)
+    n = normal / np.where(size > 0, size, 1.0)[:, None]
+    helper = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    e1 = np.cross(helper, n)
+    e1 /= np.where(np.linalg.norm(e1, axis=1) > 0, np.linalg.norm(e1, axis=1), 1.0)[:, None]
+    e2 = np.cross(n, e1)
+    flat = np.stack([np.einsum("qij,qj->qi", centred, e1), np.einsum("qij,qj->qi", centred, e2)], axis=2)
+    d1 = np.roll(flat, -1, axis=1) - flat
+    d2 = np.roll(d1, -1, axis=1)
+    cross = d1[:, :, 0] * d2[:, :, 1] - d1[:, :, 1] * d2[:, :, 0]
+    scale = np.einsum("qij,qij->q", d1, d1)
+    convex = ((cross > 0).all(axis=1) | (cross < 0).all(axis=1)) & (np.abs(cross).min(axis=1) > QUAD_TIE_TOL * scale)
+    v02, v13 = p[:, 0] - p[:, 2], p[:, 1] - p[:, 3]
+    d02, d13 = np.linalg.norm(v02, axis=1), np.linalg.norm(v13, axis=1)
+    short02 = d02 <= d13
+    # near a tie (every rectangle: a wall), the diagonals measured as the one-by-one path does
+    for k in np.flatnonzero(np.abs(d02 - d13) <= QUAD_TIE_TOL * np.maximum(d02, d13)):
+        short02[k] = math.sqrt(v02[k].dot(v02[k])) <= math.sqrt(v13[k].dot(v13[k]))
+    done = distinct & (cos > -0.9999 + QUAD_TIE_TOL).all(axis=1) & (size > 0) & convex
+    short02 = short02[done]
+    q = quads[done]
+    tri = np.where(short02[:, None, None], q[:, [[0, 1, 2], [0, 2, 3]]], q[:, [[0, 1, 3], [1, 2, 3]]])
+    return tri.astype(np.int64), done
 
 
 def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) -> np.ndarray:

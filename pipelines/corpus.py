@@ -71,9 +71,10 @@ class Shard:
 # ----------------------------------------------------------------------------- worker side
 
 
-def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None) -> list:
-    """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file), in the
-    reader's order.
+def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None,
+                feature_range: Sequence | None = None) -> list:
+    """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file, or of a
+    feature range of a GIS file), in the reader's order.
 
     Parameters
     ----------
@@ -83,6 +84,8 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
         The start of the mesh ids (``meshsom.io.InputFile.name``).
     byte_range : (start, stop, first_line), optional
         :func:`meshsom.io.cityjsonseq_ranges`.
+    feature_range : list, optional
+        :func:`meshsom.gis.gis_ranges`.
 
     Returns
     -------
@@ -92,7 +95,8 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
     from meshsom.io import Rejection, read_file
 
     try:
-        return list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range)))
+        return list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range),
+                              None if feature_range is None else list(feature_range)))
     except OSError as err:
         return [Rejection(name or str(path), str(path), f"cannot be read ({err.strerror or err})")]
 
@@ -359,6 +363,7 @@ def _fingerprint(cfg, levels: Sequence[int]) -> dict:
         "levels": [int(lv) for lv in levels],
         "shard_meshes": int(cfg.dask.shard_meshes),
         "read_bytes": int(cfg.dask.read_bytes),
+        "read_features": int(cfg.dask.read_features),
         "chunk_rows": int(cfg.store.chunk_rows),
     }
     return json.loads(json.dumps(doc))
@@ -480,6 +485,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from distributed import as_completed
 
     from meshsom.errors import StoreError
+    from meshsom.gis import gis_ranges
     from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
@@ -512,14 +518,19 @@ def run_corpus(client, cfg, store, resume: bool = False,
         files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
         root = root or create_store(path, overwrite=True)
         sources = []
-        for f in files:  # a large CityJSONSeq file: a source per range, read in parallel
-            ranges = cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if (
-                input_kind(f.path) == "cityjsonseq") else None
-            sources += ([{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
-                        if ranges else [{"kind": "file", "path": str(f.path), "name": f.name}])
+        for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
+            kind = input_kind(f.path)
+            ranges = cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "cityjsonseq" else None
+            features = gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else None
+            if ranges:
+                sources += [{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
+            elif features:
+                sources += [{"kind": "file", "path": str(f.path), "name": f.name, "features": r} for r in features]
+            else:
+                sources.append({"kind": "file", "path": str(f.path), "name": f.name})
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], src.get("range"),
-                                            pure=False, key=f"corpus-read-{run_id}-{i}")
+                                            src.get("features"), pure=False, key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
         for k, future in enumerate(as_completed(id_futures), 1):
@@ -557,7 +568,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         else:
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"),
-                                                        src.get("range"), pure=False, key=f"corpus-read-{run_id}-{sh.source}")
+                                                        src.get("range"), src.get("features"), pure=False,
+                                                        key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
         return client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,

@@ -39,6 +39,9 @@ class DaskConfig:
         A CityJSONSeq file (not gzipped) of more than twice this many bytes is read by several
         tasks in parallel, each about this many bytes of whole lines, so that no worker holds a
         whole city's meshes (:func:`meshsom.io.cityjsonseq_ranges`).
+    read_features : int
+        A GIS layer (GeoPackage, FileGDB, GeoParquet, ...) of more than twice this many features
+        is read by several tasks in parallel, each this many features (:func:`meshsom.gis.gis_ranges`).
     dashboard : bool
         Serve the Dask dashboard (bokeh pages) of a LocalCluster on a free loopback port, and
         print its link; false: no dashboard is served.
@@ -49,6 +52,7 @@ class DaskConfig:
     memory_limit: str = "4GB"
     shard_meshes: int = 64
     read_bytes: int = 256 << 20
+    read_features: int = 20_000
     dashboard: bool = True
 
     def __post_init__(self):
@@ -58,6 +62,8 @@ class DaskConfig:
             raise ValueError(f"shard_meshes must be >= 1, received {self.shard_meshes}")
         if self.read_bytes < 1:
             raise ValueError(f"read_bytes must be >= 1, received {self.read_bytes}")
+        if self.read_features < 1:
+            raise ValueError(f"read_features must be >= 1, received {self.read_features}")
         if self.scheduler is not None and "://" not in self.scheduler:
             raise ValueError(f"scheduler must be an address like tcp://host:8786, received {self.scheduler!r}")
 

@@ -6,8 +6,13 @@ meshsom's geodesy); volumes are computed by hand (shoelace area x height).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pyproj
+import shapely
 
 CENTRE = (52.0116, 4.3571, 0.0)  # Delft: latitude, longitude, height
 
@@ -44,3 +49,20 @@ def gabled_house():
     r, s = (0, 3, 7), (10, 3, 7)
     faces = [[a, d, c, b], [a, b, B, A], [b, c, C, s, B], [c, d, D, C], [d, a, A, r, D], [A, B, s, r], [C, D, r, s]]
     return faces, 10 * 6 * 4 + 0.5 * 6 * 3 * 10
+
+
+def write_geoparquet(path, features, crs="absent", wkb=None):
+    """GeoParquet 1.1 as its specification lays it out: a WKB column and the "geo" metadata."""
+    geometries = wkb or [shapely.to_wkb(shapely.geometry.shape(g)) for _, g, _ in features]
+    columns = {"id": [f for f, _, _ in features],
+               "height": [p.get("height") for _, _, p in features],
+               "min_height": [p.get("min_height") for _, _, p in features],
+               "num_floors": [p.get("num_floors") for _, _, p in features],
+               "family": [p.get("family") for _, _, p in features],
+               "geometry": geometries}
+    column_meta = {"encoding": "WKB", "geometry_types": []}
+    if crs != "absent":
+        column_meta["crs"] = crs
+    table = pa.table(columns).replace_schema_metadata(
+        {b"geo": json.dumps({"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": column_meta}}).encode()})
+    pq.write_table(table, path)

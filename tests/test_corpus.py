@@ -294,3 +294,41 @@ def test_a_file_read_in_ranges_that_holds_no_building_is_listed(cluster_client, 
     (record,) = read_manifest(tmp_path / "roads.zarr")["records"]
     assert record["id"] == "roads.city.jsonl" and record["status"] == "rejected"
     assert record["reason"] == "holds no object of the types Building"
+
+
+def test_a_large_gis_file_is_read_by_several_tasks(cluster_client, tmp_path):
+    """A GeoPackage of two layers and a GeoParquet file, read in feature ranges (the ids of a layer
+    decided once): the store is the one a single reader of each file gives."""
+    import fiona
+    import shapely
+
+    from footprints import L_SHAPE, closed, write_geoparquet
+
+    def footprint(k):
+        return {"type": "Polygon", "coordinates": [closed([(84600 + x + 30 * (k % 20), 447400 + y + 30 * (k // 20)) for x, y in L_SHAPE])]}
+
+    gpkg = tmp_path / "city.gpkg"
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "height": "float"}}
+    for layer, n in (("a", 130), ("b", 40)):
+        with fiona.open(gpkg, "w", driver="GPKG", layer=layer, schema=schema, crs="EPSG:28992") as out:
+            out.writerecords({"geometry": footprint(k), "properties": {"id": f"{layer}{k}", "height": 3.0 + k % 5 if k % 17 else None}}
+                             for k in range(n))
+    rows = [(f"p{k}", footprint(k), {"height": 4.0 + k % 3}) for k in range(130)]
+    write_geoparquet(tmp_path / "city.parquet", rows, crs=None, wkb=[shapely.to_wkb(shapely.geometry.shape(g)) for _, g, _ in rows])
+    stores, reads = {}, {}
+    for read_features in (10**6, 50):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(gpkg), str(tmp_path / "city.parquet")]}, "encoding": {"levels": [1]},
+                                "dask": {"shard_meshes": 16, "read_features": read_features}, "store": {"chunk_rows": CHUNK}})
+        stores[read_features] = store = tmp_path / f"f{read_features}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_features] = {total for stage, _, total in calls if stage == "read"}
+    whole, ranged = stores[10**6], stores[50]
+    assert reads[10**6] == {2} and reads[50] == {3 + 1 + 3}
+    a, b = read_manifest(whole)["records"], read_manifest(ranged)["records"]
+    assert a == b and len(a) == 130 + 40 + 130
+    assert a[0]["id"] == "city.gpkg#a/a0" and a[130]["id"] == "city.gpkg#b/b0" and a[-1]["id"] == "city.parquet#p129"
+    assert sum(r["status"] == "rejected" for r in a) == len([k for k in range(130) if k % 17 == 0]) + len(
+        [k for k in range(40) if k % 17 == 0])  # no height
+    for name, array in arrays(whole).items():
+        assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(ranged)[name][:])), name

@@ -30,7 +30,7 @@ from meshsom.gis import horizontal, wkb_polygons
 from meshsom.io import ReaderOptions, Rejection, expand_inputs, read_file
 from meshsom.preprocess import preprocess
 
-from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat
+from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat, write_geoparquet
 
 ZURICH = Path(__file__).resolve().parents[1] / "data/real/zurich-lod2-subset/zurich_subset_lod2.city.json"
 
@@ -172,23 +172,6 @@ def _write_fiona(path, driver, features, crs, schema=FOOTPRINT_SCHEMA, **options
             out.write({"geometry": geometry, "properties": row})
 
 
-def _write_geoparquet(path, features, crs="absent", wkb=None):
-    """GeoParquet 1.1 as its specification lays it out: a WKB column and the "geo" metadata."""
-    geometries = wkb or [shapely.to_wkb(shapely.geometry.shape(g)) for _, g, _ in features]
-    columns = {"id": [f for f, _, _ in features],
-               "height": [p.get("height") for _, _, p in features],
-               "min_height": [p.get("min_height") for _, _, p in features],
-               "num_floors": [p.get("num_floors") for _, _, p in features],
-               "family": [p.get("family") for _, _, p in features],
-               "geometry": geometries}
-    column_meta = {"encoding": "WKB", "geometry_types": []}
-    if crs != "absent":
-        column_meta["crs"] = crs
-    table = pa.table(columns).replace_schema_metadata(
-        {b"geo": json.dumps({"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": column_meta}}).encode()})
-    pq.write_table(table, path)
-
-
 def _volume(mesh) -> float:
     return preprocess(mesh.vertices, mesh.faces).volume_out
 
@@ -214,7 +197,7 @@ def test_footprints_in_longitude_latitude(tmp_path, driver, name):
     features = _footprints(lonlat)
     path = tmp_path / name
     if driver is None:
-        _write_geoparquet(path, features)  # no "crs": OGC:CRS84, as the specification says
+        write_geoparquet(path, features)  # no "crs": OGC:CRS84, as the specification says
     else:  # GeoJSONSeq: GDAL writes 7 decimals (1 cm) unless told
         _write_fiona(path, driver, features, "EPSG:4326", **({"COORDINATE_PRECISION": 15} if driver == "GeoJSONSeq" else {}))
     got = _by_id(read_file(path))
@@ -243,11 +226,11 @@ def test_projected_feet_and_unknown_crs(tmp_path):
     _check_footprints(_by_id(read_file(tmp_path / "deg.shp", ReaderOptions(crs="EPSG:4326"))))
     # GeoParquet: "crs": null is unknown (read as metres); PROJJSON is honoured
     rd = lambda r: [(84600 + x, 447400 + y) for x, y in r]  # noqa: E731 (RD New)
-    _write_geoparquet(tmp_path / "rd.parquet", _footprints(rd), crs=None)
+    write_geoparquet(tmp_path / "rd.parquet", _footprints(rd), crs=None)
     _check_footprints(_by_id(read_file(tmp_path / "rd.parquet")))
     import pyproj
 
-    _write_geoparquet(tmp_path / "ny.parquet", features, crs=pyproj.CRS("EPSG:2263").to_json_dict())
+    write_geoparquet(tmp_path / "ny.parquet", features, crs=pyproj.CRS("EPSG:2263").to_json_dict())
     assert _volume(_by_id(read_file(tmp_path / "ny.parquet"))["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
 
 
@@ -283,7 +266,7 @@ def test_3d_layers_read_as_the_cityjson_reader_reads_the_same_polygons(tmp_path)
                 for oid, polygons in parts]
     _write_fiona(tmp_path / "bag.gpkg", "GPKG", features, "EPSG:2056", schema)  # as the 3D BAG's lod22_3d layer
     _write_fiona(tmp_path / "patch.shp", "ESRI Shapefile", features, "EPSG:2056", schema, SHPT="MULTIPATCH")
-    _write_geoparquet(tmp_path / "ps.parquet", [(oid, None, {}) for oid, _ in parts], crs=None,
+    write_geoparquet(tmp_path / "ps.parquet", [(oid, None, {}) for oid, _ in parts], crs=None,
                       wkb=[polyhedral_surface([[closed(r) for r in poly] for poly in polygons]) for _, polygons in parts])
     assert sum(v is not None for v in volumes.values()) >= 25  # real LoD2: most parts close, some are refused
     for name in ("bag.gpkg", "patch.shp", "ps.parquet"):
