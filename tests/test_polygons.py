@@ -43,3 +43,48 @@ def test_extruded_courtyard_is_closed_outward_with_exact_volume():
 def test_extrusion_rejects_inverted_heights():
     with pytest.raises(ValueError, match="z1 > z0"):
         extrude_polygon(np.eye(3)[:, :2], [], 2.0, 1.0)
+
+
+def test_quads_split_at_once_as_one_by_one():
+    """meshsom.io splits plain convex quads in one vectorised step: the same triangles, in the same
+    order, as triangulating every polygon on its own (rectangles, whose diagonals tie, included)."""
+    from meshsom.io import _drop_closing_vertex, _drop_spikes, _triangulate_polygons
+
+    rng = np.random.default_rng(7)
+    local = []
+    polygons = []
+
+    def add(points, ring=None):
+        start = sum(len(p) for p in local)
+        local.append(np.asarray(points, float))
+        polygons.append([list(range(start, start + len(points))) if ring is None else [start + i for i in ring]])
+
+    for _ in range(200):  # random convex quads, rotated rectangles (a tie), squares
+        a, b = rng.uniform(0.5, 20, 2)
+        rect = np.array([[0, 0, 0], [a, 0, 0], [a, 0, b], [0, 0, b]])
+        rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        add(rect @ rot.T + rng.uniform(-1e5, 1e5, 3))
+        add(np.array([[0, 0, 0], [a, 0, 0], [a, a, 0], [0, a, 0]]) + rng.uniform(-1e3, 1e3, 3))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, 4))
+        add(np.column_stack([np.cos(angles), np.sin(angles), rng.uniform(0, 1e-9, 4)]) * rng.uniform(1, 50))
+    add([[0, 0, 0], [4, 0, 0], [1, 1, 0], [0, 4, 0]])  # a dart: not convex
+    add([[0, 0, 0], [4, 0, 0], [8, 0, 0], [4, 0, 0]])  # a spike along a line: degenerate
+    add([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]], ring=[0, 1, 1, 2])  # a repeated vertex
+    add([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]])  # collinear
+    add([[0, 0, 0], [4, 0, 0], [4, 4, 0]])  # a triangle and a pentagon among them
+    add([[0, 0, 0], [4, 0, 0], [5, 2, 0], [2, 5, 0], [0, 4, 0]])
+    local = np.concatenate(local)
+    inverse = np.concatenate([poly[0] for poly in polygons])  # ring positions -> vertices, as the reader builds it
+    faces, face_poly, _ = _triangulate_polygons(polygons, inverse, local)
+    want, want_poly = [], []
+    for p, poly in enumerate(polygons):
+        ring = _drop_spikes(_drop_closing_vertex(np.asarray(poly[0])), local)
+        if len(ring) < 3:
+            continue
+        tri = triangulate_polygon_3d([local[ring]])
+        want.append(ring[tri])
+        want_poly.append(np.full(len(tri), p))
+    simple = [k for k, poly in enumerate(polygons) if len(poly[0]) == 3]  # plain triangles come first
+    order = np.argsort([0 if p in simple else 1 for p in np.concatenate(want_poly)], kind="stable")
+    assert np.array_equal(faces, np.concatenate(want).reshape(-1, 3)[order])
+    assert np.array_equal(face_poly, np.concatenate(want_poly)[order])
