@@ -1,5 +1,5 @@
 """Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq, CityGML
-(:mod:`meshsom.citygml`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; GIS files
+(:mod:`meshsom.citygml`), 3D Tiles (:mod:`meshsom.tiles3d`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; GIS files
 (GeoPackage, Shapefile, FileGDB, FlatGeobuf, GeoJSONSeq, GeoParquet: :mod:`meshsom.gis`); every
 building in metres, whatever its file's CRS (:mod:`meshsom.crs`).
 
@@ -62,6 +62,10 @@ TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson", ".geojson")
 #: File name endings read as CityGML (:mod:`meshsom.citygml`).
 CITYGML_SUFFIXES = (".gml", ".citygml")
+#: A 3D Tiles tileset's file name: in a folder, the content under its folder (and nested
+#: tilesets) is read through it, not on its own.
+TILESET_NAME = "tileset.json"
+TILES_CONTENT_SUFFIXES = (".b3dm", ".glb", ".gltf", ".pnts", ".i3dm", ".cmpt", ".subtree")
 #: The files that come with a shapefile (``x.shp``), read with it.
 SHAPEFILE_SIDECARS = (".dbf", ".shx", ".prj", ".cpg", ".qix", ".sbn", ".sbx", ".qmd")
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).
@@ -296,10 +300,13 @@ def input_kind(path: Path) -> str:
     """'cityjson', 'cityjsonseq', 'citygml', 'gis' or 'trimesh' by file name (a final ``.gz``
     aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
+    from meshsom.tiles3d import B3DM_SUFFIXES
 
     name = format_name(path)
     if name.endswith(GIS_SUFFIXES):
         return "gis"
+    if name.endswith(B3DM_SUFFIXES):
+        return "b3dm"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -308,7 +315,7 @@ def input_kind(path: Path) -> str:
         return "trimesh"
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     raise InputFileError(
         str(path),
@@ -559,9 +566,15 @@ def expand_inputs(inputs: list[str | os.PathLike],
         if p.is_dir() and not _is_gdb(p):
             found = []
             root = p.resolve()
+            tilesets = sorted((t.parent for t in p.rglob(TILESET_NAME)), key=lambda t: (len(t.parts), t))  # outermost first
             for q in sorted(p.rglob("*")):
                 if any(_is_gdb(p / d) for d in q.relative_to(p).parents if d != Path(".")):
                     continue  # inside a File Geodatabase: the folder is read as one input
+                owner = next((t for t in tilesets if q.is_relative_to(t) and q != t / TILESET_NAME), None)
+                if owner is not None and (q.suffix.lower() in TILES_CONTENT_SUFFIXES or q.name == TILESET_NAME):
+                    if skipped is not None:
+                        skipped.append((str(q), f"content of the 3D Tiles tileset {owner / TILESET_NAME}, read through it"))
+                    continue
                 if q.is_file() or _is_gdb(q):
                     try:
                         input_kind(q)
@@ -671,6 +684,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.gis import read_gis
 
             yield from read_gis(path, options, name, feature_range)
+        elif kind == "b3dm":
+            from meshsom.tiles3d import read_b3dm
+
+            yield from read_b3dm(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1122,6 +1139,11 @@ def read_cityjson(
             yield item
         if not found:
             raise InputFileError(str(path), "is a GeoJSON FeatureCollection of no features")
+        return
+    from meshsom.tiles3d import is_tileset, read_tileset
+
+    if is_tileset(cj):
+        yield from read_tileset(cj, path, options, name)
         return
     vertices, scale, translate = _check_cityjson_header(cj, str(path), options)
     objects: dict = cj["CityObjects"]

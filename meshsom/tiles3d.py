@@ -1,0 +1,345 @@
+"""Reading buildings from 3D Tiles: batched 3D models (``.b3dm``) and the tilesets that hold them
+(``tileset.json``).
+
+City models published for the web (Cesium ion, municipal portals, converters from CityGML such as
+3DCityDB's and FME's) come as 3D Tiles: glTF payloads in earth-centred coordinates, each building a
+*batch* (the ``_BATCHID`` vertex attribute; ``_FEATURE_ID_0`` in 3D Tiles 1.1 glTF content):
+
+- **A b3dm file**: its header, feature table (``BATCH_LENGTH``, ``RTC_CENTER``) and batch table
+  (per-building properties) are read here; its glTF through trimesh, with each node's transform,
+  then turned from glTF's y up to 3D Tiles' z up, and moved by ``RTC_CENTER`` (or the glTF's
+  ``CESIUM_RTC`` centre). One mesh per batch: ids ``name#<id>``, ``<id>`` the batch's first
+  property of :attr:`meshsom.io.ReaderOptions.id_attributes` when those are unique in the batch
+  table, else the batch number; labels from :attr:`meshsom.io.ReaderOptions.label_attribute`.
+- **A tileset** (a ``.json`` with ``asset`` and ``root``): its tiles are walked with their
+  transforms (external tilesets followed, within the tileset's folder), and the contents that
+  make the finest level are read: a tile's content when it has no children, or when its
+  refinement is ``ADD`` (children add to it; ``REPLACE`` children stand in for it). Ids are
+  ``name#<content path>#<id>``. Contents other than b3dm and glb (points, instances, composites)
+  are listed as rejections.
+- **Coordinates**: earth-centred (ECEF, WGS 84) positions are turned into east-north-up metres
+  about each building's centre (:func:`meshsom.crs.east_north_up_of_geocentric`), with a note;
+  the mesh's origin stays earth-centred. Positions in a local frame (a b3dm read without the
+  tileset whose root transform places it) are read as metres, with a note.
+
+Not read: Draco or meshopt compressed glTF (decompress first, e.g. ``gltf-transform copy``),
+b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+from pathlib import Path, PurePosixPath
+from typing import Iterator
+from urllib.parse import unquote, urlparse
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+#: File name endings read as 3D Tiles content.
+B3DM_SUFFIXES = (".b3dm",)
+#: A mesh whose centre lies this far (metres) from the earth's centre, give or take
+#: :data:`ECEF_BAND`, is in earth-centred coordinates.
+EARTH_RADIUS = 6_371_000.0
+ECEF_BAND = 100_000.0
+#: glTF is y up; 3D Tiles turn it z up: (x, y, z) -> (x, -z, y).
+Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])
+#: Positions beyond this (metres) are refused: the earth is 6.4e6 m across.
+MAX_COORDINATE = 1e9
+#: Tilesets nested (external tilesets) deeper than this are refused.
+MAX_TILESET_DEPTH = 64
+_COMPRESSED = ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression")
+_FEATURE_ATTRIBUTES = ("_BATCHID", "_FEATURE_ID_0", "_batchid")
+
+
+def is_tileset(document) -> bool:
+    """Whether a parsed JSON document is a 3D Tiles tileset."""
+    return isinstance(document, dict) and isinstance(document.get("asset"), dict) and isinstance(document.get("root"), dict)
+
+
+def parse_b3dm(data: bytes, where: str) -> tuple[dict, dict, bytes, bytes]:
+    """The parts of a b3dm.
+
+    Returns
+    -------
+    feature_table : dict
+    batch_table : dict
+        JSON properties, one list per property (binary batch-table properties are left out).
+    glb : bytes
+    feature_binary : bytes
+        The feature table's binary body (``RTC_CENTER`` may point into it).
+
+    Raises
+    ------
+    InputFileError
+        Not a b3dm, a draft (2016) layout, or lengths that do not fit the file.
+    """
+    if len(data) < 28 or data[:4] != b"b3dm":
+        raise InputFileError(where, f"is not a b3dm (magic {bytes(data[:4])!r}; expected b'b3dm')")
+    _, version, length, ft_json, ft_bin, bt_json, bt_bin = struct.unpack_from("<4sIIIIII", data)
+    if version != 1:
+        raise InputFileError(where, f"is b3dm version {version}; expected 1")
+    if bt_json >= 570425344 or bt_bin >= 570425344:  # a draft header: the JSON's '{"' read as a length
+        raise InputFileError(where, "has a b3dm header of the 2016 draft layout (upgrade it: 3d-tiles-tools upgrade)")
+    end = 28 + ft_json + ft_bin + bt_json + bt_bin
+    if length > len(data) or end > min(length, len(data)):
+        raise InputFileError(where, f"is cut short: its header says {length} bytes and parts ending at byte {end}; "
+                                    f"the file has {len(data)}")
+    pos = 28
+
+    def table(size: int) -> dict:
+        nonlocal pos
+        text = bytes(data[pos:pos + size]).rstrip(b" \0")
+        pos += size
+        if not text:
+            return {}
+        try:
+            value = json.loads(text)
+        except ValueError as err:
+            raise InputFileError(where, f"has a feature or batch table that is not JSON ({err})") from None
+        if not isinstance(value, dict):
+            raise InputFileError(where, "has a feature or batch table that is not a JSON object")
+        return value
+
+    feature_table = table(ft_json)
+    feature_binary = bytes(data[pos:pos + ft_bin])
+    pos += ft_bin
+    batch_table = table(bt_json)
+    pos += bt_bin
+    return feature_table, batch_table, bytes(data[pos:length]), feature_binary
+
+
+def _rtc_centre(feature_table: dict, feature_binary: bytes, where: str) -> np.ndarray:
+    centre = feature_table.get("RTC_CENTER")
+    if centre is None:
+        return np.zeros(3)
+    if isinstance(centre, dict) and "byteOffset" in centre:  # in the binary body
+        offset = int(centre["byteOffset"])
+        if offset < 0 or offset + 12 > len(feature_binary):
+            raise InputFileError(where, "has an RTC_CENTER beyond its feature table")
+        return np.array(struct.unpack_from("<3f", feature_binary, offset), np.float64)
+    try:
+        value = np.asarray(centre, np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InputFileError(where, f"has an RTC_CENTER that is not 3 numbers: {str(centre)[:60]}") from None
+    if not np.isfinite(value).all():
+        raise InputFileError(where, "has an RTC_CENTER that is not finite")
+    return value
+
+
+def _gltf_json(glb: bytes, where: str) -> dict:
+    if len(glb) < 20 or glb[:4] != b"glTF":
+        raise InputFileError(where, "holds no binary glTF (its payload does not start with b'glTF')")
+    size = struct.unpack_from("<I", glb, 12)[0]
+    try:
+        return json.loads(glb[20:20 + size])
+    except ValueError as err:
+        raise InputFileError(where, f"holds a glTF whose JSON cannot be read ({err})") from None
+
+
+def batched_meshes(glb: bytes, where: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """The triangles of a glTF content split by batch (feature) id, in 3D Tiles' z-up frame.
+
+    Parameters
+    ----------
+    glb : bytes
+    where : str
+
+    Returns
+    -------
+    list of (batch, vertices (V, 3) float64, faces (F, 3) int64)
+        Sorted by batch; positions after each node's transform and the y-up to z-up turn, before
+        any RTC centre or tile transform. A glTF without batch ids is batch 0; triangles whose
+        batch id is not a whole number from 0 are batch -1.
+    """
+    import trimesh
+
+    gltf = _gltf_json(glb, where)
+    used = set(gltf.get("extensionsUsed", [])) | set(gltf.get("extensionsRequired", []))
+    compressed = sorted(used.intersection(_COMPRESSED))
+    if compressed:
+        raise InputFileError(where, f"holds glTF compressed with {', '.join(compressed)}, which is not read "
+                                    f"(decompress it first, e.g. gltf-transform copy)")
+    try:
+        scene = trimesh.load(io.BytesIO(glb), file_type="glb", process=False, force="scene", skip_materials=True)
+    except Exception as err:  # trimesh raises many types for corrupt files
+        raise InputFileError(where, f"holds a glTF that cannot be read ({type(err).__name__}: {err})") from None
+    parts: dict[int, list] = {}
+    for node in scene.graph.nodes_geometry:
+        transform, geom_name = scene.graph[node]
+        geom = scene.geometry[geom_name]
+        if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
+            continue
+        v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), Y_UP_TO_Z_UP @ transform)
+        faces = np.asarray(geom.faces, np.int64)
+        if faces.min() < 0 or faces.max() >= len(v):
+            raise InputFileError(where, f"holds glTF triangles whose indices go beyond its {len(v)} vertices")
+        attrs = getattr(geom, "vertex_attributes", {}) or {}
+        ids = next((np.asarray(attrs[a]) for a in _FEATURE_ATTRIBUTES if a in attrs), None)
+        if ids is not None:
+            if len(ids) != len(v) or ids.size % max(len(v), 1):
+                raise InputFileError(where, f"holds a batch-id attribute of {len(ids)} values for {len(v)} vertices")
+            ids = ids.reshape(len(v), -1)[:, 0]
+        if ids is None:
+            face_batch = np.zeros(len(faces), np.int64)
+        else:  # a batch id that is not a whole number in range is -1: listed as not read
+            value = np.asarray(ids[faces[:, 0]], np.float64)
+            ok = np.isfinite(value) & (value >= 0) & (value < 2**31) & (value == np.rint(value))
+            face_batch = np.where(ok, np.rint(np.where(ok, value, 0)), -1).astype(np.int64)
+        for batch in np.unique(face_batch):
+            f = faces[face_batch == batch]
+            used_v, inverse = np.unique(f, return_inverse=True)
+            parts.setdefault(int(batch), []).append((v[used_v], inverse.reshape(-1, 3)))
+    out = []
+    for batch in sorted(parts):
+        pieces = parts[batch]
+        offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
+        out.append((batch, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])))
+    return out
+
+
+def _batch_ids(batch_table: dict, length: int | None, options) -> list[str] | None:
+    """The batches' ids: the first property of ``options.id_attributes`` that names the
+    ``length`` batches uniquely; None (batch numbers) otherwise."""
+    if not length:
+        return None
+    for name in options.id_attributes:
+        values = batch_table.get(name)
+        if isinstance(values, list) and len(values) >= length:
+            names = [str(v) for v in values[:length]]
+            if all(v not in (None, "") for v in values[:length]) and len(set(names)) == length:
+                return names
+    return None
+
+
+def content_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
+                   b3dm: bool = True) -> Iterator:
+    """RawMesh / Rejection items of one b3dm (or, ``b3dm`` false, glb) content (``prefix`` starts
+    the ids; ``transform`` the tile's, column vectors, 4 x 4)."""
+    from meshsom.io import RawMesh, Rejection, recentre
+
+    if b3dm:
+        feature_table, batch_table, glb, feature_binary = parse_b3dm(data, source)
+        rtc = _rtc_centre(feature_table, feature_binary, source)
+    else:
+        feature_table, batch_table, glb, rtc = {}, {}, bytes(data), np.zeros(3)
+    gltf = _gltf_json(glb, source)
+    cesium_rtc = (gltf.get("extensions") or {}).get("CESIUM_RTC", {}).get("center")
+    if cesium_rtc is not None:
+        rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)
+    batches = batched_meshes(glb, source)
+    declared = feature_table.get("BATCH_LENGTH")
+    length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared >= 0 else None
+    ids = _batch_ids(batch_table, length, options)
+    labels = batch_table.get(options.label_attribute)
+    for batch, v, f in batches:
+        if batch < 0 or (length is not None and batch >= length):
+            what = "not whole numbers from 0" if batch < 0 else f"{batch}, beyond BATCH_LENGTH {length}"
+            yield Rejection(f"{prefix}(batch {batch})", source, f"{len(f)} triangles carry batch ids {what}; not read")
+            continue
+        mesh_id = f"{prefix}{ids[batch] if ids else batch}"
+        label = labels[batch] if isinstance(labels, list) and 0 <= batch < len(labels) else None
+        label = None if label is None else str(label)
+        world = v + rtc
+        if transform is not None:
+            world = world @ transform[:3, :3].T + transform[:3, 3]
+        if not (np.isfinite(world).all() and np.abs(world).max(initial=0) < MAX_COORDINATE):
+            yield Rejection(mesh_id, source, f"has coordinates that are not finite numbers of magnitude below {MAX_COORDINATE:g}",
+                            0, label)
+            continue
+        local, origin = recentre(world)
+        if abs(np.linalg.norm(origin) - EARTH_RADIUS) < ECEF_BAND:
+            from meshsom.crs import east_north_up_of_geocentric
+
+            local = east_north_up_of_geocentric(world, origin)
+            note = "converted to metres from earth-centred coordinates (3D Tiles, WGS 84), east-north-up about the building's centre"
+        else:
+            note = "not earth-centred (a tile read without the tileset transform that places it): read as metres in its own frame"
+        if len(f) == 0:
+            yield Rejection(mesh_id, source, "holds no faces", 0, label)
+            continue
+        yield RawMesh(mesh_id, source, local, f, origin, label, None, notes=(note,))
+
+
+def read_b3dm(path: Path, options, name: str | None = None) -> Iterator:
+    """Read the buildings (batches) of one b3dm file (as the module says)."""
+    from meshsom.io import read_input_bytes
+
+    yield from content_meshes(bytes(read_input_bytes(path, options)), str(path), f"{name or path.name}#", options)
+
+
+def _matrix(tile: dict, where: str) -> np.ndarray:
+    value = tile.get("transform")
+    if value is None:
+        return np.eye(4)
+    try:
+        m = np.asarray(value, np.float64).reshape(4, 4).T  # column-major in the tileset
+    except (TypeError, ValueError):
+        raise InputFileError(where, f"has a tile transform that is not 16 numbers: {str(value)[:60]}") from None
+    if not np.isfinite(m).all():
+        raise InputFileError(where, "has a tile transform that is not finite")
+    return m
+
+
+def _uris(tile: dict) -> list[str]:
+    contents = [tile["content"]] if isinstance(tile.get("content"), dict) else []
+    contents += [c for c in tile.get("contents", []) if isinstance(c, dict)]
+    return [c.get("uri", c.get("url")) for c in contents if isinstance(c.get("uri", c.get("url")), str)]
+
+
+def read_tileset(document: dict, path: Path, options, name: str | None = None) -> Iterator:
+    """Read the buildings of a parsed tileset (as the module says)."""
+    from meshsom.io import Rejection, _parse_json, read_input_bytes
+
+    name = name or path.name
+    root_folder = path.parent.resolve()
+    found = False
+    # (tile, transform of its parent, refinement inherited, the folder its URIs are relative to, depth)
+    stack = [(document["root"], np.eye(4), "REPLACE", path.parent, 0)]
+    while stack:
+        tile, parent, refine, folder, depth = stack.pop()
+        if not isinstance(tile, dict):
+            continue
+        if depth > MAX_TILESET_DEPTH:
+            raise InputFileError(str(path), f"nests tiles or tilesets deeper than {MAX_TILESET_DEPTH}")
+        transform = parent @ _matrix(tile, str(path))
+        refine = str(tile.get("refine", refine)).upper()
+        children = [c for c in tile.get("children", []) if isinstance(c, dict)]
+        stack.extend((c, transform, refine, folder, depth + 1) for c in reversed(children))
+        for uri in _uris(tile):
+            parsed = urlparse(uri)
+            target = (folder / unquote(parsed.path)).resolve()
+            content_id = f"{name}#{PurePosixPath(target.relative_to(root_folder)).as_posix()}" if target.is_relative_to(
+                root_folder) else f"{name}#{uri}"
+            if parsed.scheme or parsed.netloc or not target.is_relative_to(root_folder):
+                found = True
+                yield Rejection(content_id, str(path), f"names content outside the tileset's folder ({uri}); not followed")
+                continue
+            if target.suffix.lower() == ".json":  # an external tileset: its root joins the walk
+                try:
+                    sub = _parse_json(bytes(read_input_bytes(target, options)), str(target))
+                except (InputFileError, OSError) as err:
+                    found = True
+                    yield Rejection(content_id, str(target), getattr(err, "problem", str(err)))
+                    continue
+                if is_tileset(sub):
+                    stack.append((sub["root"], transform, refine, target.parent, depth + 1))
+                continue
+            if children and refine != "ADD":
+                continue  # a coarser level: its children replace it
+            found = True
+            if target.suffix.lower() not in (".b3dm", ".glb"):
+                yield Rejection(content_id, str(target), f"is 3D Tiles content of type {target.suffix or '(none)'}; "
+                                                         f"only batched models (.b3dm, .glb) are read")
+                continue
+            try:
+                data = bytes(read_input_bytes(target, options))
+                yield from content_meshes(data, str(target), f"{content_id}#", options, transform,
+                                          b3dm=target.suffix.lower() == ".b3dm")
+            except (InputFileError, OSError) as err:
+                yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
+    if not found:
+        raise InputFileError(str(path), "is a 3D Tiles tileset without any content")

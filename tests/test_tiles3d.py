@@ -1,0 +1,218 @@
+"""Buildings from 3D Tiles (meshsom.tiles3d): b3dm files and tilesets.
+
+The fixtures are written here as the 3D Tiles 1.0 specification lays them out: buildings of the
+bundled Delft file, drawn in metres, placed on the WGS 84 ellipsoid by PROJ (independent of
+meshsom's geodesy) as earth-centred coordinates, turned y up for glTF, batched by ``_BATCHID``.
+Each must read back as the same building moved rigidly: the same volume and distances, to the
+float32 precision of glTF positions.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+import trimesh
+
+from meshsom.crs import WGS84, east_north_up_of_geocentric, geodetic
+from meshsom.io import RawMesh, Rejection, expand_inputs, read_file
+
+DELFT = Path(__file__).resolve().parents[1] / "data/real/delft-lod1-3dfier/delft.city.json"
+CENTRE = (52.0116, 4.3571, 0.0)  # latitude, longitude, height of the local frame's origin
+
+
+def _ecef(enu):
+    """ECEF of points given east-north-up about CENTRE (PROJ)."""
+    lat0, lon0, h0 = CENTRE
+    t = pyproj.Transformer.from_pipeline(f"+proj=topocentric +lat_0={lat0} +lon_0={lon0} +h_0={h0} +ellps=WGS84")
+    x, y, z = t.transform(enu[:, 0], enu[:, 1], enu[:, 2], direction="INVERSE")
+    return np.column_stack([x, y, z])
+
+
+def _buildings(n=12):
+    """(id, local vertices in metres about the district's centre, faces) of Delft buildings."""
+    meshes = [m for m in read_file(DELFT) if isinstance(m, RawMesh)][:n]
+    centre = np.mean([m.origin for m in meshes], axis=0)
+    return [(m.id.split("#", 1)[1], m.vertices + m.origin - centre, m.faces) for m in meshes]
+
+
+def _pad(data: bytes, fill: bytes = b" ") -> bytes:
+    return data + fill * (-len(data) % 8)
+
+
+def b3dm(buildings, positions, rtc=None, extra_gltf=None, batch_table=None):
+    """A b3dm of one glTF mesh whose vertices carry their building's ``_BATCHID``.
+
+    ``positions(vertices)`` gives each building's z-up positions (before ``rtc``) in the tile."""
+    vertices, faces, batch = [], [], []
+    offset = 0
+    for k, (_, v, f) in enumerate(buildings):
+        p = positions(v)
+        vertices.append(p)
+        faces.append(f + offset)
+        batch.append(np.full(len(p), k, np.float32))
+        offset += len(p)
+    v = np.concatenate(vertices)
+    if rtc is not None:
+        v = v - rtc
+    y_up = np.column_stack([v[:, 0], v[:, 2], -v[:, 1]])  # z up -> glTF's y up
+    mesh = trimesh.Trimesh(y_up, np.concatenate(faces), process=False)
+    mesh.vertex_attributes["_BATCHID"] = np.concatenate(batch)
+    glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh), include_normals=False)
+    if extra_gltf:  # rewrite the glTF JSON chunk (e.g. to declare an extension)
+        size = struct.unpack_from("<I", glb, 12)[0]
+        doc = json.loads(glb[20:20 + size]) | extra_gltf
+        chunk = _pad(json.dumps(doc).encode())
+        rest = glb[20 + size:]
+        glb = b"glTF" + struct.pack("<II", 2, 12 + 8 + len(chunk) + len(rest)) + struct.pack("<I4s", len(chunk), b"JSON") + chunk + rest
+    feature = {"BATCH_LENGTH": len(buildings)}
+    if rtc is not None:
+        feature["RTC_CENTER"] = [float(c) for c in rtc]
+    ft = _pad(json.dumps(feature).encode())
+    bt = _pad(json.dumps(batch_table if batch_table is not None else
+                         {"id": [b[0] for b in buildings], "family": [f"f{k % 3}" for k in range(len(buildings))]}).encode())
+    body = ft + bt + glb
+    return b"b3dm" + struct.pack("<6I", 1, 28 + len(body), len(ft), 0, len(bt), 0) + body
+
+
+def _signed_volume(v, f):
+    """The signed volume the triangles enclose (divergence theorem), repairs aside."""
+    a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+
+
+def _distances(v):
+    return np.linalg.norm(v[:, None] - v[None], axis=2)
+
+
+def _same_building(got, want_vertices, want_faces, atol=2e-3):
+    """Rigidly the same: volumes, vertex distances and height (z up). (Not preprocessed: its repairs
+    of these LoD1 meshes may decide otherwise on float32 positions.)"""
+    assert got.faces.shape == want_faces.shape
+    assert _signed_volume(got.vertices, got.faces) == pytest.approx(_signed_volume(want_vertices, want_faces), rel=1e-5)
+    assert np.allclose(_distances(got.vertices), _distances(want_vertices), atol=atol)
+    assert np.ptp(got.vertices[:, 2]) == pytest.approx(np.ptp(want_vertices[:, 2]), abs=1e-2)
+
+
+def test_geodesy_against_proj():
+    rng = np.random.default_rng(3)
+    for lat, lon, h in [(52.0116, 4.3571, 45.0), (-33.87, 151.21, 800.0), (64.1, -21.9, 10.0), (0.1, 179.95, -20.0)]:
+        centre = np.array(pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978").transform(lat, lon, h))
+        assert geodetic(centre[None], *WGS84)[0] == pytest.approx([lat, lon, h], abs=1e-9)
+        points = centre + rng.uniform(-300, 300, (50, 3))
+        t = pyproj.Transformer.from_pipeline(f"+proj=topocentric +X_0={centre[0]} +Y_0={centre[1]} +Z_0={centre[2]} +ellps=WGS84")
+        want = np.column_stack(t.transform(points[:, 0], points[:, 1], points[:, 2]))
+        assert np.allclose(east_north_up_of_geocentric(points, centre), want, atol=1e-6)
+
+
+def test_b3dm_in_earth_centred_coordinates(tmp_path):
+    buildings = _buildings()
+    ecef = [_ecef(v) for _, v, _ in buildings]
+    rtc = np.mean(np.concatenate(ecef), axis=0)
+    lookup = {id(v): e for (_, v, _), e in zip(buildings, ecef)}
+    (tmp_path / "tile.b3dm").write_bytes(b3dm(buildings, lambda v: lookup[id(v)], rtc=rtc))
+    got = {m.id: m for m in read_file(tmp_path / "tile.b3dm")}
+    assert list(got) == [f"tile.b3dm#{b[0]}" for b in buildings]
+    for k, (bid, v, f) in enumerate(buildings):
+        m = got[f"tile.b3dm#{bid}"]
+        assert m.label == f"f{k % 3}" and "earth-centred" in m.notes[0]
+        _same_building(m, v, f)
+        assert np.linalg.norm(m.origin - ecef[k].mean(axis=0)) < 50  # its world position: earth-centred
+
+
+def test_tileset_walks_transforms_refinement_and_external_tilesets(tmp_path):
+    """As Cesium tilesets are laid out: the root's transform places an east-north-up frame on the
+    earth; a coarse tile is replaced by its children, an ADD tile's content is kept, an external
+    tileset is followed with the transforms above it; point clouds and links outside are listed."""
+    buildings = _buildings(9)
+    lat0, lon0, h0 = CENTRE
+    origin = _ecef(np.zeros((1, 3)))[0]
+    lat, lon = np.radians(lat0), np.radians(lon0)
+    enu_to_ecef = np.eye(4)
+    enu_to_ecef[:3, :3] = np.array([[-np.sin(lon), -np.sin(lat) * np.cos(lon), np.cos(lat) * np.cos(lon)],
+                                    [np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat) * np.sin(lon)],
+                                    [0.0, np.cos(lat), np.sin(lat)]])
+    enu_to_ecef[:3, 3] = origin
+    shift = np.eye(4)
+    shift[:3, 3] = [100.0, 0.0, 0.0]  # a child tile moved 100 m east in the frame
+    local = lambda v: v  # noqa: E731 (the tiles hold the frame's metres)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "coarse.b3dm").write_bytes(b3dm(buildings[:1], local))
+    (tmp_path / "a.b3dm").write_bytes(b3dm(buildings[:3], local))
+    (tmp_path / "b.b3dm").write_bytes(b3dm(buildings[3:6], local))
+    (tmp_path / "sub" / "c.b3dm").write_bytes(b3dm(buildings[6:], local))
+    (tmp_path / "p.pnts").write_bytes(b"pnts")
+    (tmp_path / "sub" / "tileset.json").write_text(json.dumps(
+        {"asset": {"version": "1.0"}, "geometricError": 0, "root": {"geometricError": 0, "content": {"uri": "c.b3dm"}}}))
+    tileset = {"asset": {"version": "1.0"}, "geometricError": 100, "root": {
+        "transform": enu_to_ecef.T.reshape(-1).tolist(), "geometricError": 100, "refine": "REPLACE",
+        "content": {"uri": "coarse.b3dm"},
+        "children": [
+            {"geometricError": 0, "content": {"uri": "a.b3dm"}},
+            {"geometricError": 10, "refine": "ADD", "transform": shift.T.reshape(-1).tolist(), "content": {"uri": "b.b3dm"},
+             "children": [{"geometricError": 0, "content": {"uri": "sub/tileset.json"}}]},
+            {"geometricError": 0, "content": {"uri": "p.pnts"}},
+            {"geometricError": 0, "content": {"uri": "../outside.b3dm"}},
+        ]}}
+    (tmp_path / "tileset.json").write_text(json.dumps(tileset))
+    items = list(read_file(tmp_path / "tileset.json"))
+    got = {m.id: m for m in items}
+    ids = [f"tileset.json#a.b3dm#{b[0]}" for b in buildings[:3]] + [f"tileset.json#b.b3dm#{b[0]}" for b in buildings[3:6]] + [
+        f"tileset.json#sub/c.b3dm#{b[0]}" for b in buildings[6:]]
+    assert sorted(m.id for m in items if isinstance(m, RawMesh)) == sorted(ids)  # no coarse.b3dm: replaced
+    assert "only batched models" in got["tileset.json#p.pnts"].reason
+    assert "outside the tileset's folder" in got["tileset.json#../outside.b3dm"].reason
+    for bid, v, f in buildings:
+        (m,) = [m for m in items if m.id.endswith(f"#{bid}")]
+        _same_building(m, v, f)
+        assert "earth-centred" in m.notes[0]
+    # the shifted tile's buildings lie 100 m east of where the frame puts them
+    bid, v, _ = buildings[4]
+    where = _ecef(v.mean(axis=0)[None] + [100.0, 0, 0])[0]
+    assert np.linalg.norm(got[f"tileset.json#b.b3dm#{bid}"].origin - where) < 20
+    # alone, a tile of the frame's metres is read as metres, with a note
+    (lone,) = [m for m in read_file(tmp_path / "a.b3dm") if m.id.endswith(buildings[0][0])]
+    assert "not earth-centred" in lone.notes[0]
+    # a folder: the tileset is the input, its tiles are read through it
+    skipped = []
+    files, _ = expand_inputs([tmp_path], skipped)
+    assert [f.name for f in files] == ["tileset.json"]
+    assert {Path(p).name for p, why in skipped if "read through it" in why} == {
+        "coarse.b3dm", "a.b3dm", "b.b3dm", "c.b3dm", "p.pnts", "tileset.json"}
+
+
+def test_damaged_and_unreadable_tiles(tmp_path):
+    buildings = _buildings(2)
+    good = b3dm(buildings, lambda v: v)
+    draco = b3dm(buildings, lambda v: v, extra_gltf={"extensionsUsed": ["KHR_draco_mesh_compression"]})
+    draft = good[:20] + struct.pack("<II", 570425344, 0) + good[28:]
+    cases = {"cut.b3dm": (good[:-100], "cut short"), "draco.b3dm": (draco, "KHR_draco_mesh_compression"),
+             "draft.b3dm": (draft, "2016 draft"), "notb3dm.b3dm": (b"glTF" + good[4:], "is not a b3dm"),
+             "badtable.b3dm": (good[:28] + b"#" + good[29:], "not JSON")}
+    for name, (data, problem) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        (item,) = list(read_file(tmp_path / name))
+        assert isinstance(item, Rejection) and problem in item.reason, (name, item)
+    # ids: repeated batch-table ids fall back to batch numbers
+    (tmp_path / "same.b3dm").write_bytes(b3dm(buildings, lambda v: v, batch_table={"id": ["x", "x"]}))
+    assert [m.id for m in read_file(tmp_path / "same.b3dm")] == ["same.b3dm#0", "same.b3dm#1"]
+
+
+def test_tileset_through_meshsom_ingest(tmp_path):
+    buildings = _buildings(4)
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    ecef = {id(v): _ecef(v) for _, v, _ in buildings}
+    (folder / "t.b3dm").write_bytes(b3dm(buildings, lambda v: ecef[id(v)], rtc=_ecef(np.zeros((1, 3)))[0]))
+    (folder / "tileset.json").write_text(json.dumps(
+        {"asset": {"version": "1.0"}, "geometricError": 0, "root": {"geometricError": 0, "content": {"uri": "t.b3dm"}}}))
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "t.zarr")],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "4 meshes: 4 accepted, 0 rejected" in out.stdout, out.stdout
