@@ -21,7 +21,10 @@ import sys
 import tracemalloc
 from pathlib import Path
 
+import fiona  # noqa: F401 (imported before the guards: with botocore installed, importing it makes
+#               urllib3 probe IPv6 with a local socket, which is not the reader reaching out)
 import numpy as np
+import pyarrow.parquet  # noqa: F401 (likewise loaded before the guards)
 import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
@@ -41,7 +44,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm")
+            ".geojson", ".b3dm", ".gpkg", ".parquet", ".fgb")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -212,6 +215,9 @@ MAGIC = {
                  b'{"type": "Feature", "place": {"type": "Polyhedron", "coordinates": [[[[['],
     ".gml": [b"", b'<CityModel xmlns:gml="http://www.opengis.net/gml"><cityObjectMember><Building gml:id="a">',
              b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY e SYSTEM "../secret.bin">]><CityModel>&e;'],
+    ".gpkg": [b"", b"SQLite format 3\0", b"SQLite format 3\0\x10\x00\x01\x01\x00\x40\x20\x20"],
+    ".parquet": [b"", b"PAR1", b"PAR1\x15\x04\x15\x10"],
+    ".fgb": [b"", b"fgb\x03fgb\x00", b"fgb\x03fgb\x01\x00\x00\x00"],
     ".b3dm": [b"", b"b3dm" + struct.pack("<6I", 1, 1600, 24, 0, 16, 0) + b'{"BATCH_LENGTH": 2}     ' + b'{"id": [1, 2]}  ',
               b"b3dm" + struct.pack("<6I", 1, 4 * 10**9, 8, 0, 0, 0) + b'{}      glTF'],
 }
