@@ -735,6 +735,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         content = triangulated_obj(bytes(content)) or content
     elif file_type == "off":
         content = triangulated_off(bytes(content)) or content
+    elif file_type == "ply":
+        content = triangulated_ply(bytes(content)) or content
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the
@@ -867,6 +869,82 @@ def triangulated_off(data: bytes) -> bytes | None:
     out += [b" ".join(t[:3]) for t in body[:n_vertices]]
     out += [b"3 %d %d %d" % tuple(t) for t in triangles]
     return b"\n".join(out) + b"\n"
+
+
+def triangulated_ply(data: bytes) -> bytes | None:
+    """A PLY file of polygon faces as a binary PLY of triangles, every polygon triangulated in its
+    own plane (as :func:`triangulated_off`); None when every face is a triangle already or the file
+    is not one this reads (then trimesh reads it, or says what is wrong).
+
+    trimesh fans PLY polygons from their first vertex, which folds an L-shaped roof over itself.
+    Only the geometry is kept (x, y, z and the faces' ``vertex_indices``).
+    """
+    from plyfile import PlyData, PlyElement, PlyListProperty
+
+    try:
+        header = PlyData._parse_header(io.BytesIO(data))
+    except Exception:  # plyfile raises its own and ValueError / IndexError for bad headers
+        return None
+    elements = {e.name: e for e in header.elements}
+    if "vertex" not in elements or "face" not in elements or sum(e.count for e in header.elements) > len(data):
+        return None  # not a mesh, or counts the file cannot hold
+    face = elements["face"]
+    index_list = next((q for q in face.properties if isinstance(q, PlyListProperty)
+                       and q.name in ("vertex_indices", "vertex_index")), None)
+    if index_list is None or not _ply_polygons(data, header, face, index_list):
+        return None
+    try:
+        ply = PlyData.read(io.BytesIO(data))
+        vertex = ply["vertex"].data
+        local = np.column_stack([np.asarray(vertex[c], np.float64) for c in ("x", "y", "z")])
+        lists = [np.asarray(f, np.int64) for f in ply["face"].data[index_list.name]]
+    except Exception:
+        return None
+    if not lists or not np.isfinite(local).all() or any(len(f) < 3 or f.min() < 0 or f.max() >= len(local) for f in lists):
+        return None
+    faces, _, _ = _triangulate_polygons([[f] for f in lists], np.concatenate(lists), local)
+    out = io.BytesIO()
+    vertices = np.empty(len(local), [("x", "f8"), ("y", "f8"), ("z", "f8")])
+    vertices["x"], vertices["y"], vertices["z"] = local.T
+    triangles = np.empty(len(faces), [("vertex_indices", "i4", (3,))])
+    triangles["vertex_indices"] = faces
+    PlyData([PlyElement.describe(vertices, "vertex"), PlyElement.describe(triangles, "face")]).write(out)
+    return out.getvalue()
+
+
+def _ply_polygons(data: bytes, header, face, index_list) -> bool:
+    """Whether a PLY's faces include any of more than three vertices, read without parsing the
+    whole file where the layout allows (ASCII, or binary faces of the index list alone)."""
+    start = data.find(b"end_header")
+    if start < 0:
+        return False
+    body = data[data.find(b"\n", start) + 1:]
+    from plyfile import PlyListProperty
+
+    before = header.elements[:[e.name for e in header.elements].index("face")]
+    if header.text:
+        lines = [line for line in body.split(b"\n") if line.strip()]
+        skip = sum(e.count for e in before)
+        column = [q.name for q in face.properties].index(index_list.name)  # list first: its count is column 0
+        if column != 0:
+            return True  # let the full parse decide
+        return any(line.split()[0] != b"3" for line in lines[skip:skip + face.count])
+    sizes = []
+    for e in before:
+        if any(isinstance(q, PlyListProperty) for q in e.properties):
+            return True
+        sizes.append(e.count * sum(np.dtype(q.val_dtype.lstrip("<>=")).itemsize for q in e.properties))
+    if len(face.properties) != 1:
+        return True
+    order = "<" if header.byte_order in ("<", "=") else ">"
+    count_type = np.dtype(order + index_list.len_dtype.lstrip("<>="))
+    index_size = np.dtype(index_list.val_dtype.lstrip("<>=")).itemsize
+    record = count_type.itemsize + 3 * index_size
+    offset = sum(sizes)
+    if offset + record * face.count > len(body):
+        return True
+    counts = np.ndarray((face.count,), count_type, buffer=body, offset=offset, strides=(record,))
+    return bool((counts != 3).any())
 
 
 #: An OBJ face line of four or more vertices.

@@ -453,6 +453,22 @@ def test_obj_polygons_that_are_not_convex_are_triangulated_in_their_plane(tmp_pa
     assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
 
 
+def _check_prism(m, ring, height):
+    """A prism of a footprint ring read whole: its polygons triangulated in their plane (no roof
+    triangle folds back), closed with the footprint's area x height and no repairs."""
+    from meshsom.preprocess import preprocess
+
+    assert isinstance(m, RawMesh), m
+    area = 0.5 * abs(sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(ring, ring[1:] + ring[:1])))
+    tri = (m.vertices + m.origin)[m.faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    roof = np.isclose(tri[:, :, 2], height).all(axis=1)
+    assert len(m.faces) == 2 * (len(ring) - 2) + 2 * len(ring)
+    assert (normal[roof, 2] > 0).all() and 0.5 * normal[roof, 2].sum() == pytest.approx(area)
+    r = preprocess(m.vertices, m.faces)
+    assert r.volume_out == pytest.approx(area * height, rel=1e-12) and r.repairs == []
+
+
 def _prism_off(ring, height, style: str) -> str:
     """The prism of :func:`_prism_obj` as OFF, in the styles writers use: ``plain``; ``val3dity``
     (comments, blank lines, a blank after every face line: trimesh's reader fails on those);
@@ -479,19 +495,36 @@ def _prism_off(ring, height, style: str) -> str:
 def test_off_polygons_are_triangulated_in_their_plane(tmp_path, ring, style):
     """OFF keeps polygons too (val3dity's and CGAL's files, ModelNet): triangulated in their plane,
     and read whatever the blanks, comments and colours around them."""
-    from meshsom.preprocess import preprocess
-
     (tmp_path / "p.off").write_text(_prism_off(ring, 2.5, style))
     (m,) = _items(tmp_path / "p.off")
-    assert isinstance(m, RawMesh), m
-    area = 0.5 * abs(sum(x1 * y2 - x2 * y1 for (x1, y1), (x2, y2) in zip(ring, ring[1:] + ring[:1])))
-    tri = (m.vertices + m.origin)[m.faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    roof = np.isclose(tri[:, :, 2], 2.5).all(axis=1)
-    assert len(m.faces) == 2 * (len(ring) - 2) + 2 * len(ring)
-    assert (n[roof, 2] > 0).all() and 0.5 * n[roof, 2].sum() == pytest.approx(area)
-    r = preprocess(m.vertices, m.faces)
-    assert r.volume_out == pytest.approx(area * 2.5, rel=1e-12) and r.repairs == []
+    _check_prism(m, ring, 2.5)
+
+
+@pytest.mark.parametrize("style", ["ascii", "binary_little_endian", "binary_big_endian", "colours"])
+@pytest.mark.parametrize("ring", [
+    [(0, 0), (5, 0), (5, 3), (4, 3), (4, 1), (3, 1), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)],  # a comb
+    [(2, 0), (2, 1), (1, 1), (1, 2), (0, 2), (0, 0)],  # an L, from a corner that does not see it all
+    [(0, 0), (4, 0), (4, 4), (0, 4)],
+])
+def test_ply_polygons_are_triangulated_in_their_plane(tmp_path, ring, style):
+    """PLY keeps polygons too (MeshLab, CloudCompare and CAD exports): triangulated in their plane,
+    written by plyfile as ASCII or binary of either byte order, with colours beside (the layouts
+    read without parsing the faces, and one that needs the full parse)."""
+    from plyfile import PlyData, PlyElement
+
+    n = len(ring)
+    fields = [("x", "f8"), ("y", "f8"), ("z", "f8")] + ([("red", "u1")] if style == "colours" else [])
+    verts = np.zeros(2 * n, fields)
+    verts["x"], verts["y"] = np.tile(np.asarray(ring, float).T, 2)
+    verts["z"][n:] = 2.5
+    polygons = [list(reversed(range(n))), [n + i for i in range(n)]] + [[i, (i + 1) % n, n + (i + 1) % n, n + i] for i in range(n)]
+    faces = np.empty(len(polygons), [("vertex_indices", "O")] + ([("red", "u1")] if style == "colours" else []))
+    faces["vertex_indices"] = [np.asarray(f, np.int32) for f in polygons]
+    order = {"binary_big_endian": ">"}.get(style, "<")
+    PlyData([PlyElement.describe(verts, "vertex"), PlyElement.describe(faces, "face")], text=style == "ascii",
+            byte_order=order).write(str(tmp_path / "p.ply"))
+    (m,) = _items(tmp_path / "p.ply")
+    _check_prism(m, ring, 2.5)
 
 
 @pytest.mark.parametrize("text,reason", [
