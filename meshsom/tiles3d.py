@@ -23,7 +23,8 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   tileset whose root transform places it) are read as metres, with a note.
 
 Not read: Draco or meshopt compressed glTF (decompress first, e.g. ``gltf-transform copy``),
-b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``).
+b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``), implicit tiling
+(3D Tiles 1.1 templates and subtrees: a rejection that says so).
 """
 
 from __future__ import annotations
@@ -257,7 +258,8 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
             local = east_north_up_of_geocentric(world, origin)
             note = "converted to metres from earth-centred coordinates (3D Tiles, WGS 84), east-north-up about the building's centre"
         else:
-            note = "not earth-centred (a tile read without the tileset transform that places it): read as metres in its own frame"
+            note = ("not earth-centred: read as metres in the tile's own frame (a tile read without the tileset transform "
+                    "that places it, or a tileset without one)")
         if len(f) == 0:
             yield Rejection(mesh_id, source, "holds no faces", 0, label)
             continue
@@ -309,6 +311,11 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
         refine = str(tile.get("refine", refine)).upper()
         children = [c for c in tile.get("children", []) if isinstance(c, dict)]
         stack.extend((c, transform, refine, folder, depth + 1) for c in reversed(children))
+        if isinstance(tile.get("implicitTiling"), dict):
+            found = True
+            yield Rejection(f"{name}#implicit tiling", str(path), "uses implicit tiling (content named by templates and "
+                                                                  "subtrees), which is not read; list its tiles explicitly")
+            continue
         for uri in _uris(tile):
             parsed = urlparse(uri)
             target = (folder / unquote(parsed.path)).resolve()

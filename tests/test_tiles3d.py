@@ -46,10 +46,11 @@ def _pad(data: bytes, fill: bytes = b" ") -> bytes:
     return data + fill * (-len(data) % 8)
 
 
-def b3dm(buildings, positions, rtc=None, extra_gltf=None, batch_table=None):
+def b3dm(buildings, positions, rtc=None, extra_gltf=None, batch_table=None, glb_only=False):
     """A b3dm of one glTF mesh whose vertices carry their building's ``_BATCHID``.
 
-    ``positions(vertices)`` gives each building's z-up positions (before ``rtc``) in the tile."""
+    ``positions(vertices)`` gives each building's z-up positions (before ``rtc``) in the tile;
+    ``glb_only``: 3D Tiles 1.1 glTF content instead, the ids in ``_FEATURE_ID_0``."""
     vertices, faces, batch = [], [], []
     offset = 0
     for k, (_, v, f) in enumerate(buildings):
@@ -63,8 +64,10 @@ def b3dm(buildings, positions, rtc=None, extra_gltf=None, batch_table=None):
         v = v - rtc
     y_up = np.column_stack([v[:, 0], v[:, 2], -v[:, 1]])  # z up -> glTF's y up
     mesh = trimesh.Trimesh(y_up, np.concatenate(faces), process=False)
-    mesh.vertex_attributes["_BATCHID"] = np.concatenate(batch)
+    mesh.vertex_attributes["_FEATURE_ID_0" if glb_only else "_BATCHID"] = np.concatenate(batch)
     glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(mesh), include_normals=False)
+    if glb_only:
+        return glb
     if extra_gltf:  # rewrite the glTF JSON chunk (e.g. to declare an extension)
         size = struct.unpack_from("<I", glb, 12)[0]
         doc = json.loads(glb[20:20 + size]) | extra_gltf
@@ -185,6 +188,27 @@ def test_tileset_walks_transforms_refinement_and_external_tilesets(tmp_path):
     assert [f.name for f in files] == ["tileset.json"]
     assert {Path(p).name for p, why in skipped if "read through it" in why} == {
         "coarse.b3dm", "a.b3dm", "b.b3dm", "c.b3dm", "p.pnts", "tileset.json"}
+
+
+def test_tiles_1_1_gltf_content_and_implicit_tiling(tmp_path):
+    """3D Tiles 1.1: glTF content whose features are ``_FEATURE_ID_0``; implicit tiling is listed."""
+    buildings = _buildings(3)
+    ecef = {id(v): _ecef(v) for _, v, _ in buildings}
+    rtc = _ecef(np.zeros((1, 3)))[0]
+    (tmp_path / "t.glb").write_bytes(b3dm(buildings, lambda v: ecef[id(v)] - rtc, glb_only=True))
+    move = np.eye(4)
+    move[:3, 3] = rtc
+    (tmp_path / "tileset.json").write_text(json.dumps({"asset": {"version": "1.1"}, "geometricError": 0, "root": {
+        "geometricError": 0, "transform": move.T.reshape(-1).tolist(), "content": {"uri": "t.glb"}}}))
+    got = list(read_file(tmp_path / "tileset.json"))
+    assert [m.id for m in got] == [f"tileset.json#t.glb#{k}" for k in range(3)]  # no batch table: feature numbers
+    for m, (_, v, f) in zip(got, buildings):
+        _same_building(m, v, f)
+    (tmp_path / "implicit.json").write_text(json.dumps({"asset": {"version": "1.1"}, "geometricError": 1, "root": {
+        "geometricError": 1, "content": {"uri": "c/{level}_{x}_{y}.glb"},
+        "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 2, "subtrees": {"uri": "s/{level}.subtree"}}}}))
+    (item,) = read_file(tmp_path / "implicit.json")
+    assert isinstance(item, Rejection) and "implicit tiling" in item.reason
 
 
 def test_damaged_and_unreadable_tiles(tmp_path):
