@@ -233,7 +233,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)
     batches = batched_meshes(glb, source)
     declared = feature_table.get("BATCH_LENGTH")
-    length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared >= 0 else None
+    length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared > 0 else None  # 0: one model
     ids = _batch_ids(batch_table, length, options)
     labels = batch_table.get(options.label_attribute)
     for batch, v, f in batches:
@@ -339,8 +339,8 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
                 continue  # a coarser level: its children replace it
             found = True
             if target.suffix.lower() not in (".b3dm", ".glb"):
-                yield Rejection(content_id, str(target), f"is 3D Tiles content of type {target.suffix or '(none)'}; "
-                                                         f"only batched models (.b3dm, .glb) are read")
+                yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points, "
+                                                         f"instances or a composite); only batched models (.b3dm, .glb) are read")
                 continue
             try:
                 data = bytes(read_input_bytes(target, options))

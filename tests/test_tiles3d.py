@@ -169,7 +169,7 @@ def test_tileset_walks_transforms_refinement_and_external_tilesets(tmp_path):
     ids = [f"tileset.json#a.b3dm#{b[0]}" for b in buildings[:3]] + [f"tileset.json#b.b3dm#{b[0]}" for b in buildings[3:6]] + [
         f"tileset.json#sub/c.b3dm#{b[0]}" for b in buildings[6:]]
     assert sorted(m.id for m in items if isinstance(m, RawMesh)) == sorted(ids)  # no coarse.b3dm: replaced
-    assert "only batched models" in got["tileset.json#p.pnts"].reason
+    assert "only batched models" in got["tileset.json#p.pnts"].reason and ".pnts" in got["tileset.json#p.pnts"].reason
     assert "outside the tileset's folder" in got["tileset.json#../outside.b3dm"].reason
     for bid, v, f in buildings:
         (m,) = [m for m in items if m.id.endswith(f"#{bid}")]
@@ -226,6 +226,13 @@ def test_damaged_and_unreadable_tiles(tmp_path):
     # ids: repeated batch-table ids fall back to batch numbers
     (tmp_path / "same.b3dm").write_bytes(b3dm(buildings, lambda v: v, batch_table={"id": ["x", "x"]}))
     assert [m.id for m in read_file(tmp_path / "same.b3dm")] == ["same.b3dm#0", "same.b3dm#1"]
+    # BATCH_LENGTH 0: one model, not batched (3D Tiles' sample building); batch ids beyond it are listed
+    (tmp_path / "one.b3dm").write_bytes(b3dm(buildings[:1], lambda v: v, batch_table={}).replace(b'"BATCH_LENGTH": 1', b'"BATCH_LENGTH": 0'))
+    (one,) = read_file(tmp_path / "one.b3dm")
+    assert isinstance(one, RawMesh) and one.id == "one.b3dm#0"
+    (tmp_path / "beyond.b3dm").write_bytes(b3dm(buildings, lambda v: v).replace(b'"BATCH_LENGTH": 2', b'"BATCH_LENGTH": 1'))
+    first, beyond = read_file(tmp_path / "beyond.b3dm")
+    assert isinstance(first, RawMesh) and "beyond BATCH_LENGTH 1" in beyond.reason
 
 
 def test_tileset_through_meshsom_ingest(tmp_path):
