@@ -297,8 +297,8 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis' or 'trimesh' by file name (a final ``.gz``
-    aside); InputFileError for anything else."""
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip' or 'trimesh' by file name (a
+    final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
 
@@ -307,6 +307,8 @@ def input_kind(path: Path) -> str:
         return "gis"
     if name.endswith(B3DM_SUFFIXES):
         return "b3dm"
+    if name.endswith(".zip"):
+        return "zip"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -315,7 +317,8 @@ def input_kind(path: Path) -> str:
         return "trimesh"
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
+        ".zip",)
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     raise InputFileError(
         str(path),
@@ -688,6 +691,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.tiles3d import read_b3dm
 
             yield from read_b3dm(path, options, name)
+        elif kind == "zip":
+            from meshsom.archives import read_zip
+
+            yield from read_zip(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

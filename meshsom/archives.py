@@ -1,0 +1,118 @@
+"""Reading zip archives of city models: the form most downloads take (German states' LoD2
+CityGML tiles, New York's and PLATEAU's city models, zipped shapefiles and tilesets).
+
+A ``.zip`` is extracted into a temporary folder, read as a folder is
+(:func:`meshsom.io.expand_inputs`: a shapefile with its sidecars, a File Geodatabase folder, a
+tileset with its tiles), and removed. Ids are ``name/<member path>#<object>``; every item's
+``source`` is ``archive.zip!/<member path>``. Guards:
+
+- the members may expand to at most :attr:`meshsom.io.ReaderOptions.max_bytes` in all, each to at
+  most :attr:`meshsom.io.ReaderOptions.max_expansion` times its compressed size (plus
+  :data:`meshsom.io.GZIP_FREE_BYTES`): a zip bomb is a rejection before anything is extracted, and
+  extraction stops at each member's declared size;
+- member names are extracted beneath the temporary folder only (``..`` and absolute names are
+  made relative, as :meth:`zipfile.ZipFile.extract` does), links are not created;
+- a zip inside the zip is listed, not opened.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Iterator
+
+from meshsom.errors import InputFileError
+
+ZIP_SUFFIX = ".zip"
+#: Bytes copied at a time while extracting.
+COPY_CHUNK_BYTES = 1 << 20
+
+
+def _check_sizes(path: Path, members: list[zipfile.ZipInfo], options) -> None:
+    from meshsom.io import GZIP_FREE_BYTES
+
+    total = sum(m.file_size for m in members)
+    if total > options.max_bytes:
+        raise InputFileError(str(path), f"expands to {total:,} bytes, more than max_bytes ({options.max_bytes:,})")
+    for m in members:
+        if m.file_size > options.max_expansion * m.compress_size + GZIP_FREE_BYTES:
+            raise InputFileError(str(path), f"holds {m.filename!r}, which expands {m.file_size:,} bytes from "
+                                            f"{m.compress_size:,} (more than max_expansion {options.max_expansion:g} times): "
+                                            f"a zip bomb, or data that compresses as no city model does")
+
+
+def _extract(archive: zipfile.ZipFile, member: zipfile.ZipInfo, folder: Path) -> None:
+    """Extract one member beneath ``folder`` (its name made relative), at most its declared size."""
+    parts = [p for p in Path(member.filename.replace("\\", "/")).parts if p not in ("", ".", "..", "/")]
+    if not parts:
+        return
+    target = folder.joinpath(*parts)
+    if not target.resolve().is_relative_to(folder.resolve()):
+        return
+    target.parent.mkdir(parents=True, exist_ok=True)
+    left = member.file_size
+    with archive.open(member) as src, open(target, "wb") as dst:
+        while left > 0:
+            chunk = src.read(min(COPY_CHUNK_BYTES, left))
+            if not chunk:
+                break
+            dst.write(chunk)
+            left -= len(chunk)
+
+
+def read_zip(path: Path, options, name: str | None = None) -> Iterator:
+    """Read every readable file of a zip archive (as the module says): RawMesh or Rejection items.
+
+    Raises
+    ------
+    InputFileError
+        Not a zip, too large, a zip bomb, or nothing in it that meshsom reads.
+    """
+    from meshsom.io import Rejection, expand_inputs, read_file
+
+    name = name or path.name
+    try:
+        archive = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError) as err:
+        raise InputFileError(str(path), f"cannot be read as a zip archive ({type(err).__name__}: {err})") from None
+    with archive:
+        members = [m for m in archive.infolist() if not m.is_dir() and not m.filename.startswith("__MACOSX/")]
+        _check_sizes(path, members, options)
+        folder = Path(tempfile.mkdtemp(prefix="meshsom-zip-"))
+        try:
+            try:
+                for member in members:
+                    _extract(archive, member, folder)
+            except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError, RuntimeError) as err:
+                raise InputFileError(str(path), f"cannot be extracted ({type(err).__name__}: {err})") from None
+            skipped: list[tuple[str, str]] = []
+            files, _ = expand_inputs([folder], skipped)
+            if not files:
+                held = ", ".join(sorted(m.filename for m in members)[:8]) or "nothing"
+                raise InputFileError(str(path), f"holds no file that meshsom reads (it holds {held})")
+            for f in files:
+                member = f.path.relative_to(folder).as_posix()
+                source = f"{path}!/{member}"
+                if f.path.name.lower().endswith(ZIP_SUFFIX):
+                    yield Rejection(f"{name}/{member}", source, "is a zip inside a zip; not opened (unzip the outer one)")
+                    continue
+                for item in read_file(f.path, options, f"{name}/{f.name}"):
+                    if isinstance(item, Rejection):
+                        item = dataclasses.replace(item, reason=_source(item.reason, folder, path, anywhere=True))
+                    yield dataclasses.replace(item, source=_source(item.source, folder, path))
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _source(text: str, folder: Path, path: Path, anywhere: bool = False) -> str:
+    """``text`` with the temporary folder replaced by ``archive.zip!`` (at its start, or
+    ``anywhere``: a reason that names the file)."""
+    for root in (str(folder.resolve()), str(folder)):
+        if anywhere:
+            text = text.replace(root, f"{path}!")
+        elif text.startswith(root):
+            return f"{path}!{text[len(root):]}"
+    return text
