@@ -155,7 +155,9 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
                 continue  # a part's geometry is its own; installations and rooms are not the shell
             match = _LOD.match(name)
             child_lod = match.group(1) if match else lod
-            child_solid = solid or name in SOLID_NAMES or (match is not None and name.endswith("Solid"))
+            # a LoD's solid is preferred to its other surfaces; so is a LoD 0 footprint to the roof
+            # edges beside it (the outline of the eaves, metres above the ground)
+            child_solid = solid or name in SOLID_NAMES or (match is not None and name.endswith(("Solid", "FootPrint")))
             # gml:OrientableSurface orientation="-": its base surface, reversed (a party wall
             # that two parts share is written once and referred to so by the second part)
             child_reverse = reverse != (name == "OrientableSurface" and child.attrib.get("orientation", "+").strip() == "-")
@@ -187,6 +189,17 @@ def _label(obj, attribute: str) -> str | None:
                 if _local(value.tag) == "value" and value.text is not None:
                     return value.text.strip()
     return None
+
+
+#: Attributes of a building or part kept (its height and storeys: a footprint of LoD 0 alone is
+#: extruded by them, as :func:`meshsom.io._building_mesh` says).
+HEIGHT_ELEMENTS = ("measuredHeight", "storeysAboveGround")
+
+
+def _heights(obj) -> dict:
+    """The object's own ``measuredHeight`` and ``storeysAboveGround`` (direct children), as text."""
+    return {_local(child.tag): child.text.strip() for child in obj
+            if _local(child.tag) in HEIGHT_ELEMENTS and child.text and child.text.strip()}
 
 
 def building_objects(building, where: str, label_attribute: str) -> tuple[dict, np.ndarray, list[str], str | None]:
@@ -232,11 +245,12 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
                 if indexed:
                     boundaries.append(indexed)
             geometry.append({"type": "MultiSurface", "lod": lod, "boundaries": boundaries})
-        entry = {"type": "Building" if k == 0 else "BuildingPart", "geometry": geometry}
+        entry = {"type": "Building" if k == 0 else "BuildingPart", "geometry": geometry, "attributes": _heights(obj)}
         if k == 0:
             entry["children"] = []
             label = _label(obj, label_attribute)
-            entry["attributes"] = {} if label is None else {label_attribute: label}
+            if label is not None:
+                entry["attributes"][label_attribute] = label
         else:
             entry["parents"] = [bid]
             objects[bid]["children"].append(oid)

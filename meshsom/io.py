@@ -177,7 +177,7 @@ class ReaderOptions:
     crs: str | None = None
     height_attributes: tuple[str, ...] = ("height", "measuredHeight", "building:height")
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
-    levels_attributes: tuple[str, ...] = ("building:levels", "num_floors")
+    levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround")
     storey_height: float = 3.0
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
@@ -1559,6 +1559,9 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         if not matches:
             raise InputFileError(mesh_id, f"has no geometry at LoD {options.lod} (available: {', '.join(lods)})")
         want = matches[0]
+    lift = None
+    if _lod_key(want) < 1 and options.lod in LOD_CHOICES:  # a footprint alone: extruded by its height, if it has one
+        lift = _footprint_height(mesh_id, objects[members[0]], want, options)
     polygons, poly_member = [], []
     for i in usable_at:
         if str(geoms[i].get("lod")) == want:
@@ -1608,7 +1611,11 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
                 f"vertices (self-crossing rings, e.g. a twisted wall quad), leaving holes there"
             )
         lod = want
-        if len(faces) and options.extrude_lod1:
+        if len(faces) and lift is not None:
+            local, faces, note = _extrude_footprint(mesh_id, local, faces, options, height=lift[1])
+            notes += [lift[0]] + note
+            lod = f"1 (extruded from {want})"
+        elif len(faces) and options.extrude_lod1:
             local, faces, note = _extrude_footprint(mesh_id, local, faces, options)
             notes += note
             lod = f"1 (extruded from {want})"
@@ -1618,7 +1625,7 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     if len(faces) == 0:
         raise InputFileError(mesh_id, f"all {n_in} polygons at LoD {want} are degenerate")
     parts, face_part = (), None
-    if not options.extrude_lod1:
+    if not options.extrude_lod1 and lift is None:
         used_members, face_part = np.unique(np.asarray(poly_member, np.int64)[face_poly], return_inverse=True)
         if len(used_members) > 1:
             parts = tuple(members[k] for k in used_members)
@@ -1797,8 +1804,33 @@ def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:
     return ring[ring != np.roll(ring, 1)]
 
 
-def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions):
-    """Closed LoD1 block: the union of the triangles seen from above, extruded over the z-range.
+def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions) -> tuple[str, float]:
+    """The height (metres, or the file's unit) a building of a LoD 0 footprint alone is extruded by:
+    its first height attribute (:attr:`ReaderOptions.height_attributes`, CityGML's
+    ``measuredHeight``), else a storey count times :attr:`ReaderOptions.storey_height`; and a note.
+
+    Raises
+    ------
+    InputFileError
+        It has neither: a footprint is no volume.
+    """
+    from meshsom.geojson import _first, no_height
+
+    attributes = obj.get("attributes") if isinstance(obj.get("attributes"), dict) else {}
+    height = _first(attributes, options.height_attributes)
+    if height is not None and height[1] > 0:
+        return f"extruded from its LoD {lod} footprint by {height[0]} = {height[1]:g}", height[1]
+    levels = _first(attributes, options.levels_attributes)
+    if levels is not None and levels[1] > 0:
+        return (f"extruded from its LoD {lod} footprint by {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m",
+                levels[1] * options.storey_height)
+    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options)[2:]}")
+
+
+def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions,
+                       height: float | None = None):
+    """Closed LoD1 block: the union of the triangles seen from above, extruded over the z-range
+    (or from the lowest z by ``height``).
 
     The union is exact up to ``options.footprint_grid`` (GEOS snap-rounding), with no buffer that
     could erase a small polygon; holes narrower than ``options.footprint_seam_width`` (seams
@@ -1811,6 +1843,8 @@ def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, op
     vertices : (V, 3) float64
     faces : (F, 3) int64
     options : ReaderOptions
+    height : float, optional
+        Extrude from the lowest z by this (a footprint's height), not to the highest z.
 
     Returns
     -------
@@ -1828,6 +1862,8 @@ def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, op
     if len(tris) == 0:
         raise InputFileError(mesh_id, "has no footprint (every polygon is vertical)")
     z0, z1 = float(vertices[:, 2].min()), float(vertices[:, 2].max())
+    if height is not None:
+        z1 = z0 + height
     if not z1 > z0:
         raise InputFileError(mesh_id, "has zero height; cannot extrude a LoD1 block")
     polys = shapely.polygons(np.concatenate([tris, tris[:, :1]], axis=1))

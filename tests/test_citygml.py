@@ -379,3 +379,45 @@ def test_the_surfaces_of_the_inside_are_not_shell(tmp_path):
     house, _ = read_file(tmp_path / "storeys.gml", ReaderOptions(parts="separate"))
     assert len(house.faces) == len(plain.faces) == 14
     assert preprocess(house.vertices, house.faces).volume_out == pytest.approx(150, rel=1e-9)
+
+
+def _lod0(bid, footprint, z, height_xml="", roof_edge=None):
+    ring = _ring_xml([(x, y, z) for x, y in footprint])
+    edge = "" if roof_edge is None else (
+        f"<bldg:lod0RoofEdge><gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior>"
+        f"{_ring_xml([(x, y, z + 4.0) for x, y in roof_edge])}</gml:exterior></gml:Polygon></gml:surfaceMember>"
+        f"</gml:MultiSurface></bldg:lod0RoofEdge>")
+    return (f'<cityObjectMember><bldg:Building gml:id="{bid}">{height_xml}<bldg:lod0FootPrint><gml:MultiSurface>'
+            f"<gml:surfaceMember><gml:Polygon><gml:exterior>{ring}</gml:exterior></gml:Polygon></gml:surfaceMember>"
+            f"</gml:MultiSurface></bldg:lod0FootPrint>{edge}</bldg:Building></cityObjectMember>")
+
+
+def test_a_lod0_footprint_alone_is_extruded_by_its_height(tmp_path):
+    """Footprint-only CityGML (as the SIG3D LoD0 house): extruded from the footprint (not from the
+    roof edge, the eaves' outline with overhangs) by measuredHeight, else by storeys x 3 m; with
+    neither it is a rejection that says so, not a zero volume; CityJSON LoD 0 likewise."""
+    from meshsom.preprocess import preprocess
+
+    L = [(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10)]
+    area = 12 * 4 + 4 * 6
+    xml = ('<CityModel xmlns:gml="http://www.opengis.net/gml" xmlns:bldg="http://www.opengis.net/citygml/building/2.0">'
+           + _lod0("h", L, 100.0, '<bldg:measuredHeight uom="m">6.5</bldg:measuredHeight>', roof_edge=[(-1, -1), (13, -1), (13, 11), (-1, 11)])
+           + _lod0("s", L, 100.0, "<bldg:storeysAboveGround>3</bldg:storeysAboveGround>")
+           + _lod0("n", L, 100.0) + "</CityModel>")
+    (tmp_path / "lod0.gml").write_text(xml)
+    got = {m.id.split("#")[1]: m for m in read_file(tmp_path / "lod0.gml")}
+    assert got["h"].lod == "1 (extruded from 0)" and "measuredHeight = 6.5" in got["h"].notes[0]
+    assert preprocess(got["h"].vertices, got["h"].faces).volume_out == pytest.approx(area * 6.5, rel=1e-9)
+    z = got["h"].vertices[:, 2] + got["h"].origin[2]
+    assert z.min() == pytest.approx(100) and z.max() == pytest.approx(106.5)  # from the ground up
+    assert preprocess(got["s"].vertices, got["s"].faces).volume_out == pytest.approx(area * 9.0, rel=1e-9)
+    assert isinstance(got["n"], Rejection) and "only a LoD 0 footprint" in got["n"].reason and "measuredHeight" in got["n"].reason
+    (lod0,) = [m for m in read_file(tmp_path / "lod0.gml", ReaderOptions(lod="0")) if m.id.endswith("#h")]
+    assert lod0.lod == "0" and np.ptp(lod0.vertices[:, 2]) == 0  # asked for by name: the footprint as it is
+    cj = {"type": "CityJSON", "version": "2.0", "transform": {"scale": [0.001] * 3, "translate": [0, 0, 0]},
+          "CityObjects": {"b": {"type": "Building", "attributes": {"measuredHeight": 6.5},
+                                "geometry": [{"type": "MultiSurface", "lod": "0", "boundaries": [[list(range(6))]]}]}},
+          "vertices": [[x * 1000, y * 1000, 0] for x, y in L]}
+    (tmp_path / "lod0.city.json").write_text(json.dumps(cj))
+    (m,) = read_file(tmp_path / "lod0.city.json")
+    assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(area * 6.5, rel=1e-9)
