@@ -1217,6 +1217,9 @@ def read_cityjson(
     from meshsom.geojson import is_geojson, read_geojson
 
     cj = _parse_json(read_input_bytes(path, options), str(path))
+    if _is_feature_collection(cj):
+        yield from _feature_collection(cj, path, options, name)
+        return
     if is_geojson(cj):
         found = False
         for item in read_geojson(cj, path, options, name):
@@ -1279,19 +1282,26 @@ def read_cityjsonseq(
     InputFileError
         The file or its header cannot be read, or it holds no object of ``options.object_types``.
     """
-    name = name or path.name
-    source = str(path)
-    header = None
-    first_line: dict[str, int] = {}
-    types: set = set()
-    found = False
     def lines():
         if byte_range is not None:
             with contextlib.closing(input_lines(path, options)) as head:
                 yield next(((n, line) for n, line in head if line is None or line.strip()), (1, b""))
         yield from input_lines(path, options, byte_range)
 
-    for number, line in lines():
+    yield from _sequence_items(lines(), path, options, name, partial=byte_range is not None)
+
+
+def _sequence_items(lines, path: Path, options: ReaderOptions, name: str | None, partial: bool = False
+                    ) -> Iterator[RawMesh | Rejection]:
+    """The items of a CityJSON header and its CityJSONFeatures, given as ``(line number, bytes)``
+    (:func:`read_cityjsonseq`; ``partial``: a byte range, where no building is no error)."""
+    name = name or path.name
+    source = str(path)
+    header = None
+    first_line: dict[str, int] = {}
+    types: set = set()
+    found = False
+    for number, line in lines:
         if line is None:
             long = f"line {number}: is longer than {options.max_bytes:,} bytes (ReaderOptions.max_bytes); not read"
             if header is None:
@@ -1336,8 +1346,41 @@ def read_cityjsonseq(
                 yield item
     if header is None:
         raise InputFileError(source, "holds only blank lines (expected a CityJSON header line, then CityJSONFeatures)")
-    if not found and byte_range is None:
+    if not found and not partial:
         raise _no_buildings(path, options, types)
+
+
+def _feature_collection(cj: dict, path: Path, options: ReaderOptions, name: str | None) -> Iterator[RawMesh | Rejection]:
+    """A JSON document of CityJSONFeatures, read as the CityJSONSeq it stands for: a page of an
+    OGC API - Features server of CityJSON (the 3D BAG's: ``{"type": "FeatureCollection",
+    "metadata": {"transform": ...}, "features": [CityJSONFeature, ...]}``), or a single
+    CityJSONFeature that carries its ``transform``.
+    """
+    features = cj.get("features") if cj.get("type") == "FeatureCollection" else [cj]
+    meta = cj.get("metadata") if isinstance(cj.get("metadata"), dict) else {}
+    transform = cj.get("transform") or meta.get("transform")
+    if transform is None:
+        raise InputFileError(str(path), "holds CityJSONFeatures without the transform of their CityJSON header (give "
+                                        "them as a CityJSONSeq, .city.jsonl, with the header as its first line)")
+    header = {"type": "CityJSON", "version": str(cj.get("version", meta.get("version_cityjson", "2.0"))),
+              "transform": transform, "CityObjects": {}, "vertices": []}
+    if meta:
+        header["metadata"] = {k: v for k, v in meta.items() if k != "transform"}
+    if not str(header["version"]).startswith(SUPPORTED_CITYJSON_VERSIONS):
+        header["version"] = "2.0"
+    lines = [(1, json.dumps(header).encode())] + [(k, json.dumps(f).encode()) for k, f in enumerate(features, 2)]
+    yield from _sequence_items(iter(lines), path, options, name)
+
+
+def _is_feature_collection(cj) -> bool:
+    """Whether a parsed document holds CityJSONFeatures (a CityJSON API page, or one feature)."""
+    if not isinstance(cj, dict):
+        return False
+    if cj.get("type") == "CityJSONFeature":
+        return True
+    features = cj.get("features")
+    return cj.get("type") == "FeatureCollection" and isinstance(features, list) and bool(features) and all(
+        isinstance(f, dict) and f.get("type") == "CityJSONFeature" for f in features)
 
 
 def file_crs(declared, options: ReaderOptions) -> tuple["CoordinateSystem | None", str | None]:

@@ -141,6 +141,32 @@ def test_gzipped_mesh_files_read_as_the_plain_ones(tmp_path):
         assert g.id == e.id.replace(f"box.{fmt}", f"packed.{fmt}.gz")
 
 
+def test_a_page_of_a_cityjson_features_api_reads_as_its_cityjsonseq(tmp_path):
+    """An OGC API - Features page of CityJSON (the 3D BAG API's items: a FeatureCollection of
+    CityJSONFeatures, the header's transform in its metadata), saved as a .json, reads as the
+    CityJSONSeq it stands for; so does one feature that carries its transform; one without is a
+    rejection that says where the transform is."""
+    document = json.loads(_real(*REAL[0]).read_text())
+    header, *features = to_cityjsonseq(document, keep_order=True)
+    seq = write_lines(tmp_path / "page.city.jsonl", [header] + features)
+    page = {"type": "FeatureCollection", "numberMatched": len(features), "links": [],
+            "metadata": {"transform": header["transform"], **header.get("metadata", {})}, "features": features}
+    (tmp_path / "page.json").write_text(json.dumps(page))
+    want, got = _items(seq), _items(tmp_path / "page.json")
+    assert [i.id.replace("page.city.jsonl", "page.json") for i in want] == [i.id for i in got]
+    assert sum(isinstance(i, RawMesh) for i in got) >= 10
+    for a, b in zip(want, got):
+        if isinstance(a, RawMesh):
+            assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces) and a.lod == b.lod
+    one = dict(features[0], transform=header["transform"])
+    (tmp_path / "one.json").write_text(json.dumps(one))
+    assert [i.id.split("#")[1] for i in _items(tmp_path / "one.json")] == [i.id.split("#")[1] for i in want if
+                                                                          i.id.split("#")[1] in one["CityObjects"]]
+    (tmp_path / "bare.json").write_text(json.dumps(features[0]))
+    (bare,) = _items(tmp_path / "bare.json")
+    assert isinstance(bare, Rejection) and "without the transform of their CityJSON header" in bare.reason
+
+
 def test_folders_find_compressed_and_sequence_files(tmp_path):
     (tmp_path / "in" / "sub").mkdir(parents=True)
     for name in ("a.city.json.gz", "sub/b.city.jsonl", "sub/c.city.jsonl.gz", "d.obj.gz", "e.json.gz"):
