@@ -537,11 +537,19 @@ def _parquet_layers(path: Path) -> list[Layer]:
 
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None
                      ) -> Iterator[tuple[str, dict, bytes | None]]:
+    """Rows ``start`` to ``stop`` (from 0) of a GeoParquet file, read from the row group that holds
+    ``start`` on (a range task does not decode the rows before it)."""
     import pyarrow.parquet as pq
 
     column, _ = _parquet_geo(path)
-    row = 0  # rows counted from 1
-    for batch in pq.ParquetFile(path).iter_batches(batch_size=BATCH_FEATURES):
+    pf = pq.ParquetFile(path)
+    sizes = [pf.metadata.row_group(g).num_rows for g in range(pf.metadata.num_row_groups)]
+    firsts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    group = max(int(np.searchsorted(firsts, start, side="right")) - 1, 0)
+    if group >= len(sizes):
+        return
+    row = int(firsts[group])  # rows counted from 0; ids from 1
+    for batch in pf.iter_batches(batch_size=BATCH_FEATURES, row_groups=range(group, len(sizes))):
         first = row
         row += batch.num_rows
         if row <= start:

@@ -466,6 +466,9 @@ def _numbered_lines(stream, options: ReaderOptions, first: int, left: int | None
         yield number, None if pieces is None else b"".join(pieces)
 
 
+#: A ``.jsonl`` file up to this size (on disk) whose first line is not JSON is tried as one JSON
+#: document written across lines (:func:`_one_json_document`).
+ONE_DOCUMENT_BYTES = 64 << 20
 #: Bytes read at a time when :func:`cityjsonseq_ranges` counts lines.
 COUNT_CHUNK_BYTES = 16 << 20
 
@@ -1288,7 +1291,30 @@ def read_cityjsonseq(
                 yield next(((n, line) for n, line in head if line is None or line.strip()), (1, b""))
         yield from input_lines(path, options, byte_range)
 
+    if byte_range is None and _one_json_document(path, options):
+        yield from read_cityjson(path, options, name)  # a pretty-printed document named .jsonl
+        return
     yield from _sequence_items(lines(), path, options, name, partial=byte_range is not None)
+
+
+def _one_json_document(path: Path, options: ReaderOptions) -> bool:
+    """Whether a ``.jsonl`` file is one JSON object written across lines (its first line is not
+    JSON, the whole file is), not a sequence of one object per line."""
+    if path.stat().st_size > ONE_DOCUMENT_BYTES:
+        return False
+    with contextlib.closing(input_lines(path, options)) as head:
+        first = next((line for _, line in head if line is None or line.strip()), None)
+    if first is None:
+        return False
+    try:
+        json.loads(first)
+        return False
+    except ValueError:
+        pass
+    try:
+        return isinstance(json.loads(read_input_bytes(path, options)), dict)
+    except (ValueError, InputFileError):
+        return False
 
 
 def _sequence_items(lines, path: Path, options: ReaderOptions, name: str | None, partial: bool = False

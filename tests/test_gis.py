@@ -342,3 +342,21 @@ def test_gis_files_through_meshsom_ingest(tmp_path):
     volumes = {r["id"]: r["volume"] for r in manifest["records"]}
     assert volumes == pytest.approx({"district.gpkg#1": area(L_SHAPE) * 5, "district.gpkg#2": area(L_SHAPE) * 6,
                                      "district.gpkg#3": area(L_SHAPE) * 7, "more.gdb#1": area(L_SHAPE) * 4}, rel=1e-9)
+
+
+def test_geoparquet_ranges_start_at_their_row_group(tmp_path):
+    """A range of a GeoParquet file is read from the row group that holds its first row: the same
+    rows as the whole file's, at every boundary."""
+    from meshsom.gis import _parquet_records, gis_ranges
+
+    rows = [(f"r{k}", shapely.geometry.mapping(shapely.box(k, 0, k + 1, 1)), {"height": 3.0}) for k in range(1000)]
+    write_geoparquet(tmp_path / "rg.parquet", rows, crs=None)
+    pq.write_table(pq.read_table(tmp_path / "rg.parquet"), tmp_path / "groups.parquet", row_group_size=97)
+    path = tmp_path / "groups.parquet"
+    assert [r[0] for r in _parquet_records(path, None, 0, None)] == [str(k) for k in range(1, 1001)]
+    for a, b in [(0, 50), (96, 98), (97, 300), (450, 1000), (999, 1000), (1000, 1000), (300, None)]:
+        assert [r[0] for r in _parquet_records(path, "id", a, b)] == [f"r{k}" for k in range(a, 1000 if b is None else b)]
+    ranges = gis_ranges(path, 300, ReaderOptions())
+    assert [r[4:] for r in ranges] == [[0, 300], [300, 600], [600, 900], [900, 1000]] and ranges[0][3] == "id"
+    whole = [m.id for m in read_file(path)]
+    assert [m.id for r in ranges for m in read_file(path, feature_range=r)] == whole

@@ -167,6 +167,18 @@ def test_a_page_of_a_cityjson_features_api_reads_as_its_cityjsonseq(tmp_path):
     assert isinstance(bare, Rejection) and "without the transform of their CityJSON header" in bare.reason
 
 
+def test_a_pretty_printed_document_named_jsonl_reads_as_the_document(tmp_path):
+    """One CityJSON object written across lines but named .city.jsonl reads as the .city.json it
+    is; a sequence whose header line is broken is still the sequence's error."""
+    original = _real(*REAL[1])
+    (tmp_path / "pretty.city.jsonl").write_text(json.dumps(json.loads(original.read_text()), indent=2))
+    want, got = _items(original), _items(tmp_path / "pretty.city.jsonl")
+    assert [i.id.split("#")[1] for i in got] == [i.id.split("#")[1] for i in want] and len(got) >= 10
+    (tmp_path / "broken.city.jsonl").write_text('{"type": "CityJSON",\n{"type": "CityJSONFeature"}\n')
+    (broken,) = _items(tmp_path / "broken.city.jsonl")
+    assert isinstance(broken, Rejection) and "invalid JSON" in broken.reason
+
+
 def test_folders_find_compressed_and_sequence_files(tmp_path):
     (tmp_path / "in" / "sub").mkdir(parents=True)
     for name in ("a.city.json.gz", "sub/b.city.jsonl", "sub/c.city.jsonl.gz", "d.obj.gz", "e.json.gz"):
@@ -199,11 +211,16 @@ def test_3dbag_layout_reads_its_solids_not_its_lod0_footprint(tmp_path):
     assert len(footprints) == 10 and all(isinstance(i, RawMesh) and i.lod == "0" for i in footprints)
 
 
-def test_lod0_only_building_is_still_read_at_lod0(tmp_path):
+def test_lod0_only_building_is_extruded_by_its_height_or_rejected_or_read_as_asked(tmp_path):
     d = doc({"B": {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "0", "boundaries": [[[0, 1, 2, 3]]]}]}},
             [[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]])
-    (m,) = _items(write(tmp_path / "f.city.json", d), lod="highest")
+    (r,) = _items(write(tmp_path / "f.city.json", d), lod="highest")
+    assert isinstance(r, Rejection) and "has only a LoD 0 footprint" in r.reason  # a footprint is no volume
+    (m,) = _items(tmp_path / "f.city.json", lod="0")  # asked for by name: the footprint as it is
     assert m.lod == "0" and len(m.faces) == 2
+    d["CityObjects"]["B"]["attributes"] = {"measuredHeight": "4 m"}
+    (m,) = _items(write(tmp_path / "h.city.json", d), lod="highest")
+    assert m.lod == "1 (extruded from 0)" and len(m.faces) == 12 and np.ptp(m.vertices[:, 2]) == 4
 
 
 # ----------------------------------------------------------------------------- bad lines, bad headers
