@@ -1746,6 +1746,8 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
     tri_starts = ring_start[poly_first_ring[simple_tri]]
     out = [inverse[tri_starts[:, None] + np.arange(3)]]
     out_poly = [np.flatnonzero(simple_tri)]
+    if simple_tri.all():  # a triangulated model (most city files): nothing more to do
+        return out[0].astype(np.int64).reshape(-1, 3), out_poly[0].astype(np.int64), 0
     quads = np.flatnonzero((rings_per_poly == 1) & (sizes[poly_first_ring] == 4))
     quad_tri, done = _split_quads(inverse[ring_start[poly_first_ring[quads]][:, None] + np.arange(4)], local)
     out.append(quad_tri.reshape(-1, 3))
