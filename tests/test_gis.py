@@ -129,13 +129,22 @@ def test_wkb_surfaces_measures_and_damage():
 @given(st.binary(max_size=200), st.integers(0, 120))
 def test_wkb_damage_is_an_input_error_never_a_crash(noise, cut):
     """Random bytes, and real WKB cut short or with bytes overwritten: a clear error or polygons."""
+    from meshsom.gis import _WKB_NAMES
+
     faces, _ = gabled_house()
     good = polyhedral_surface([[list(f) + [f[0]]] for f in faces])
-    for data in (noise, good[:cut], good[:cut] + noise + good[cut + len(noise):]):
+    assert len(good) > 120
+    with pytest.raises(InputFileError, match="ends early|is not WKB"):  # cut short: always refused
+        wkb_polygons(good[:cut], "x")
+    for data in (noise, good[:cut] + noise + good[cut + len(noise):]):
         try:
-            wkb_polygons(data, "x")
-        except InputFileError:
-            pass
+            polygons, kinds, has_z = wkb_polygons(data, "x")
+        except InputFileError as err:
+            assert err.source == "x" and err.problem  # names the feature and the problem
+            continue
+        assert kinds <= set(_WKB_NAMES.values()) and isinstance(has_z, bool)
+        for poly in polygons:  # what decoded is rings of finite-width positions, as documented
+            assert poly and all(r.dtype == np.float64 and r.ndim == 2 and r.shape[1] in (2, 3) for r in poly)
 
 
 def test_horizontal_tells_footprints_from_solids():
