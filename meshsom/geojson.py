@@ -78,7 +78,9 @@ def _number(value) -> float | None:
     return None
 
 
-def _first(props: dict, names) -> tuple[str, float] | None:
+def first_number(props: dict, names) -> tuple[str, float] | None:
+    """The first of ``names`` whose property is a number (:func:`_number`), and its value; None
+    when none is."""
     for name in names:
         value = _number(props.get(name))
         if value is not None:
@@ -186,9 +188,9 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         Says so where the height came from a storey count.
     """
     notes: list[str] = []
-    height = _first(props, options.height_attributes)
+    height = first_number(props, options.height_attributes)
     if height is None:
-        levels = _first(props, options.levels_attributes)
+        levels = first_number(props, options.levels_attributes)
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height)
             notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
@@ -196,7 +198,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         return None, notes
     zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
           for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
-    bottom = _first(props, options.base_attributes)
+    bottom = first_number(props, options.base_attributes)
     ground = min(zs) if zs else 0.0
     return _extruded(polygons, ground + (bottom[1] if bottom else 0.0), ground + height[1], where, verts), notes
 

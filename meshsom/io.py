@@ -1,7 +1,8 @@
 """Reading meshes: every format trimesh reads, CityJSON 1.0 to 2.0, CityJSONSeq, CityGML
-(:mod:`meshsom.citygml`), 3D Tiles (:mod:`meshsom.tiles3d`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; GIS files
-(GeoPackage, Shapefile, FileGDB, FlatGeobuf, GeoJSONSeq, GeoParquet: :mod:`meshsom.gis`); every
-building in metres, whatever its file's CRS (:mod:`meshsom.crs`).
+(:mod:`meshsom.citygml`) and GeoJSON / JSON-FG (:mod:`meshsom.geojson`), plain or gzipped; GIS files
+(GeoPackage, Shapefile, FileGDB, FlatGeobuf, GeoJSONSeq, GeoParquet: :mod:`meshsom.gis`), 3D Tiles
+(:mod:`meshsom.tiles3d`) and zip archives of any (:mod:`meshsom.archives`); every building in
+metres, whatever its file's CRS (:mod:`meshsom.crs`).
 
 A reader turns one input file into a stream of :class:`RawMesh` (one per
 building or mesh object) and :class:`Rejection` (an object, or the whole file,
@@ -925,12 +926,12 @@ def triangulated_ply(data: bytes) -> bytes | None:
 def _ply_polygons(data: bytes, header, face, index_list) -> bool:
     """Whether a PLY's faces include any of more than three vertices, read without parsing the
     whole file where the layout allows (ASCII, or binary faces of the index list alone)."""
+    from plyfile import PlyListProperty
+
     start = data.find(b"end_header")
     if start < 0:
         return False
     body = data[data.find(b"\n", start) + 1:]
-    from plyfile import PlyListProperty
-
     before = header.elements[:[e.name for e in header.elements].index("face")]
     if header.text:
         lines = [line for line in body.split(b"\n") if line.strip()]
@@ -1217,9 +1218,14 @@ def read_cityjson(
         The file cannot be read, is not CityJSON, or holds no object of ``options.object_types``
         (naming the types it holds).
     """
+    yield from _document_items(_parse_json(read_input_bytes(path, options), str(path)), path, options, name)
+
+
+def _document_items(cj, path: Path, options: ReaderOptions, name: str | None) -> Iterator[RawMesh | Rejection]:
+    """The items of a parsed JSON document (:func:`read_cityjson`): CityJSON, CityJSONFeatures,
+    GeoJSON / JSON-FG or a 3D Tiles tileset."""
     from meshsom.geojson import is_geojson, read_geojson
 
-    cj = _parse_json(read_input_bytes(path, options), str(path))
     if _is_feature_collection(cj):
         yield from _feature_collection(cj, path, options, name)
         return
@@ -1291,30 +1297,32 @@ def read_cityjsonseq(
                 yield next(((n, line) for n, line in head if line is None or line.strip()), (1, b""))
         yield from input_lines(path, options, byte_range)
 
-    if byte_range is None and _one_json_document(path, options):
-        yield from read_cityjson(path, options, name)  # a pretty-printed document named .jsonl
+    document = _one_json_document(path, options) if byte_range is None else None
+    if document is not None:
+        yield from _document_items(document, path, options, name)  # a pretty-printed document named .jsonl
         return
     yield from _sequence_items(lines(), path, options, name, partial=byte_range is not None)
 
 
-def _one_json_document(path: Path, options: ReaderOptions) -> bool:
-    """Whether a ``.jsonl`` file is one JSON object written across lines (its first line is not
-    JSON, the whole file is), not a sequence of one object per line."""
+def _one_json_document(path: Path, options: ReaderOptions) -> dict | None:
+    """A ``.jsonl`` file that is one JSON object written across lines (its first line is not JSON,
+    the whole file is), parsed; None for a sequence of one object per line."""
     if path.stat().st_size > ONE_DOCUMENT_BYTES:
-        return False
+        return None
     with contextlib.closing(input_lines(path, options)) as head:
         first = next((line for _, line in head if line is None or line.strip()), None)
     if first is None:
-        return False
+        return None
     try:
         json.loads(first)
-        return False
+        return None
     except ValueError:
         pass
     try:
-        return isinstance(json.loads(read_input_bytes(path, options)), dict)
+        document = json.loads(read_input_bytes(path, options))
     except (ValueError, InputFileError):
-        return False
+        return None
+    return document if isinstance(document, dict) else None
 
 
 def _sequence_items(lines, path: Path, options: ReaderOptions, name: str | None, partial: bool = False
@@ -1388,12 +1396,11 @@ def _feature_collection(cj: dict, path: Path, options: ReaderOptions, name: str 
     if transform is None:
         raise InputFileError(str(path), "holds CityJSONFeatures without the transform of their CityJSON header (give "
                                         "them as a CityJSONSeq, .city.jsonl, with the header as its first line)")
-    header = {"type": "CityJSON", "version": str(cj.get("version", meta.get("version_cityjson", "2.0"))),
+    version = str(cj.get("version", "2.0"))  # CityJSONFeature is 2.0's; an API page may say which
+    header = {"type": "CityJSON", "version": version if version in SUPPORTED_CITYJSON_VERSIONS else "2.0",
               "transform": transform, "CityObjects": {}, "vertices": []}
     if meta:
         header["metadata"] = {k: v for k, v in meta.items() if k != "transform"}
-    if not str(header["version"]).startswith(SUPPORTED_CITYJSON_VERSIONS):
-        header["version"] = "2.0"
     lines = [(1, json.dumps(header).encode())] + [(k, json.dumps(f).encode()) for k, f in enumerate(features, 2)]
     yield from _sequence_items(iter(lines), path, options, name)
 
@@ -1876,7 +1883,7 @@ def _drop_closing_vertex(ring: np.ndarray) -> np.ndarray:
 
 
 def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions) -> tuple[str, float]:
-    """The height (metres, or the file's unit) a building of a LoD 0 footprint alone is extruded by:
+    """The height (metres, added to coordinates already in metres) a LoD 0 footprint alone is extruded by:
     its first height attribute (:attr:`ReaderOptions.height_attributes`, CityGML's
     ``measuredHeight``), else a storey count times :attr:`ReaderOptions.storey_height`; and a note.
 
@@ -1885,13 +1892,13 @@ def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions)
     InputFileError
         It has neither: a footprint is no volume.
     """
-    from meshsom.geojson import _first, no_height
+    from meshsom.geojson import first_number, no_height
 
     attributes = obj.get("attributes") if isinstance(obj.get("attributes"), dict) else {}
-    height = _first(attributes, options.height_attributes)
+    height = first_number(attributes, options.height_attributes)
     if height is not None and height[1] > 0:
         return f"extruded from its LoD {lod} footprint by {height[0]} = {height[1]:g}", height[1]
-    levels = _first(attributes, options.levels_attributes)
+    levels = first_number(attributes, options.levels_attributes)
     if levels is not None and levels[1] > 0:
         return (f"extruded from its LoD {lod} footprint by {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m",
                 levels[1] * options.storey_height)
