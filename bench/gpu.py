@@ -43,9 +43,12 @@ exported once where the pipeline's dependencies are installed:
 and read with ``--levels .gpu/paper-levels.npz`` (the GPU machine has no zarr); without it the
 table is skipped.
 
---autotune times a handful of "gemm" tilings on one large (1e6 x 3 x 36) and one small
-(3,064 x 3 x 144) pass, prints the best, and runs the tables with the best overall (least
-geometric mean of its time over the default's) as the "gpu" layout, unless --keep-default. Anything not importable (torch, CuPy, XPySom)
+--autotune times the "gemm" candidates (:data:`AUTOTUNE_CANDIDATES`: tilings, chunks, prefetch,
+NVIDIA's register cap) on one large (1e6 x 3 x 36) and one small (3,064 x 3 x 144) pass, prints
+the best, and runs the tables with the best overall (least geometric mean of its time over the
+default's) as the "gpu" layout, unless --keep-default; with --registers also what NVIDIA's
+compiler says of each candidate (registers, spills). --memory-report prints the device memory one
+pass of each layout leaves held by its context, and stops. Anything not importable (torch, CuPy, XPySom)
 prints n/a.
 """
 
@@ -79,11 +82,28 @@ LARGE_N = 1_000_000
 TORCH_CHUNK = 65_536
 #: Side of the PyTorch FP32 GEMM yardstick.
 GEMM_SIZE = 8192
-#: Tilings timed by --autotune: (tile_rows, tile_units, group_rows, group_units, max_kt).
-#: The first is the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a work-group
-#: (a tiling that does not fit the device is skipped, with its size).
-AUTOTUNE_TILINGS = [(128, 128, 16, 16, 16), (128, 128, 16, 16, 8), (64, 64, 16, 16, 32), (64, 128, 16, 16, 16),
-                    (128, 64, 16, 16, 16), (64, 64, 16, 16, 16), (128, 128, 32, 8, 16), (64, 64, 8, 8, 16)]
+#: Candidates timed by --autotune: "gemm" KernelParams fields over the device default. Tilings
+#: (tile_rows x tile_units, group_rows x group_units: 8 x 8, 4 x 8 or 4 x 4 accumulators per
+#: work-item, 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's
+#: register cap (more work-groups per compute unit) and more unit splits for small N. The first is
+#: the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a work-group (a candidate
+#: that does not fit the device is skipped, with its size).
+AUTOTUNE_CANDIDATES = [
+    {},
+    {"tile_rows": 64},
+    {"tile_rows": 64, "prefetch": False},
+    {"prefetch": False},
+    {"max_registers": 128},
+    {"tile_rows": 64, "max_registers": 128},
+    {"tile_rows": 64, "tile_units": 64},
+    {"tile_rows": 64, "group_rows": 8},
+    {"tile_rows": 64, "group_rows": 8, "prefetch": False},
+    {"tile_rows": 32, "group_rows": 8},
+    {"vector_width": 2},
+    {"tile_rows": 64, "groups_per_cu": 8},
+    {"tile_rows": 64, "whole_row_tile": True},
+    {"tile_rows": 64, "whole_row_tile": True, "prefetch": False},
+]
 #: The workloads --autotune times: (N, n, D).
 AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (3064, 3, 144)]
 #: The paper config's maps (configs/paper.yaml): (level, kernel), trained for PAPER_EPOCHS.
@@ -365,6 +385,36 @@ def training_table(args) -> None:
         f"{'':>9} {'':>22}  {where}")
 
 
+def candidate_name(fields: dict) -> str:
+    """A candidate's fields, short: "default" for none."""
+    short = {"tile_rows": "tm", "tile_units": "tn", "group_rows": "gm", "group_units": "gn", "max_kt": "kt",
+             "vector_width": "vw", "prefetch": "pf", "max_registers": "reg", "groups_per_cu": "gpc",
+             "whole_row_tile": "whole"}
+    return " ".join(f"{short[k]}={int(v)}" for k, v in fields.items()) or "default"
+
+
+def register_report(ctx, params, D: int, n: int) -> str:
+    """What NVIDIA's compiler says of a layout's program (``-cl-nv-verbose``: registers, spills, local
+    memory per work-item) and the kernel's private memory; "" where the driver says nothing."""
+    import pyopencl as cl
+
+    from meshsom.bmu_opencl import KERNELS, _defines, build_options, kernel_source
+
+    device = ctx.devices[0]
+    defines = _defines(D, n, np.float32, params)
+    options = build_options(ctx, defines)
+    if "cl_nv_compiler_options" in device.extensions:
+        options.append("-cl-nv-verbose")
+    program = cl.Program(ctx, kernel_source(defines["KERNEL"])).build(options=options)
+    log = program.get_build_info(device, cl.program_build_info.LOG)
+    main = KERNELS[defines["KERNEL"]][1]
+    lines = [ln.strip() for ln in log.splitlines() if "ptxas" in ln and ("registers" in ln or "spill" in ln
+                                                                        or main in ln)]
+    kernel = cl.Kernel(program, main)
+    private = kernel.get_work_group_info(cl.kernel_work_group_info.PRIVATE_MEM_SIZE, device)
+    return f"private {private} B/work-item; " + " | ".join(lines[-3:])
+
+
 def autotune(args, ctx):
     from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params, gemm_local_bytes
 
@@ -372,46 +422,75 @@ def autotune(args, ctx):
     M = rows * cols
     base = default_params(ctx)
     base = base if base.kernel == "gemm" else DEFAULT_PARAMS["gpu"]
-    say("\nautotune: gemm tilings (tile_rows, tile_units, group_rows, group_units, max_kt), seconds per pass")
+    say(f"\nautotune: gemm candidates over {base}, seconds per pass")
     best = {}
-    for N, n, D in workloads(AUTOTUNE_WORKLOADS, args.quick):
+    for w, (N, n, D) in enumerate(workloads(AUTOTUNE_WORKLOADS, args.quick)):
         X, W = data(N, D, M)
         index, sign = block_table(n, D)
-        for tiling in AUTOTUNE_TILINGS:
-            tm, tn, gm, gn, kt = tiling
-            p = replace(base, kernel="gemm", tile_rows=tm, tile_units=tn, group_rows=gm, group_units=gn, max_kt=kt)
-            local = gemm_local_bytes(p, np.float32)
+        for c, fields in enumerate(AUTOTUNE_CANDIDATES):
+            name = candidate_name(fields)
+            p = replace(base, **fields)
+            local = gemm_local_bytes(p, np.float32, D)
             if local > ctx.devices[0].local_mem_size:
-                say(f"{N:>9} {f'{n}x{D}':>7} {str(tiling):>24} skipped: {local} bytes of local memory, the device "
+                say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} skipped: {local} bytes of local memory, the device "
                     f"has {ctx.devices[0].local_mem_size}")
                 continue
             try:
                 bmu_opencl(X, W, index, sign, context=ctx, params=p)
                 t = best_time(lambda: bmu_opencl(X, W, index, sign, context=ctx, params=p), 2)
-            except Exception as err:  # noqa: BLE001 - a tiling the device cannot run is reported
-                say(f"{N:>9} {f'{n}x{D}':>7} {str(tiling):>24} failed: {str(err)[:120]}")
+            except Exception as err:  # noqa: BLE001 - a candidate the device cannot run is reported
+                say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} failed: {str(err)[:120]}")
                 continue
-            say(f"{N:>9} {f'{n}x{D}':>7} {str(tiling):>24} {t:8.4f} {2.0 * N * n * M * D / t / 1e12:6.2f} TFLOP/s")
-            best.setdefault((N, n, D), []).append((t, tiling))
+            report = ""
+            if w == 0 and args.registers:
+                try:
+                    report = "  " + register_report(ctx, p, D, n)
+                except Exception as err:  # noqa: BLE001 - the report is a diagnosis only
+                    report = f"  (no register report: {str(err)[:80]})"
+            say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} {t:8.4f} {2.0 * N * n * M * D / t / 1e12:6.2f} TFLOP/s{report}")
+            best.setdefault((N, n, D), []).append((t, c))
     for key, found in best.items():
-        t, tiling = min(found)
-        say(f"best for N, n, D = {key}: {tiling} ({t:.4f} s)")
-    # overall: the tiling with the least geometric mean of its time over the default's, on the
+        t, c = min(found)
+        say(f"best for N, n, D = {key}: {candidate_name(AUTOTUNE_CANDIDATES[c])} ({t:.4f} s)")
+    # overall: the candidate with the least geometric mean of its time over the default's, on the
     # workloads where both ran
     scores = {}
     for found in best.values():
-        times = {tiling: t for t, tiling in found}
-        if AUTOTUNE_TILINGS[0] in times:
-            for tiling, t in times.items():
-                scores.setdefault(tiling, []).append(np.log(t / times[AUTOTUNE_TILINGS[0]]))
-    complete = {tiling: np.exp(np.mean(v)) for tiling, v in scores.items() if len(v) == len(best)}
+        times = {c: t for t, c in found}
+        if 0 in times:
+            for c, t in times.items():
+                scores.setdefault(c, []).append(np.log(t / times[0]))
+    complete = {c: np.exp(np.mean(v)) for c, v in scores.items() if len(v) == len(best)}
     if not complete:
         return None
-    tiling = min(complete, key=complete.get)
-    tm, tn, gm, gn, kt = tiling
-    say(f"overall best: {tiling}, {complete[tiling]:.3f} x the default's time (geometric mean)")
-    return replace(base, kernel="gemm", name="gpu", tile_rows=tm, tile_units=tn, group_rows=gm, group_units=gn,
-                   max_kt=kt)
+    c = min(complete, key=complete.get)
+    say(f"overall best: {candidate_name(AUTOTUNE_CANDIDATES[c])}, {complete[c]:.3f} x the default's time "
+        "(geometric mean)")
+    return replace(base, name="gpu", **AUTOTUNE_CANDIDATES[c])
+
+
+def memory_report(ctx) -> None:
+    """Device memory a context holds after one launch of each layout (torch's free-memory reading):
+    NVIDIA reserves a kernel's private (spilled) memory for every resident work-item."""
+    torch = torch_cuda()
+    if torch is None:
+        say("memory report: n/a (torch with CUDA not importable)")
+        return
+    from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl
+
+    X, W = data(3064, 36, 300)
+    index, sign = block_table(3, 36)
+    say("\nmemory held on the device after one pass of each layout (3,064 x 3 x 36, 300 units)")
+    for name in ("gpu", "tiled", "cpu", "cpu-narrow"):
+        before = torch.cuda.mem_get_info()[0]
+        try:
+            bmu_opencl(X, W, index, sign, context=ctx, params=DEFAULT_PARAMS[name])
+            report = register_report(ctx, DEFAULT_PARAMS[name], 36, 3)
+        except Exception as err:  # noqa: BLE001 - reported
+            say(f"  {name:>10}: failed: {str(err)[:160]}")
+            continue
+        after = torch.cuda.mem_get_info()[0]
+        say(f"  {name:>10}: {(before - after) / 2**20:9.1f} MiB more held; {report}")
 
 
 def main(argv=None) -> int:
@@ -422,6 +501,11 @@ def main(argv=None) -> int:
     parser.add_argument("--no-old", action="store_true", help="skip the earlier 'tiled' layout")
     parser.add_argument("--no-epoch", action="store_true", help="skip the epoch table")
     parser.add_argument("--autotune", action="store_true", help="time a few gemm tilings and print the best")
+    parser.add_argument("--registers", action="store_true",
+                        help="with --autotune: NVIDIA's register and spill report of every candidate")
+    parser.add_argument("--memory-report", action="store_true",
+                        help="the device memory one pass of each layout leaves held, with its register report, "
+                             "and stop (its own process: the 'cpu' layouts can hold half an H200)")
     parser.add_argument("--keep-default", action="store_true",
                         help="with --autotune: run the tables with the default tiling, not the tuned one")
     parser.add_argument("--levels", default=None, help="an .npz of --export-levels: table (c), training epochs")
@@ -451,6 +535,9 @@ def main(argv=None) -> int:
         gemm = torch_gemm_tflops(torch)
         say(f"torch {torch.__version__} on {torch.cuda.get_device_name()}: FP32 GEMM {GEMM_SIZE}^3 "
             f"(TF32 off) {gemm:.1f} TFLOP/s")
+    if args.memory_report:
+        memory_report(ctx)
+        return 0
     if args.autotune and not args.only_training:
         tuned = autotune(args, ctx)
         if tuned is not None and not args.keep_default:

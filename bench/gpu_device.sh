@@ -8,13 +8,14 @@
 #
 #     bash bench/gpu_device.sh
 #
-# Budget: at most 90 s of layout verdicts, 360 s of benchmark and 120 s of tests, under the 10
-# minutes of one run.
-# 1. installs the wheels into /tmp/site; 2. registers NVIDIA's OpenCL library with the ICD
-# loader bundled in the pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd
-# files); 3. lists the OpenCL devices; 4. every kernel layout's probe verdict and GFLOP/s;
-# 5. bench/gpu.py --device nvidia --autotune --levels (tables a, b, c); 6. the BMU, probe and
-# epoch-sums and device-update tests on the NVIDIA device.
+# Budget: at most 60 s of memory report, 300 s of benchmark and 210 s of tests (BENCH_TIMEOUT, TEST_TIMEOUT,
+# CPU_TEST_TIMEOUT), under the 10 minutes of one run.
+# 1. installs the wheels into /tmp/site (pyopencl and its pure dependencies, XPySom, shapely for
+# meshsom.config); 2. registers NVIDIA's OpenCL library with the ICD loader bundled in the
+# pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd files); 3. lists the OpenCL
+# devices; 4. bench/gpu.py --memory-report (the memory each layout's context
+# holds) and --autotune --registers --levels (the compiler's register report and time of every gemm candidate, tables
+# a, c, b with the best); 5. the BMU, probe, epoch-sums and device-update tests on the NVIDIA device.
 set -u
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}
@@ -50,15 +51,20 @@ python3 -c 'import pyopencl as cl; print("pyopencl", cl.VERSION_TEXT); [print(p.
 
 # the tests take their device from PYOPENCL_CTX (a name substring); they skip when it matches none
 export PYOPENCL_CTX=nvidia MESHSOM_PROBE_TIMEOUT=60
-step "kernel layout verdicts on the NVIDIA device (meshsom doctor's check: child-process probes, GFLOP/s)"
-timeout 90 python3 -c 'from meshsom.bmu_opencl import get_context; from pipelines.doctor import kernel_verdicts
-[print(v) for v in kernel_verdicts(get_context("nvidia").devices[0])]'
-
 levels=.gpu/paper-levels.npz
 [ -e "$levels" ] && levels_arg="--levels $levels" || { echo "no $levels: table (c) skipped"; levels_arg=""; }
-step "bench/gpu.py --device nvidia --autotune $levels_arg"
-timeout 360 python3 bench/gpu.py --device nvidia --autotune $levels_arg
+step "bench/gpu.py --device nvidia --memory-report"
+timeout 60 python3 bench/gpu.py --device nvidia --memory-report
+step "bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg"
+timeout ${BENCH_TIMEOUT:-300} python3 bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg
 
-step "tests: tests/test_bmu.py, test_probe.py, test_epoch_sums.py and test_device_update.py on the NVIDIA device (8 pytest workers)"
-timeout 120 python3 -m pytest -q -p no:cacheprovider -n 8 tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py tests/test_device_update.py
+# The "cpu" layouts stage up to panel_bytes (256 KB) of rows in private memory per work-item, and
+# NVIDIA's driver reserves a kernel's private memory for every work-item the GPU can hold, for the
+# context's lifetime (bench/gpu.py --registers prints it): two such contexts fill an H200. So
+# their tests run in one process, the others in 4.
+tests="tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py tests/test_device_update.py"
+step "tests on the NVIDIA device, all but the 'cpu' layouts (4 pytest workers): $tests"
+timeout ${TEST_TIMEOUT:-120} python3 -m pytest -q -p no:cacheprovider -n 4 -k "not cpu" $tests
+step "tests of the 'cpu' layouts on the NVIDIA device (one process)"
+timeout ${CPU_TEST_TIMEOUT:-90} python3 -m pytest -q -p no:cacheprovider -k "cpu" $tests
 step "done"

@@ -118,6 +118,17 @@ class KernelParams:
     groups_per_cu : int
         "gemm", ``unit_splits=0``: the splits make at least this many work-groups per compute
         unit when the row tiles alone are fewer.
+    whole_row_tile : bool
+        "gemm": gather the row tile's varied vectors into local memory once, for all of D (XRES),
+        staging only the codebook per chunk, where that fits :data:`GEMM_LOCAL_LIMIT` beside the
+        codebook's chunks (:func:`gemm_local_bytes`); else, or False, X is staged per chunk as W is.
+    prefetch : bool
+        "gemm": double-buffer the local-memory chunks along D (PF: the next chunk's loads in
+        flight while one is multiplied); False: load, then multiply (fewer registers).
+    max_registers : int
+        "gemm" on NVIDIA's OpenCL (``cl_nv_compiler_options``): the compiler's register cap per
+        work-item (``-cl-nv-maxrregcount``), trading spills for more work-groups per compute
+        unit; 0: the compiler's choice. Ignored by other drivers.
     smooth_outputs : int
         Outputs per work-item of the update's smoothing kernel (``SMOOTH_RJ`` of
         ``kernels/batch_update.cl``): each value it reads serves this many outputs.
@@ -145,6 +156,9 @@ class KernelParams:
     max_kt: int = 16
     unit_splits: int = 0
     groups_per_cu: int = 2
+    whole_row_tile: bool = False
+    prefetch: bool = True
+    max_registers: int = 0
     smooth_outputs: int = 1
     epoch_kernels: bool = True
 
@@ -158,6 +172,8 @@ class KernelParams:
                      "smooth_outputs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
+        if self.max_registers < 0:
+            raise ValueError(f"max_registers must be >= 0 (0: the compiler's choice), received {self.max_registers}")
         if self.unit_splits < 0:
             raise ValueError(f"unit_splits must be >= 0 (0: automatic), received {self.unit_splits}")
         for tile, group in (("tile_rows", "group_rows"), ("tile_units", "group_units")):
@@ -453,16 +469,39 @@ def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
     return kt if 2 * kt >= min(D, cap) else cap
 
 
-def gemm_local_bytes(params: KernelParams, dtype) -> int:
-    """Local memory of one "gemm" work-group at the largest chunk: two buffers of X and W, the row fold.
+#: Local memory a "gemm" work-group may take: what NVIDIA's OpenCL gives one (48 KB). The
+#: whole row tile (:attr:`KernelParams.whole_row_tile`) is staged only where it fits.
+GEMM_LOCAL_LIMIT = 48 * 1024
+
+
+def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
+    """Local memory of one "gemm" work-group: two buffers of X and W at the largest chunk, the row fold.
 
     About 33 KB with the GPU default, float32 and float64 alike, under the 48 KB that NVIDIA's
-    OpenCL gives a work-group.
+    OpenCL gives a work-group. With ``D``: at that D's chunk, and the whole row tile instead of
+    X's two buffers where :func:`gemm_whole_row_tile` says so.
     """
     size = np.dtype(dtype).itemsize
     vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    tiles = 2 * _max_kt(params, dtype) * (params.tile_rows + params.tile_units + 2 * vw) * size
-    return tiles + params.tile_rows * 2 * (size + 4)
+    kt = _max_kt(params, dtype) if D is None else gemm_kt(D, params, dtype)
+    fold = params.tile_rows * 2 * (size + 4)
+    w = 2 * kt * (params.tile_units + vw) * size
+    x = 2 * kt * (params.tile_rows + vw) * size
+    if D is not None and gemm_whole_row_tile(params, dtype, D):
+        x = -(-D // kt) * kt * (params.tile_rows + vw) * size
+    return w + x + fold
+
+
+def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
+    """Whether the "gemm" kernel stages the whole row tile at this D (XRES): asked for, and it fits
+    :data:`GEMM_LOCAL_LIMIT` beside the codebook's two chunks and the row fold."""
+    if not params.whole_row_tile:
+        return False
+    size = np.dtype(dtype).itemsize
+    vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
+    kt = gemm_kt(D, params, dtype)
+    whole = -(-D // kt) * kt * (params.tile_rows + vw) * size
+    return 2 * kt * (params.tile_units + vw) * size + whole + params.tile_rows * 2 * (size + 4) <= GEMM_LOCAL_LIMIT
 
 
 def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:
@@ -532,8 +571,10 @@ def _defines(D: int, n: int, dtype, params: KernelParams) -> dict[str, int | str
     if params.kernel == "gemm":
         kt = gemm_kt(D, params, dtype)
         return {"KERNEL": "gemm", **common, "TM": params.tile_rows, "TN": params.tile_units,
+                "XRES": int(gemm_whole_row_tile(params, dtype, D)),
                 "WGM": params.group_rows, "WGN": params.group_units, "KT": kt, "DP": -(-D // kt) * kt,
-                "US": params.unit_splits, "GPC": params.groups_per_cu}
+                "US": params.unit_splits, "GPC": params.groups_per_cu, "PF": int(params.prefetch),
+                "MAXREG": params.max_registers}
     return {
         "KERNEL": "tiled", **common,
         "DT": _largest_divisor(D, params.max_dt) if params.use_local else D,
@@ -617,18 +658,14 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
     """
     cl = _cl()
     cache = _PROGRAMS.setdefault(context, {})
-    key = tuple(sorted(defines.items())) + (("EPOCH_SUMS", int(has_fp64(context) and bool(defines.get("EPOCH", 1)))),
-                                            ("COMPONENT", COMPONENT))
+    key = _program_key(context, defines)
     source, main = KERNELS[defines["KERNEL"]]
     if key not in cache:
         text = kernel_source(defines["KERNEL"])
         # the key's last items: kernels/epoch_sums.cl and batch_update.cl are built where the device has
         # float64 (and the layout asks for them: EPOCH)
-        options = [f"-D{k}={v}" for k, v in key if k != "KERNEL"] + BUILD_OPTIONS
+        options = build_options(context, defines)
         device = context.devices[0]
-        if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
-            options.append(f"-DUNROLL_EPILOGUE={int(not device.type & cl.device_type.CPU)}")
-            options.append(f"-DEXACT={'double' if has_fp64(context) else defines['REAL']}")
         if guard:
             from meshsom.probe import check
 
@@ -653,6 +690,32 @@ def get_kernel(context, defines: dict, function: str | None = None, guard: bool 
             raise KernelLayoutError(layout, device_name(context),
                                     f"kernel {function} is not in the program of kernels/{source} ({err})") from None
     return kernels[function]
+
+
+def _program_key(context, defines: dict) -> tuple:
+    """What a built program depends on: the defines, whether the epoch's kernels are in it, the component."""
+    return tuple(sorted(defines.items())) + (("EPOCH_SUMS", int(has_fp64(context) and bool(defines.get("EPOCH", 1)))),
+                                             ("COMPONENT", COMPONENT))
+
+
+def build_options(context, defines: dict) -> list[str]:
+    """The build options of the program :func:`get_kernel` builds for ``defines`` on a context's device."""
+    cl = _cl()
+    options = [f"-D{k}={v}" for k, v in _program_key(context, defines) if k != "KERNEL"] + BUILD_OPTIONS
+    device = context.devices[0]
+    if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
+        options.append(f"-DUNROLL_EPILOGUE={int(not device.type & cl.device_type.CPU)}")
+        options.append(f"-DEXACT={'double' if has_fp64(context) else defines['REAL']}")
+        options += register_cap_options(device, defines.get("MAXREG", 0))
+    return options
+
+
+def register_cap_options(device, registers: int) -> list[str]:
+    """The build option capping registers per work-item, where the driver takes it (NVIDIA's
+    ``cl_nv_compiler_options``); none for a cap of 0 or another driver."""
+    if registers and "cl_nv_compiler_options" in device.extensions:
+        return [f"-cl-nv-maxrregcount={int(registers)}"]
+    return []
 
 
 def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP):
@@ -1043,7 +1106,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
             kernel(queue, (global_size,), (wg,),
                    bufs[0], np.int32(N), bufs[1], bufs[2], np.int32(MP), bufs[3], bufs[4], *outs)
         for host, buf in zip((unit, variation, dist2, second), outs):
-            cl.enqueue_copy(queue, host, buf)
+            cl.enqueue_copy(queue, host, buf, is_blocking=False)  # one wait for all four
         queue.finish()
     except cl.Error as err:
         raise _launch_failed(context, X, "BMUofN kernel launch", err) from None

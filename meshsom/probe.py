@@ -37,7 +37,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +72,18 @@ PROBE_UPDATE_SIGMA = 1.5
 TIMING_WORKLOAD = (4096, 2048, 3, 36)
 #: Timed runs of that workload after a warm-up (the best counts).
 TIMING_REPEAT = 3
+
+#: What a probe's failure says when the device or the host ran short of memory at that moment
+#: (other processes hold the device: a GPU shared by Dask workers or test workers), which is no
+#: verdict on the layout: such a probe is tried again, and its failure is neither cached on disk
+#: nor kept in memory. (OUT_OF_RESOURCES is not among them: NVIDIA's driver says so for a kernel
+#: that faults or asks more than a compute unit has, which are verdicts.)
+SHORTAGE_MARKERS = ("OUT_OF_HOST_MEMORY", "MEM_OBJECT_ALLOCATION_FAILURE")
+#: Tries of a probe that ran short, and the wait before the first retry (doubled after each).
+SHORTAGE_TRIES = 3
+SHORTAGE_WAIT_S = 2.0
+#: What the reason of a probe that ran short on every try ends with.
+SHORTAGE_NOTE = "(the device or host ran short of memory: no verdict on the layout, not cached)"
 
 ENV_CACHE = "MESHSOM_CACHE_DIR"
 ENV_INJECT = "MESHSOM_KERNEL_INJECT"
@@ -243,14 +255,30 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
             name = f"{device.platform.name.strip()} / {device.name.strip()}"
             sizes = ", ".join(f"{k}={defines[k]}" for k in ("D", "NV", "REAL") if k in defines)
             log.info("checking BMUofN kernel layout %r on %s (%s) in a child process", layout, name, sizes)
-            verdict, keep = _probe_child(selector, defines, layout, name, key, timing)
+            wait = SHORTAGE_WAIT_S
+            for attempt in range(SHORTAGE_TRIES):
+                verdict, keep = _probe_child(selector, defines, layout, name, key, timing)
+                if not short_of_memory(verdict):
+                    break
+                log.warning("probe of layout %r on %s ran short of memory (try %d of %d): %s", layout, name,
+                            attempt + 1, SHORTAGE_TRIES, verdict.reason)
+                if attempt + 1 < SHORTAGE_TRIES:
+                    time.sleep(wait)
+                    wait *= 2
             log.info("layout %r on %s: %s in %.1f s", layout, name, "ok" if verdict.ok else "FAILED", verdict.seconds)
+            if short_of_memory(verdict):
+                return replace(verdict, reason=f"{verdict.reason} {SHORTAGE_NOTE}")
             if keep:
                 _write(path, verdict)
         else:
             verdict = cached
     _MEMO[key] = verdict
     return verdict
+
+
+def short_of_memory(verdict: Verdict) -> bool:
+    """The probe failed for want of memory at that moment (:data:`SHORTAGE_MARKERS`), not for the layout."""
+    return not verdict.ok and any(marker in verdict.reason for marker in SHORTAGE_MARKERS)
 
 
 #: What a compiler's or driver's message line starts with or holds, most telling first.

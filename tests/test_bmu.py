@@ -202,8 +202,9 @@ def ctx():
 
 #: The kernel variants and tilings run on PoCL: the CPU kernel as the CPU default, the GEMM
 #: layout with the GPU default tiling (128 x 128 tiles, 16 x 16 work-items: the tests' N and M
-#: give one partial tile of each) and with small tiles, vectors of 2, a D-chunk that pads D
-#: and three unit splits (several row and unit tiles, partial ones, the split reduction),
+#: give one partial tile of each) and with small tiles, vectors of 2, a D-chunk that pads D,
+#: three unit splits (several row and unit tiles, partial ones, the split reduction) and one
+#: local buffer (no prefetch),
 #: the earlier local-memory kernel with its GPU tiling and with wide vectors.
 KERNEL_PARAMS = {
     "cpu": {"kernel": "cpu"},
@@ -211,7 +212,7 @@ KERNEL_PARAMS = {
     "gemm-gpu": {"kernel": "gemm", "vector_width": 4, "tile_rows": 128, "tile_units": 128, "group_rows": 16,
                  "group_units": 16, "max_kt": 16, "smooth_outputs": 4},
     "gemm-split": {"kernel": "gemm", "vector_width": 2, "tile_rows": 16, "tile_units": 24, "group_rows": 4,
-                   "group_units": 4, "max_kt": 8, "unit_splits": 3},
+                   "group_units": 4, "max_kt": 8, "unit_splits": 3, "prefetch": False},
     "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
     "tiled-wide": {"kernel": "tiled", "vector_width": 16, "unit_blocks": 2, "max_rows": 8, "work_group": 8},
 }
@@ -493,6 +494,25 @@ def test_gemm_unit_splits_and_partial_tiles(ctx, N, n, splits):
     # dist2 of the winners, recomputed on the device in float64 (where it has it) as on the host
     exact = exact_dist2(X, W, index, sign, got.unit, got.variation)
     np.testing.assert_allclose(got.dist2, exact, rtol=1e-12 if has_fp64(ctx) else 1e-5)
+
+
+@pytest.mark.parametrize("whole,prefetch", [(False, False), (True, True), (True, False)])
+def test_gemm_staging_variants(ctx, whole, prefetch):
+    """The four ways the gemm kernel stages operands (the whole row tile once or X per chunk, two
+    local buffers or one) give the brute force's answers, at a D of several padded chunks and at a
+    D whose whole row tile does not fit (staged per chunk after all); the fourth, X per chunk with
+    two buffers, is the GPU default's, run by every test above."""
+    from meshsom.bmu_opencl import _defines, bmu_opencl
+
+    rng = np.random.default_rng(7)
+    for D, fits in ((21, True), (600, False)):
+        params = _gemm(unit_splits=2, whole_row_tile=whole, prefetch=prefetch)
+        assert _defines(D, 3, np.float32, params)["XRES"] == int(whole and fits)
+        X = rng.normal(size=(90, D)).astype(np.float32)
+        W = rng.normal(size=(61, D)).astype(np.float32)
+        index, sign = random_table(rng, 3, D)
+        got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
+        check_against_brute_force(got, X, W, index, sign, min_separated=0.8, rtol=1e-4, atol=1e-4)
 
 
 def test_gemm_ties_across_unit_splits(ctx):

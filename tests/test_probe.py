@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+import re
 import subprocess
 from types import SimpleNamespace
 
@@ -40,6 +41,11 @@ def forget_programs(monkeypatch):
     from meshsom import bmu_opencl
 
     monkeypatch.setattr(bmu_opencl, "_PROGRAMS", weakref.WeakKeyDictionary())
+
+
+#: What a probe says of the injected trap: PoCL's process dies (SIGILL/SIGTRAP); NVIDIA's driver
+#: survives it and fails the launch (OUT_OF_RESOURCES when the results are read).
+TRAPPED = "killed its process|kernel launch failed"
 
 
 def data(D=9, n=6, N=300, M=70, seed=0):
@@ -129,7 +135,45 @@ def test_probe_reports_a_build_error_and_a_process_killed_at_launch(ctx, monkeyp
     built = probe_layout(ctx, "cpu", 9, 6)
     assert not built.ok and "failed to build" in built.reason and "injected build failure" in built.reason
     killed = probe_layout(ctx, "tiled", 9, 6)
-    assert not killed.ok and "killed its process" in killed.reason
+    assert not killed.ok and re.search(TRAPPED, killed.reason)
+
+
+def test_a_probe_short_of_memory_is_tried_again_and_never_cached(ctx, fresh_verdicts, monkeypatch):
+    """A probe that failed for want of memory (a GPU shared by other processes: NVIDIA's
+    OUT_OF_HOST_MEMORY at launch or context creation) is no verdict: it is retried, and where every
+    try ran short the failure says so and is kept neither on disk nor in memory."""
+    from meshsom import probe
+    from meshsom.bmu_opencl import probe_layout
+
+    monkeypatch.setattr(probe, "SHORTAGE_WAIT_S", 0.0)
+    real = probe._probe_child
+    calls = []
+
+    def short_then_real(selector, defines, layout, name, key, timing):
+        calls.append(layout)
+        if len(calls) <= shortages:
+            reason = "pyopencl._cl.RuntimeError: Context failed: OUT_OF_HOST_MEMORY"
+            return probe.Verdict(False, layout, name, reason, 0.1, key), True
+        return real(selector, defines, layout, name, key, timing)
+
+    monkeypatch.setattr(probe, "_probe_child", short_then_real)
+    shortages = 2  # the third try answers
+    verdict = probe_layout(ctx, "tiled", 9, 6)
+    assert verdict.ok and len(calls) == 3 and len(list(fresh_verdicts.glob("*.json"))) == 1
+
+    calls.clear()
+    shortages = probe.SHORTAGE_TRIES  # every try short
+    monkeypatch.setattr(probe, "_MEMO", {})
+    verdict = probe_layout(ctx, "tiled", 36, 3)
+    assert not verdict.ok and len(calls) == probe.SHORTAGE_TRIES
+    assert "OUT_OF_HOST_MEMORY" in verdict.reason and verdict.reason.endswith(probe.SHORTAGE_NOTE)
+    assert len(list(fresh_verdicts.glob("*.json"))) == 1 and verdict.key not in probe._MEMO
+    # the next use probes again, and a real answer is kept
+    shortages = 0
+    again = probe_layout(ctx, "tiled", 36, 3)
+    assert again.ok and not again.cached and len(list(fresh_verdicts.glob("*.json"))) == 2
+    # a launch that ran out of resources (NVIDIA: a fault) is a verdict
+    assert not probe.short_of_memory(probe.Verdict(False, "gpu", "d", "clEnqueueReadBuffer failed: OUT_OF_RESOURCES", 0, ""))
 
 
 def test_probe_that_hangs_is_stopped_by_the_timeout(ctx, monkeypatch):
@@ -148,7 +192,7 @@ def test_direct_calls_go_through_the_guard_and_raise_instead_of_aborting(ctx, mo
 
     monkeypatch.setenv(ENV_INJECT, "tiled=trap")
     X, W, index, sign = data()
-    with pytest.raises(KernelLayoutError, match="killed its process") as info:
+    with pytest.raises(KernelLayoutError, match=TRAPPED) as info:
         bmu_opencl(X, W, index, sign, context=ctx, params=layout_params(ctx.devices[0], "tiled"))
     # and the error crosses process boundaries (Dask) as plain text
     again = pickle.loads(pickle.dumps(info.value))

@@ -29,6 +29,12 @@
  *   TM, TN       virtual rows and units per work-group tile
  *   WGM, WGN     work-items along rows (local id 1) and along units (local id 0)
  *   KT           dimensions per local-memory chunk;  DP: D rounded up to a multiple of KT
+ *   XRES         1: the row tile's varied vectors gathered into local memory once, for all
+ *                of D (DP x TM), only W staged per chunk; 0: X staged per chunk like W
+ *   PF           1: double-buffered chunks (the loads of chunk c + 1 in flight while c is
+ *                multiplied, one barrier per chunk); 0: one buffer, load then multiply (two
+ *                barriers per chunk, the load registers free during the products: fewer
+ *                registers, more work-groups per compute unit)
  *   EXACT        type of the winners' direct squared distance: double where the device has
  *                it, else REAL
  *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second (GPUs: keeps them
@@ -53,7 +59,8 @@
  * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
  * past D), W zero past M or D. Consecutive work-items take consecutive dimensions of one row of
  * X and of one unit of W. */
-#define LOAD_CHUNK(k0)                                                                   \
+#define LOAD_X(k0)                                                                       \
+    _Pragma("unroll")                                                                    \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
@@ -62,7 +69,9 @@
             const int v = q % NV;                                                        \
             xreg[e] = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];    \
         }                                                                                \
-    }                                                                                    \
+    }
+#define LOAD_W(k0)                                                                       \
+    _Pragma("unroll")                                                                    \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kw = (k0) + t % KT, u = m0 + t / KT;                                   \
@@ -70,16 +79,57 @@
     }
 
 /* Registers to local buffer b. */
-#define STORE_CHUNK(b)                                                                   \
+#define STORE_X(b)                                                                       \
+    _Pragma("unroll")                                                                    \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (t < TM * KT)                                                                 \
             Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
-    }                                                                                    \
+    }
+#define STORE_W(b)                                                                       \
+    _Pragma("unroll")                                                                    \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (t < TN * KT)                                                                 \
             Ws[(b) * KT * WSTRIDE + (t % KT) * WSTRIDE + t / KT] = wreg[e];              \
+    }
+
+/* XRES: the row tile's varied vectors are gathered into local memory once, for all of D, and
+ * only the codebook is staged per chunk; chunk c of X is then at c, not at a buffer. */
+#if XRES
+#define LOAD_CHUNK(k0) LOAD_W(k0)
+#define STORE_CHUNK(b) STORE_W(b)
+#define X_CHUNK(c, b) (c)
+#define X_LOCAL (DP * XSTRIDE / VW)
+#else
+#define LOAD_CHUNK(k0) LOAD_X(k0) LOAD_W(k0)
+#define STORE_CHUNK(b) STORE_X(b) STORE_W(b)
+#define X_CHUNK(c, b) (b)
+#define X_LOCAL (2 * KT * XSTRIDE / VW)
+#endif
+
+/* The outer products of X chunk xc and W buffer b: per dimension, RM rows x WVEC unit
+ * vectors of fma. */
+#define MULTIPLY_CHUNK(xc, b)                                                            \
+    {                                                                                    \
+        __local const realv *xb = Xv + (xc) * (KT * XSTRIDE / VW);                       \
+        __local const realv *wb = Wv + (b) * (KT * WSTRIDE / VW);                        \
+        _Pragma("unroll")                                                                \
+        for (int kk = 0; kk < KT; ++kk) {                                                \
+            REAL xr[RM];                                                                 \
+            realv w[WVEC];                                                               \
+            _Pragma("unroll")                                                            \
+            for (int i = 0; i < XVEC; ++i)                                               \
+                VSTORE(xb[kk * (XSTRIDE / VW) + i * WGM + ty], 0, xr + i * VW);          \
+            _Pragma("unroll")                                                            \
+            for (int j = 0; j < WVEC; ++j)                                               \
+                w[j] = wb[kk * (WSTRIDE / VW) + j * WGN + tx];                           \
+            _Pragma("unroll")                                                            \
+            for (int i = 0; i < RM; ++i)                                                 \
+                _Pragma("unroll")                                                        \
+                for (int j = 0; j < WVEC; ++j)                                           \
+                    acc[i][j] = fma((realv)(xr[i]), w[j], acc[i][j]);                    \
+        }                                                                                \
     }
 
 __kernel __attribute__((reqd_work_group_size(WGN, WGM, 1)))
@@ -106,7 +156,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
     const int tile0 = split * tiles_per_split;
     const int tile1 = min(tile0 + tiles_per_split, MP / TN);
 
-    __local realv Xv[2 * KT * XSTRIDE / VW];
+    __local realv Xv[X_LOCAL];
     __local realv Wv[2 * KT * WSTRIDE / VW];
     __local REAL *Xs = (__local REAL *)Xv;
     __local REAL *Ws = (__local REAL *)Wv;
@@ -126,6 +176,18 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
     }
 
     REAL xreg[XLOADS], wreg[WLOADS];
+#if XRES
+    for (int t = lid; t < TM * DP; t += WGS) {
+        const int kx = t % DP, q = q0 + t / DP;
+        REAL x = 0;
+        if (q < NR && kx < D) {
+            const int v = q % NV;
+            x = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];
+        }
+        Xs[kx * XSTRIDE + t / DP] = x;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+#endif
     for (int tile = tile0; tile < tile1; ++tile) {
         const int m0 = tile * TN;
         realv acc[RM][WVEC];
@@ -135,6 +197,7 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
             for (int j = 0; j < WVEC; ++j)
                 acc[i][j] = (realv)(0);
 
+#if PF
         LOAD_CHUNK(0)
         STORE_CHUNK(0)
         barrier(CLK_LOCAL_MEM_FENCE);
@@ -143,29 +206,21 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
             if (c + 1 < NCHUNK) {
                 LOAD_CHUNK((c + 1) * KT)
             }
-            __local const realv *xb = Xv + b * (KT * XSTRIDE / VW);
-            __local const realv *wb = Wv + b * (KT * WSTRIDE / VW);
-#pragma unroll
-            for (int kk = 0; kk < KT; ++kk) {
-                REAL xr[RM];
-                realv w[WVEC];
-#pragma unroll
-                for (int i = 0; i < XVEC; ++i)
-                    VSTORE(xb[kk * (XSTRIDE / VW) + i * WGM + ty], 0, xr + i * VW);
-#pragma unroll
-                for (int j = 0; j < WVEC; ++j)
-                    w[j] = wb[kk * (WSTRIDE / VW) + j * WGN + tx];
-#pragma unroll
-                for (int i = 0; i < RM; ++i)
-#pragma unroll
-                    for (int j = 0; j < WVEC; ++j)
-                        acc[i][j] = fma((realv)(xr[i]), w[j], acc[i][j]);
-            }
+            MULTIPLY_CHUNK(X_CHUNK(c, b), b)
             if (c + 1 < NCHUNK) {
                 STORE_CHUNK(1 - b)
             }
             barrier(CLK_LOCAL_MEM_FENCE);
         }
+#else
+        for (int c = 0; c < NCHUNK; ++c) {
+            LOAD_CHUNK(c * KT)
+            STORE_CHUNK(0)
+            barrier(CLK_LOCAL_MEM_FENCE);
+            MULTIPLY_CHUNK(X_CHUNK(c, 0), 0)
+            barrier(CLK_LOCAL_MEM_FENCE);
+        }
+#endif
 
         /* epilogue: running best and second of each row over this tile's units */
 #if UNROLL_EPILOGUE
@@ -186,7 +241,9 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
 #endif
                 for (int l = 0; l < VW; ++l) {
                     const REAL d = wn[l] - (REAL)2 * a[l];
-                    INSERT(d, u0 + l, bd[i], bu[i], sd[i], su[i]);
+                    if (d <= sd[i]) {  /* the common case, d > second, in one comparison (INSERT's outcome) */
+                        INSERT(d, u0 + l, bd[i], bu[i], sd[i], su[i]);
+                    }
                 }
             }
         }
