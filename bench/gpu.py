@@ -424,7 +424,8 @@ def autotune(args, ctx):
     base = base if base.kernel == "gemm" else DEFAULT_PARAMS["gpu"]
     say(f"\nautotune: gemm candidates over {base}, seconds per pass")
     best = {}
-    for w, (N, n, D) in enumerate(workloads(AUTOTUNE_WORKLOADS, args.quick)):
+    chosen = [tuple(int(v) for v in w.split(",")) for w in args.tune_workload] if args.tune_workload else None
+    for w, (N, n, D) in enumerate(workloads(chosen or AUTOTUNE_WORKLOADS, args.quick)):
         X, W = data(N, D, M)
         index, sign = block_table(n, D)
         for c, fields in enumerate(AUTOTUNE_CANDIDATES):
@@ -501,6 +502,12 @@ def main(argv=None) -> int:
     parser.add_argument("--no-old", action="store_true", help="skip the earlier 'tiled' layout")
     parser.add_argument("--no-epoch", action="store_true", help="skip the epoch table")
     parser.add_argument("--autotune", action="store_true", help="time a few gemm tilings and print the best")
+    parser.add_argument("--tune-workload", action="append", default=None, metavar="N,n,D",
+                        help="with --autotune: time this workload instead of the two default ones (repeatable)")
+    parser.add_argument("--tune-only", action="store_true", help="with --autotune: stop after it")
+    parser.add_argument("--candidates", default=None, metavar="JSON",
+                        help="with --autotune: a JSON list of field overrides instead of AUTOTUNE_CANDIDATES "
+                             "(the first is the reference)")
     parser.add_argument("--registers", action="store_true",
                         help="with --autotune: NVIDIA's register and spill report of every candidate")
     parser.add_argument("--memory-report", action="store_true",
@@ -516,6 +523,10 @@ def main(argv=None) -> int:
     parser.add_argument("--export-levels", nargs=2, metavar=("STORE", "NPZ"),
                         help="write a paper store's level vectors and variation tables for --levels, and stop")
     args = parser.parse_args(argv)
+    if args.candidates:
+        import json
+
+        AUTOTUNE_CANDIDATES[:] = json.loads(args.candidates)
     if args.export_levels:
         export_levels(*args.export_levels)
         return 0
@@ -540,6 +551,8 @@ def main(argv=None) -> int:
         return 0
     if args.autotune and not args.only_training:
         tuned = autotune(args, ctx)
+        if args.tune_only:
+            return 0
         if tuned is not None and not args.keep_default:
             from meshsom import bmu_opencl
 

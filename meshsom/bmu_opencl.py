@@ -111,6 +111,9 @@ class KernelParams:
         "gemm": most dimensions per local-memory chunk (halved for float64; KT: the largest
         divisor of D not above this when it is at least half of it, else this, with D
         zero-padded to a multiple).
+    staged_kt : int
+        "gemm": ``max_kt`` where the row tile is staged per chunk (not whole, see
+        ``whole_row_tile``); 0: ``max_kt``.
     unit_splits : int
         "gemm": ranges the units are split into (S; one work-group per row tile and range,
         partial best/second per range, folded by the reduction kernel). 0: chosen from the
@@ -156,6 +159,7 @@ class KernelParams:
     max_kt: int = 16
     unit_splits: int = 0
     groups_per_cu: int = 2
+    staged_kt: int = 0
     whole_row_tile: bool = False
     prefetch: bool = True
     max_registers: int = 0
@@ -172,6 +176,8 @@ class KernelParams:
                      "smooth_outputs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
+        if self.staged_kt < 0:
+            raise ValueError(f"staged_kt must be >= 0 (0: max_kt), received {self.staged_kt}")
         if self.max_registers < 0:
             raise ValueError(f"max_registers must be >= 0 (0: the compiler's choice), received {self.max_registers}")
         if self.unit_splits < 0:
@@ -216,10 +222,14 @@ CODEBOOKS_KEPT = 2
 #: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
 #: tiles (512 units) per L2 block; measured on a 2-core AVX-512 Xeon (bench/bmu.py).
 #: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the SGEMM-style "gemm"
-#: kernel with the usual SGEMM tiling of NVIDIA GPUs (CLBlast's layout): 128 varied vectors x 128
-#: units per group of 16 x 16 work-items, 8 x 8 accumulators each, D staged 16 at a time (8 in
-#: float64); 34 KB of local memory per group. "tiled": the local-memory kernel with small vectors
-#: (the earlier GPU layout), the last OpenCL layout of every chain.
+#: kernel, tuned on an NVIDIA H200 (bench/gpu.py --autotune, 14 candidates): 64 varied vectors x
+#: 128 units per group of 16 x 16 work-items, 4 x 8 accumulators each, the whole row tile gathered
+#: into local memory once where it fits (float32 D up to about 110, the paper's 9 and 36; beyond,
+#: D staged 8 at a time, 4 in float64: 0.73x the time of 16 at 1e6 x 3 x 144), the codebook
+#: double-buffered; 121 registers against 195 for 128 x 128 tiles (one group per compute unit),
+#: 0.91x its time (geometric mean of 1e6 x 3 x 36 and 3,064 x 3 x 144).
+#: "tiled": the local-memory kernel with small vectors (the earlier GPU layout), the last OpenCL
+#: layout of every chain.
 DEFAULT_PARAMS = {
     "cpu": KernelParams(kernel="cpu", name="cpu", vector_width=16, unit_blocks=2, max_rows=8, panel=192,
                         cache_tiles=16),
@@ -227,8 +237,8 @@ DEFAULT_PARAMS = {
     # accumulators, the shape of the usual AVX2 SGEMM micro-kernel (untimed here: no such CPU)
     "cpu-narrow": KernelParams(kernel="cpu", name="cpu-narrow", vector_width=8, unit_blocks=2, max_rows=6, panel=192,
                                cache_tiles=32),
-    "gpu": KernelParams(kernel="gemm", name="gpu", vector_width=4, tile_rows=128, tile_units=128, group_rows=16,
-                        group_units=16, max_kt=16, smooth_outputs=4),
+    "gpu": KernelParams(kernel="gemm", name="gpu", vector_width=4, tile_rows=64, tile_units=128, group_rows=16,
+                        group_units=16, max_kt=16, staged_kt=8, whole_row_tile=True, smooth_outputs=4),
     "tiled": KernelParams(kernel="tiled", name="tiled", vector_width=4, unit_blocks=2, max_rows=4, use_local=True,
                           work_group=64, max_dt=64),
 }
@@ -457,16 +467,22 @@ def device_params(device) -> KernelParams:
     return layout_params(device, layout_chain(device)[0])
 
 
-def _max_kt(params: KernelParams, dtype) -> int:
-    """``max_kt``, halved for float64 (the local tiles keep their bytes)."""
-    return max(1, params.max_kt // 2) if np.dtype(dtype) == np.float64 else params.max_kt
+def _max_kt(params: KernelParams, dtype, staged: bool = False) -> int:
+    """``max_kt`` (``staged_kt`` for a row tile staged per chunk, where set), halved for float64
+    (the local tiles keep their bytes)."""
+    cap = params.staged_kt if staged and params.staged_kt else params.max_kt
+    return max(1, cap // 2) if np.dtype(dtype) == np.float64 else cap
+
+
+def _chunk(D: int, cap: int) -> int:
+    """KT for a cap: the largest divisor of D not above it when that is at least half of it, else the cap."""
+    kt = _largest_divisor(D, cap)
+    return kt if 2 * kt >= min(D, cap) else cap
 
 
 def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
     """Dimensions per local-memory chunk of the "gemm" kernel (KT, see :class:`KernelParams`)."""
-    cap = _max_kt(params, dtype)
-    kt = _largest_divisor(D, cap)
-    return kt if 2 * kt >= min(D, cap) else cap
+    return _chunk(D, _max_kt(params, dtype, staged=not gemm_whole_row_tile(params, dtype, D)))
 
 
 #: Local memory a "gemm" work-group may take: what NVIDIA's OpenCL gives one (48 KB). The
@@ -499,7 +515,7 @@ def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
         return False
     size = np.dtype(dtype).itemsize
     vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    kt = gemm_kt(D, params, dtype)
+    kt = _chunk(D, _max_kt(params, dtype))
     whole = -(-D // kt) * kt * (params.tile_rows + vw) * size
     return 2 * kt * (params.tile_units + vw) * size + whole + params.tile_rows * 2 * (size + 4) <= GEMM_LOCAL_LIMIT
 

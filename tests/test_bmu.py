@@ -201,16 +201,18 @@ def ctx():
 
 
 #: The kernel variants and tilings run on PoCL: the CPU kernel as the CPU default, the GEMM
-#: layout with the GPU default tiling (128 x 128 tiles, 16 x 16 work-items: the tests' N and M
-#: give one partial tile of each) and with small tiles, vectors of 2, a D-chunk that pads D,
-#: three unit splits (several row and unit tiles, partial ones, the split reduction) and one
-#: local buffer (no prefetch),
+#: layout with the GPU default tiling (64 x 128 tiles, 16 x 16 work-items, the whole row tile in
+#: local memory up to D of about 110, staged 8 dimensions at a time beyond: the tests' N and M
+#: give partial tiles) and with small tiles, vectors of 2, a D-chunk that pads D, three unit
+#: splits (several row and unit tiles, partial ones, the split reduction) and one local buffer
+#: (no prefetch),
 #: the earlier local-memory kernel with its GPU tiling and with wide vectors.
 KERNEL_PARAMS = {
     "cpu": {"kernel": "cpu"},
     "cpu-narrow": {"kernel": "cpu", "vector_width": 8, "unit_blocks": 2, "max_rows": 6, "cache_tiles": 32},
-    "gemm-gpu": {"kernel": "gemm", "vector_width": 4, "tile_rows": 128, "tile_units": 128, "group_rows": 16,
-                 "group_units": 16, "max_kt": 16, "smooth_outputs": 4},
+    "gemm-gpu": {"kernel": "gemm", "vector_width": 4, "tile_rows": 64, "tile_units": 128, "group_rows": 16,
+                 "group_units": 16, "max_kt": 16, "staged_kt": 8, "whole_row_tile": True,
+                 "smooth_outputs": 4},
     "gemm-split": {"kernel": "gemm", "vector_width": 2, "tile_rows": 16, "tile_units": 24, "group_rows": 4,
                    "group_units": 4, "max_kt": 8, "unit_splits": 3, "prefetch": False},
     "tiled-gpu": {"kernel": "tiled", "vector_width": 4, "unit_blocks": 2, "max_rows": 4, "work_group": 64, "max_dt": 64},
@@ -498,14 +500,14 @@ def test_gemm_unit_splits_and_partial_tiles(ctx, N, n, splits):
 
 @pytest.mark.parametrize("whole,prefetch", [(False, False), (True, True), (True, False)])
 def test_gemm_staging_variants(ctx, whole, prefetch):
-    """The four ways the gemm kernel stages operands (the whole row tile once or X per chunk, two
-    local buffers or one) give the brute force's answers, at a D of several padded chunks and at a
-    D whose whole row tile does not fit (staged per chunk after all); the fourth, X per chunk with
-    two buffers, is the GPU default's, run by every test above."""
+    """The ways the gemm kernel stages operands (the whole row tile once or X per chunk, two local
+    buffers or one) give the brute force's answers, at a D of several padded chunks and at a D
+    whose whole row tile does not fit (staged per chunk after all). The GPU default (whole row
+    tile, two buffers) runs in every test above too, staged per chunk from D = 144."""
     from meshsom.bmu_opencl import _defines, bmu_opencl
 
     rng = np.random.default_rng(7)
-    for D, fits in ((21, True), (600, False)):
+    for D, fits in ((21, True), (1200, False)):
         params = _gemm(unit_splits=2, whole_row_tile=whole, prefetch=prefetch)
         assert _defines(D, 3, np.float32, params)["XRES"] == int(whole and fits)
         X = rng.normal(size=(90, D)).astype(np.float32)
@@ -532,7 +534,7 @@ def test_gemm_unit_splits_choice():
     from meshsom.bmu_opencl import KernelParams, unit_splits
 
     gpu = KernelParams(**KERNEL_PARAMS["gemm-gpu"])
-    assert unit_splits(3064, 141, gpu, 132) == (11, 13)  # 24 row tiles x 11 ranges >= 264 groups
+    assert unit_splits(3064, 141, gpu, 132) == (6, 24)  # 48 row tiles x 6 ranges >= 264 groups
     assert unit_splits(3_000_000, 141, gpu, 132) == (1, 141)
     assert unit_splits(1, 141, gpu, 132) == (141, 1)
     assert unit_splits(1, 5, _gemm(unit_splits=9), 2) == (5, 1)
