@@ -44,7 +44,7 @@ and read with ``--levels .gpu/paper-levels.npz`` (the GPU machine has no zarr); 
 table is skipped.
 
 --autotune times the "gemm" candidates (:data:`AUTOTUNE_CANDIDATES`: tilings, chunks, prefetch,
-NVIDIA's register cap) on one large (1e6 x 3 x 36) and one small (3,064 x 3 x 144) pass, prints
+NVIDIA's register cap) on two large (1e6 x 3 x 36 and x 144) and one small (3,064 x 3 x 144) pass, prints
 the best, and runs the tables with the best overall (least geometric mean of its time over the
 default's) as the "gpu" layout, unless --keep-default; with --registers also what NVIDIA's
 compiler says of each candidate (registers, spills). --memory-report prints the device memory one
@@ -82,30 +82,31 @@ LARGE_N = 1_000_000
 TORCH_CHUNK = 65_536
 #: Side of the PyTorch FP32 GEMM yardstick.
 GEMM_SIZE = 8192
-#: Candidates timed by --autotune: "gemm" KernelParams fields over the device default. Tilings
-#: (tile_rows x tile_units, group_rows x group_units: 8 x 8, 4 x 8 or 4 x 4 accumulators per
-#: work-item, 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's
-#: register cap (more work-groups per compute unit) and more unit splits for small N. The first is
-#: the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a work-group (a candidate
-#: that does not fit the device is skipped, with its size).
+#: Candidates timed by --autotune: "gemm" KernelParams fields over the device default (64 x 128
+#: tiles, the whole row tile where it fits, 8-dimension chunks beyond). Tilings (tile_rows x
+#: tile_units, group_rows x group_units: 8 x 8, 4 x 8, 4 x 4 or 2 x 8 accumulators per work-item,
+#: 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's register
+#: cap, vectors of 2 and more unit splits for small N; the earlier default (128 x 128, X staged 16
+#: dimensions at a time) among them. The first is the default; all fit the 48 KB of local memory
+#: NVIDIA's OpenCL gives a work-group (a candidate that does not fit the device is skipped, with
+#: its size). 2026-11-30 on an H200 the default won against the earlier one by 0.91x, and 8-
+#: dimension chunks beat 16 at D = 144 by 0.73x.
 AUTOTUNE_CANDIDATES = [
     {},
-    {"tile_rows": 64},
-    {"tile_rows": 64, "prefetch": False},
     {"prefetch": False},
-    {"max_registers": 128},
-    {"tile_rows": 64, "max_registers": 128},
-    {"tile_rows": 64, "tile_units": 64},
-    {"tile_rows": 64, "group_rows": 8},
-    {"tile_rows": 64, "group_rows": 8, "prefetch": False},
+    {"tile_rows": 128, "whole_row_tile": False, "staged_kt": 0},
+    {"tile_rows": 128},
+    {"tile_rows": 128, "prefetch": False},
+    {"staged_kt": 0},
+    {"max_registers": 96},
+    {"tile_units": 64},
     {"tile_rows": 32, "group_rows": 8},
     {"vector_width": 2},
-    {"tile_rows": 64, "groups_per_cu": 8},
-    {"tile_rows": 64, "whole_row_tile": True},
-    {"tile_rows": 64, "whole_row_tile": True, "prefetch": False},
+    {"groups_per_cu": 8},
+    {"max_kt": 8},
 ]
 #: The workloads --autotune times: (N, n, D).
-AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (3064, 3, 144)]
+AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (1_000_000, 3, 144), (3064, 3, 144)]
 #: The paper config's maps (configs/paper.yaml): (level, kernel), trained for PAPER_EPOCHS.
 PAPER_MAPS = [(1, "default"), (1, "bmuofn"), (2, "bmuofn"), (3, "bmuofn")]
 PAPER_EPOCHS = 20
@@ -389,7 +390,7 @@ def candidate_name(fields: dict) -> str:
     """A candidate's fields, short: "default" for none."""
     short = {"tile_rows": "tm", "tile_units": "tn", "group_rows": "gm", "group_units": "gn", "max_kt": "kt",
              "vector_width": "vw", "prefetch": "pf", "max_registers": "reg", "groups_per_cu": "gpc",
-             "whole_row_tile": "whole"}
+             "whole_row_tile": "whole", "staged_kt": "skt"}
     return " ".join(f"{short[k]}={int(v)}" for k, v in fields.items()) or "default"
 
 
@@ -470,6 +471,47 @@ def autotune(args, ctx):
     return replace(base, name="gpu", **AUTOTUNE_CANDIDATES[c])
 
 
+#: Workloads of --diagnose's stage timing: (N, n, D).
+DIAGNOSE_WORKLOADS = [(1_000_000, 3, 36), (1_000_000, 3, 144)]
+#: Stages --diagnose leaves out (the kernel's MESHSOM_ABLATE bits, kernels/bmu_gpu.cl).
+ABLATIONS = {0: "whole pass", 1: "without the epilogue's comparisons", 2: "without staging after the first tile",
+             3: "without both"}
+
+
+def diagnose(args, ctx, folder: str) -> None:
+    """Where the "gpu" layout's pass spends its time, for the next round of tuning: the program's
+    binary (PTX on NVIDIA) at D = 36 and 144 written to ``folder``, and the pass timed with a stage
+    left out (:data:`ABLATIONS`; wrong answers, so built without the probe and never used otherwise)."""
+    import pyopencl as cl
+
+    from meshsom.bmu_numpy import validate
+    from meshsom.bmu_opencl import _defines, _queue, default_params, get_kernel, launch
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    params = default_params(ctx)
+    rows, cols = MAP
+    M = rows * cols
+    say(f"\ndiagnose: {params}")
+    queue = _queue(ctx)
+    for N, n, D in workloads(DIAGNOSE_WORKLOADS, args.quick):
+        X, W = data(N, D, M)
+        index, sign = block_table(n, D)
+        X, W, index, sign = validate(X, W, index, sign)
+        base = None
+        for ablate, what in ABLATIONS.items():
+            defines = {**_defines(D, n, X.dtype, params), "MESHSOM_ABLATE": ablate}
+            kernel = get_kernel(ctx, defines, guard=False, layout=f"ablate-{ablate}")
+            if ablate == 0:
+                binary = kernel.get_info(cl.kernel_info.PROGRAM).get_info(cl.program_info.BINARIES)[0]
+                (out / f"gemm-D{D}.ptx").write_bytes(binary)
+            launch(ctx, queue, kernel, X, W, index, sign, defines)
+            t = best_time(lambda: launch(ctx, queue, kernel, X, W, index, sign, defines), 2)
+            base = base or t
+            say(f"{N:>9} {f'{n}x{D}':>7} {what:>40} {t:8.4f} s  {t / base:6.2f} of the pass")
+    say(f"program binaries in {out}")
+
+
 def memory_report(ctx) -> None:
     """Device memory a context holds after one launch of each layout (torch's free-memory reading):
     NVIDIA reserves a kernel's private (spilled) memory for every resident work-item."""
@@ -510,6 +552,9 @@ def main(argv=None) -> int:
                              "(the first is the reference)")
     parser.add_argument("--registers", action="store_true",
                         help="with --autotune: NVIDIA's register and spill report of every candidate")
+    parser.add_argument("--diagnose", default=None, metavar="DIR",
+                        help="write the gpu layout's program binaries (PTX on NVIDIA) to DIR, time its pass "
+                             "with stages left out, and stop")
     parser.add_argument("--memory-report", action="store_true",
                         help="the device memory one pass of each layout leaves held, with its register report, "
                              "and stop (its own process: the 'cpu' layouts can hold half an H200)")
@@ -548,6 +593,9 @@ def main(argv=None) -> int:
             f"(TF32 off) {gemm:.1f} TFLOP/s")
     if args.memory_report:
         memory_report(ctx)
+        return 0
+    if args.diagnose:
+        diagnose(args, ctx, args.diagnose)
         return 0
     if args.autotune and not args.only_training:
         tuned = autotune(args, ctx)

@@ -8,14 +8,16 @@
 #
 #     bash bench/gpu_device.sh
 #
-# Budget: at most 60 s of memory report, 300 s of benchmark and 210 s of tests (BENCH_TIMEOUT, TEST_TIMEOUT,
-# CPU_TEST_TIMEOUT), under the 10 minutes of one run.
+# Budget: at most 45 s of memory report, 90 s of diagnosis, 270 s of benchmark and 190 s of
+# tests (BENCH_TIMEOUT, TEST_TIMEOUT, CPU_TEST_TIMEOUT), under the 10 minutes of one run.
 # 1. installs the wheels into /tmp/site (pyopencl and its pure dependencies, XPySom, shapely for
 # meshsom.config); 2. registers NVIDIA's OpenCL library with the ICD loader bundled in the
 # pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd files); 3. lists the OpenCL
-# devices; 4. bench/gpu.py --memory-report (the memory each layout's context
-# holds) and --autotune --registers --levels (the compiler's register report and time of every gemm candidate, tables
-# a, c, b with the best); 5. the BMU, probe, epoch-sums and device-update tests on the NVIDIA device.
+# devices; 4. bench/gpu.py --memory-report (the memory each layout's context holds), --diagnose
+# (the pass timed with its epilogue or staging left out; the PTX, compiled by ptxas into SASS and
+# its instruction mix counted) and --autotune --registers --levels (the compiler's register
+# report and the time of every gemm candidate, tables a, c, b with the best); 5. the BMU, probe,
+# epoch-sums and device-update tests on the NVIDIA device.
 set -u
 export PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}
@@ -54,9 +56,25 @@ export PYOPENCL_CTX=nvidia MESHSOM_PROBE_TIMEOUT=60
 levels=.gpu/paper-levels.npz
 [ -e "$levels" ] && levels_arg="--levels $levels" || { echo "no $levels: table (c) skipped"; levels_arg=""; }
 step "bench/gpu.py --device nvidia --memory-report"
-timeout 60 python3 bench/gpu.py --device nvidia --memory-report
+timeout 45 python3 bench/gpu.py --device nvidia --memory-report
+
+step "bench/gpu.py --device nvidia --diagnose \$OUT/diag (stage timing; the gpu layout's PTX, its SASS instruction mix)"
+timeout 60 python3 bench/gpu.py --device nvidia --diagnose "$OUT/diag"
+PATH=$PATH:/usr/local/cuda/bin
+for ptx in "$OUT"/diag/*.ptx; do
+    [ -e "$ptx" ] || continue
+    cubin=/tmp/$(basename "${ptx%.ptx}").cubin
+    if timeout 30 ptxas -arch=sm_90a -v "$ptx" -o "$cubin" 2>&1 | grep -E "bmu_of_n_gemm'|registers|spill" | head -n 6 \
+            && cuobjdump -sass "$cubin" > "${ptx%.ptx}.sass" 2>/dev/null; then
+        echo "SASS instruction mix of $(basename "$ptx") (all kernels of the program):"
+        grep -oE '\b(FFMA|FMUL|FADD|FSETP|FSEL|LDS|LDG|STS|STG|BAR|ISETP|IMAD|IADD3|LEA|SEL|BRA|LDL|STL|SHF|LOP3|MOV)(\.[A-Z0-9_]+)*' \
+            "${ptx%.ptx}.sass" | sort | uniq -c | sort -rn | head -n 16
+    else
+        echo "no ptxas / cuobjdump here: $ptx comes back as it is"
+    fi
+done
 step "bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg"
-timeout ${BENCH_TIMEOUT:-300} python3 bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg
+timeout ${BENCH_TIMEOUT:-270} python3 bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg
 
 # The "cpu" layouts stage up to panel_bytes (256 KB) of rows in private memory per work-item, and
 # NVIDIA's driver reserves a kernel's private memory for every work-item the GPU can hold, for the
@@ -64,7 +82,7 @@ timeout ${BENCH_TIMEOUT:-300} python3 bench/gpu.py --device nvidia --autotune --
 # their tests run in one process, the others in 4.
 tests="tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py tests/test_device_update.py"
 step "tests on the NVIDIA device, all but the 'cpu' layouts (4 pytest workers): $tests"
-timeout ${TEST_TIMEOUT:-120} python3 -m pytest -q -p no:cacheprovider -n 4 -k "not cpu" $tests
+timeout ${TEST_TIMEOUT:-100} python3 -m pytest -q -p no:cacheprovider -n 4 -k "not cpu" $tests
 step "tests of the 'cpu' layouts on the NVIDIA device (one process)"
 timeout ${CPU_TEST_TIMEOUT:-90} python3 -m pytest -q -p no:cacheprovider -k "cpu" $tests
 step "done"

@@ -745,8 +745,7 @@ def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP):
                           groups_per_cu=defines["GPC"])
     splits, per_split = unit_splits(rows, MP // defines["TN"], params, context.devices[0].max_compute_units)
     itemsize = 8 if defines["REAL"] == "double" else 4
-    parts = [cl.Buffer(context, cl.mem_flags.READ_WRITE, rows * splits * size)
-             for size in (itemsize, 4, itemsize, 4)]
+    parts = [scratch(context, rows * splits * size) for size in (itemsize, 4, itemsize, 4)]
     row_tiles = -(-rows // defines["TM"])
     kernel(queue, (splits * defines["WGN"], row_tiles * defines["WGM"]), (defines["WGN"], defines["WGM"]),
            bufs[0], np.int32(N), bufs[1], np.int32(M), bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split),
@@ -1110,12 +1109,11 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     dist2 = np.empty(N, np.float64 if defines["KERNEL"] == "gemm" and has_fp64(context) else X.dtype)
     second = np.empty(N, np.int32)
     try:
-        mf = cl.mem_flags
         xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
         # gemm reads W itself: a codebook an update on the device made is already there
         wbuf = resident_codebooks(context).buffer(context, W) if WT is W else upload(context, WT)
         bufs = [xbuf, wbuf, upload(context, wnorm), ibuf, sbuf]
-        outs = [cl.Buffer(context, mf.WRITE_ONLY, a.nbytes) for a in (unit, variation, dist2, second)]
+        outs = [scratch(context, a.nbytes) for a in (unit, variation, dist2, second)]
         if defines["KERNEL"] == "gemm":
             _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP)
         else:
@@ -1225,19 +1223,18 @@ def device_unit_order(context, queue, defines: dict, unit: np.ndarray, M: int, b
     B = -(-N // size)
     counts_k, scan_k, order_k, totals_k = (get_kernel(context, defines, name, layout=layout)
                                            for name in (UNIT_COUNTS, EXCLUSIVE_SCAN, STABLE_ORDER, UNIT_TOTALS))
-    mf = cl.mem_flags
     ubuf = upload(context, np.ascontiguousarray(unit, np.int32))
-    per = cl.Buffer(context, mf.READ_WRITE, B * M * 4)
+    per = scratch(context, B * M * 4)
     cl.enqueue_fill_buffer(queue, per, np.int32(0), 0, B * M * 4)
     group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
     counts_k(queue, (-(-N // group) * group,), (group,), ubuf, np.int32(N), np.int32(size), np.int32(M), per)
-    offsets = cl.Buffer(context, mf.READ_WRITE, (B * M + 1) * 4)
+    offsets = scratch(context, (B * M + 1) * 4)
     scan_k(queue, (ORDER_GROUP,), (ORDER_GROUP,), per, np.int32(B * M), offsets)
-    cursor = cl.Buffer(context, mf.READ_WRITE, B * M * 4)
+    cursor = scratch(context, B * M * 4)
     cl.enqueue_copy(queue, cursor, offsets, byte_count=B * M * 4)
-    order = cl.Buffer(context, mf.READ_WRITE, max(N, 1) * 4)
+    order = scratch(context, max(N, 1) * 4)
     order_k(queue, (B * ORDER_GROUP,), (ORDER_GROUP,), ubuf, np.int32(N), np.int32(size), np.int32(M), cursor, order)
-    totals = cl.Buffer(context, mf.WRITE_ONLY, M * 4)
+    totals = scratch(context, M * 4)
     totals_k(queue, (-(-M // group) * group,), (group,), offsets, np.int32(B), np.int32(M), totals)
     counts = np.empty(M, np.int32)
     cl.enqueue_copy(queue, counts, totals)
@@ -1327,7 +1324,7 @@ def launch_unit_sums(context, queue, defines: dict, X, index, sign, unit, variat
             out = ibuf if ibuf is not None else upload(context, np.zeros((M, D)))
         else:
             xbuf, xibuf, sbuf = row_buffers(context, X, index, sign)
-            out = cl.Buffer(context, cl.mem_flags.READ_WRITE, M * D * 8)
+            out = scratch(context, M * D * 8)
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel = get_kernel(context, defines, UNIT_SUMS, layout=layout)
             kernel(queue, (-(-M * D // group) * group,), (group,), xbuf, xibuf, sbuf,
@@ -1408,7 +1405,7 @@ def launch_row_errors(context, queue, kernel, X, W, index, sign, unit, variation
     if N:
         try:
             xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
-            outs = [cl.Buffer(context, cl.mem_flags.WRITE_ONLY, a.nbytes) for a in (q, qc)]
+            outs = [scratch(context, a.nbytes) for a in (q, qc)]
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-N // group) * group,), (group,), xbuf, np.int32(N), ibuf, sbuf,
                    upload(context, np.ascontiguousarray(variation, np.int32)),
@@ -1477,7 +1474,7 @@ def launch_topographic_errors(context, queue, kernel, X, W, index, sign, unit, v
     if N:
         try:
             xbuf, ibuf, sbuf = row_buffers(context, X, index, sign)
-            out = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, bad.nbytes)
+            out = scratch(context, bad.nbytes)
             group = min(SUMS_GROUP, context.devices[0].max_work_group_size)
             kernel(queue, (-(-N // group) * group,), (group,), xbuf, np.int32(N), ibuf, sbuf,
                    *(upload(context, np.ascontiguousarray(a, np.int32)) for a in (variation, unit, second)),
@@ -1571,16 +1568,15 @@ def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, mi
 
     new = np.empty((M, D), real)
     try:
-        mf = cl.mem_flags
         rk = upload(context, np.ascontiguousarray(row_kernel, np.float64))
         ck = upload(context, np.ascontiguousarray(col_kernel, np.float64))
-        half, num = (cl.Buffer(context, mf.READ_WRITE, M * D * 8) for _ in range(2))
+        half, num = (scratch(context, M * D * 8) for _ in range(2))
         along(sums.buffer, rows, cols, D, ck, half)
         along(half, 1, rows, cols * D, rk, num)
-        once, den = (cl.Buffer(context, mf.READ_WRITE, M * 8) for _ in range(2))
+        once, den = (scratch(context, M * 8) for _ in range(2))
         along(upload(context, np.ascontiguousarray(counts, np.float64)), rows, cols, 1, ck, once)
         along(once, 1, rows, cols, rk, den)
-        out = cl.Buffer(context, mf.READ_WRITE, new.nbytes)
+        out = scratch(context, new.nbytes)
         divide(queue, (-(-M * D // group) * group,), (group,), num, den, resident_codebooks(context).buffer(context, W),
                np.int32(M), np.float64(min_weight), out)
         cl.enqueue_copy(queue, new, out)
@@ -1593,6 +1589,23 @@ def batch_update_opencl(W, sums: DeviceArray, counts, row_kernel, col_kernel, mi
 
 
 _QUEUES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_POOLS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def scratch(context, nbytes: int):
+    """A device buffer of ``nbytes`` for one call's intermediate or output values (read and written
+    on the device), from the context's memory pool (``pyopencl.tools.MemoryPool``).
+
+    A search and an epoch make about fifteen such buffers; on a GPU each allocation and each
+    release is a driver call (NVIDIA: cuMemAlloc, and cuMemFree, which waits for the device),
+    about as long as a whole small pass. Released buffers go back to the pool and serve later
+    calls of the same size class; the pool keeps them until the context goes.
+    """
+    if context not in _POOLS:
+        from pyopencl.tools import ImmediateAllocator, MemoryPool
+
+        _POOLS[context] = MemoryPool(ImmediateAllocator(_queue(context)))
+    return _POOLS[context].allocate(max(int(nbytes), 1))
 
 
 def _queue(context):

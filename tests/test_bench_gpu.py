@@ -105,3 +105,27 @@ def test_all_tables_with_the_update_on_the_device(levels, capsys, monkeypatch):
     assert len(training) == 5 and all(r and r["where"] == "device; update on the device" for r in training), out
     epochs = [line for line in out.splitlines() if re.match(r"\s+(300|200)\s+(9|36)\s", line)]
     assert len(epochs) == 2 and all(line.endswith("(device)") and line.count("(device)") == 2 for line in epochs), out
+
+
+def test_autotune_and_diagnose_run(tmp_path, capsys, monkeypatch):
+    """--autotune (with its register report) and --diagnose end to end on a small map, as the GPU run
+    calls them: every candidate timed or reported, the best named and returned as the 'gpu' layout,
+    the stage timings printed and the program binary written."""
+    import bench.gpu as gpu
+    from tests.test_bmu import _opencl_context
+
+    _opencl_context()  # skips without an OpenCL device
+    monkeypatch.setattr(gpu, "MAP", (6, 8))
+    monkeypatch.setattr(gpu, "AUTOTUNE_CANDIDATES", [{}, {"prefetch": False}])
+    monkeypatch.setattr(gpu, "DIAGNOSE_WORKLOADS", [(400, 1, 9)])
+    monkeypatch.setattr(gpu, "ABLATIONS", {0: "whole pass", 3: "without both"})
+    assert gpu.main(["--autotune", "--tune-only", "--registers", "--tune-workload", "300,3,9"]) == 0
+    out = capsys.readouterr().out
+    timed = [line for line in out.splitlines() if re.match(r"\s+300\s+3x9\s+(default|pf=0)\s+[\d.]+\s", line)]
+    assert len(timed) == 2 and all("B/work-item" in line for line in timed), out
+    assert re.search(r"overall best: (default|pf=0), [\d.]+ x the default's time", out), out
+    assert gpu.main(["--diagnose", str(tmp_path / "diag")]) == 0
+    out = capsys.readouterr().out
+    stages = re.findall(r"\s+400\s+1x9\s+(whole pass|without both)\s+[\d.]+ s\s+([\d.]+) of the pass", out)
+    assert [s for s, _ in stages] == ["whole pass", "without both"] and stages[0][1] == "1.00", out
+    assert (tmp_path / "diag" / "gemm-D9.ptx").stat().st_size > 0

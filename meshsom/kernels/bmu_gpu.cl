@@ -4,11 +4,12 @@
  * sign[v, k] * x[row, index[v, k]], k = 0..D-1 (NR = N * NV of them). As in an SGEMM
  * (CLBlast's layout), a work-group of WGN x WGM work-items computes a tile of TM virtual
  * rows x TN units: every work-item accumulates RM = TM / WGM rows x RN = TN / WGN units in
- * registers. Along D the tiles of X (gathered with the signs once per tile, zero past D)
- * and of the codebook W (M, D; zero past D and past M, so the host makes no transposed or
- * padded copy) are staged through local memory in chunks of KT dimensions, double-buffered:
- * the global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied,
- * with one barrier per chunk.
+ * registers. The row tile of X is gathered with the signs (zero past D) into local memory
+ * once for all of D where it fits (XRES: it is the same for every unit tile), else per chunk;
+ * the codebook W (M, D; zero past D and past M, so the host makes no transposed or padded
+ * copy) is staged through local memory in chunks of KT dimensions, double-buffered (PF): the
+ * global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied, with
+ * one barrier per chunk.
  *
  * A work-item owns the rows (i * WGM + ty) * VW + l and the units (j * WGN + tx) * VW + l
  * (i < RM / VW, j < RN / VW, l < VW): its operands are VW-wide vector loads from local
@@ -18,7 +19,7 @@
  * one accumulator, a sequential fma over k = 0..D-1 (the zero padding past D adds exact
  * zeros), then d = ||w||^2 - 2 acc. The epilogue keeps, per row, the best and second
  * best (d, unit) in the lexicographic order of INSERT over the work-item's units and unit
- * tiles; the WGN work-items sharing a row are folded in local memory, and every
+ * tiles (a d above the second, the common case, is rejected by one comparison); the WGN work-items sharing a row are folded in local memory, and every
  * work-group writes the best and second of its TM rows over its range of unit tiles (its
  * split s of S) to the partial arrays (NR, S). bmu_of_n_gemm_reduce then folds the splits
  * (INSERT again) and the variations (||x_v||^2 added; a later variation wins when strictly
@@ -37,6 +38,11 @@
  *                registers, more work-groups per compute unit)
  *   EXACT        type of the winners' direct squared distance: double where the device has
  *                it, else REAL
+ *   MESHSOM_ABLATE   timing hook of bench/gpu.py --diagnose, never set otherwise (the answers are
+ *                wrong with it): bit 1 drops the epilogue's comparisons (each distance is only
+ *                added to a sink that is written out), bit 2 stages the codebook's chunks of
+ *                the first unit tile only (no global loads or local stores after it); the
+ *                time saved is the share of that stage
  *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second (GPUs: keeps them
  *                in registers); 0 on CPU devices, where PoCL compiles the unrolled
  *                branches about 3x slower for no gain (meshsom.bmu_opencl.get_kernel)
@@ -54,6 +60,11 @@
 #define XLOADS ((TM * KT + WGS - 1) / WGS)  /* X elements each work-item stages per chunk */
 #define WLOADS ((TN * KT + WGS - 1) / WGS)  /* W elements each work-item stages per chunk */
 #define NCHUNK (DP / KT)
+#ifndef MESHSOM_ABLATE
+#define MESHSOM_ABLATE 0
+#endif
+#define ABLATE_EPILOGUE (MESHSOM_ABLATE & 1)
+#define ABLATE_STAGING (MESHSOM_ABLATE & 2)
 
 /* Global loads of chunk k0 into registers (the macros' locals are named apart from the
  * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
@@ -97,15 +108,22 @@
 /* XRES: the row tile's varied vectors are gathered into local memory once, for all of D, and
  * only the codebook is staged per chunk; chunk c of X is then at c, not at a buffer. */
 #if XRES
-#define LOAD_CHUNK(k0) LOAD_W(k0)
-#define STORE_CHUNK(b) STORE_W(b)
+#define STAGE_LOAD(k0) LOAD_W(k0)
+#define STAGE_STORE(b) STORE_W(b)
 #define X_CHUNK(c, b) (c)
 #define X_LOCAL (DP * XSTRIDE / VW)
 #else
-#define LOAD_CHUNK(k0) LOAD_X(k0) LOAD_W(k0)
-#define STORE_CHUNK(b) STORE_X(b) STORE_W(b)
+#define STAGE_LOAD(k0) LOAD_X(k0) LOAD_W(k0)
+#define STAGE_STORE(b) STORE_X(b) STORE_W(b)
 #define X_CHUNK(c, b) (b)
 #define X_LOCAL (2 * KT * XSTRIDE / VW)
+#endif
+#if ABLATE_STAGING
+#define LOAD_CHUNK(k0) if (tile == tile0) { STAGE_LOAD(k0) }
+#define STORE_CHUNK(b) if (tile == tile0) { STAGE_STORE(b) }
+#else
+#define LOAD_CHUNK(k0) STAGE_LOAD(k0)
+#define STORE_CHUNK(b) STAGE_STORE(b)
 #endif
 
 /* The outer products of X chunk xc and W buffer b: per dimension, RM rows x WVEC unit
@@ -176,6 +194,9 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
     }
 
     REAL xreg[XLOADS], wreg[WLOADS];
+#if ABLATE_EPILOGUE
+    REAL sink = 0;
+#endif
 #if XRES
     for (int t = lid; t < TM * DP; t += WGS) {
         const int kx = t % DP, q = q0 + t / DP;
@@ -241,14 +262,21 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
 #endif
                 for (int l = 0; l < VW; ++l) {
                     const REAL d = wn[l] - (REAL)2 * a[l];
+#if ABLATE_EPILOGUE
+                    sink += d;
+#else
                     if (d <= sd[i]) {  /* the common case, d > second, in one comparison (INSERT's outcome) */
                         INSERT(d, u0 + l, bd[i], bu[i], sd[i], su[i]);
                     }
+#endif
                 }
             }
         }
     }
 
+#if ABLATE_EPILOGUE
+    bd[0] = sink;  /* keeps the products alive */
+#endif
     /* fold the WGN work-items of each row into local memory, one column of work-items
      * (tx) per round: in a round every row has exactly one writer */
     for (int r = lid; r < TM; r += WGS) {
