@@ -60,6 +60,12 @@ log = logging.getLogger(__name__)
 ENV_SELECTOR = "PYOPENCL_CTX"
 
 
+#: Local memory a "gemm" work-group may take: what NVIDIA's OpenCL gives one (48 KB), or a
+#: device's own where less (:func:`layout_params`). The whole row tile
+#: (:attr:`KernelParams.whole_row_tile`) is staged only where it fits.
+GEMM_LOCAL_LIMIT = 48 * 1024
+
+
 @dataclass(frozen=True)
 class KernelParams:
     """Which kernel and its tiling.
@@ -114,6 +120,9 @@ class KernelParams:
     staged_kt : int
         "gemm": ``max_kt`` where the row tile is staged per chunk (not whole, see
         ``whole_row_tile``); 0: ``max_kt``.
+    local_limit : int
+        "gemm": bytes of local memory a work-group may take (:data:`GEMM_LOCAL_LIMIT`, capped by the
+        device's in :func:`layout_params`); decides where the whole row tile fits.
     unit_splits : int
         "gemm": ranges the units are split into (S; one work-group per row tile and range,
         partial best/second per range, folded by the reduction kernel). 0: chosen from the
@@ -123,8 +132,8 @@ class KernelParams:
         unit when the row tiles alone are fewer.
     whole_row_tile : bool
         "gemm": gather the row tile's varied vectors into local memory once, for all of D (XRES),
-        staging only the codebook per chunk, where that fits :data:`GEMM_LOCAL_LIMIT` beside the
-        codebook's chunks (:func:`gemm_local_bytes`); else, or False, X is staged per chunk as W is.
+        staging only the codebook per chunk, where that fits ``local_limit`` beside the codebook's
+        chunks (:func:`gemm_whole_row_tile`); else, or False, X is staged per chunk as W is.
     prefetch : bool
         "gemm": double-buffer the local-memory chunks along D (PF: the next chunk's loads in
         flight while one is multiplied); False: load, then multiply (fewer registers).
@@ -160,6 +169,7 @@ class KernelParams:
     unit_splits: int = 0
     groups_per_cu: int = 2
     staged_kt: int = 0
+    local_limit: int = GEMM_LOCAL_LIMIT
     whole_row_tile: bool = False
     prefetch: bool = True
     max_registers: int = 0
@@ -173,7 +183,7 @@ class KernelParams:
             raise ValueError(f"vector_width must be 2, 4, 8 or 16, received {self.vector_width}")
         for name in ("unit_blocks", "max_rows", "work_group", "max_dt", "panel", "panel_bytes", "cache_tiles",
                      "tile_rows", "tile_units", "group_rows", "group_units", "max_kt", "groups_per_cu",
-                     "smooth_outputs"):
+                     "smooth_outputs", "local_limit"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, received {getattr(self, name)}")
         if self.staged_kt < 0:
@@ -449,7 +459,7 @@ def layout_chain(device) -> tuple[str, ...]:
 
 
 def layout_params(device, name: str) -> KernelParams:
-    """The tiling of layout ``name`` fitted to a device (work-group size capped by the device's).
+    """The tiling of layout ``name`` fitted to a device (work-group size and local memory capped by the device's).
 
     Raises
     ------
@@ -458,8 +468,10 @@ def layout_params(device, name: str) -> KernelParams:
     """
     if name not in DEFAULT_PARAMS:
         raise ValueError(f"unknown kernel layout {name!r}; known layouts: {', '.join(DEFAULT_PARAMS)}")
-    params = DEFAULT_PARAMS[name]
-    return replace(params, work_group=min(params.work_group, device.max_work_group_size))
+    params = replace(DEFAULT_PARAMS[name], work_group=min(DEFAULT_PARAMS[name].work_group, device.max_work_group_size))
+    if params.kernel == "gemm":
+        params = replace(params, local_limit=min(params.local_limit, int(device.local_mem_size)))
+    return params
 
 
 def device_params(device) -> KernelParams:
@@ -485,11 +497,6 @@ def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
     return _chunk(D, _max_kt(params, dtype, staged=not gemm_whole_row_tile(params, dtype, D)))
 
 
-#: Local memory a "gemm" work-group may take: what NVIDIA's OpenCL gives one (48 KB). The
-#: whole row tile (:attr:`KernelParams.whole_row_tile`) is staged only where it fits.
-GEMM_LOCAL_LIMIT = 48 * 1024
-
-
 def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
     """Local memory of one "gemm" work-group: two buffers of X and W at the largest chunk, the row fold.
 
@@ -510,14 +517,14 @@ def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
 
 def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
     """Whether the "gemm" kernel stages the whole row tile at this D (XRES): asked for, and it fits
-    :data:`GEMM_LOCAL_LIMIT` beside the codebook's two chunks and the row fold."""
+    ``params.local_limit`` beside the codebook's two chunks and the row fold."""
     if not params.whole_row_tile:
         return False
     size = np.dtype(dtype).itemsize
     vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
     kt = _chunk(D, _max_kt(params, dtype))
     whole = -(-D // kt) * kt * (params.tile_rows + vw) * size
-    return 2 * kt * (params.tile_units + vw) * size + whole + params.tile_rows * 2 * (size + 4) <= GEMM_LOCAL_LIMIT
+    return 2 * kt * (params.tile_units + vw) * size + whole + params.tile_rows * 2 * (size + 4) <= params.local_limit
 
 
 def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:

@@ -397,6 +397,23 @@ def test_device_params_gpu_ignores_the_cpu_name():
     assert device_params(small) == DEFAULT_PARAMS["tiled"]
 
 
+def test_whole_row_tile_fits_the_devices_local_memory():
+    """The whole row tile is staged where it fits the device's local memory (capped at NVIDIA's 48 KB):
+    on a 32 KB device D = 36 still fits (23.5 KB) and D = 90 (41 KB) is staged per chunk."""
+    pytest.importorskip("pyopencl")
+    from meshsom.bmu_opencl import GEMM_LOCAL_LIMIT, _defines, device_params, gemm_local_bytes
+
+    nvidia = device_params(FakeDevice("OpenCL 3.0 CUDA", "560.35.03", width=1, cpu=False))
+    small = FakeDevice("OpenCL 3.0", "1", width=1, cpu=False)
+    small.local_mem_size = 32 * 1024
+    small = device_params(small)
+    assert (nvidia.local_limit, small.local_limit) == (GEMM_LOCAL_LIMIT, 32 * 1024)
+    for D, on_nvidia, on_small in ((36, 1, 1), (90, 1, 0), (144, 0, 0)):
+        assert (_defines(D, 3, np.float32, nvidia)["XRES"], _defines(D, 3, np.float32, small)["XRES"]) == (
+            on_nvidia, on_small), D
+        assert gemm_local_bytes(small, np.float32, D) <= 32 * 1024
+
+
 @pytest.mark.parametrize(
     "n,D,M",
     [(1, 9, 300), (3, 9, 300), (6, 9, 300), (1, 36, 250), (3, 36, 250), (6, 36, 250),
