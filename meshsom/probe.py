@@ -14,7 +14,8 @@ Dask workers on it share the answer. The key covers everything the build depends
 platform and its version, the device, its driver version, the kernel source text and the
 compile defines (sizes, widths, data type). The cache folder is ``$MESHSOM_CACHE_DIR`` (else
 ``$XDG_CACHE_HOME/meshsom``, else ``~/.cache/meshsom``), sub-folder ``kernel-verdicts``;
-deleting it forces new probes.
+deleting it forces new probes. A probe that failed for want of memory (another process holds
+the GPU: :data:`SHORTAGE_MARKERS`) is no verdict: it is tried again, and never cached.
 
 Test hook (never set it otherwise): ``MESHSOM_KERNEL_INJECT="cpu=error,cpu-narrow=trap"`` makes
 the named layouts fail to build (``error``: a ``#error`` directive) or kill their process on
