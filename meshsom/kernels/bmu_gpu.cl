@@ -65,13 +65,19 @@
 #endif
 #define ABLATE_EPILOGUE (MESHSOM_ABLATE & 1)
 #define ABLATE_STAGING (MESHSOM_ABLATE & 2)
+/* the staging loops are unrolled on GPUs only (UNROLL_EPILOGUE): PoCL compiles them slower */
+#if UNROLL_EPILOGUE
+#define UNROLL_STAGING _Pragma("unroll")
+#else
+#define UNROLL_STAGING
+#endif
 
 /* Global loads of chunk k0 into registers (the macros' locals are named apart from the
  * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
  * past D), W zero past M or D. Consecutive work-items take consecutive dimensions of one row of
  * X and of one unit of W. */
 #define LOAD_X(k0)                                                                       \
-    _Pragma("unroll")                                                                    \
+    UNROLL_STAGING                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
@@ -82,7 +88,7 @@
         }                                                                                \
     }
 #define LOAD_W(k0)                                                                       \
-    _Pragma("unroll")                                                                    \
+    UNROLL_STAGING                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kw = (k0) + t % KT, u = m0 + t / KT;                                   \
@@ -91,14 +97,14 @@
 
 /* Registers to local buffer b. */
 #define STORE_X(b)                                                                       \
-    _Pragma("unroll")                                                                    \
+    UNROLL_STAGING                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (t < TM * KT)                                                                 \
             Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
     }
 #define STORE_W(b)                                                                       \
-    _Pragma("unroll")                                                                    \
+    UNROLL_STAGING                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (t < TN * KT)                                                                 \
