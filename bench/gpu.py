@@ -48,7 +48,9 @@ NVIDIA's register cap) on two large (1e6 x 3 x 36 and x 144) and one small (3,06
 the best, and runs the tables with the best overall (least geometric mean of its time over the
 default's) as the "gpu" layout, unless --keep-default; with --registers also what NVIDIA's
 compiler says of each candidate (registers, spills). --memory-report prints the device memory one
-pass of each layout leaves held by its context, and stops. Anything not importable (torch, CuPy, XPySom)
+pass of each layout leaves held by its context, and stops; --diagnose DIR times the "gpu" layout's
+pass with its epilogue or its staging left out and writes its program binary (PTX) to DIR, and
+stops. Anything not importable (torch, CuPy, XPySom)
 prints n/a.
 """
 

@@ -8,8 +8,9 @@
 #
 #     bash bench/gpu_device.sh
 #
-# Budget: at most 45 s of memory report, 90 s of diagnosis, 270 s of benchmark and 190 s of
-# tests (BENCH_TIMEOUT, TEST_TIMEOUT, CPU_TEST_TIMEOUT), under the 10 minutes of one run.
+# Budget: at most 45 s of memory report, 60 s of diagnosis and 40 s of ptxas, 250 s of benchmark
+# and 170 s of tests (BENCH_TIMEOUT, TEST_TIMEOUT, CPU_TEST_TIMEOUT): 565 s, under the 10 minutes
+# of one run.
 # 1. installs the wheels into /tmp/site (pyopencl and its pure dependencies, XPySom, shapely for
 # meshsom.config); 2. registers NVIDIA's OpenCL library with the ICD loader bundled in the
 # pyopencl wheel (ocl-icd: OCL_ICD_VENDORS names a folder of .icd files); 3. lists the OpenCL
@@ -64,7 +65,7 @@ PATH=$PATH:/usr/local/cuda/bin
 for ptx in "$OUT"/diag/*.ptx; do
     [ -e "$ptx" ] || continue
     cubin=/tmp/$(basename "${ptx%.ptx}").cubin
-    if timeout 30 ptxas -arch=sm_90a -v "$ptx" -o "$cubin" 2>&1 | grep -E "bmu_of_n_gemm'|registers|spill" | head -n 6 \
+    if timeout 20 ptxas -arch=sm_90a -v "$ptx" -o "$cubin" 2>&1 | grep -E "bmu_of_n_gemm'|registers|spill" | head -n 6 \
             && cuobjdump -sass "$cubin" > "${ptx%.ptx}.sass" 2>/dev/null; then
         echo "SASS instruction mix of $(basename "$ptx") (all kernels of the program):"
         grep -oE '\b(FFMA|FMUL|FADD|FSETP|FSEL|LDS|LDG|STS|STG|BAR|ISETP|IMAD|IADD3|LEA|SEL|BRA|LDL|STL|SHF|LOP3|MOV)(\.[A-Z0-9_]+)*' \
@@ -74,7 +75,7 @@ for ptx in "$OUT"/diag/*.ptx; do
     fi
 done
 step "bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg"
-timeout ${BENCH_TIMEOUT:-270} python3 bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg
+timeout ${BENCH_TIMEOUT:-250} python3 bench/gpu.py --device nvidia --autotune --registers --no-old $levels_arg
 
 # The "cpu" layouts stage up to panel_bytes (256 KB) of rows in private memory per work-item, and
 # NVIDIA's driver reserves a kernel's private memory for every work-item the GPU can hold, for the
@@ -82,7 +83,7 @@ timeout ${BENCH_TIMEOUT:-270} python3 bench/gpu.py --device nvidia --autotune --
 # their tests run in one process, the others in 4.
 tests="tests/test_bmu.py tests/test_probe.py tests/test_epoch_sums.py tests/test_device_update.py"
 step "tests on the NVIDIA device, all but the 'cpu' layouts (4 pytest workers): $tests"
-timeout ${TEST_TIMEOUT:-100} python3 -m pytest -q -p no:cacheprovider -n 4 -k "not cpu" $tests
+timeout ${TEST_TIMEOUT:-90} python3 -m pytest -q -p no:cacheprovider -n 4 -k "not cpu" $tests
 step "tests of the 'cpu' layouts on the NVIDIA device (one process)"
-timeout ${CPU_TEST_TIMEOUT:-90} python3 -m pytest -q -p no:cacheprovider -k "cpu" $tests
+timeout ${CPU_TEST_TIMEOUT:-80} python3 -m pytest -q -p no:cacheprovider -k "cpu" $tests
 step "done"

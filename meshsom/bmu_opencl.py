@@ -232,12 +232,13 @@ CODEBOOKS_KEPT = 2
 #: varied vectors in registers (16 zmm accumulators), 192 varied vectors per work-item and 16
 #: tiles (512 units) per L2 block; measured on a 2-core AVX-512 Xeon (bench/bmu.py).
 #: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the SGEMM-style "gemm"
-#: kernel, tuned on an NVIDIA H200 (bench/gpu.py --autotune, 14 candidates): 64 varied vectors x
-#: 128 units per group of 16 x 16 work-items, 4 x 8 accumulators each, the whole row tile gathered
-#: into local memory once where it fits (float32 D up to about 110, the paper's 9 and 36; beyond,
-#: D staged 8 at a time, 4 in float64: 0.73x the time of 16 at 1e6 x 3 x 144), the codebook
-#: double-buffered; 121 registers against 195 for 128 x 128 tiles (one group per compute unit),
-#: 0.91x its time (geometric mean of 1e6 x 3 x 36 and 3,064 x 3 x 144).
+#: kernel, tuned on an NVIDIA H200 (bench/gpu.py --autotune, 2026-11-30: 14, then 9 candidates):
+#: 64 varied vectors x 128 units per group of 16 x 16 work-items, 4 x 8 accumulators each, the
+#: whole row tile gathered into local memory once where it fits (float32 D up to about 110, the
+#: paper's 9 and 36; beyond, D staged 8 at a time, 4 in float64: 0.73x the time of 16 at
+#: 1e6 x 3 x 144), the codebook double-buffered; 121 registers against 195 for 128 x 128 tiles
+#: (one group per compute unit), 0.91x its time (geometric mean of 1e6 x 3 x 36 and
+#: 3,064 x 3 x 144).
 #: "tiled": the local-memory kernel with small vectors (the earlier GPU layout), the last OpenCL
 #: layout of every chain.
 DEFAULT_PARAMS = {
@@ -497,6 +498,15 @@ def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
     return _chunk(D, _max_kt(params, dtype, staged=not gemm_whole_row_tile(params, dtype, D)))
 
 
+def _gemm_bytes(params: KernelParams, dtype, kt: int, whole_D: int | None) -> int:
+    """Local memory of one "gemm" work-group at chunk ``kt``: W's two buffers, the row fold, and X's
+    two buffers, or its whole row tile at ``whole_D`` (D padded to whole chunks)."""
+    size = np.dtype(dtype).itemsize
+    vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
+    x = 2 * kt if whole_D is None else -(-whole_D // kt) * kt
+    return (2 * kt * (params.tile_units + vw) + x * (params.tile_rows + vw)) * size + params.tile_rows * 2 * (size + 4)
+
+
 def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
     """Local memory of one "gemm" work-group: two buffers of X and W at the largest chunk, the row fold.
 
@@ -504,27 +514,16 @@ def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
     OpenCL gives a work-group. With ``D``: at that D's chunk, and the whole row tile instead of
     X's two buffers where :func:`gemm_whole_row_tile` says so.
     """
-    size = np.dtype(dtype).itemsize
-    vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    kt = _max_kt(params, dtype) if D is None else gemm_kt(D, params, dtype)
-    fold = params.tile_rows * 2 * (size + 4)
-    w = 2 * kt * (params.tile_units + vw) * size
-    x = 2 * kt * (params.tile_rows + vw) * size
-    if D is not None and gemm_whole_row_tile(params, dtype, D):
-        x = -(-D // kt) * kt * (params.tile_rows + vw) * size
-    return w + x + fold
+    if D is None:
+        return _gemm_bytes(params, dtype, _max_kt(params, dtype), None)
+    whole = gemm_whole_row_tile(params, dtype, D)
+    return _gemm_bytes(params, dtype, gemm_kt(D, params, dtype), D if whole else None)
 
 
 def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
     """Whether the "gemm" kernel stages the whole row tile at this D (XRES): asked for, and it fits
     ``params.local_limit`` beside the codebook's two chunks and the row fold."""
-    if not params.whole_row_tile:
-        return False
-    size = np.dtype(dtype).itemsize
-    vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    kt = _chunk(D, _max_kt(params, dtype))
-    whole = -(-D // kt) * kt * (params.tile_rows + vw) * size
-    return 2 * kt * (params.tile_units + vw) * size + whole + params.tile_rows * 2 * (size + 4) <= params.local_limit
+    return params.whole_row_tile and _gemm_bytes(params, dtype, _chunk(D, _max_kt(params, dtype)), D) <= params.local_limit
 
 
 def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:
