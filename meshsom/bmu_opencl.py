@@ -204,6 +204,8 @@ KERNELS = {"cpu": ("bmu_cpu.cl", "bmu_of_n_cpu"), "gemm": ("bmu_gpu.cl", "bmu_of
            "tiled": ("bmu.cl", "bmu_of_n")}
 #: The second kernel of the "gemm" variant: folds unit splits and variations into the outputs.
 GEMM_REDUCE = "bmu_of_n_gemm_reduce"
+#: The "gemm" program's kernel that pads the codebook to (MP, DP) for its staging.
+GEMM_PAD = "pad_codebook"
 #: Work-group size of the "gemm" reduction kernel (one work-item per row).
 REDUCE_GROUP = 64
 #: The kernels of an epoch's reductions (``kernels/epoch_sums.cl``), part of every layout's
@@ -753,11 +755,15 @@ def _run_gemm(cl, context, queue, defines, kernel, bufs, outs, N, n, M, MP):
     itemsize = 8 if defines["REAL"] == "double" else 4
     parts = [scratch(context, rows * splits * size) for size in (itemsize, 4, itemsize, 4)]
     row_tiles = -(-rows // defines["TM"])
-    kernel(queue, (splits * defines["WGN"], row_tiles * defines["WGM"]), (defines["WGN"], defines["WGM"]),
-           bufs[0], np.int32(N), bufs[1], np.int32(M), bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split),
-           *parts)
-    reduce = get_kernel(context, defines, GEMM_REDUCE, guard=False)  # one program: built with the main kernel
     group = min(REDUCE_GROUP, context.devices[0].max_work_group_size)
+    # the codebook zero-padded to (MP, DP) on the device: the kernel's staging reads it with no bounds
+    padded = MP * defines["DP"]
+    wp = scratch(context, padded * itemsize)
+    pad = get_kernel(context, defines, GEMM_PAD, guard=False)  # one program: built with the main kernel
+    pad(queue, (-(-padded // group) * group,), (group,), bufs[1], np.int32(M), wp, np.int32(MP))
+    kernel(queue, (splits * defines["WGN"], row_tiles * defines["WGM"]), (defines["WGN"], defines["WGM"]),
+           bufs[0], np.int32(N), wp, bufs[2], np.int32(MP), bufs[3], bufs[4], np.int32(per_split), *parts)
+    reduce = get_kernel(context, defines, GEMM_REDUCE, guard=False)
     reduce(queue, (-(-N // group) * group,), (group,),
            bufs[0], np.int32(N), bufs[1], np.int32(MP), bufs[3], bufs[4], np.int32(splits), *parts, *outs)
 

@@ -6,8 +6,8 @@
  * rows x TN units: every work-item accumulates RM = TM / WGM rows x RN = TN / WGN units in
  * registers. The row tile of X is gathered with the signs (zero past D) into local memory
  * once for all of D where it fits (XRES: it is the same for every unit tile), else per chunk;
- * the codebook W (M, D; zero past D and past M, so the host makes no transposed or padded
- * copy) is staged through local memory in chunks of KT dimensions, double-buffered (PF): the
+ * the codebook, padded with zeros to (MP, DP) on the device (pad_codebook: the staging needs
+ * no bounds), is staged through local memory in chunks of KT dimensions, double-buffered (PF): the
  * global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied, with
  * one barrier per chunk.
  *
@@ -19,7 +19,9 @@
  * one accumulator, a sequential fma over k = 0..D-1 (the zero padding past D adds exact
  * zeros), then d = ||w||^2 - 2 acc. The epilogue keeps, per row, the best and second
  * best (d, unit) in the lexicographic order of INSERT over the work-item's units and unit
- * tiles (a d above the second, the common case, is rejected by one comparison); the WGN work-items sharing a row are folded in local memory, and every
+ * tiles (the common case, none of a row's RN distances of a tile below its second, costs one
+ * comparison each and one branch per row); the WGN work-items sharing a row are folded in
+ * local memory, and every
  * work-group writes the best and second of its TM rows over its range of unit tiles (its
  * split s of S) to the partial arrays (NR, S). bmu_of_n_gemm_reduce then folds the splits
  * (INSERT again) and the variations (||x_v||^2 added; a later variation wins when strictly
@@ -60,6 +62,8 @@
 #define XLOADS ((TM * KT + WGS - 1) / WGS)  /* X elements each work-item stages per chunk */
 #define WLOADS ((TN * KT + WGS - 1) / WGS)  /* W elements each work-item stages per chunk */
 #define NCHUNK (DP / KT)
+#define XFULL ((TM * KT) % WGS == 0)   /* every work-item stages XLOADS elements of X, none past the chunk */
+#define WFULL ((TN * KT) % WGS == 0)   /* likewise for W */
 #ifndef MESHSOM_ABLATE
 #define MESHSOM_ABLATE 0
 #endif
@@ -74,15 +78,15 @@
 
 /* Global loads of chunk k0 into registers (the macros' locals are named apart from the
  * kernel's variables that k0 and b may mention): X gathered with signs (zero outside the rows or
- * past D), W zero past M or D. Consecutive work-items take consecutive dimensions of one row of
- * X and of one unit of W. */
+ * past D), W from the padded codebook Wp (MP, DP), no bounds. Consecutive work-items take
+ * consecutive dimensions of one row of X and of one unit of W. */
 #define LOAD_X(k0)                                                                       \
     UNROLL_STAGING                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
         xreg[e] = 0;                                                                     \
-        if (t < TM * KT && q < NR && kx < D) {                                           \
+        if ((XFULL || t < TM * KT) && q < NR && kx < D) {                                           \
             const int v = q % NV;                                                        \
             xreg[e] = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];    \
         }                                                                                \
@@ -91,8 +95,8 @@
     UNROLL_STAGING                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
-        const int kw = (k0) + t % KT, u = m0 + t / KT;                                   \
-        wreg[e] = t < TN * KT && u < M && kw < D ? W[(size_t)u * D + kw] : 0;            \
+        if (WFULL || t < TN * KT)                                                        \
+            wreg[e] = Wp[(size_t)(m0 + t / KT) * DP + (k0) + t % KT];                    \
     }
 
 /* Registers to local buffer b. */
@@ -100,14 +104,14 @@
     UNROLL_STAGING                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
-        if (t < TM * KT)                                                                 \
+        if (XFULL || t < TM * KT)                                                        \
             Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
     }
 #define STORE_W(b)                                                                       \
     UNROLL_STAGING                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
-        if (t < TN * KT)                                                                 \
+        if (WFULL || t < TN * KT)                                                        \
             Ws[(b) * KT * WSTRIDE + (t % KT) * WSTRIDE + t / KT] = wreg[e];              \
     }
 
@@ -159,8 +163,7 @@
 __kernel __attribute__((reqd_work_group_size(WGN, WGM, 1)))
 void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
                    const int N,
-                   __global const REAL *W,        /* (M, D) codebook */
-                   const int M,
+                   __global const REAL *Wp,       /* (MP, DP) codebook, zero-padded (pad_codebook) */
                    __global const REAL *wnorm,    /* (MP,): ||w||^2, +inf on padding */
                    const int MP,                  /* padded unit count, a multiple of TN */
                    __global const int *index,     /* (NV, D) */
@@ -249,32 +252,50 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
         }
 #endif
 
-        /* epilogue: running best and second of each row over this tile's units */
+        /* epilogue: running best and second of each row over this tile's units. The RN
+         * distances of a row are first only compared with its second (no branch, one
+         * predicate): in the common case none can enter and the row costs RN fma and RN
+         * comparisons; else INSERT takes them in ascending unit order, as one at a time would. */
+        REAL wn[RN];
 #if UNROLL_EPILOGUE
 #pragma unroll
 #endif
-        for (int j = 0; j < WVEC; ++j) {
-            const int u0 = m0 + (j * WGN + tx) * VW;
-            REAL wn[VW];
-            VSTORE(VLOAD(0, wnorm + u0), 0, wn);
+        for (int j = 0; j < WVEC; ++j)  /* aligned vector loads: u0 is a multiple of VW, MP of TN */
+            VSTORE(((__global const realv *)wnorm)[(m0 / VW) + j * WGN + tx], 0, wn + j * VW);
 #if UNROLL_EPILOGUE
 #pragma unroll
 #endif
-            for (int i = 0; i < RM; ++i) {
-                REAL a[VW];
-                VSTORE(acc[i][j], 0, a);
+        for (int i = 0; i < RM; ++i) {
+            REAL d[RN];
+            REAL a[RN];
 #if UNROLL_EPILOGUE
 #pragma unroll
 #endif
-                for (int l = 0; l < VW; ++l) {
-                    const REAL d = wn[l] - (REAL)2 * a[l];
+            for (int j = 0; j < WVEC; ++j)
+                VSTORE(acc[i][j], 0, a + j * VW);
+            int enters = 0;
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+            for (int l = 0; l < RN; ++l) {
+                d[l] = wn[l] - (REAL)2 * a[l];
+                enters |= d[l] <= sd[i];
+            }
 #if ABLATE_EPILOGUE
-                    sink += d;
-#else
-                    if (d <= sd[i]) {  /* the common case, d > second, in one comparison (INSERT's outcome) */
-                        INSERT(d, u0 + l, bd[i], bu[i], sd[i], su[i]);
-                    }
+#if UNROLL_EPILOGUE
+#pragma unroll
 #endif
+            for (int l = 0; l < RN; ++l)
+                sink += d[l];
+            enters = 0;
+#endif
+            if (enters) {
+#if UNROLL_EPILOGUE
+#pragma unroll
+#endif
+                for (int l = 0; l < RN; ++l) {
+                    const int u = m0 + ((l / VW) * WGN + tx) * VW + l % VW;
+                    INSERT(d[l], u, bd[i], bu[i], sd[i], su[i]);
                 }
             }
         }
@@ -312,6 +333,20 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
         part_second[o] = run_second[r];
         part_second_unit[o] = run_second_unit[r];
     }
+}
+
+/* The codebook W (M, D) copied into Wp (MP, DP) with zeros past M and past D, so that the
+ * staging of bmu_of_n_gemm reads whole chunks with no bounds; one work-item per element. */
+__kernel void pad_codebook(__global const REAL *W,   /* (M, D) */
+                           const int M,
+                           __global REAL *Wp,        /* (MP, DP) */
+                           const int MP)
+{
+    const size_t g = get_global_id(0);
+    if (g >= (size_t)MP * DP)
+        return;
+    const int u = (int)(g / DP), k = (int)(g % DP);
+    Wp[g] = u < M && k < D ? W[(size_t)u * D + k] : (REAL)0;
 }
 
 /* One work-item per row: fold the S splits of each variation (INSERT), add ||x_v||^2
