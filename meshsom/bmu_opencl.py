@@ -236,9 +236,10 @@ CODEBOOKS_KEPT = 2
 #: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the SGEMM-style "gemm"
 #: kernel, tuned on an NVIDIA H200 (bench/gpu.py --autotune, 2026-11-30: 14, then 9 candidates):
 #: 64 varied vectors x 128 units per group of 16 x 16 work-items, 4 x 8 accumulators each, the
-#: whole row tile gathered into local memory once where it fits (float32 D up to about 110, the
-#: paper's 9 and 36; beyond, D staged 8 at a time, 4 in float64: 0.73x the time of 16 at
-#: 1e6 x 3 x 144), the codebook double-buffered; 121 registers against 195 for 128 x 128 tiles
+#: whole row tile gathered into local memory once where it fits (float32 D up to 150: the
+#: paper's 9, 36 and 144, the codebook's chunks then 8 dimensions where 16 do not fit; beyond, D
+#: staged 8 at a time, 4 in float64: 0.73x the time of 16 at 1e6 x 3 x 144, measured before the
+#: whole tile reached D = 144), the codebook double-buffered; 121 registers against 195 for 128 x 128 tiles
 #: (one group per compute unit), 0.91x its time (geometric mean of 1e6 x 3 x 36 and
 #: 3,064 x 3 x 144).
 #: "tiled": the local-memory kernel with small vectors (the earlier GPU layout), the last OpenCL
@@ -497,16 +498,29 @@ def _chunk(D: int, cap: int) -> int:
 
 def gemm_kt(D: int, params: KernelParams, dtype=np.float32) -> int:
     """Dimensions per local-memory chunk of the "gemm" kernel (KT, see :class:`KernelParams`)."""
-    return _chunk(D, _max_kt(params, dtype, staged=not gemm_whole_row_tile(params, dtype, D)))
+    return _gemm_plan(params, dtype, D)[0]
+
+
+def _gemm_plan(params: KernelParams, dtype, D: int) -> tuple[int, bool]:
+    """(KT, whole row tile) of the "gemm" kernel at D: the whole row tile at the ``max_kt`` chunk
+    where it fits ``params.local_limit``, else at the ``staged_kt`` chunk (smaller codebook
+    buffers: float32 D = 144 fits 48 KB so), else the row tile staged per ``staged_kt`` chunk."""
+    kt, staged = _chunk(D, _max_kt(params, dtype)), _chunk(D, _max_kt(params, dtype, staged=True))
+    if params.whole_row_tile:
+        for k in (kt, staged):
+            if _gemm_bytes(params, dtype, k, D) <= params.local_limit:
+                return k, True
+    return staged, False
 
 
 def _gemm_bytes(params: KernelParams, dtype, kt: int, whole_D: int | None) -> int:
     """Local memory of one "gemm" work-group at chunk ``kt``: W's two buffers, the row fold, and X's
-    two buffers, or its whole row tile at ``whole_D`` (D padded to whole chunks)."""
+    two buffers, or its whole row tile at ``whole_D`` (D padded to whole chunks; its rows not padded,
+    kernels/bmu_gpu.cl XSTRIDE)."""
     size = np.dtype(dtype).itemsize
     vw = params.vector_width // 2 if size == 8 and params.vector_width > 2 else params.vector_width
-    x = 2 * kt if whole_D is None else -(-whole_D // kt) * kt
-    return (2 * kt * (params.tile_units + vw) + x * (params.tile_rows + vw)) * size + params.tile_rows * 2 * (size + 4)
+    x = 2 * kt * (params.tile_rows + vw) if whole_D is None else -(-whole_D // kt) * kt * params.tile_rows
+    return (2 * kt * (params.tile_units + vw) + x) * size + params.tile_rows * 2 * (size + 4)
 
 
 def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
@@ -518,14 +532,14 @@ def gemm_local_bytes(params: KernelParams, dtype, D: int | None = None) -> int:
     """
     if D is None:
         return _gemm_bytes(params, dtype, _max_kt(params, dtype), None)
-    whole = gemm_whole_row_tile(params, dtype, D)
-    return _gemm_bytes(params, dtype, gemm_kt(D, params, dtype), D if whole else None)
+    kt, whole = _gemm_plan(params, dtype, D)
+    return _gemm_bytes(params, dtype, kt, D if whole else None)
 
 
 def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
     """Whether the "gemm" kernel stages the whole row tile at this D (XRES): asked for, and it fits
-    ``params.local_limit`` beside the codebook's two chunks and the row fold."""
-    return params.whole_row_tile and _gemm_bytes(params, dtype, _chunk(D, _max_kt(params, dtype)), D) <= params.local_limit
+    ``params.local_limit`` beside the codebook's two chunks and the row fold (:func:`_gemm_plan`)."""
+    return _gemm_plan(params, dtype, D)[1]
 
 
 def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:

@@ -398,8 +398,10 @@ def test_device_params_gpu_ignores_the_cpu_name():
 
 
 def test_whole_row_tile_fits_the_devices_local_memory():
-    """The whole row tile is staged where it fits the device's local memory (capped at NVIDIA's 48 KB):
-    on a 32 KB device D = 36 still fits (23.5 KB) and D = 90 (41 KB) is staged per chunk."""
+    """The whole row tile is staged where it fits the device's local memory (capped at NVIDIA's 48 KB),
+    at the codebook's smaller chunk where the larger one does not fit: on NVIDIA up to D = 150
+    (D = 144: 46.3 KB with 8-dimension chunks), on a 32 KB device up to D = 90 (30.4 KB), beyond
+    staged per chunk; every choice within the device's limit."""
     pytest.importorskip("pyopencl")
     from meshsom.bmu_opencl import GEMM_LOCAL_LIMIT, _defines, device_params, gemm_local_bytes
 
@@ -408,10 +410,13 @@ def test_whole_row_tile_fits_the_devices_local_memory():
     small.local_mem_size = 32 * 1024
     small = device_params(small)
     assert (nvidia.local_limit, small.local_limit) == (GEMM_LOCAL_LIMIT, 32 * 1024)
-    for D, on_nvidia, on_small in ((36, 1, 1), (90, 1, 0), (144, 0, 0)):
+    for D, on_nvidia, on_small in ((36, 1, 1), (90, 1, 1), (110, 1, 0), (144, 1, 0), (160, 0, 0)):
         assert (_defines(D, 3, np.float32, nvidia)["XRES"], _defines(D, 3, np.float32, small)["XRES"]) == (
             on_nvidia, on_small), D
         assert gemm_local_bytes(small, np.float32, D) <= 32 * 1024
+        assert gemm_local_bytes(nvidia, np.float32, D) <= GEMM_LOCAL_LIMIT
+    # the local arrays as kernels/bmu_gpu.cl declares them, summed independently: D = 144, KT = 8
+    assert gemm_local_bytes(nvidia, np.float32, 144) == (144 * 64 + 2 * 8 * (128 + 4)) * 4 + 64 * 2 * 8
 
 
 @pytest.mark.parametrize(

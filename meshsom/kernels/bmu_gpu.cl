@@ -57,7 +57,11 @@
 #define RN (TN / WGN)           /* units per work-item */
 #define XVEC (RM / VW)          /* row vectors per work-item */
 #define WVEC (RN / VW)          /* unit vectors per work-item */
+#if XRES
+#define XSTRIDE TM              /* the whole row tile, stored once: not padded (float32 D = 144 fits 48 KB) */
+#else
 #define XSTRIDE (TM + VW)       /* local X row of one dimension, padded: fewer bank conflicts on the stores */
+#endif
 #define WSTRIDE (TN + VW)       /* local W row of one dimension, likewise */
 #define XLOADS ((TM * KT + WGS - 1) / WGS)  /* X elements each work-item stages per chunk */
 #define WLOADS ((TN * KT + WGS - 1) / WGS)  /* W elements each work-item stages per chunk */
