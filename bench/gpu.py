@@ -88,19 +88,21 @@ GEMM_SIZE = 8192
 #: tiles, the whole row tile where it fits, 8-dimension chunks beyond). Tilings (tile_rows x
 #: tile_units, group_rows x group_units: 8 x 8, 4 x 8, 4 x 4 or 2 x 8 accumulators per work-item,
 #: 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's register
-#: cap, the row tile staged per chunk where the whole tile fits (D = 144 since 2026-12) and more
-#: unit splits for small N; the earlier default (128 x 128, X staged 16 dimensions at a time) among them. The first is the default; all fit the 48 KB of local memory
-#: NVIDIA's OpenCL gives a work-group (a candidate that does not fit the device is skipped, with
-#: its size). 2026-11-30 on an H200 the default won against the earlier one by 0.91x, and 8-
-#: dimension chunks beat 16 at D = 144 by 0.73x.
+#: cap, the row tile staged per chunk where the whole tile fits (now up to D = 150) and more
+#: unit splits for small N; the earlier default (128 x 128, X staged 16 dimensions at a time) among
+#: them. The first is the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a
+#: work-group (a candidate that does not fit the device is skipped, with its size). The register
+#: caps: 128 keeps two groups of 256 on a compute unit (65,536 registers), 80 with one local buffer
+#: three (bench/gpu_sass.py: no spills in the chunk loop). 2026-11-30 on an H200 the default won
+#: against the earlier one by 0.91x, and 8-dimension chunks beat 16 at D = 144 by 0.73x.
 AUTOTUNE_CANDIDATES = [
     {},
     {"prefetch": False},
     {"tile_rows": 128, "whole_row_tile": False, "staged_kt": 0},
     {"tile_rows": 128},
-    {"tile_rows": 128, "prefetch": False},
+    {"prefetch": False, "max_registers": 80},
     {"staged_kt": 0},
-    {"max_registers": 96},
+    {"max_registers": 128},
     {"tile_units": 64},
     {"tile_rows": 32, "group_rows": 8},
     {"whole_row_tile": False},

@@ -61,7 +61,11 @@ timeout 45 python3 bench/gpu.py --device nvidia --memory-report
 
 step "bench/gpu.py --device nvidia --diagnose \$OUT/diag (stage timing; the gpu layout's PTX, its SASS instruction mix)"
 timeout 60 python3 bench/gpu.py --device nvidia --diagnose "$OUT/diag"
-PATH=$PATH:/usr/local/cuda/bin
+# ptxas / nvdisasm / cuobjdump: a CUDA toolkit, else the copies Triton (PyTorch's) bundles
+triton_bin=$(python3 -c 'import os, triton; print(os.path.join(os.path.dirname(triton.__file__), "backends", "nvidia", "bin"))' 2>/dev/null)
+PATH=$PATH:/usr/local/cuda/bin${triton_bin:+:$triton_bin}
+ptx_args=$(for p in "$OUT"/diag/*.ptx; do [ -e "$p" ] && printf -- '--ptx %s ' "$p"; done)
+[ -n "$ptx_args" ] && timeout 30 python3 bench/gpu_sass.py $ptx_args --keep /tmp/sass
 for ptx in "$OUT"/diag/*.ptx; do
     [ -e "$ptx" ] || continue
     cubin=/tmp/$(basename "${ptx%.ptx}").cubin
