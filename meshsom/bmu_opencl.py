@@ -128,8 +128,8 @@ class KernelParams:
         partial best/second per range, folded by the reduction kernel). 0: chosen from the
         device's compute units (:func:`unit_splits`).
     groups_per_cu : int
-        "gemm", ``unit_splits=0``: the splits make at least this many work-groups per compute
-        unit when the row tiles alone are fewer.
+        "gemm", ``unit_splits=0``: work-groups a compute unit runs at once; a wave of the
+        automatic splits' cost model is this many per compute unit (:func:`unit_splits`).
     whole_row_tile : bool
         "gemm": gather the row tile's varied vectors into local memory once, for all of D (XRES),
         staging only the codebook per chunk, where that fits ``local_limit`` beside the codebook's
@@ -542,8 +542,19 @@ def gemm_whole_row_tile(params: KernelParams, dtype, D: int) -> bool:
     return _gemm_plan(params, dtype, D)[1]
 
 
+#: Automatic unit splits of the "gemm" kernel: the fixed work of one work-group (gathering its row
+#: tile, folding and writing its rows), in unit tiles, in the cost model of :func:`unit_splits`.
+SPLIT_OVERHEAD_TILES = 2
+
+
 def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units: int) -> tuple[int, int]:
     """Ranges of unit tiles for the "gemm" kernel: (S, tiles per range).
+
+    Automatic (``params.unit_splits`` 0): the S of least modelled time, waves x (tiles per range +
+    :data:`SPLIT_OVERHEAD_TILES`), where a wave is ``compute_units x groups_per_cu`` work-groups
+    (row tiles x S in all): few row tiles (small N) get enough ranges to fill the device, and a
+    number that fills its last wave, not 288 work-groups on 264 places (the second wave nearly
+    empty, as 3,064 rows had at S = 2); many row tiles get S = 1. Ties: the fewest ranges.
 
     Parameters
     ----------
@@ -564,10 +575,15 @@ def unit_splits(rows: int, unit_tiles: int, params: KernelParams, compute_units:
         Unit tiles per range (the last range may hold fewer).
     """
     row_tiles = -(-rows // params.tile_rows)
-    splits = params.unit_splits or -(-compute_units * params.groups_per_cu // row_tiles)
-    splits = max(1, min(splits, unit_tiles))
-    per_split = -(-unit_tiles // splits)
-    return -(-unit_tiles // per_split), per_split
+    if params.unit_splits:
+        per_split = -(-unit_tiles // max(1, min(params.unit_splits, unit_tiles)))
+        return -(-unit_tiles // per_split), per_split
+    per_split = -(-unit_tiles // np.arange(1, unit_tiles + 1))  # every distinct range size
+    splits = -(-unit_tiles // per_split)
+    wave = max(1, compute_units * params.groups_per_cu)
+    waves = -(-(row_tiles * splits) // wave)
+    best = int(np.argmin(waves * (per_split + SPLIT_OVERHEAD_TILES)))  # the first: fewest ranges
+    return int(splits[best]), int(per_split[best])
 
 
 def default_params(context) -> KernelParams:

@@ -552,11 +552,27 @@ def test_gemm_ties_across_unit_splits(ctx):
 
 
 def test_gemm_unit_splits_choice():
-    """Automatic S: at least groups_per_cu groups per compute unit, at most one range per tile."""
-    from meshsom.bmu_opencl import KernelParams, unit_splits
+    """Automatic S: the least waves x (tiles per range + overhead), against a plain search over every S;
+    the paper's small N fills its waves (not 288 groups on 264 places), a million rows take S = 1."""
+    from meshsom.bmu_opencl import SPLIT_OVERHEAD_TILES, KernelParams, unit_splits
 
     gpu = KernelParams(**KERNEL_PARAMS["gemm-gpu"])
-    assert unit_splits(3064, 141, gpu, 132) == (6, 24)  # 48 row tiles x 6 ranges >= 264 groups
+    for rows, units, cus in ((3064, 141, 132), (9192, 141, 132), (18384, 141, 132), (100_000, 141, 132),
+                             (1, 141, 132), (700, 37, 2), (50, 7, 60)):
+        row_tiles = -(-rows // gpu.tile_rows)
+        best = None
+        for S in range(1, units + 1):
+            per = -(-units // S)
+            real = -(-units // per)
+            cost = (-(-(row_tiles * real) // (cus * gpu.groups_per_cu)), per + SPLIT_OVERHEAD_TILES)
+            if best is None or cost[0] * cost[1] < best[0]:
+                best = (cost[0] * cost[1], real, per)
+        assert unit_splits(rows, units, gpu, cus) == best[1:], rows
+    assert unit_splits(3064, 141, gpu, 132) == (11, 13)  # 48 row tiles x 11 = 528 groups: two full waves of 264
+    rows = 3064 * 6  # 288 row tiles: S = 1 would be 288 groups on 264 places
+    S, _ = unit_splits(rows, 141, gpu, 132)
+    groups = -(-rows // 64) * S
+    assert groups / (-(-groups // 264) * 264) > 0.85
     assert unit_splits(3_000_000, 141, gpu, 132) == (1, 141)
     assert unit_splits(1, 141, gpu, 132) == (141, 1)
     assert unit_splits(1, 5, _gemm(unit_splits=9), 2) == (5, 1)
