@@ -23,7 +23,7 @@ Per workload (n variations x D) and candidate:
 
 - registers, spill bytes and shared memory of ``bmu_of_n_gemm``;
 - the chunk loop (the innermost loop with FFMA: a chunk of KT dimensions multiplied, the next one
-  staged): instructions, FFMA, their share;
+  staged): instructions, FFMA;
 - per unit tile on the common path, where no row's best or second changes (the ``MESHSOM_ABLATE=1``
   build, whose epilogue issues as many instructions: one FADD per distance for one FSETP):
   instructions = the tile loop + the chunk loop's further iterations, and the share of them that
@@ -147,7 +147,7 @@ def loops(instructions: list[tuple[int, str, str]]) -> list[Loop]:
 class TileCost:
     """Instructions of one unit tile of ``bmu_of_n_gemm`` on the common path."""
 
-    chunk_length: int  # the chunk loop (0: none, the chunks unrolled into the tile loop)
+    chunk_length: int  # the chunk loop (0: none, the tile's chunks unrolled in the tile loop)
     chunk_ffma: int
     tile_length: int  # the tile loop once, its chunk loop once
     per_tile: int  # the tile loop with all its chunk loop's iterations
@@ -166,14 +166,15 @@ def tile_cost(instructions, chunks: int, accumulators: int, D: int) -> TileCost:
     instructions : list
         :func:`parse_listing`'s entry for the kernel.
     chunks : int
-        DP / KT, the chunk loop's trip count.
+        DP / KT, the chunks of a tile.
     accumulators : int
         RM x RN, the FFMA of one dimension (and of the epilogue's distances).
     D : int
 
-    The tile loop is the outermost loop with FFMA; the chunk loop the innermost, when another. A
-    compiler may peel chunks out of the chunk loop into the tile loop: their FFMA (beyond the
-    epilogue's ``accumulators``) say how many, and the loop runs the rest.
+    The tile loop is the outermost loop with FFMA; the chunk loop the innermost, when another (one
+    chunk, or chunks the compiler unrolled, leave the tile loop alone). The kernel (with PF) and
+    the compiler may peel chunks out of the chunk loop into the tile loop: their FFMA (beyond the
+    epilogue's ``accumulators``) say how many, and the chunk loop runs the rest.
     """
     with_ffma = [loop for loop in loops(instructions) if loop.count("FFMA")]
     if not with_ffma:

@@ -8,8 +8,9 @@
  * once for all of D where it fits (XRES: it is the same for every unit tile), else per chunk;
  * the codebook, padded with zeros to (MP, DP) on the device (pad_codebook: the staging needs
  * no bounds), is staged through local memory in chunks of KT dimensions, double-buffered (PF): the
- * global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied, with
- * one barrier per chunk.
+ * global loads of chunk c + 1 are in flight (in registers) while chunk c is multiplied, those
+ * of the next unit tile's first chunk during a tile's last chunk and its epilogue (no load
+ * waited for at a tile's start), with one barrier per chunk.
  *
  * A work-item owns the rows (i * WGM + ty) * VW + l and the units (j * WGN + tx) * VW + l
  * (i < RM / VW, j < RN / VW, l < VW): its operands are VW-wide vector loads from local
@@ -34,8 +35,9 @@
  *   KT           dimensions per local-memory chunk;  DP: D rounded up to a multiple of KT
  *   XRES         1: the row tile's varied vectors gathered into local memory once, for all
  *                of D (DP x TM), only W staged per chunk; 0: X staged per chunk like W
- *   PF           1: double-buffered chunks (the loads of chunk c + 1 in flight while c is
- *                multiplied, one barrier per chunk); 0: one buffer, load then multiply (two
+ *   PF           1: double-buffered chunks (the loads of the next chunk, of this unit tile or
+ *                the next, in flight while one is multiplied, one barrier per chunk); 0: one
+ *                buffer, load then multiply (two
  *                barriers per chunk, the load registers free during the products: fewer
  *                registers, more work-groups per compute unit)
  *   EXACT        type of the winners' direct squared distance: double where the device has
@@ -45,9 +47,9 @@
  *                added to a sink that is written out), bit 2 stages the codebook's chunks of
  *                the first unit tile only (no global loads or local stores after it); the
  *                time saved is the share of that stage
- *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second (GPUs: keeps them
- *                in registers); 0 on CPU devices, where PoCL compiles the unrolled
- *                branches about 3x slower for no gain (meshsom.bmu_opencl.get_kernel)
+ *   UNROLL_EPILOGUE  1: unroll the loops over the running best and second and the staging
+ *                loops (GPUs: keeps them in registers); 0 on CPU devices, where PoCL compiles
+ *                the unrolled branches about 3x slower for no gain (meshsom.bmu_opencl.get_kernel)
  * TM / WGM and TN / WGN are multiples of VW; TM * KT and TN * KT need not be multiples of
  * the work-group size.
  */
@@ -73,11 +75,11 @@
 #endif
 #define ABLATE_EPILOGUE (MESHSOM_ABLATE & 1)
 #define ABLATE_STAGING (MESHSOM_ABLATE & 2)
-/* the staging loops are unrolled on GPUs only (UNROLL_EPILOGUE): PoCL compiles them slower */
+/* the staging and epilogue loops are unrolled on GPUs only (UNROLL_EPILOGUE): PoCL compiles them slower */
 #if UNROLL_EPILOGUE
-#define UNROLL_STAGING _Pragma("unroll")
+#define UNROLL_GPU _Pragma("unroll")
 #else
-#define UNROLL_STAGING
+#define UNROLL_GPU
 #endif
 
 /* Global loads of chunk k0 into registers (the macros' locals are named apart from the
@@ -85,7 +87,7 @@
  * past D), W from the padded codebook Wp (MP, DP), no bounds. Consecutive work-items take
  * consecutive dimensions of one row of X and of one unit of W. */
 #define LOAD_X(k0)                                                                       \
-    UNROLL_STAGING                                                                       \
+    UNROLL_GPU                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
@@ -95,24 +97,24 @@
             xreg[e] = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];    \
         }                                                                                \
     }
-#define LOAD_W(k0)                                                                       \
-    UNROLL_STAGING                                                                       \
+#define LOAD_W(m, k0)                                                                    \
+    UNROLL_GPU                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (WFULL || t < TN * KT)                                                        \
-            wreg[e] = Wp[(size_t)(m0 + t / KT) * DP + (k0) + t % KT];                    \
+            wreg[e] = Wp[(size_t)((m) + t / KT) * DP + (k0) + t % KT];                   \
     }
 
 /* Registers to local buffer b. */
 #define STORE_X(b)                                                                       \
-    UNROLL_STAGING                                                                       \
+    UNROLL_GPU                                                                       \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (XFULL || t < TM * KT)                                                        \
             Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
     }
 #define STORE_W(b)                                                                       \
-    UNROLL_STAGING                                                                       \
+    UNROLL_GPU                                                                       \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (WFULL || t < TN * KT)                                                        \
@@ -122,22 +124,23 @@
 /* XRES: the row tile's varied vectors are gathered into local memory once, for all of D, and
  * only the codebook is staged per chunk; chunk c of X is then at c, not at a buffer. */
 #if XRES
-#define STAGE_LOAD(k0) LOAD_W(k0)
+#define STAGE_LOAD(m, k0) LOAD_W(m, k0)
 #define STAGE_STORE(b) STORE_W(b)
 #define X_CHUNK(c, b) (c)
 #define X_LOCAL (DP * XSTRIDE / VW)
 #else
-#define STAGE_LOAD(k0) LOAD_X(k0) LOAD_W(k0)
+#define STAGE_LOAD(m, k0) LOAD_X(k0) LOAD_W(m, k0)
 #define STAGE_STORE(b) STORE_X(b) STORE_W(b)
 #define X_CHUNK(c, b) (b)
 #define X_LOCAL (2 * KT * XSTRIDE / VW)
 #endif
+/* chunk k0 of the unit tile that starts at unit m: global loads, then the store to buffer b */
 #if ABLATE_STAGING
-#define LOAD_CHUNK(k0) if (tile == tile0) { STAGE_LOAD(k0) }
-#define STORE_CHUNK(b) if (tile == tile0) { STAGE_STORE(b) }
+#define LOAD_CHUNK(m, k0) if ((m) == tile0 * TN) { STAGE_LOAD(m, k0) }
+#define STORE_CHUNK(m, b) if ((m) == tile0 * TN) { STAGE_STORE(b) }
 #else
-#define LOAD_CHUNK(k0) STAGE_LOAD(k0)
-#define STORE_CHUNK(b) STAGE_STORE(b)
+#define LOAD_CHUNK(m, k0) STAGE_LOAD(m, k0)
+#define STORE_CHUNK(m, b) STAGE_STORE(b)
 #endif
 
 /* The outer products of X chunk xc and W buffer b: per dimension, RM rows x WVEC unit
@@ -161,6 +164,57 @@
                 _Pragma("unroll")                                                        \
                 for (int j = 0; j < WVEC; ++j)                                           \
                     acc[i][j] = fma((realv)(xr[i]), w[j], acc[i][j]);                    \
+        }                                                                                \
+    }
+
+#define ZERO_ACC                                                                         \
+    _Pragma("unroll")                                                                    \
+    for (int i = 0; i < RM; ++i)                                                         \
+        _Pragma("unroll")                                                                \
+        for (int j = 0; j < WVEC; ++j)                                                   \
+            acc[i][j] = (realv)(0);
+
+#if ABLATE_EPILOGUE
+#define EPILOGUE_SINK                                                                    \
+            UNROLL_GPU                                                               \
+            for (int l = 0; l < RN; ++l)                                                 \
+                sink += d[l];                                                            \
+            enters = 0;
+#else
+#define EPILOGUE_SINK
+#endif
+
+/* The epilogue of the unit tile at m0: running best and second of each row over its units.
+ * The RN distances of a row are first only compared with its second (no branch, one
+ * predicate): in the common case none can enter and the row costs RN fma and RN comparisons;
+ * else INSERT takes them in ascending unit order, as one at a time would. The norms are read
+ * as aligned vectors (m0 and the work-item's units are multiples of VW, MP of TN). */
+#define EPILOGUE(m0)                                                                     \
+    {                                                                                    \
+        REAL wn[RN];                                                                     \
+        UNROLL_GPU                                                                   \
+        for (int j = 0; j < WVEC; ++j)                                                   \
+            VSTORE(((__global const realv *)wnorm)[((m0) / VW) + j * WGN + tx], 0, wn + j * VW); \
+        UNROLL_GPU                                                                   \
+        for (int i = 0; i < RM; ++i) {                                                   \
+            REAL d[RN], a[RN];                                                           \
+            UNROLL_GPU                                                               \
+            for (int j = 0; j < WVEC; ++j)                                               \
+                VSTORE(acc[i][j], 0, a + j * VW);                                        \
+            int enters = 0;                                                              \
+            UNROLL_GPU                                                               \
+            for (int l = 0; l < RN; ++l) {                                               \
+                d[l] = wn[l] - (REAL)2 * a[l];                                           \
+                enters |= d[l] <= sd[i];                                                 \
+            }                                                                            \
+            EPILOGUE_SINK                                                                \
+            if (enters) {                                                                \
+                UNROLL_GPU                                                           \
+                for (int l = 0; l < RN; ++l) {                                           \
+                    const int u = (m0) + ((l / VW) * WGN + tx) * VW + l % VW;            \
+                    INSERT(d[l], u, bd[i], bu[i], sd[i], su[i]);                         \
+                }                                                                        \
+            }                                                                            \
         }                                                                                \
     }
 
@@ -222,88 +276,52 @@ void bmu_of_n_gemm(__global const REAL *X,        /* (N, D) */
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #endif
+    realv acc[RM][WVEC];
+    ZERO_ACC
+#if PF
+    /* double-buffered chunks, pipelined across unit tiles: the global loads of the next chunk are
+     * in flight while one is multiplied, and during a tile's last chunk (and its epilogue) those
+     * of the next tile's first; one barrier per chunk */
+    LOAD_CHUNK(tile0 * TN, 0)
+    STORE_CHUNK(tile0 * TN, 0)
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int b = 0;
     for (int tile = tile0; tile < tile1; ++tile) {
         const int m0 = tile * TN;
-        realv acc[RM][WVEC];
-#pragma unroll
-        for (int i = 0; i < RM; ++i)
-#pragma unroll
-            for (int j = 0; j < WVEC; ++j)
-                acc[i][j] = (realv)(0);
-
-#if PF
-        LOAD_CHUNK(0)
-        STORE_CHUNK(0)
-        barrier(CLK_LOCAL_MEM_FENCE);
-        for (int c = 0; c < NCHUNK; ++c) {
-            const int b = c & 1;
-            if (c + 1 < NCHUNK) {
-                LOAD_CHUNK((c + 1) * KT)
-            }
+        for (int c = 0; c < NCHUNK - 1; ++c) {
+            LOAD_CHUNK(m0, (c + 1) * KT)
             MULTIPLY_CHUNK(X_CHUNK(c, b), b)
-            if (c + 1 < NCHUNK) {
-                STORE_CHUNK(1 - b)
-            }
+            STORE_CHUNK(m0, 1 - b)
             barrier(CLK_LOCAL_MEM_FENCE);
+            b ^= 1;
         }
+        const bool more = tile + 1 < tile1;
+        if (more) {
+            LOAD_CHUNK(m0 + TN, 0)
+        }
+        MULTIPLY_CHUNK(X_CHUNK(NCHUNK - 1, b), b)
+        EPILOGUE(m0)
+        ZERO_ACC
+        if (more) {
+            STORE_CHUNK(m0 + TN, 1 - b)
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        b ^= 1;
+    }
 #else
+    for (int tile = tile0; tile < tile1; ++tile) {
+        const int m0 = tile * TN;
         for (int c = 0; c < NCHUNK; ++c) {
-            LOAD_CHUNK(c * KT)
-            STORE_CHUNK(0)
+            LOAD_CHUNK(m0, c * KT)
+            STORE_CHUNK(m0, 0)
             barrier(CLK_LOCAL_MEM_FENCE);
             MULTIPLY_CHUNK(X_CHUNK(c, 0), 0)
             barrier(CLK_LOCAL_MEM_FENCE);
         }
-#endif
-
-        /* epilogue: running best and second of each row over this tile's units. The RN
-         * distances of a row are first only compared with its second (no branch, one
-         * predicate): in the common case none can enter and the row costs RN fma and RN
-         * comparisons; else INSERT takes them in ascending unit order, as one at a time would. */
-        REAL wn[RN];
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-        for (int j = 0; j < WVEC; ++j)  /* aligned vector loads: u0 is a multiple of VW, MP of TN */
-            VSTORE(((__global const realv *)wnorm)[(m0 / VW) + j * WGN + tx], 0, wn + j * VW);
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-        for (int i = 0; i < RM; ++i) {
-            REAL d[RN];
-            REAL a[RN];
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-            for (int j = 0; j < WVEC; ++j)
-                VSTORE(acc[i][j], 0, a + j * VW);
-            int enters = 0;
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-            for (int l = 0; l < RN; ++l) {
-                d[l] = wn[l] - (REAL)2 * a[l];
-                enters |= d[l] <= sd[i];
-            }
-#if ABLATE_EPILOGUE
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-            for (int l = 0; l < RN; ++l)
-                sink += d[l];
-            enters = 0;
-#endif
-            if (enters) {
-#if UNROLL_EPILOGUE
-#pragma unroll
-#endif
-                for (int l = 0; l < RN; ++l) {
-                    const int u = m0 + ((l / VW) * WGN + tx) * VW + l % VW;
-                    INSERT(d[l], u, bd[i], bu[i], sd[i], su[i]);
-                }
-            }
-        }
+        EPILOGUE(m0)
+        ZERO_ACC
     }
+#endif
 
 #if ABLATE_EPILOGUE
     bd[0] = sink;  /* keeps the products alive */
