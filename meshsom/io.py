@@ -49,6 +49,7 @@ from urllib.parse import urlparse
 import numpy as np
 
 from meshsom.errors import InputFileError
+from meshsom.gltf_compression import compression_used, decompress_glb
 from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
 
 if TYPE_CHECKING:
@@ -722,6 +723,20 @@ def _labels_beside(path: Path) -> dict[str, str]:
         ) from None
 
 
+def _refuse_compressed_gltf(content: bytes, path: Path) -> None:
+    """A glTF JSON file declaring Draco or meshopt compression is refused with the way out (its
+    buffers are separate files: :func:`meshsom.gltf_compression.decompress_glb` reads GLB)."""
+    try:
+        document = json.loads(content)
+    except ValueError:
+        return  # trimesh says what is wrong with it
+    used = compression_used(document) if isinstance(document, dict) else []
+    if used:
+        raise InputFileError(str(path), f"is a glTF JSON file compressed with {', '.join(used)}, which is read only as "
+                                        "GLB: convert it (gltf-transform copy in.gltf out.glb) or decompress it "
+                                        "(gltf-transform copy)")
+
+
 def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh]:
     """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh (gzipped or not: ``house.obj.gz``).
 
@@ -748,6 +763,10 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         content = triangulated_off(bytes(content)) or content
     elif file_type == "ply":
         content = triangulated_ply(bytes(content)) or content
+    elif file_type == "glb":  # Draco, meshopt: plain accessors (meshsom.gltf_compression)
+        content = decompress_glb(bytes(content), str(path))
+    elif file_type == "gltf":
+        _refuse_compressed_gltf(bytes(content), path)
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the

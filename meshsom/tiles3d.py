@@ -22,8 +22,8 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   the mesh's origin stays earth-centred. Positions in a local frame (a b3dm read without the
   tileset whose root transform places it) are read as metres, with a note.
 
-Not read: Draco or meshopt compressed glTF (decompress first, e.g. ``gltf-transform copy``),
-b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``), implicit tiling
+Draco- and meshopt-compressed glTF is decompressed first (:mod:`meshsom.gltf_compression`).
+Not read: b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``), implicit tiling
 (3D Tiles 1.1 templates and subtrees: a rejection that says so).
 """
 
@@ -39,6 +39,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 
 from meshsom.errors import InputFileError
+from meshsom.gltf_compression import decompress_glb, split_glb
 
 #: File name endings read as 3D Tiles content.
 B3DM_SUFFIXES = (".b3dm",)
@@ -52,7 +53,6 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 
 MAX_COORDINATE = 1e9
 #: Tilesets nested (external tilesets) deeper than this are refused.
 MAX_TILESET_DEPTH = 64
-_COMPRESSED = ("KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression")
 _FEATURE_ATTRIBUTES = ("_BATCHID", "_FEATURE_ID_0", "_batchid")
 
 
@@ -131,16 +131,6 @@ def _rtc_centre(feature_table: dict, feature_binary: bytes, where: str) -> np.nd
     return value
 
 
-def _gltf_json(glb: bytes, where: str) -> dict:
-    if len(glb) < 20 or glb[:4] != b"glTF":
-        raise InputFileError(where, "holds no binary glTF (its payload does not start with b'glTF')")
-    size = struct.unpack_from("<I", glb, 12)[0]
-    try:
-        return json.loads(glb[20:20 + size])
-    except ValueError as err:
-        raise InputFileError(where, f"holds a glTF whose JSON cannot be read ({err})") from None
-
-
 def batched_meshes(glb: bytes, where: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """The triangles of a glTF content split by batch (feature) id, in 3D Tiles' z-up frame.
 
@@ -158,12 +148,7 @@ def batched_meshes(glb: bytes, where: str) -> list[tuple[int, np.ndarray, np.nda
     """
     import trimesh
 
-    gltf = _gltf_json(glb, where)
-    used = set(gltf.get("extensionsUsed", [])) | set(gltf.get("extensionsRequired", []))
-    compressed = sorted(used.intersection(_COMPRESSED))
-    if compressed:
-        raise InputFileError(where, f"holds glTF compressed with {', '.join(compressed)}, which is not read "
-                                    f"(decompress it first, e.g. gltf-transform copy)")
+    glb = decompress_glb(glb, where)  # Draco, meshopt: plain accessors (meshsom.gltf_compression)
     try:
         scene = trimesh.load(io.BytesIO(glb), file_type="glb", process=False, force="scene", skip_materials=True)
     except Exception as err:  # trimesh raises many types for corrupt files
@@ -227,7 +212,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         rtc = _rtc_centre(feature_table, feature_binary, source)
     else:
         feature_table, batch_table, glb, rtc = {}, {}, bytes(data), np.zeros(3)
-    gltf = _gltf_json(glb, source)
+    gltf = split_glb(glb, source)[0]
     cesium_rtc = (gltf.get("extensions") or {}).get("CESIUM_RTC", {}).get("center")
     if cesium_rtc is not None:
         rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)

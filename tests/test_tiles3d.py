@@ -216,7 +216,10 @@ def test_damaged_and_unreadable_tiles(tmp_path):
     good = b3dm(buildings, lambda v: v)
     draco = b3dm(buildings, lambda v: v, extra_gltf={"extensionsUsed": ["KHR_draco_mesh_compression"]})
     draft = good[:20] + struct.pack("<II", 570425344, 0) + good[28:]
-    cases = {"cut.b3dm": (good[:-100], "cut short"), "draco.b3dm": (draco, "KHR_draco_mesh_compression"),
+    # Draco declared, no primitive compressed: read as it is (compressed tiles: tests/test_gltf_compression.py)
+    (tmp_path / "draco.b3dm").write_bytes(draco)
+    assert [type(m).__name__ for m in read_file(tmp_path / "draco.b3dm")] == ["RawMesh", "RawMesh"]
+    cases = {"cut.b3dm": (good[:-100], "cut short"),
              "draft.b3dm": (draft, "2016 draft"), "notb3dm.b3dm": (b"glTF" + good[4:], "is not a b3dm"),
              "badtable.b3dm": (good[:28] + b"#" + good[29:], "not JSON")}
     for name, (data, problem) in cases.items():

@@ -1,0 +1,266 @@
+"""Compressed glTF made plain: Draco (``KHR_draco_mesh_compression``) and meshopt
+(``EXT_meshopt_compression``, ``KHR_meshopt_compression``) in a binary glTF (GLB).
+
+City models tiled for the web are often compressed: Cesium ion and gltf-pipeline Draco-compress
+the glTF of b3dm and glb tiles, gltfpack and gltf-transform meshopt-compress them. trimesh reads
+neither, so :func:`decompress_glb` rewrites a GLB into the plain glTF it stands for, and the readers
+(:mod:`meshsom.tiles3d`, :func:`meshsom.io.read_trimesh`) read that:
+
+- **Draco**: each compressed primitive is decoded (Google's decoder through DracoPy); its
+  positions, its triangles and its feature ids (``_BATCHID``, ``_FEATURE_ID_n``: which building a
+  vertex belongs to) become plain accessors, float32 and uint32; its other attributes (normals,
+  texture coordinates, colours: not used here) are dropped. Positions come back dequantized, as a
+  viewer shows them (Draco's usual 11 to 14 bits: millimetres to centimetres over a tile).
+- **meshopt**: each compressed buffer view is decoded (meshoptimizer's decoder through meshopt) into
+  the plain bytes its fallback buffer stands for, filters (octahedral, quaternion, exponential,
+  colour) undone.
+
+The plain data is appended to the GLB's binary chunk, every buffer view then lies in it, and the
+extensions are no longer declared. A GLB with no compression comes back as it is. A glTF JSON
+file (``.gltf``) with compression, or compressed data in an external buffer, is refused with the
+reason (convert it to GLB, or decompress it with ``gltf-transform copy``).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+DRACO = "KHR_draco_mesh_compression"
+MESHOPT = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+#: Every compression extension :func:`decompress_glb` undoes.
+EXTENSIONS = (DRACO, *MESHOPT)
+#: Vertex attributes of a Draco primitive that are kept: positions and the feature (building) ids.
+KEPT_ATTRIBUTES = ("POSITION", "_BATCHID", "_batchid")
+KEPT_PREFIXES = ("_FEATURE_ID_",)
+
+_JSON, _BIN = 0x4E4F534A, 0x004E4942
+_FLOAT, _UINT = 5126, 5125
+_TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
+_TRIANGLES = 4
+
+
+def compression_used(gltf: dict) -> list[str]:
+    """The compression extensions a glTF document declares (used or required), sorted."""
+    used = set(gltf.get("extensionsUsed", []) or []) | set(gltf.get("extensionsRequired", []) or [])
+    return sorted(used.intersection(EXTENSIONS))
+
+
+def split_glb(glb: bytes, where: str) -> tuple[dict, bytes]:
+    """The JSON document and binary chunk (b"" when none) of a GLB.
+
+    Raises
+    ------
+    InputFileError
+        Not a GLB, lengths that do not fit, or JSON that cannot be read.
+    """
+    if len(glb) < 20 or glb[:4] != b"glTF":
+        raise InputFileError(where, "holds no binary glTF (its payload does not start with b'glTF')")
+    size, kind = struct.unpack_from("<II", glb, 12)
+    if kind != _JSON or 20 + size > len(glb):
+        raise InputFileError(where, f"holds a GLB whose first chunk is not JSON of {size} bytes within its {len(glb)}")
+    try:
+        gltf = json.loads(glb[20:20 + size])
+    except ValueError as err:
+        raise InputFileError(where, f"holds a glTF whose JSON cannot be read ({err})") from None
+    binary = b""
+    at = 20 + size
+    if at + 8 <= len(glb):
+        length, kind = struct.unpack_from("<II", glb, at)
+        if kind == _BIN:
+            if at + 8 + length > len(glb):
+                raise InputFileError(where, f"holds a GLB binary chunk of {length} bytes, cut short at {len(glb) - at - 8}")
+            binary = glb[at + 8:at + 8 + length]
+    if not isinstance(gltf, dict):
+        raise InputFileError(where, f"holds a glTF whose JSON is a {type(gltf).__name__}, expected an object")
+    return gltf, binary
+
+
+def join_glb(gltf: dict, binary: bytes) -> bytes:
+    """A GLB of a JSON document and a binary chunk (each padded to 4 bytes: spaces, zeros)."""
+    text = json.dumps(gltf, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<II", len(text), _JSON) + text
+    if binary:
+        chunks += struct.pack("<II", len(binary), _BIN) + binary
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+class _Binary:
+    """The GLB's binary chunk, growing: appended data starts on a 4-byte boundary."""
+
+    def __init__(self, data: bytes):
+        self.data = bytearray(data)
+
+    def append(self, data: bytes) -> int:
+        self.data += b"\0" * (-len(self.data) % 4)
+        at = len(self.data)
+        self.data += data
+        return at
+
+
+def _buffer_bytes(gltf: dict, binary: bytes, index, where: str, what: str) -> bytes:
+    buffers = gltf.get("buffers", [])
+    if not isinstance(index, int) or not 0 <= index < len(buffers):
+        raise InputFileError(where, f"holds {what} in buffer {index!r}, which is not among its {len(buffers)} buffers")
+    if index != 0 or buffers[0].get("uri") is not None:
+        raise InputFileError(where, f"holds {what} in an external buffer ({buffers[index].get('uri', 'buffer %d' % index)!r}): "
+                                    "only compressed data in the GLB's own binary chunk is read (gltf-transform copy "
+                                    "decompresses it)")
+    return binary
+
+
+def _slice(data: bytes, offset, length, where: str, what: str) -> bytes:
+    if not (isinstance(offset, int) and isinstance(length, int) and 0 <= offset and 0 <= length
+            and offset + length <= len(data)):
+        raise InputFileError(where, f"holds {what} at bytes {offset!r}..+{length!r}, beyond its {len(data)}-byte buffer")
+    return data[offset:offset + length]
+
+
+def _meshopt(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
+    """Every meshopt-compressed buffer view decoded into ``out``, pointing there."""
+    views = [v for v in gltf.get("bufferViews", []) if any(e in (v.get("extensions") or {}) for e in MESHOPT)]
+    if not views:
+        return
+    try:
+        import meshopt
+    except ImportError as err:  # pragma: no cover - a dependency
+        raise InputFileError(where, f"holds meshopt-compressed glTF and meshopt is not importable ({err})") from None
+    for k, view in enumerate(views):
+        name = next(e for e in MESHOPT if e in view["extensions"])
+        ext = view["extensions"][name]
+        what = f"meshopt data (buffer view {k})"
+        source = _slice(_buffer_bytes(gltf, binary, ext.get("buffer"), where, what), ext.get("byteOffset", 0),
+                        ext.get("byteLength"), where, what)
+        count, stride, mode = ext.get("count"), ext.get("byteStride"), ext.get("mode")
+        if not (isinstance(count, int) and isinstance(stride, int) and count >= 0 and 0 < stride <= 256):
+            raise InputFileError(where, f"holds {what} of count {count!r} and byte stride {stride!r}")
+        try:
+            plain = meshopt.decode_gltf_buffer(source, count, stride, mode, ext.get("filter", "NONE"))
+        except Exception as err:  # the decoder reports malformed data with ValueError (and others)
+            raise InputFileError(where, f"holds {what} that cannot be decoded ({type(err).__name__}: {err})") from None
+        plain = np.ascontiguousarray(plain).tobytes()
+        if len(plain) != count * stride:
+            raise InputFileError(where, f"holds {what} decoded to {len(plain)} bytes, expected {count} x {stride}")
+        view["byteOffset"] = out.append(plain)
+        view["byteLength"] = len(plain)
+        view["buffer"] = 0
+        del view["extensions"][name]
+        if not view["extensions"]:
+            del view["extensions"]
+
+
+def _kept(semantic: str) -> bool:
+    return semantic in KEPT_ATTRIBUTES or semantic.startswith(KEPT_PREFIXES)
+
+
+def _draco(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
+    """Every Draco-compressed primitive decoded: plain accessors in ``out`` for its positions, feature ids
+    and triangles."""
+    primitives = [p for mesh in gltf.get("meshes", []) for p in mesh.get("primitives", [])
+                  if DRACO in (p.get("extensions") or {})]
+    if not primitives:
+        return
+    try:
+        import DracoPy
+    except ImportError as err:  # pragma: no cover - a dependency
+        raise InputFileError(where, f"holds Draco-compressed glTF and DracoPy is not importable ({err})") from None
+    views, accessors = gltf.setdefault("bufferViews", []), gltf.setdefault("accessors", [])
+
+    def add(array: np.ndarray, component: int, target: int | None) -> int:
+        data = np.ascontiguousarray(array)
+        view = {"buffer": 0, "byteOffset": out.append(data.tobytes()), "byteLength": data.nbytes}
+        if target:
+            view["target"] = target
+        views.append(view)
+        accessor = {"bufferView": len(views) - 1, "componentType": component, "count": len(data),
+                    "type": _TYPES[data.shape[1] if data.ndim == 2 else 1]}
+        if component == _FLOAT and data.ndim == 2:
+            accessor["min"], accessor["max"] = data.min(axis=0).tolist(), data.max(axis=0).tolist()
+        accessors.append(accessor)
+        return len(accessors) - 1
+
+    for k, primitive in enumerate(primitives):
+        ext = primitive["extensions"][DRACO]
+        what = f"Draco data (primitive {k})"
+        view = views[ext["bufferView"]] if isinstance(ext.get("bufferView"), int) and 0 <= ext["bufferView"] < len(views) else None
+        if view is None:
+            raise InputFileError(where, f"holds {what} in buffer view {ext.get('bufferView')!r}, which it does not have")
+        data = _slice(_buffer_bytes(gltf, binary, view.get("buffer"), where, what), view.get("byteOffset", 0),
+                      view.get("byteLength"), where, what)
+        if primitive.get("mode", _TRIANGLES) != _TRIANGLES:
+            raise InputFileError(where, f"holds {what} of mode {primitive.get('mode')}, expected triangles (4)")
+        try:
+            mesh = DracoPy.decode(bytes(data))
+        except Exception as err:  # DracoPy raises its own errors and ValueError for corrupt data
+            raise InputFileError(where, f"holds {what} that cannot be decoded ({type(err).__name__}: {err})") from None
+        faces = getattr(mesh, "faces", None)  # a Draco point cloud has none
+        faces = None if faces is None else np.asarray(faces)
+        if faces is None or faces.ndim != 2 or faces.shape[1] != 3:
+            raise InputFileError(where, f"holds {what} that decodes to points, not triangles")
+        by_id = {a["unique_id"]: a for a in mesh.attributes}
+        attributes = {}
+        for semantic, uid in (ext.get("attributes") or {}).items():
+            if not _kept(semantic):
+                continue
+            if uid not in by_id:
+                raise InputFileError(where, f"holds {what} whose {semantic} (Draco attribute {uid!r}) is not in it")
+            values = np.asarray(by_id[uid]["data"], np.float32).reshape(-1, by_id[uid]["num_components"])
+            attributes[semantic] = add(values if values.shape[1] > 1 else values[:, 0], _FLOAT, 34962)
+        if "POSITION" not in attributes:
+            raise InputFileError(where, f"holds {what} without positions")
+        count = accessors[attributes["POSITION"]]["count"]
+        if faces.size and (faces.min() < 0 or faces.max() >= count):
+            raise InputFileError(where, f"holds {what} whose triangles index beyond its {count} vertices")
+        primitive["attributes"] = attributes
+        primitive["indices"] = add(faces.astype(np.uint32).ravel(), _UINT, 34963)
+        del primitive["extensions"][DRACO]
+        if not primitive["extensions"]:
+            del primitive["extensions"]
+
+
+def decompress_glb(glb: bytes, where: str) -> bytes:
+    """A GLB with its Draco and meshopt compression undone (see the module); the same bytes when it has none.
+
+    Parameters
+    ----------
+    glb : bytes
+    where : str
+        The file (and part of it) for messages.
+
+    Raises
+    ------
+    InputFileError
+        Compressed data that is corrupt, out of its buffer, in an external buffer, or not triangles.
+    """
+    gltf, binary = split_glb(glb, where)
+    if not compression_used(gltf):
+        return glb
+    out = _Binary(binary)
+    try:
+        _meshopt(gltf, binary, out, where)
+        _draco(gltf, binary, out, where)
+    except InputFileError:
+        raise
+    except (AttributeError, KeyError, IndexError, TypeError, ValueError) as err:  # JSON of other shapes than the spec's
+        raise InputFileError(where, f"holds compressed glTF laid out otherwise than its specification says "
+                                    f"({type(err).__name__}: {err})") from None
+    for view in gltf.get("bufferViews", []):
+        if view.get("buffer", 0) != 0:  # a meshopt fallback buffer holds no data: nothing may point there
+            raise InputFileError(where, f"holds a buffer view in buffer {view.get('buffer')!r}, which is external "
+                                        "or a fallback without data")
+    buffers = gltf.get("buffers", [])
+    if buffers and buffers[0].get("uri") is not None:
+        raise InputFileError(where, "holds compressed glTF whose first buffer is external; only GLB binary chunks are read")
+    gltf["buffers"] = [{"byteLength": len(out.data)}]
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if key in gltf:
+            gltf[key] = [e for e in gltf[key] if e not in EXTENSIONS]
+            if not gltf[key]:
+                del gltf[key]
+    return join_glb(gltf, bytes(out.data))
