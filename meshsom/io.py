@@ -67,7 +67,7 @@ CITYGML_SUFFIXES = (".gml", ".citygml")
 #: A 3D Tiles tileset's file name: in a folder, the content under its folder (and nested
 #: tilesets) is read through it, not on its own.
 TILESET_NAME = "tileset.json"
-TILES_CONTENT_SUFFIXES = (".b3dm", ".glb", ".gltf", ".pnts", ".i3dm", ".cmpt", ".subtree")
+TILES_CONTENT_SUFFIXES = (".b3dm", ".glb", ".gltf", ".pnts", ".i3dm", ".cmpt", ".subtree", ".bin")
 #: The files that come with a shapefile (``x.shp``), read with it.
 SHAPEFILE_SIDECARS = (".dbf", ".shx", ".prj", ".cpg", ".qix", ".sbn", ".sbx", ".qmd")
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).

@@ -22,9 +22,10 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   the mesh's origin stays earth-centred. Positions in a local frame (a b3dm read without the
   tileset whose root transform places it) are read as metres, with a note.
 
-Draco- and meshopt-compressed glTF is decompressed first (:mod:`meshsom.gltf_compression`).
-Not read: b3dm of the 2016 draft layouts (upgrade with ``3d-tiles-tools upgrade``), implicit tiling
-(3D Tiles 1.1 templates and subtrees: a rejection that says so).
+Draco- and meshopt-compressed glTF is decompressed first (:mod:`meshsom.gltf_compression`);
+implicit tiling (3D Tiles 1.1 quadtrees and octrees named by templates, listed by subtree files) is
+walked by :mod:`meshsom.implicit_tiling`. Not read: b3dm of the 2016 draft layouts (upgrade with
+``3d-tiles-tools upgrade``).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 from meshsom.gltf_compression import decompress_glb, split_glb
+from meshsom.implicit_tiling import implicit_contents
 
 #: File name endings read as 3D Tiles content.
 B3DM_SUFFIXES = (".b3dm",)
@@ -277,6 +279,11 @@ def _uris(tile: dict) -> list[str]:
     return [c.get("uri", c.get("url")) for c in contents if isinstance(c.get("uri", c.get("url")), str)]
 
 
+def _names_tileset(uri: str) -> bool:
+    """Whether a content URI names an external tileset (a .json path, queries aside)."""
+    return PurePosixPath(unquote(urlparse(uri).path)).suffix.lower() == ".json"
+
+
 def read_tileset(document: dict, path: Path, options, name: str | None = None) -> Iterator:
     """Read the buildings of a parsed tileset (as the module says)."""
     from meshsom.io import Rejection, _parse_json, read_input_bytes
@@ -284,6 +291,36 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
     name = name or path.name
     root_folder = path.parent.resolve()
     found = False
+
+    def _content(uri: str, folder: Path, transform: np.ndarray, refine: str, depth: int) -> Iterator:
+        """The items of one content: its buildings, or rejections; an external tileset joins the walk."""
+        parsed = urlparse(uri)
+        target = (folder / unquote(parsed.path)).resolve()
+        content_id = f"{name}#{PurePosixPath(target.relative_to(root_folder)).as_posix()}" if target.is_relative_to(
+            root_folder) else f"{name}#{uri}"
+        if parsed.scheme or parsed.netloc or not target.is_relative_to(root_folder):
+            yield Rejection(content_id, str(path), f"names content outside the tileset's folder ({uri}); not followed")
+            return
+        if _names_tileset(uri):  # an external tileset: its root joins the walk
+            try:
+                sub = _parse_json(bytes(read_input_bytes(target, options)), str(target))
+            except (InputFileError, OSError) as err:
+                yield Rejection(content_id, str(target), getattr(err, "problem", str(err)))
+                return
+            if is_tileset(sub):
+                stack.append((sub["root"], transform, refine, target.parent, depth + 1))
+            return
+        if target.suffix.lower() not in (".b3dm", ".glb"):
+            yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points, "
+                                                     f"instances or a composite); only batched models (.b3dm, .glb) are read")
+            return
+        try:
+            data = bytes(read_input_bytes(target, options))
+            yield from content_meshes(data, str(target), f"{content_id}#", options, transform,
+                                      b3dm=target.suffix.lower() == ".b3dm")
+        except (InputFileError, OSError) as err:
+            yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
+
     # (tile, transform of its parent, refinement inherited, the folder its URIs are relative to, depth)
     stack = [(document["root"], np.eye(4), "REPLACE", path.parent, 0)]
     while stack:
@@ -296,42 +333,24 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
         refine = str(tile.get("refine", refine)).upper()
         children = [c for c in tile.get("children", []) if isinstance(c, dict)]
         stack.extend((c, transform, refine, folder, depth + 1) for c in reversed(children))
-        if isinstance(tile.get("implicitTiling"), dict):
-            found = True
-            yield Rejection(f"{name}#implicit tiling", str(path), "uses implicit tiling (content named by templates and "
-                                                                  "subtrees), which is not read; list its tiles explicitly")
+        if isinstance(tile.get("implicitTiling"), dict):  # its tiles named by templates, listed by subtrees
+            try:
+                implicit = list(implicit_contents(tile, folder, str(path), lambda p: read_input_bytes(p, options),
+                                                  _uris(tile)))
+            except InputFileError as err:
+                found = True
+                yield Rejection(f"{name}#implicit tiling", str(path), err.problem)
+                continue
+            for content in implicit:
+                if content.leaf or refine == "ADD":
+                    found = True
+                    yield from _content(content.uri, folder, transform, refine, depth)
             continue
         for uri in _uris(tile):
-            parsed = urlparse(uri)
-            target = (folder / unquote(parsed.path)).resolve()
-            content_id = f"{name}#{PurePosixPath(target.relative_to(root_folder)).as_posix()}" if target.is_relative_to(
-                root_folder) else f"{name}#{uri}"
-            if parsed.scheme or parsed.netloc or not target.is_relative_to(root_folder):
-                found = True
-                yield Rejection(content_id, str(path), f"names content outside the tileset's folder ({uri}); not followed")
-                continue
-            if target.suffix.lower() == ".json":  # an external tileset: its root joins the walk
-                try:
-                    sub = _parse_json(bytes(read_input_bytes(target, options)), str(target))
-                except (InputFileError, OSError) as err:
-                    found = True
-                    yield Rejection(content_id, str(target), getattr(err, "problem", str(err)))
-                    continue
-                if is_tileset(sub):
-                    stack.append((sub["root"], transform, refine, target.parent, depth + 1))
-                continue
-            if children and refine != "ADD":
+            external = _names_tileset(uri)
+            if children and refine != "ADD" and not external:
                 continue  # a coarser level: its children replace it
-            found = True
-            if target.suffix.lower() not in (".b3dm", ".glb"):
-                yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points, "
-                                                         f"instances or a composite); only batched models (.b3dm, .glb) are read")
-                continue
-            try:
-                data = bytes(read_input_bytes(target, options))
-                yield from content_meshes(data, str(target), f"{content_id}#", options, transform,
-                                          b3dm=target.suffix.lower() == ".b3dm")
-            except (InputFileError, OSError) as err:
-                yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
+            found = found or not external  # an external tileset's content is found when it is read
+            yield from _content(uri, folder, transform, refine, depth)
     if not found:
         raise InputFileError(str(path), "is a 3D Tiles tileset without any content")

@@ -191,7 +191,7 @@ def test_tileset_walks_transforms_refinement_and_external_tilesets(tmp_path):
 
 
 def test_tiles_1_1_gltf_content_and_implicit_tiling(tmp_path):
-    """3D Tiles 1.1: glTF content whose features are ``_FEATURE_ID_0``; implicit tiling is listed."""
+    """3D Tiles 1.1: glTF content whose features are ``_FEATURE_ID_0``; an implicit tileset without its subtree is listed."""
     buildings = _buildings(3)
     ecef = {id(v): _ecef(v) for _, v, _ in buildings}
     rtc = _ecef(np.zeros((1, 3)))[0]
@@ -206,9 +206,10 @@ def test_tiles_1_1_gltf_content_and_implicit_tiling(tmp_path):
         _same_building(m, v, f)
     (tmp_path / "implicit.json").write_text(json.dumps({"asset": {"version": "1.1"}, "geometricError": 1, "root": {
         "geometricError": 1, "content": {"uri": "c/{level}_{x}_{y}.glb"},
-        "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 2, "subtrees": {"uri": "s/{level}.subtree"}}}}))
-    (item,) = read_file(tmp_path / "implicit.json")
-    assert isinstance(item, Rejection) and "implicit tiling" in item.reason
+        "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 2, "availableLevels": 2,
+                           "subtrees": {"uri": "s/{level}.subtree"}}}}))
+    (item,) = read_file(tmp_path / "implicit.json")  # its subtree is missing (implicit tiles: test_implicit_tiling.py)
+    assert isinstance(item, Rejection) and item.id == "implicit.json#implicit tiling" and "s/0.subtree" in item.reason
 
 
 def test_damaged_and_unreadable_tiles(tmp_path):
