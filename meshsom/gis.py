@@ -15,8 +15,9 @@ choice, triangulation, CRS handling and rejections apply:
 - **3D surfaces**: a ``PolyhedralSurface``, ``TIN``, or 3D ``(Multi)Polygon`` with faces that are
   not horizontal (walls) is read as a MultiSurface of its polygons (LoD ``"2"``), closed or refused
   by preprocessing like any other building. Geometry collections are read through.
-- Any other geometry (points, lines; curves, which GDAL keeps as arcs) is a rejection saying what
-  it holds.
+- Any other geometry (points, lines) is a rejection saying what it holds. Curves (arcs) come from
+  GDAL as segments (fiona asks it for the linear geometry); in GeoParquet's WKB, whose
+  specification has no curves, they are a rejection.
 - **Layers**: every layer with geometry is read, or only :attr:`meshsom.io.ReaderOptions.layer`.
   Ids are ``name#<id>``, or ``name#<layer>/<id>`` when the file has several layers with geometry;
   ``<id>`` is the first property of :attr:`meshsom.io.ReaderOptions.id_attributes` whose values

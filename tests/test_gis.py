@@ -21,13 +21,14 @@ import fiona
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pyproj
 import pytest
 import shapely
 from hypothesis import given, settings, strategies as st
 
 from meshsom.errors import InputFileError
 from meshsom.gis import horizontal, wkb_polygons
-from meshsom.io import ReaderOptions, Rejection, expand_inputs, read_file
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 from meshsom.preprocess import preprocess
 
 from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat, write_geoparquet
@@ -369,3 +370,50 @@ def test_geoparquet_ranges_start_at_their_row_group(tmp_path):
     assert [r[4:] for r in ranges] == [[0, 300], [300, 600], [600, 900], [900, 1000]] and ranges[0][3] == "id"
     whole = [m.id for m in read_file(path)]
     assert [m.id for r in ranges for m in read_file(path, feature_range=r)] == whole
+
+
+def _curved_gpkg(path, srs_id=2056):
+    """A GeoPackage written as cadastres export footprints with arcs (ALKIS, the Swiss official survey):
+    a CURVEPOLYGON of a CompoundCurve, a 10 x 10 m square whose east side is a semicircular bay of
+    radius 5 m (a CircularString through (15, 5)), 6 m high; built with sqlite3 by the GeoPackage
+    specification (fiona writes no curves)."""
+    import sqlite3
+
+    e0, n0 = 2_600_000.0, 1_200_000.0
+    def points(ps):
+        return struct.pack("<I", len(ps)) + b"".join(struct.pack("<dd", e0 + x, n0 + y) for x, y in ps)
+    line = b"\x01" + struct.pack("<I", 2) + points([(10, 10), (0, 10), (0, 0), (10, 0)])
+    arc = b"\x01" + struct.pack("<I", 8) + points([(10, 0), (15, 5), (10, 10)])
+    compound = b"\x01" + struct.pack("<II", 9, 2) + line + arc
+    wkb = b"\x01" + struct.pack("<II", 10, 1) + compound  # CurvePolygon, one ring
+    blob = b"GP" + bytes([0, 1]) + struct.pack("<i", srs_id) + wkb  # version 0, little endian, no envelope
+    db = sqlite3.connect(path)
+    db.executescript(f"""
+        PRAGMA application_id = 1196444487; PRAGMA user_version = 10200;
+        CREATE TABLE gpkg_spatial_ref_sys (srs_name TEXT NOT NULL, srs_id INTEGER PRIMARY KEY, organization TEXT NOT NULL,
+            organization_coordsys_id INTEGER NOT NULL, definition TEXT NOT NULL, description TEXT);
+        INSERT INTO gpkg_spatial_ref_sys VALUES ('undefined cartesian', -1, 'NONE', -1, 'undefined', NULL),
+            ('undefined geographic', 0, 'NONE', 0, 'undefined', NULL),
+            ('CH1903+ / LV95', {srs_id}, 'EPSG', {srs_id}, '{pyproj.CRS.from_epsg(srs_id).to_wkt()}', NULL);
+        CREATE TABLE gpkg_contents (table_name TEXT NOT NULL PRIMARY KEY, data_type TEXT NOT NULL, identifier TEXT UNIQUE,
+            description TEXT DEFAULT '', last_change DATETIME NOT NULL DEFAULT (strftime('%Y-%m-%dT%H:%M:%fZ','now')),
+            min_x DOUBLE, min_y DOUBLE, max_x DOUBLE, max_y DOUBLE, srs_id INTEGER);
+        INSERT INTO gpkg_contents (table_name, data_type, identifier, srs_id) VALUES ('gebaeude', 'features', 'gebaeude', {srs_id});
+        CREATE TABLE gpkg_geometry_columns (table_name TEXT NOT NULL, column_name TEXT NOT NULL, geometry_type_name TEXT NOT NULL,
+            srs_id INTEGER NOT NULL, z TINYINT NOT NULL, m TINYINT NOT NULL, CONSTRAINT pk PRIMARY KEY (table_name, column_name));
+        INSERT INTO gpkg_geometry_columns VALUES ('gebaeude', 'geom', 'CURVEPOLYGON', {srs_id}, 0, 0);
+        CREATE TABLE gebaeude (fid INTEGER PRIMARY KEY AUTOINCREMENT, geom BLOB, id TEXT, height REAL);
+    """)
+    db.execute("INSERT INTO gebaeude (geom, id, height) VALUES (?, 'bay', 6.0)", (blob,))
+    db.commit()
+    db.close()
+
+
+def test_curved_footprints_are_linearised_by_gdal(tmp_path):
+    """Arcs in a GDAL-read layer come as segments (fiona asks GDAL for the linear geometry, 4 degree steps):
+    the bay is read, its volume that of the square and the half disc to within the chords' 0.1 %."""
+    _curved_gpkg(tmp_path / "kataster.gpkg")
+    (m,) = read_file(tmp_path / "kataster.gpkg")
+    assert isinstance(m, RawMesh), m
+    assert _volume(m) == pytest.approx((100 + np.pi * 25 / 2) * 6, rel=1e-3)
+    assert len(m.vertices) > 2 * 20  # the half circle in many segments, top and bottom
