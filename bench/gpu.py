@@ -88,7 +88,7 @@ GEMM_SIZE = 8192
 #: tiles, the whole row tile where it fits, 8-dimension chunks beyond). Tilings (tile_rows x
 #: tile_units, group_rows x group_units: 8 x 8, 4 x 8, 4 x 4 or 2 x 8 accumulators per work-item,
 #: 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's register
-#: cap, the row tile staged per chunk where the whole tile fits (now up to D = 150) and more
+#: cap, the row tile staged per chunk where the whole tile fits (now up to D = 152) and more
 #: unit splits for small N; the earlier default (128 x 128, X staged 16 dimensions at a time) among
 #: them. The first is the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a
 #: work-group (a candidate that does not fit the device is skipped, with its size). The register

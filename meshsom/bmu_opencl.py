@@ -236,7 +236,7 @@ CODEBOOKS_KEPT = 2
 #: "cpu-narrow": CPUs (or kernel targets) without 512-bit vectors. "gpu": the SGEMM-style "gemm"
 #: kernel, tuned on an NVIDIA H200 (bench/gpu.py --autotune, 2026-11-30: 14, then 9 candidates):
 #: 64 varied vectors x 128 units per group of 16 x 16 work-items, 4 x 8 accumulators each, the
-#: whole row tile gathered into local memory once where it fits (float32 D up to 150: the
+#: whole row tile gathered into local memory once where it fits (float32 D up to 152: the
 #: paper's 9, 36 and 144, the codebook's chunks then 8 dimensions where 16 do not fit; beyond, D
 #: staged 8 at a time, 4 in float64: 0.73x the time of 16 at 1e6 x 3 x 144, measured before the
 #: whole tile reached D = 144), the codebook double-buffered; 121 registers against 195 for 128 x 128 tiles

@@ -399,7 +399,7 @@ def test_device_params_gpu_ignores_the_cpu_name():
 
 def test_whole_row_tile_fits_the_devices_local_memory():
     """The whole row tile is staged where it fits the device's local memory (capped at NVIDIA's 48 KB),
-    at the codebook's smaller chunk where the larger one does not fit: on NVIDIA up to D = 150
+    at the codebook's smaller chunk where the larger one does not fit: on NVIDIA up to D = 152
     (D = 144: 46.3 KB with 8-dimension chunks), on a 32 KB device up to D = 90 (30.4 KB), beyond
     staged per chunk; every choice within the device's limit."""
     pytest.importorskip("pyopencl")
@@ -525,7 +525,7 @@ def test_gemm_staging_variants(ctx, whole, prefetch):
     """The ways the gemm kernel stages operands (the whole row tile once or X per chunk, two local
     buffers or one) give the brute force's answers, at a D of several padded chunks and at a D
     whose whole row tile does not fit (staged per chunk after all). The GPU default (whole row
-    tile, two buffers) runs in every test above too, staged per chunk from D = 144."""
+    tile, two buffers) runs in every test above too, staged per chunk above D = 152 (a few D to 165 aside)."""
     from meshsom.bmu_opencl import _defines, bmu_opencl
 
     rng = np.random.default_rng(7)
@@ -635,3 +635,21 @@ def test_tie_across_variations_goes_to_the_lowest_unit_then_variation():
         return
     got = bmu_opencl(x[None], W, index, sign, context=ctx)
     assert (got.unit[0], got.variation[0]) == (3, 1)
+
+
+@pytest.mark.parametrize("D,whole,kt", [(150, 1, 6), (152, 1, 8), (153, 0, 8)])
+def test_gpu_default_at_the_edge_of_the_whole_row_tile(ctx, D, whole, kt):
+    """The GPU tiling where the whole row tile last fits NVIDIA's 48 KB (D = 150 in 6-dimension chunks of
+    the codebook, D = 152 in 8: 48,384 bytes) and where it no longer does (D = 153, staged in chunks of
+    8, padded to 160): two unit tiles, the second partial; the brute force's answers."""
+    from meshsom.bmu_opencl import KernelParams, _defines, bmu_opencl
+
+    params = KernelParams(name="gpu", **KERNEL_PARAMS["gemm-gpu"])
+    d = _defines(D, 3, np.float32, params)
+    assert (d["XRES"], d["KT"], d["DP"]) == (whole, kt, -(-D // kt) * kt)
+    rng = np.random.default_rng(D)
+    X = rng.normal(size=(70, D)).astype(np.float32)
+    W = rng.normal(size=(130, D)).astype(np.float32)
+    index, sign = random_table(rng, 3, D)
+    got = bmu_opencl(X, W, index, sign, context=ctx, params=params)
+    check_against_brute_force(got, X, W, index, sign, min_separated=0.8, rtol=1e-4, atol=1e-4)
