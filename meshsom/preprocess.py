@@ -1825,18 +1825,13 @@ def _triangulate_regions(v, f, region, n_regions, fallback, keep, plane_n, b_src
 
 
 def _pymeshlab_repair(vertices, faces, source):
-    try:
-        import pymeshlab
-    except ImportError as err:  # pragma: no cover - pymeshlab is a declared dependency
-        raise MeshError(source, "repair requested but pymeshlab is not installed (pip install pymeshlab)") from err
-    ms = pymeshlab.MeshSet()
-    try:
-        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces.astype(np.int32)))
-        ms.meshing_remove_duplicate_vertices()
-        ms.meshing_remove_duplicate_faces()
-        ms.meshing_repair_non_manifold_edges()
-        ms.meshing_close_holes(maxholesize=10_000)
-    except pymeshlab.PyMeshLabException as err:
-        raise MeshError(source, f"pymeshlab repair failed ({str(err).strip()})") from None
-    m = ms.current_mesh()
-    return np.asarray(m.vertex_matrix(), np.float64), np.asarray(m.face_matrix(), np.int64)
+    """pymeshlab's repair, in a child process (:mod:`meshsom.meshlab_repair`: in a worker thread, as the
+    pipelines run this, pymeshlab corrupts the process's heap)."""
+    import importlib.util
+
+    from meshsom.meshlab_repair import repair
+
+    if importlib.util.find_spec("pymeshlab") is None:  # not imported here: importing loads its plugins
+        raise MeshError(source, "repair requested but pymeshlab is not installed (pip install pymeshlab)")  # pragma: no cover
+
+    return repair(vertices, faces, source)
