@@ -69,6 +69,7 @@ import numpy as np  # noqa: E402
 from bench.common import MAP, best_time, block_table, data  # noqa: E402
 from bench.epoch import meshsom_epoch  # noqa: E402
 from meshsom.bmu_numpy import identity_table  # noqa: E402
+from meshsom.tuning import CANDIDATES, WORKLOADS  # noqa: E402
 
 #: (N, n, D) of the BMU table (issue 13).
 BMU_WORKLOADS = [(3064, 1, 9), (3064, 6, 9), (3064, 3, 36), (3064, 3, 144), (100_000, 3, 36), (100_000, 1, 36),
@@ -84,33 +85,10 @@ LARGE_N = 1_000_000
 TORCH_CHUNK = 65_536
 #: Side of the PyTorch FP32 GEMM yardstick.
 GEMM_SIZE = 8192
-#: Candidates timed by --autotune: "gemm" KernelParams fields over the device default (64 x 128
-#: tiles, the whole row tile where it fits, 8-dimension chunks beyond). Tilings (tile_rows x
-#: tile_units, group_rows x group_units: 8 x 8, 4 x 8, 4 x 4 or 2 x 8 accumulators per work-item,
-#: 128 or 256 work-items), chunks along D, one local buffer or two (prefetch), NVIDIA's register
-#: cap, the row tile staged per chunk where the whole tile fits (now up to D = 152) and more
-#: unit splits for small N; the earlier default (128 x 128, X staged 16 dimensions at a time) among
-#: them. The first is the default; all fit the 48 KB of local memory NVIDIA's OpenCL gives a
-#: work-group (a candidate that does not fit the device is skipped, with its size). The register
-#: caps: 128 keeps two groups of 256 on a compute unit (65,536 registers), 80 with one local buffer
-#: three (bench/gpu_sass.py: no spills in the chunk loop). 2026-11-30 on an H200 the default won
-#: against the earlier one by 0.91x, and 8-dimension chunks beat 16 at D = 144 by 0.73x.
-AUTOTUNE_CANDIDATES = [
-    {},
-    {"prefetch": False},
-    {"tile_rows": 128, "whole_row_tile": False, "staged_kt": 0},
-    {"tile_rows": 128},
-    {"prefetch": False, "max_registers": 80},
-    {"staged_kt": 0},
-    {"max_registers": 128},
-    {"tile_units": 64},
-    {"tile_rows": 32, "group_rows": 8},
-    {"whole_row_tile": False},
-    {"groups_per_cu": 8},
-    {"max_kt": 8},
-]
-#: The workloads --autotune times: (N, n, D).
-AUTOTUNE_WORKLOADS = [(1_000_000, 3, 36), (1_000_000, 3, 144), (3064, 3, 144)]
+#: Candidates timed by --autotune: meshsom tune's (meshsom.tuning.CANDIDATES, the first the default).
+AUTOTUNE_CANDIDATES = CANDIDATES
+#: The workloads --autotune times: (N, n, D), meshsom tune's.
+AUTOTUNE_WORKLOADS = WORKLOADS
 #: The paper config's maps (configs/paper.yaml): (level, kernel), trained for PAPER_EPOCHS.
 PAPER_MAPS = [(1, "default"), (1, "bmuofn"), (2, "bmuofn"), (3, "bmuofn")]
 PAPER_EPOCHS = 20
@@ -421,12 +399,11 @@ def register_report(ctx, params, D: int, n: int) -> str:
 
 
 def autotune(args, ctx):
-    from meshsom.bmu_opencl import DEFAULT_PARAMS, bmu_opencl, default_params, gemm_local_bytes
+    from meshsom.bmu_opencl import bmu_opencl, gemm_local_bytes, layout_params
 
     rows, cols = MAP
     M = rows * cols
-    base = default_params(ctx)
-    base = base if base.kernel == "gemm" else DEFAULT_PARAMS["gpu"]
+    base = layout_params(ctx.devices[0], "gpu", tuned=False)  # the built-in default, whatever meshsom tune saved
     say(f"\nautotune: gemm candidates over {base}, seconds per pass")
     best = {}
     chosen = [tuple(int(v) for v in w.split(",")) for w in args.tune_workload] if args.tune_workload else None

@@ -462,8 +462,10 @@ def layout_chain(device) -> tuple[str, ...]:
     return CHAINS["gpu"]
 
 
-def layout_params(device, name: str) -> KernelParams:
-    """The tiling of layout ``name`` fitted to a device (work-group size and local memory capped by the device's).
+def layout_params(device, name: str, tuned: bool = True) -> KernelParams:
+    """The tiling of layout ``name`` fitted to a device (work-group size and local memory capped by the device's);
+    the ``gpu`` layout with the device's tuning where ``meshsom tune`` saved one (:mod:`meshsom.tuning`;
+    ``tuned=False``: the default).
 
     Raises
     ------
@@ -472,7 +474,12 @@ def layout_params(device, name: str) -> KernelParams:
     """
     if name not in DEFAULT_PARAMS:
         raise ValueError(f"unknown kernel layout {name!r}; known layouts: {', '.join(DEFAULT_PARAMS)}")
-    params = replace(DEFAULT_PARAMS[name], work_group=min(DEFAULT_PARAMS[name].work_group, device.max_work_group_size))
+    params = DEFAULT_PARAMS[name]
+    if tuned and name == "gpu":
+        from meshsom.tuning import tuned_fields
+
+        params = replace(params, **tuned_fields(device))
+    params = replace(params, work_group=min(params.work_group, device.max_work_group_size))
     if params.kernel == "gemm":
         params = replace(params, local_limit=min(params.local_limit, int(device.local_mem_size)))
     return params

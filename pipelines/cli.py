@@ -26,6 +26,7 @@ COMMANDS = {
     "runs": ("pipelines.runs_cmd", "list the tracked maps side by side: config, level, kernel, backend, T/Q/QC-errors"),
     "inspect": ("pipelines.inspect_cmd", "summarize a store: manifest, arrays, trained maps, fold statistics"),
     "train": ("pipelines.train_cmd", "train one level's triangle map (default or BMUofN kernel) and print T/Q/QC-errors"),
+    "tune": ("pipelines.tune_cmd", "time the GPU kernel's tilings on this machine's OpenCL device and keep the fastest"),
 }
 
 

@@ -291,11 +291,15 @@ def test_default_params_pick_a_cpu_layout_on_pocl(ctx):
 
 
 class FakeDevice:
-    """Just the attributes device_params and kernel_target_cpu read; no OpenCL needed."""
+    """Just the attributes device_params, kernel_target_cpu and the tuning key read; no OpenCL needed."""
 
     def __init__(self, version="", driver_version="", width=16, cpu=True):
+        import types
+
         self.version = version
         self.driver_version = driver_version
+        self.name, self.vendor = "fake device", "fake vendor"
+        self.platform = types.SimpleNamespace(name="fake platform", version="OpenCL 3.0 fake")
         self.preferred_vector_width_float = width
         self.cpu = cpu
         self.max_work_group_size = 4096
