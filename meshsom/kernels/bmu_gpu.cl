@@ -87,18 +87,18 @@
  * past D), W from the padded codebook Wp (MP, DP), no bounds. Consecutive work-items take
  * consecutive dimensions of one row of X and of one unit of W. */
 #define LOAD_X(k0)                                                                       \
-    UNROLL_GPU                                                                       \
+    UNROLL_GPU                                                                           \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         const int kx = (k0) + t % KT, q = q0 + t / KT;                                   \
         xreg[e] = 0;                                                                     \
-        if ((XFULL || t < TM * KT) && q < NR && kx < D) {                                           \
+        if ((XFULL || t < TM * KT) && q < NR && kx < D) {                                \
             const int v = q % NV;                                                        \
             xreg[e] = sign[v * D + kx] * X[(size_t)(q / NV) * D + index[v * D + kx]];    \
         }                                                                                \
     }
 #define LOAD_W(m, k0)                                                                    \
-    UNROLL_GPU                                                                       \
+    UNROLL_GPU                                                                           \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (WFULL || t < TN * KT)                                                        \
@@ -107,14 +107,14 @@
 
 /* Registers to local buffer b. */
 #define STORE_X(b)                                                                       \
-    UNROLL_GPU                                                                       \
+    UNROLL_GPU                                                                           \
     for (int e = 0; e < XLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (XFULL || t < TM * KT)                                                        \
             Xs[(b) * KT * XSTRIDE + (t % KT) * XSTRIDE + t / KT] = xreg[e];              \
     }
 #define STORE_W(b)                                                                       \
-    UNROLL_GPU                                                                       \
+    UNROLL_GPU                                                                           \
     for (int e = 0; e < WLOADS; ++e) {                                                   \
         const int t = lid + e * WGS;                                                     \
         if (WFULL || t < TN * KT)                                                        \
@@ -176,7 +176,7 @@
 
 #if ABLATE_EPILOGUE
 #define EPILOGUE_SINK                                                                    \
-            UNROLL_GPU                                                               \
+            UNROLL_GPU                                                                   \
             for (int l = 0; l < RN; ++l)                                                 \
                 sink += d[l];                                                            \
             enters = 0;
@@ -192,24 +192,24 @@
 #define EPILOGUE(m0)                                                                     \
     {                                                                                    \
         REAL wn[RN];                                                                     \
-        UNROLL_GPU                                                                   \
+        UNROLL_GPU                                                                       \
         for (int j = 0; j < WVEC; ++j)                                                   \
             VSTORE(((__global const realv *)wnorm)[((m0) / VW) + j * WGN + tx], 0, wn + j * VW); \
-        UNROLL_GPU                                                                   \
+        UNROLL_GPU                                                                       \
         for (int i = 0; i < RM; ++i) {                                                   \
             REAL d[RN], a[RN];                                                           \
-            UNROLL_GPU                                                               \
+            UNROLL_GPU                                                                   \
             for (int j = 0; j < WVEC; ++j)                                               \
                 VSTORE(acc[i][j], 0, a + j * VW);                                        \
             int enters = 0;                                                              \
-            UNROLL_GPU                                                               \
+            UNROLL_GPU                                                                   \
             for (int l = 0; l < RN; ++l) {                                               \
                 d[l] = wn[l] - (REAL)2 * a[l];                                           \
                 enters |= d[l] <= sd[i];                                                 \
             }                                                                            \
             EPILOGUE_SINK                                                                \
             if (enters) {                                                                \
-                UNROLL_GPU                                                           \
+                UNROLL_GPU                                                               \
                 for (int l = 0; l < RN; ++l) {                                           \
                     const int u = (m0) + ((l / VW) * WGN + tx) * VW + l % VW;            \
                     INSERT(d[l], u, bd[i], bu[i], sd[i], su[i]);                         \
