@@ -118,6 +118,7 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                                  if dev.type & cl.device_type.CPU else "device (SOM update='auto' on a GPU)"),
                 "driver": dev.driver_version.strip(),
                 "kernel_target": _kernel_target(dev),
+                "gpu_tuning": _tuning(dev),
             })
             if kernels:
                 try:
@@ -125,6 +126,17 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                 except Exception as err:  # doctor reports, never fails
                     out[-1]["layouts_error"] = f"{type(err).__name__}: {err}"
     return out
+
+
+def _tuning(device) -> str:
+    """What ``meshsom tune`` saved for the device's ``gpu`` layout, in words."""
+    try:
+        from meshsom.tuning import candidate_name, tuned_fields
+
+        found = tuned_fields(device)
+    except Exception as err:  # doctor reports, never fails
+        return f"unknown ({err})"
+    return f"tuned: {candidate_name(found)}" if found else "default tiling (not tuned: meshsom tune)"
 
 
 def _kernel_target(device) -> str | None:
@@ -198,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
             )
             target = f", kernel target CPU {d['kernel_target']}" if d.get("kernel_target") else ""
             print(f"        driver {d['driver']}{target}; BMUofN kernel: {d['bmu_kernel']}")
+            print(f"        gpu layout: {d['gpu_tuning']}")
             print(f"        per-unit sums and per-row errors of an epoch: on the {d['epoch_sums']}")
             print(f"        SOM.fit's epoch update: on the {d['epoch_update']}; the pipeline's: on the client's host")
             for v in d.get("layouts", []):

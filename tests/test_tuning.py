@@ -42,6 +42,9 @@ def test_tune_save_use_forget(ctx):
     default = layout_params(device, "gpu", tuned=False)
     assert layout_params(device, "gpu") == replace(default, tile_units=64, group_units=8)
     assert layout_params(device, "tiled") == layout_params(device, "tiled", tuned=False)  # only the gpu layout
+    from pipelines.doctor import _tuning
+
+    assert _tuning(device) == "tuned: tile_units=64, group_units=8"
     assert tuning.forget(ctx) and not tuning.forget(ctx)
     assert layout_params(device, "gpu") == default
 
