@@ -38,6 +38,9 @@ EXTENSIONS = (DRACO, *MESHOPT)
 KEPT_ATTRIBUTES = ("POSITION", "_BATCHID", "_batchid")
 KEPT_PREFIXES = ("_FEATURE_ID_",)
 
+#: Bytes one meshopt buffer view may decode to (its fallback's size bounds it too).
+MAX_DECODED_BYTES = 1 << 32
+
 _JSON, _BIN = 0x4E4F534A, 0x004E4942
 _FLOAT, _UINT = 5126, 5125
 _TYPES = {1: "SCALAR", 2: "VEC2", 3: "VEC3", 4: "VEC4"}
@@ -140,6 +143,9 @@ def _meshopt(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
         count, stride, mode = ext.get("count"), ext.get("byteStride"), ext.get("mode")
         if not (isinstance(count, int) and isinstance(stride, int) and count >= 0 and 0 < stride <= 256):
             raise InputFileError(where, f"holds {what} of count {count!r} and byte stride {stride!r}")
+        if count * stride > min(view.get("byteLength", 0), MAX_DECODED_BYTES):  # a decompression bomb is refused
+            raise InputFileError(where, f"holds {what} of {count} x {stride} bytes, more than its buffer view's "
+                                        f"{view.get('byteLength')} (at most {MAX_DECODED_BYTES:,})")
         try:
             plain = meshopt.decode_gltf_buffer(source, count, stride, mode, ext.get("filter", "NONE"))
         except Exception as err:  # the decoder reports malformed data with ValueError (and others)

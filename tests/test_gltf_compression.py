@@ -217,7 +217,10 @@ def test_corrupt_and_unsupported_compression_is_refused_with_its_reason(tmp_path
     pdoc, pbin = split_glb(packed, "x")
     bad_mode = json.loads(json.dumps(pdoc))
     bad_mode["bufferViews"][0]["extensions"]["EXT_meshopt_compression"]["mode"] = "SPLINES"
+    bomb = json.loads(json.dumps(pdoc))
+    bomb["bufferViews"][0]["extensions"]["EXT_meshopt_compression"]["count"] = 10**12
     cases = {
+        "bomb.glb": (join_glb(bomb, pbin), "more than its buffer view's"),
         "cut.b3dm": (as_b3dm(cut, buildings[:2]), "beyond its"),
         "garbage.b3dm": (as_b3dm(garbage, buildings[:2]), "cannot be decoded"),
         "external.b3dm": (as_b3dm(join_glb(external, binary), buildings[:2]), "external buffer"),
