@@ -31,6 +31,8 @@ from meshsom.errors import InputFileError
 #: Available tiles an implicit tileset may hold before it is refused (a memory guard: every available
 #: tile is kept while the subtrees are walked).
 MAX_IMPLICIT_TILES = 2_000_000
+#: Tiles a subtree may cover (its availability bitstreams' bits): 12 quadtree levels, 8 octree levels.
+MAX_SUBTREE_TILES = 1 << 24
 #: Levels an implicit tileset may declare (``availableLevels``): 2^30 tiles along an axis.
 MAX_LEVELS = 31
 _SCHEMES = {"QUADTREE": 2, "OCTREE": 3}
@@ -173,6 +175,9 @@ def implicit_contents(tile: dict, folder: Path, where: str, read: Callable[[Path
     if not isinstance(template, str):
         raise InputFileError(where, "has implicit tiling without a subtrees URI template")
     children = 2 ** dims
+    if (children ** levels - 1) // (children - 1) > MAX_SUBTREE_TILES:
+        raise InputFileError(where, f"has implicit subtrees of {levels} levels ({children ** levels:,} tiles in the "
+                                    f"last), more than {MAX_SUBTREE_TILES:,} tiles per subtree (MAX_SUBTREE_TILES)")
     offsets = [(children ** level - 1) // (children - 1) for level in range(levels + 1)]
     tiles: dict[int, list[np.ndarray]] = {}  # level -> coordinates of its available tiles
     contents: list[tuple[int, np.ndarray, int]] = []  # (level, coordinates, content index)

@@ -153,3 +153,16 @@ def test_morton_order_and_octree(tmp_path):
                                     "subtrees": {"uri": "{level}{x}{y}{z}.subtree"}}}}))
     got = sorted(m.id.split("#")[1] for m in read_file(tmp_path / "tileset.json"))
     assert got == ["c/1_0_1_1.glb", "c/1_1_0_1.glb"]
+
+
+def test_subtrees_too_large_to_hold_are_refused(tmp_path):
+    """subtreeLevels 20 (a quadtree subtree of 3.7e11 tiles, its bitstreams 46 GB): refused from the
+    tileset's numbers, before any subtree is read."""
+    (tmp_path / "tileset.json").write_text(json.dumps({
+        "asset": {"version": "1.1"}, "geometricError": 1,
+        "root": {"boundingVolume": {"box": [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1]}, "geometricError": 1,
+                 "content": {"uri": "{level}/{x}/{y}.glb"},
+                 "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 20, "availableLevels": 20,
+                                    "subtrees": {"uri": "{level}.{x}.{y}.subtree"}}}}))
+    (item,) = list(read_file(tmp_path / "tileset.json"))
+    assert isinstance(item, Rejection) and "MAX_SUBTREE_TILES" in item.reason
