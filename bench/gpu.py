@@ -85,8 +85,9 @@ LARGE_N = 1_000_000
 TORCH_CHUNK = 65_536
 #: Side of the PyTorch FP32 GEMM yardstick.
 GEMM_SIZE = 8192
-#: Candidates timed by --autotune: meshsom tune's (meshsom.tuning.CANDIDATES, the first the default).
-AUTOTUNE_CANDIDATES = CANDIDATES
+#: Candidates timed by --autotune: meshsom tune's (meshsom.tuning.CANDIDATES, the first the default;
+#: a copy, which --candidates replaces).
+AUTOTUNE_CANDIDATES = list(CANDIDATES)
 #: The workloads --autotune times: (N, n, D), meshsom tune's.
 AUTOTUNE_WORKLOADS = WORKLOADS
 #: The paper config's maps (configs/paper.yaml): (level, kernel), trained for PAPER_EPOCHS.
@@ -399,55 +400,43 @@ def register_report(ctx, params, D: int, n: int) -> str:
 
 
 def autotune(args, ctx):
-    from meshsom.bmu_opencl import bmu_opencl, gemm_local_bytes, layout_params
+    """meshsom tune's timing (meshsom.tuning.tune) of AUTOTUNE_CANDIDATES, printed with bench's short
+    names, TFLOP/s and (--registers) the compiler's report; the overall best as the 'gpu' layout."""
+    from meshsom.bmu_opencl import layout_params
+    from meshsom.tuning import tune
 
     rows, cols = MAP
     M = rows * cols
     base = layout_params(ctx.devices[0], "gpu", tuned=False)  # the built-in default, whatever meshsom tune saved
     say(f"\nautotune: gemm candidates over {base}, seconds per pass")
-    best = {}
     chosen = [tuple(int(v) for v in w.split(",")) for w in args.tune_workload] if args.tune_workload else None
-    for w, (N, n, D) in enumerate(workloads(chosen or AUTOTUNE_WORKLOADS, args.quick)):
-        X, W = data(N, D, M)
-        index, sign = block_table(n, D)
-        for c, fields in enumerate(AUTOTUNE_CANDIDATES):
-            name = candidate_name(fields)
-            p = replace(base, **fields)
-            local = gemm_local_bytes(p, np.float32, D)
-            if local > ctx.devices[0].local_mem_size:
-                say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} skipped: {local} bytes of local memory, the device "
-                    f"has {ctx.devices[0].local_mem_size}")
-                continue
+    passes = workloads(chosen or AUTOTUNE_WORKLOADS, args.quick)
+
+    def line(t):
+        N, n, D = t.workload
+        fields = AUTOTUNE_CANDIDATES[t.candidate]
+        head = f"{N:>9} {f'{n}x{D}':>7} {candidate_name(fields):>36}"
+        if t.seconds is None:
+            say(f"{head} {t.why}")
+            return
+        report = ""
+        if t.workload == passes[0] and args.registers:
             try:
-                bmu_opencl(X, W, index, sign, context=ctx, params=p)
-                t = best_time(lambda: bmu_opencl(X, W, index, sign, context=ctx, params=p), 2)
-            except Exception as err:  # noqa: BLE001 - a candidate the device cannot run is reported
-                say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} failed: {str(err)[:120]}")
-                continue
-            report = ""
-            if w == 0 and args.registers:
-                try:
-                    report = "  " + register_report(ctx, p, D, n)
-                except Exception as err:  # noqa: BLE001 - the report is a diagnosis only
-                    report = f"  (no register report: {str(err)[:80]})"
-            say(f"{N:>9} {f'{n}x{D}':>7} {name:>36} {t:8.4f} {2.0 * N * n * M * D / t / 1e12:6.2f} TFLOP/s{report}")
-            best.setdefault((N, n, D), []).append((t, c))
-    for key, found in best.items():
-        t, c = min(found)
-        say(f"best for N, n, D = {key}: {candidate_name(AUTOTUNE_CANDIDATES[c])} ({t:.4f} s)")
-    # overall: the candidate with the least geometric mean of its time over the default's, on the
-    # workloads where both ran
-    scores = {}
-    for found in best.values():
-        times = {c: t for t, c in found}
-        if 0 in times:
-            for c, t in times.items():
-                scores.setdefault(c, []).append(np.log(t / times[0]))
-    complete = {c: np.exp(np.mean(v)) for c, v in scores.items() if len(v) == len(best)}
-    if not complete:
+                report = "  " + register_report(ctx, replace(base, **fields), D, n)
+            except Exception as err:  # noqa: BLE001 - the report is a diagnosis only
+                report = f"  (no register report: {str(err)[:80]})"
+        say(f"{head} {t.seconds:8.4f} {2.0 * N * n * M * D / t.seconds / 1e12:6.2f} TFLOP/s{report}")
+
+    result = tune(ctx, passes, AUTOTUNE_CANDIDATES, repeat=2, units=M, report=line)
+    for workload in dict.fromkeys(t.workload for t in result.timings):
+        timed = [(t.seconds, t.candidate) for t in result.timings if t.workload == workload and t.seconds is not None]
+        if timed:
+            seconds, c = min(timed)
+            say(f"best for N, n, D = {workload}: {candidate_name(AUTOTUNE_CANDIDATES[c])} ({seconds:.4f} s)")
+    if not result.ratios:
         return None
-    c = min(complete, key=complete.get)
-    say(f"overall best: {candidate_name(AUTOTUNE_CANDIDATES[c])}, {complete[c]:.3f} x the default's time "
+    c = min(result.ratios, key=result.ratios.get)  # the least geometric mean over the default's
+    say(f"overall best: {candidate_name(AUTOTUNE_CANDIDATES[c])}, {result.ratios[c]:.3f} x the default's time "
         "(geometric mean)")
     return replace(base, name="gpu", **AUTOTUNE_CANDIDATES[c])
 

@@ -142,7 +142,7 @@ class Timing:
     workload: tuple[int, int, int]
     candidate: int
     seconds: float | None
-    why: str = ""
+    why: str = ""  # "skipped: ..." or "failed: ..." where seconds is None
 
 
 @dataclass(frozen=True)
@@ -160,17 +160,17 @@ class TuningResult:
         return dict(self.candidates[self.best])
 
 
-def _data(N: int, n: int, D: int, rng) -> tuple:
+def _data(N: int, n: int, D: int, units: int, rng) -> tuple:
     X = rng.normal(size=(N, D)).astype(np.float32)
-    W = rng.normal(size=(UNITS, D)).astype(np.float32)
+    W = rng.normal(size=(units, D)).astype(np.float32)
     index = np.array([rng.permutation(D) for _ in range(n)], np.int64)
     sign = rng.choice(np.array([-1.0, 1.0], np.float32), size=(n, D))
     index[0], sign[0] = np.arange(D), 1.0  # the identity first, as every variation table has it
     return X, W, index, sign
 
 
-def tune(context, workloads=None, candidates=None, repeat: int = 2, quick: bool = False,
-         report: Callable[[str], None] | None = None) -> TuningResult:
+def tune(context, workloads=None, candidates=None, repeat: int = 2, quick: bool = False, units: int = UNITS,
+         report: Callable[[Timing], None] | None = None) -> TuningResult:
     """Time the candidates on a context's device (as the module says).
 
     Parameters
@@ -184,12 +184,15 @@ def tune(context, workloads=None, candidates=None, repeat: int = 2, quick: bool 
         Timed passes after the warm-up; the best counts.
     quick : bool
         N divided by :data:`QUICK_DIVISOR` (at least 64).
+    units : int
+        Units of the map searched (default the paper's).
     report : callable, optional
-        Receives one line per timing.
+        Receives each :class:`Timing` as it is measured (``meshsom tune`` and ``bench/gpu.py
+        --autotune`` print them their way).
     """
     from meshsom.bmu_opencl import bmu_opencl, device_name, gemm_local_bytes, layout_params
 
-    say = report or (lambda line: None)
+    say = report or (lambda timing: None)
     candidates = CANDIDATES if candidates is None else candidates
     device = context.devices[0]
     base = replace(layout_params(device, LAYOUT, tuned=False), name=LAYOUT)
@@ -198,28 +201,26 @@ def tune(context, workloads=None, candidates=None, repeat: int = 2, quick: bool 
     for N, n, D in workloads or WORKLOADS:
         if quick:
             N = max(64, N // QUICK_DIVISOR)
-        X, W, index, sign = _data(N, n, D, rng)
+        X, W, index, sign = _data(N, n, D, units, rng)
         for c, extra in enumerate(candidates):
             p = replace(base, **extra)
-            label = f"{N:>9} {f'{n}x{D}':>7} {candidate_name(extra):>36}"
             local = gemm_local_bytes(p, np.float32, D)
             if local > device.local_mem_size:
-                timings.append(Timing((N, n, D), c, None, f"{local} bytes of local memory, the device has {device.local_mem_size}"))
-                say(f"{label} skipped: {timings[-1].why}")
-                continue
-            try:
-                bmu_opencl(X, W, index, sign, context=context, params=p)  # warm-up: build, probe, copies
-                best = np.inf
-                for _ in range(repeat):
-                    t0 = time.perf_counter()
-                    bmu_opencl(X, W, index, sign, context=context, params=p)
-                    best = min(best, time.perf_counter() - t0)
-            except Exception as err:  # noqa: BLE001 - a candidate the device cannot run is reported, not fatal
-                timings.append(Timing((N, n, D), c, None, str(err).splitlines()[0][:160]))
-                say(f"{label} failed: {timings[-1].why}")
-                continue
-            timings.append(Timing((N, n, D), c, best))
-            say(f"{label} {best:9.4f} s  {2.0 * N * n * UNITS * D / best / 1e9:9.1f} GFLOP/s")
+                timing = Timing((N, n, D), c, None,
+                                f"skipped: {local} bytes of local memory, the device has {device.local_mem_size}")
+            else:
+                try:
+                    bmu_opencl(X, W, index, sign, context=context, params=p)  # warm-up: build, probe, copies
+                    best = np.inf
+                    for _ in range(repeat):
+                        t0 = time.perf_counter()
+                        bmu_opencl(X, W, index, sign, context=context, params=p)
+                        best = min(best, time.perf_counter() - t0)
+                    timing = Timing((N, n, D), c, best)
+                except Exception as err:  # noqa: BLE001 - a candidate the device cannot run is reported, not fatal
+                    timing = Timing((N, n, D), c, None, f"failed: {str(err).splitlines()[0][:160]}")
+            timings.append(timing)
+            say(timing)
     ratios = _ratios(timings, len(candidates))
     best = min(ratios, key=lambda c: (ratios[c], c)) if ratios else 0
     if best != 0 and ratios[best] > MIN_RATIO:

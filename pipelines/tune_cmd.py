@@ -47,7 +47,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name}: {'tuning deleted' if tuning.forget(context) else 'was not tuned'}")
         return 0
     print(f"tuning the '{tuning.LAYOUT}' layout on {name}: {len(tuning.CANDIDATES)} candidates, seconds per pass")
-    result = tuning.tune(context, workloads=workloads, repeat=args.repeat, quick=args.quick, report=print)
+    def line(t: tuning.Timing) -> None:
+        N, n, D = t.workload
+        head = f"{N:>9} {f'{n}x{D}':>7} {tuning.candidate_name(tuning.CANDIDATES[t.candidate]):>36}"
+        print(f"{head} {t.why}" if t.seconds is None else
+              f"{head} {t.seconds:9.4f} s  {2.0 * N * n * tuning.UNITS * D / t.seconds / 1e9:9.1f} GFLOP/s")
+
+    result = tuning.tune(context, workloads=workloads, repeat=args.repeat, quick=args.quick, report=line)
     if not result.ratios:
         raise MeshsomError(f"{name}: the default tiling did not run on any workload; nothing to compare "
                            "(see the lines above)")
