@@ -121,7 +121,7 @@ def read_subtree(data: bytes, where: str, buffer_file: Callable[[str], bytes]) -
     if not isinstance(subtree, dict):
         raise InputFileError(where, f"is a subtree whose JSON is a {type(subtree).__name__}, expected an object")
     buffers = []
-    for k, buffer in enumerate(subtree.get("buffers", []) or []):
+    for buffer in subtree.get("buffers", []) or []:
         uri = buffer.get("uri") if isinstance(buffer, dict) else None
         buffers.append(binary if uri is None else buffer_file(uri))
     views = []

@@ -43,6 +43,16 @@ def _binary_subtree(doc: dict, binary: bytes) -> bytes:
     return b"subt" + struct.pack("<IQQ", 1, len(text), len(binary)) + text + binary
 
 
+def _tileset(folder, scheme, subtree_levels, available_levels, content, subtrees, refine="REPLACE"):
+    """``folder/tileset.json``: one implicit root tile of the scheme, its templates, in a local frame."""
+    (folder / "tileset.json").write_text(json.dumps({
+        "asset": {"version": "1.1"}, "geometricError": 100,
+        "root": {"boundingVolume": {"box": [0, 0, 0, 500, 0, 0, 0, 500, 0, 0, 0, 50]}, "geometricError": 50,
+                 "refine": refine, "content": {"uri": content},
+                 "implicitTiling": {"subdivisionScheme": scheme, "subtreeLevels": subtree_levels,
+                                    "availableLevels": available_levels, "subtrees": {"uri": subtrees}}}}))
+
+
 #: Available tiles (level, x, y) and which hold content; level 0 and (1, 0, 0) are coarse (children below).
 TILES = {(0, 0, 0), (1, 0, 0), (1, 1, 1), (2, 0, 0), (2, 1, 0)}
 LEAVES = {(1, 1, 1), (2, 0, 0), (2, 1, 0)}
@@ -77,12 +87,7 @@ def write_implicit(folder, buildings, refine="REPLACE"):
     (folder / "subtrees" / "2.1.0.subtree").write_bytes(_binary_subtree({
         "tileAvailability": {"constant": 1}, "contentAvailability": [{"constant": 1}],
         "childSubtreeAvailability": {"constant": 0}}, b""))
-    (folder / "tileset.json").write_text(json.dumps({
-        "asset": {"version": "1.1"}, "geometricError": 100,
-        "root": {"boundingVolume": {"box": [0, 0, 0, 500, 0, 0, 0, 500, 0, 0, 0, 50]}, "geometricError": 50,
-                 "refine": refine, "content": {"uri": "content/{level}-{x}-{y}.glb"},
-                 "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 2, "availableLevels": 3,
-                                    "subtrees": {"uri": "subtrees/{level}.{x}.{y}.subtree"}}}}))
+    _tileset(folder, "QUADTREE", 2, 3, "content/{level}-{x}-{y}.glb", "subtrees/{level}.{x}.{y}.subtree", refine)
     return order
 
 
@@ -145,12 +150,7 @@ def test_morton_order_and_octree(tmp_path):
         (tmp_path / f"1{x}{y}{z}.subtree").write_bytes(_binary_subtree({
             "tileAvailability": {"constant": 1}, "contentAvailability": [{"constant": 1}],
             "childSubtreeAvailability": {"constant": 0}}, b""))
-    (tmp_path / "tileset.json").write_text(json.dumps({
-        "asset": {"version": "1.1"}, "geometricError": 10,
-        "root": {"boundingVolume": {"box": [0, 0, 0, 9, 0, 0, 0, 9, 0, 0, 0, 9]}, "geometricError": 5,
-                 "content": {"uri": "c/{level}_{x}_{y}_{z}.glb"},
-                 "implicitTiling": {"subdivisionScheme": "OCTREE", "subtreeLevels": 1, "availableLevels": 2,
-                                    "subtrees": {"uri": "{level}{x}{y}{z}.subtree"}}}}))
+    _tileset(tmp_path, "OCTREE", 1, 2, "c/{level}_{x}_{y}_{z}.glb", "{level}{x}{y}{z}.subtree")
     got = sorted(m.id.split("#")[1] for m in read_file(tmp_path / "tileset.json"))
     assert got == ["c/1_0_1_1.glb", "c/1_1_0_1.glb"]
 
@@ -158,11 +158,6 @@ def test_morton_order_and_octree(tmp_path):
 def test_subtrees_too_large_to_hold_are_refused(tmp_path):
     """subtreeLevels 20 (a quadtree subtree of 3.7e11 tiles, its bitstreams 46 GB): refused from the
     tileset's numbers, before any subtree is read."""
-    (tmp_path / "tileset.json").write_text(json.dumps({
-        "asset": {"version": "1.1"}, "geometricError": 1,
-        "root": {"boundingVolume": {"box": [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1]}, "geometricError": 1,
-                 "content": {"uri": "{level}/{x}/{y}.glb"},
-                 "implicitTiling": {"subdivisionScheme": "QUADTREE", "subtreeLevels": 20, "availableLevels": 20,
-                                    "subtrees": {"uri": "{level}.{x}.{y}.subtree"}}}}))
+    _tileset(tmp_path, "QUADTREE", 20, 20, "{level}/{x}/{y}.glb", "{level}.{x}.{y}.subtree")
     (item,) = list(read_file(tmp_path / "tileset.json"))
     assert isinstance(item, Rejection) and "MAX_SUBTREE_TILES" in item.reason
