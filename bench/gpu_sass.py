@@ -238,9 +238,11 @@ def find_tool(name: str, given: str | None = None) -> str:
 
 
 def kernel_text() -> str:
-    """The "gemm" program without the epoch kernels: kernels/bmu_common.cl and kernels/bmu_gpu.cl."""
-    kernels = ROOT / "meshsom" / "kernels"
-    return OPENCL_BUILTINS + (kernels / "bmu_common.cl").read_text() + (kernels / "bmu_gpu.cl").read_text()
+    """The "gemm" program as meshsom.bmu_opencl builds it, after :data:`OPENCL_BUILTINS` (its epoch
+    kernels compiled out: EPOCH_SUMS 0)."""
+    from meshsom.bmu_opencl import kernel_source
+
+    return OPENCL_BUILTINS + kernel_source("gemm")
 
 
 def gemm_defines(n: int, D: int, fields: dict) -> dict:
@@ -259,7 +261,7 @@ def compile_ptx(clang: str, defines: dict, folder: Path, name: str, ptx_target: 
     source = folder / f"{name}.cl"
     source.write_text(kernel_text())
     ptx = folder / f"{name}.ptx"
-    options = [f"-D{k}={v}" for k, v in {**defines, "UNROLL_EPILOGUE": 1, "EXACT": "double", **(extra or {})}.items()]
+    options = [f"-D{k}={v}" for k, v in {**defines, "UNROLL_EPILOGUE": 1, "EXACT": "double", "EPOCH_SUMS": 0, **(extra or {})}.items()]
     cmd = [clang, "-x", "cl", "-cl-std=CL1.2", "-target", "nvptx64-nvidia-nvcl", "-Xclang", "-finclude-default-header",
            "-Xclang", "-target-cpu", "-Xclang", ptx_target, "-O3", "-cl-mad-enable", "-S", "-o", str(ptx), str(source),
            *options]
