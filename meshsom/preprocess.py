@@ -62,7 +62,7 @@ from meshsom.errors import MeshError
 from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_2d
 from meshsom.topology import edge_table, half_edges, signed_volume
 
-__all__ = ["PreprocessParams", "Result", "preprocess", "validate", "weld"]
+__all__ = ["PreprocessParams", "Result", "check_input", "preprocess", "validate", "weld"]
 
 #: Largest bounding-box diagonal taken: squared face areas (diagonal^4) and volumes (diagonal^3
 #: summed over faces) stay far from float64 overflow (1.8e308).
@@ -133,6 +133,18 @@ class PreprocessParams:
         mesh is still open after that, an open edge is split at an open-boundary vertex within this
         distance of it (a T-junction whose vertex the rounding moved off the edge by more than
         ``tjunction_tol``), and the closing runs again. 0 disables both.
+    roof_envelope : bool
+        A mesh that cannot be closed otherwise (nor united from its parts) is rebuilt as the solid
+        under its roofs, down to its lowest vertex (:mod:`meshsom.envelope`: LoD2 roof models
+        whose walls stop at the terrain, whose parts' walls overlap, whose roofs do not quite
+        meet), and the manifest says so and why (default True). False: such a mesh is rejected.
+    wall_tilt_deg : float
+        For ``roof_envelope``: faces within this many degrees of vertical are walls, not roofs
+        (default 5).
+    envelope_tol : float
+        For ``roof_envelope``, in metres (absolute): roof vertices closer than this in plan are
+        snapped together, a roof vertex this close to another roof's edge splits it, and shells
+        thinner than this on average are dropped as slivers (default 0.002, as ``zip_tol``).
     """
 
     weld_tol: float = 1e-8
@@ -151,6 +163,9 @@ class PreprocessParams:
     max_fold_v: float = 100.0
     max_collapse_length: float = 0.5
     zip_tol: float = 0.002
+    roof_envelope: bool = True
+    wall_tilt_deg: float = 5.0
+    envelope_tol: float = 0.002
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -163,7 +178,9 @@ class PreprocessParams:
             raise ValueError(f"min_edge_length must be a finite number >= 0 (metres); received {self.min_edge_length!r}")
         if not (isinstance(self.fold_repair_tol, (int, float)) and 0 <= self.fold_repair_tol < math.inf):
             raise ValueError(f"fold_repair_tol must be a finite number >= 0 (metres); received {self.fold_repair_tol!r}")
-        for name in ("max_fold_v", "max_collapse_length", "zip_tol"):
+        if not (isinstance(self.wall_tilt_deg, (int, float)) and 0 <= self.wall_tilt_deg < 90):
+            raise ValueError(f"wall_tilt_deg must be in [0, 90) degrees; received {self.wall_tilt_deg!r}")
+        for name in ("max_fold_v", "max_collapse_length", "zip_tol", "envelope_tol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 <= value < math.inf):
                 raise ValueError(f"{name} must be a finite number >= 0 (0 disables it); received {value!r}")
@@ -230,7 +247,7 @@ def preprocess(
         With a reason that says what is wrong (``problem``), when the mesh cannot be made valid.
     """
     params = params or PreprocessParams()
-    vertices, faces = _check_input(vertices, faces, source)
+    vertices, faces = check_input(vertices, faces, source)
     faces_in = len(faces)
     repairs: list[str] = []
     try:
@@ -348,7 +365,15 @@ def weld(vertices: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------------------------
 
 
-def _check_input(vertices, faces, source):
+def check_input(vertices, faces, source: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
+    """``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64, checked: shapes, at least one face,
+    finite coordinates, a diagonal below :data:`MAX_DIAGONAL`, indices in range.
+
+    Raises
+    ------
+    MeshError
+        Naming ``source`` and what is wrong.
+    """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
@@ -1055,9 +1080,12 @@ def _remove_flat_overlaps(v, f, params, diag, repairs):
     s = neighbour[t, i]
     exact = np.einsum("ij,ij->i", normal[t], normal[s]) <= -0.999999  # coplanar, opposite
     remove = np.zeros(len(f), bool)
+    done = np.zeros(len(f), bool)  # faces of planes measured already (a flat floor of many faces: once)
     for a in np.unique(t[exact]):
-        if not remove[a]:
-            remove |= _opposite_overlap(v, f, normal, a, params.planar_dist * diag)[0]
+        if not done[a]:
+            inside, coplanar = _opposite_overlap(v, f, normal, a, params.planar_dist * diag)
+            remove |= inside
+            done |= coplanar
     if remove.any():
         repairs.append(
             f"removed {int(remove.sum())} faces of zero-thickness fins or faces folded flat onto each other "

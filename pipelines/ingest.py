@@ -129,12 +129,16 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     surface (:func:`meshsom.union.union_parts`) and each shell of the union preprocessed; the
     record's ``union`` says what the union did (parts, shells before and after, area removed) or
     why it failed, in which case the parts' triangles are preprocessed together as they are (faces
-    shared by two parts go as internal walls). The reader's ``notes`` are recorded, and a mesh
-    rejected as open says so when the reader dropped polygons of it.
+    shared by two parts go as internal walls). A mesh that still cannot be closed is rebuilt as the
+    solid under its roofs (:func:`meshsom.envelope.solid_under_roofs`, unless the preprocess
+    parameters' ``roof_envelope`` is off); the record's ``envelope`` says so, from what, and
+    ``because`` of what. The reader's ``notes`` are recorded, and a mesh rejected as open says so
+    when the reader dropped polygons of it.
     """
     from meshsom.io import Rejection
     from meshsom.preprocess import preprocess
     from meshsom.store import CleanMesh
+    from meshsom.envelope import solid_under_roofs
     from meshsom.union import preprocess_shells, union_parts
 
     if isinstance(raw, Rejection):
@@ -169,13 +173,39 @@ def process_one(raw, params) -> tuple[dict, object | None]:
             reason = f"{reason}; {'; '.join(dropped)}"
         if record.get("union", {}).get("status") == "failed":
             reason = f"{reason}; the union of its parts failed too ({record['union']['reason']})"
-        record.update(status="rejected", reason=reason, faces_out=0, repairs=[])
-        return record, None
+        if params.roof_envelope and _readable(raw):
+            try:
+                envelope = solid_under_roofs(raw.vertices, raw.faces, params, raw.id)
+                result = preprocess_shells(envelope.shells, params, source=raw.id)
+            except MeshError as again:
+                reason = f"{reason}; rebuilding it as the solid under its roofs failed too ({again.problem})"
+            else:
+                record["envelope"] = {**envelope.record(), "because": reason}
+                union_repairs = [f"{envelope.describe()}, because it could not be closed as it is ({reason})"]
+        if result is None:
+            record.update(status="rejected", reason=reason, faces_out=0, repairs=[])
+            return record, None
     record.update(
         status="accepted", reason="", faces_out=int(len(result.faces)), repairs=union_repairs + list(result.repairs),
         volume=float(result.volume_out),
     )
     return record, CleanMesh(raw.id, result.vertices, result.faces, raw.origin, raw.label)
+
+
+def rebuilt_under_roofs(records: Iterable[dict]) -> int:
+    """How many accepted records were rebuilt as the solid under their roofs (their ``envelope``)."""
+    return sum(1 for r in records if r.get("status") == "accepted" and "envelope" in r)
+
+
+def _readable(raw) -> bool:
+    """Whether a mesh's arrays pass :func:`meshsom.preprocess.check_input` (else its rejection says why)."""
+    from meshsom.preprocess import check_input
+
+    try:
+        check_input(raw.vertices, raw.faces, raw.id)
+    except MeshError:
+        return False
+    return True
 
 
 def check_unique_id(seen: dict, mesh_id: str, source: str) -> None:
@@ -401,6 +431,10 @@ def run(args: argparse.Namespace) -> int:
             from meshsom.standardize import describe_fold_statistics
 
             print(f"  {describe_fold_statistics(s['folds'])}")
+        rebuilt = rebuilt_under_roofs(result.records)
+        if rebuilt:
+            print(f"  {rebuilt} rebuilt as the solid under their roofs, not closed as they are (each record's "
+                  f"envelope says why; preprocess.roof_envelope: false rejects them instead)")
         noted = note_kinds(result.records)
         if noted:
             print("  read with notes (each record's own in its notes):")

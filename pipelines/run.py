@@ -180,6 +180,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             group = open_store(store, mode="r+")
             manifest = read_manifest(store)
             _print_rejection_kinds(manifest["records"])
+            _print_rebuilt(manifest["records"])
             _print_note_kinds(manifest["records"])
             fingerprint = dataset_fingerprint(manifest)
             ids = read_tracking(group) if resume else {}
@@ -309,6 +310,15 @@ def _print_rejection_kinds(records) -> None:
     _print_kinds([(kind, n) for kind, n, _ in kinds], "")
     if len(kinds) > RUN_KINDS_SHOWN:
         print(f"        ({len(kinds) - RUN_KINDS_SHOWN} more kinds: meshsom inspect)")
+
+
+def _print_rebuilt(records) -> None:
+    """How many meshes were rebuilt under their roofs (:func:`pipelines.ingest.rebuilt_under_roofs`)."""
+    from pipelines.ingest import rebuilt_under_roofs
+
+    n = rebuilt_under_roofs(records)
+    if n:
+        print(f"        {n:5,d} x rebuilt as the solid under its roofs (record: envelope)")
 
 
 def _print_note_kinds(records) -> None:

@@ -601,9 +601,9 @@ def test_ingest_groups_rejections_by_kind_with_what_to_try(tmp_path, capsys):
     """`meshsom ingest` of a city's worth of rejections lists their kinds, counted, with a hint;
     the whole reasons stay in the manifest."""
     objects, vertices = {}, []
-    for k in range(3):  # boxes missing two triangles of adjacent sides: a bent hole, not guessed at
-        v, f = box(2.0 + k, 3.0, 4.0)
-        keep = f[[0, 1, 2, 3, 4, 5, 7, 8, 10, 11]]
+    for k in range(3):  # boxes missing half their roof and a wall triangle beside it: a bent hole,
+        v, f = box(2.0 + k, 3.0, 4.0)  # not guessed at (nor rebuilt under the half roof)
+        keep = f[[0, 1, 2, 4, 5, 6, 7, 8, 10, 11]]
         base = len(vertices)
         vertices += (np.round(v * 1000).astype(int) + [10000 * k, 0, 0]).tolist()
         objects[f"open{k}"] = {"type": "Building", "geometry": [{"type": "MultiSurface", "lod": "2",

@@ -1,0 +1,391 @@
+"""A building as the solid under its roofs (2.5D): the last resort for city models that cannot be closed.
+
+LoD2 city models are roof models: their roofs are measured (aerial images, lidar), their walls hang
+from the roofs' outlines down to the terrain. Many are surfaces, not solids (CityJSON/CityGML
+``MultiSurface``): walls that stop at the sloping terrain, no ground surface, parts whose walls
+overlap with edges that do not meet, roofs of two parts a millimetre apart. Where such a mesh
+cannot be closed as it is (:func:`meshsom.preprocess.preprocess`, :mod:`meshsom.union`), the shape
+it stands for still is: everything under the roofs, down to the ground. That is what is built here.
+
+1. Roofs: every face not within ``wall_tilt_deg`` of vertical (roof, dormer, a ground or overhang
+   surface, whichever way it faces). Walls are not used; they are the roofs' outlines.
+2. Coordinates rounded to a file's grid leave roofs that should meet a millimetre apart in plan.
+   Within ``envelope_tol`` (metres, in plan): vertices are snapped onto one another, and a roof
+   triangle with another roof's vertex beside one of its edges is split there (a T-junction in
+   plan), so that the prisms below share their side faces exactly.
+3. Every roof triangle is extruded down to the building's lowest vertex, a prism; manifold3d
+   unites the prisms (exact predicates; nothing here computes intersections). The union is the
+   set under the upper envelope of the roofs: overlapping roofs keep the higher, dormers stand on
+   the roof, parts become one solid.
+4. Shells of the union thinner than ``envelope_tol`` on average (slivers between roofs that did
+   not quite meet) are dropped; the rest go to :func:`meshsom.union.preprocess_shells`.
+
+What is lost: whatever is not 2.5D (passages, arcades, overhangs become walls down to the floor)
+and the terrain under the walls (the floor is flat, at the lowest vertex). The manifest records
+that a mesh was rebuilt, why, and from how many roof and wall faces.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshsom.errors import MeshError
+
+__all__ = ["EnvelopeResult", "solid_under_roofs", "roof_faces"]
+
+#: The 8 triangles of a prism over vertices 0-2 (top, counter-clockwise seen from above) and 3-5
+#: (their feet), facing outwards.
+PRISM_TRIANGLES = np.array(
+    [[0, 1, 2], [3, 5, 4], [0, 3, 1], [1, 3, 4], [1, 4, 2], [2, 4, 5], [2, 5, 0], [0, 5, 3]], np.uint64
+)
+#: Farthest a wall face's centroid may stand outside every roof in plan, in metres: walls stand under
+#: their roofs (every wall of the bundled real data within 1 cm); walls farther out (a part with no
+#: roof, a free-standing wall) would be lost by the rebuild, which is then refused.
+WALL_REACH = 0.05
+#: Most rounds of T-junction splitting (each splits every roof triangle at most once).
+MAX_SPLIT_ROUNDS = 32
+#: Most roof triangles the splitting may make, as a multiple of the roof triangles it starts from.
+MAX_SPLIT_GROWTH = 8
+
+
+@dataclass
+class EnvelopeResult:
+    """The solid under a mesh's roofs.
+
+    Attributes
+    ----------
+    shells : list of ((V_i, 3) float64, (F_i, 3) int64)
+        Closed, outward-oriented components, in the caller's coordinates.
+    roof_faces, wall_faces : int
+        Input faces used as roofs, and faces within ``wall_tilt_deg`` of vertical (not used).
+    splits : int
+        Roof triangles split where another roof's vertex lies beside an edge (in plan).
+    base : float
+        z of the floor (the lowest input vertex), in the caller's coordinates.
+    volume : float
+        Volume of the kept shells.
+    slivers : int
+        Shells dropped as thinner than ``envelope_tol``.
+    undersides : int
+        Roof faces (of those above the floor) facing down under another: floors above the lowest
+        vertex, soffits of overhangs; the column under them is left empty.
+    """
+
+    shells: list = field(repr=False)
+    roof_faces: int
+    wall_faces: int
+    splits: int
+    base: float
+    volume: float
+    slivers: int = 0
+    undersides: int = 0
+
+    def record(self) -> dict:
+        """The manifest record's ``envelope`` entry (JSON-able), without its ``because``."""
+        return {
+            "status": "rebuilt", "roof_faces": self.roof_faces, "wall_faces": self.wall_faces,
+            "splits": self.splits, "undersides": self.undersides, "shells": len(self.shells), "slivers": self.slivers,
+            "volume": self.volume,
+        }
+
+    def describe(self) -> str:
+        """One line for the manifest record's repairs."""
+        extra = f", {self.splits} roof triangles split where roofs meet in plan" if self.splits else ""
+        slivers = f", {self.slivers} sliver shell(s) dropped" if self.slivers else ""
+        if self.undersides:
+            extra += f", nothing under its {self.undersides} undersides (floors, overhangs)"
+        return (
+            f"rebuilt as the solid under its {self.roof_faces} roof faces (2.5D, down to its lowest vertex; "
+            f"{self.wall_faces} wall faces not used{extra}{slivers}): {len(self.shells)} shell(s), "
+            f"volume {self.volume:.6g}"
+        )
+
+
+def roof_faces(vertices: np.ndarray, faces: np.ndarray, wall_tilt_deg: float) -> np.ndarray:
+    """Which faces are roofs: not within ``wall_tilt_deg`` of vertical, and of non-zero area.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    wall_tilt_deg : float
+
+    Returns
+    -------
+    (F,) bool
+    """
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    n = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(n, axis=1)
+    nz = np.abs(n[:, 2]) / np.where(area2 > 0, area2, 1.0)
+    return (area2 > 0) & (nz > math.sin(math.radians(wall_tilt_deg)))
+
+
+def _snap_plan(vertices: np.ndarray, tol: float) -> np.ndarray:
+    """``vertices`` with those within ``tol`` of each other in plan moved onto one (the lowest index
+    of each group of such neighbours) in x and y; z is kept."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices[:, :2]).query_pairs(tol, output_type="ndarray")
+    if not len(pairs):
+        return vertices
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    first = np.full(label.max() + 1, n, np.int64)
+    np.minimum.at(first, label, np.arange(n))
+    out = vertices.copy()
+    out[:, :2] = vertices[first[label], :2]
+    return out
+
+
+def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Roof triangles split where a roof vertex lies within ``tol`` of an edge's inside, in plan.
+
+    The split point takes the vertex's x and y exactly and the edge's height there, so that the
+    prisms under the two roofs share the vertical side above that stretch of the edge. Each round
+    splits every triangle at most once, at the T-point nearest the start of its first such edge.
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+        Roof triangles (corner coordinates).
+    tol : float
+    label : (R,) int64
+        A label of each triangle, that its pieces keep.
+
+    Returns
+    -------
+    tri : (R', 3, 3) float64
+    label : (R',) int64
+    splits : int
+        Triangles split.
+    """
+    from scipy.spatial import cKDTree
+
+    limit = MAX_SPLIT_GROWTH * len(tri) + 64
+    splits = 0
+    for _ in range(MAX_SPLIT_ROUNDS):
+        points = np.unique(tri[:, :, :2].reshape(-1, 2), axis=0)
+        start, end = tri, tri[:, [1, 2, 0]]
+        # each edge in one direction whichever triangle it belongs to, so that both triangles of a
+        # shared edge compute the same split point bit for bit
+        swap = (start[..., 0] > end[..., 0]) | ((start[..., 0] == end[..., 0]) & (start[..., 1] > end[..., 1]))
+        lo = np.where(swap[..., None], end, start).reshape(-1, 3)
+        hi = np.where(swap[..., None], start, end).reshape(-1, 3)
+        d = hi[:, :2] - lo[:, :2]
+        length = np.linalg.norm(d, axis=1)
+        near = cKDTree(points).query_ball_point((lo[:, :2] + hi[:, :2]) / 2, length / 2 + tol)
+        counts = np.fromiter((len(c) for c in near), np.int64, len(near))
+        edge = np.repeat(np.arange(len(lo)), counts)
+        point = np.fromiter((i for c in near for i in c), np.int64, int(counts.sum()))
+        rel = points[point] - lo[edge, :2]
+        safe = np.where(length > 0, length, 1.0)[edge]
+        t = np.einsum("ij,ij->i", rel, d[edge]) / safe**2
+        off = np.abs(rel[:, 0] * d[edge, 1] - rel[:, 1] * d[edge, 0]) / safe
+        ok = (length[edge] > 0) & (off <= tol) & (t * length[edge] > tol) & ((1 - t) * length[edge] > tol)
+        if not ok.any():
+            break
+        edge, point, t = edge[ok], point[ok], t[ok]
+        # per triangle: its first edge with a T-point, and on it the T-point nearest the edge's lo end
+        order = np.lexsort((t, edge))
+        edge, point, t = edge[order], point[order], t[order]
+        row = edge // 3
+        first = np.concatenate([[True], row[1:] != row[:-1]])
+        edge, point, t, row = edge[first], point[first], t[first], row[first]
+        k = edge % 3
+        p = np.empty((len(row), 3))
+        p[:, :2] = points[point]
+        p[:, 2] = lo[edge, 2] + t * (hi[edge, 2] - lo[edge, 2])
+        a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
+        keep = np.ones(len(tri), bool)
+        keep[row] = False
+        tri = np.concatenate([tri[keep], np.stack([a, p, c], axis=1), np.stack([p, b, c], axis=1)])
+        label = np.concatenate([label[keep], label[row], label[row]])
+        splits += len(row)
+        if len(tri) > limit:
+            raise ValueError(f"splitting roofs at T-junctions made more than {limit} triangles")
+    return tri, label, splits
+
+
+def _prisms(tri: np.ndarray, base: float) -> tuple[np.ndarray, np.ndarray]:
+    """The prisms under roof triangles, down to ``base``.
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+    base : float
+
+    Returns
+    -------
+    vertices : (R, 6, 3) float64
+        Each prism's corners: the triangle counter-clockwise seen from above, then its feet.
+    """
+    x, y = tri[..., 0], tri[..., 1]
+    ccw = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (y[:, 1] - y[:, 0]) * (x[:, 2] - x[:, 0])
+    top = np.where((ccw < 0)[:, None, None], tri[:, ::-1], tri)
+    feet = top.copy()
+    feet[..., 2] = base
+    return np.concatenate([top, feet], axis=1), ccw != 0
+
+
+#: Most point-triangle pairs :func:`_covered_above` tests at once (memory: about 100 bytes each).
+COVER_CHUNK = 1 << 20
+
+
+def _covered_above(points: np.ndarray, tri: np.ndarray, margin: float) -> np.ndarray:
+    """Whether a triangle lies above each point: covers it in plan, higher there than its z + ``margin``.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    tri : (T, 3, 3) float64
+    margin : float
+
+    Returns
+    -------
+    (P,) bool
+    """
+    out = np.zeros(len(points), bool)
+    if not len(points) or not len(tri):
+        return out
+    a = tri[:, 0]
+    e1, e2 = tri[:, 1] - a, tri[:, 2] - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    usable = np.abs(det) > 0
+    a, e1, e2, det = a[usable], e1[usable], e2[usable], det[usable]
+    step = max(1, COVER_CHUNK // max(len(a), 1))
+    for lo in range(0, len(points), step):
+        p = points[lo:lo + step, None, :] - a[None]
+        s = (p[..., 0] * e2[:, 1] - p[..., 1] * e2[:, 0]) / det
+        t = (e1[:, 0] * p[..., 1] - e1[:, 1] * p[..., 0]) / det
+        inside = (s >= -1e-9) & (t >= -1e-9) & (s + t <= 1 + 1e-9)
+        height = s * e1[:, 2] + t * e2[:, 2]  # relative to the point's z (p holds point - a)
+        out[lo:lo + step] = (inside & (height > p[..., 2] + margin)).any(axis=1)
+    return out
+
+
+def _check_walls_under_roofs(walls: np.ndarray, roofs: np.ndarray, source: str) -> None:
+    """Refuse walls (W, 3, 3) whose centroids stand more than :data:`WALL_REACH` outside the roofs
+    (R, 3, 3) in plan: the solid under the roofs would lose them."""
+    import shapely
+
+    if not len(walls):
+        return
+    plan = shapely.union_all(shapely.polygons(roofs[:, :, :2]))
+    centroid = walls.mean(axis=1)[:, :2]
+    outside = shapely.distance(plan, shapely.points(centroid)) > WALL_REACH
+    if outside.any():
+        raise MeshError(
+            source, f"{int(outside.sum())} of its {len(walls)} wall faces stand more than {WALL_REACH:g} m outside "
+                    f"every roof in plan (walls without a roof would be lost under the roofs)")
+
+
+def _union_of_prisms(manifold3d, tri: np.ndarray, base: float):
+    """manifold3d's union of the prisms under triangles ``tri`` (R, 3, 3) down to ``base``, or None."""
+    corners, ok = _prisms(tri, base)
+    solids = []
+    for prism in corners[ok]:
+        solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(prism), tri_verts=PRISM_TRIANGLES))
+        if solid.status() == manifold3d.Error.NoError and not solid.is_empty():
+            solids.append(solid)
+    return manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add) if solids else None
+
+
+def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh") -> EnvelopeResult:
+    """The solid under the roofs of a building, down to its lowest vertex (module docstring).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+        In metres, z up.
+    faces : (F, 3) int64
+    params : PreprocessParams, optional
+        ``wall_tilt_deg`` and ``envelope_tol``.
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    EnvelopeResult
+
+    Raises
+    ------
+    MeshError
+        When the mesh has no roof above its lowest vertex, or manifold3d's union fails.
+    """
+    from meshsom.preprocess import PreprocessParams, check_input
+    from meshsom.union import _area_volume, _manifold3d
+
+    manifold3d = _manifold3d()
+    params = params or PreprocessParams()
+    vertices, faces = check_input(vertices, faces, source)
+    # a local origin: the boolean sees coordinates of the building's own size
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    local = vertices - centre
+    tol = params.envelope_tol
+    used = np.unique(faces)
+    snapped = local.copy()
+    if tol > 0:
+        snapped[used] = _snap_plan(local[used], tol)
+    roofs = roof_faces(snapped, faces, params.wall_tilt_deg)
+    base = float(local[used, 2].min())
+    tri = snapped[faces[roofs]]
+    tri = tri[tri[..., 2].max(axis=1) - base > tol]  # not a ground surface on the floor
+    if not len(tri):
+        raise MeshError(
+            source, f"no roof to rebuild it under: of its {len(faces)} faces, {int((~roofs).sum())} are walls "
+                    f"(within {params.wall_tilt_deg:g} degrees of vertical) and none of the rest is above its lowest vertex")
+    _check_walls_under_roofs(snapped[faces[~roofs]], tri, source)
+    # Undersides: faces facing down with a face above them (a sloping or raised floor, the soffit
+    # of an overhang); the column under them is not filled, except under faces at or below them
+    # (a lower roof under an overhang, the roof of a part that another part stands on).
+    normal_z = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]
+    centroid = tri.mean(axis=1)
+    under = np.zeros(len(tri), bool)
+    down = np.flatnonzero(normal_z < 0)
+    under[down] = _covered_above(centroid[down], tri, tol)
+    below = ~under
+    below[below] = _covered_above(centroid[below], tri[under], -tol)
+    label = under.astype(np.int64) + 2 * below
+    splits = 0
+    if tol > 0:
+        try:
+            tri, label, splits = _split_t_junctions_in_plan(tri, tol, label)
+        except ValueError as err:
+            raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
+    united = _union_of_prisms(manifold3d, tri, base)
+    if united is None:
+        raise MeshError(source, "no roof to rebuild it under: every roof triangle is vertical in plan")
+    if (label == 1).any():
+        hollow = _union_of_prisms(manifold3d, tri[label == 1], base - 1.0)  # below the floor: no coplanar bottoms
+        if hollow is not None:
+            united = united - hollow
+        if (label == 2).any():
+            refill = _union_of_prisms(manifold3d, tri[label == 2], base)
+            if refill is not None:
+                united = united + refill
+    if united.status() != manifold3d.Error.NoError or united.is_empty():
+        raise MeshError(source, f"the union of the prisms under its {len(tri)} roof triangles failed ({united.status().name})")
+    shells, slivers, volume = [], 0, 0.0
+    for piece in united.decompose():
+        mesh = piece.to_mesh64()
+        v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+        f = np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
+        area, vol = _area_volume(v, f)
+        if not 2 * vol > tol * area:  # thinner than the tolerance on average: a sliver between roofs
+            slivers += 1
+            continue
+        volume += vol
+        shells.append((v + centre, f))
+    if not shells:
+        raise MeshError(source, f"the solid under its roofs is thinner than {tol:g} m everywhere")
+    return EnvelopeResult(
+        shells=shells, roof_faces=int(roofs.sum()), wall_faces=int((~roofs).sum()), splits=splits,
+        base=base + float(centre[2]), volume=volume, slivers=slivers, undersides=int(under.sum()),
+    )

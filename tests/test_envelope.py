@@ -1,0 +1,177 @@
+"""Roof models that cannot be closed are rebuilt as the solid under their roofs (meshsom.envelope).
+
+Volumes are checked against the hand-computed volumes of tests/roof_models.py, and on real data
+against the closed meshes preprocessing makes of the same buildings (LoD1 blocks) and against a
+plain grid integration of the highest roof over each point (Zürich LoD2).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cityjson_samples import write
+from meshsom.envelope import roof_faces, solid_under_roofs
+from meshsom.errors import MeshError
+from meshsom.io import RawMesh, ReaderOptions, read_file
+from meshsom.preprocess import PreprocessParams, preprocess, validate
+from meshsom.topology import signed_volume
+from meshsom.union import preprocess_shells
+from pipelines.ingest import process_one
+from roof_models import MODELS
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "real"
+ZURICH_LOD2 = DATA / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"
+ZURICH_LOD1 = DATA / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"
+
+
+def _raw(tmp_path, document) -> RawMesh:
+    (raw,) = [m for m in read_file(write(tmp_path / "model.city.json", document), ReaderOptions()) if isinstance(m, RawMesh)]
+    return raw
+
+
+def _grid_envelope_volume(v, f, step, wall_tilt_deg=5.0):
+    """Volume under the highest non-wall face over every cell of a grid, down to the lowest vertex:
+    midpoint rule, one triangle at a time (no code shared with meshsom.envelope)."""
+    a, b, c = (v[f[:, k]] for k in range(3))
+    n = np.cross(b - a, c - a)
+    keep = np.abs(n[:, 2]) > np.sin(np.radians(wall_tilt_deg)) * np.linalg.norm(n, axis=1)
+    base = v[np.unique(f), 2].min()
+    lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+    x, y = np.meshgrid(np.arange(lo[0] + step / 2, hi[0], step), np.arange(lo[1] + step / 2, hi[1], step))
+    px, py = x.ravel(), y.ravel()
+    top = np.full(len(px), -np.inf)
+    for (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) in v[f[keep]]:
+        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        s = ((px - x0) * (y2 - y0) - (py - y0) * (x2 - x0)) / det
+        r = ((x1 - x0) * (py - y0) - (y1 - y0) * (px - x0)) / det
+        inside = (s >= 0) & (r >= 0) & (s + r <= 1)
+        top = np.where(inside, np.maximum(top, z0 + s * (z1 - z0) + r * (z2 - z0)), top)
+    return float(np.where(np.isfinite(top), top - base, 0.0).sum() * step * step)
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_roof_models_are_rejected_as_they_are_and_rebuilt_to_their_volume(tmp_path, name):
+    document, volume = MODELS[name]()
+    raw = _raw(tmp_path, document)
+    # as published, the model is not a closed volume (so it is a case for the fallback)
+    off, _ = process_one(raw, PreprocessParams(roof_envelope=False))
+    assert off["status"] == "rejected" and "envelope" not in off
+    assert "rebuilding it" not in off["reason"]
+    record, clean = process_one(raw, PreprocessParams())
+    assert record["status"] == "accepted", record["reason"]
+    assert record["envelope"]["because"] == off["reason"]
+    assert record["repairs"][0].startswith("rebuilt as the solid under its")
+    assert validate(clean.vertices, clean.faces) is None
+    assert signed_volume(clean.vertices, clean.faces) == pytest.approx(volume, rel=1e-6, abs=1e-6)
+    assert record["volume"] == pytest.approx(volume, rel=1e-6, abs=1e-6)
+    # the floor at the lowest vertex, the top at the highest roof
+    z_raw = raw.vertices[:, 2] + raw.origin[2]
+    z_out = clean.vertices[:, 2] + clean.origin[2]
+    assert z_out.min() == pytest.approx(z_raw.min(), abs=1e-9)
+    assert z_out.max() == pytest.approx(z_raw.max(), abs=1e-9)
+
+
+def test_the_underside_of_an_overhang_stays_open_below():
+    """The soffit's column is empty: a point under the overhang is outside, one under the slab inside."""
+    import manifold3d
+
+    from roof_models import overhang_with_soffit
+
+    document, _ = overhang_with_soffit()
+    raw = next(m for m in read_file(_write_tmp(document), ReaderOptions()) if isinstance(m, RawMesh))
+    result = solid_under_roofs(raw.vertices, raw.faces, PreprocessParams(), "overhang")
+    assert result.undersides > 0
+    ((v, f),) = result.shells
+    solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(v), tri_verts=f.astype(np.uint64)))
+    offset = np.array(document["transform"]["translate"]) - raw.origin  # model metres -> the mesh's coordinates
+
+    def inside(x, y, z):  # a tiny cube at the point, intersected with the solid
+        probe = manifold3d.Manifold.cube([0.01, 0.01, 0.01], True).translate(list(np.array([x, y, z]) + offset))
+        return (solid ^ probe).volume() > 0
+
+    assert inside(5.0, 4.0, 2.0)  # in the block
+    assert not inside(-0.5, 4.0, 2.0)  # under the overhang
+    assert inside(-0.5, 4.0, 5.15)  # in the overhanging slab
+
+
+def _write_tmp(document):
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp())
+    return write(folder / "model.city.json", document)
+
+
+def test_switched_off_the_reason_stays_the_original():
+    from roof_models import gable_on_terrain
+
+    document, _ = gable_on_terrain()
+    raw = next(m for m in read_file(_write_tmp(document), ReaderOptions()) if isinstance(m, RawMesh))
+    record, clean = process_one(raw, PreprocessParams(roof_envelope=False))
+    assert clean is None and record["reason"].startswith("open boundary")
+
+
+def test_walls_only_is_refused_naming_why():
+    # four walls of a box, no roof, no floor; their tops and bottoms not planar (no cap closes them)
+    v = np.array([[0, 0, 0], [4, 0, 0.5], [4, 3, 0], [0, 3, 0], [0, 0, 5], [4, 0, 5], [4, 3, 6], [0, 3, 5]], float)
+    f = np.array([[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    with pytest.raises(MeshError, match="no roof to rebuild it under: of its 8 faces, 8 are walls"):
+        solid_under_roofs(v, f, PreprocessParams(), "walls.obj")
+    # the pipeline says both reasons
+    from meshsom.io import RawMesh as Raw
+
+    record, _ = process_one(Raw("walls", "walls.obj", v, f, np.zeros(3)), PreprocessParams())
+    assert record["status"] == "rejected"
+    assert "open boundary" in record["reason"] and "rebuilding it as the solid under its roofs failed too (no roof" in record["reason"]
+
+
+def test_roof_faces_by_tilt():
+    # a wall tilted 3 degrees from vertical is a wall at 5, a roof at 2
+    t = np.radians(3)
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, np.sin(t) * 10, np.cos(t) * 10]])
+    f = np.array([[0, 1, 2]])
+    assert not roof_faces(v, f, 5.0)[0]
+    assert roof_faces(v, f, 2.0)[0]
+
+
+def test_params_checked():
+    with pytest.raises(ValueError, match="wall_tilt_deg must be in"):
+        PreprocessParams(wall_tilt_deg=90)
+    with pytest.raises(ValueError, match="envelope_tol must be a finite number"):
+        PreprocessParams(envelope_tol=-1)
+
+
+def test_closed_blocks_rebuild_to_their_own_volume():
+    """On buildings that are closed 2.5D solids already (the Zürich LoD1 blocks), the solid under the
+    roofs is the building: the same volume as its preprocessed mesh."""
+    params = PreprocessParams()
+    n = 0
+    for raw in read_file(ZURICH_LOD1, ReaderOptions()):
+        expected = preprocess(raw.vertices, raw.faces, params, raw.id)
+        result = solid_under_roofs(raw.vertices, raw.faces, params, raw.id)
+        rebuilt = preprocess_shells(result.shells, params, raw.id)
+        assert rebuilt.volume_out == pytest.approx(expected.volume_out, rel=1e-9), raw.id
+        assert result.undersides == 0 and result.slivers == 0
+        n += 1
+    assert n == 49
+
+
+def test_zurich_lod2_roof_models_are_kept_with_the_volume_under_their_roofs():
+    """Zürich's LoD2 roof models: 19 of 49 close as they are; the rest are rebuilt, and the volume of
+    each matches a grid integration of its highest roof to 0.5 %."""
+    params = PreprocessParams()
+    records = []
+    for raw in read_file(ZURICH_LOD2, ReaderOptions()):
+        record, clean = process_one(raw, params)
+        records.append(record)
+        if "envelope" in record and clean is not None:
+            grid = _grid_envelope_volume(raw.vertices, raw.faces, 0.25)
+            assert record["volume"] == pytest.approx(grid, rel=5e-3), raw.id
+    accepted = [r for r in records if r["status"] == "accepted"]
+    rebuilt = [r for r in accepted if "envelope" in r]
+    assert len(records) == 49
+    assert len(accepted) - len(rebuilt) == 19  # closed as they are (or as their parts' union)
+    assert len(accepted) >= 47, [r["reason"][:200] for r in records if r["status"] == "rejected"]
+    for r in records:
+        if r["status"] == "rejected":
+            assert "rebuilding it as the solid under its roofs failed too" in r["reason"]
