@@ -50,7 +50,7 @@ def describe_store(path) -> dict:
     except StoreError:
         manifest = {"summary": {}, "records": []}
     rejected = [r for r in manifest.get("records", []) if r.get("status") == "rejected"]
-    from pipelines.ingest import note_kinds, rejection_kinds
+    from pipelines.ingest import note_kinds, rebuilt_under_roofs, rejection_kinds
 
     reasons = rejection_kinds(rejected)
     out = {
@@ -60,6 +60,7 @@ def describe_store(path) -> dict:
             "reasons": [[kind, n] for kind, n, _ in reasons],
             "first_rejections": [[r.get("id"), r.get("reason")] for r in rejected[:REASONS_SHOWN]],
             "notes": [[kind, n] for kind, n in note_kinds(manifest.get("records", []))],
+            "rebuilt_under_roofs": rebuilt_under_roofs(manifest.get("records", [])),
         },
         "arrays": _arrays(group),
         "runs": [],
@@ -140,6 +141,8 @@ def render(info: dict, width: int = 80) -> str:
     for mesh, reason in info["manifest"]["first_rejections"][:1]:
         out.append(textwrap.fill(f"first rejected: {mesh}: {reason}", width, initial_indent="  ",
                                  subsequent_indent="    "))
+    if info["manifest"].get("rebuilt_under_roofs"):
+        out.append(f"  {info['manifest']['rebuilt_under_roofs']:5d} x accepted, rebuilt as the solid under its roofs")
     for note, n in info["manifest"].get("notes", [])[:REASONS_SHOWN]:
         text = f"read: {note}"
         out.append(f"  {n:5d} x {text if len(text) <= REASON_CHARS else text[: REASON_CHARS - 1] + '~'}")

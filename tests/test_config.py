@@ -1,7 +1,12 @@
+from pathlib import Path
+
 import pytest
 
 from meshsom.config import ExperimentConfig, flatten, load_config, to_dict
 from meshsom.errors import ConfigError
+
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def _write(tmp_path, text):
@@ -136,3 +141,14 @@ def test_resolve_paths_against_the_config_folder(tmp_path):
     assert cfg.tracking.uri == f"sqlite:///{folder / 'db' / 'm.db'}"
     s3 = resolve_paths(load_run_config(p, sets=["store.path=s3://bucket/x.zarr"]), p.parent)
     assert s3.store.path == "s3://bucket/x.zarr"
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in CONFIGS.glob("*.yaml")))
+def test_every_shipped_config_loads_and_finds_its_inputs(name):
+    from pipelines.settings import load_config as load_run_config, resolve_paths
+
+    path = CONFIGS / name
+    cfg = resolve_paths(load_run_config(path), path.parent)
+    assert all(Path(p).exists() for p in cfg.corpus.paths), cfg.corpus.paths
+    if name == "zurich-lod2.yaml":
+        assert cfg.preprocess.roof_envelope and cfg.preprocess.wall_tilt_deg == 5.0

@@ -175,3 +175,28 @@ def test_zurich_lod2_roof_models_are_kept_with_the_volume_under_their_roofs():
     for r in records:
         if r["status"] == "rejected":
             assert "rebuilding it as the solid under its roofs failed too" in r["reason"]
+
+
+def test_ingest_and_inspect_count_the_rebuilt(tmp_path, capsys):
+    """`meshsom ingest` of the five roof models says they were rebuilt, `meshsom inspect` too, and the
+    manifest records why."""
+    import json
+
+    from meshsom.store import read_manifest
+    from pipelines.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for name, make in MODELS.items():
+        write(folder / f"{name}.city.json", make()[0])
+    store = tmp_path / "s.zarr"
+    assert main(["ingest", str(folder), "--out", str(store)]) == 0
+    out = capsys.readouterr().out
+    assert "5 meshes: 5 accepted, 0 rejected" in out
+    assert "5 rebuilt as the solid under their roofs" in out
+    records = read_manifest(store)["records"]
+    assert all(r["envelope"]["because"] and r["envelope"]["roof_faces"] > 0 for r in records)
+    assert main(["inspect", str(store)]) == 0
+    assert "5 x accepted, rebuilt as the solid under its roofs" in capsys.readouterr().out
+    assert main(["inspect", str(store), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["manifest"]["rebuilt_under_roofs"] == 5
