@@ -10,7 +10,8 @@ bottom is open and not planar, and no planar cap closes it. On top of that:
 - :func:`parts_with_offset_wall` two BuildingParts whose walls overlap a millimetre apart;
 - :func:`dormer_through_roof` a dormer whose walls pass through the roof (no shared edges);
 - :func:`overhang_with_soffit` a roof slab overhanging the walls, its underside modelled;
-- :func:`ridge_a_millimetre_apart` two roof halves whose ridges were rounded apart.
+- :func:`ridge_a_millimetre_apart` two roof halves whose ridges were rounded apart;
+- :func:`courtyard_block` a flat roof with a courtyard (a polygon with a hole), walls inside and out.
 """
 
 from __future__ import annotations
@@ -158,6 +159,20 @@ def overhang_with_soffit() -> tuple[dict, float]:
     return model.document(), 80 * (5.0 - base) + 12 * 10 * 0.3
 
 
+def courtyard_block() -> tuple[dict, float]:
+    """A perimeter block [0, 20] x [0, 16] around a courtyard [5, 15] x [4, 12], flat roof at 7 m
+    (one polygon with a hole), walls outside and around the courtyard down to the terrain."""
+    model = _Model()
+    model.add("block")
+    outer = [(0.0, 0.0), (20.0, 0.0), (20.0, 16.0), (0.0, 16.0)]
+    inner = [(5.0, 4.0), (15.0, 4.0), (15.0, 12.0), (5.0, 12.0)]
+    _walls_to_terrain(model, "block", outer, [7.0] * 4)
+    _walls_to_terrain(model, "block", inner[::-1], [7.0] * 4)  # facing into the courtyard
+    model.polygon("block", [[(x, y, 7.0) for x, y in outer], [(x, y, 7.0) for x, y in inner[::-1]]])
+    base = _base(*outer)
+    return model.document(), (20 * 16 - 10 * 8) * (7.0 - base)
+
+
 #: Every model, by name.
 MODELS = {
     "gable_on_terrain": gable_on_terrain,
@@ -165,4 +180,5 @@ MODELS = {
     "dormer_through_roof": dormer_through_roof,
     "parts_with_offset_wall": parts_with_offset_wall,
     "overhang_with_soffit": overhang_with_soffit,
+    "courtyard_block": courtyard_block,
 }
