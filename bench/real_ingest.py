@@ -4,7 +4,8 @@
 
 For every data set (each CityJSON file of ``data/real``) and every setting (default options,
 ``--extrude-lod1``, ``--parts separate``) it runs ``meshsom ingest`` in-process and prints: meshes in,
-accepted, rejected (with the reasons, counted), the accepted meshes made of several closed shells,
+accepted (and of those, rebuilt under their roofs), rejected (with the reasons, counted), the accepted
+meshes made of several closed shells,
 and the total outer area and volume of the accepted meshes (from the stored triangles). Run it on two
 versions of the code (PYTHONPATH pointing to each) and compare the JSON files to see what a change did.
 """
@@ -49,6 +50,7 @@ def measure(store: Path) -> dict:
     )
     out = {"inputs": len(records), "accepted": sum(r["status"] == "accepted" for r in records),
            "rejected": sum(r["status"] == "rejected" for r in records), "reasons": dict(reasons.most_common()),
+           "rebuilt": sum(r["status"] == "accepted" and "envelope" in r for r in records),
            "multi_shell": 0, "area": 0.0, "volume": 0.0, "per_mesh": {}}
     if out["accepted"] == 0:
         return out
@@ -84,8 +86,8 @@ def main(argv=None) -> int:
             cli(["ingest", str(f), "--out", str(store), "--overwrite", *flags])
             r = measure(store)
             results[f"{f.name} {setting}"] = r
-            print(f"{f.name:42s} {setting:15s} in {r['inputs']:4d} accepted {r['accepted']:4d} rejected "
-                  f"{r['rejected']:3d} multi-shell {r['multi_shell']:3d} area {r['area']:12.1f} m2 "
+            print(f"{f.name:42s} {setting:15s} in {r['inputs']:4d} accepted {r['accepted']:4d} (rebuilt under "
+                  f"roofs {r['rebuilt']:3d}) rejected {r['rejected']:3d} multi-shell {r['multi_shell']:3d} area {r['area']:12.1f} m2 "
                   f"volume {r['volume']:12.1f} m3")
             for reason, n in r["reasons"].items():
                 print(f"    {n:4d} x {reason}")

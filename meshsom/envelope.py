@@ -17,8 +17,16 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    unites the prisms (exact predicates; nothing here computes intersections). The union is the
    set under the upper envelope of the roofs: overlapping roofs keep the higher, dormers stand on
    the roof, parts become one solid.
-4. Shells of the union thinner than ``envelope_tol`` on average (slivers between roofs that did
-   not quite meet) are dropped; the rest go to :func:`meshsom.union.preprocess_shells`.
+4. Undersides: a face facing down with another face above it (a raised or sloping floor, the
+   soffit of an overhang) has the column under it taken away again, and the prisms under faces at
+   or below an underside (a lower roof under an overhang, the roof of a part another stands on)
+   put back.
+5. Shells of the union thinner than ``envelope_tol`` on average (slivers between roofs that did
+   not quite meet) are dropped; the caller preprocesses the rest
+   (:func:`meshsom.union.preprocess_shells`).
+
+Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex, and walls standing
+more than :data:`WALL_REACH` outside every roof in plan (a part with no roof would be lost).
 
 What is lost: whatever is not 2.5D (passages, arcades, overhangs become walls down to the floor)
 and the terrain under the walls (the floor is flat, at the lowest vertex). The manifest records
@@ -45,6 +53,9 @@ PRISM_TRIANGLES = np.array(
 #: their roofs (every wall of the bundled real data within 1 cm); walls farther out (a part with no
 #: roof, a free-standing wall) would be lost by the rebuild, which is then refused.
 WALL_REACH = 0.05
+#: How far below the floor the columns under undersides reach, in metres: any depth, so that their
+#: bottoms are not coplanar with the floor's.
+HOLLOW_DEPTH = 1.0
 #: Most rounds of T-junction splitting (each splits every roof triangle at most once).
 MAX_SPLIT_ROUNDS = 32
 #: Most roof triangles the splitting may make, as a multiple of the roof triangles it starts from.
@@ -317,7 +328,8 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     Raises
     ------
     MeshError
-        When the mesh has no roof above its lowest vertex, or manifold3d's union fails.
+        When the input is not a mesh (:func:`meshsom.preprocess.check_input`), has no roof above its
+        lowest vertex, has walls outside its roofs, or manifold3d's union fails.
     """
     from meshsom.preprocess import PreprocessParams, check_input
     from meshsom.union import _area_volume, _manifold3d
@@ -363,7 +375,7 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     if united is None:
         raise MeshError(source, "no roof to rebuild it under: every roof triangle is vertical in plan")
     if (label == 1).any():
-        hollow = _union_of_prisms(manifold3d, tri[label == 1], base - 1.0)  # below the floor: no coplanar bottoms
+        hollow = _union_of_prisms(manifold3d, tri[label == 1], base - HOLLOW_DEPTH)
         if hollow is not None:
             united = united - hollow
         if (label == 2).any():
