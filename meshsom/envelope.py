@@ -12,7 +12,9 @@ it stands for still is: everything under the roofs, down to the ground. That is 
 2. Coordinates rounded to a file's grid leave roofs that should meet a millimetre apart in plan.
    Within ``envelope_tol`` (metres, in plan): vertices are snapped onto one another, and a roof
    triangle with another roof's vertex beside one of its edges is split there (a T-junction in
-   plan), so that the prisms below share their side faces exactly.
+   plan), so that the prisms below share their side faces exactly. Two roofs on either side of an
+   edge whose heights cross along it are split at the crossing (manifold3d's union leaves a flap,
+   two faces folded onto each other, where the wall between them crosses itself).
 3. Every roof triangle is extruded down to the building's lowest vertex, a prism; manifold3d
    unites the prisms (exact predicates; nothing here computes intersections). The union is the
    set under the upper envelope of the roofs: overlapping roofs keep the higher, dormers stand on
@@ -73,7 +75,8 @@ class EnvelopeResult:
     roof_faces, wall_faces : int
         Input faces used as roofs, and faces within ``wall_tilt_deg`` of vertical (not used).
     splits : int
-        Roof triangles split where another roof's vertex lies beside an edge (in plan).
+        Roof triangles split where another roof's vertex lies beside an edge (in plan), or where the
+        heights of two roofs on either side of an edge cross along it.
     base : float
         z of the floor (the lowest input vertex), in the caller's coordinates.
     volume : float
@@ -104,7 +107,7 @@ class EnvelopeResult:
 
     def describe(self) -> str:
         """One line for the manifest record's repairs."""
-        extra = f", {self.splits} roof triangles split where roofs meet in plan" if self.splits else ""
+        extra = f", {self.splits} roof triangles split where roofs meet or cross in plan" if self.splits else ""
         slivers = f", {self.slivers} sliver shell(s) dropped" if self.slivers else ""
         if self.undersides:
             extra += f", nothing under its {self.undersides} undersides (floors, overhangs)"
@@ -221,6 +224,77 @@ def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -
         splits += len(row)
         if len(tri) > limit:
             raise ValueError(f"splitting roofs at T-junctions made more than {limit} triangles")
+    return tri, label, splits
+
+
+def _split_crossings_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Roof triangles split where two of them share an edge in plan and their heights cross along it.
+
+    Two roofs on either side of one edge in plan, one higher at its start and the other at its end,
+    meet at a wall whose top crosses itself; manifold3d's union of their prisms leaves a flap there
+    (two faces folded onto each other). Both are split at the crossing, one point for both (the
+    first triangle's height there), so that the wall is two triangles meeting at a shared vertex.
+    Each round splits every triangle at most once; crossings within ``tol`` of an end are left.
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+    tol : float
+    label : (R,) int64
+
+    Returns
+    -------
+    tri : (R', 3, 3) float64
+    label : (R',) int64
+    splits : int
+        Triangles split.
+    """
+    limit = MAX_SPLIT_GROWTH * len(tri) + 64
+    splits = 0
+    for _ in range(MAX_SPLIT_ROUNDS):
+        start, end = tri, tri[:, [1, 2, 0]]
+        swap = (start[..., 0] > end[..., 0]) | ((start[..., 0] == end[..., 0]) & (start[..., 1] > end[..., 1]))
+        lo = np.where(swap[..., None], end, start).reshape(-1, 3)
+        hi = np.where(swap[..., None], start, end).reshape(-1, 3)
+        _, group = np.unique(np.concatenate([lo[:, :2], hi[:, :2]], axis=1), axis=0, return_inverse=True)
+        group = group.reshape(-1)
+        order = np.argsort(group, kind="stable")
+        g = group[order]
+        # every pair of edges on one plan edge (pairs of neighbours in the sorted order, then further)
+        pairs = []
+        for gap in range(1, 4):
+            same = g[gap:] == g[:-gap]
+            pairs.append(np.stack([order[:-gap][same], order[gap:][same]], axis=1))
+        pairs = np.concatenate(pairs)
+        if not len(pairs):
+            break
+        i, j = pairs[:, 0], pairs[:, 1]
+        s = lo[i, 2] - lo[j, 2]
+        e = hi[i, 2] - hi[j, 2]
+        t = s / np.where(s != e, s - e, 1.0)
+        length = np.linalg.norm(hi[i, :2] - lo[i, :2], axis=1)
+        crossing = (s * e < 0) & (t * length > tol) & ((1 - t) * length > tol) & (i // 3 != j // 3)
+        if not crossing.any():
+            break
+        i, j, t = i[crossing], j[crossing], t[crossing]
+        point = lo[i] + t[:, None] * (hi[i] - lo[i])
+        # each triangle cut once per round, on its first crossing edge
+        edge = np.concatenate([i, j])
+        point = np.concatenate([point, point])
+        o = np.lexsort((edge % 3, edge // 3))
+        edge, point = edge[o], point[o]
+        row = edge // 3
+        first = np.concatenate([[True], row[1:] != row[:-1]])
+        edge, point, row = edge[first], point[first], row[first]
+        k = edge % 3
+        a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
+        keep = np.ones(len(tri), bool)
+        keep[row] = False
+        tri = np.concatenate([tri[keep], np.stack([a, point, c], axis=1), np.stack([point, b, c], axis=1)])
+        label = np.concatenate([label[keep], label[row], label[row]])
+        splits += len(row)
+        if len(tri) > limit:
+            raise ValueError(f"splitting roofs where their heights cross made more than {limit} triangles")
     return tri, label, splits
 
 
@@ -366,11 +440,12 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     below[below] = _covered_above(centroid[below], tri[under], -tol)
     label = under.astype(np.int64) + 2 * below
     splits = 0
-    if tol > 0:
-        try:
+    try:
+        if tol > 0:
             tri, label, splits = _split_t_junctions_in_plan(tri, tol, label)
-        except ValueError as err:
-            raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
+        tri, label, crossings = _split_crossings_in_plan(tri, tol, label)
+    except ValueError as err:
+        raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
     united = _union_of_prisms(manifold3d, tri, base)
     if united is None:
         raise MeshError(source, "no roof to rebuild it under: every roof triangle is vertical in plan")
@@ -398,6 +473,6 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     if not shells:
         raise MeshError(source, f"the solid under its roofs is thinner than {tol:g} m everywhere")
     return EnvelopeResult(
-        shells=shells, roof_faces=int(roofs.sum()), wall_faces=int((~roofs).sum()), splits=splits,
+        shells=shells, roof_faces=int(roofs.sum()), wall_faces=int((~roofs).sum()), splits=splits + crossings,
         base=base + float(centre[2]), volume=volume, slivers=slivers, undersides=int(under.sum()),
     )

@@ -11,7 +11,9 @@ bottom is open and not planar, and no planar cap closes it. On top of that:
 - :func:`dormer_through_roof` a dormer whose walls pass through the roof (no shared edges);
 - :func:`overhang_with_soffit` a roof slab overhanging the walls, its underside modelled;
 - :func:`ridge_a_millimetre_apart` two roof halves whose ridges were rounded apart;
-- :func:`courtyard_block` a flat roof with a courtyard (a polygon with a hole), walls inside and out.
+- :func:`courtyard_block` a flat roof with a courtyard (a polygon with a hole), walls inside and out;
+- :func:`crossing_shed_roofs` two shed roofs on either side of one edge, one rising and one falling
+  along it, so that their heights cross halfway.
 """
 
 from __future__ import annotations
@@ -173,6 +175,37 @@ def courtyard_block() -> tuple[dict, float]:
     return model.document(), (20 * 16 - 10 * 8) * (7.0 - base)
 
 
+def crossing_shed_roofs() -> tuple[dict, float]:
+    """Two shed roofs over [0, L] x [0, W/2] (rising east, 6 to 9 m) and [0, L] x [W/2, W] (falling
+    east, 9 to 6 m) sharing their edge along y = W / 2, where they cross at x = L / 2; the wall
+    between them is the two triangles of the step."""
+    model = _Model()
+    model.add("house")
+    h = W / 2
+
+    def south(x):
+        return EAVE + (RIDGE - EAVE) * x / L
+
+    def north(x):
+        return RIDGE - (RIDGE - EAVE) * x / L
+
+    ring = [(0.0, 0.0), (L, 0.0), (L, W), (0.0, W)]
+    tops = [
+        [(0.0, 0.0, south(0)), (L, 0.0, south(L))],
+        [(L, 0.0, south(L)), (L, h, south(L)), (L, h, north(L)), (L, W, north(L))],
+        [(L, W, north(L)), (0.0, W, north(0))],
+        [(0.0, W, north(0)), (0.0, h, north(0)), (0.0, h, south(0)), (0.0, 0.0, south(0))],
+    ]
+    _walls_to_terrain(model, "house", ring, tops)
+    model.polygon("house", [[(0.0, 0.0, south(0)), (L, 0.0, south(L)), (L, h, south(L)), (0.0, h, south(0))]])
+    model.polygon("house", [[(0.0, h, north(0)), (L, h, north(L)), (L, W, north(L)), (0.0, W, north(0))]])
+    mid = (L / 2, h, (south(0) + north(0)) / 2)
+    model.polygon("house", [[(0.0, h, south(0)), mid, (0.0, h, north(0))]])  # the step, west half
+    model.polygon("house", [[(L, h, north(L)), mid, (L, h, south(L))]])  # and east half
+    base = _base(*ring)
+    return model.document(), L * W * ((EAVE + RIDGE) / 2 - base)
+
+
 #: Every model, by name.
 MODELS = {
     "gable_on_terrain": gable_on_terrain,
@@ -181,4 +214,5 @@ MODELS = {
     "parts_with_offset_wall": parts_with_offset_wall,
     "overhang_with_soffit": overhang_with_soffit,
     "courtyard_block": courtyard_block,
+    "crossing_shed_roofs": crossing_shed_roofs,
 }

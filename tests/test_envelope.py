@@ -62,6 +62,8 @@ def test_roof_models_are_rejected_as_they_are_and_rebuilt_to_their_volume(tmp_pa
     assert record["status"] == "accepted", record["reason"]
     assert record["envelope"]["because"] == off["reason"]
     assert record["repairs"][0].startswith("rebuilt as the solid under its")
+    if name == "crossing_shed_roofs":  # split where the two roofs' heights cross along their edge
+        assert record["envelope"]["splits"] >= 2
     assert validate(clean.vertices, clean.faces) is None
     assert signed_volume(clean.vertices, clean.faces) == pytest.approx(volume, rel=1e-6, abs=1e-6)
     assert record["volume"] == pytest.approx(volume, rel=1e-6, abs=1e-6)
@@ -201,3 +203,32 @@ def test_ingest_and_inspect_count_the_rebuilt(tmp_path, capsys):
     assert f"{n} x accepted, rebuilt as the solid under its roofs" in capsys.readouterr().out
     assert main(["inspect", str(store), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["manifest"]["rebuilt_under_roofs"] == n
+
+
+def _plan_area(tri):
+    d1, d2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
+    return float(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]).sum())
+
+
+def test_roofs_whose_heights_cross_along_an_edge_are_split_at_the_crossing():
+    """Two triangles on either side of the plan edge (0,0)-(4,0): one rises from 1 to 5 along it, the
+    other falls from 3 to 2; they cross at x = 1.6 (height 2.6), and both are split there, at one
+    point."""
+    from meshsom.envelope import _split_crossings_in_plan
+
+    tri = np.array([[[0, 0, 1], [4, 0, 5], [2, 3, 4]], [[4, 0, 2], [0, 0, 3], [2, -3, 2.5]]], float)
+    out, label, splits = _split_crossings_in_plan(tri, 0.002, np.array([0, 1]))
+    assert splits == 2 and len(out) == 4
+    assert sorted(label.tolist()) == [0, 0, 1, 1]
+    crossing = np.array([1.6, 0, 2.6])
+    hits = [t for t in out if np.isclose(t, crossing).all(axis=1).any()]
+    assert len(hits) == 4  # every piece has the crossing as a corner
+    # the pieces cover each triangle's plan area, and stay in its plane
+    for k, t in enumerate(tri):
+        n = np.cross(t[1] - t[0], t[2] - t[0])
+        pieces = out[label == k]
+        assert _plan_area(pieces) == pytest.approx(_plan_area(t[None]))
+        assert np.allclose((pieces - t[0]) @ n, 0)
+    # no crossing: nothing split
+    same, _, none = _split_crossings_in_plan(tri[:1], 0.002, np.array([0]))
+    assert none == 0 and np.array_equal(same, tri[:1])
