@@ -158,6 +158,55 @@ def _snap_plan(vertices: np.ndarray, tol: float) -> np.ndarray:
     return out
 
 
+def _plan_edges(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every edge of every triangle, each from its lower to its higher end in plan (x, then y).
+
+    Both triangles of a shared edge get it the same way round, so that a point computed along it
+    is the same bit for bit.
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+
+    Returns
+    -------
+    lo, hi : (3 R, 3) float64
+        Edge ``3 r + k`` runs between corners ``k`` and ``k + 1`` of triangle ``r``.
+    """
+    start, end = tri, tri[:, [1, 2, 0]]
+    swap = (start[..., 0] > end[..., 0]) | ((start[..., 0] == end[..., 0]) & (start[..., 1] > end[..., 1]))
+    return np.where(swap[..., None], end, start).reshape(-1, 3), np.where(swap[..., None], start, end).reshape(-1, 3)
+
+
+def _split_once(tri: np.ndarray, label: np.ndarray, edge: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each triangle with a split point on an edge cut in two there, at its first such edge.
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+    label : (R,) int64
+    edge : (S,) int64
+        Edges (``3 r + k``, as :func:`_plan_edges`), sorted, with a split point each.
+    point : (S, 3) float64
+
+    Returns
+    -------
+    tri : (R', 3, 3) float64
+    label : (R',) int64
+    splits : int
+        Triangles cut.
+    """
+    row = edge // 3
+    first = np.concatenate([[True], row[1:] != row[:-1]])
+    edge, point, row = edge[first], point[first], row[first]
+    k = edge % 3
+    a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
+    keep = np.ones(len(tri), bool)
+    keep[row] = False
+    tri = np.concatenate([tri[keep], np.stack([a, point, c], axis=1), np.stack([point, b, c], axis=1)])
+    return tri, np.concatenate([label[keep], label[row], label[row]]), len(row)
+
+
 def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Roof triangles split where a roof vertex lies within ``tol`` of an edge's inside, in plan.
 
@@ -186,12 +235,7 @@ def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -
     splits = 0
     for _ in range(MAX_SPLIT_ROUNDS):
         points = np.unique(tri[:, :, :2].reshape(-1, 2), axis=0)
-        start, end = tri, tri[:, [1, 2, 0]]
-        # each edge in one direction whichever triangle it belongs to, so that both triangles of a
-        # shared edge compute the same split point bit for bit
-        swap = (start[..., 0] > end[..., 0]) | ((start[..., 0] == end[..., 0]) & (start[..., 1] > end[..., 1]))
-        lo = np.where(swap[..., None], end, start).reshape(-1, 3)
-        hi = np.where(swap[..., None], start, end).reshape(-1, 3)
+        lo, hi = _plan_edges(tri)
         d = hi[:, :2] - lo[:, :2]
         length = np.linalg.norm(d, axis=1)
         near = cKDTree(points).query_ball_point((lo[:, :2] + hi[:, :2]) / 2, length / 2 + tol)
@@ -209,19 +253,11 @@ def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -
         # per triangle: its first edge with a T-point, and on it the T-point nearest the edge's lo end
         order = np.lexsort((t, edge))
         edge, point, t = edge[order], point[order], t[order]
-        row = edge // 3
-        first = np.concatenate([[True], row[1:] != row[:-1]])
-        edge, point, t, row = edge[first], point[first], t[first], row[first]
-        k = edge % 3
-        p = np.empty((len(row), 3))
+        p = np.empty((len(edge), 3))
         p[:, :2] = points[point]
         p[:, 2] = lo[edge, 2] + t * (hi[edge, 2] - lo[edge, 2])
-        a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
-        keep = np.ones(len(tri), bool)
-        keep[row] = False
-        tri = np.concatenate([tri[keep], np.stack([a, p, c], axis=1), np.stack([p, b, c], axis=1)])
-        label = np.concatenate([label[keep], label[row], label[row]])
-        splits += len(row)
+        tri, label, n = _split_once(tri, label, edge, p)
+        splits += n
         if len(tri) > limit:
             raise ValueError(f"splitting roofs at T-junctions made more than {limit} triangles")
     return tri, label, splits
@@ -252,10 +288,7 @@ def _split_crossings_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> 
     limit = MAX_SPLIT_GROWTH * len(tri) + 64
     splits = 0
     for _ in range(MAX_SPLIT_ROUNDS):
-        start, end = tri, tri[:, [1, 2, 0]]
-        swap = (start[..., 0] > end[..., 0]) | ((start[..., 0] == end[..., 0]) & (start[..., 1] > end[..., 1]))
-        lo = np.where(swap[..., None], end, start).reshape(-1, 3)
-        hi = np.where(swap[..., None], start, end).reshape(-1, 3)
+        lo, hi = _plan_edges(tri)
         _, group = np.unique(np.concatenate([lo[:, :2], hi[:, :2]], axis=1), axis=0, return_inverse=True)
         group = group.reshape(-1)
         order = np.argsort(group, kind="stable")
@@ -281,18 +314,9 @@ def _split_crossings_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> 
         # each triangle cut once per round, on its first crossing edge
         edge = np.concatenate([i, j])
         point = np.concatenate([point, point])
-        o = np.lexsort((edge % 3, edge // 3))
-        edge, point = edge[o], point[o]
-        row = edge // 3
-        first = np.concatenate([[True], row[1:] != row[:-1]])
-        edge, point, row = edge[first], point[first], row[first]
-        k = edge % 3
-        a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
-        keep = np.ones(len(tri), bool)
-        keep[row] = False
-        tri = np.concatenate([tri[keep], np.stack([a, point, c], axis=1), np.stack([point, b, c], axis=1)])
-        label = np.concatenate([label[keep], label[row], label[row]])
-        splits += len(row)
+        o = np.argsort(edge, kind="stable")
+        tri, label, n = _split_once(tri, label, edge[o], point[o])
+        splits += n
         if len(tri) > limit:
             raise ValueError(f"splitting roofs where their heights cross made more than {limit} triangles")
     return tri, label, splits
