@@ -130,7 +130,7 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     record's ``union`` says what the union did (parts, shells before and after, area removed) or
     why it failed, in which case the parts' triangles are preprocessed together as they are (faces
     shared by two parts go as internal walls). A mesh that still cannot be closed is rebuilt as the
-    solid under its roofs (:func:`meshsom.envelope.solid_under_roofs`, unless the preprocess
+    solid under its roofs (:func:`meshsom.envelope.rebuild_under_roofs`, unless the preprocess
     parameters' ``roof_envelope`` is off); the record's ``envelope`` says so, from what, and
     ``because`` of what. The reader's ``notes`` are recorded, and a mesh rejected as open says so
     when the reader dropped polygons of it.
@@ -138,7 +138,7 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     from meshsom.io import Rejection
     from meshsom.preprocess import preprocess
     from meshsom.store import CleanMesh
-    from meshsom.envelope import solid_under_roofs
+    from meshsom.envelope import rebuild_under_roofs
     from meshsom.union import preprocess_shells, union_parts
 
     if isinstance(raw, Rejection):
@@ -175,8 +175,7 @@ def process_one(raw, params) -> tuple[dict, object | None]:
             reason = f"{reason}; the union of its parts failed too ({record['union']['reason']})"
         if params.roof_envelope and _readable(raw):
             try:
-                envelope = solid_under_roofs(raw.vertices, raw.faces, params, raw.id)
-                result = preprocess_shells(envelope.shells, params, source=raw.id)
+                envelope, result = rebuild_under_roofs(raw.vertices, raw.faces, params, raw.id)
             except MeshError as again:
                 reason = f"{reason}; rebuilding it as the solid under its roofs failed too ({again.problem})"
             else:
