@@ -207,20 +207,19 @@ def _split_once(tri: np.ndarray, label: np.ndarray, edge: np.ndarray, point: np.
     return tri, np.concatenate([label[keep], label[row], label[row]]), len(row)
 
 
-def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Roof triangles split where a roof vertex lies within ``tol`` of an edge's inside, in plan.
-
-    The split point takes the vertex's x and y exactly and the edge's height there, so that the
-    prisms under the two roofs share the vertical side above that stretch of the edge. Each round
-    splits every triangle at most once, at the T-point nearest the start of its first such edge.
+def _split_in_rounds(tri: np.ndarray, label: np.ndarray, cuts, what: str) -> tuple[np.ndarray, np.ndarray, int]:
+    """Triangles cut by :func:`_split_once` in rounds, until ``cuts`` finds no more.
 
     Parameters
     ----------
     tri : (R, 3, 3) float64
-        Roof triangles (corner coordinates).
-    tol : float
     label : (R,) int64
         A label of each triangle, that its pieces keep.
+    cuts : callable
+        ``cuts(tri)`` -> ``(edge, point)``: the edges to cut (``3 r + k``), sorted so that each
+        triangle's first is the one to cut, and the points, or None where there is none.
+    what : str
+        What the cuts are, for the error.
 
     Returns
     -------
@@ -228,98 +227,88 @@ def _split_t_junctions_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -
     label : (R',) int64
     splits : int
         Triangles split.
+
+    Raises
+    ------
+    ValueError
+        When the cutting makes more than :data:`MAX_SPLIT_GROWTH` times the triangles (plus 64).
+    """
+    limit = MAX_SPLIT_GROWTH * len(tri) + 64
+    splits = 0
+    for _ in range(MAX_SPLIT_ROUNDS):
+        found = cuts(tri)
+        if found is None:
+            break
+        tri, label, n = _split_once(tri, label, *found)
+        splits += n
+        if len(tri) > limit:
+            raise ValueError(f"splitting roofs {what} made more than {limit} triangles")
+    return tri, label, splits
+
+
+def _t_junction_cuts(tri: np.ndarray, tol: float):
+    """Where a roof vertex lies within ``tol`` of an edge's inside, in plan (for :func:`_split_in_rounds`).
+
+    The cut point takes the vertex's x and y exactly and the edge's height there, so that the
+    prisms under the two roofs share the vertical side above that stretch of the edge; a triangle
+    is cut at the T-point nearest the start of its first such edge.
     """
     from scipy.spatial import cKDTree
 
-    limit = MAX_SPLIT_GROWTH * len(tri) + 64
-    splits = 0
-    for _ in range(MAX_SPLIT_ROUNDS):
-        points = np.unique(tri[:, :, :2].reshape(-1, 2), axis=0)
-        lo, hi = _plan_edges(tri)
-        d = hi[:, :2] - lo[:, :2]
-        length = np.linalg.norm(d, axis=1)
-        near = cKDTree(points).query_ball_point((lo[:, :2] + hi[:, :2]) / 2, length / 2 + tol)
-        counts = np.fromiter((len(c) for c in near), np.int64, len(near))
-        edge = np.repeat(np.arange(len(lo)), counts)
-        point = np.fromiter((i for c in near for i in c), np.int64, int(counts.sum()))
-        rel = points[point] - lo[edge, :2]
-        safe = np.where(length > 0, length, 1.0)[edge]
-        t = np.einsum("ij,ij->i", rel, d[edge]) / safe**2
-        off = np.abs(rel[:, 0] * d[edge, 1] - rel[:, 1] * d[edge, 0]) / safe
-        ok = (length[edge] > 0) & (off <= tol) & (t * length[edge] > tol) & ((1 - t) * length[edge] > tol)
-        if not ok.any():
-            break
-        edge, point, t = edge[ok], point[ok], t[ok]
-        # per triangle: its first edge with a T-point, and on it the T-point nearest the edge's lo end
-        order = np.lexsort((t, edge))
-        edge, point, t = edge[order], point[order], t[order]
-        p = np.empty((len(edge), 3))
-        p[:, :2] = points[point]
-        p[:, 2] = lo[edge, 2] + t * (hi[edge, 2] - lo[edge, 2])
-        tri, label, n = _split_once(tri, label, edge, p)
-        splits += n
-        if len(tri) > limit:
-            raise ValueError(f"splitting roofs at T-junctions made more than {limit} triangles")
-    return tri, label, splits
+    points = np.unique(tri[:, :, :2].reshape(-1, 2), axis=0)
+    lo, hi = _plan_edges(tri)
+    d = hi[:, :2] - lo[:, :2]
+    length = np.linalg.norm(d, axis=1)
+    near = cKDTree(points).query_ball_point((lo[:, :2] + hi[:, :2]) / 2, length / 2 + tol)
+    counts = np.fromiter((len(c) for c in near), np.int64, len(near))
+    edge = np.repeat(np.arange(len(lo)), counts)
+    point = np.fromiter((i for c in near for i in c), np.int64, int(counts.sum()))
+    rel = points[point] - lo[edge, :2]
+    safe = np.where(length > 0, length, 1.0)[edge]
+    t = np.einsum("ij,ij->i", rel, d[edge]) / safe**2
+    off = np.abs(rel[:, 0] * d[edge, 1] - rel[:, 1] * d[edge, 0]) / safe
+    ok = (length[edge] > 0) & (off <= tol) & (t * length[edge] > tol) & ((1 - t) * length[edge] > tol)
+    if not ok.any():
+        return None
+    edge, point, t = edge[ok], point[ok], t[ok]
+    order = np.lexsort((t, edge))
+    edge, point, t = edge[order], point[order], t[order]
+    p = np.empty((len(edge), 3))
+    p[:, :2] = points[point]
+    p[:, 2] = lo[edge, 2] + t * (hi[edge, 2] - lo[edge, 2])
+    return edge, p
 
 
-def _split_crossings_in_plan(tri: np.ndarray, tol: float, label: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Roof triangles split where two of them share an edge in plan and their heights cross along it.
+def _crossing_cuts(tri: np.ndarray, tol: float):
+    """Where two roofs share an edge in plan and their heights cross along it (for :func:`_split_in_rounds`).
 
     Two roofs on either side of one edge in plan, one higher at its start and the other at its end,
     meet at a wall whose top crosses itself; manifold3d's union of their prisms leaves a flap there
-    (two faces folded onto each other). Both are split at the crossing, one point for both (the
-    first triangle's height there), so that the wall is two triangles meeting at a shared vertex.
-    Each round splits every triangle at most once; crossings within ``tol`` of an end are left.
-
-    Parameters
-    ----------
-    tri : (R, 3, 3) float64
-    tol : float
-    label : (R,) int64
-
-    Returns
-    -------
-    tri : (R', 3, 3) float64
-    label : (R',) int64
-    splits : int
-        Triangles split.
+    (two faces folded onto each other). Both are cut at the crossing, one point for both (the first
+    triangle's height there), so that the wall is two triangles meeting at a shared vertex.
+    Crossings within ``tol`` of an end are left.
     """
-    limit = MAX_SPLIT_GROWTH * len(tri) + 64
-    splits = 0
-    for _ in range(MAX_SPLIT_ROUNDS):
-        lo, hi = _plan_edges(tri)
-        _, group = np.unique(np.concatenate([lo[:, :2], hi[:, :2]], axis=1), axis=0, return_inverse=True)
-        group = group.reshape(-1)
-        order = np.argsort(group, kind="stable")
-        g = group[order]
-        # every pair of edges on one plan edge (pairs of neighbours in the sorted order, then further)
-        pairs = []
-        for gap in range(1, 4):
-            same = g[gap:] == g[:-gap]
-            pairs.append(np.stack([order[:-gap][same], order[gap:][same]], axis=1))
-        pairs = np.concatenate(pairs)
-        if not len(pairs):
-            break
-        i, j = pairs[:, 0], pairs[:, 1]
-        s = lo[i, 2] - lo[j, 2]
-        e = hi[i, 2] - hi[j, 2]
-        t = s / np.where(s != e, s - e, 1.0)
-        length = np.linalg.norm(hi[i, :2] - lo[i, :2], axis=1)
-        crossing = (s * e < 0) & (t * length > tol) & ((1 - t) * length > tol) & (i // 3 != j // 3)
-        if not crossing.any():
-            break
-        i, j, t = i[crossing], j[crossing], t[crossing]
-        point = lo[i] + t[:, None] * (hi[i] - lo[i])
-        # each triangle cut once per round, on its first crossing edge
-        edge = np.concatenate([i, j])
-        point = np.concatenate([point, point])
-        o = np.argsort(edge, kind="stable")
-        tri, label, n = _split_once(tri, label, edge[o], point[o])
-        splits += n
-        if len(tri) > limit:
-            raise ValueError(f"splitting roofs where their heights cross made more than {limit} triangles")
-    return tri, label, splits
+    lo, hi = _plan_edges(tri)
+    _, group = np.unique(np.concatenate([lo[:, :2], hi[:, :2]], axis=1), axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    order = np.argsort(group, kind="stable")
+    g = group[order]
+    # every pair of edges on one plan edge (pairs of neighbours in the sorted order, then further)
+    pairs = [np.stack([order[:-gap][g[gap:] == g[:-gap]], order[gap:][g[gap:] == g[:-gap]]], axis=1)
+             for gap in range(1, 4)]
+    i, j = np.concatenate(pairs).T
+    s = lo[i, 2] - lo[j, 2]
+    e = hi[i, 2] - hi[j, 2]
+    t = s / np.where(s != e, s - e, 1.0)
+    length = np.linalg.norm(hi[i, :2] - lo[i, :2], axis=1)
+    crossing = (s * e < 0) & (t * length > tol) & ((1 - t) * length > tol) & (i // 3 != j // 3)
+    if not crossing.any():
+        return None
+    i, j, t = i[crossing], j[crossing], t[crossing]
+    point = lo[i] + t[:, None] * (hi[i] - lo[i])
+    edge = np.concatenate([i, j])
+    o = np.argsort(edge, kind="stable")
+    return edge[o], np.concatenate([point, point])[o]
 
 
 def _prisms(tri: np.ndarray, base: float) -> tuple[np.ndarray, np.ndarray]:
@@ -425,37 +414,24 @@ def _union_of_prisms(manifold3d, tri: np.ndarray, base: float, order: str = "bat
     return solids[0]
 
 
-def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh",
-                      order: str = "batch") -> EnvelopeResult:
-    """The solid under the roofs of a building, down to its lowest vertex (module docstring).
+@dataclass
+class _RoofPrisms:
+    """A building's roof triangles ready to be extruded (:func:`_roof_prisms`), in local coordinates."""
 
-    Parameters
-    ----------
-    vertices : (V, 3) float64
-        In metres, z up.
-    faces : (F, 3) int64
-    params : PreprocessParams, optional
-        ``wall_tilt_deg`` and ``envelope_tol``.
-    source : str
-        Named in errors.
-    order : str
-        How the prisms are united (:data:`UNION_ORDERS`).
+    centre: np.ndarray
+    tri: np.ndarray
+    label: np.ndarray  # 0 a roof, 1 an underside, 2 a roof under an underside
+    base: float
+    roof_faces: int
+    wall_faces: int
+    splits: int
+    tol: float
 
-    Returns
-    -------
-    EnvelopeResult
 
-    Raises
-    ------
-    MeshError
-        When the input is not a mesh (:func:`meshsom.preprocess.check_input`), has no roof above its
-        lowest vertex, has walls outside its roofs, or manifold3d's union fails.
-    """
-    from meshsom.preprocess import PreprocessParams, check_input
-    from meshsom.union import _area_volume, _manifold3d
+def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str) -> _RoofPrisms:
+    """Steps 1, 2 and the sorting of undersides of the module docstring; the refusals."""
+    from meshsom.preprocess import check_input
 
-    manifold3d = _manifold3d()
-    params = params or PreprocessParams()
     vertices, faces = check_input(vertices, faces, source)
     # a local origin: the boolean sees coordinates of the building's own size
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
@@ -488,10 +464,19 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     splits = 0
     try:
         if tol > 0:
-            tri, label, splits = _split_t_junctions_in_plan(tri, tol, label)
-        tri, label, crossings = _split_crossings_in_plan(tri, tol, label)
+            tri, label, splits = _split_in_rounds(tri, label, lambda t: _t_junction_cuts(t, tol), "at T-junctions")
+        tri, label, crossings = _split_in_rounds(tri, label, lambda t: _crossing_cuts(t, tol), "where their heights cross")
     except ValueError as err:
         raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
+    return _RoofPrisms(centre, tri, label, base, int(roofs.sum()), int((~roofs).sum()), splits + crossings, tol)
+
+
+def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
+    """Steps 3-5 of the module docstring: the prisms united in one of :data:`UNION_ORDERS`."""
+    from meshsom.union import _area_volume, _manifold3d
+
+    manifold3d = _manifold3d()
+    tri, label, base, tol = prisms.tri, prisms.label, prisms.base, prisms.tol
     united = _union_of_prisms(manifold3d, tri, base, order)
     if united is None:
         raise MeshError(source, "no roof to rebuild it under: every roof triangle is vertical in plan")
@@ -515,18 +500,49 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
             slivers += 1
             continue
         volume += vol
-        shells.append((v + centre, f))
+        shells.append((v + prisms.centre, f))
     if not shells:
         raise MeshError(source, f"the solid under its roofs is thinner than {tol:g} m everywhere")
     return EnvelopeResult(
-        shells=shells, roof_faces=int(roofs.sum()), wall_faces=int((~roofs).sum()), splits=splits + crossings,
-        base=base + float(centre[2]), volume=volume, slivers=slivers, undersides=int(under.sum()),
+        shells=shells, roof_faces=prisms.roof_faces, wall_faces=prisms.wall_faces, splits=prisms.splits,
+        base=base + float(prisms.centre[2]), volume=volume, slivers=slivers, undersides=int((label == 1).sum()),
     )
 
 
+def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh",
+                      order: str = "batch") -> EnvelopeResult:
+    """The solid under the roofs of a building, down to its lowest vertex (module docstring).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+        In metres, z up.
+    faces : (F, 3) int64
+    params : PreprocessParams, optional
+        ``wall_tilt_deg`` and ``envelope_tol``.
+    source : str
+        Named in errors.
+    order : str
+        How the prisms are united (:data:`UNION_ORDERS`).
+
+    Returns
+    -------
+    EnvelopeResult
+
+    Raises
+    ------
+    MeshError
+        When the input is not a mesh (:func:`meshsom.preprocess.check_input`), has no roof above its
+        lowest vertex, has walls outside its roofs, or manifold3d's union fails.
+    """
+    from meshsom.preprocess import PreprocessParams
+
+    return _unite(_roof_prisms(vertices, faces, params or PreprocessParams(), source), order, source)
+
+
 def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh"):
-    """The solid under a building's roofs, preprocessed: :func:`solid_under_roofs` in each of
-    :data:`UNION_ORDERS` until :func:`meshsom.union.preprocess_shells` accepts its shells.
+    """The solid under a building's roofs, preprocessed: the roof prisms (made once) united in each of
+    :data:`UNION_ORDERS` until :func:`meshsom.union.preprocess_shells` accepts the union's shells.
 
     Parameters
     ----------
@@ -543,16 +559,19 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     Raises
     ------
     MeshError
-        The first order's reason, when no order gives shells that preprocess (a refusal of
-        :func:`solid_under_roofs` itself is not retried: it does not depend on the order).
+        A refusal of the roofs themselves (no roof, walls outside them: no order changes that), or
+        the first order's reason when no order gives shells that preprocess.
     """
-    from meshsom.union import preprocess_shells
+    from meshsom.preprocess import PreprocessParams
+    from meshsom import union
 
+    params = params or PreprocessParams()
+    prisms = _roof_prisms(vertices, faces, params, source)
     first = None
     for order in UNION_ORDERS:
-        envelope = solid_under_roofs(vertices, faces, params, source, order)
         try:
-            return envelope, preprocess_shells(envelope.shells, params, source=source)
+            envelope = _unite(prisms, order, source)
+            return envelope, union.preprocess_shells(envelope.shells, params, source=source)
         except MeshError as err:
             first = first or err
     raise first

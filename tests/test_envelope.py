@@ -214,10 +214,13 @@ def test_roofs_whose_heights_cross_along_an_edge_are_split_at_the_crossing():
     """Two triangles on either side of the plan edge (0,0)-(4,0): one rises from 1 to 5 along it, the
     other falls from 3 to 2; they cross at x = 1.6 (height 2.6), and both are split there, at one
     point."""
-    from meshsom.envelope import _split_crossings_in_plan
+    from meshsom.envelope import _crossing_cuts, _split_in_rounds
+
+    def split(t, label):
+        return _split_in_rounds(t, label, lambda x: _crossing_cuts(x, 0.002), "where their heights cross")
 
     tri = np.array([[[0, 0, 1], [4, 0, 5], [2, 3, 4]], [[4, 0, 2], [0, 0, 3], [2, -3, 2.5]]], float)
-    out, label, splits = _split_crossings_in_plan(tri, 0.002, np.array([0, 1]))
+    out, label, splits = split(tri, np.array([0, 1]))
     assert splits == 2 and len(out) == 4
     assert sorted(label.tolist()) == [0, 0, 1, 1]
     crossing = np.array([1.6, 0, 2.6])
@@ -230,7 +233,7 @@ def test_roofs_whose_heights_cross_along_an_edge_are_split_at_the_crossing():
         assert _plan_area(pieces) == pytest.approx(_plan_area(t[None]))
         assert np.allclose((pieces - t[0]) @ n, 0)
     # no crossing: nothing split
-    same, _, none = _split_crossings_in_plan(tri[:1], 0.002, np.array([0]))
+    same, _, none = split(tri[:1], np.array([0]))
     assert none == 0 and np.array_equal(same, tri[:1])
 
 
