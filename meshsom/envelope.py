@@ -28,7 +28,9 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    (:func:`meshsom.union.preprocess_shells`).
 
 Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex, and walls standing
-more than :data:`WALL_REACH` outside every roof in plan (a part with no roof would be lost).
+outside every roof in plan that would lose more than ``envelope_max_loss`` of the volume (each wall
+face's area times its distance outside, an estimate: walls a few centimetres outside their eaves
+lose next to nothing, a part with no roof loses itself).
 
 What is lost: whatever is not 2.5D (passages, arcades, overhangs become walls down to the floor)
 and the terrain under the walls (the floor is flat, at the lowest vertex). The manifest records
@@ -51,14 +53,11 @@ __all__ = ["EnvelopeResult", "rebuild_under_roofs", "roof_faces", "solid_under_r
 PRISM_TRIANGLES = np.array(
     [[0, 1, 2], [3, 5, 4], [0, 3, 1], [1, 3, 4], [1, 4, 2], [2, 4, 5], [2, 5, 0], [0, 5, 3]], np.uint64
 )
-#: Farthest a wall face's centroid may stand outside every roof in plan, in metres: walls stand under
-#: their roofs (every wall of the bundled real data within 1 cm); walls farther out (a part with no
-#: roof, a free-standing wall) would be lost by the rebuild, which is then refused.
-WALL_REACH = 0.05
 #: How far below the floor the columns under undersides reach, in metres: any depth, so that their
 #: bottoms are not coplanar with the floor's.
 HOLLOW_DEPTH = 1.0
-#: Most rounds of T-junction splitting (each splits every roof triangle at most once).
+#: Most rounds of T-junction splitting (each cuts every roof triangle along one of its edges, at every
+#: point on it).
 MAX_SPLIT_ROUNDS = 32
 #: Most roof triangles the splitting may make, as a multiple of the roof triangles it starts from.
 MAX_SPLIT_GROWTH = 8
@@ -86,6 +85,10 @@ class EnvelopeResult:
     undersides : int
         Roof faces (of those above the floor) facing down under another: floors above the lowest
         vertex, soffits of overhangs; the column under them is left empty.
+    walls_outside : int
+        Wall faces standing more than ``envelope_tol`` outside every roof in plan (lost).
+    lost_volume : float
+        What they lose: each one's area times its distance outside, summed (an estimate, m3).
     """
 
     shells: list = field(repr=False)
@@ -96,13 +99,15 @@ class EnvelopeResult:
     volume: float
     slivers: int = 0
     undersides: int = 0
+    walls_outside: int = 0
+    lost_volume: float = 0.0
 
     def record(self) -> dict:
         """The manifest record's ``envelope`` entry (JSON-able), without its ``because``."""
         return {
             "status": "rebuilt", "roof_faces": self.roof_faces, "wall_faces": self.wall_faces,
             "splits": self.splits, "undersides": self.undersides, "shells": len(self.shells), "slivers": self.slivers,
-            "volume": self.volume,
+            "volume": self.volume, "walls_outside": self.walls_outside, "lost_volume": self.lost_volume,
         }
 
     def describe(self) -> str:
@@ -111,6 +116,9 @@ class EnvelopeResult:
         slivers = f", {self.slivers} sliver shell(s) dropped" if self.slivers else ""
         if self.undersides:
             extra += f", nothing under its {self.undersides} undersides (floors, overhangs)"
+        if self.walls_outside:
+            extra += (f", {self.walls_outside} walls outside its roofs in plan losing about {self.lost_volume:.3g} m3 "
+                      f"({100 * self.lost_volume / self.volume:.2g} %)")
         return (
             f"rebuilt as the solid under its {self.roof_faces} roof faces (2.5D, down to its lowest vertex; "
             f"{self.wall_faces} wall faces not used{extra}{slivers}): {len(self.shells)} shell(s), "
@@ -178,13 +186,21 @@ def _plan_edges(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(swap[..., None], end, start).reshape(-1, 3), np.where(swap[..., None], start, end).reshape(-1, 3)
 
 
-def _split_once(tri: np.ndarray, label: np.ndarray, edge: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Each triangle with a split point on an edge cut in two there, at its first such edge.
+def _split_once(tri: np.ndarray, label: np.ndarray, outline: np.ndarray, edge: np.ndarray, point: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Each triangle with split points on an edge cut there, at every point of its first such edge.
+
+    A triangle ``(a, b, c)`` with points ``p1 ... pn`` on edge ``a b`` (in order from ``a``) becomes
+    the fan ``(a, p1, c), (p1, p2, c), ..., (pn, b, c)``: one round takes every point of an edge, so
+    an edge along a row of a hundred vertices is cut in one round, not a hundred.
 
     Parameters
     ----------
     tri : (R, 3, 3) float64
     label : (R,) int64
+    outline : (R, 3) bool
+        Which edges (edge ``k`` from corner ``k`` to ``k + 1``) lie on the outline of the roof
+        triangle they were cut from; the fan's new edges (to ``c``) do not.
     edge : (S,) int64
         Edges (``3 r + k``, as :func:`_plan_edges`), sorted, with a split point each.
     point : (S, 3) float64
@@ -193,18 +209,35 @@ def _split_once(tri: np.ndarray, label: np.ndarray, edge: np.ndarray, point: np.
     -------
     tri : (R', 3, 3) float64
     label : (R',) int64
+    outline : (R', 3) bool
     splits : int
         Triangles cut.
     """
     row = edge // 3
-    first = np.concatenate([[True], row[1:] != row[:-1]])
-    edge, point, row = edge[first], point[first], row[first]
+    start = np.concatenate([[True], row[1:] != row[:-1]])
+    first_edge = edge[start][np.cumsum(start) - 1]
+    on_first = edge == first_edge  # every point of each triangle's first edge
+    edge, point, row = edge[on_first], point[on_first], row[on_first]
     k = edge % 3
     a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
+    along = np.einsum("ij,ij->i", point[:, :2] - a[:, :2], b[:, :2] - a[:, :2])
+    order = np.lexsort((along, row))
+    row, k, point, along = row[order], k[order], point[order], along[order]
+    distinct = np.concatenate([[True], (row[1:] != row[:-1]) | (along[1:] != along[:-1])])
+    row, k, point = row[distinct], k[distinct], point[distinct]
+    a, b, c = tri[row, k], tri[row, (k + 1) % 3], tri[row, (k + 2) % 3]
+    on_ab, on_bc, on_ca = outline[row, k], outline[row, (k + 1) % 3], outline[row, (k + 2) % 3]
+    first = np.concatenate([[True], row[1:] != row[:-1]])
+    last = np.concatenate([row[1:] != row[:-1], [True]])
+    before = np.where(first[:, None], a, np.roll(point, 1, axis=0))  # the fan's previous corner
     keep = np.ones(len(tri), bool)
     keep[row] = False
-    tri = np.concatenate([tri[keep], np.stack([a, point, c], axis=1), np.stack([point, b, c], axis=1)])
-    return tri, np.concatenate([label[keep], label[row], label[row]]), len(row)
+    pieces = np.concatenate([np.stack([before, point, c], axis=1), np.stack([point[last], b[last], c[last]], axis=1)])
+    none = np.zeros(len(row), bool)
+    edges = np.concatenate([np.stack([on_ab, none, first & on_ca], axis=1),
+                            np.stack([on_ab[last], on_bc[last], none[last]], axis=1)])
+    return (np.concatenate([tri[keep], pieces]), np.concatenate([label[keep], label[row], label[row[last]]]),
+            np.concatenate([outline[keep], edges]), int(last.sum()))
 
 
 def _split_in_rounds(tri: np.ndarray, label: np.ndarray, cuts, what: str) -> tuple[np.ndarray, np.ndarray, int]:
@@ -216,8 +249,10 @@ def _split_in_rounds(tri: np.ndarray, label: np.ndarray, cuts, what: str) -> tup
     label : (R,) int64
         A label of each triangle, that its pieces keep.
     cuts : callable
-        ``cuts(tri)`` -> ``(edge, point)``: the edges to cut (``3 r + k``), sorted so that each
-        triangle's first is the one to cut, and the points, or None where there is none.
+        ``cuts(tri, outline)`` -> ``(edge, point)``: the edges to cut (``3 r + k``), sorted so that
+        each triangle's first is the one to cut, and the points, or None where there is none.
+        ``outline`` (R, 3) bool says which edges lie on the outline of the triangle they were cut
+        from (all of them at the start).
     what : str
         What the cuts are, for the error.
 
@@ -231,27 +266,57 @@ def _split_in_rounds(tri: np.ndarray, label: np.ndarray, cuts, what: str) -> tup
     Raises
     ------
     ValueError
-        When the cutting makes more than :data:`MAX_SPLIT_GROWTH` times the triangles (plus 64).
+        When the cutting makes more than :data:`MAX_SPLIT_GROWTH` times the triangles (plus 64), or
+        finds cuts still after :data:`MAX_SPLIT_ROUNDS` rounds.
     """
     limit = MAX_SPLIT_GROWTH * len(tri) + 64
+    outline = np.ones((len(tri), 3), bool)
     splits = 0
     for _ in range(MAX_SPLIT_ROUNDS):
-        found = cuts(tri)
+        found = cuts(tri, outline)
         if found is None:
             break
-        tri, label, n = _split_once(tri, label, *found)
+        tri, label, outline, n = _split_once(tri, label, outline, *found)
         splits += n
         if len(tri) > limit:
             raise ValueError(f"splitting roofs {what} made more than {limit} triangles")
+    else:
+        if cuts(tri, outline) is not None:
+            raise ValueError(f"splitting roofs {what} did not end in {MAX_SPLIT_ROUNDS} rounds")
     return tri, label, splits
 
 
-def _t_junction_cuts(tri: np.ndarray, tol: float):
+def _plan_widths(tri: np.ndarray) -> np.ndarray:
+    """Each triangle's width in plan: its smallest height (twice its plan area over its longest plan edge).
+
+    Parameters
+    ----------
+    tri : (R, 3, 3) float64
+
+    Returns
+    -------
+    (R,) float64
+        0 for a triangle that is a point in plan.
+    """
+    e = tri[:, [1, 2, 0], :2] - tri[:, :, :2]
+    area2 = np.abs(e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    longest = np.linalg.norm(e, axis=2).max(axis=1)
+    return np.divide(area2, longest, out=np.zeros(len(tri)), where=longest > 0)
+
+
+def _t_junction_cuts(tri: np.ndarray, outline: np.ndarray, tol: float, slivers: bool = True):
     """Where a roof vertex lies within ``tol`` of an edge's inside, in plan (for :func:`_split_in_rounds`).
 
     The cut point takes the vertex's x and y exactly and the edge's height there, so that the
     prisms under the two roofs share the vertical side above that stretch of the edge; a triangle
-    is cut at the T-point nearest the start of its first such edge.
+    is cut at every T-point of its first such edge (:func:`_split_once`).
+
+    Only edges on the outline of the roof triangles are cut (``outline``): an edge a cut made inside
+    a triangle, from the cut point to the opposite corner, has other roofs' vertices near it only
+    where they overlap the triangle in plan, where no prisms need to share a side; cutting there
+    too never ended where a barrel vault's rows of vertices lie almost in line with a far corner.
+    With ``slivers`` False, triangles narrower than ``tol`` in plan (:func:`_plan_widths`: a needle,
+    a face a few degrees off vertical) are not cut either (:data:`SPLIT_RULES`).
     """
     from scipy.spatial import cKDTree
 
@@ -259,6 +324,8 @@ def _t_junction_cuts(tri: np.ndarray, tol: float):
     lo, hi = _plan_edges(tri)
     d = hi[:, :2] - lo[:, :2]
     length = np.linalg.norm(d, axis=1)
+    cut = outline if slivers else outline & (_plan_widths(tri) > tol)[:, None]
+    length[~cut.reshape(-1)] = 0.0
     near = cKDTree(points).query_ball_point((lo[:, :2] + hi[:, :2]) / 2, length / 2 + tol)
     counts = np.fromiter((len(c) for c in near), np.int64, len(near))
     edge = np.repeat(np.arange(len(lo)), counts)
@@ -279,7 +346,7 @@ def _t_junction_cuts(tri: np.ndarray, tol: float):
     return edge, p
 
 
-def _crossing_cuts(tri: np.ndarray, tol: float):
+def _crossing_cuts(tri: np.ndarray, outline: np.ndarray, tol: float):
     """Where two roofs share an edge in plan and their heights cross along it (for :func:`_split_in_rounds`).
 
     Two roofs on either side of one edge in plan, one higher at its start and the other at its end,
@@ -368,20 +435,32 @@ def _covered_above(points: np.ndarray, tri: np.ndarray, margin: float) -> np.nda
     return out
 
 
-def _check_walls_under_roofs(walls: np.ndarray, roofs: np.ndarray, source: str) -> None:
-    """Refuse walls (W, 3, 3) whose centroids stand more than :data:`WALL_REACH` outside the roofs
-    (R, 3, 3) in plan: the solid under the roofs would lose them."""
+def _walls_outside(walls: np.ndarray, roofs: np.ndarray, tol: float) -> tuple[int, float, float]:
+    """Walls (W, 3, 3) standing more than ``tol`` outside every roof (R, 3, 3) in plan, and what the
+    solid under the roofs loses by them.
+
+    Returns
+    -------
+    count : int
+        Wall faces whose centroid stands more than ``tol`` outside the roofs in plan.
+    reach : float
+        The farthest of them, metres (0 without any).
+    lost : float
+        Each such wall face's area times its centroid's distance outside, summed (cubic metres): the
+        slab between the wall and the roofs' outline, an estimate of the volume the rebuild loses.
+    """
     import shapely
 
     if not len(walls):
-        return
+        return 0, 0.0, 0.0
     plan = shapely.union_all(shapely.polygons(roofs[:, :, :2]))
-    centroid = walls.mean(axis=1)[:, :2]
-    outside = shapely.distance(plan, shapely.points(centroid)) > WALL_REACH
-    if outside.any():
-        raise MeshError(
-            source, f"{int(outside.sum())} of its {len(walls)} wall faces stand more than {WALL_REACH:g} m outside "
-                    f"every roof in plan (walls without a roof would be lost under the roofs)")
+    distance = shapely.distance(plan, shapely.points(walls.mean(axis=1)[:, :2]))
+    outside = distance > tol
+    if not outside.any():
+        return 0, 0.0, 0.0
+    w = walls[outside]
+    area = 0.5 * np.linalg.norm(np.cross(w[:, 1] - w[:, 0], w[:, 2] - w[:, 0]), axis=1)
+    return int(outside.sum()), float(distance[outside].max()), float(area @ distance[outside])
 
 
 #: The ways :func:`solid_under_roofs` can unite the prisms, tried in this order by
@@ -392,6 +471,11 @@ def _check_walls_under_roofs(walls: np.ndarray, roofs: np.ndarray, source: str) 
 #: unites cleanly (9 and 12 of 853 when every building is rebuilt; 3 with both, one of them refused
 #: for a wall outside its roofs).
 UNION_ORDERS = ("batch", "pairwise")
+#: Which roof triangles the T-junction splitting cuts (:func:`_t_junction_cuts`), tried in this order
+#: by :func:`rebuild_under_roofs`, each with every union order: every triangle, or all but those
+#: narrower than ``envelope_tol`` in plan. Each leaves a few buildings that the other rebuilds (on
+#: Zürich's LoD2 models and val3dity's Delfshaven tile, one each), by the same flaps of the union.
+SPLIT_RULES = ("all", "no slivers")
 
 
 def _union_of_prisms(manifold3d, tri: np.ndarray, base: float, order: str = "batch"):
@@ -414,6 +498,10 @@ def _union_of_prisms(manifold3d, tri: np.ndarray, base: float, order: str = "bat
     return solids[0]
 
 
+class _TooMuchLost(MeshError):
+    """The walls outside the roofs would lose too much: no other way of uniting changes that."""
+
+
 @dataclass
 class _RoofPrisms:
     """A building's roof triangles ready to be extruded (:func:`_roof_prisms`), in local coordinates."""
@@ -426,9 +514,13 @@ class _RoofPrisms:
     wall_faces: int
     splits: int
     tol: float
+    walls_outside: int = 0
+    wall_reach: float = 0.0
+    lost_volume: float = 0.0
+    max_loss: float = 0.01
 
 
-def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str) -> _RoofPrisms:
+def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, split: str = "all") -> _RoofPrisms:
     """Steps 1, 2 and the sorting of undersides of the module docstring; the refusals."""
     from meshsom.preprocess import check_input
 
@@ -449,7 +541,7 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str) -
         raise MeshError(
             source, f"no roof to rebuild it under: of its {len(faces)} faces, {int((~roofs).sum())} are walls "
                     f"(within {params.wall_tilt_deg:g} degrees of vertical) and none of the rest is above its lowest vertex")
-    _check_walls_under_roofs(snapped[faces[~roofs]], tri, source)
+    walls_outside = _walls_outside(snapped[faces[~roofs]], tri, tol)
     # Undersides: faces facing down with a face above them (a sloping or raised floor, the soffit
     # of an overhang); the column under them is not filled, except under faces at or below them
     # (a lower roof under an overhang, the roof of a part that another part stands on).
@@ -464,11 +556,12 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str) -
     splits = 0
     try:
         if tol > 0:
-            tri, label, splits = _split_in_rounds(tri, label, lambda t: _t_junction_cuts(t, tol), "at T-junctions")
-        tri, label, crossings = _split_in_rounds(tri, label, lambda t: _crossing_cuts(t, tol), "where their heights cross")
+            tri, label, splits = _split_in_rounds(tri, label, lambda t, o: _t_junction_cuts(t, o, tol, split == "all"), "at T-junctions")
+        tri, label, crossings = _split_in_rounds(tri, label, lambda t, o: _crossing_cuts(t, o, tol), "where their heights cross")
     except ValueError as err:
         raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
-    return _RoofPrisms(centre, tri, label, base, int(roofs.sum()), int((~roofs).sum()), splits + crossings, tol)
+    return _RoofPrisms(centre, tri, label, base, int(roofs.sum()), int((~roofs).sum()), splits + crossings, tol,
+                       *walls_outside, params.envelope_max_loss)
 
 
 def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
@@ -503,14 +596,21 @@ def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
         shells.append((v + prisms.centre, f))
     if not shells:
         raise MeshError(source, f"the solid under its roofs is thinner than {tol:g} m everywhere")
+    if prisms.lost_volume > prisms.max_loss * volume:
+        raise _TooMuchLost(
+            source, f"{prisms.walls_outside} of its {prisms.wall_faces} wall faces stand outside every roof in plan "
+                    f"(up to {prisms.wall_reach:.3g} m): the solid under its roofs ({volume:.6g} m3) would lose about "
+                    f"{prisms.lost_volume:.3g} m3 with them ({100 * prisms.lost_volume / volume:.2g} %, more than "
+                    f"preprocess.envelope_max_loss {100 * prisms.max_loss:g} %: a part whose roof is missing?)")
     return EnvelopeResult(
         shells=shells, roof_faces=prisms.roof_faces, wall_faces=prisms.wall_faces, splits=prisms.splits,
         base=base + float(prisms.centre[2]), volume=volume, slivers=slivers, undersides=int((label == 1).sum()),
+        walls_outside=prisms.walls_outside, lost_volume=prisms.lost_volume,
     )
 
 
 def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh",
-                      order: str = "batch") -> EnvelopeResult:
+                      order: str = "batch", split: str = "all") -> EnvelopeResult:
     """The solid under the roofs of a building, down to its lowest vertex (module docstring).
 
     Parameters
@@ -524,6 +624,8 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
         Named in errors.
     order : str
         How the prisms are united (:data:`UNION_ORDERS`).
+    split : str
+        Which roof triangles are cut at T-junctions (:data:`SPLIT_RULES`).
 
     Returns
     -------
@@ -533,16 +635,20 @@ def solid_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, sour
     ------
     MeshError
         When the input is not a mesh (:func:`meshsom.preprocess.check_input`), has no roof above its
-        lowest vertex, has walls outside its roofs, or manifold3d's union fails.
+        lowest vertex, has walls outside its roofs that lose more than ``envelope_max_loss`` of the
+        volume, or manifold3d's union fails.
     """
     from meshsom.preprocess import PreprocessParams
 
-    return _unite(_roof_prisms(vertices, faces, params or PreprocessParams(), source), order, source)
+    if split not in SPLIT_RULES:
+        raise ValueError(f"split must be one of {SPLIT_RULES}; received {split!r}")
+    return _unite(_roof_prisms(vertices, faces, params or PreprocessParams(), source, split), order, source)
 
 
 def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, source: str = "mesh"):
-    """The solid under a building's roofs, preprocessed: the roof prisms (made once) united in each of
-    :data:`UNION_ORDERS` until :func:`meshsom.union.preprocess_shells` accepts the union's shells.
+    """The solid under a building's roofs, preprocessed: the roof prisms (made once for each of
+    :data:`SPLIT_RULES`) united in each of :data:`UNION_ORDERS` until
+    :func:`meshsom.union.preprocess_shells` accepts the union's shells.
 
     Parameters
     ----------
@@ -559,19 +665,26 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     Raises
     ------
     MeshError
-        A refusal of the roofs themselves (no roof, walls outside them: no order changes that), or
-        the first order's reason when no order gives shells that preprocess.
+        A refusal of the roofs themselves (no roof, walls outside them losing too much: no order
+        changes that), or the first way's reason when no way gives shells that preprocess.
     """
     from meshsom.preprocess import PreprocessParams
     from meshsom import union
 
     params = params or PreprocessParams()
-    prisms = _roof_prisms(vertices, faces, params, source)
     first = None
-    for order in UNION_ORDERS:
+    for split in SPLIT_RULES:
         try:
-            envelope = _unite(prisms, order, source)
-            return envelope, union.preprocess_shells(envelope.shells, params, source=source)
+            prisms = _roof_prisms(vertices, faces, params, source, split)
         except MeshError as err:
             first = first or err
+            continue
+        for order in UNION_ORDERS:
+            try:
+                envelope = _unite(prisms, order, source)
+                return envelope, union.preprocess_shells(envelope.shells, params, source=source)
+            except _TooMuchLost:
+                raise
+            except MeshError as err:
+                first = first or err
     raise first

@@ -145,6 +145,12 @@ class PreprocessParams:
         For ``roof_envelope``, in metres (absolute): roof vertices closer than this in plan are
         snapped together, a roof vertex this close to another roof's edge splits it, and shells
         thinner than this on average are dropped as slivers (default 0.002, as ``zip_tol``).
+    envelope_max_loss : float
+        For ``roof_envelope``: walls standing outside every roof in plan are lost by the rebuild
+        (a wall 15 cm outside its roof's eave, as where walls come from a cadastre and roofs from
+        lidar; a part with no roof). What they would lose (each wall's area times its distance
+        outside, an estimate) may be at most this fraction of the rebuilt volume; more, and the
+        rebuild is refused (default 0.01).
     """
 
     weld_tol: float = 1e-8
@@ -166,6 +172,7 @@ class PreprocessParams:
     roof_envelope: bool = True
     wall_tilt_deg: float = 5.0
     envelope_tol: float = 0.002
+    envelope_max_loss: float = 0.01
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -184,6 +191,9 @@ class PreprocessParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 <= value < math.inf):
                 raise ValueError(f"{name} must be a finite number >= 0 (0 disables it); received {value!r}")
+        if not (isinstance(self.envelope_max_loss, (int, float)) and 0 <= self.envelope_max_loss < 1):
+            raise ValueError(f"envelope_max_loss must be a number in [0, 1) (a fraction of the rebuilt volume); "
+                             f"received {self.envelope_max_loss!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):

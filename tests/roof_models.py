@@ -13,7 +13,10 @@ bottom is open and not planar, and no planar cap closes it. On top of that:
 - :func:`ridge_a_millimetre_apart` two roof halves whose ridges were rounded apart;
 - :func:`courtyard_block` a flat roof with a courtyard (a polygon with a hole), walls inside and out;
 - :func:`crossing_shed_roofs` two shed roofs on either side of one edge, one rising and one falling
-  along it, so that their heights cross halfway.
+  along it, so that their heights cross halfway;
+- :func:`wall_foot_outside_the_eave` a wall whose foot stands 10 cm outside the eave above it.
+
+:func:`part_without_a_roof` (an annex whose roof is missing) is refused rather than rebuilt.
 """
 
 from __future__ import annotations
@@ -206,6 +209,48 @@ def crossing_shed_roofs() -> tuple[dict, float]:
     return model.document(), L * W * ((EAVE + RIDGE) / 2 - base)
 
 
+#: How far the foot of the leaning south wall of :func:`wall_foot_outside_the_eave` stands south of
+#: the eave, metres.
+FOOT = 0.1
+
+
+def wall_foot_outside_the_eave() -> tuple[dict, float]:
+    """The gable house whose south wall leans out: its top is the eave (y = 0), its foot on the
+    terrain stands :data:`FOOT` further south (a footprint from the cadastre, roofs from lidar). The
+    rebuild loses the wedge between the wall and the eave (:func:`foot_wedge`); its floor is the
+    lowest vertex, a foot."""
+    model = _Model()
+    model.add("house")
+    _gable_walls_and_roof(model, "house")
+    south = model.objects["house"]["geometry"][0]["boundaries"][0]  # the vertical south wall ...
+    (x0, y0), (x1, y1) = (0.0, -FOOT), (L, -FOOT)
+    south[0] = [model.vertex(x0, y0, terrain(x0, y0)), model.vertex(x1, y1, terrain(x1, y1)),
+                model.vertex(L, 0.0, EAVE), model.vertex(0.0, 0.0, EAVE)]  # ... leaning out at its foot
+    base = _base((0, -FOOT), (L, -FOOT), (L, 0), (L, W), (0, W), (0, 0))
+    return model.document(), L * W * (EAVE - base) + L * W * (RIDGE - EAVE) / 2
+
+
+def foot_wedge() -> float:
+    """The volume between the leaning wall of :func:`wall_foot_outside_the_eave` and the plane of the
+    eave: its height along the wall (eave minus the straight foot between the terrain's corners)
+    times half the foot's reach."""
+    bottom = (_base((0, -FOOT)) + _base((L, -FOOT))) / 2
+    return L * (EAVE - bottom) * FOOT / 2
+
+
+def part_without_a_roof() -> dict:
+    """The gable house and, as a BuildingPart of the same Building, an annex [L, L + 4] x [2, 6] east
+    of it whose roof is missing: walls 3 m high and nothing on them. Its west wall stands in the
+    plane of the house's east wall; the three others stand up to 4 m outside every roof."""
+    model = _Model()
+    model.add("B")
+    model.add("house", "BuildingPart", "B")
+    model.add("annex", "BuildingPart", "B")
+    _gable_walls_and_roof(model, "house")
+    _walls_to_terrain(model, "annex", [(L, 2.0), (L + 4.0, 2.0), (L + 4.0, 6.0), (L, 6.0)], [3.0] * 4)
+    return model.document()
+
+
 #: Every model, by name.
 MODELS = {
     "gable_on_terrain": gable_on_terrain,
@@ -215,4 +260,5 @@ MODELS = {
     "overhang_with_soffit": overhang_with_soffit,
     "courtyard_block": courtyard_block,
     "crossing_shed_roofs": crossing_shed_roofs,
+    "wall_foot_outside_the_eave": wall_foot_outside_the_eave,
 }

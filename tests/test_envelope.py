@@ -141,6 +141,76 @@ def test_params_checked():
         PreprocessParams(wall_tilt_deg=90)
     with pytest.raises(ValueError, match="envelope_tol must be a finite number"):
         PreprocessParams(envelope_tol=-1)
+    with pytest.raises(ValueError, match="envelope_max_loss must be a number in"):
+        PreprocessParams(envelope_max_loss=1.0)
+
+
+def test_a_wall_foot_outside_the_eave_is_lost_and_the_loss_measured(tmp_path):
+    """The leaning south wall's two triangles stand outside the roofs; what they lose is estimated
+    between a third and two thirds of their area times the foot's reach (their centroids), about the
+    wedge under the wall; the manifest record and its first repair say so."""
+    from roof_models import FOOT, foot_wedge, wall_foot_outside_the_eave
+
+    document, volume = wall_foot_outside_the_eave()
+    record, clean = process_one(_raw(tmp_path, document), PreprocessParams())
+    assert record["status"] == "accepted" and record["volume"] == pytest.approx(volume, rel=1e-6)
+    envelope = record["envelope"]
+    assert envelope["walls_outside"] == 2
+    assert foot_wedge() * 2 / 3 <= envelope["lost_volume"] <= foot_wedge() * 4 / 3
+    assert f"2 walls outside its roofs in plan losing about {envelope['lost_volume']:.3g} m3" in record["repairs"][0]
+    # asked to lose nothing, it is refused, naming what it would lose
+    refused, _ = process_one(_raw(tmp_path, document), PreprocessParams(envelope_max_loss=0.0))
+    assert refused["status"] == "rejected"
+    assert f"2 of its 10 wall faces stand outside every roof in plan (up to {2 * FOOT / 3:.3g} m)" in refused["reason"]
+
+
+def test_a_part_without_a_roof_is_refused_with_what_it_would_lose(tmp_path):
+    """The annex's walls stand up to 4 m outside the roofs: rebuilt, it would be lost (about its own
+    volume, 48 m3 above the floor, or more: far more than 1 % of the house); so the building is
+    rejected, with why. Allowed to lose that much, it is the house alone."""
+    from roof_models import gable_on_terrain, part_without_a_roof
+
+    raw = _raw(tmp_path, part_without_a_roof())
+    record, clean = process_one(raw, PreprocessParams())
+    assert record["status"] == "rejected" and clean is None
+    reason = record["reason"]
+    assert "rebuilding it as the solid under its roofs failed too (6 of its" in reason and "a part whose roof is missing?" in reason
+    lost = float(reason.split("would lose about ")[1].split(" m3")[0])
+    assert 48 <= lost <= 4 * 48
+    with pytest.raises(MeshError, match="more than preprocess.envelope_max_loss 1 %"):
+        solid_under_roofs(raw.vertices, raw.faces, PreprocessParams(), "annex")
+    record, clean = process_one(raw, PreprocessParams(envelope_max_loss=0.5))
+    house, _ = process_one(_raw(tmp_path, gable_on_terrain()[0]), PreprocessParams())
+    assert record["status"] == "accepted" and record["envelope"]["walls_outside"] == 6
+    assert record["volume"] == pytest.approx(house["volume"], rel=1e-9)  # same floor: the annex's feet are higher
+
+
+def test_t_junction_splitting_ends_where_a_row_of_vertices_is_almost_in_line_with_a_far_corner():
+    """A long roof triangle whose edge runs along a row of its neighbours' vertices (a barrel vault's
+    rows in plan), its far corner almost in line with the row: its edges are cut at every vertex of
+    the row; the new edges to the far corner pass within the tolerance of the row's other vertices
+    but are not outline, so they are not cut again (cutting them did not end)."""
+    from meshsom import envelope
+
+    tol = 0.002
+    far, a, b = np.array([40.0, 8.3, 10.0]), np.array([0.0, 0.0, 6.0]), np.array([-2.0, -0.4, 6.0])
+    row = [a, *(np.array([-0.25 * i, -0.05 * i, 6.0]) for i in range(1, 8)), b]
+    tri = np.array([np.stack([a, far, b])] + [np.stack([q, p, (p + q) / 2 - [0, 1, 0]]) for p, q in zip(row, row[1:])])
+    out, label, splits = envelope._split_in_rounds(tri, np.arange(len(tri)), lambda t, o: envelope._t_junction_cuts(t, o, tol), "x")
+    assert splits <= 2 * len(row)  # ended: a few cuts per row vertex
+    pieces = out[label == 0]
+    corners = {tuple(p[:2]) for p in pieces.reshape(-1, 3)}
+    assert all(tuple(p[:2]) in corners for p in row)
+    # a needle: every piece stays within the tolerance of it in plan, in its plane
+    import shapely
+
+    needle = shapely.Polygon(tri[0, :, :2]).buffer(tol)
+    assert shapely.contains_xy(needle, pieces[..., 0].ravel(), pieces[..., 1].ravel()).all()
+    n = np.cross(tri[0, 1] - tri[0, 0], tri[0, 2] - tri[0, 0])
+    assert np.abs((pieces - tri[0, 0]) @ n / np.linalg.norm(n)).max() < 0.05  # within the plane (to tol x slope)
+    # every edge taken as outline, the cutting does not end
+    with pytest.raises(ValueError, match="made more than"):
+        envelope._split_in_rounds(tri, np.arange(len(tri)), lambda t, o: envelope._t_junction_cuts(t, np.ones_like(o), tol), "x")
 
 
 def test_closed_blocks_rebuild_to_their_own_volume():
@@ -217,7 +287,7 @@ def test_roofs_whose_heights_cross_along_an_edge_are_split_at_the_crossing():
     from meshsom.envelope import _crossing_cuts, _split_in_rounds
 
     def split(t, label):
-        return _split_in_rounds(t, label, lambda x: _crossing_cuts(x, 0.002), "where their heights cross")
+        return _split_in_rounds(t, label, lambda x, o: _crossing_cuts(x, o, 0.002), "where their heights cross")
 
     tri = np.array([[[0, 0, 1], [4, 0, 5], [2, 3, 4]], [[4, 0, 2], [0, 0, 3], [2, -3, 2.5]]], float)
     out, label, splits = split(tri, np.array([0, 1]))
@@ -252,7 +322,7 @@ def test_rebuild_tries_the_next_union_order_when_preprocessing_fails(tmp_path, m
     """The first order's shells refused by preprocessing: the pairwise order's are used; all refused:
     the first order's reason is raised."""
     import meshsom.union
-    from meshsom.envelope import UNION_ORDERS, rebuild_under_roofs
+    from meshsom.envelope import SPLIT_RULES, UNION_ORDERS, rebuild_under_roofs
     from roof_models import gable_on_terrain
 
     document, volume = gable_on_terrain()
@@ -279,4 +349,4 @@ def test_rebuild_tries_the_next_union_order_when_preprocessing_fails(tmp_path, m
     calls.clear()
     with pytest.raises(MeshError, match="refused #0$"):
         rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(), "gable")
-    assert calls == [0, 1]
+    assert calls == [0, 1, 2, 3] and len(calls) == len(UNION_ORDERS) * len(SPLIT_RULES)
