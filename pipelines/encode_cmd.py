@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"store": result.store, "faces": result.faces, "levels": {str(k): v for k, v in result.levels.items()}}))
     else:
-        from meshsom.standardize import describe_fold_statistics
+        from meshsom.standardize import describe_fold_statistics, scale_hint
 
         for level, info in result.levels.items():
             s = info["stats"]
@@ -92,4 +92,7 @@ def run(args: argparse.Namespace) -> int:
                   f"({rate:,.0f} triangles/s); {s['scaling']} scaling: {centre} {np.round(s['mean'], 4).tolist()}, "
                   f"{scale} {np.round(s['std'], 4).tolist()}" + (f", clip {s['clip']:g}" if s["clip"] else ""))
             print(f"  {describe_fold_statistics(info['folds'])}")
+            hint = scale_hint(info["folds"], s["scaling"])
+            if hint:
+                print(f"  {hint}")
     return 0

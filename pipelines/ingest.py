@@ -427,9 +427,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"{s['inputs']} meshes: {s['accepted']} accepted, {s['rejected']} rejected; "
               f"{s['faces_in']} triangles in, {s['faces_out']} out -> {result.store}")
         if s.get("folds"):
-            from meshsom.standardize import describe_fold_statistics
+            from meshsom.standardize import describe_fold_statistics, scale_hint
 
             print(f"  {describe_fold_statistics(s['folds'])}")
+            hint = scale_hint(s["folds"])
+            if hint:
+                print(f"  {hint}")
         rebuilt = rebuilt_under_roofs(result.records)
         if rebuilt:
             print(f"  {rebuilt} rebuilt as the solid under their roofs, not closed as they are (each record's "

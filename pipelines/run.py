@@ -182,6 +182,7 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
             _print_rejection_kinds(manifest["records"])
             _print_rebuilt(manifest["records"])
             _print_note_kinds(manifest["records"])
+            _print_scale_hint(group, cfg)
             fingerprint = dataset_fingerprint(manifest)
             ids = read_tracking(group) if resume else {}
             if ids.get("uri") not in (None, tracker.uri):
@@ -310,6 +311,20 @@ def _print_rejection_kinds(records) -> None:
     _print_kinds([(kind, n) for kind, n, _ in kinds], "")
     if len(kinds) > RUN_KINDS_SHOWN:
         print(f"        ({len(kinds) - RUN_KINDS_SHOWN} more kinds: meshsom inspect)")
+
+
+def _print_scale_hint(group, cfg) -> None:
+    """The hint of :func:`meshsom.standardize.scale_hint` for the first level's folds, if any."""
+    from meshsom.errors import StoreError
+    from meshsom.standardize import scale_hint
+    from meshsom.store import read_fold_stats
+
+    try:
+        hint = scale_hint(read_fold_stats(group, min(cfg.encoding.levels)), cfg.encoding.scaling)
+    except StoreError:  # a store encoded before fold statistics were kept
+        return
+    if hint:
+        print(f"      {hint}")
 
 
 def _print_rebuilt(records) -> None:

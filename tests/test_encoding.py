@@ -1,5 +1,7 @@
 """Folds, ring templates, variations and standardization, against direct computation."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -13,6 +15,8 @@ from meshsom.preprocess import preprocess
 from meshsom.rings import dims, encode_level, faces_in_walk, template
 from meshsom.standardize import accumulate, destandardize, empty_accumulator, finalize, merge_accumulators, standardize
 from meshsom.topology import adjacency
+
+DELFT = Path(__file__).resolve().parents[1] / "data" / "real" / "delft-lod1-3dfier"
 from meshsom.variations import apply, n_variations, variation_table
 
 
@@ -212,6 +216,48 @@ def test_fold_statistics_equal_direct_numpy():
     assert s["flat_1deg"] == 16 * (near < np.pi / 180).sum()
     assert s["v_over_100"] == 16 * (x[:, 2] > 100).sum()
     assert s["max_abs_u"] == np.abs(x[:, 1]).max()
+
+
+def test_tail_shares_and_the_scale_hint():
+    """u: 990 folds at +-0.5 and 10 at +-50 (a centimetre edge beside a half-metre face): the 10
+    hold 10 x 2500 of the 10 x 2500 + 990 x 0.25 sum of squares (by hand). Normal folds: about 8.5 %
+    (the top 1 % of a normal distribution beyond 2.576 sd: 2 (2.576 phi(2.576) + 0.005))."""
+    from meshsom.standardize import describe_fold_statistics, fold_statistics, scale_hint
+
+    rng = np.random.default_rng(5)
+    u = np.concatenate([np.full(495, 0.5), np.full(495, -0.5), np.full(5, 50.0), np.full(5, -50.0)])
+    x = np.stack([rng.normal(2.5, 0.5, 1000), u, np.full(1000, 0.5)], axis=1)
+    x[0, 2] = 0.7  # v: one fold off the rest, which are all equal
+    s = fold_statistics(x)
+    assert s["tail_share"]["u"] == pytest.approx(25000 / (25000 + 990 * 0.25))
+    far, near = 0.2 * 999 / 1000, 0.2 / 1000  # v: the one fold's and the others' distance from the mean
+    assert s["tail_share"]["v"] == pytest.approx(far**2 / (far**2 + 999 * near**2))
+    assert "the top 1 % hold" in describe_fold_statistics(s) and "99 % of u's spread" in describe_fold_statistics(s)
+    hint = scale_hint(s)
+    assert hint.startswith("hint: the top 1 % of folds set the standard deviation of u (99 % of its sum of squares) and v")
+    assert scale_hint({**s, "tail_share": {"alpha": 0.0, "u": 0.7, "v": 0.62}}) is None  # the paper's corpus
+    assert "encoding.scaling: robust" in hint
+    assert scale_hint(s, "robust") is None
+    normal = fold_statistics(rng.normal(0, 1, (200_000, 3)))
+    phi = np.exp(-2.5758**2 / 2) / np.sqrt(2 * np.pi)
+    assert normal["tail_share"]["u"] == pytest.approx(2 * (2.5758 * phi + 0.005), abs=0.005)
+    assert scale_hint(normal) is None
+    old = {k: v for k, v in s.items() if k != "tail_share"}  # a store written before tail shares
+    assert scale_hint(old) is None and "top 1 %" not in describe_fold_statistics(old)
+
+
+def test_ingest_and_encode_say_when_a_tail_sets_the_scale(tmp_path, capsys):
+    """Delft's LoD1 blocks: the top 1 % of folds hold most of u's sum of squares; ingest and a
+    standard encode say so, a robust encode does not."""
+    from pipelines.cli import main
+
+    store = tmp_path / "delft.zarr"
+    assert main(["ingest", str(DELFT), "--out", str(store)]) == 0
+    assert "hint: the top 1 % of folds set the standard deviation of u" in capsys.readouterr().out
+    assert main(["encode", str(store), "--levels", "1"]) == 0
+    assert "hint: the top 1 % of folds" in capsys.readouterr().out
+    assert main(["encode", str(store), "--levels", "1", "--scaling", "robust"]) == 0
+    assert "hint:" not in capsys.readouterr().out
 
 
 def test_robust_scaling_equals_direct_numpy():
