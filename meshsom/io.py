@@ -82,6 +82,11 @@ GZIP_CHUNK_BYTES = 1 << 20
 #: (:attr:`ReaderOptions.max_expansion` applies above this).
 GZIP_FREE_BYTES = 1 << 20
 SUPPORTED_CITYJSON_VERSIONS = ("1.0", "1.1", "2.0")
+#: CityJSON's drafts (2017-2019; the Munich and Rotterdam samples of its specification, 3DBAG's and
+#: cities' early exports), read as 1.0: their geometry is encoded the same way (boundaries, Solid,
+#: MultiSurface, "lod" a number, "transform"). Up to 0.2 the document's "type" is "CityModel" and
+#: its "version" a URL (``http://www.cityjson.org/version/0.1``) or missing.
+DRAFT_CITYJSON_VERSIONS = ("0.1", "0.2", "0.3", "0.4", "0.5", "0.6", "0.7", "0.8", "0.9")
 #: Largest integer CityJSON coordinate taken (exact in float64, no int64 overflow in re-centring).
 MAX_GRID_COORDINATE = 2**53
 LOD_CHOICES = ("highest", "lowest")
@@ -1167,15 +1172,18 @@ def _parse_json(data: bytes, where: str):
 def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = False
                            ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The vertices, scale and translate of a CityJSON document (or a CityJSONSeq header line)."""
-    if not isinstance(cj, dict) or cj.get("type") != "CityJSON":
+    version = str(cj.get("version", "")) if isinstance(cj, dict) else ""
+    major_minor = ".".join(version.rstrip("/").rsplit("/", 1)[-1].split(".")[:2])  # 0.1's is a URL
+    draft = not seq and (major_minor in DRAFT_CITYJSON_VERSIONS or (not version and cj.get("type") == "CityModel"))
+    if not isinstance(cj, dict) or cj.get("type") not in (("CityJSON", "CityModel") if draft else ("CityJSON",)):
         what = "its first line is not a CityJSON header" if seq else "is JSON but not CityJSON"
         found = cj.get("type") if isinstance(cj, dict) else type(cj).__name__
         raise InputFileError(where, f"{what} (expected \"type\": \"CityJSON\", found {found!r})")
-    version = str(cj.get("version", ""))
-    major_minor = ".".join(version.split(".")[:2])
-    if major_minor not in SUPPORTED_CITYJSON_VERSIONS:
+    if major_minor not in SUPPORTED_CITYJSON_VERSIONS and not draft:
         raise InputFileError(
-            where, f"CityJSON version {version!r} is not supported; expected one of {', '.join(SUPPORTED_CITYJSON_VERSIONS)}"
+            where, f"CityJSON version {version!r} is not supported; expected one of "
+                   f"{', '.join(SUPPORTED_CITYJSON_VERSIONS)} (or a draft, {DRAFT_CITYJSON_VERSIONS[0]}-"
+                   f"{DRAFT_CITYJSON_VERSIONS[-1]})"
         )
     verts = cj.get("vertices", [] if seq else None)
     if not isinstance(verts, list):

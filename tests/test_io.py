@@ -75,6 +75,29 @@ def test_composite_solid_and_version_1_0_float_vertices(tmp_path):
     assert rej == [] and _volume(m) == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("kind, version, transform", [
+    ("CityModel", "http://www.cityjson.org/version/0.1", False),  # the Munich sample of the specification
+    ("CityModel", None, True),  # its "compressed" copy: no version, a transform
+    ("CityJSON", "0.6", False),  # the Montreal sample
+    ("CityJSON", "0.9", True),
+])
+def test_cityjson_drafts_are_read_as_1_0(tmp_path, kind, version, transform):
+    """CityJSON's drafts (2017-2019) encode geometry as 1.0 does; up to 0.2 their type was "CityModel",
+    their version a URL, their semantics a list of names and their LoD a number."""
+    verts = [[x / 1000 + 4424648.79, y / 1000 + 5482614.69, z / 1000 + 310.19] for x, y, z in CUBE_VERTS]
+    if transform:
+        verts = CUBE_VERTS
+    geom = {**cube_solid(lod=2), "semantics": [["Wall"] * 6]}
+    d = doc({"DEBY_LOD2_1": {"type": "Building", "geometry": [geom]}}, verts, transform=transform)
+    d["type"] = kind
+    if version is None:
+        del d["version"]
+    else:
+        d["version"] = version
+    (m,), rej = _read(write(tmp_path / "draft.json", d))
+    assert rej == [] and _volume(m) == pytest.approx(1.0) and m.lod == "2"
+
+
 def test_cityjson_1_1_upgrade_path_reads_real_zurich(data_dir):
     ok, rej = _read(data_dir / "zurich-lod2-subset" / "zurich_subset_lod2.city.json")
     assert len(ok) + len(rej) == 49 and len(ok) == 49
@@ -102,7 +125,9 @@ def test_extrusion_from_lod2_gives_closed_blocks(data_dir):
         ("notcj.json", b'{"type": "Topology", "objects": {}}', "not CityJSON"),
         ("nofeatures.geojson", b'{"type": "FeatureCollection"}', "without a \"features\" list"),
         ("empty.geojson", b'{"type": "FeatureCollection", "features": []}', "of no features"),
-        ("old.city.json", b'{"type": "CityJSON", "version": "0.9", "CityObjects": {}, "vertices": []}', "version '0.9' is not supported"),
+        ("new.city.json", b'{"type": "CityJSON", "version": "3.0", "CityObjects": {}, "vertices": []}',
+         "version '3.0' is not supported; expected one of 1.0, 1.1, 2.0 (or a draft, 0.1-0.9)"),
+        ("oldseq.city.jsonl", b'{"type": "CityModel", "version": "0.9", "CityObjects": {}, "vertices": []}', "not a CityJSON header"),
         ("noverts.city.json", b'{"type": "CityJSON", "version": "2.0", "CityObjects": {}}', 'no "vertices"'),
         ("empty.obj", b"", "file is empty"),
         ("corrupt.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 99\nproperty float x\nend_header\n\x00\x01", "cannot be read as .ply"),
