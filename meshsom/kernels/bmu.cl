@@ -78,9 +78,9 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
                 realv w[UB];
                 for (int b = 0; b < UB; ++b) {
 #if USE_LOCAL
-                    w[b] = VLOAD(0, Wl + kk * TILE_M + b * VW);
+                    LOAD_V(w[b], Wl + kk * TILE_M + b * VW);
 #else
-                    w[b] = VLOAD(0, WT + k * MP + m0 + b * VW);
+                    LOAD_V(w[b], WT + k * MP + m0 + b * VW);
 #endif
                 }
                 for (int v = 0; v < NV; ++v) {
@@ -96,7 +96,8 @@ void bmu_of_n(__global const REAL *X,        /* (N, D) */
         }
 
         for (int b = 0; b < UB; ++b) {
-            const realv wn = VLOAD(0, wnorm + m0 + b * VW);
+            realv wn;
+            LOAD_V(wn, wnorm + m0 + b * VW);
             const irealv u = (irealv)(m0 + b * VW) + LANES;
             for (int r = 0; r < R; ++r) {
                 const realv d = wn - (REAL)2 * acc[r][b];

@@ -41,6 +41,31 @@ typedef CAT(IREAL, VW) irealv;
 typedef union { realv v; REAL s[VW]; } realv_lanes;
 typedef union { irealv v; IREAL s[VW]; } irealv_lanes;
 
+/* Loads and stores of vectors of 8 or more lanes (512 bits and more at VW 16 with float, VW 8 with
+ * double, and float8) go lane by lane through the union, never through vloadN / vstoreN: those
+ * are calls into PoCL's builtin library, with the ABI mismatch above on AMD Zen 4. There vload16
+ * in kernels/bmu.cl built, and returned wrong lanes (units out of range); LLVM merges the lane
+ * copies into one vector move where the target has one. Narrower vectors use the builtins. */
+#if VW >= 8
+#define LOAD_V(dst, p)                                               \
+    do {                                                             \
+        realv_lanes l_;                                              \
+        for (int i_ = 0; i_ < VW; ++i_)                              \
+            l_.s[i_] = (p)[i_];                                      \
+        (dst) = l_.v;                                                \
+    } while (0)
+#define STORE_V(v, p)                                                \
+    do {                                                             \
+        realv_lanes l_;                                              \
+        l_.v = (v);                                                  \
+        for (int i_ = 0; i_ < VW; ++i_)                              \
+            (p)[i_] = l_.s[i_];                                      \
+    } while (0)
+#else
+#define LOAD_V(dst, p) ((dst) = VLOAD(0, (p)))
+#define STORE_V(v, p) VSTORE((v), 0, (p))
+#endif
+
 #if VW == 2
 #define LANES ((irealv)(0, 1))
 #define ANY(m) (((m).s0 | (m).s1) != 0)

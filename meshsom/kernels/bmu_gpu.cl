@@ -155,7 +155,7 @@
             realv w[WVEC];                                                               \
             _Pragma("unroll")                                                            \
             for (int i = 0; i < XVEC; ++i)                                               \
-                VSTORE(xb[kk * (XSTRIDE / VW) + i * WGM + ty], 0, xr + i * VW);          \
+                STORE_V(xb[kk * (XSTRIDE / VW) + i * WGM + ty], xr + i * VW);            \
             _Pragma("unroll")                                                            \
             for (int j = 0; j < WVEC; ++j)                                               \
                 w[j] = wb[kk * (WSTRIDE / VW) + j * WGN + tx];                           \
@@ -194,13 +194,13 @@
         REAL wn[RN];                                                                     \
         UNROLL_GPU                                                                       \
         for (int j = 0; j < WVEC; ++j)                                                   \
-            VSTORE(((__global const realv *)wnorm)[((m0) / VW) + j * WGN + tx], 0, wn + j * VW); \
+            STORE_V(((__global const realv *)wnorm)[((m0) / VW) + j * WGN + tx], wn + j * VW); \
         UNROLL_GPU                                                                       \
         for (int i = 0; i < RM; ++i) {                                                   \
             REAL d[RN], a[RN];                                                           \
             UNROLL_GPU                                                                   \
             for (int j = 0; j < WVEC; ++j)                                               \
-                VSTORE(acc[i][j], 0, a + j * VW);                                        \
+                STORE_V(acc[i][j], a + j * VW);                                          \
             int enters = 0;                                                              \
             UNROLL_GPU                                                                   \
             for (int l = 0; l < RN; ++l) {                                               \
