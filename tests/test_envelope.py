@@ -322,7 +322,7 @@ def test_rebuild_tries_the_next_union_order_when_preprocessing_fails(tmp_path, m
     """The first order's shells refused by preprocessing: the pairwise order's are used; all refused:
     the first order's reason is raised."""
     import meshsom.union
-    from meshsom.envelope import SPLIT_RULES, UNION_ORDERS, rebuild_under_roofs
+    from meshsom.envelope import SPLIT_RULES, TOL_FACTORS, UNION_ORDERS, rebuild_under_roofs
     from roof_models import gable_on_terrain
 
     document, volume = gable_on_terrain()
@@ -349,4 +349,28 @@ def test_rebuild_tries_the_next_union_order_when_preprocessing_fails(tmp_path, m
     calls.clear()
     with pytest.raises(MeshError, match="refused #0$"):
         rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(), "gable")
-    assert calls == [0, 1, 2, 3] and len(calls) == len(UNION_ORDERS) * len(SPLIT_RULES)
+    assert calls == list(range(8)) and len(calls) == len(UNION_ORDERS) * len(SPLIT_RULES) * len(TOL_FACTORS)
+
+
+def test_rebuild_snaps_coarser_when_no_way_unites_at_the_tolerance(tmp_path, monkeypatch):
+    """Where every split rule and union order fails at envelope_tol, the prisms are made again at
+    its multiples (a file on a centimetre grid): the record says which tolerance was used."""
+    from meshsom import envelope
+    from roof_models import gable_on_terrain
+
+    document, volume = gable_on_terrain()
+    raw = _raw(tmp_path, document)
+    real = envelope._unite
+    tried = []
+
+    def coarse_only(prisms, order, source):
+        tried.append(prisms.tol)
+        if prisms.tol < 0.02:
+            raise MeshError(source, "a flap at 2 mm")
+        return real(prisms, order, source)
+
+    monkeypatch.setattr(envelope, "_unite", coarse_only)
+    result, clean = envelope.rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(), "gable")
+    assert tried == [0.002] * 4 + [0.02] and result.tol == 0.02
+    assert clean.volume_out == pytest.approx(volume, rel=1e-6)
+    assert "roofs snapped within 0.02 m" in result.describe() and result.record()["tol"] == 0.02
