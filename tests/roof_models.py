@@ -14,7 +14,9 @@ bottom is open and not planar, and no planar cap closes it. On top of that:
 - :func:`courtyard_block` a flat roof with a courtyard (a polygon with a hole), walls inside and out;
 - :func:`crossing_shed_roofs` two shed roofs on either side of one edge, one rising and one falling
   along it, so that their heights cross halfway;
-- :func:`wall_foot_outside_the_eave` a wall whose foot stands 10 cm outside the eave above it.
+- :func:`wall_foot_outside_the_eave` a wall whose foot stands 10 cm outside the eave above it;
+- :func:`barrel_vault` a hall under a half-cylinder vault of 24 strips, whose springing strips
+  (within 5 degrees of vertical) are walls, not roofs.
 
 :func:`part_without_a_roof` (an annex whose roof is missing) is refused rather than rebuilt.
 """
@@ -238,6 +240,34 @@ def foot_wedge() -> float:
     return L * (EAVE - bottom) * FOOT / 2
 
 
+def barrel_vault() -> tuple[dict, float]:
+    """A hall [0, 30] x [0, 12] whose walls reach 10 m, under a barrel vault (a half cylinder of
+    radius 6 along x, 24 strips across, 6 along): a curved roof, as stations, halls and churches
+    have. The strips at the springing rise within 5 degrees of vertical, so they are walls: the
+    columns under them (5 cm wide) are lost, and the solid is what lies under the other 22 strips
+    (each a trapezoid in cross-section, from the millimetre-rounded coordinates)."""
+    import math
+
+    length, width, eave, n, rows = 30.0, 12.0, 10.0, 24, 6
+    r = width / 2
+    ys = [round(r - r * math.cos(math.pi * k / n), 3) for k in range(n + 1)]
+    zs = [round(eave + r * math.sin(math.pi * k / n), 3) for k in range(n + 1)]
+    model = _Model()
+    model.add("hall")
+    ring = [(0.0, 0.0), (length, 0.0), (length, width), (0.0, width)]
+    tops = [eave, [(length, y, z) for y, z in zip(ys, zs)], eave, [(0.0, y, z) for y, z in zip(ys, zs)][::-1]]
+    _walls_to_terrain(model, "hall", ring, tops)
+    xs = [length * j / rows for j in range(rows + 1)]
+    for x0, x1 in zip(xs, xs[1:]):
+        for k in range(n):
+            model.polygon("hall", [[(x0, ys[k], zs[k]), (x1, ys[k], zs[k]), (x1, ys[k + 1], zs[k + 1]), (x0, ys[k + 1], zs[k + 1])]])
+    base = _base(*ring)
+    steep = math.tan(math.radians(5))
+    section = sum((ys[k + 1] - ys[k]) * ((zs[k] + zs[k + 1]) / 2 - base) for k in range(n)
+                  if ys[k + 1] - ys[k] > steep * abs(zs[k + 1] - zs[k]))
+    return model.document(), length * section
+
+
 def part_without_a_roof() -> dict:
     """The gable house and, as a BuildingPart of the same Building, an annex [L, L + 4] x [2, 6] east
     of it whose roof is missing: walls 3 m high and nothing on them. Its west wall stands in the
@@ -261,4 +291,5 @@ MODELS = {
     "courtyard_block": courtyard_block,
     "crossing_shed_roofs": crossing_shed_roofs,
     "wall_foot_outside_the_eave": wall_foot_outside_the_eave,
+    "barrel_vault": barrel_vault,
 }
