@@ -151,6 +151,10 @@ class PreprocessParams:
         lidar; a part with no roof). What they would lose (each wall's area times its distance
         outside, an estimate) may be at most this fraction of the rebuilt volume; more, and the
         rebuild is refused (default 0.01).
+    envelope_max_roofs : int
+        For ``roof_envelope``: a mesh with more roof triangles above its floor than this is not
+        rebuilt (LoD2 roof models have tens to hundreds; a scanned or detailed mesh of 66,000
+        triangles has 28,000 and its prisms take minutes to unite); 0: no limit (default 5000).
     """
 
     weld_tol: float = 1e-8
@@ -173,6 +177,7 @@ class PreprocessParams:
     wall_tilt_deg: float = 5.0
     envelope_tol: float = 0.002
     envelope_max_loss: float = 0.01
+    envelope_max_roofs: int = 5000
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -194,6 +199,8 @@ class PreprocessParams:
         if not (isinstance(self.envelope_max_loss, (int, float)) and 0 <= self.envelope_max_loss < 1):
             raise ValueError(f"envelope_max_loss must be a number in [0, 1) (a fraction of the rebuilt volume); "
                              f"received {self.envelope_max_loss!r}")
+        if not (isinstance(self.envelope_max_roofs, int) and self.envelope_max_roofs >= 0):
+            raise ValueError(f"envelope_max_roofs must be an integer >= 0 (0: no limit); received {self.envelope_max_roofs!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):

@@ -352,6 +352,24 @@ def test_rebuild_tries_the_next_union_order_when_preprocessing_fails(tmp_path, m
     assert calls == list(range(8)) and len(calls) == len(UNION_ORDERS) * len(SPLIT_RULES) * len(TOL_FACTORS)
 
 
+def test_too_many_roof_triangles_are_refused_at_once(tmp_path, monkeypatch):
+    """A mesh with more roof triangles than envelope_max_roofs (a scanned or detailed mesh: uniting
+    43,000 prisms took 5 minutes) is refused before any union, and no other way is tried."""
+    from meshsom import envelope
+    from roof_models import gable_on_terrain
+
+    raw = _raw(tmp_path, gable_on_terrain()[0])  # 4 roof triangles
+    made = []
+    real = envelope._roof_prisms
+    monkeypatch.setattr(envelope, "_roof_prisms", lambda *a, **k: made.append(1) or real(*a, **k))
+    with pytest.raises(MeshError, match=r"4 roof triangles, more than preprocess.envelope_max_roofs \(3\): a detailed"):
+        envelope.rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(envelope_max_roofs=3), "gable")
+    assert made == [1]
+    envelope.rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(envelope_max_roofs=4), "gable")
+    with pytest.raises(ValueError, match="envelope_max_roofs must be an integer >= 0"):
+        PreprocessParams(envelope_max_roofs=-1)
+
+
 def test_rebuild_snaps_coarser_when_no_way_unites_at_the_tolerance(tmp_path, monkeypatch):
     """Where every split rule and union order fails at envelope_tol, the prisms are made again at
     its multiples (a file on a centimetre grid): the record says which tolerance was used."""
