@@ -1172,10 +1172,10 @@ def _parse_json(data: bytes, where: str):
 def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = False
                            ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The vertices, scale and translate of a CityJSON document (or a CityJSONSeq header line)."""
-    version = str(cj.get("version", "")) if isinstance(cj, dict) else ""
+    kind, version = (cj.get("type"), str(cj.get("version", ""))) if isinstance(cj, dict) else (None, "")
     major_minor = ".".join(version.rstrip("/").rsplit("/", 1)[-1].split(".")[:2])  # 0.1's is a URL
-    draft = not seq and (major_minor in DRAFT_CITYJSON_VERSIONS or (not version and cj.get("type") == "CityModel"))
-    if not isinstance(cj, dict) or cj.get("type") not in (("CityJSON", "CityModel") if draft else ("CityJSON",)):
+    draft = not seq and (major_minor in DRAFT_CITYJSON_VERSIONS or (not version and kind == "CityModel"))
+    if kind not in (("CityJSON", "CityModel") if draft else ("CityJSON",)):
         what = "its first line is not a CityJSON header" if seq else "is JSON but not CityJSON"
         found = cj.get("type") if isinstance(cj, dict) else type(cj).__name__
         raise InputFileError(where, f"{what} (expected \"type\": \"CityJSON\", found {found!r})")

@@ -123,6 +123,7 @@ def test_extrusion_from_lod2_gives_closed_blocks(data_dir):
         ("trunc.city.json", b'{"type": "CityJSON", "version": "2.0", "vert', "invalid JSON at line 1"),
         ("bin.city.json", b"\xff\xfe\x00garbage", "is not UTF-8 text"),
         ("notcj.json", b'{"type": "Topology", "objects": {}}', "not CityJSON"),
+        ("list.city.json", b'[1, 2]', "is JSON but not CityJSON (expected \"type\": \"CityJSON\", found 'list')"),
         ("nofeatures.geojson", b'{"type": "FeatureCollection"}', "without a \"features\" list"),
         ("empty.geojson", b'{"type": "FeatureCollection", "features": []}', "of no features"),
         ("new.city.json", b'{"type": "CityJSON", "version": "3.0", "CityObjects": {}, "vertices": []}',
