@@ -32,6 +32,11 @@ Details of the encoding:
 - Parsing streams (``xml.etree.ElementTree.iterparse`` on :func:`meshsom.io.open_input`: gzip
   decompressed as it is read), each building cleared once read; no DTD or external entity is
   fetched.
+- A prefix used without a namespace declaration (an ADE's ``energy:`` or ``uro:`` element, an
+  ``xlink:href`` in a file that forgot ``xmlns:xlink``: not well-formed XML, which a parser refuses
+  at the first use) is declared on the root element and the file read again from the start, the
+  buildings already read passed over (:data:`UNDECLARED_PREFIXES` of them at most); the buildings
+  read after the first such prefix carry a note naming them.
 """
 
 from __future__ import annotations
@@ -64,6 +69,17 @@ POLYGON_NAMES = ("Polygon", "PolygonPatch", "Triangle", "Rectangle")
 SOLID_NAMES = ("Solid", "CompositeSolid", "MultiSolid")
 _LOD = re.compile(r"^lod(\d)")
 _XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
+#: The namespaces given to prefixes that a file uses without declaring them, where the reader looks
+#: attributes up by their namespace (``xlink:href``); any other prefix gets a namespace of its own
+#: (elements are matched by local name).
+KNOWN_PREFIXES = {"xlink": "http://www.w3.org/1999/xlink", "gml": "http://www.opengis.net/gml",
+                  "xsi": "http://www.w3.org/2001/XMLSchema-instance"}
+#: How many undeclared prefixes a file may use before it is refused as not XML (each one costs a
+#: reading of the file up to its first use).
+UNDECLARED_PREFIXES = 16
+#: How far into a file its root element's start tag is looked for, to declare prefixes on it.
+ROOT_TAG_SEARCH_BYTES = 1 << 20
+_PREFIXED_NAME = re.compile(r"(?:<|\s)/?([A-Za-z_][\w.\-]*):[A-Za-z_][\w.\-]*")
 
 
 @functools.lru_cache(maxsize=4096)
@@ -277,22 +293,162 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
         The file is not XML or holds no Building. The root may be a CityModel or anything else
         that holds Buildings (a WFS FeatureCollection, as German LoD2 downloads come).
     """
+    import dataclasses
+
+    from meshsom.io import Rejection, open_input
+
+    added: dict[str, str] = {}  # prefixes the file uses undeclared -> the namespace given them
+    read = 0  # items yielded so far: passed over when the file is read again
+    first = None  # the first parse error, in the file as it is
+    while True:
+        declared: set[str] = set()
+        seen = 0
+        try:
+            with open_input(path, options) as stream:
+                source = _DeclaringStream(stream, added) if added else stream
+                for item in _buildings(source, path, name or path.name, options, declared):
+                    seen += 1
+                    if seen <= read:
+                        continue
+                    read = seen
+                    if added and not isinstance(item, Rejection):
+                        item = dataclasses.replace(item, notes=item.notes + (_undeclared_note(added),))
+                    yield item
+            return
+        except InputFileError:
+            raise
+        except ET.ParseError as err:
+            line, column = err.position
+            problem = f"invalid XML at line {line}, column {column}: {str(err).split(':')[0]}"
+            prefix = _unbound_prefix(path, options, line, column, declared, added) \
+                if str(err).startswith("unbound prefix") and len(added) < UNDECLARED_PREFIXES else None
+            if prefix is None:
+                if added:  # the first error (its position in the file as it is), and what declaring led to
+                    then = (f"more than {UNDECLARED_PREFIXES} prefixes used undeclared" if len(added) >= UNDECLARED_PREFIXES
+                            else f"at line {line}: {str(err).split(':')[0]}")
+                    problem = f"{first}; with {', '.join(f'{p}:' for p in added)} declared, then {then}"
+                raise InputFileError(str(path), problem) from None
+            first = first or problem
+            added[prefix] = KNOWN_PREFIXES.get(prefix, f"urn:meshsom:undeclared:{prefix}")
+        except (LookupError, ValueError, RecursionError) as err:  # an unknown encoding, bytes not in it, deep nesting
+            raise InputFileError(str(path), f"cannot be parsed as XML ({type(err).__name__}: {err})") from None
+
+
+def _undeclared_note(added: dict[str, str]) -> str:
+    names = ", ".join(f"{p}:" for p in added)
+    return (f"the file uses the XML prefix(es) {names} without declaring a namespace for them (not well-formed XML); "
+            f"read as if the root element declared them")
+
+
+def _unbound_prefix(path: Path, options, line: int, column: int, declared: set[str], added: dict[str, str]) -> str | None:
+    """The prefix of the start tag at ``line``, ``column`` (a parser's error position, in bytes of
+    the file as parsed: with ``added`` declared) that no declaration binds: of its element's and its
+    attributes' prefixes not in ``added``, the first that the file declares nowhere before
+    (``declared``), else the first (declared only in another element's scope); None if none."""
     from meshsom.io import open_input
 
-    try:
-        with open_input(path, options) as stream:
-            yield from _buildings(stream, path, name or path.name, options)
-    except InputFileError:
-        raise
-    except ET.ParseError as err:
-        line, column = err.position
-        raise InputFileError(str(path), f"invalid XML at line {line}, column {column}: {str(err).split(':')[0]}") from None
-    except (LookupError, ValueError, RecursionError) as err:  # an unknown encoding, bytes not in it, deep nesting
-        raise InputFileError(str(path), f"cannot be parsed as XML ({type(err).__name__}: {err})") from None
+    with open_input(path, options) as stream:
+        text = _text_at(_DeclaringStream(stream, added) if added else stream, line, column)
+    tag = text.split(">", 1)[0]
+    found = [m.group(1) for m in _PREFIXED_NAME.finditer(" " + tag)]
+    found = [p for p in found if p not in added and p not in ("xml", "xmlns")]
+    return next((p for p in found if p not in declared), found[0] if found else None)
 
 
-def _buildings(stream, path: Path, name: str, options) -> Iterator:
-    """The meshes and rejections of the Buildings parsed from ``stream``, as :func:`read_citygml`."""
+def _text_at(stream, line: int, column: int, size: int = 1 << 16) -> str:
+    """Up to ``size`` characters of ``stream`` from character ``column`` of line ``line`` (as the
+    parser counts them: lines from 1, columns from 0, in characters), decoded as UTF-8 (a byte that
+    is not, of a single-byte encoding, is one character too), read as a stream (a one-line file is
+    not held whole)."""
+    import codecs
+
+    decoder = codecs.getincrementaldecoder("utf-8")("replace")
+    number, skip, out = 1, None, ""
+    while True:
+        chunk = stream.read(1 << 16)
+        if not chunk:
+            return out + decoder.decode(b"", final=True) if skip is not None else ""
+        if skip is None:
+            at = -1
+            while number < line:
+                at = chunk.find(b"\n", at + 1)
+                if at < 0:
+                    break
+                number += 1
+            if number < line:
+                continue
+            chunk, skip = chunk[at + 1:], column
+        text = decoder.decode(chunk)
+        if skip >= len(text):
+            skip -= len(text)
+            continue
+        out += text[skip:]
+        skip = 0
+        if len(out) >= size:
+            return out[:size]
+
+
+class _DeclaringStream:
+    """A binary stream whose root element's start tag declares ``added`` prefixes (a mapping of
+    prefix to namespace), for :func:`xml.etree.ElementTree.iterparse`. The declarations go inside
+    the tag, on its line, so line numbers stay those of the file. Nothing is added to a file
+    whose root is not found in its first :data:`ROOT_TAG_SEARCH_BYTES` or that is UTF-16 (the
+    parser then fails at the same prefix again and the file is refused)."""
+
+    def __init__(self, stream, added: dict[str, str]):
+        self._stream = stream
+        self._declarations = "".join(f' xmlns:{p}="{uri}"' for p, uri in added.items()).encode("ascii")
+        self._head: bytes | None = None
+
+    def read(self, size: int = -1) -> bytes:
+        if self._head is None:
+            self._head = self._declare()
+        if self._head:
+            if size is None or size < 0:
+                out, self._head = self._head + self._stream.read(), b""
+                return out
+            out, self._head = self._head[:size], self._head[size:]
+            return out
+        return self._stream.read(size)
+
+    def _declare(self) -> bytes:
+        head = b""
+        while len(head) < ROOT_TAG_SEARCH_BYTES:
+            chunk = self._stream.read(1 << 16)
+            head += chunk
+            at = _root_name_end(head)
+            if at is not None:
+                return head[:at] + self._declarations + head[at:]
+            if not chunk or head[:2] in (b"\xff\xfe", b"\xfe\xff"):
+                break
+        return head
+
+
+def _root_name_end(head: bytes) -> int | None:
+    """Where the root element's name ends in the first bytes of an XML document (after its
+    declaration, comments, processing instructions and doctype), or None if not within them."""
+    at = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+    while True:
+        at = head.find(b"<", at)
+        if at < 0 or at + 1 >= len(head):
+            return None
+        follow = head[at + 1:at + 2]
+        if follow in (b"?", b"!"):
+            close = b"-->" if head.startswith(b"<!--", at) else b">"
+            end = head.find(close, at)
+            if end < 0:
+                return None
+            at = end + len(close)
+            continue
+        match = re.compile(rb"[^\s/>]+").match(head, at + 1)
+        if match is None or match.end() >= len(head):
+            return None
+        return match.end()
+
+
+def _buildings(stream, path: Path, name: str, options, declared: set[str]) -> Iterator:
+    """The meshes and rejections of the Buildings parsed from ``stream``, as :func:`read_citygml`;
+    the prefixes the file declares are added to ``declared`` as they are met."""
     import dataclasses
 
     from meshsom.io import Rejection, _object_meshes
@@ -304,7 +460,10 @@ def _buildings(stream, path: Path, name: str, options) -> Iterator:
     root = None
     file_srs = None  # the srsName of the model's own envelope: the CRS of geometry that names none
     stack: list[str] = []  # local names of the open elements
-    for event, element in ET.iterparse(stream, events=("start", "end")):
+    for event, element in ET.iterparse(stream, events=("start", "end", "start-ns")):
+        if event == "start-ns":
+            declared.add(element[0])
+            continue
         local = _local(element.tag)
         if event == "start":
             root = root or local

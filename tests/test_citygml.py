@@ -9,6 +9,7 @@ reader gives.
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
 from pathlib import Path
@@ -192,6 +193,75 @@ def test_bad_citygml_files_are_rejections_naming_the_problem(tmp_path, text, rea
     path.write_bytes(text)
     (rej,) = read_file(path)
     assert isinstance(rej, Rejection) and rej.id == str(path) and rej.reason.startswith(reason), rej
+
+
+def _with_undeclared_prefixes(xml: str, building: int, drop_xlink: bool, one_line: bool) -> str:
+    """A CityGML text (:func:`to_citygml`) made not well-formed as real files are: an ADE property
+    with a prefix no declaration binds (``energy:``, after Japanese text on its line, as PLATEAU's
+    attributes are) in the ``building``-th Building and ``uro:`` in a later one, a comment before
+    the root, and optionally no ``xmlns:xlink`` although the Solids refer to polygons by xlink:href."""
+    head, rest = xml.split("\n", 1)
+    if drop_xlink:
+        rest = rest.replace(' xmlns:xlink="http://www.w3.org/1999/xlink"', "", 1)
+    members = rest.split("<bldg:Building ")
+    ade = ('<gen:stringAttribute name="\u5efa\u7269\u540d"><gen:value>\u6771\u4eac\u99c5</gen:value></gen:stringAttribute>'
+           '<energy:isHeated>true</energy:isHeated>')
+    members[building] = members[building].replace(">", ">" + ade, 1)
+    members[building + 3] = members[building + 3].replace(">", '><uro:key uro:code="2">2</uro:key>', 1)
+    text = head + "\n<!-- exported <with> a <CityModel> in a comment -->\n" + "<bldg:Building ".join(members)
+    return text.replace("\n", "") if one_line else text
+
+
+@pytest.mark.parametrize("drop_xlink,one_line,gzipped", [(False, False, False), (False, True, True), (True, True, False)])
+def test_prefixes_used_without_a_declaration_are_declared_and_nothing_is_lost(tmp_path, drop_xlink, one_line, gzipped):
+    """A prefix used without a namespace declaration (not well-formed XML) no longer loses every
+    building after it: the file is read again with the prefix declared on its root, the buildings
+    read before are not read twice, and the rest carry a note naming the prefixes."""
+    original = DATA / REAL[0][0] / REAL[0][1]  # Delft: Solids, referring to their polygons by xlink:href
+    declared = tmp_path / "declared.gml"
+    declared.write_text(to_citygml(json.loads(original.read_text()), href=True))
+    expected = list(read_file(declared))
+    text = _with_undeclared_prefixes(declared.read_text(), 5, drop_xlink, one_line).encode()
+    path = tmp_path / ("city.gml.gz" if gzipped else "city.gml")
+    path.write_bytes(gzip.compress(text) if gzipped else text)
+    got = list(read_file(path))
+    assert len(got) == len(expected) > 40
+    assert_same_buildings(got, [dataclasses.replace(e, id=e.id.replace("declared.gml", path.name)) for e in expected], path.name)
+    noted = [any("XML prefix" in n for n in m.notes) for m in got]
+    if drop_xlink:  # the first Solid's first reference: every building is read after the prefix was declared
+        assert all(noted) and "prefix(es) xlink: without" in got[0].notes[-1]
+        assert "prefix(es) xlink:, energy:, uro: without" in got[-1].notes[-1]  # each note: those known by then
+    else:
+        assert noted == [False] * 4 + [True] * (len(got) - 4) and "prefix(es) energy:, uro: without" in got[-1].notes[-1]
+
+
+@pytest.mark.parametrize("text,reason", [
+    # more undeclared prefixes than UNDECLARED_PREFIXES: refused as not XML
+    ("<CityModel>" + "".join(f"<p{k}:x/>" for k in range(20)) + "</CityModel>",
+     "invalid XML at line 1, column 11: unbound prefix; with " + ", ".join(f"p{k}:" for k in range(16))
+     + " declared, then more than 16 prefixes used undeclared"),
+    # declared, then a mismatched tag: both said
+    ("<CityModel>\n<b:x><gml:a/></b:y></CityModel>",
+     "invalid XML at line 2, column 0: unbound prefix; with b:, gml: declared, then at line 2: mismatched tag"),
+    # declared on the root, yet no Building
+    ("<CityModel xmlns:gml='http://www.opengis.net/gml'><gml:a/>\n<b:x/></CityModel>", None),
+])
+def test_files_that_undeclared_prefixes_do_not_explain_are_still_refused(tmp_path, text, reason):
+    path = tmp_path / "bad.gml"
+    path.write_text(text)
+    (item,) = read_file(path)
+    if reason is None:  # b: is declared on the root, the file holds no Building
+        assert isinstance(item, Rejection) and item.reason.startswith("holds no Building"), item
+    else:
+        assert isinstance(item, Rejection) and item.reason == reason, item
+
+
+def test_a_mismatched_tag_is_not_taken_for_an_undeclared_prefix(tmp_path):
+    path = tmp_path / "bad.gml"
+    path.write_text("<CityModel xmlns:gml='http://www.opengis.net/gml'>\n<a:b></c:d>\n</CityModel>")
+    (item,) = read_file(path)
+    assert isinstance(item, Rejection) and item.reason.startswith("invalid XML at line 2, column "), item
+    assert "mismatched tag" in item.reason, item
 
 
 def test_a_building_with_bad_coordinates_is_rejected_alone(tmp_path):
