@@ -69,6 +69,14 @@ __all__ = ["PreprocessParams", "Result", "check_input", "preprocess", "validate"
 MAX_DIAGONAL = 1e60
 
 
+#: Edges with more faces than this are left out when :func:`_keep_one_side` joins the faces of a
+#: plane into regions (a two-sided surface has four on an edge; a pile of faces is not one).
+MAX_FACES_PER_EDGE = 8
+#: Share of a mesh's area in faces modelled on both sides above which :func:`_keep_one_side` takes
+#: it for a two-sided export and keeps one side (below, they are walls between parts).
+TWO_SIDED_SHARE = 0.9
+
+
 @dataclass(frozen=True)
 class PreprocessParams:
     """Tolerances and switches of :func:`preprocess` (config section ``preprocess``).
@@ -446,6 +454,7 @@ def _clean(vertices, faces, params, source, repairs):
     if collapsed.any():
         repairs.append(f"dropped {int(collapsed.sum())} degenerate faces")
         f = f[~collapsed]
+    f = _keep_one_side(v, f, params, repairs)
     f = _drop_duplicates(f, repairs)
     if len(f) < params.min_faces:
         raise MeshError(source, f"only {len(f)} faces after cleaning; at least {params.min_faces} needed")
@@ -527,6 +536,83 @@ def _fins_then_caps(v, g, params, diag, repairs, fins: bool = True):
 def _fewer_bad_edges(c: np.ndarray, counts: np.ndarray) -> bool:
     """Whether edge counts ``c`` have fewer open or non-manifold edges than ``counts``."""
     return bool((c == 1).sum() + (c > 2).sum() < (counts == 1).sum() + (counts > 2).sum())
+
+
+def _keep_one_side(v, f, params, repairs):
+    """One side of a two-sided mesh: one where planar regions of faces holding at least
+    :data:`TWO_SIDED_SHARE` of its area each have a twin over the same vertices facing the other
+    way, as modelling tools export "two-sided" faces (each face again, reversed, often triangulated
+    along the other diagonal). Every face would go as a wall walked both ways
+    (:func:`_drop_duplicates`) or leave every edge with four faces; here each twin is dropped and
+    :func:`_orient` orients the rest. A mesh with fewer such faces (the walls between the parts of
+    a building) is left to :func:`_drop_duplicates`.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Welded, without degenerate faces.
+
+    Returns
+    -------
+    f : (F', 3) int64
+    """
+    if not len(f):
+        return f
+    _, edge_of, counts = edge_table(f)
+    if not (counts > 2).any() and len(np.unique(np.sort(f, axis=1), axis=0)) == len(f):
+        return f  # no edge with more than two faces, no face twice: nothing two-sided
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    # faces on one edge, in pairs (an edge of a two-sided surface has four), joined where coplanar
+    order = np.argsort(edge_of, kind="stable")
+    face = order // 3
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    small = counts <= MAX_FACES_PER_EDGE
+    a_list, b_list = [], []
+    for i in range(1, int(counts[small].max(initial=1))):
+        for j in range(i):
+            on = small & (counts > i)
+            a_list.append(face[start[on] + j])
+            b_list.append(face[start[on] + i])
+    a, b = np.concatenate(a_list), np.concatenate(b_list)
+    cos_tol = math.cos(math.radians(params.planar_angle_deg))
+    join = np.einsum("ij,ij->i", normal[a], normal[b]) >= cos_tol
+    n = len(f)
+    graph = sparse.coo_matrix((np.ones(int(join.sum()), np.int8), (a[join], b[join])), shape=(n, n))
+    n_regions, region = connected_components(graph, directed=False)
+    # each region's vertex set, hashed (two random weights per vertex), and its normal
+    rv = np.unique(np.stack([np.repeat(region, 3), f.reshape(-1)], axis=1), axis=0)
+    weights = np.random.default_rng(0).integers(1, 2**62, (len(v), 2), dtype=np.int64)
+    key = np.zeros((n_regions, 3), np.int64)
+    np.add.at(key[:, 0], rv[:, 0], weights[rv[:, 1], 0])
+    np.add.at(key[:, 1], rv[:, 0], weights[rv[:, 1], 1])
+    key[:, 2] = np.bincount(rv[:, 0], minlength=n_regions)
+    plane = np.zeros((n_regions, 3))
+    np.add.at(plane, region, cross)
+    plane /= np.maximum(np.linalg.norm(plane, axis=1), 1e-300)[:, None]
+    _, group, sizes = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    group = group.reshape(-1)
+    # pairs: two regions of one vertex set facing opposite ways (a set held by more is left alone)
+    two = np.flatnonzero(sizes[group] == 2)
+    if not len(two):
+        return f
+    by_group = two[np.argsort(group[two], kind="stable")].reshape(-1, 2)
+    first, second = by_group[:, 0], by_group[:, 1]
+    pairs = np.einsum("ij,ij->i", plane[first], plane[second]) <= -cos_tol
+    first, second = first[pairs], second[pairs]
+    if not len(first):
+        return f
+    paired = np.zeros(n_regions, bool)
+    paired[first] = paired[second] = True
+    share = area2[paired[region]].sum() / area2.sum()
+    if share < TWO_SIDED_SHARE:  # some faces walked both ways: internal walls, for _drop_duplicates
+        return f
+    gone = np.isin(region, second)
+    repairs.append(f"kept one side of a two-sided mesh ({len(first)} surfaces, {100 * share:.3g} % of its area, "
+                   f"also modelled facing the other way; {int(gone.sum())} faces dropped)")
+    return f[~gone]
 
 
 def _drop_duplicates(f, repairs):

@@ -1,6 +1,7 @@
 """Preprocessing: answers known by hand (triangle counts of planar polygons, volumes), watertightness."""
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -888,3 +889,82 @@ def test_dangling_wall_in_a_missing_walls_plane_is_removed(cube):
     r = preprocess(v, f)
     assert any("removed 4 faces of zero-thickness fins" in x for x in r.repairs), r.repairs
     _check_closed_outward(r, 1.0)
+
+
+ZURICH_LOD1 = Path(__file__).resolve().parents[1] / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"
+
+
+def _obj_of_polygons(path: Path, two_sided: bool) -> None:
+    """Zürich's 49 LoD1 blocks as an OBJ file of polygon faces (``o`` per building), as modelling
+    tools export them; ``two_sided``: every polygon written again reversed, with vertices of its
+    own (trimesh fans the reversed polygon from another corner: other diagonals)."""
+    import json
+
+    doc = json.loads(ZURICH_LOD1.read_text())
+    t = doc["transform"]
+    world = np.asarray(doc["vertices"], float) * t["scale"] + t["translate"] - t["translate"]
+    lines = [f"v {x:.3f} {y:.3f} {z:.3f}" for x, y, z in world]
+    n = len(world)
+    for oid, obj in doc["CityObjects"].items():
+        lines.append(f"o {oid}")
+        polygons = []
+        for shell in obj["geometry"][0]["boundaries"]:
+            for surface in shell:
+                ring = [i for k, i in enumerate(surface[0]) if i != surface[0][k - 1]]
+                if len(set(ring)) >= 3:
+                    polygons.append(ring)
+        for ring in polygons:
+            lines.append("f " + " ".join(str(i + 1) for i in ring))
+        if two_sided:
+            for ring in polygons:
+                lines.append(f"v {0:.3f} {0:.3f} {0:.3f}")  # a vertex it does not use: indices shift
+                lines += [f"v {world[i][0]:.3f} {world[i][1]:.3f} {world[i][2]:.3f}" for i in ring[::-1]]
+                lines.append("f " + " ".join(str(n + 2 + k) for k in range(len(ring))))
+                n += len(ring) + 1
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _corners(mesh, t) -> tuple:
+    return tuple(sorted(map(tuple, np.round(mesh.vertices[t] + mesh.origin, 3))))
+
+
+def test_a_two_sided_export_keeps_one_side(tmp_path):
+    """A mesh exported "two-sided" (every polygon again, reversed, with its own vertices: SketchUp's
+    and many CAD exporters' OBJ) is the one-sided mesh: each of Zürich's 49 blocks is accepted with
+    the volume and faces of the same file written one-sided. Before, each face pair went as an
+    internal wall (nothing left) or every edge had four faces."""
+    from meshsom.io import RawMesh, read_file
+
+    _obj_of_polygons(tmp_path / "one.obj", two_sided=False)
+    _obj_of_polygons(tmp_path / "two.obj", two_sided=True)
+    one = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "one.obj") if isinstance(m, RawMesh)}
+    two = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "two.obj") if isinstance(m, RawMesh)}
+    assert set(one) == set(two) and len(one) == 49
+    other_diagonals = compared = 0
+    for key, m in two.items():
+        try:
+            ref = preprocess(one[key].vertices, one[key].faces)
+        except MeshError:  # one block's ring touches itself: rejected one-sided too
+            continue
+        compared += 1
+        got = preprocess(m.vertices, m.faces)
+        assert got.volume_out == pytest.approx(ref.volume_out, rel=1e-9), key
+        assert got.faces_out == ref.faces_out and validate(got.vertices, got.faces) is None, key
+        assert any("two-sided" in r for r in got.repairs), (key, got.repairs)
+        front = {_corners(one[key], t) for t in one[key].faces}
+        other_diagonals += sum(_corners(m, t) not in front for t in m.faces)
+        # each triangle again, reversed, on the same vertices (a glTF exported double-sided): the same
+        doubled = np.vstack([one[key].faces, one[key].faces[:, ::-1]])
+        assert preprocess(one[key].vertices, doubled).volume_out == pytest.approx(ref.volume_out, rel=1e-9), key
+    assert compared >= 48
+    assert other_diagonals > 0  # some reversed polygons were triangulated differently
+
+
+def test_walls_between_parts_walked_both_ways_still_go(tmp_path):
+    """Two boxes sharing a wall that each walks (the faces of the wall twice, opposite ways: a
+    small share of the area) are one solid without the wall, as before two-sided meshes were kept."""
+    a, fa = box(4, 3, 3)
+    v = np.vstack([a, a + [4, 0, 0]])
+    r = preprocess(v, np.vstack([fa, fa + len(a)]))
+    assert r.volume_out == pytest.approx(8 * 3 * 3) and not any("two-sided" in x for x in r.repairs)
+    assert any("internal walls" in x or "fins" in x for x in r.repairs), r.repairs
