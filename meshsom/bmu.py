@@ -19,6 +19,7 @@ ran (:meth:`Engine.describe`), so results can say what computed them.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -383,6 +384,10 @@ class Engine:
 
 
 _FELL_BACK = []  # holds one entry once the auto fallback warning has been logged
+#: Set (to any value) in the environment of worker processes that share their client's machine and
+#: environment (a LocalCluster's): the client has said the same "no usable OpenCL device"
+#: fallback, so theirs is logged at INFO, not once more at WARNING per worker.
+CLIENT_SAYS_FALLBACK_ENV = "MESHSOM_CLIENT_SAYS_FALLBACK"
 
 
 def resolve_backend(backend: str = "auto", device: str | None = None, context=None,
@@ -421,7 +426,8 @@ def resolve_backend(backend: str = "auto", device: str | None = None, context=No
         if backend == "opencl":
             raise DeviceError(f"{err}; {ADVICE}") from None
         if not _FELL_BACK:
-            log.warning("no usable OpenCL device (%s); BMU search runs on the NumPy/BLAS backend", err)
+            level = logging.INFO if os.environ.get(CLIENT_SAYS_FALLBACK_ENV) else logging.WARNING
+            log.log(level, "no usable OpenCL device (%s); BMU search runs on the NumPy/BLAS backend", err)
             _FELL_BACK.append(True)
         return Engine("numpy", NUMPY_DEVICE)
     if layout is not None:

@@ -11,6 +11,7 @@ import logging
 import os
 from typing import Iterator
 
+from meshsom.bmu import CLIENT_SAYS_FALLBACK_ENV
 from pipelines.settings import DaskConfig
 
 log = logging.getLogger(__name__)
@@ -21,6 +22,8 @@ WORKER_ENV = {
     "OMP_NUM_THREADS": "1",
     "OPENBLAS_NUM_THREADS": "1",
     "MKL_NUM_THREADS": "1",
+    # the client probes the same device first (pipelines.train.prepare_engine) and says a fallback once
+    CLIENT_SAYS_FALLBACK_ENV: "1",
 }
 
 

@@ -118,3 +118,22 @@ def test_interrupted_run_leaves_killed_mlflow_runs(tmp_path, monkeypatch):
     assert {r.data.tags.get("map", "parent") for r in runs} == {"parent", "level1-bmuofn"}
     assert {r.info.status for r in runs} == {"KILLED"}
     assert {r.data.tags.get("kernel_layout") for r in runs} == {None}
+
+
+def test_without_an_opencl_device_the_fallback_is_said_once(tmp_path):
+    """`meshsom run` on a machine without any OpenCL device says the NumPy fallback in one line:
+    the client's, not once more by each LocalCluster worker (they logged it too, unformatted)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "POCL_DEVICES": "none", "OCL_ICD_VENDORS": str(tmp_path / "no-icd")}
+    sets = ["som.epochs=2", "domain.enabled=false", "dask.workers=2", "dask.dashboard=false",
+            f"store.path={tmp_path / 'q.zarr'}", f"tracking.uri=sqlite:///{tmp_path / 'mlflow.db'}"]
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "run", str(ROOT / "configs" / "quick.yaml"),
+                          *[a for s in sets for a in ("--set", s)]],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    said = [line for line in (out.stdout + out.stderr).splitlines() if "no usable OpenCL device" in line]
+    assert len(said) == 1 and said[0].startswith("WARNING meshsom.bmu: no usable OpenCL device"), said
+    assert "BMU search: numpy" in out.stdout
