@@ -275,7 +275,10 @@ def _cl():
 
 def list_devices() -> list[tuple[str, str, object]]:
     """Every OpenCL device: (selector "P:D", "platform / device" name, device)."""
+    from meshsom.caches import ensure_user_cache
+
     cl = _cl()
+    ensure_user_cache()  # PoCL shows no device where its kernel cache cannot be written
     try:
         platforms = cl.get_platforms()
     except cl.Error:

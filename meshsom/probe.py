@@ -86,7 +86,6 @@ SHORTAGE_WAIT_S = 2.0
 #: What the reason of a probe that ran short on every try ends with.
 SHORTAGE_NOTE = "(the device or host ran short of memory: no verdict on the layout, not cached)"
 
-ENV_CACHE = "MESHSOM_CACHE_DIR"
 ENV_INJECT = "MESHSOM_KERNEL_INJECT"
 ENV_TIMEOUT = "MESHSOM_PROBE_TIMEOUT"
 #: Injected failures (test hook): name -> define added to the layout's build.
@@ -132,13 +131,11 @@ _MEMO: dict[str, Verdict] = {}
 
 
 def cache_dir() -> Path:
-    """Folder of the verdict files."""
-    base = os.environ.get(ENV_CACHE)
-    if base:
-        root = Path(base)
-    else:
-        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "meshsom"
-    return root / "kernel-verdicts"
+    """Folder of the verdict files (in :func:`meshsom.caches.meshsom_cache_root`: a private
+    temporary folder where the user's cannot be written)."""
+    from meshsom.caches import meshsom_cache_root
+
+    return meshsom_cache_root() / "kernel-verdicts"
 
 
 def injected_defines(layout: str) -> dict[str, int]:

@@ -53,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    from meshsom.caches import ensure_user_cache
+
+    ensure_user_cache()  # before any worker or child starts: they inherit a writable cache folder
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except MeshsomError as err:

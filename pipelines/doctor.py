@@ -77,6 +77,9 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
     try:
         import pyopencl as cl
 
+        from meshsom.caches import ensure_user_cache
+
+        ensure_user_cache()  # PoCL shows no device where its kernel cache cannot be written
         platforms = cl.get_platforms()
     except Exception as err:  # no ICD, no platform: doctor reports, never fails
         return [{"error": f"{type(err).__name__}: {err}"}]

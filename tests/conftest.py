@@ -50,8 +50,9 @@ def fresh_verdicts(tmp_path, monkeypatch):
     Yields the verdict folder (:func:`meshsom.probe.cache_dir`).
     """
     from meshsom import probe
+    from meshsom.caches import ENV_CACHE
 
-    monkeypatch.setenv(probe.ENV_CACHE, str(tmp_path / "cache"))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "cache"))
     monkeypatch.delenv(probe.ENV_INJECT, raising=False)
     monkeypatch.setattr(probe, "_MEMO", {})
     yield probe.cache_dir()
