@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The GPU check of issue 13, as one command on the GPU machine (NVIDIA H200, Python 3.12 with
 # numpy, torch, CuPy and pytest; no pyopencl, nothing downloadable). Run from the repository
-# root with the wheels in .whl/ (pyopencl and its pure dependencies, the XPySom wheel; see
-# the note of the GPU run) and the paper's level vectors in .gpu/paper-levels.npz (bench/gpu.py
-# --export-levels), writes everything to $OUT/gpu.log. As the device tool's command, carrying
+# root with the wheels in .whl/ (pyopencl and its pure dependencies, the XPySom wheel) and the
+# paper's level vectors in .gpu/paper-levels.npz, both made here first by bench/gpu_prepare.sh
+# (about a minute), writes everything to $OUT/gpu.log. As the device tool's command, carrying
 # [".whl", ".gpu"], with timeout_s 600:
 #
 #     bash bench/gpu_device.sh
