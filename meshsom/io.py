@@ -763,6 +763,9 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     # reads what there is, where a read from the file would first allocate the claimed size.
     content = read_input_bytes(path, options)
     if file_type == "obj":
+        if _OBJ_ZERO_INDEX.search(content):  # trimesh would take vertex 0 for the last one
+            said = _bad_vertex_reference(bytes(content), "obj") or "a face refers to vertex 0 (OBJ counts from 1)"
+            raise InputFileError(str(path), f"{said} (a 0-based export?)")
         content = triangulated_obj(bytes(content)) or content
     elif file_type == "off":
         content = triangulated_off(bytes(content)) or content
@@ -786,7 +789,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     except InputFileError:
         raise
     except Exception as err:  # trimesh raises many types for corrupt files (MemoryError and RecursionError included)
-        raise InputFileError(str(path), f"cannot be read as .{file_type} ({type(err).__name__}: {err})") from None
+        reference = _bad_vertex_reference(bytes(content), file_type) if isinstance(err, (IndexError, ValueError)) else None
+        raise InputFileError(str(path), reference or f"cannot be read as .{file_type} ({type(err).__name__}: {err})") from None
     labels = _labels_beside(path)
     label = labels.get(path.name)
     name = name or path.name
@@ -984,6 +988,52 @@ def _ply_polygons(data: bytes, header, face, index_list) -> bool:
 
 #: An OBJ face line of four or more vertices.
 _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
+#: A face line of an OBJ text with a vertex reference 0 (OBJ counts from 1).
+_OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])[-+]?0+(?=[/ \t\r\n]|$)", re.M)
+
+
+def _bad_vertex_reference(data: bytes, file_type: str) -> str | None:
+    """The first face of an OBJ or OFF text that refers to a vertex the file does not have, said
+    with its line and the vertices there are (what trimesh's IndexError does not say); None if no
+    face does (or another format)."""
+    lines = data.splitlines()
+    if file_type == "obj":
+        count = 0
+        for number, line in enumerate(lines, 1):
+            head = line.lstrip()[:2]
+            if head in (b"v ", b"v\t"):
+                count += 1
+            elif head in (b"f ", b"f\t"):
+                for ref in line.split()[1:]:
+                    try:
+                        k = int(ref.split(b"/")[0])
+                    except ValueError:
+                        continue
+                    if k == 0 or k > count or -k > count:
+                        return (f"the face on line {number} refers to vertex {k}, and the file has {count} vertices "
+                                f"before it (OBJ counts from 1; negative: back from the last)")
+        return None
+    if file_type == "off":
+        rows = [(n, ln.split(b"#")[0].split()) for n, ln in enumerate(lines, 1)]
+        rows = [(n, r) for n, r in rows if r]
+        if rows and rows[0][1][0].upper().endswith(b"OFF"):
+            rows[0] = (rows[0][0], rows[0][1][1:])
+            if not rows[0][1]:
+                rows = rows[1:]
+        try:
+            n_vertices = int(rows[0][1][0])
+        except (IndexError, ValueError):
+            return None
+        for number, row in rows[1 + n_vertices:]:
+            try:
+                refs = [int(x) for x in row[1:1 + int(row[0])]]
+            except ValueError:
+                continue
+            bad = [k for k in refs if not 0 <= k < n_vertices]
+            if bad:
+                return (f"the face on line {number} refers to vertex {bad[0]}, and the file has {n_vertices} vertices "
+                        f"(OFF counts from 0)")
+    return None
 
 
 def triangulated_obj(data: bytes) -> bytes | None:

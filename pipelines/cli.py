@@ -44,6 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Libraries whose INFO messages the commands do not show (their warnings they do).
+QUIET_LOGGERS = ("trimesh", "matplotlib")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -53,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    for name in QUIET_LOGGERS:  # their INFO lines ("triangulating faces" per OBJ polygon file) are not news
+        logging.getLogger(name).setLevel(logging.WARNING)
     from meshsom.caches import ensure_user_cache
 
     ensure_user_cache()  # before any worker or child starts: they inherit a writable cache folder

@@ -26,7 +26,8 @@ log = logging.getLogger(__name__)
 REJECTION_HINTS = (
     ("open boundary", "--repair fills holes with pymeshlab; --extrude-lod1 makes closed blocks of footprints"),
     ("non-manifold", "--repair (pymeshlab's non-manifold repair)"),
-    ("holds no Building", "files of other city objects (terrain, roads, furniture): nothing to ingest"),
+    ("holds no Building", "files of other city objects (terrain, roads, furniture): nothing to ingest; a type "
+                          "that is a building here (GenericCityObject, say) is read with corpus.reader.object_types"),
     ("has no geometry at LoD", "--lod highest, or one of the LoDs the building has"),
     ("has no surface or solid geometry", "--lod: the building may have volumes at another LoD"),
     ("its coordinates look like degrees", "--crs with the data's CRS (EPSG:4979 for WGS 84 latitude, longitude, height)"),
@@ -386,6 +387,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
+#: Skipped files listed on the terminal before the rest are counted.
+SKIPPED_SHOWN = 10
+
+
+def print_skipped(skipped: list[tuple[str, str]], indent: str = "      ") -> None:
+    """The files in input folders that are not read (:func:`meshsom.io.expand_inputs`): a few by
+    name, the rest counted by type, and the readable types once."""
+    from collections import Counter
+
+    for path, why in skipped[:SKIPPED_SHOWN]:
+        print(f"{indent}skipped: {Path(path).name} ({why.split(';')[0]})")  # the list of types once, below
+    if len(skipped) > SKIPPED_SHOWN:
+        kinds = Counter(Path(path).suffix or "(no extension)" for path, _ in skipped[SKIPPED_SHOWN:])
+        print(f"{indent}skipped: {len(skipped) - SKIPPED_SHOWN} more files "
+              f"({', '.join(f'{n} x {suffix}' for suffix, n in kinds.most_common())})")
+    unknown = next((why for _, why in skipped if why.startswith("unknown file type") and "; " in why), None)
+    if unknown:
+        import textwrap
+
+        readable = f"(readable: {unknown.split('; ', 1)[1].removeprefix('expected one of ')})"
+        print(textwrap.fill(readable, width=80, initial_indent=indent, subsequent_indent=indent + " "))
+
+
 def run(args: argparse.Namespace) -> int:
     import json
 
@@ -419,6 +443,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"meshsom ingest: {err}") from None
     if not paths and generator is None:
         raise ConfigError("meshsom ingest: no inputs; give files or folders, --generate N, or --config with corpus.paths")
+    from meshsom.io import expand_inputs
+
+    skipped: list[tuple[str, str]] = []
+    expand_inputs(list(paths), skipped)  # the files of input folders that are not read, said below
     result = ingest(paths, args.out, reader, params, generator, args.overwrite, args.chunk_rows or chunk_rows)
     s = result.summary
     if args.json:
@@ -433,6 +461,8 @@ def run(args: argparse.Namespace) -> int:
             hint = scale_hint(s["folds"])
             if hint:
                 print(f"  {hint}")
+        if skipped:
+            print_skipped(skipped, "  ")
         rebuilt = rebuilt_under_roofs(result.records)
         if rebuilt:
             print(f"  {rebuilt} rebuilt as the solid under their roofs, not closed as they are (each record's "

@@ -153,7 +153,9 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
         with connect(cfg.dask) as client:
             # ------------------------------------------------------------------ 1. corpus
             print(f"[1/{stages}] ingest + encode levels {list(cfg.encoding.levels)} -> {_shown(store)}")
-            _print_skipped(skipped)
+            from pipelines.ingest import print_skipped
+
+            print_skipped(skipped)
             bars: dict = {}
 
             def progress(stage, done, total):
@@ -232,8 +234,6 @@ def run_experiment(cfg, config_path: Path | None = None, overwrite: bool = False
 
 #: Artifact path of the resolved configuration on the parent run.
 CONFIG_ARTIFACT = "config/config.yaml"
-#: Skipped files listed on the terminal before the rest are counted.
-SKIPPED_SHOWN = 10
 
 
 def summary_metrics(results: list[dict]) -> dict[str, float]:
@@ -283,19 +283,6 @@ def check_inputs(given, cfg, config_path: Path | None) -> list[tuple[str, str]]:
         raise ConfigError(f"{where}: corpus.paths (relative to the config file's folder): "
                           + "; ".join(bad) + "; nothing was created")
     return skipped
-
-
-def _print_skipped(skipped: list[tuple[str, str]]) -> None:
-    from meshsom.io import CITYGML_SUFFIXES, CITYJSON_SUFFIXES, CITYJSONSEQ_SUFFIXES, GZIP_SUFFIX, TRIMESH_SUFFIXES
-
-    for path, why in skipped[:SKIPPED_SHOWN]:
-        print(f"      skipped: {Path(path).name} ({why.split(';')[0]})")  # the list of types once, below
-    if len(skipped) > SKIPPED_SHOWN:
-        print(f"      skipped: {len(skipped) - SKIPPED_SHOWN} more files")
-    if any(why.startswith("unknown file type") for _, why in skipped):
-        print(f"      (readable: {' '.join(TRIMESH_SUFFIXES)}")
-        print(f"       {' '.join(CITYJSON_SUFFIXES + CITYJSONSEQ_SUFFIXES + CITYGML_SUFFIXES)},")
-        print(f"       each also gzipped: {GZIP_SUFFIX})")
 
 
 #: Kinds of rejection reasons ``meshsom run`` prints after its ingest line (``meshsom inspect`` shows more).

@@ -185,3 +185,22 @@ def test_union_recorded_in_the_manifest(tmp_path):
     assert r["union"]["area_removed"] == pytest.approx(2 * 8 * 6)
     v, f = read_mesh(open_store(store), 0)
     assert _volume(v, f) == pytest.approx(16 * 8 * 6) and len(v) == 8
+
+
+def test_ingest_says_which_files_of_a_folder_it_does_not_read(tmp_path, capsys):
+    """`meshsom ingest folder` lists the files it passes over (`meshsom run` did; ingest said
+    nothing of val3dity's 100 .poly files): ten by name, the rest counted by type, and what it reads."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    write(folder / "cube.city.json", doc({"a": {"type": "Building", "geometry": [cube_solid()]}}, CUBE_VERTS))
+    for k in range(12):
+        (folder / f"shape{k:02d}.poly").write_text("0 3 0 0\n")
+    (folder / "notes.txt").write_text("x")
+    assert main(["ingest", str(folder), "--out", str(tmp_path / "s.zarr")]) == 0
+    out = capsys.readouterr().out
+    named = [line.strip() for line in out.splitlines() if line.strip().startswith("skipped: ") and "more files" not in line]
+    assert len(named) == 10 and named[0] == "skipped: notes.txt (unknown file type '.txt')", named
+    assert "  skipped: 3 more files (3 x .poly)" in out
+    assert out.count("(readable: .obj, .ply") == 1 and ".gpkg" in out
+    assert all(len(line) <= 80 for line in out.splitlines() if "skipped" in line or ".gz" in line or ".gpkg" in line)
+    assert "1 meshes: 1 accepted, 0 rejected" in out

@@ -307,3 +307,38 @@ def test_same_file_name_in_two_folders_gives_distinct_ids(tmp_path):
     with pytest.raises(InputFileError) as err:  # the two files given by themselves: both named tile.city.json
         expand_inputs([tmp_path / "in" / "north" / "tile.city.json", tmp_path / "in" / "south" / "deep" / "tile.city.json"])
     assert "north" in str(err.value) and "deep" in str(err.value) and "'tile.city.json'" in str(err.value)
+
+
+CUBE_OBJ = "".join(f"v {x} {y} {z}\n" for x, y, z in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)])
+
+
+@pytest.mark.parametrize("name,text,reason", [
+    # val3dity's test file: a face of a cube refers to a ninth vertex
+    ("index901.obj", CUBE_OBJ + "f 1 4 3 2\nf 5 6 7 8\nf 1 2 9 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n",
+     "the face on line 11 refers to vertex 9, and the file has 8 vertices before it"),
+    ("zero.obj", CUBE_OBJ + "f 1 4 3 2\nf 0 5 6\n", "the face on line 10 refers to vertex 0, and the file has 8 vertices"),
+    ("back.obj", CUBE_OBJ + "f -1 -2 -9\n", "the face on line 9 refers to vertex -9, and the file has 8 vertices"),
+    ("bad.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 1 2 7\n3 0 3 2\n",
+     "the face on line 9 refers to vertex 7, and the file has 4 vertices (OFF counts from 0)"),
+])
+def test_a_face_referring_to_a_missing_vertex_is_said_with_its_line(tmp_path, name, text, reason):
+    """Where trimesh raised IndexError ("index 8 is out of bounds for axis 0 with size 8"), the
+    rejection says which face (its line) refers to which vertex, and how many there are."""
+    (tmp_path / name).write_text(text)
+    (item,) = read_file(tmp_path / name)
+    assert isinstance(item, Rejection) and item.reason.startswith(reason), item.reason
+
+
+def test_a_0_based_obj_export_is_refused_not_misread(tmp_path):
+    """An OBJ written with 0-based indices (a common exporter bug): trimesh took vertex 0 for the
+    last one and read a wrong mesh; it is a rejection naming the face and the likely cause."""
+    faces = [(0, 3, 2), (0, 2, 1), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4), (1, 2, 6), (1, 6, 5), (2, 3, 7),
+             (2, 7, 6), (3, 0, 4), (3, 4, 7)]
+    (tmp_path / "zero.obj").write_text(CUBE_OBJ + "".join(f"f {a} {b} {c}\n" for a, b, c in faces))
+    (item,) = read_file(tmp_path / "zero.obj")
+    assert isinstance(item, Rejection)
+    assert item.reason == ("the face on line 9 refers to vertex 0, and the file has 8 vertices before it (OBJ counts "
+                           "from 1; negative: back from the last) (a 0-based export?)"), item.reason
+    (tmp_path / "one.obj").write_text(CUBE_OBJ + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces))
+    (cube,) = read_file(tmp_path / "one.obj")
+    assert isinstance(cube, RawMesh) and len(cube.faces) == 12

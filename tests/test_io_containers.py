@@ -572,7 +572,8 @@ def test_ply_polygons_are_triangulated_in_their_plane(tmp_path, ring, style):
 
 @pytest.mark.parametrize("text,reason", [
     ("OFF\n8 6 0\n0 0 0\n", "cannot be read as .off"),  # fewer vertices than declared
-    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2 7\n", "cannot be read as .off"),  # an index beyond the vertices
+    # an index beyond the vertices: which face and vertex
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2 7\n", "the face on line 6 refers to vertex 7, and the file has 3 vertices"),
 ])
 def test_bad_off_files_are_still_rejections(tmp_path, text, reason):
     (tmp_path / "bad.off").write_text(text)
