@@ -29,7 +29,8 @@ it stands for still is: everything under the roofs, down to the ground. That is 
 
 Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex, more roof triangles
 than ``envelope_max_roofs`` (a detailed or scanned mesh: LoD2 roof models have tens to hundreds;
-43,000 prisms took 5 minutes to unite, once), and walls standing
+43,000 prisms took 5 minutes to unite, once), a first union that preprocessing refuses and that
+falls into more than ``envelope_max_pieces`` pieces (a tree crown: no other way is tried), and walls standing
 outside every roof in plan that would lose more than ``envelope_max_loss`` of the volume (each wall
 face's area times its distance outside, an estimate: walls a few centimetres outside their eaves
 lose next to nothing, a part with no roof loses itself).
@@ -703,6 +704,7 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                 first = first or err
                 continue
             for order in UNION_ORDERS:
+                envelope = None
                 try:
                     envelope = _unite(prisms, order, source)
                     return envelope, union.preprocess_shells(envelope.shells, params, source=source)
@@ -710,4 +712,10 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                     raise
                 except MeshError as err:
                     first = first or err
+                    pieces = len(envelope.shells) + envelope.slivers if envelope is not None else 0
+                    if params.envelope_max_pieces and pieces > params.envelope_max_pieces:
+                        raise _Refusal(source, f"{first.problem}; its union under the roofs falls into {pieces} "
+                                               f"pieces, more than preprocess.envelope_max_pieces "
+                                               f"({params.envelope_max_pieces}): not a roof model (a tree, a "
+                                               f"scan?), no other way of uniting tried") from None
     raise first

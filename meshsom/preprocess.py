@@ -163,6 +163,12 @@ class PreprocessParams:
         For ``roof_envelope``: a mesh with more roof triangles above its floor than this is not
         rebuilt (LoD2 roof models have tens to hundreds; a scanned or detailed mesh of 66,000
         triangles has 28,000 and its prisms take minutes to unite); 0: no limit (default 5000).
+    envelope_max_pieces : int
+        For ``roof_envelope``: where the first way of uniting the prisms falls into more separate
+        pieces than this and preprocessing refuses it, no other way is tried (each costs a union):
+        a roof model's union is one piece or a few (at most 21 in Zürich's and Delfshaven's 902
+        buildings), a tree crown's a hundred and more (Cesium's 3D Tiles samples); 0: no limit
+        (default 64).
     """
 
     weld_tol: float = 1e-8
@@ -186,6 +192,7 @@ class PreprocessParams:
     envelope_tol: float = 0.002
     envelope_max_loss: float = 0.01
     envelope_max_roofs: int = 5000
+    envelope_max_pieces: int = 64
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -207,8 +214,10 @@ class PreprocessParams:
         if not (isinstance(self.envelope_max_loss, (int, float)) and 0 <= self.envelope_max_loss < 1):
             raise ValueError(f"envelope_max_loss must be a number in [0, 1) (a fraction of the rebuilt volume); "
                              f"received {self.envelope_max_loss!r}")
-        if not (isinstance(self.envelope_max_roofs, int) and self.envelope_max_roofs >= 0):
-            raise ValueError(f"envelope_max_roofs must be an integer >= 0 (0: no limit); received {self.envelope_max_roofs!r}")
+        for name in ("envelope_max_roofs", "envelope_max_pieces"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+                raise ValueError(f"{name} must be an integer >= 0 (0: no limit); received {value!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
