@@ -341,8 +341,8 @@ def _undeclared_note(added: dict[str, str]) -> str:
 
 
 def _unbound_prefix(path: Path, options, line: int, column: int, declared: set[str], added: dict[str, str]) -> str | None:
-    """The prefix of the start tag at ``line``, ``column`` (a parser's error position, in bytes of
-    the file as parsed: with ``added`` declared) that no declaration binds: of its element's and its
+    """The prefix of the start tag at ``line``, ``column`` (a parser's error position, its column in
+    characters, in the file as parsed: with ``added`` declared) that no declaration binds: of its element's and its
     attributes' prefixes not in ``added``, the first that the file declares nowhere before
     (``declared``), else the first (declared only in another element's scope); None if none."""
     from meshsom.io import open_input
