@@ -585,6 +585,8 @@ def _keep_one_side(v, f, params, repairs):
             on = small & (counts > i)
             a_list.append(face[start[on] + j])
             b_list.append(face[start[on] + i])
+    if not a_list or not area2.sum() > 0:  # no edge of two to eight faces; no area at all
+        return f
     a, b = np.concatenate(a_list), np.concatenate(b_list)
     cos_tol = math.cos(math.radians(params.planar_angle_deg))
     join = np.einsum("ij,ij->i", normal[a], normal[b]) >= cos_tol
