@@ -762,6 +762,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
     # reads what there is, where a read from the file would first allocate the claimed size.
     content = read_input_bytes(path, options)
+    if file_type != "glb" and content.startswith(UTF8_BOM):  # Windows tools start text with one: not a vertex line
+        content = content[len(UTF8_BOM):]
     if file_type == "obj":
         if _OBJ_ZERO_INDEX.search(content):  # trimesh would take vertex 0 for the last one
             said = _bad_vertex_reference(bytes(content), "obj") or "a face refers to vertex 0 (OBJ counts from 1)"
@@ -988,6 +990,8 @@ def _ply_polygons(data: bytes, header, face, index_list) -> bool:
 
 #: An OBJ face line of four or more vertices.
 _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
+#: The UTF-8 byte order mark that Windows tools put before text (JSON, OBJ); dropped before parsing.
+UTF8_BOM = b"\xef\xbb\xbf"
 #: A face line of an OBJ text with a vertex reference 0 (OBJ counts from 1).
 _OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t][^\n]*?(?<=[ \t])[-+]?0+(?=[/ \t\r\n]|$)", re.M)
 
@@ -1206,9 +1210,10 @@ def _type(obj) -> str:
 
 
 def _parse_json(data: bytes, where: str):
-    """``json.loads`` of UTF-8 bytes; InputFileError naming ``where`` for anything unreadable."""
+    """``json.loads`` of UTF-8 bytes (after a byte order mark, if any); InputFileError naming ``where``
+    for anything unreadable."""
     try:
-        return json.loads(data.decode("utf-8"))
+        return json.loads(data.decode("utf-8-sig"))  # a leading byte order mark (Windows tools write one) is not JSON
     except json.JSONDecodeError as err:
         raise InputFileError(where, f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}") from None
     except UnicodeDecodeError as err:

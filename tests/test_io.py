@@ -342,3 +342,34 @@ def test_a_0_based_obj_export_is_refused_not_misread(tmp_path):
     (tmp_path / "one.obj").write_text(CUBE_OBJ + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces))
     (cube,) = read_file(tmp_path / "one.obj")
     assert isinstance(cube, RawMesh) and len(cube.faces) == 12
+
+
+def test_a_byte_order_mark_before_json_or_mesh_text_is_read(tmp_path):
+    """A UTF-8 byte order mark before the text (Windows tools write one): CityJSON was "invalid JSON
+    at line 1, column 1: Unexpected UTF-8 BOM", and an OBJ lost its first vertex line. Each reads
+    as the same file without it."""
+    import json
+    from pathlib import Path
+
+    delft = (Path(__file__).resolve().parents[1] / "data" / "real" / "delft-lod1-3dfier" / "delft.city.json").read_bytes()
+    document = json.loads(delft)
+    header = {k: v for k, v in document.items() if k not in ("CityObjects", "vertices")} | {"CityObjects": {}, "vertices": []}
+    features = [json.dumps({"type": "CityJSONFeature", "id": oid, "CityObjects": {oid: obj}, "vertices": document["vertices"]})
+                for oid, obj in document["CityObjects"].items() if obj["type"] == "Building"][:3]
+    footprints = {"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"height": 9}, "geometry": {
+        "type": "Polygon", "coordinates": [[[0, 0], [10, 0], [10, 8], [0, 8], [0, 0]]]}}]}
+    texts = {"city.city.json": delft, "seq.city.jsonl": "\n".join([json.dumps(header), *features]).encode(),
+             "blocks.geojson": json.dumps(footprints).encode(), "cube.obj": CUBE_OBJ.encode() + b"".join(
+                 f"f {a} {b} {c}\n".encode() for a, b, c in [(1, 4, 3), (1, 3, 2), (5, 6, 7), (5, 7, 8), (1, 2, 6), (1, 6, 5),
+                                                          (2, 3, 7), (2, 7, 6), (3, 4, 8), (3, 8, 7), (4, 1, 5), (4, 5, 8)])}
+    for name, text in texts.items():
+        (tmp_path / "plain").mkdir(exist_ok=True)
+        (tmp_path / "bom").mkdir(exist_ok=True)
+        (tmp_path / "plain" / name).write_bytes(text)
+        (tmp_path / "bom" / name).write_bytes(b"\xef\xbb\xbf" + text)
+        plain = list(read_file(tmp_path / "plain" / name))
+        marked = list(read_file(tmp_path / "bom" / name))
+        assert all(isinstance(m, RawMesh) for m in plain + marked) and len(marked) == len(plain) >= 1, (name, marked[:1])
+        for a, b in zip(plain, marked):
+            np.testing.assert_array_equal(a.vertices + a.origin, b.vertices + b.origin)
+            np.testing.assert_array_equal(a.faces, b.faces)
