@@ -168,6 +168,12 @@ class ReaderOptions:
         models are), or "y" (glTF by its specification, and many OBJ exports from Blender, SketchUp
         or game tools): their coordinates are then turned a quarter about x, (x, y, z) -> (x, -z, y),
         so that z is up.
+    split_components : bool
+        Mesh files (OBJ, PLY, STL, OFF, glTF): each mesh (object, node) is split into its connected
+        pieces (faces joined through vertices at the same position), one building each, as a city
+        exported as one mesh (an STL or PLY of a district) needs; a piece gets the id ``mesh#cN``
+        (N from 1, in the order of its first face). Default False: a file or object is one
+        building, whatever its pieces (an annex that does not touch the house stays its shell).
     """
 
     lod: str = "highest"
@@ -189,6 +195,7 @@ class ReaderOptions:
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
+    split_components: bool = False
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -818,6 +825,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), label)]
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
+    if options.split_components:
+        items = [piece for item in items for piece in _connected_pieces(*item)]
     for mesh_id, v, f, item_label in items:
         if len(f) == 0:
             if len(items) == 1:
@@ -833,6 +842,41 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             yield Rejection(mesh_id, str(path), err.problem, 0, item_label)
             continue
         yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None, notes=tuple(notes))
+
+
+def _connected_pieces(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, label):
+    """The connected pieces of one mesh (:attr:`ReaderOptions.split_components`): faces joined
+    through vertices at the same position, each piece ``(mesh_id#cN, vertices, faces, label)`` with
+    its own vertices, N from 1 in the order of the pieces' first faces; the mesh as it is when it
+    is one piece (its id unchanged)."""
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        return [(mesh_id, vertices, faces, label)]
+    _, at = np.unique(np.asarray(vertices), axis=0, return_inverse=True)
+    welded = at.reshape(-1)[faces]
+    n, k = len(faces), int(welded.max()) + 1
+    incidence = sparse.coo_matrix((np.ones(3 * n, np.int8), (np.repeat(np.arange(n), 3), welded.reshape(-1))),
+                                  shape=(n, k)).tocsr()
+    graph = sparse.bmat([[None, incidence], [incidence.T, None]])
+    _, component = connected_components(graph, directed=False)
+    _, piece = np.unique(component[:n], return_inverse=True)  # the pieces that have faces, 0..m-1
+    m = int(piece.max()) + 1
+    if m == 1:
+        return [(mesh_id, vertices, faces, label)]
+    first = np.full(m, n)
+    np.minimum.at(first, piece, np.arange(n))
+    rank = np.empty(m, np.int64)
+    rank[np.argsort(first)] = np.arange(m)  # numbered in the order of their first faces
+    piece = rank[piece]
+    out = []
+    for p in range(m):
+        f = faces[piece == p]
+        used, local = np.unique(f, return_inverse=True)
+        out.append((f"{mesh_id}#c{p + 1}", np.asarray(vertices)[used], local.reshape(-1, 3), label))
+    return out
 
 
 def _closed_groups(data: io.BytesIO, whole):

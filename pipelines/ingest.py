@@ -376,6 +376,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crs", help="CRS of inputs that declare none, e.g. EPSG:4979 (degrees are converted to metres)")
     p.add_argument("--up", choices=("z", "y"), help="up axis of mesh files (glTF and many OBJ exports: y); default z")
     p.add_argument("--layer", help="GIS files (GeoPackage, FileGDB, ...): the layer to read; default every layer")
+    p.add_argument("--split-components", action="store_true", default=None,
+                   help="mesh files: each connected piece of a mesh is a building (a city exported as one STL or PLY)")
     p.add_argument("--height-attribute", action="append", metavar="NAME",
                    help="footprints: a property holding the building's height above the ground, tried before the "
                         "defaults (height, measuredHeight, building:height); may be given more than once")
@@ -429,7 +431,7 @@ def run(args: argparse.Namespace) -> int:
         paths, generator = list(args.inputs), None
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
-                 ("up_axis", args.up), ("layer", args.layer))
+                 ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components))
         changes = {k: v for k, v in given if v is not None}
         if args.height_attribute:
             changes["height_attributes"] = tuple(args.height_attribute) + tuple(

@@ -725,3 +725,30 @@ def test_small_or_gzipped_cityjsonseq_files_are_not_split(tmp_path):
     assert cityjsonseq_ranges(tmp_path / "a.city.jsonl", size // 2 + 1) is None
     assert len(cityjsonseq_ranges(tmp_path / "a.city.jsonl", size // 2)) == 2
     assert cityjsonseq_ranges(tmp_path / "b.city.jsonl", 10) is None
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".ply", ".glb"])
+def test_a_district_exported_as_one_mesh_is_split_into_its_buildings_on_request(tmp_path, suffix, capsys):
+    """A city exported as one mesh (an STL or PLY of a district, one glTF node): with
+    split_components (--split-components) each connected piece is a building, numbered in the
+    order of its first face, each closed with its own volume; by default the file is one mesh."""
+    from meshsom.preprocess import preprocess
+    from pipelines.cli import main
+
+    sizes = [(10, 8, 6), (4, 4, 12), (7, 5, 3)]
+    parts = []
+    for k, size in enumerate(sizes):
+        v, f = box(*size)
+        parts.append(trimesh.Trimesh(v + [30.0 * k, 5.0 * k, 0], f, process=False))
+    trimesh.util.concatenate(parts).export(tmp_path / f"district{suffix}")
+    (whole,) = read_file(tmp_path / f"district{suffix}")
+    assert isinstance(whole, RawMesh) and len(whole.faces) == 36
+    pieces = list(read_file(tmp_path / f"district{suffix}", ReaderOptions(split_components=True)))
+    base = whole.id
+    assert [m.id for m in pieces] == [f"{base}#c1", f"{base}#c2", f"{base}#c3"]
+    for m, (x, y, z) in zip(pieces, sizes):
+        assert len(m.faces) == 12
+        assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(x * y * z, rel=1e-9)
+        np.testing.assert_allclose((m.vertices + m.origin).max(axis=0) - (m.vertices + m.origin).min(axis=0), [x, y, z])
+    assert main(["ingest", str(tmp_path / f"district{suffix}"), "--split-components", "--out", str(tmp_path / "s.zarr")]) == 0
+    assert "3 meshes: 3 accepted, 0 rejected" in capsys.readouterr().out
