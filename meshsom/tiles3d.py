@@ -44,7 +44,7 @@ from meshsom.gltf_compression import decompress_glb, split_glb
 from meshsom.implicit_tiling import implicit_contents
 
 #: File name endings read as 3D Tiles content.
-B3DM_SUFFIXES = (".b3dm",)
+B3DM_SUFFIXES = (".b3dm", ".cmpt")
 #: A mesh whose centre lies this far (metres) from the earth's centre, give or take
 #: :data:`ECEF_BAND`, is in earth-centred coordinates.
 EARTH_RADIUS = 6_371_000.0
@@ -203,6 +203,57 @@ def _batch_ids(batch_table: dict, length: int | None, options) -> list[str] | No
     return None
 
 
+def composite_inner_tiles(data: bytes, where: str, depth: int = 0) -> list[tuple[str, bytes]]:
+    """The inner tiles of a composite tile (``cmpt``, 3D Tiles 1.0), composites inside it unpacked:
+    ``(magic, bytes)`` in order (b3dm, i3dm, pnts...).
+
+    Raises
+    ------
+    InputFileError
+        Not a composite, another version, nested more than :data:`MAX_TILESET_DEPTH`, or lengths
+        that do not fit the file.
+    """
+    if len(data) < 16 or data[:4] != b"cmpt":
+        raise InputFileError(where, f"is not a composite tile (magic {bytes(data[:4])!r}; expected b'cmpt')")
+    _, version, length, count = struct.unpack_from("<4sIII", data)
+    if version != 1:
+        raise InputFileError(where, f"is cmpt version {version}; expected 1")
+    if depth > MAX_TILESET_DEPTH:
+        raise InputFileError(where, f"nests composite tiles deeper than {MAX_TILESET_DEPTH}")
+    if length > len(data):
+        raise InputFileError(where, f"is cut short: its header says {length} bytes; the file has {len(data)}")
+    out, pos = [], 16
+    for k in range(count):
+        if pos + 12 > length:
+            raise InputFileError(where, f"is cut short: inner tile {k + 1} of {count} starts at byte {pos} of {length}")
+        magic = bytes(data[pos:pos + 4])
+        size = struct.unpack_from("<I", data, pos + 8)[0]
+        if size < 12 or pos + size > length:
+            raise InputFileError(where, f"has inner tile {k + 1} of {count} ({magic!r}) of {size} bytes at byte {pos}, "
+                                        f"beyond its {length}")
+        inner = bytes(data[pos:pos + size])
+        if magic == b"cmpt":
+            out += composite_inner_tiles(inner, where, depth + 1)
+        else:
+            out.append((magic.decode("ascii", "replace"), inner))
+        pos += size
+    return out
+
+
+def composite_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None) -> Iterator:
+    """RawMesh / Rejection items of a composite tile's batched models (b3dm, glb: :func:`content_meshes`,
+    ids ``prefix`` + ``N#`` + batch, N its inner tile from 0); each instanced model or point cloud a
+    Rejection that says so."""
+    from meshsom.io import Rejection
+
+    for k, (magic, inner) in enumerate(composite_inner_tiles(data, source)):
+        if magic in ("b3dm", "glTF"):
+            yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm")
+        else:
+            yield Rejection(f"{prefix}{k}", source, f"is inner tile {k} of a composite, of type {magic} (points or "
+                                                    f"instances); only batched models (b3dm, glb) are read")
+
+
 def content_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
                    b3dm: bool = True) -> Iterator:
     """RawMesh / Rejection items of one b3dm (or, ``b3dm`` false, glb) content (``prefix`` starts
@@ -254,10 +305,15 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
 
 
 def read_b3dm(path: Path, options, name: str | None = None) -> Iterator:
-    """Read the buildings (batches) of one b3dm file (as the module says)."""
+    """Read the buildings (batches) of one b3dm file, or of the batched models of a composite
+    (``.cmpt``) file (as the module says)."""
     from meshsom.io import read_input_bytes
 
-    yield from content_meshes(bytes(read_input_bytes(path, options)), str(path), f"{name or path.name}#", options)
+    data = bytes(read_input_bytes(path, options))
+    if path.name.lower().endswith(".cmpt") or data[:4] == b"cmpt":
+        yield from composite_meshes(data, str(path), f"{name or path.name}#", options)
+    else:
+        yield from content_meshes(data, str(path), f"{name or path.name}#", options)
 
 
 def _matrix(tile: dict, where: str) -> np.ndarray:
@@ -310,14 +366,17 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
             if is_tileset(sub):
                 stack.append((sub["root"], transform, refine, target.parent, depth + 1))
             return
-        if target.suffix.lower() not in (".b3dm", ".glb"):
-            yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points, "
-                                                     f"instances or a composite); only batched models (.b3dm, .glb) are read")
+        suffix = target.suffix.lower()
+        if suffix not in (".b3dm", ".glb", ".cmpt"):
+            yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points or "
+                                                     f"instances); only batched models (.b3dm, .glb, in a .cmpt too) are read")
             return
         try:
             data = bytes(read_input_bytes(target, options))
-            yield from content_meshes(data, str(target), f"{content_id}#", options, transform,
-                                      b3dm=target.suffix.lower() == ".b3dm")
+            if suffix == ".cmpt":
+                yield from composite_meshes(data, str(target), f"{content_id}#", options, transform)
+            else:
+                yield from content_meshes(data, str(target), f"{content_id}#", options, transform, b3dm=suffix == ".b3dm")
         except (InputFileError, OSError) as err:
             yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
 

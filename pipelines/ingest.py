@@ -62,8 +62,8 @@ def rejection_kinds(records: Iterable[dict]) -> list[tuple[str, int, str | None]
             for kind, n in kinds.most_common()]
 
 
-#: A number of a reason or note, written ``N`` in its kind.
-_NUMBER = r"\d[\d,.]*"
+#: A number of a reason or note, written ``N`` in its kind (not digits of a word: "i3dm", "3D").
+_NUMBER = r"(?<![A-Za-z])\d[\d,.]*(?![A-Za-z\d])"
 #: The same, but a group in parentheses (a CRS's name: "WGS 84", "JGD2011") kept whole.
 _NUMBER_OUTSIDE_GROUPS = r"\([^()]*(?:\([^()]*\)[^()]*)*\)|\b\d[\d,.]*"
 

@@ -251,3 +251,39 @@ def test_tileset_through_meshsom_ingest(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "4 meshes: 4 accepted, 0 rejected" in out.stdout, out.stdout
+
+
+def _aligned(tile: bytes) -> bytes:
+    """A tile padded to 8 bytes, its byteLength (bytes 8-12 of every tile's header) saying so."""
+    tile = _pad(tile, b"\0")
+    return tile[:8] + struct.pack("<I", len(tile)) + tile[12:]
+
+
+def _composite(tiles: list[bytes]) -> bytes:
+    body = b"".join(_aligned(t) for t in tiles)
+    return b"cmpt" + struct.pack("<III", 1, 16 + len(body), len(tiles)) + body
+
+
+def test_composite_tiles_read_their_batched_models(tmp_path):
+    """A composite tile (cmpt: b3dm, i3dm and glb inside, a composite in it): its batched models are
+    read (it was refused whole as "points, instances or a composite"), each instanced model is a
+    rejection that says so; through a tileset and as a file."""
+    buildings = _buildings(4)
+    i3dm = b"i3dm" + struct.pack("<7I", 1, 40, 0, 0, 0, 0, 0) + b"\0" * 4
+    composite = _composite([b3dm(buildings[:2], lambda v: v), i3dm,
+                            _composite([b3dm(buildings[2:], lambda v: v, glb_only=True)])])
+    (tmp_path / "c.cmpt").write_bytes(composite)
+    (tmp_path / "tileset.json").write_text(json.dumps({"asset": {"version": "1.0"}, "geometricError": 0, "root": {
+        "geometricError": 0, "content": {"uri": "c.cmpt"}}}))
+    for path, prefix in ((tmp_path / "tileset.json", "tileset.json#c.cmpt#"), (tmp_path / "c.cmpt", "c.cmpt#")):
+        got = list(read_file(path))
+        assert [m.id for m in got] == [f"{prefix}0#{buildings[0][0]}", f"{prefix}0#{buildings[1][0]}", f"{prefix}1",
+                                       f"{prefix}2#0", f"{prefix}2#1"]
+        assert isinstance(got[2], Rejection) and "of type i3dm (points or instances)" in got[2].reason
+        for m, (_, v, f) in zip(got[:2] + got[3:], buildings):
+            _same_building(m, v, f)
+    # a composite whose inner tile runs past its end is a rejection that says where
+    cut = composite[:-200]
+    (tmp_path / "cut.cmpt").write_bytes(cut[:8] + struct.pack("<I", len(cut)) + cut[12:])
+    (item,) = read_file(tmp_path / "cut.cmpt")
+    assert isinstance(item, Rejection) and "inner tile 3 of 3" in item.reason, item.reason
