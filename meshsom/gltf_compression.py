@@ -94,6 +94,84 @@ def join_glb(gltf: dict, binary: bytes) -> bytes:
     return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
 
 
+def pack_gltf(text: bytes, resolver, where: str) -> bytes:
+    """A glTF JSON file and the buffers it names, as one GLB (so that its compression can be undone
+    and it can be read as 3D Tiles content is).
+
+    Every buffer with data (an external file through ``resolver.get(name)``: :class:`meshsom.io.FolderResolver`,
+    or a ``data:`` URI) goes into the binary chunk, on a 4-byte boundary, and the buffer views and
+    meshopt sources that pointed into it point there; a meshopt fallback buffer (no data) stays a
+    buffer of its own. Images, textures, samplers and materials are left out (only geometry is
+    read).
+
+    Raises
+    ------
+    InputFileError
+        Not glTF JSON, a buffer without data or shorter than its ``byteLength``, a reference to a
+        buffer it does not have, or a file the resolver refuses.
+    """
+    import base64
+    from urllib.parse import unquote
+
+    try:
+        gltf = json.loads(bytes(text).decode("utf-8-sig"))
+    except (ValueError, UnicodeDecodeError) as err:
+        raise InputFileError(where, f"is not glTF JSON ({type(err).__name__}: {err})") from None
+    if not isinstance(gltf, dict):
+        raise InputFileError(where, f"is JSON of a {type(gltf).__name__}, not a glTF object")
+    out, moved, kept = _Binary(b""), {}, []  # moved: buffer -> its offset in the chunk; kept: fallbacks
+    for k, buffer in enumerate(gltf.get("buffers") or []):
+        length = buffer.get("byteLength") if isinstance(buffer, dict) else None
+        if not (isinstance(length, int) and not isinstance(length, bool) and length >= 0):
+            raise InputFileError(where, f"has buffer {k} without a byteLength")
+        uri = buffer.get("uri")
+        if uri is None:
+            if any((buffer.get("extensions") or {}).get(e, {}).get("fallback") for e in MESHOPT):
+                kept.append(k)
+                continue
+            raise InputFileError(where, f"has buffer {k} without a uri (the binary chunk of a GLB, in a glTF JSON file)")
+        if not isinstance(uri, str):
+            raise InputFileError(where, f"has buffer {k} whose uri is not text")
+        if uri.startswith("data:"):
+            head, _, payload = uri.partition(",")
+            if not head.endswith(";base64"):
+                raise InputFileError(where, f"has buffer {k} as a data URI that is not base64 ({head[:40]})")
+            try:
+                data = base64.b64decode(payload)
+            except ValueError as err:
+                raise InputFileError(where, f"has buffer {k} as base64 that cannot be decoded ({err})") from None
+        else:
+            data = resolver.get(unquote(uri))
+        if len(data) < length:
+            raise InputFileError(where, f"has buffer {k} ({uri[:60]}) of {len(data)} bytes, fewer than its byteLength {length}")
+        moved[k] = out.append(bytes(data[:length]))
+    renumbered = {k: 1 + j for j, k in enumerate(kept)}
+
+    def point(obj: dict, what: str) -> None:
+        b = obj.get("buffer", 0)
+        if b in moved:
+            obj["buffer"], obj["byteOffset"] = 0, int(obj.get("byteOffset", 0)) + moved[b]
+        elif b in renumbered:
+            obj["buffer"] = renumbered[b]
+        else:
+            raise InputFileError(where, f"has {what} in buffer {b!r}, which it does not have")
+
+    for k, view in enumerate(gltf.get("bufferViews") or []):
+        point(view, f"buffer view {k}")
+        for name in MESHOPT:
+            if name in (view.get("extensions") or {}):
+                point(view["extensions"][name], f"the meshopt data of buffer view {k}")
+    buffers = gltf.get("buffers") or []
+    gltf["buffers"] = ([{"byteLength": len(out.data)}] if moved else [{"byteLength": 0}]) + [buffers[k] for k in kept]
+    for key in ("images", "textures", "samplers", "materials"):
+        gltf.pop(key, None)
+    for mesh in gltf.get("meshes") or []:
+        for primitive in mesh.get("primitives") or []:
+            if isinstance(primitive, dict):
+                primitive.pop("material", None)
+    return join_glb(gltf, bytes(out.data))
+
+
 class _Binary:
     """The GLB's binary chunk, growing: appended data starts on a 4-byte boundary."""
 

@@ -735,18 +735,14 @@ def _labels_beside(path: Path) -> dict[str, str]:
         ) from None
 
 
-def _refuse_compressed_gltf(content: bytes, path: Path) -> None:
-    """A glTF JSON file declaring Draco or meshopt compression is refused with the way out (its
-    buffers are separate files: :func:`meshsom.gltf_compression.decompress_glb` reads GLB)."""
+def _compressed_gltf(content: bytes) -> bool:
+    """Whether a glTF JSON file declares Draco or meshopt compression (read by packing it into a GLB:
+    :func:`meshsom.gltf_compression.pack_gltf`); False for JSON that cannot be read (trimesh says what is wrong)."""
     try:
-        document = json.loads(content)
-    except ValueError:
-        return  # trimesh says what is wrong with it
-    used = compression_used(document) if isinstance(document, dict) else []
-    if used:
-        raise InputFileError(str(path), f"is a glTF JSON file compressed with {', '.join(used)}, which is read only as "
-                                        "GLB: convert it (gltf-transform copy in.gltf out.glb) or decompress it "
-                                        "(gltf-transform copy)")
+        document = json.loads(content.decode("utf-8-sig"))
+    except (ValueError, UnicodeDecodeError):
+        return False
+    return bool(compression_used(document)) if isinstance(document, dict) else False
 
 
 def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh]:
@@ -782,8 +778,11 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         content = triangulated_ply(bytes(content)) or content
     elif file_type == "glb":  # Draco, meshopt: plain accessors (meshsom.gltf_compression)
         content = decompress_glb(bytes(content), str(path))
-    elif file_type == "gltf":
-        _refuse_compressed_gltf(bytes(content), path)
+    elif file_type == "gltf" and _compressed_gltf(bytes(content)):  # packed with its buffers into a GLB, decoded
+        from meshsom.gltf_compression import pack_gltf
+
+        content = decompress_glb(pack_gltf(bytes(content), FolderResolver(path.parent, str(path)), str(path)), str(path))
+        file_type = "glb"
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the

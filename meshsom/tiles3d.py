@@ -367,12 +367,18 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
                 stack.append((sub["root"], transform, refine, target.parent, depth + 1))
             return
         suffix = target.suffix.lower()
-        if suffix not in (".b3dm", ".glb", ".cmpt"):
+        if suffix not in (".b3dm", ".glb", ".gltf", ".cmpt"):
             yield Rejection(content_id, str(target), f"is tile content of type {target.suffix or '(none)'} (points or "
-                                                     f"instances); only batched models (.b3dm, .glb, in a .cmpt too) are read")
+                                                     f"instances); only batched models (.b3dm, .glb, .gltf, in a .cmpt "
+                                                     f"too) are read")
             return
         try:
             data = bytes(read_input_bytes(target, options))
+            if suffix == ".gltf":  # glTF JSON content (3D Tiles 1.1) and its buffers, as a GLB
+                from meshsom.gltf_compression import pack_gltf
+                from meshsom.io import FolderResolver
+
+                data, suffix = pack_gltf(data, FolderResolver(target.parent, str(target)), str(target)), ".glb"
             if suffix == ".cmpt":
                 yield from composite_meshes(data, str(target), f"{content_id}#", options, transform)
             else:

@@ -233,10 +233,59 @@ def test_corrupt_and_unsupported_compression_is_refused_with_its_reason(tmp_path
         assert isinstance(item, Rejection) and problem in item.reason and name in item.source, (name, item)
     with pytest.raises(InputFileError, match="cut.glb"):
         decompress_glb(cut, "cut.glb")
-    # a glTF JSON file with compression: refused with the way out
-    (tmp_path / "tile.gltf").write_text(json.dumps(doc))
-    (item,) = list(read_file(tmp_path / "tile.gltf"))
-    assert isinstance(item, Rejection) and "gltf-transform" in item.reason
+    # a glTF JSON file whose buffer is not there, or too short: said so
+    missing = json.loads(json.dumps(doc))
+    missing["buffers"][0]["uri"] = "nowhere.bin"
+    (tmp_path / "missing.gltf").write_text(json.dumps(missing))
+    (item,) = list(read_file(tmp_path / "missing.gltf"))
+    assert isinstance(item, Rejection) and "nowhere.bin" in item.reason and "missing.gltf" in item.source, item
+    (tmp_path / "short.bin").write_bytes(binary[:10])
+    missing["buffers"][0]["uri"] = "short.bin"
+    (tmp_path / "short.gltf").write_text(json.dumps(missing))
+    (item,) = list(read_file(tmp_path / "short.gltf"))
+    assert isinstance(item, Rejection) and "of 10 bytes, fewer than its byteLength" in item.reason, item
+
+
+def _as_gltf(glb: bytes, folder, name: str, embed: bool) -> None:
+    """A GLB written as a glTF JSON file and its buffer (a .bin beside it, or a base64 data URI)."""
+    import base64
+
+    doc, binary = split_glb(glb, name)
+    doc["buffers"][0]["uri"] = ("data:application/octet-stream;base64," + base64.b64encode(binary).decode()
+                                if embed else f"{name}.bin")
+    if not embed:
+        (folder / f"{name}.bin").write_bytes(binary)
+    (folder / f"{name}.gltf").write_text(json.dumps(doc))
+
+
+@pytest.mark.parametrize("embed", [False, True])
+def test_gltf_json_files_and_content_read_as_their_glb(tmp_path, buildings, embed):
+    """A glTF JSON file (its buffer beside it or in a data URI), compressed or not, reads as the same
+    GLB: as a file (a compressed one was refused: "convert it with gltf-transform") and as 3D Tiles
+    1.1 content (it was refused as "points, instances or a composite")."""
+    glbs = {"plain": b3dm(buildings[:3], lambda v: v, glb_only=True), "draco": draco_glb(buildings[:3]),
+            "meshopt": meshopt_glb(buildings[:3])}
+    for name, glb in glbs.items():
+        (tmp_path / f"{name}.glb").write_bytes(glb)
+        _as_gltf(glb, tmp_path, name, embed)
+        want, got = list(read_file(tmp_path / f"{name}.glb")), list(read_file(tmp_path / f"{name}.gltf"))
+        assert len(got) == len(want) >= 1 and all(isinstance(m, RawMesh) for m in got), (name, got[:1])
+        for a, b in zip(want, got):
+            assert np.array_equal(_world(a), _world(b)) and np.array_equal(a.faces, b.faces), name
+        (tmp_path / "tileset.json").write_text(json.dumps({
+            "asset": {"version": "1.1"}, "geometricError": 100,
+            "root": {"boundingVolume": {"sphere": [0, 0, 0, 1000]}, "geometricError": 0, "refine": "ADD",
+                     "children": [{"boundingVolume": {"sphere": [0, 0, 0, 1000]}, "geometricError": 0,
+                                   "content": {"uri": uri}} for uri in (f"{name}.glb", f"{name}.gltf")]}}))
+        items = list(read_file(tmp_path / "tileset.json"))
+        assert all(isinstance(m, RawMesh) for m in items) and len(items) == 6, (name, items[:1])
+        by_content = {}
+        for m in items:
+            _, content, building = m.id.split("#")
+            by_content.setdefault(content, {})[building] = m
+        assert list(by_content[f"{name}.gltf"]) == list(by_content[f"{name}.glb"])
+        for key, a in by_content[f"{name}.glb"].items():
+            assert np.array_equal(_world(a), _world(by_content[f"{name}.gltf"][key])), (name, key)
 
 
 @pytest.mark.parametrize("damage", ["meshes", "primitives", "attributes", "bufferView", "extension", "views"])
