@@ -17,8 +17,9 @@ neither, so :func:`decompress_glb` rewrites a GLB into the plain glTF it stands 
 
 The plain data is appended to the GLB's binary chunk, every buffer view then lies in it, and the
 extensions are no longer declared. A GLB with no compression comes back as it is. A glTF JSON
-file (``.gltf``) with compression, or compressed data in an external buffer, is refused with the
-reason (convert it to GLB, or decompress it with ``gltf-transform copy``).
+file (``.gltf``) is first packed with its buffers into the GLB it stands for (:func:`pack_gltf`);
+compressed data in a GLB's external buffer is refused with the reason (decompress it with
+``gltf-transform copy``).
 """
 
 from __future__ import annotations
