@@ -44,6 +44,12 @@ MAX_COORDINATE = 1e12
 #: The CRS of GeoJSON ``geometry`` (RFC 7946): longitude, latitude, ellipsoidal height.
 GEOJSON_CRS = "OGC:CRS84h"
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+#: A length in feet (and inches), as OpenStreetMap allows it: 40', 40 ft, 12'6", 12' 6".
+_FEET = re.compile(r"""^\s*(\d+(?:\.\d+)?)\s*(?:'|ft\b|feet\b|foot\b)\s*(?:(\d+(?:\.\d+)?)\s*(?:"|''|in\b|inch(?:es)?\b))?\s*$""", re.I)
+#: A decimal comma (12,5: common in European OpenStreetMap data, though its wiki asks for a point).
+_DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
+#: Metres per foot and per inch.
+FOOT, INCH = 0.3048, 0.0254
 
 
 def is_geojson(document) -> bool:
@@ -66,12 +72,19 @@ def _reference(value) -> str | None:
 
 
 def _number(value) -> float | None:
-    """A property's number: 12, 12.5, "12.5", "12 m" (OpenStreetMap); None otherwise."""
+    """A property's number: 12, 12.5, "12.5", "12 m", "12,5" (a decimal comma), "40'" or "40 ft"
+    (feet, in metres), "12'6\"" (feet and inches) as OpenStreetMap writes them; None otherwise."""
     if isinstance(value, bool):
         return None
     if isinstance(value, (int, float)):
         return float(value) if math.isfinite(value) else None
     if isinstance(value, str):
+        feet = _FEET.match(value)
+        if feet:
+            return float(feet.group(1)) * FOOT + float(feet.group(2) or 0) * INCH
+        comma = _DECIMAL_COMMA.match(value)
+        if comma:
+            return float(f"{comma.group(1)}.{comma.group(2)}")
         match = _NUMBER.match(value)
         if match and math.isfinite(float(match.group(1))):
             return float(match.group(1))

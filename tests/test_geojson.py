@@ -64,6 +64,20 @@ def test_osm_like_footprints_in_longitude_latitude(tmp_path):
     assert isinstance(got["nothing"], Rejection) and "has no geometry" in got["nothing"].reason
 
 
+@pytest.mark.parametrize("height,metres", [
+    ("12,5", 12.5), ("12,5 m", 12.5), ("40'", 40 * 0.3048), ("40 ft", 40 * 0.3048), ("12'6\"", 12 * 0.3048 + 6 * 0.0254),
+    ("12' 6\"", 12 * 0.3048 + 6 * 0.0254), ("9 m", 9.0), ("9", 9.0), (" 7.5 ", 7.5),
+])
+def test_heights_as_openstreetmap_writes_them(tmp_path, height, metres):
+    """OpenStreetMap heights are metres unless a unit says otherwise: feet (40', 40 ft), feet and
+    inches (12'6"), and a decimal comma (12,5: common in European data) were read as 40 m, 12 m and
+    12 m; each block now has the volume of its height in metres."""
+    feature = _feature("b", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height=height)
+    (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    (block,) = read_file(tmp_path / "osm.geojson")
+    assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5), block
+
+
 def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
     ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]  # RD New metres: beyond +/-180, read as metres
     doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}
