@@ -86,7 +86,7 @@ def _warn(message: str, *args) -> None:
 
 
 @functools.lru_cache(maxsize=None)
-def _root(base: str | None, xdg: str | None) -> Path:
+def _root(base: str | None, xdg: str | None, home: str | None) -> Path:  # keyed by what decides the folder
     if base:
         root = Path(base)
     else:
@@ -106,7 +106,7 @@ def meshsom_cache_root() -> Path:
     :func:`ensure_user_cache`), or, where that cannot be written, a private temporary folder (one
     warning per process)."""
     ensure_user_cache()
-    return _root(os.environ.get(ENV_CACHE), os.environ.get("XDG_CACHE_HOME"))
+    return _root(os.environ.get(ENV_CACHE), os.environ.get("XDG_CACHE_HOME"), os.environ.get("HOME"))
 
 
 _CHECKED: list[bool] = []
