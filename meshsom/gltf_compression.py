@@ -111,15 +111,26 @@ def pack_gltf(text: bytes, resolver, where: str) -> bytes:
         Not glTF JSON, a buffer without data or shorter than its ``byteLength``, a reference to a
         buffer it does not have, or a file the resolver refuses.
     """
-    import base64
-    from urllib.parse import unquote
-
     try:
         gltf = json.loads(bytes(text).decode("utf-8-sig"))
     except (ValueError, UnicodeDecodeError) as err:
         raise InputFileError(where, f"is not glTF JSON ({type(err).__name__}: {err})") from None
     if not isinstance(gltf, dict):
         raise InputFileError(where, f"is JSON of a {type(gltf).__name__}, not a glTF object")
+    try:
+        return _packed(gltf, resolver, where)
+    except InputFileError:
+        raise
+    except (AttributeError, KeyError, IndexError, TypeError, ValueError) as err:  # JSON of other shapes than the spec's
+        raise InputFileError(where, f"holds glTF laid out otherwise than its specification says "
+                                    f"({type(err).__name__}: {err})") from None
+
+
+def _packed(gltf: dict, resolver, where: str) -> bytes:
+    """:func:`pack_gltf` of a parsed document."""
+    import base64
+    from urllib.parse import unquote
+
     out, moved, kept = _Binary(b""), {}, []  # moved: buffer -> its offset in the chunk; kept: fallbacks
     for k, buffer in enumerate(gltf.get("buffers") or []):
         length = buffer.get("byteLength") if isinstance(buffer, dict) else None

@@ -244,6 +244,12 @@ def test_corrupt_and_unsupported_compression_is_refused_with_its_reason(tmp_path
     (tmp_path / "short.gltf").write_text(json.dumps(missing))
     (item,) = list(read_file(tmp_path / "short.gltf"))
     assert isinstance(item, Rejection) and "of 10 bytes, fewer than its byteLength" in item.reason, item
+    # JSON of another shape than glTF's (buffer views that are numbers): a rejection, not a crash
+    odd = {"asset": {"version": "2.0"}, "extensionsUsed": ["KHR_draco_mesh_compression"], "bufferViews": [1, 2],
+           "buffers": [{"byteLength": 4, "uri": "data:application/octet-stream;base64,AAAAAA=="}]}
+    (tmp_path / "odd.gltf").write_text(json.dumps(odd))
+    (item,) = list(read_file(tmp_path / "odd.gltf"))
+    assert isinstance(item, Rejection) and "laid out otherwise than its specification says" in item.reason, item
 
 
 def _as_gltf(glb: bytes, folder, name: str, embed: bool) -> None:
