@@ -44,7 +44,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".gpkg", ".parquet", ".fgb")
+            ".geojson", ".b3dm", ".cmpt", ".gpkg", ".parquet", ".fgb")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -206,7 +206,8 @@ MAGIC = {
     ".stl": [b"", b"solid x\n", b"\0" * 80 + struct.pack("<I", 3)],
     ".off": [b"", b"OFF\n", b"OFF\n3 1 0\n"],
     ".glb": [b"", b"glTF" + struct.pack("<II", 2, 64), b"glTF" + struct.pack("<III", 2, 64, 40) + b"JSON"],
-    ".gltf": [b"", b'{"asset": {"version": "2.0"}, ', b'{"buffers": [{"uri": "../secret.bin", "byteLength": 4096}], '],
+    ".gltf": [b"", b'{"asset": {"version": "2.0"}, ', b'{"buffers": [{"uri": "../secret.bin", "byteLength": 4096}], ',
+              b'{"extensionsUsed": ["KHR_draco_mesh_compression"], "buffers": [{"uri": "data:;base64,AAAA", "byteLength": 3}], '],
     ".city.json": [b"", b'{"type": "CityJSON", "version": "2.0", ', b'{"type":"CityJSON","version":"1.0","vertices":[[0,0,0]],'],
     ".city.jsonl": [b"", b'{"type":"CityJSON","version":"2.0","transform":{"scale":[1,1,1],"translate":[0,0,0]},'
                     b'"CityObjects":{},"vertices":[]}\n{"type":"CityJSONFeature","id":"a",', b"\n\n{"],
@@ -220,6 +221,8 @@ MAGIC = {
     ".fgb": [b"", b"fgb\x03fgb\x00", b"fgb\x03fgb\x01\x00\x00\x00"],
     ".b3dm": [b"", b"b3dm" + struct.pack("<6I", 1, 1600, 24, 0, 16, 0) + b'{"BATCH_LENGTH": 2}     ' + b'{"id": [1, 2]}  ',
               b"b3dm" + struct.pack("<6I", 1, 4 * 10**9, 8, 0, 0, 0) + b'{}      glTF'],
+    ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
+              b"cmpt" + struct.pack("<III", 1, 4 * 10**9, 3) + b"cmpt" + struct.pack("<III", 1, 32, 1)],
 }
 
 
