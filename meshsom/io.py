@@ -334,9 +334,10 @@ def input_kind(path: Path) -> str:
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
         ".zip",)
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
+    way = CONVERSIONS.get(Path(name).suffix)
     raise InputFileError(
         str(path),
-        f"unknown file type {suffix or '(no extension)'!r}; expected one of "
+        f"unknown file type {suffix or '(no extension)'!r}{f' ({way})' if way else ''}; expected one of "
         f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}",
     )
 
@@ -1033,6 +1034,22 @@ def _ply_polygons(data: bytes, header, face, index_list) -> bool:
 
 #: An OBJ face line of four or more vertices.
 _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
+#: The way into meshsom for the building formats it does not read, named in their rejection.
+CONVERSIONS = {
+    ".ifc": "IFC: convert it to OBJ or glTF with IfcOpenShell's IfcConvert",
+    ".dae": "COLLADA: convert it to glTF (COLLADA2GLTF, Blender)",
+    ".kmz": "a KMZ of COLLADA models: unzip it and convert the .dae files to glTF",
+    ".skp": "SketchUp: export it as OBJ (one object per building, two-sided faces are fine)",
+    ".3dm": "Rhino: export it as OBJ",
+    ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",
+    ".dxf": "DXF: export its 3D solids as OBJ or STL",
+    ".dwg": "DWG: export its 3D solids as OBJ or STL",
+    ".slpk": "an Esri scene layer package: export the layer as 3D Tiles or a multipatch feature class",
+    ".las": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
+    ".laz": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
+    ".pnts": "a 3D Tiles point cloud: not read",
+    ".i3dm": "3D Tiles instances: not read",
+}
 #: The UTF-8 byte order mark that Windows tools put before text (JSON, OBJ); dropped before parsing.
 UTF8_BOM = b"\xef\xbb\xbf"
 #: A face line of an OBJ text with a vertex reference 0 (OBJ counts from 1).

@@ -373,3 +373,15 @@ def test_a_byte_order_mark_before_json_or_mesh_text_is_read(tmp_path):
         for a, b in zip(plain, marked):
             np.testing.assert_array_equal(a.vertices + a.origin, b.vertices + b.origin)
             np.testing.assert_array_equal(a.faces, b.faces)
+
+
+@pytest.mark.parametrize("name,way", [("tower.ifc", "IfcConvert"), ("block.dae", "COLLADA"), ("city.skp", "export it as OBJ"),
+                                      ("scan.laz", "point cloud"), ("notes.txt", None)])
+def test_a_building_format_meshsom_does_not_read_says_the_way_in(tmp_path, name, way):
+    """IFC, COLLADA, SketchUp, point clouds...: the rejection names the conversion that leads into
+    meshsom (and still lists what is read); other unknown types just the list."""
+    (tmp_path / name).write_text("x")
+    (item,) = read_file(tmp_path / name)
+    assert isinstance(item, Rejection) and item.reason.startswith(f"unknown file type '{name[name.index('.'):]}'")
+    assert "expected one of .obj" in item.reason
+    assert (way in item.reason) if way else ("(" not in item.reason.split(";")[0]), item.reason
