@@ -96,7 +96,7 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
             for f in files:
                 member = f.path.relative_to(folder).as_posix()
                 source = f"{path}!/{member}"
-                if f.path.name.lower().endswith(ZIP_SUFFIX):
+                if f.path.name.lower().endswith((ZIP_SUFFIX, ".kmz")):
                     yield Rejection(f"{name}/{member}", source, "is a zip inside a zip; not opened (unzip the outer one)")
                     continue
                 for item in read_file(f.path, options, f"{name}/{f.name}"):

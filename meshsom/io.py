@@ -58,7 +58,7 @@ if TYPE_CHECKING:
 #: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
 UP_AXES = ("z", "y")
 #: File name endings read by trimesh.
-TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
+TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae")
 #: File name endings read as CityJSON (a ``.json`` holding a GeoJSON / JSON-FG Feature or
 #: FeatureCollection is read as :mod:`meshsom.geojson`).
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson", ".geojson")
@@ -321,7 +321,7 @@ def input_kind(path: Path) -> str:
         return "gis"
     if name.endswith(B3DM_SUFFIXES):
         return "b3dm"
-    if name.endswith(".zip"):
+    if name.endswith((".zip", ".kmz")):  # a KMZ: a zip of a KML placemark and its COLLADA models
         return "zip"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
@@ -332,7 +332,7 @@ def input_kind(path: Path) -> str:
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip",)
+        ".zip", ".kmz")
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     way = CONVERSIONS.get(Path(name).suffix)
     raise InputFileError(
@@ -825,6 +825,9 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), label)]
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
+    if file_type == "dae":  # COLLADA says its unit and up axis (SketchUp: inches, z up; others: y up)
+        to_metres, turn = _collada_frame(data.getvalue())
+        items = [(i, (v * to_metres) @ turn.T, f, lab) for i, v, f, lab in items]
     if options.split_components:
         items = [piece for item in items for piece in _connected_pieces(*item)]
     for mesh_id, v, f, item_label in items:
@@ -833,7 +836,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 raise InputFileError(str(path), "holds no faces")
             yield Rejection(mesh_id, str(path), "holds no faces", 0, item_label)
             continue
-        if options.up_axis == "y":  # a quarter turn about x: y up -> z up (a rotation: orientation kept)
+        if options.up_axis == "y" and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
         local, origin = recentre(v)
         try:
@@ -842,6 +845,26 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             yield Rejection(mesh_id, str(path), err.problem, 0, item_label)
             continue
         yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None, notes=tuple(notes))
+
+
+#: COLLADA's up axes, as the rotation that turns each to z up (proper rotations: faces keep their side).
+COLLADA_UP = {"Z": np.eye(3), "Y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]),
+              "X": np.array([[0, 0, -1.0], [0, 1, 0], [1, 0, 0]])}
+
+
+def _collada_frame(text: bytes) -> tuple[float, np.ndarray]:
+    """The metres per unit and the turn to z up of a COLLADA document, from its ``<asset>``'s
+    ``<unit meter>`` (1 when absent) and ``<up_axis>`` (Y_UP when absent, as the specification says)."""
+    head = text[: text.find(b"</asset>") + 8] if b"</asset>" in text else text[:1 << 16]
+    unit = re.search(rb"<unit\b[^>]*\bmeter\s*=\s*[\"']([^\"']+)[\"']", head)
+    up = re.search(rb"<up_axis>\s*([XYZ])_UP\s*</up_axis>", head)
+    try:
+        metres = float(unit.group(1)) if unit else 1.0
+    except ValueError:
+        metres = 1.0
+    if not (math.isfinite(metres) and metres > 0):
+        metres = 1.0
+    return metres, COLLADA_UP[up.group(1).decode() if up else "Y"]
 
 
 def _connected_pieces(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, label):
@@ -1037,8 +1060,6 @@ _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
 #: The way into meshsom for the building formats it does not read, named in their rejection.
 CONVERSIONS = {
     ".ifc": "IFC: convert it to OBJ or glTF with IfcOpenShell's IfcConvert",
-    ".dae": "COLLADA: convert it to glTF (COLLADA2GLTF, Blender)",
-    ".kmz": "a KMZ of COLLADA models: unzip it and convert the .dae files to glTF",
     ".skp": "SketchUp: export it as OBJ (one object per building, two-sided faces are fine)",
     ".3dm": "Rhino: export it as OBJ",
     ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",

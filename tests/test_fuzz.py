@@ -44,7 +44,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".cmpt", ".gpkg", ".parquet", ".fgb")
+            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -221,6 +221,8 @@ MAGIC = {
     ".fgb": [b"", b"fgb\x03fgb\x00", b"fgb\x03fgb\x01\x00\x00\x00"],
     ".b3dm": [b"", b"b3dm" + struct.pack("<6I", 1, 1600, 24, 0, 16, 0) + b'{"BATCH_LENGTH": 2}     ' + b'{"id": [1, 2]}  ',
               b"b3dm" + struct.pack("<6I", 1, 4 * 10**9, 8, 0, 0, 0) + b'{}      glTF'],
+    ".dae": [b"", b'<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">',
+             b'<COLLADA><asset><unit meter="0"/><up_axis>Q_UP</up_axis></asset><library_geometries><geometry><mesh>'],
     ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
               b"cmpt" + struct.pack("<III", 1, 4 * 10**9, 3) + b"cmpt" + struct.pack("<III", 1, 32, 1)],
 }

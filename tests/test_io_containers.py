@@ -752,3 +752,61 @@ def test_a_district_exported_as_one_mesh_is_split_into_its_buildings_on_request(
         np.testing.assert_allclose((m.vertices + m.origin).max(axis=0) - (m.vertices + m.origin).min(axis=0), [x, y, z])
     assert main(["ingest", str(tmp_path / f"district{suffix}"), "--split-components", "--out", str(tmp_path / "s.zarr")]) == 0
     assert "3 meshes: 3 accepted, 0 rejected" in capsys.readouterr().out
+
+
+def _collada(unit: float | None, up: str | None, vertices: np.ndarray, faces: np.ndarray) -> str:
+    """A COLLADA document of one triangle mesh, as SketchUp (inches, Z_UP) or other tools write it."""
+    asset = (f'<unit meter="{unit}" name="u"/>' if unit is not None else "") + (f"<up_axis>{up}_UP</up_axis>" if up else "")
+    floats = " ".join(repr(float(x)) for x in vertices.reshape(-1))
+    tris = " ".join(str(int(i)) for i in faces.reshape(-1))
+    return f"""<?xml version="1.0" encoding="utf-8"?>
+<COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">
+  <asset><contributor><authoring_tool>test</authoring_tool></contributor>{asset}</asset>
+  <library_geometries><geometry id="g"><mesh>
+    <source id="p"><float_array id="pa" count="{vertices.size}">{floats}</float_array>
+      <technique_common><accessor source="#pa" count="{len(vertices)}" stride="3">
+        <param name="X" type="float"/><param name="Y" type="float"/><param name="Z" type="float"/>
+      </accessor></technique_common></source>
+    <vertices id="v"><input semantic="POSITION" source="#p"/></vertices>
+    <triangles count="{len(faces)}"><input semantic="VERTEX" source="#v" offset="0"/><p>{tris}</p></triangles>
+  </mesh></geometry></library_geometries>
+  <library_visual_scenes><visual_scene id="s"><node id="house" name="house">
+    <instance_geometry url="#g"/></node></visual_scene></library_visual_scenes>
+  <scene><instance_visual_scene url="#s"/></scene>
+</COLLADA>
+"""
+
+
+@pytest.mark.parametrize("unit,up", [(None, None), (0.0254, "Z"), (1.0, "Y"), (0.001, "X")])
+def test_collada_models_are_read_in_metres_with_z_up(tmp_path, unit, up):
+    """COLLADA (.dae: SketchUp's and Google Earth's building models) says its unit and up axis;
+    the house is read in metres with z up whatever they are (10 m x 6 m, 4 m tall)."""
+    from meshsom.preprocess import preprocess
+
+    v, f = box(10.0, 6.0, 4.0)
+    scale = 1.0 / (unit or 1.0)
+    turn = {None: np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]), "Y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+            "Z": np.eye(3), "X": np.array([[0, 0, 1.0], [0, 1, 0], [-1, 0, 0]])}[up]  # z up -> the file's axis
+    (tmp_path / "house.dae").write_text(_collada(unit, up, (v * scale) @ turn.T, f))
+    (m,) = read_file(tmp_path / "house.dae")
+    assert isinstance(m, RawMesh), m
+    world = m.vertices + m.origin
+    np.testing.assert_allclose(world.max(axis=0) - world.min(axis=0), [10, 6, 4], atol=1e-5)  # pycollada: float32
+    assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(240, rel=1e-6)
+
+
+def test_a_kmz_of_collada_models_is_read_as_an_archive(tmp_path):
+    """A KMZ (Google Earth: a KML placemark and its COLLADA models in a zip): each model is a
+    building, in its own frame (the KML placement is not applied); the KML is listed as not read."""
+    import zipfile
+
+    v, f = box(10.0, 6.0, 4.0)
+    with zipfile.ZipFile(tmp_path / "town.kmz", "w") as z:
+        z.writestr("doc.kml", "<kml><Placemark><Model><Link><href>models/a.dae</href></Link></Model></Placemark></kml>")
+        z.writestr("models/a.dae", _collada(0.0254, "Z", v / 0.0254, f))
+        z.writestr("models/b.dae", _collada(None, "Y", v[:, [0, 2, 1]] * [1, 1, -1], f))
+    items = list(read_file(tmp_path / "town.kmz"))
+    assert [i.id for i in items] == ["town.kmz/models/a.dae#g", "town.kmz/models/b.dae#g"], items
+    for m in items:
+        world = m.vertices + m.origin
+        np.testing.assert_allclose(world.max(axis=0) - world.min(axis=0), [10, 6, 4], atol=1e-5)
