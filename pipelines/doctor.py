@@ -11,7 +11,8 @@ from dataclasses import replace
 
 PACKAGES = (
     "meshsom", "numpy", "scipy", "trimesh", "shapely", "pyproj", "fiona", "pyarrow", "pymeshlab", "zarr", "dask",
-    "distributed", "pyopencl", "pocl-binary-distribution", "mlflow", "matplotlib", "pyyaml", "tqdm", "plyfile", "pycollada",
+    "distributed", "pyopencl", "pocl-binary-distribution", "mlflow", "matplotlib", "pyyaml", "tqdm", "plyfile",
+    "pycollada",
 )
 ENV_VARS = (
     "PYOPENCL_CTX", "MESHSOM_OPENCL_DEVICE", "POCL_MAX_PTHREAD_COUNT", "OCL_ICD_VENDORS",
