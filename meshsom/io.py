@@ -331,15 +331,20 @@ def input_kind(path: Path) -> str:
         return "trimesh"
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz")
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     way = CONVERSIONS.get(Path(name).suffix)
-    raise InputFileError(
-        str(path),
-        f"unknown file type {suffix or '(no extension)'!r}{f' ({way})' if way else ''}; expected one of "
-        f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}",
-    )
+    raise InputFileError(str(path), f"unknown file type {suffix or '(no extension)'!r}{f' ({way})' if way else ''}; "
+                                    f"expected one of {readable_types()}")
+
+
+def readable_types() -> str:
+    """The file types meshsom reads, in words (rejections of unknown types, lists of skipped files)."""
+    from meshsom.gis import GIS_SUFFIXES
+    from meshsom.tiles3d import B3DM_SUFFIXES
+
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
+        ".zip", ".kmz")
+    return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
 def _gzip_limit(path: Path, compressed: int, options: ReaderOptions) -> int:
@@ -894,9 +899,9 @@ def _connected_pieces(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, lab
     rank = np.empty(m, np.int64)
     rank[np.argsort(first)] = np.arange(m)  # numbered in the order of their first faces
     piece = rank[piece]
+    order = np.argsort(piece, kind="stable")  # faces grouped by piece once (not a scan per piece)
     out = []
-    for p in range(m):
-        f = faces[piece == p]
+    for p, f in enumerate(np.split(faces[order], np.cumsum(np.bincount(piece, minlength=m))[:-1])):
         used, local = np.unique(f, return_inverse=True)
         out.append((f"{mesh_id}#c{p + 1}", np.asarray(vertices)[used], local.reshape(-1, 3), label))
     return out

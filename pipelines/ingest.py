@@ -404,12 +404,13 @@ def print_skipped(skipped: list[tuple[str, str]], indent: str = "      ") -> Non
         kinds = Counter(Path(path).suffix or "(no extension)" for path, _ in skipped[SKIPPED_SHOWN:])
         print(f"{indent}skipped: {len(skipped) - SKIPPED_SHOWN} more files "
               f"({', '.join(f'{n} x {suffix}' for suffix, n in kinds.most_common())})")
-    unknown = next((why for _, why in skipped if why.startswith("unknown file type") and "; " in why), None)
-    if unknown:
+    if any(why.startswith("unknown file type") for _, why in skipped):
         import textwrap
 
-        readable = f"(readable: {unknown.split('; ', 1)[1].removeprefix('expected one of ')})"
-        print(textwrap.fill(readable, width=80, initial_indent=indent, subsequent_indent=indent + " "))
+        from meshsom.io import readable_types
+
+        print(textwrap.fill(f"(readable: {readable_types()})", width=80, initial_indent=indent,
+                            subsequent_indent=indent + " "))
 
 
 def run(args: argparse.Namespace) -> int:
