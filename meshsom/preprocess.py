@@ -463,7 +463,32 @@ def _clean(vertices, faces, params, source, repairs):
     if collapsed.any():
         repairs.append(f"dropped {int(collapsed.sum())} degenerate faces")
         f = f[~collapsed]
-    f = _keep_one_side(v, f, params, repairs)
+    f, hull_side = _keep_one_side(v, f, params, repairs)
+    if hull_side is None:
+        return _close(v, f, params, source, repairs)
+    # partly two-sided: walls between parts first (as before), then those surfaces' hull side
+    trial_repairs = list(repairs)
+    try:
+        w, g = _close(v, f, params, source, trial_repairs)
+        if signed_volume(w, g) > params.weld_tol * diag**3:
+            repairs[:] = trial_repairs
+            return w, g
+        first_problem = MeshError(source, "zero volume")
+    except MeshError as err:
+        first_problem = err
+    g, note = hull_side
+    trial_repairs = [*repairs, note]
+    try:
+        w, g = _close(v, g, params, source, trial_repairs)
+    except MeshError:
+        raise first_problem from None
+    repairs[:] = trial_repairs
+    return w, g
+
+
+def _close(v, f, params, source, repairs):
+    """Steps 3-4 of :func:`_clean` on welded faces ``f``: drop duplicates, cap, close, orient."""
+    diag = _diagonal(v)
     f = _drop_duplicates(f, repairs)
     if len(f) < params.min_faces:
         raise MeshError(source, f"only {len(f)} faces after cleaning; at least {params.min_faces} needed")
@@ -565,12 +590,16 @@ def _keep_one_side(v, f, params, repairs):
     Returns
     -------
     f : (F', 3) int64
+    hull_side : tuple of ((F'', 3) int64, str) or None
+        Where some surfaces, under :data:`TWO_SIDED_SHARE` of the area, have such a twin: the
+        faces with one side kept of those on the hull (:func:`_two_sided_hull`) and a repair note,
+        for :func:`_clean` to try where taking them all for walls between parts fails.
     """
     if not len(f):
-        return f
+        return f, None
     _, edge_of, counts = edge_table(f)
     if not (counts > 2).any() and len(np.unique(np.sort(f, axis=1), axis=0)) == len(f):
-        return f  # no edge with more than two faces, no face twice: nothing two-sided
+        return f, None  # no edge with more than two faces, no face twice: nothing two-sided
     cross = _cross(v, f)
     area2 = np.linalg.norm(cross, axis=1)
     normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
@@ -586,7 +615,7 @@ def _keep_one_side(v, f, params, repairs):
             a_list.append(face[start[on] + j])
             b_list.append(face[start[on] + i])
     if not a_list or not area2.sum() > 0:  # no edge of two to eight faces; no area at all
-        return f
+        return f, None
     a, b = np.concatenate(a_list), np.concatenate(b_list)
     cos_tol = math.cos(math.radians(params.planar_angle_deg))
     join = np.einsum("ij,ij->i", normal[a], normal[b]) >= cos_tol
@@ -608,22 +637,80 @@ def _keep_one_side(v, f, params, repairs):
     # pairs: two regions of one vertex set facing opposite ways (a set held by more is left alone)
     two = np.flatnonzero(sizes[group] == 2)
     if not len(two):
-        return f
+        return f, None
     by_group = two[np.argsort(group[two], kind="stable")].reshape(-1, 2)
     first, second = by_group[:, 0], by_group[:, 1]
     pairs = np.einsum("ij,ij->i", plane[first], plane[second]) <= -cos_tol
     first, second = first[pairs], second[pairs]
     if not len(first):
-        return f
+        return f, None
     paired = np.zeros(n_regions, bool)
     paired[first] = paired[second] = True
     share = area2[paired[region]].sum() / area2.sum()
-    if share < TWO_SIDED_SHARE:  # some faces walked both ways: internal walls, for _drop_duplicates
-        return f
-    gone = np.isin(region, second)
-    repairs.append(f"kept one side of a two-sided mesh ({len(first)} surfaces, {100 * share:.3g} % of its area, "
-                   f"also modelled facing the other way; {int(gone.sum())} faces dropped)")
-    return f[~gone]
+    if share >= TWO_SIDED_SHARE:
+        gone = np.isin(region, second)
+        repairs.append(f"kept one side of a two-sided mesh ({len(first)} surfaces, {100 * share:.3g} % of its "
+                       f"area, also modelled facing the other way; {int(gone.sum())} faces dropped)")
+        return _oriented_alike(f[~gone]), None
+    # some surfaces modelled facing both ways: walls between parts (for _drop_duplicates), or
+    # surfaces of the hull exported two-sided; the second reading is tried where the first fails
+    hull = _two_sided_hull(v, f, region, paired, first)
+    if not hull.any():
+        return f, None
+    gone = paired[region] & ~np.isin(region, first[hull])
+    note = (f"kept one side of {int(hull.sum())} surfaces modelled facing both ways ({100 * share:.3g} % of its "
+            f"area; {int(gone.sum())} faces dropped)")
+    return f, (_oriented_alike(f[~gone]), note)
+
+
+def _two_sided_hull(v, f, region, paired, first):
+    """Which surface pairs of a partly two-sided mesh lie on its hull: where the mesh without
+    every paired face leaves most of the pair's outline (by length) with fewer than two faces.
+    The outline of a wall between two parts is still closed there: the parts' own walls, roofs and
+    floors meet along it; a two-sided wall of the hull leaves a hole.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+    region : (F,) int64
+        Planar region of each face (:func:`_keep_one_side`).
+    paired : (R,) bool
+        Regions with a twin facing the other way.
+    first : (P,) int64
+        One region of each pair.
+
+    Returns
+    -------
+    hull : (P,) bool
+    """
+    n = len(v)
+    rest = f[~paired[region]]
+    rest_keys, rest_counts = np.unique(_undirected_keys(rest, n), return_counts=True)
+    mine = np.isin(region, first)
+    faces = f[mine]
+    keys = _undirected_keys(faces, n)
+    owner = np.searchsorted(np.sort(first), np.repeat(region[mine], 3))  # pair of every half-edge
+    # the outline of a region: its edges used once within it
+    both = np.stack([owner, keys], axis=1)
+    uniq, inverse, uses = np.unique(both, axis=0, return_inverse=True, return_counts=True)
+    outline = uses[inverse.reshape(-1)] == 1
+    at = np.clip(np.searchsorted(rest_keys, keys), 0, max(len(rest_keys) - 1, 0))
+    found = (rest_keys[at] == keys) if len(rest_keys) else np.zeros(len(keys), bool)
+    closed = outline & found & (rest_counts[at] >= 2 if len(rest_counts) else False)
+    length = np.linalg.norm(v[keys // n] - v[keys % n], axis=1)
+    total = np.bincount(owner[outline], length[outline], minlength=len(first))
+    shut = np.bincount(owner[closed], length[closed], minlength=len(first))
+    order = np.argsort(first)  # owner indexes first in sorted order
+    hull = np.zeros(len(first), bool)
+    hull[order] = shut < 0.5 * total
+    return hull
+
+
+def _undirected_keys(f: np.ndarray, n: int) -> np.ndarray:
+    """(3F,) int64: ``lo * n + hi`` for the edges of faces ``f`` (over ``n`` vertices), face by face."""
+    he = half_edges(f)
+    return he.min(axis=1) * n + he.max(axis=1)
 
 
 def _drop_duplicates(f, repairs):
@@ -1769,9 +1856,41 @@ def _area2d(ring):
 def _orient(v, f, source, repairs):
     """Consistent orientation by parity components, then each shell outward."""
     n = len(f)
+    parity = _parity(f)
+    if parity is None:
+        raise MeshError(source, "not orientable (a Moebius-like surface)")
+    flip, n_shells, shell = parity
+    f = np.where(flip[:, None], f[:, ::-1], f)
+    vol = np.zeros(n_shells)
+    a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
+    np.add.at(vol, shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
+    inward = vol < 0
+    flip_shell = inward[shell]
+    f = np.where(flip_shell[:, None], f[:, ::-1], f)
+    flipped = int((flip ^ flip_shell).sum())
+    if flipped:
+        repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation")
+    return f
+
+
+def _parity(f):
+    """Which faces to flip so that the faces on every edge of two walk it opposite ways (edges of
+    one face, or of more, join nothing): the first face of each shell keeps its way.
+
+    Parameters
+    ----------
+    f : (F, 3) int64
+
+    Returns
+    -------
+    (flip, n_shells, shell) : ((F,) bool, int, (F,) int64), or None where a shell cannot be
+        oriented (a Moebius-like surface). Shells: faces joined through edges of two faces.
+    """
+    n = len(f)
     he = half_edges(f)
-    _, edge_of, _ = edge_table(f)
-    order = np.argsort(edge_of, kind="stable").reshape(-1, 2)
+    _, edge_of, counts = edge_table(f)
+    two = counts[edge_of] == 2
+    order = np.flatnonzero(two)[np.argsort(edge_of[two], kind="stable")].reshape(-1, 2)
     h0, h1 = order[:, 0], order[:, 1]
     fa, fb = h0 // 3, h1 // 3
     same_way = he[h0, 0] == he[h1, 0]  # both faces walk the edge the same way: one must flip
@@ -1784,24 +1903,21 @@ def _orient(v, f, source, repairs):
     _, lab = connected_components(graph, directed=False)
     lab = lab.reshape(n, 2)
     if (lab[:, 0] == lab[:, 1]).any():
-        raise MeshError(source, "not orientable (a Moebius-like surface)")
-    # Shells: components of the plain dual graph.
+        return None
     g1 = sparse.coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), shape=(n, n))
     n_shells, shell = connected_components(g1, directed=False)
     seed = np.full(n_shells, n, np.int64)
     np.minimum.at(seed, shell, np.arange(n))
-    flip = lab[:, 0] != lab[seed[shell], 0]
-    f = np.where(flip[:, None], f[:, ::-1], f)
-    vol = np.zeros(n_shells)
-    a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
-    np.add.at(vol, shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
-    inward = vol < 0
-    flip_shell = inward[shell]
-    f = np.where(flip_shell[:, None], f[:, ::-1], f)
-    flipped = int((flip ^ flip_shell).sum())
-    if flipped:
-        repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation")
-    return f
+    return lab[:, 0] != lab[seed[shell], 0], n_shells, shell
+
+
+def _oriented_alike(f):
+    """``f`` with the faces of each shell walking their shared edges opposite ways (one side of a
+    two-sided surface kept may face either way; capping needs the open edges to run one way)."""
+    parity = _parity(f)
+    if parity is None:
+        return f
+    return np.where(parity[0][:, None], f[:, ::-1], f)
 
 
 def _compact(v, f):

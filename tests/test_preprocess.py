@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 
 from conftest import box
 from meshsom.errors import MeshError
+from meshsom.polygons import newell_normal
 from meshsom.polygons import extrude_polygon
-from meshsom.preprocess import PreprocessParams, preprocess, validate, weld
-from meshsom.topology import edge_table
+from meshsom.preprocess import PreprocessParams, _close, _keep_one_side, preprocess, validate, weld
+from meshsom.topology import edge_table, signed_volume
 
 
 def voxel_mesh(voxels: set[tuple[int, int, int]], seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -894,10 +895,11 @@ def test_dangling_wall_in_a_missing_walls_plane_is_removed(cube):
 ZURICH_LOD1 = Path(__file__).resolve().parents[1] / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"
 
 
-def _obj_of_polygons(path: Path, two_sided: bool) -> None:
+def _obj_of_polygons(path: Path, two_sided: bool | str, floors: bool = True) -> None:
     """Zürich's 49 LoD1 blocks as an OBJ file of polygon faces (``o`` per building), as modelling
     tools export them; ``two_sided``: every polygon written again reversed, with vertices of its
-    own (trimesh fans the reversed polygon from another corner: other diagonals)."""
+    own (trimesh fans the reversed polygon from another corner: other diagonals); ``"walls"``:
+    only the walls so (a material made two-sided); ``floors``: False leaves the floors out."""
     import json
 
     doc = json.loads(ZURICH_LOD1.read_text())
@@ -913,15 +915,34 @@ def _obj_of_polygons(path: Path, two_sided: bool) -> None:
                 ring = [i for k, i in enumerate(surface[0]) if i != surface[0][k - 1]]
                 if len(set(ring)) >= 3:
                     polygons.append(ring)
+        bottom = min(world[i, 2] for ring in polygons for i in ring)
+        upright = {k for k, ring in enumerate(polygons) if abs(newell_normal(world[ring])[2]) < 0.5}
+        polygons = [ring for k, ring in enumerate(polygons)
+                    if floors or k in upright or world[ring, 2].max() > bottom + 0.01]
+        upright = {tuple(ring) for k, ring in enumerate(polygons) if abs(newell_normal(world[ring])[2]) < 0.5}
         for ring in polygons:
             lines.append("f " + " ".join(str(i + 1) for i in ring))
         if two_sided:
             for ring in polygons:
+                if two_sided == "walls" and tuple(ring) not in upright:
+                    continue
                 lines.append(f"v {0:.3f} {0:.3f} {0:.3f}")  # a vertex it does not use: indices shift
                 lines += [f"v {world[i][0]:.3f} {world[i][1]:.3f} {world[i][2]:.3f}" for i in ring[::-1]]
                 lines.append("f " + " ".join(str(n + 2 + k) for k in range(len(ring))))
                 n += len(ring) + 1
     path.write_text("\n".join(lines) + "\n")
+
+
+def _one_and_two_sided(tmp_path: Path, two_sided: bool | str, floors: bool = True) -> tuple[dict, dict]:
+    """Zürich's blocks read from :func:`_obj_of_polygons` written one-sided and ``two_sided``, by id."""
+    from meshsom.io import RawMesh, read_file
+
+    _obj_of_polygons(tmp_path / "one.obj", two_sided=False, floors=floors)
+    _obj_of_polygons(tmp_path / "two.obj", two_sided=two_sided, floors=floors)
+    one = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "one.obj") if isinstance(m, RawMesh)}
+    two = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "two.obj") if isinstance(m, RawMesh)}
+    assert set(one) == set(two) and len(one) == 49
+    return one, two
 
 
 def _corners(mesh, t) -> tuple:
@@ -933,13 +954,7 @@ def test_a_two_sided_export_keeps_one_side(tmp_path):
     and many CAD exporters' OBJ) is the one-sided mesh: each of Zürich's 49 blocks is accepted with
     the volume and faces of the same file written one-sided. Before, each face pair went as an
     internal wall (nothing left) or every edge had four faces."""
-    from meshsom.io import RawMesh, read_file
-
-    _obj_of_polygons(tmp_path / "one.obj", two_sided=False)
-    _obj_of_polygons(tmp_path / "two.obj", two_sided=True)
-    one = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "one.obj") if isinstance(m, RawMesh)}
-    two = {m.id.split("#")[-1]: m for m in read_file(tmp_path / "two.obj") if isinstance(m, RawMesh)}
-    assert set(one) == set(two) and len(one) == 49
+    one, two = _one_and_two_sided(tmp_path, True)
     other_diagonals = compared = 0
     for key, m in two.items():
         try:
@@ -958,6 +973,64 @@ def test_a_two_sided_export_keeps_one_side(tmp_path):
         assert preprocess(one[key].vertices, doubled).volume_out == pytest.approx(ref.volume_out, rel=1e-9), key
     assert compared >= 48
     assert other_diagonals > 0  # some reversed polygons were triangulated differently
+
+
+@pytest.mark.parametrize("floors", [True, False])
+def test_a_mesh_with_two_sided_walls_keeps_their_outer_side(tmp_path, floors):
+    """Only the walls exported two-sided (a two-sided material: well under 90 % of the area), with
+    and without floors: each of Zürich's blocks is accepted with the volume of the same file
+    written one-sided. Before, the wall pairs went as walls between parts (a block left with roof
+    and floor, edges with three or four faces where the reversed polygon's diagonals differ)."""
+    one, two = _one_and_two_sided(tmp_path, "walls", floors)
+    compared = partly = 0
+    for key, m in two.items():
+        try:
+            ref = preprocess(one[key].vertices, one[key].faces)
+        except MeshError:
+            continue
+        compared += 1
+        got = preprocess(m.vertices, m.faces)
+        assert got.volume_out == pytest.approx(ref.volume_out, rel=1e-9), key
+        assert validate(got.vertices, got.faces) is None, key
+        partly += any("surfaces modelled facing both ways" in r for r in got.repairs)
+    assert compared >= 47
+    # the rest hold walls over 90 % of their area (most blocks without a floor): the whole-mesh rule
+    assert partly > (compared // 2 if floors else 5), partly
+
+
+def test_two_sided_hull_walls_beside_walls_between_parts():
+    """Two blocks sharing a wall that each walks (a wall between parts: both sides go), whose front
+    walls are exported two-sided, their back sides split along the other diagonal (the hull: one
+    side stays): one solid of both volumes, in either reading (every pair taken for walls between
+    parts, then fins and caps; or the hull's side kept)."""
+    a, fa = extrude_polygon(np.array([[0.0, 0], [4, 0], [4, 3], [0, 3]]), [], 0.0, 3.0)
+    b, fb = extrude_polygon(np.array([[4.0, 0], [8, -1], [8, 3], [4, 3]]), [], 0.0, 3.0)
+    v = np.vstack([a, b])
+    f = np.vstack([fa, fb + len(a)])
+    extra = []
+    for x0, x1, y0, y1 in [(0, 4, 0, 0), (4, 8, 0, -1)]:  # each front wall again, reversed
+        p, q, r, t = (int(np.flatnonzero((np.abs(v - c) < 1e-9).all(axis=1))[0])
+                      for c in [(x0, y0, 0), (x0, y0, 3), (x1, y1, 0), (x1, y1, 3)])
+        extra += [[p, q, t], [p, t, r]]  # facing in (out: p r q), split along p-t
+    front = {frozenset(map(int, t)) for t in f if (v[t, 1] <= 0).all() and np.ptp(v[t, 2]) > 0}
+    assert len(front) == 4 and front != {frozenset(t) for t in extra}  # other diagonals somewhere
+    faces = np.vstack([f, extra])
+    volume = 4 * 3 * 3 + (4 * 4 - 4 * 1 / 2) * 3
+    assert preprocess(v, faces).volume_out == pytest.approx(volume)  # (fins removed, fronts capped)
+    # the other reading, on its own: one side of each front stays, the shared wall goes
+    w, remap = weld(v, 1e-9)
+    notes = []
+    same, (hull, note) = _keep_one_side(w, remap[faces], PreprocessParams(), notes)
+    assert len(same) == len(faces) and not notes
+    assert note.startswith("kept one side of 2 surfaces modelled facing both ways"), note
+    keys = {frozenset(map(int, t)) for t in hull}
+    shared = {frozenset(map(int, t)) for t in remap[faces] if np.allclose(w[t, 0], 4)}
+    assert len(shared) >= 2 and not keys & shared
+    fronts = [k for k in keys if (w[list(k), 1] <= 0).all() and np.ptp(w[list(k), 2]) > 0]
+    walls = int(sum(np.allclose(w[t, 0], 4) for t in remap[faces]))  # 2 of each block
+    assert len(fronts) == 4 and walls == 4 and len(hull) == len(faces) - 4 - walls
+    closed = _close(w, hull, PreprocessParams(), "two blocks", [])
+    assert signed_volume(*closed) == pytest.approx(volume)
 
 
 def test_walls_between_parts_walked_both_ways_still_go(tmp_path):
