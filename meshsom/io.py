@@ -57,6 +57,16 @@ if TYPE_CHECKING:
 
 #: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
 UP_AXES = ("z", "y")
+#: IFC element classes (with their subclasses) whose solids make a building's envelope
+#: (:mod:`meshsom.ifc`; ``ReaderOptions.ifc_classes``). Classes a file's schema lacks (``IfcChimney``
+#: in IFC2X3) are passed over.
+IFC_ENVELOPE_CLASSES = (
+    "IfcWall", "IfcSlab", "IfcRoof", "IfcCurtainWall", "IfcPlate", "IfcMember", "IfcWindow", "IfcDoor",
+    "IfcColumn", "IfcBeam", "IfcCovering", "IfcChimney", "IfcBuildingElementProxy", "IfcStair",
+    "IfcStairFlight", "IfcRamp", "IfcRampFlight", "IfcShadingDevice",
+)
+#: IFC files: STEP physical files (``.ifc``, gzipped too) and IFC-ZIP archives.
+IFC_SUFFIXES = (".ifc", ".ifczip")
 #: File name endings read by trimesh.
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae")
 #: File name endings read as CityJSON (a ``.json`` holding a GeoJSON / JSON-FG Feature or
@@ -174,6 +184,15 @@ class ReaderOptions:
         exported as one mesh (an STL or PLY of a district) needs; a piece gets the id ``mesh#cN``
         (N from 1, in the order of its first face). Default False: a file or object is one
         building, whatever its pieces (an annex that does not touch the house stays its shell).
+    ifc_classes : tuple of str
+        IFC files (:mod:`meshsom.ifc`): the element classes, with their subclasses, whose solids
+        are united into each IfcBuilding's envelope (default :data:`IFC_ENVELOPE_CLASSES`: walls,
+        slabs, roofs, curtain walls, windows, doors, columns, beams, stairs, ...; never spaces,
+        furniture, building services or the site).
+    ifc_gap : float
+        IFC files: gaps between elements narrower than this (metres) are closed (each element is
+        grown by half of it before the union, the union shrunk back by as much); 0 keeps every
+        gap (a hairline between a wall and the roof then leads into the attic).
     """
 
     lod: str = "highest"
@@ -196,6 +215,8 @@ class ReaderOptions:
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
     split_components: bool = False
+    ifc_classes: tuple[str, ...] = IFC_ENVELOPE_CLASSES
+    ifc_gap: float = 0.01
 
     def __post_init__(self):
         if self.parts not in PARTS_CHOICES:
@@ -228,6 +249,11 @@ class ReaderOptions:
                 coordinate_system(self.crs)
             except UnknownCRS as err:
                 raise ValueError(f"crs: {err}") from None
+        if not self.ifc_classes or not all(isinstance(c, str) and c.lower().startswith("ifc") for c in self.ifc_classes):
+            raise ValueError(f"ifc_classes must be a non-empty list of IFC class names such as IfcWall, "
+                             f"received {self.ifc_classes!r}")
+        if not (self.ifc_gap >= 0 and math.isfinite(self.ifc_gap)):
+            raise ValueError(f"ifc_gap must be >= 0 (metres), received {self.ifc_gap}")
         if not self.max_expansion >= 1:
             raise ValueError(f"max_expansion must be >= 1 (decompressed / compressed size), received {self.max_expansion}")
 
@@ -311,7 +337,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -329,6 +355,8 @@ def input_kind(path: Path) -> str:
         return "cityjson"
     if name.endswith(TRIMESH_SUFFIXES):
         return "trimesh"
+    if name.endswith(IFC_SUFFIXES):
+        return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
         return "citygml"
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
@@ -343,7 +371,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz")
+        ".zip", ".kmz") + IFC_SUFFIXES
     return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
@@ -714,6 +742,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.tiles3d import read_b3dm
 
             yield from read_b3dm(path, options, name)
+        elif kind == "ifc":
+            from meshsom.ifc import read_ifc
+
+            yield from read_ifc(path, options, name)
         elif kind == "zip":
             from meshsom.archives import read_zip
 
@@ -1064,7 +1096,6 @@ def _ply_polygons(data: bytes, header, face, index_list) -> bool:
 _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
 #: The way into meshsom for the building formats it does not read, named in their rejection.
 CONVERSIONS = {
-    ".ifc": "IFC: convert it to OBJ or glTF with IfcOpenShell's IfcConvert",
     ".skp": "SketchUp: export it as OBJ (one object per building, two-sided faces are fine)",
     ".3dm": "Rhino: export it as OBJ",
     ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",

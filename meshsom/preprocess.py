@@ -62,7 +62,7 @@ from meshsom.errors import MeshError
 from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_2d
 from meshsom.topology import edge_table, half_edges, signed_volume
 
-__all__ = ["PreprocessParams", "Result", "check_input", "preprocess", "validate", "weld"]
+__all__ = ["PreprocessParams", "Result", "check_input", "close_surface", "preprocess", "validate", "weld"]
 
 #: Largest bounding-box diagonal taken: squared face areas (diagonal^4) and volumes (diagonal^3
 #: summed over faces) stay far from float64 overflow (1.8e308).
@@ -75,6 +75,10 @@ MAX_FACES_PER_EDGE = 8
 #: Share of a mesh's area in faces modelled on both sides above which :func:`_keep_one_side` takes
 #: it for a two-sided export and keeps one side (below, they are walls between parts).
 TWO_SIDED_SHARE = 0.9
+#: Most flat folds :func:`_flip_or_collapse_flat_folds` takes on (each candidate change is checked on
+#: the whole mesh: a mesh with hundreds of them, such as the union of a BIM model's roof members,
+#: took minutes, where manifold3d's rebuild is the repair).
+MAX_LOCAL_FOLD_REPAIRS = 16
 
 
 @dataclass(frozen=True)
@@ -326,6 +330,36 @@ def preprocess(
         vertices=out_v, faces=out_f, repairs=repairs, faces_in=faces_in, faces_out=len(out_f),
         volume_in=volume_in, volume_out=signed_volume(out_v, out_f), regions=regions,
     )
+
+
+def close_surface(vertices: np.ndarray, faces: np.ndarray, params: PreprocessParams | None = None,
+                  source: str = "mesh") -> tuple[np.ndarray, np.ndarray]:
+    """Steps 1-4 of :func:`preprocess` alone: weld, drop bad faces, close what can safely be closed,
+    orient outwards; no fold cleaning, no re-triangulation (the solids of a boolean union).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    params : PreprocessParams, optional
+        Tolerances (default ``PreprocessParams()``).
+    source : str
+        Named in errors.
+
+    Returns
+    -------
+    vertices : (W, 3) float64
+    faces : (G, 3) int64
+        Closed, edge-manifold, outward-oriented.
+
+    Raises
+    ------
+    MeshError
+        When it cannot be closed so.
+    """
+    params = params or PreprocessParams()
+    vertices, faces = check_input(vertices, faces, source)
+    return _clean(vertices, faces, params, source, [])
 
 
 def validate(vertices: np.ndarray, faces: np.ndarray) -> str | None:
@@ -1233,6 +1267,8 @@ def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
         return int((np.minimum(alpha, 2 * np.pi - alpha) < tol).sum())
 
     steps, n_flat = 0, count(f)
+    if n_flat > 2 * MAX_LOCAL_FOLD_REPAIRS:  # (each fold counted from both faces)
+        return v, f"{n_flat // 2} flat folds, more than the {MAX_LOCAL_FOLD_REPAIRS} it tries", None
     while n_flat and steps < max_steps:
         alpha, neighbour = _fold_angles(v, f)
         best = None  # (|volume change|, faces, flat folds)

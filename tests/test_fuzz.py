@@ -11,6 +11,7 @@ Example budgets are fixed and ``derandomize=True``: the same examples run in CI 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import os
 import pickle
@@ -44,7 +45,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb")
+            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -186,6 +187,12 @@ def folder(tmp_path_factory) -> Path:
         for raw in read_file(inputs / f"warm{suffix}"):
             process_one(raw, PreprocessParams())
         (inputs / f"warm{suffix}").unlink()
+    if importlib.util.find_spec("ifcopenshell") is not None:  # IfcOpenShell's imports read grammar files
+        from ifc_models import write_house
+
+        for raw in read_file(write_house(inputs / "warm.ifc", garage=False)):
+            process_one(raw, PreprocessParams())
+        (inputs / "warm.ifc").unlink()
     return inputs
 
 
@@ -223,6 +230,8 @@ MAGIC = {
               b"b3dm" + struct.pack("<6I", 1, 4 * 10**9, 8, 0, 0, 0) + b'{}      glTF'],
     ".dae": [b"", b'<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">',
              b'<COLLADA><asset><unit meter="0"/><up_axis>Q_UP</up_axis></asset><library_geometries><geometry><mesh>'],
+    ".ifc": [b"", b"ISO-10303-21;\nHEADER;\n", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n"
+             b"#1=IFCBUILDING('0p49tVvDnBOh5$bRyf1JGA',$,'b',$,$,$,$,$,$,$,$,$);\n"],
     ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
               b"cmpt" + struct.pack("<III", 1, 4 * 10**9, 3) + b"cmpt" + struct.pack("<III", 1, 32, 1)],
 }
@@ -286,6 +295,24 @@ def test_mutated_meshes_are_read_or_rejected(folder, kind):
     @given(data=mutated(seed))
     def check(data):
         read_bounded(_write(folder / f"mutant{suffix}", data))
+
+    check()
+
+
+def test_mutated_ifc_is_read_or_rejected(folder, tmp_path_factory):
+    """Mutations of an IFC file (numbers, lines, bytes of its STEP text) are read or rejected;
+    IfcOpenShell never takes the process down."""
+    pytest.importorskip("ifcopenshell")
+    from ifc_models import write_house
+
+    seed = write_house(tmp_path_factory.mktemp("ifc") / "seed.ifc", garage=False, georeferenced=False).read_bytes()
+    items, records, _ = read_all(_write(folder / "valid.ifc", seed))
+    assert [r["status"] for r in records] == ["accepted"]  # the unmutated seed is read
+
+    @settings(FUZZ, max_examples=40)
+    @given(data=mutated(seed))
+    def check(data):
+        read_bounded(_write(folder / "mutant.ifc", data))
 
     check()
 
