@@ -111,13 +111,18 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
         what = f"IfcBuilding {building.Name!r}" if building is not None and building.Name else "the model"
         try:
-            vertices, faces, notes = _envelope(members, shapes, mesh_id, options.ifc_gap)
+            vertices, faces, shell_of, notes = _envelope(members, shapes, mesh_id, options.ifc_gap)
         except MeshError as err:
             yield Rejection(mesh_id, str(path), f"{what}: {err.problem}")
             continue
         vertices = placement(vertices)
         local, origin = recentre(vertices)
-        yield RawMesh(mesh_id, str(path), local, faces, origin, notes=(*notes, placed_note))
+        shells = int(shell_of.max()) + 1
+        # several shells (a canopy apart from the house, wings that touch along an edge) go as parts:
+        # preprocessing keeps each shell's vertices its own (meshsom.union), never welding them together
+        parts = tuple(f"shell {k + 1}" for k in range(shells)) if shells > 1 else ()
+        yield RawMesh(mesh_id, str(path), local, faces, origin, parts=parts,
+                      face_part=shell_of if parts else None, notes=(*notes, placed_note))
 
 
 def _open_model(path: Path, options: ReaderOptions, ifcopenshell):
@@ -266,9 +271,11 @@ def _closed_solid(vertices: np.ndarray, faces: np.ndarray, params):
         return None
 
 
-def _envelope(members: list, shapes: dict, mesh_id: str, gap: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """The outer surface of the union of ``members``' solids, each grown by ``gap / 2`` (and the
-    union shrunk back by as much: gaps narrower than ``gap`` closed), and notes on what went."""
+    union shrunk back by as much: gaps narrower than ``gap`` closed): vertices (V, 3), faces
+    (F, 3), the shell of every face (F,), and notes on what went."""
     from meshsom.preprocess import PreprocessParams
     from meshsom.union import _manifold3d
 
@@ -325,7 +332,8 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float) -> tuple[np
     offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
     vertices = np.concatenate([v for v, _ in pieces]) + centre
     faces = np.concatenate([f + offsets[j] for j, (_, f) in enumerate(pieces)])
-    return vertices, faces, notes
+    shell_of = np.repeat(np.arange(len(pieces)), [len(f) for _, f in pieces])
+    return vertices, faces, shell_of, notes
 
 
 def _shrunk(vertices: np.ndarray, faces: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -17,7 +17,7 @@ from meshsom.errors import MeshsomError
 COMMANDS = {
     "doctor": ("pipelines.doctor", "print versions, OpenCL platforms and devices, Dask and MLflow settings"),
     "generate": ("pipelines.generate_cmd", "write a seeded synthetic corpus of labelled building blocks"),
-    "ingest": ("pipelines.ingest", "read, clean and store buildings (city models, GIS files, 3D Tiles, meshes, zips, folders)"),
+    "ingest": ("pipelines.ingest", "read, clean and store buildings (city models, BIM (IFC), GIS files, 3D Tiles, meshes, zips, folders)"),
     "encode": ("pipelines.encode_cmd", "encode every cleaned face into nested N-ring fold vectors (rings/level{L})"),
     "synth": ("pipelines.synth_cmd", "synthesize triangle patches from ring vectors or map prototypes (mesh files + contact sheet)"),
     "log": ("pipelines.log_cmd", "send a run's results from the store to MLflow (after the server was unreachable)"),
