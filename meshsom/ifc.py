@@ -62,13 +62,13 @@ STEP_MAGIC = b"ISO-10303-21"
 STEP_END = b"END-ISO-10303-21"
 
 
-def _ifcopenshell():
+def _ifcopenshell(path: Path):
     try:
         import ifcopenshell
         import ifcopenshell.geom
         import ifcopenshell.util.element
     except ImportError as err:  # pragma: no cover - a declared dependency
-        raise InputFileError("IFC", f"reading IFC needs IfcOpenShell: pip install ifcopenshell ({err})") from None
+        raise InputFileError(str(path), f"reading IFC needs IfcOpenShell: pip install ifcopenshell ({err})") from None
     return ifcopenshell
 
 
@@ -97,7 +97,7 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
     InputFileError
         When the file is not an IFC file IfcOpenShell can read.
     """
-    ifcopenshell = _ifcopenshell()
+    ifcopenshell = _ifcopenshell(path)
     name = name or path.name
     model = _open_model(path, options, ifcopenshell)
     wanted = _envelope_elements(model, options.ifc_classes)
@@ -105,7 +105,10 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
     if not groups:
         raise InputFileError(str(path), f"an IFC file ({model.schema}) without elements of the envelope classes "
                                         f"({', '.join(options.ifc_classes)}); it holds {_class_list(model)}")
-    shapes = _triangulated(model, [e for _, members in groups for e in members], ifcopenshell)
+    try:
+        shapes = _triangulated(model, [e for _, members in groups for e in members], ifcopenshell)
+    except Exception as err:  # IfcOpenShell's geometry kernel raises RuntimeError and its own errors
+        raise InputFileError(str(path), f"IfcOpenShell cannot triangulate its elements ({type(err).__name__}: {err})") from None
     placement, placed_note = _map_conversion(model)
     for building, members in groups:
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"

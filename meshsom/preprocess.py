@@ -75,10 +75,13 @@ MAX_FACES_PER_EDGE = 8
 #: Share of a mesh's area in faces modelled on both sides above which :func:`_keep_one_side` takes
 #: it for a two-sided export and keeps one side (below, they are walls between parts).
 TWO_SIDED_SHARE = 0.9
-#: Most flat folds :func:`_flip_or_collapse_flat_folds` takes on (each candidate change is checked on
-#: the whole mesh: a mesh with hundreds of them, such as the union of a BIM model's roof members,
-#: took minutes, where manifold3d's rebuild is the repair).
-MAX_LOCAL_FOLD_REPAIRS = 16
+#: Most flat folds :func:`_flip_or_collapse_flat_folds` takes on, and most flat folds times faces:
+#: each candidate change is checked on the whole mesh, so its time grows as folds^2 x faces (27
+#: folds of 294 faces, the most on the bundled data and Delfshaven: 2.9 s; the union of a BIM
+#: model's roof members, 162 of 1,700: minutes; a steel frame's 7 in 14,600: 20 s). Past either,
+#: manifold3d's rebuild is the repair.
+MAX_LOCAL_FOLD_REPAIRS = 32
+MAX_LOCAL_FOLD_WORK = 250_000
 
 
 @dataclass(frozen=True)
@@ -1269,6 +1272,9 @@ def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
     steps, n_flat = 0, count(f)
     if n_flat > 2 * MAX_LOCAL_FOLD_REPAIRS:  # (each fold counted from both faces)
         return v, f"{n_flat // 2} flat folds, more than the {MAX_LOCAL_FOLD_REPAIRS} it tries", None
+    if n_flat // 2 * len(f) > MAX_LOCAL_FOLD_WORK:
+        return v, (f"{n_flat // 2} flat folds in {len(f)} faces, more than the {MAX_LOCAL_FOLD_WORK} "
+                   f"folds x faces it tries"), None
     while n_flat and steps < max_steps:
         alpha, neighbour = _fold_angles(v, f)
         best = None  # (|volume change|, faces, flat folds)
