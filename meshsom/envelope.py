@@ -579,6 +579,11 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
         tri, label, crossings = _split_in_rounds(tri, label, lambda t, o: _crossing_cuts(t, o, tol), "where their heights cross")
     except ValueError as err:
         raise MeshError(source, f"cannot rebuild it under its roofs: {err}") from None
+    if params.envelope_max_roofs and len(tri) > params.envelope_max_roofs:  # the splits multiply them
+        raise _Refusal(
+            source, f"{int(roofs.sum())} roof triangles, split where they meet into {len(tri)} prisms, more than "
+                    f"preprocess.envelope_max_roofs ({params.envelope_max_roofs}): a detailed mesh, not a roof model "
+                    f"(uniting that many prisms takes minutes; roof models give at most hundreds)")
     return _RoofPrisms(centre, tri, label, base, int(roofs.sum()), int((~roofs).sum()), splits + crossings, tol,
                        *walls_outside, params.envelope_max_loss)
 
