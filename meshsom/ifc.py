@@ -23,9 +23,13 @@ building is the outer surface of what its walls, slabs and roofs enclose:
 4. The elements are united by manifold3d (:mod:`meshsom.union`'s boolean); of the union's shells,
    the rooms (shells facing inwards, negative volume) and whatever stands free inside another
    shell (a column or a stair in a room) are dropped: what remains is what one sees from outside.
-5. Where the file places its project in a map CRS (``IfcMapConversion``, IFC4 and later), the
-   envelope is moved there (eastings, northings, height, the rotation of the x axis, the scale), and
-   the CRS's name is noted; otherwise it stays in the project's own frame (noted too).
+5. Where the file places its project in a map CRS (``IfcMapConversion`` or
+   ``IfcMapConversionScaled``, IFC4 and later; IFC2X3's ``ePSet_MapConversion``), the envelope is
+   moved there (eastings, northings, height in the map's unit, the rotation of the x axis, the grid
+   scale; the building keeps its size in metres), and the CRS's name is noted. Else, where its
+   ``IfcSite`` gives a reference latitude and longitude (most exports do), the site's origin is
+   put there in WGS 84's UTM zone, turned by the model's true north (noted with the EPSG code);
+   otherwise it stays in the project's own frame (noted too).
 
 A file without an ``IfcBuilding`` (a model exported from a tool that writes only storeys, or only
 elements) is one building of all its elements. Buildings that hold no element of those classes are
@@ -51,11 +55,15 @@ from meshsom.io import (GZIP_SUFFIX, IFC_ENVELOPE_CLASSES, IFC_SUFFIXES, RawMesh
 
 __all__ = ["IFC_ENVELOPE_CLASSES", "IFC_SUFFIXES", "read_ifc", "winding_number"]
 
-#: Elements are welded at this share of their bounding-box diagonal (IfcOpenShell writes each
-#: face's corners apart, for normals).
-WELD_SHARE = 1e-9
 #: Geometry threads IfcOpenShell may use (at most the CPUs this process may run on).
 MAX_GEOMETRY_THREADS = 8
+#: A map conversion's grid scale (its Scale over the ratio of the project's length unit to the
+#: map's) further than this from 1 is not a grid scale but a unit written wrongly: not applied.
+MAX_GRID_SCALE_OFF = 0.1
+#: True north on a UTM grid is found by projecting a point this far north of the site's.
+METRES_NORTH = 1.0
+#: Metres per international foot and per US survey foot (a map unit named by name).
+FOOT_M, US_SURVEY_FOOT_M = 0.3048, 1200.0 / 3937.0
 #: The first line of a STEP physical file.
 STEP_MAGIC = b"ISO-10303-21"
 #: The last statement of a STEP physical file.
@@ -109,7 +117,7 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         shapes = _triangulated(model, [e for _, members in groups for e in members], ifcopenshell)
     except Exception as err:  # IfcOpenShell's geometry kernel raises RuntimeError and its own errors
         raise InputFileError(str(path), f"IfcOpenShell cannot triangulate its elements ({type(err).__name__}: {err})") from None
-    placement, placed_note = _map_conversion(model)
+    placement, placed_note = _placement(model)
     for building, members in groups:
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
         what = f"IfcBuilding {building.Name!r}" if building is not None and building.Name else "the model"
@@ -148,8 +156,11 @@ def _open_model(path: Path, options: ReaderOptions, ifcopenshell):
         content = bytes(read_input_bytes(path, options))
     else:
         with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            if size > options.max_bytes:
+                raise InputFileError(str(path), f"{size} bytes, more than max_bytes ({options.max_bytes})")
             head = fh.read(64)
-            fh.seek(max(0, os.fstat(fh.fileno()).st_size - 1024))
+            fh.seek(max(0, size - 1024))
             tail = fh.read()
         _check_step(path, head, tail)
         return _parse(path, str(path), ifcopenshell)
@@ -230,9 +241,12 @@ def _triangulated(model, elements: list, ifcopenshell) -> dict:
     settings.set("disable-opening-subtractions", True)
     settings.set("weld-vertices", True)
     try:
-        threads = max(1, min(MAX_GEOMETRY_THREADS, len(os.sched_getaffinity(0))))
+        cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
-        threads = max(1, min(MAX_GEOMETRY_THREADS, os.cpu_count() or 1))
+        cpus = os.cpu_count() or 1
+    # a Dask worker is given one compute thread (OMP_NUM_THREADS, pipelines.cluster.WORKER_ENV)
+    allowed = os.environ.get("OMP_NUM_THREADS", "")
+    threads = max(1, min(MAX_GEOMETRY_THREADS, cpus, int(allowed) if allowed.isdigit() else cpus))
     shapes = {}
     if not elements:
         return shapes
@@ -252,22 +266,10 @@ def _triangulated(model, elements: list, ifcopenshell) -> dict:
 
 
 def _closed_solid(vertices: np.ndarray, faces: np.ndarray, params):
-    """An element as a closed volume facing outwards: ((V, 3), (F, 3)), or None."""
-    from meshsom.preprocess import close_surface, weld
-    from meshsom.topology import edge_table, signed_volume
+    """An element as a closed volume facing outwards (:func:`meshsom.preprocess.close_surface`:
+    welded, capped, oriented): ((V, 3), (F, 3)), or None."""
+    from meshsom.preprocess import close_surface
 
-    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
-    if not diag > 0:
-        return None
-    v, remap = weld(vertices, WELD_SHARE * diag)
-    f = remap[faces]
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-    if len(f) >= 4:
-        _, _, counts = edge_table(f)
-        if (counts == 2).all():  # the common case: closed as IfcOpenShell wrote it
-            volume = signed_volume(v, f)
-            if volume != 0:
-                return v, (f if volume > 0 else f[:, ::-1])
     try:
         return close_surface(vertices, faces, params)
     except MeshError:
@@ -285,11 +287,11 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     manifold3d = _manifold3d()
     params = PreprocessParams()
     solids, used, no_geometry, not_closed = [], Counter(), Counter(), Counter()
-    every = np.concatenate([shapes[e.id()][0] for e in members if e.id() in shapes]) if any(
-        e.id() in shapes for e in members) else np.zeros((0, 3))
-    if not len(every):
+    drawn = [shapes[e.id()][0] for e in members if e.id() in shapes]
+    if not drawn:
         raise MeshError(mesh_id, f"IfcOpenShell made no geometry of its {len(members)} envelope elements "
                                  f"({_counted(Counter(e.is_a() for e in members))})")
+    every = np.concatenate(drawn)
     centre = (every.min(axis=0) + every.max(axis=0)) / 2
     for e in members:
         if e.id() not in shapes:
@@ -375,11 +377,14 @@ def _outer_shells(shells: list) -> list[int]:
     shells : list of ((V, 3) float64, (F, 3) int64, float volume)
     """
     positive = [k for k, (_, _, vol) in enumerate(shells) if vol > 0]
+    low = {k: shells[k][0].min(axis=0) for k in positive}
+    high = {k: shells[k][0].max(axis=0) for k in positive}
     outer = []
     for k in positive:
         point = shells[k][0][shells[k][1][0]].mean(axis=0)  # a point on its surface
         inside = any(abs(winding_number(point, shells[j][0], shells[j][1])) > 0.5
-                     for j in positive if j != k and shells[j][2] > shells[k][2])
+                     for j in positive if j != k and shells[j][2] > shells[k][2]
+                     and (low[j] <= point).all() and (point <= high[j]).all())
         if not inside:
             outer.append(k)
     return outer
@@ -408,26 +413,210 @@ def winding_number(point: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -
     return float(2 * np.arctan2(det, den).sum() / (4 * math.pi))
 
 
-def _map_conversion(model):
-    """(placement function on (V, 3) arrays, note): where ``IfcMapConversion`` puts the project."""
-    try:
-        conversions = model.by_type("IfcMapConversion")
-    except RuntimeError:  # IFC2X3 has none
-        conversions = []
-    if not conversions:
-        return (lambda v: v), "IFC: no IfcMapConversion: placed in the project's own frame, not in a map CRS"
-    c = conversions[0]
-    scale = c.Scale if getattr(c, "Scale", None) else 1.0
-    angle = math.atan2(c.XAxisOrdinate or 0.0, c.XAxisAbscissa or 1.0) if (
-        getattr(c, "XAxisAbscissa", None) is not None or getattr(c, "XAxisOrdinate", None) is not None) else 0.0
+def _placement(model):
+    """Where the file puts its project: (function moving (V, 3) metres of the project's frame into
+    metres of a map CRS, note).
+
+    By the map conversion when the file has one (:func:`_by_map_conversion`), else by the site's
+    reference latitude and longitude (:func:`_by_site_coordinates`), else left in the project's frame.
+    """
+    import ifcopenshell.util.unit
+
+    project_m = float(ifcopenshell.util.unit.calculate_unit_scale(model))  # metres per project length unit
+    conversion = _map_conversion(model)
+    if conversion is not None:
+        return _by_map_conversion(conversion, project_m)
+    site, why_not = _reference_site(model)
+    if site is not None:
+        return _by_site_coordinates(model, site, project_m)
+    return (lambda v: v), f"IFC: no IfcMapConversion{why_not}: placed in the project's own frame, not in a map CRS"
+
+
+def _map_conversion(model) -> dict | None:
+    """The map conversion's attributes as a dict (None where absent): ``IfcMapConversion`` (and
+    ``IfcMapConversionScaled``) of IFC4 and later, IFC2X3's ``ePSet_MapConversion`` on the project
+    (buildingSMART's georeferencing guide); with ``crs`` (the target CRS's name) and ``map_unit``
+    (an ``IfcNamedUnit``, a unit's name, or None)."""
+    import ifcopenshell.util.element
+
+    keys = ("Eastings", "Northings", "OrthogonalHeight", "XAxisAbscissa", "XAxisOrdinate", "Scale",
+            "FactorX", "FactorY", "FactorZ")
+    if model.schema == "IFC2X3":
+        projects = model.by_type("IfcProject")
+        found = ifcopenshell.util.element.get_pset(projects[0], "ePSet_MapConversion") if projects else None
+        if not found:
+            return None
+        crs = ifcopenshell.util.element.get_pset(projects[0], "ePSet_ProjectedCRS") or {}
+        conversion = {k: found.get(k) for k in keys}
+        conversion.update(kind="ePSet_MapConversion", crs=crs.get("Name"), map_unit=crs.get("MapUnit"))
+    else:
+        found = model.by_type("IfcMapConversion")
+        if not found:
+            return None
+        c = found[0]
+        target = getattr(c, "TargetCRS", None)
+        conversion = {k: getattr(c, k, None) for k in keys}
+        conversion.update(kind=c.is_a(), crs=getattr(target, "Name", None), map_unit=getattr(target, "MapUnit", None))
+    if conversion["Eastings"] is None or conversion["Northings"] is None:
+        return None
+    return conversion
+
+
+def _map_unit(conversion: dict, project_m: float) -> tuple[float, float, str]:
+    """(metres per map unit horizontally, vertically, how it was found) of a map conversion's CRS:
+    its ``MapUnit``, else the unit pyproj gives its CRS's name, else metres (the unit of nearly
+    every projected CRS buildings are placed in)."""
+    import ifcopenshell.util.unit
+
+    unit = conversion["map_unit"]
+    if unit is not None and not isinstance(unit, str):
+        try:
+            metres = float(ifcopenshell.util.unit.get_named_unit_scale(unit))
+        except Exception:  # an odd unit entity: try the CRS's name instead
+            metres = 0.0
+        if metres > 0:
+            return metres, metres, f"its MapUnit ({metres:g} m)"
+    elif isinstance(unit, str) and unit.strip():
+        metres = _unit_named(unit)
+        if metres is not None:
+            return metres, metres, f"its MapUnit {unit!r}"
+    if conversion["crs"]:
+        from meshsom.crs import UnknownCRS, coordinate_system
+
+        try:
+            system = coordinate_system(str(conversion["crs"]))
+        except UnknownCRS:
+            system = None
+        if system is not None and not system.geographic:
+            return system.horizontal_m, system.vertical_m, f"its CRS's unit ({system.unit})"
+    return 1.0, 1.0, "metres (assumed: no MapUnit, and pyproj does not know its CRS)"
+
+
+def _unit_named(name: str) -> float | None:
+    """Metres per unit of a length unit's name (``"METRE"``, ``"MILLIMETRE"``, ``"FOOT"``...), or None."""
+    text = name.strip().upper().replace("METER", "METRE").replace(" ", "").replace("_", "")
+    if "SURVEYF" in text:
+        return US_SURVEY_FOOT_M
+    if "FOOT" in text or "FEET" in text:
+        return FOOT_M
+    prefixes = {"MILLIMETRE": 1e-3, "CENTIMETRE": 1e-2, "DECIMETRE": 1e-1, "KILOMETRE": 1e3, "METRE": 1.0}
+    return next((m for unit, m in prefixes.items() if text.endswith(unit)), None)
+
+
+def _by_map_conversion(conversion: dict, project_m: float):
+    """Place by a map conversion: ``E = E0 + s (a x - b y)``, ``N = N0 + s (b x + a y)``,
+    ``H = H0 + s z`` in map units, (a, b) the x axis's direction in the map, ``s`` its scale
+    (and IfcMapConversionScaled's factors per axis).
+
+    Its ``Scale`` should be the ratio of the project's length unit to the map's (0.001 for a
+    millimetre project on a metre map) times a grid scale close to 1; many exporters write 1.0 with
+    millimetres. The building's own size is taken in metres as IfcOpenShell triangulated it, so
+    the grid scale is applied only where ``Scale`` agrees with the units (within
+    ``MAX_GRID_SCALE_OFF``), and the disagreement is noted otherwise; eastings, northings and
+    height are converted from map units to metres.
+    """
+    horizontal_m, vertical_m, unit_note = _map_unit(conversion, project_m)
+    ratio = project_m / horizontal_m  # the Scale the units ask for
+    written = conversion["Scale"]
+    notes = []
+    grid = 1.0
+    if written is not None:
+        grid = float(written) / ratio
+        if not abs(grid - 1.0) <= MAX_GRID_SCALE_OFF:
+            notes.append(f"its Scale {float(written):g} is not the ratio of the project's length unit to the "
+                         f"map's ({ratio:g}): the building keeps its size in metres")
+            grid = 1.0
+    factors = np.array([conversion[k] if conversion[k] is not None else 1.0 for k in ("FactorX", "FactorY", "FactorZ")],
+                       np.float64)
+    if not (np.isfinite(factors).all() and (factors > 0).all()):
+        notes.append(f"its scale factors {factors.tolist()} are not all positive: not applied")
+        factors = np.ones(3)
+    abscissa, ordinate = conversion["XAxisAbscissa"], conversion["XAxisOrdinate"]
+    # both absent (or both 0): the x axis unturned; an abscissa of 0 alone is a quarter turn
+    turned = bool(abscissa) or bool(ordinate)
+    angle = math.atan2(float(ordinate or 0.0), float(abscissa or 0.0)) if turned else 0.0
     cos, sin = math.cos(angle), math.sin(angle)
-    shift = np.array([c.Eastings, c.Northings, c.OrthogonalHeight or 0.0], np.float64)
-    target = getattr(c, "TargetCRS", None)
-    crs = getattr(target, "Name", None) or "an unnamed CRS"
+    shift = np.array([float(conversion["Eastings"]) * horizontal_m, float(conversion["Northings"]) * horizontal_m,
+                      float(conversion["OrthogonalHeight"] or 0.0) * vertical_m], np.float64)
+    scale = grid * factors
 
     def place(v: np.ndarray) -> np.ndarray:
-        x, y, z = v[:, 0], v[:, 1], v[:, 2]
-        return np.stack([scale * (cos * x - sin * y), scale * (sin * x + cos * y), scale * z], axis=1) + shift
+        x, y, z = v[:, 0] * scale[0], v[:, 1] * scale[1], v[:, 2] * scale[2]
+        return np.stack([cos * x - sin * y, sin * x + cos * y, z], axis=1) + shift
 
-    return place, (f"IFC: placed by its IfcMapConversion in {crs} (eastings {c.Eastings:g}, northings "
-                   f"{c.Northings:g}, x axis turned {math.degrees(angle):.6g} degrees, scale {scale:g})")
+    crs = conversion["crs"] or "an unnamed CRS"
+    return place, (f"IFC: placed by its {conversion['kind']} in {crs} (eastings {float(conversion['Eastings']):g}, "
+                   f"northings {float(conversion['Northings']):g}, in {unit_note}; x axis turned "
+                   f"{math.degrees(angle):.6g} degrees, grid scale {grid:g})" + "".join(f"; {n}" for n in notes))
+
+
+def _compound_angle(value) -> float | None:
+    """Degrees of an ``IfcCompoundPlaneAngleMeasure`` (degrees, minutes, seconds, millionths of a
+    second; negative parts for south and west), or None. Exporters that write only the degrees
+    negative are read alike."""
+    try:
+        parts = [float(p) for p in value]
+    except TypeError:
+        return None
+    if not parts or len(parts) > 4 or not all(math.isfinite(p) for p in parts):
+        return None
+    sign = -1.0 if any(p < 0 for p in parts) else 1.0
+    return sign * sum(abs(p) / unit for p, unit in zip(parts, (1.0, 60.0, 3600.0, 3600e6)))
+
+
+def _reference_site(model) -> tuple[object | None, str]:
+    """The first ``IfcSite`` with a usable reference latitude and longitude, or (None, why not)."""
+    why = ""
+    for site in model.by_type("IfcSite"):
+        lat, lon = _compound_angle(site.RefLatitude), _compound_angle(site.RefLongitude)
+        if lat is None or lon is None:
+            continue
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            why = f", and IfcSite {site.Name!r}'s latitude and longitude ({lat:g}, {lon:g}) are not on the earth"
+        elif lat == 0 and lon == 0:
+            why = f", and IfcSite {site.Name!r}'s latitude and longitude are 0, 0 (an exporter's default, not a place)"
+        else:
+            return site, ""
+    return None, why
+
+
+def _by_site_coordinates(model, site, project_m: float):
+    """Place by the site's reference point: its ``ObjectPlacement``'s origin is at
+    ``RefLatitude``, ``RefLongitude`` (WGS 84) and ``RefElevation``; the project's true north is the
+    model context's ``TrueNorth`` (default: its y axis). Into the UTM zone of that point (WGS 84),
+    true north turned onto the grid's north there (the meridian convergence, from pyproj)."""
+    import ifcopenshell.util.placement
+    import pyproj
+
+    lat, lon = _compound_angle(site.RefLatitude), _compound_angle(site.RefLongitude)
+    elevation = float(site.RefElevation or 0.0) * project_m
+    origin = np.zeros(3)
+    if site.ObjectPlacement is not None:
+        origin = np.asarray(ifcopenshell.util.placement.get_local_placement(site.ObjectPlacement),
+                            np.float64)[:3, 3] * project_m
+    north = (0.0, 1.0)
+    for context in model.by_type("IfcGeometricRepresentationContext", include_subtypes=False):
+        ratios = getattr(getattr(context, "TrueNorth", None), "DirectionRatios", None)
+        if ratios and len(ratios) >= 2 and (ratios[0] or ratios[1]):
+            north = (float(ratios[0]), float(ratios[1]))
+            if context.ContextType == "Model":
+                break
+    zone = int((lon + 180.0) // 6.0) % 60 + 1
+    epsg = (32600 if lat >= 0 else 32700) + zone
+    to_grid = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
+    east, northing = to_grid.transform(lon, lat)
+    step = METRES_NORTH / 111_000.0 * (1.0 if lat < 89.0 else -1.0)  # degrees of latitude, along the meridian
+    east1, north1 = to_grid.transform(lon, lat + step)
+    grid_north = math.atan2(math.copysign(1, step) * (north1 - northing), math.copysign(1, step) * (east1 - east))
+    angle = grid_north - math.atan2(north[1], north[0])
+    cos, sin = math.cos(angle), math.sin(angle)
+    shift = np.array([east, northing, elevation], np.float64)
+
+    def place(v: np.ndarray) -> np.ndarray:
+        x, y, z = (v - origin).T
+        return np.stack([cos * x - sin * y, sin * x + cos * y, z], axis=1) + shift
+
+    return place, (f"IFC: no IfcMapConversion: placed by the reference point of IfcSite {site.Name!r} "
+                   f"({lat:.6f}, {lon:.6f}, {elevation:g} m) in WGS 84 / UTM zone {zone}{'N' if lat >= 0 else 'S'} "
+                   f"(EPSG:{epsg}), its x axis turned {math.degrees(angle):.4g} degrees (true north "
+                   f"{'from the model context' if north != (0.0, 1.0) else 'its y axis'})")

@@ -721,33 +721,23 @@ def _two_sided_hull(v, f, region, paired, first):
     -------
     hull : (P,) bool
     """
-    n = len(v)
-    rest = f[~paired[region]]
-    rest_keys, rest_counts = np.unique(_undirected_keys(rest, n), return_counts=True)
+    edges, edge_of, _ = edge_table(f)
+    edge_of = edge_of.reshape(-1, 3)  # face by face
+    rest = np.bincount(edge_of[~paired[region]].reshape(-1), minlength=len(edges))  # faces once pairs are gone
     mine = np.isin(region, first)
-    faces = f[mine]
-    keys = _undirected_keys(faces, n)
-    owner = np.searchsorted(np.sort(first), np.repeat(region[mine], 3))  # pair of every half-edge
-    # the outline of a region: its edges used once within it
-    both = np.stack([owner, keys], axis=1)
-    uniq, inverse, uses = np.unique(both, axis=0, return_inverse=True, return_counts=True)
+    order = np.argsort(first)
+    owner = np.repeat(np.searchsorted(first[order], region[mine]), 3)  # pair of every half-edge, sorted order
+    edge = edge_of[mine].reshape(-1)
+    # the outline of a pair's region: its edges used once within it
+    _, inverse, uses = np.unique(owner * len(edges) + edge, return_inverse=True, return_counts=True)
     outline = uses[inverse.reshape(-1)] == 1
-    at = np.clip(np.searchsorted(rest_keys, keys), 0, max(len(rest_keys) - 1, 0))
-    found = (rest_keys[at] == keys) if len(rest_keys) else np.zeros(len(keys), bool)
-    closed = outline & found & (rest_counts[at] >= 2 if len(rest_counts) else False)
-    length = np.linalg.norm(v[keys // n] - v[keys % n], axis=1)
+    closed = outline & (rest[edge] >= 2)
+    length = np.linalg.norm(v[edges[edge, 0]] - v[edges[edge, 1]], axis=1)
     total = np.bincount(owner[outline], length[outline], minlength=len(first))
     shut = np.bincount(owner[closed], length[closed], minlength=len(first))
-    order = np.argsort(first)  # owner indexes first in sorted order
     hull = np.zeros(len(first), bool)
     hull[order] = shut < 0.5 * total
     return hull
-
-
-def _undirected_keys(f: np.ndarray, n: int) -> np.ndarray:
-    """(3F,) int64: ``lo * n + hi`` for the edges of faces ``f`` (over ``n`` vertices), face by face."""
-    he = half_edges(f)
-    return he.min(axis=1) * n + he.max(axis=1)
 
 
 def _drop_duplicates(f, repairs):

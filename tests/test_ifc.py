@@ -91,6 +91,135 @@ def test_a_map_conversion_places_the_buildings_in_its_crs(models):
                 assert any("no IfcMapConversion" in n for n in m.notes)
 
 
+def _edited(path, out, edit):
+    """A copy of an IFC file with ``edit(model)`` applied (as another exporter would have written it)."""
+    import ifcopenshell
+
+    model = ifcopenshell.open(str(path))
+    edit(model)
+    model.write(str(out))
+    return out
+
+
+def _centre(m):
+    world = m.vertices + m.origin
+    return (world.min(axis=0) + world.max(axis=0)) / 2
+
+
+#: The house's bounding-box centre in the project's frame (its slabs from -0.3).
+HOUSE_CENTRE = np.array([HOUSE[0] / 2, HOUSE[1] / 2, HOUSE[2] / 2 - 0.3])
+
+
+def _house(meshes):
+    return max(meshes, key=lambda m: signed_volume(m.vertices, m.faces))
+
+
+def _turn(degrees):
+    a = math.radians(degrees)
+    return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+
+def test_a_map_conversion_in_a_millimetre_project_keeps_the_building_in_metres(models, tmp_path):
+    """The test files are millimetre projects (IfcOpenShell's default) on a metre CRS. Written as
+    the schema asks (Scale 0.001, the ratio of the units) or as exporters often do (Scale 1), the
+    house keeps its size in metres at the eastings and northings; an x axis along the map's north
+    (XAxisAbscissa 0, XAxisOrdinate 1) is a quarter turn, not an unturned axis; a grid scale of
+    0.9996 over the unit ratio is applied."""
+    import ifcopenshell.util.unit
+
+    assert ifcopenshell.util.unit.calculate_unit_scale(ifcopenshell.open(str(models["IFC4"]))) == 0.001
+
+    def quarter_turn(scale):
+        def edit(model):
+            c = model.by_type("IfcMapConversion")[0]
+            c.XAxisAbscissa, c.XAxisOrdinate, c.Scale = 0.0, 1.0, scale
+        return edit
+
+    shift = np.array([EASTINGS, NORTHINGS, HEIGHT])
+    for scale, grid in ((0.001, 1.0), (1.0, 1.0), (0.0009996, 0.9996)):
+        path = _edited(models["IFC4"], tmp_path / f"turned_{scale}.ifc", quarter_turn(scale))
+        house = _house(_meshes(path)[0])
+        world = house.vertices + house.origin
+        assert _centre(house) == pytest.approx(grid * (_turn(90) @ HOUSE_CENTRE) + shift, abs=0.01)
+        size = world.max(axis=0) - world.min(axis=0)  # x along the map's north: length and width swap
+        assert size == pytest.approx(grid * np.array([HOUSE[1], HOUSE[0], HOUSE[2]]) + 0.0, abs=0.02)
+        notes = " | ".join(house.notes)
+        assert "x axis turned 90 degrees" in notes and "in its CRS's unit (metre)" in notes, notes
+        assert ("keeps its size in metres" in notes) == (scale == 1.0), notes
+
+
+def test_an_ifc2x3_map_conversion_property_set_places_the_building(models, tmp_path):
+    """IFC2X3 has no IfcMapConversion; buildingSMART's georeferencing guide puts its attributes in
+    the project's ePSet_MapConversion and the CRS in ePSet_ProjectedCRS (here with its MapUnit
+    named). Read like IFC4's; the file's site coordinates are then not used."""
+    import ifcopenshell.api.pset
+
+    def edit(model):
+        project = model.by_type("IfcProject")[0]
+        conversion = ifcopenshell.api.pset.add_pset(model, product=project, name="ePSet_MapConversion")
+        a = math.radians(-40.0)
+        ifcopenshell.api.pset.edit_pset(model, pset=conversion, properties={
+            "Eastings": 1000.0 * EASTINGS, "Northings": 1000.0 * NORTHINGS, "OrthogonalHeight": 1000.0 * HEIGHT,
+            "XAxisAbscissa": math.cos(a), "XAxisOrdinate": math.sin(a), "Scale": 1.0})
+        crs = ifcopenshell.api.pset.add_pset(model, product=project, name="ePSet_ProjectedCRS")
+        ifcopenshell.api.pset.edit_pset(model, pset=crs, properties={"Name": CRS_NAME, "MapUnit": "MILLIMETRE"})
+        model.by_type("IfcSite")[0].RefLatitude = (52, 0, 0, 0)
+        model.by_type("IfcSite")[0].RefLongitude = (5, 0, 0, 0)
+
+    house = _house(_meshes(_edited(models["IFC2X3"], tmp_path / "pset.ifc", edit))[0])
+    assert _centre(house) == pytest.approx(_turn(-40) @ HOUSE_CENTRE + [EASTINGS, NORTHINGS, HEIGHT], abs=0.01)
+    notes = " | ".join(house.notes)
+    assert "placed by its ePSet_MapConversion in EPSG:25832" in notes and "MapUnit 'MILLIMETRE'" in notes, notes
+    assert "keeps its size" not in notes  # Scale 1: millimetres on millimetres
+
+
+@pytest.mark.parametrize("latitude,longitude,north_deg", [
+    ((49, 6, 1, 566000), (8, 26, 11, 540400), 0.0),      # FZK-Haus's site, true north along y
+    ((41, 52, 27, 840000), (-87, -38, -21, -839999), 25.0),  # the Duplex's, true north turned
+    ((-33, -55, 0), (18, 25, 0), -10.0),                  # the southern hemisphere
+])
+def test_a_site_reference_point_places_the_building_in_its_utm_zone(models, tmp_path, latitude, longitude, north_deg):
+    """Most IFC files (and every IFC2X3 one without the property set) place the project only by
+    its IfcSite's RefLatitude, RefLongitude and RefElevation, at the site's own origin, with true
+    north in the model context. The house lands in WGS 84's UTM zone there: the site origin at the
+    projected point, turned by the meridian convergence (pyproj's) less true north's turn."""
+    import ifcopenshell.util.unit
+    import pyproj
+
+    def degrees(parts):
+        sign = -1 if any(p < 0 for p in parts) else 1
+        return sign * sum(abs(p) / u for p, u in zip(parts, (1, 60, 3600, 3600e6)))
+
+    def edit(model):
+        site = model.by_type("IfcSite")[0]
+        site.RefLatitude, site.RefLongitude = latitude, longitude
+        site.RefElevation = 110.0 / ifcopenshell.util.unit.calculate_unit_scale(model)  # in project units
+        t = math.radians(north_deg)
+        for context in model.by_type("IfcGeometricRepresentationContext", include_subtypes=False):
+            context.TrueNorth = model.createIfcDirection((-math.sin(t), math.cos(t)))
+
+    house = _house(_meshes(_edited(models["IFC2X3"], tmp_path / "site.ifc", edit))[0])
+    lat, lon = degrees(latitude), degrees(longitude)
+    zone = int((lon + 180) // 6) + 1
+    epsg = (32600 if lat > 0 else 32700) + zone
+    east, north = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(lon, lat)
+    convergence = pyproj.Proj(f"EPSG:{epsg}").get_factors(lon, lat).meridian_convergence
+    site_origin = np.array([0.0, 0.0, -0.8])  # where tests/ifc_models.py puts the site
+    expected = _turn(convergence - north_deg) @ (HOUSE_CENTRE - site_origin) + [east, north, 110.0]
+    assert _centre(house) == pytest.approx(expected, abs=0.01)
+    assert any(f"(EPSG:{epsg})" in n and "reference point of IfcSite 'site'" in n for n in house.notes), house.notes
+
+
+def test_a_site_at_latitude_and_longitude_zero_is_not_a_place(models, tmp_path):
+    def edit(model):
+        site = model.by_type("IfcSite")[0]
+        site.RefLatitude, site.RefLongitude = (0, 0, 0), (0, 0, 0)
+
+    house = _house(_meshes(_edited(models["IFC2X3"], tmp_path / "zero.ifc", edit))[0])
+    assert _centre(house) == pytest.approx(HOUSE_CENTRE, abs=0.01)
+    assert any("0, 0 (an exporter's default" in n and "project's own frame" in n for n in house.notes), house.notes
+
+
 def test_hairline_gaps_between_elements_are_closed(tmp_path):
     """A roof slab 3 mm above the walls' tops (as BIM models leave them): with the default
     ``ifc_gap`` (1 cm) the house is one closed box (its volume plus the gap's); with 0 the rooms
