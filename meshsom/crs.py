@@ -21,6 +21,7 @@ metric projected CRSs. A mesh's ``origin`` stays in the file's own coordinates.
 from __future__ import annotations
 
 import functools
+import math
 import re
 from dataclasses import dataclass
 
@@ -299,3 +300,67 @@ def looks_geographic(local: np.ndarray, origin: np.ndarray) -> str | None:
                 f"z spans {span[2]:.3g}) and the file declares no CRS; declare it (CityJSON "
                 f"metadata.referenceSystem, GML srsName) or give one (--crs EPSG:4979, reader.crs)")
     return None
+
+
+@dataclass(frozen=True)
+class UtmPoint:
+    """A point of WGS 84 in its UTM zone (:func:`utm_point`).
+
+    Attributes
+    ----------
+    epsg : int
+        WGS 84 / UTM zone's EPSG code (32601-32660 north, 32701-32760 south).
+    zone : str
+        ``"32N"``.
+    easting, northing : float
+        Metres.
+    convergence : float
+        Radians from the grid's north to true north there, counter-clockwise (the meridian
+        convergence): a frame whose y axis points to true north is turned by this onto the grid.
+    """
+
+    epsg: int
+    zone: str
+    easting: float
+    northing: float
+    convergence: float
+
+    def place(self, frame: np.ndarray, north: float, height: float) -> np.ndarray:
+        """(V, 3) metres of a local frame whose y axis is ``north`` radians clockwise of true north
+        (z up, its origin at this point, ``height`` metres up) as (V, 3) metres of the UTM grid."""
+        angle = self.convergence - north
+        cos, sin = math.cos(angle), math.sin(angle)
+        x, y, z = frame[:, 0], frame[:, 1], frame[:, 2]
+        return np.stack([cos * x - sin * y + self.easting, sin * x + cos * y + self.northing, z + height], axis=1)
+
+
+#: True north on a UTM grid is found by projecting a point this far (metres) north of another.
+METRES_NORTH = 1.0
+
+
+def utm_point(latitude: float, longitude: float) -> UtmPoint:
+    """Project a WGS 84 latitude and longitude (degrees) into its UTM zone, with the direction of
+    true north there (pyproj; a point ``METRES_NORTH`` up the meridian, projected too).
+
+    Raises
+    ------
+    ValueError
+        Latitude outside [-84, 84] (UTM's extent; the poles have UPS) or longitude outside [-180, 180].
+    """
+    if not (-84.0 <= latitude <= 84.0 and -180.0 <= longitude <= 180.0):
+        raise ValueError(f"latitude {latitude:g}, longitude {longitude:g}: outside UTM's extent "
+                         f"(latitudes -84 to 84, longitudes -180 to 180)")
+    zone = int((longitude + 180.0) // 6.0) % 60 + 1
+    epsg = (32600 if latitude >= 0 else 32700) + zone
+    to_grid = _utm_transformer(epsg)
+    east, north = to_grid.transform(longitude, latitude)
+    east1, north1 = to_grid.transform(longitude, latitude + METRES_NORTH / 111_000.0)
+    convergence = math.atan2(north1 - north, east1 - east) - math.pi / 2
+    return UtmPoint(epsg, f"{zone}{'N' if latitude >= 0 else 'S'}", float(east), float(north), convergence)
+
+
+@functools.lru_cache(maxsize=8)
+def _utm_transformer(epsg: int):
+    import pyproj
+
+    return pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)

@@ -60,8 +60,6 @@ MAX_GEOMETRY_THREADS = 8
 #: A map conversion's grid scale (its Scale over the ratio of the project's length unit to the
 #: map's) further than this from 1 is not a grid scale but a unit written wrongly: not applied.
 MAX_GRID_SCALE_OFF = 0.1
-#: True north on a UTM grid is found by projecting a point this far north of the site's.
-METRES_NORTH = 1.0
 #: Metres per international foot and per US survey foot (a map unit named by name).
 FOOT_M, US_SURVEY_FOOT_M = 0.3048, 1200.0 / 3937.0
 #: The first line of a STEP physical file.
@@ -583,12 +581,17 @@ def _reference_site(model) -> tuple[object | None, str]:
 def _by_site_coordinates(model, site, project_m: float):
     """Place by the site's reference point: its ``ObjectPlacement``'s origin is at
     ``RefLatitude``, ``RefLongitude`` (WGS 84) and ``RefElevation``; the project's true north is the
-    model context's ``TrueNorth`` (default: its y axis). Into the UTM zone of that point (WGS 84),
-    true north turned onto the grid's north there (the meridian convergence, from pyproj)."""
+    model context's ``TrueNorth`` (default: its y axis). Into the UTM zone of that point (WGS 84,
+    :func:`meshsom.crs.utm_point`), true north turned onto the grid's north there."""
     import ifcopenshell.util.placement
-    import pyproj
+
+    from meshsom.crs import utm_point
 
     lat, lon = _compound_angle(site.RefLatitude), _compound_angle(site.RefLongitude)
+    try:
+        point = utm_point(lat, lon)
+    except ValueError as err:
+        return (lambda v: v), f"IFC: no IfcMapConversion, and IfcSite {site.Name!r}: {err}: placed in the project's own frame"
     elevation = float(site.RefElevation or 0.0) * project_m
     origin = np.zeros(3)
     if site.ObjectPlacement is not None:
@@ -601,22 +604,14 @@ def _by_site_coordinates(model, site, project_m: float):
             north = (float(ratios[0]), float(ratios[1]))
             if context.ContextType == "Model":
                 break
-    zone = int((lon + 180.0) // 6.0) % 60 + 1
-    epsg = (32600 if lat >= 0 else 32700) + zone
-    to_grid = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
-    east, northing = to_grid.transform(lon, lat)
-    step = METRES_NORTH / 111_000.0 * (1.0 if lat < 89.0 else -1.0)  # degrees of latitude, along the meridian
-    east1, north1 = to_grid.transform(lon, lat + step)
-    grid_north = math.atan2(math.copysign(1, step) * (north1 - northing), math.copysign(1, step) * (east1 - east))
-    angle = grid_north - math.atan2(north[1], north[0])
-    cos, sin = math.cos(angle), math.sin(angle)
-    shift = np.array([east, northing, elevation], np.float64)
+    # the project's y axis is this far clockwise of true north (true north at +y turned counter-clockwise)
+    turn = math.atan2(north[1], north[0]) - math.pi / 2
 
     def place(v: np.ndarray) -> np.ndarray:
-        x, y, z = (v - origin).T
-        return np.stack([cos * x - sin * y, sin * x + cos * y, z], axis=1) + shift
+        return point.place(v - origin, turn, elevation)
 
+    angle = point.convergence - turn
     return place, (f"IFC: no IfcMapConversion: placed by the reference point of IfcSite {site.Name!r} "
-                   f"({lat:.6f}, {lon:.6f}, {elevation:g} m) in WGS 84 / UTM zone {zone}{'N' if lat >= 0 else 'S'} "
-                   f"(EPSG:{epsg}), its x axis turned {math.degrees(angle):.4g} degrees (true north "
+                   f"({lat:.6f}, {lon:.6f}, {elevation:g} m) in WGS 84 / UTM zone {point.zone} (EPSG:{point.epsg}), "
+                   f"its x axis turned {math.degrees(angle):.4g} degrees (true north "
                    f"{'from the model context' if north != (0.0, 1.0) else 'its y axis'})")

@@ -1207,7 +1207,8 @@ def _clean_folds(v, f, params, diag, volume_in, source, repairs):
         return _compact(v, g)
     if validate(v, g) is None:
         f, repairs[:] = g, trial
-    rebuilds = [("local edge flips and vertex merges", _flip_or_collapse_flat_folds)]
+    rebuilds = [("local edge flips and vertex merges", _flip_or_collapse_flat_folds),
+                ("re-triangulating folded planes by their net cover", _replanar_flat_folds)]
     if params.fold_repair_tol > 0:
         rebuilds.insert(0, (f"manifold3d's rebuild at {params.fold_repair_tol:g} m tolerance", _manifold_rebuild))
     for name, rebuild in rebuilds:
@@ -1222,6 +1223,125 @@ def _clean_folds(v, f, params, diag, volume_in, source, repairs):
             return _compact(rv, rf)
         problem = f"{problem}; {name} left: {rproblem}"
     raise MeshError(source, f"{flat}, not repaired: removing overlapping opposite faces left: {problem}")
+
+
+def _replanar_flat_folds(v, f, params, volume_in):
+    """Re-triangulate the planes where faces are folded flat onto each other, by their net cover.
+
+    A boolean union (manifold3d) can leave, where two solids met in a plane, faces of that plane
+    folded onto each other: a face and its neighbour facing opposite ways on top of one another,
+    with a third face of the first's orientation under both (a stack of +1, -1, +1 layers whose
+    outlines differ, so no face lies wholly inside the overlap and :func:`_opposite_overlap`
+    removes nothing). The surface such a plane means is its net cover: each point of the plane is
+    covered by the faces facing +n less those facing -n (+1, 0 or -1 on a closed surface). So the
+    plane's faces are overlaid (their outlines noded and polygonised by shapely), each cell gets
+    its net cover (at a point inside it), and the +1 cells and the -1 cells are triangulated
+    anew (constrained Delaunay), facing +n and -n; the rest of the mesh meets them at the old
+    vertices, and at new ones where outlines crossed (split into its edges as T-junctions).
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Closed, edge-manifold, outward-oriented, with flat folds.
+    params : PreprocessParams
+        ``flat_fold_deg`` (which folds), ``planar_dist`` (a plane's thickness, relative to the
+        bounding-box diagonal), ``tjunction_tol``.
+    volume_in : float
+        Unused (the signature of every flat-fold repair).
+
+    Returns
+    -------
+    v : (W, 3) float64
+    f : (G, 3) int64 or str
+        The mesh with its folded planes re-triangulated; on failure ``f`` says why.
+    summary : str or None
+        What was done; None on failure.
+    """
+    import shapely
+
+    diag = _diagonal(v)
+    dist = params.planar_dist * diag
+    tol = math.radians(params.flat_fold_deg)
+    alpha, neighbour = _fold_angles(v, f)
+    t, i = np.nonzero(np.minimum(alpha, 2 * np.pi - alpha) < tol)
+    cross = _cross(v, f)
+    area2 = np.linalg.norm(cross, axis=1)
+    normal = cross / np.where(area2 > 0, area2, 1.0)[:, None]
+    folded = t[np.einsum("ij,ij->i", normal[t], normal[neighbour[t, i]]) <= -math.cos(tol)]
+    if len(folded) == 0:
+        return v, "no faces folded flat onto each other in one plane", None
+    done = np.zeros(len(f), bool)
+    drop = np.zeros(len(f), bool)
+    new_v, new_f = [v], []
+    count = len(v)
+    planes = 0
+    for a in np.unique(folded):
+        if done[a]:
+            continue
+        n, d = normal[a], float(normal[a] @ v[f[a]].mean(axis=0))
+        coplanar = (np.abs(normal @ n) >= math.cos(tol)) & (np.abs(v[f] @ n - d).max(axis=1) <= dist) & (area2 > 0)
+        done |= coplanar
+        idx = np.flatnonzero(coplanar)
+        frame = plane_frame(n)
+        corners = np.unique(f[idx])
+        flat = v[corners] @ frame.T  # (C, 2): the plane's vertices
+        polys = shapely.polygons(v[f[idx]] @ frame.T)
+        sign = np.where(normal[idx] @ n > 0, 1, -1)
+        cells = np.asarray(shapely.get_parts(shapely.polygonize(
+            [shapely.union_all(shapely.boundary(polys), grid_size=None)])))
+        cells = cells[shapely.area(cells) > dist * dist]
+        if len(cells) == 0:
+            return v, "a folded plane has no area left", None
+        inside, face = shapely.STRtree(polys).query(shapely.point_on_surface(cells), predicate="within")
+        cover = np.bincount(inside, weights=sign[face], minlength=len(cells)).round().astype(np.int64)
+        if (np.abs(cover) > 1).any():
+            return v, f"a folded plane is covered {int(np.abs(cover).max())} times over in one place", None
+        pieces = []
+        for facing in (1, -1):
+            region = shapely.union_all(cells[cover == facing])
+            if region.is_empty:
+                continue
+            triangles = np.asarray(shapely.get_parts(shapely.constrained_delaunay_triangles(region)))
+            if len(triangles):
+                points = shapely.get_coordinates(shapely.get_exterior_ring(triangles)).reshape(-1, 4, 2)[:, :3]
+                pieces.append((points, facing))
+        if not pieces:
+            drop |= coplanar
+            planes += 1
+            continue
+        points = np.concatenate([p for p, _ in pieces])
+        facing = np.concatenate([np.full(len(p), s) for p, s in pieces])
+        # one vertex per point: the plane's own where within dist of one, else new ones (where
+        # outlines crossed), points within dist of each other merged
+        pts, inverse = np.unique(points.reshape(-1, 2), axis=0, return_inverse=True)
+        near, at = cKDTree(flat).query(pts, distance_upper_bound=dist)
+        old = np.isfinite(near)
+        index = np.where(old, corners[np.minimum(at, len(corners) - 1)], -1)
+        fresh = np.flatnonzero(~old)
+        if len(fresh):
+            pairs = cKDTree(pts[fresh]).query_pairs(dist, output_type="ndarray")
+            graph = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(fresh),) * 2)
+            k, group = connected_components(graph, directed=False)
+            index[fresh] = count + group
+            lifted = np.zeros((k, 2))
+            np.add.at(lifted, group, pts[fresh])
+            lifted /= np.bincount(group, minlength=k)[:, None]
+            new_v.append(lifted @ frame + d * n)
+            count += k
+        tri = index[inverse.reshape(-1)].reshape(-1, 3)
+        e1, e2 = points[:, 1] - points[:, 0], points[:, 2] - points[:, 0]
+        ccw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] > 0
+        tri = np.where((ccw == (facing > 0))[:, None], tri, tri[:, ::-1])
+        new_f.append(tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])])
+        drop |= coplanar
+        planes += 1
+    out_v = np.concatenate(new_v)
+    out_f = np.concatenate([f[~drop], *new_f]) if new_f else f[~drop]
+    trial: list[str] = []
+    out_f = _split_t_junctions(out_v, out_f, params.tjunction_tol * diag, trial)
+    return out_v, out_f, (f"re-triangulated {planes} planes where faces were folded flat onto each other "
+                          f"({int(drop.sum())} faces, by their net cover)")
 
 
 def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):

@@ -795,18 +795,76 @@ def test_collada_models_are_read_in_metres_with_z_up(tmp_path, unit, up):
     assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(240, rel=1e-6)
 
 
-def test_a_kmz_of_collada_models_is_read_as_an_archive(tmp_path):
-    """A KMZ (Google Earth: a KML placemark and its COLLADA models in a zip): each model is a
-    building, in its own frame (the KML placement is not applied); the KML is listed as not read."""
+KML = """<?xml version="1.0" encoding="UTF-8"?>
+<kml xmlns="http://www.opengis.net/kml/2.2"><Document>
+ <Placemark><name>town hall</name><Model id="m1">
+  <altitudeMode>absolute</altitudeMode>
+  <Location><longitude>{lon}</longitude><latitude>{lat}</latitude><altitude>12.5</altitude></Location>
+  <Orientation><heading>{heading}</heading><tilt>0</tilt><roll>0</roll></Orientation>
+  <Scale><x>2</x><y>2</y><z>2</z></Scale>
+  <Link><href>models/a.dae</href></Link></Model></Placemark>
+ <Placemark><name>lost</name><Model><Location><longitude>4</longitude><latitude>52</latitude></Location>
+  <Link><href>./models/c.dae</href></Link></Model></Placemark>
+</Document></kml>"""
+
+
+@pytest.mark.parametrize("lat, lon, heading", [(52.0116, 4.3571, 30.0), (-33.92, 18.42, -75.0)])
+def test_a_kmz_places_its_collada_models_where_its_kml_says(tmp_path, lat, lon, heading):
+    """A KMZ (Google Earth, SketchUp, 3D Warehouse: a KML and the COLLADA models it places, in a
+    zip): a model linked by a KML Model is moved to its location in WGS 84's UTM zone (the model's
+    origin at the projected point), turned by its heading (clockwise from true north) and the
+    meridian convergence (pyproj's), scaled, at its absolute altitude. A model no Model links stays
+    in its own frame, noted; a Model linking a model the archive lacks is a rejection."""
+    import zipfile
+
+    import pyproj
+
+    v, f = box(10.0, 6.0, 4.0)  # from the origin: x 0..10, y 0..6, z 0..4
+    with zipfile.ZipFile(tmp_path / "town.kmz", "w") as z:
+        z.writestr("doc.kml", KML.format(lat=lat, lon=lon, heading=heading))
+        z.writestr("models/a.dae", _collada(0.0254, "Z", v / 0.0254, f))  # SketchUp: inches, z up
+        z.writestr("models/b.dae", _collada(None, "Y", v[:, [0, 2, 1]] * [1, 1, -1], f))
+    items = list(read_file(tmp_path / "town.kmz"))
+    assert sorted(i.id for i in items) == ["town.kmz/models/a.dae#g", "town.kmz/models/b.dae#g", "town.kmz/models/c.dae"]
+    placed, unplaced, lost = sorted(items, key=lambda i: i.id)
+    assert isinstance(lost, Rejection) and "does not hold it" in lost.reason
+    zone = int((lon + 180) // 6) + 1
+    epsg = (32600 if lat > 0 else 32700) + zone
+    east, north = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(lon, lat)
+    turn = np.radians(pyproj.Proj(f"EPSG:{epsg}").get_factors(lon, lat).meridian_convergence - heading)
+    rotation = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    expected = (2.0 * v) @ rotation.T + [east, north, 12.5]
+    world = placed.vertices + placed.origin
+    from scipy.spatial import cKDTree
+
+    for a, b in ((world, expected), (expected, world)):  # the same corners (pycollada: float32)
+        assert cKDTree(b).query(a)[0].max() < 1e-3
+    assert any(f"(EPSG:{epsg})" in n and "'town hall'" in n and "scaled by 2, 2, 2" in n for n in placed.notes), placed.notes
+    world = unplaced.vertices + unplaced.origin
+    np.testing.assert_allclose(world.max(axis=0) - world.min(axis=0), [10, 6, 4], atol=1e-5)
+    assert any("no Model of the archive's KML places it" in n for n in unplaced.notes), unplaced.notes
+
+
+def test_a_kmz_whose_kml_cannot_place_its_models_lists_why(tmp_path):
+    """A KML that is not XML, a Model without a location, one off the earth, one with a negative
+    scale: each listed as a rejection saying why; the models are read in their own frames."""
     import zipfile
 
     v, f = box(10.0, 6.0, 4.0)
-    with zipfile.ZipFile(tmp_path / "town.kmz", "w") as z:
-        z.writestr("doc.kml", "<kml><Placemark><Model><Link><href>models/a.dae</href></Link></Model></Placemark></kml>")
-        z.writestr("models/a.dae", _collada(0.0254, "Z", v / 0.0254, f))
-        z.writestr("models/b.dae", _collada(None, "Y", v[:, [0, 2, 1]] * [1, 1, -1], f))
-    items = list(read_file(tmp_path / "town.kmz"))
-    assert [i.id for i in items] == ["town.kmz/models/a.dae#g", "town.kmz/models/b.dae#g"], items
-    for m in items:
-        world = m.vertices + m.origin
-        np.testing.assert_allclose(world.max(axis=0) - world.min(axis=0), [10, 6, 4], atol=1e-5)
+    models = "".join(f"<Placemark><name>m{k}</name><Model>{body}<Link><href>{k}.dae</href></Link></Model></Placemark>"
+                     for k, body in enumerate(["", "<Location><longitude>200</longitude><latitude>52</latitude></Location>",
+                                               "<Location><longitude>4</longitude><latitude>52</latitude></Location>"
+                                               "<Scale><x>-1</x></Scale>"]))
+    with zipfile.ZipFile(tmp_path / "bad.kmz", "w") as z:
+        z.writestr("doc.kml", f"<kml><Document>{models}</Document></kml>")
+        z.writestr("broken.kml", "<kml><Placemark>")
+        for k in range(3):
+            z.writestr(f"{k}.dae", _collada(None, "Z", v, f))
+    items = list(read_file(tmp_path / "bad.kmz"))
+    reasons = {i.id: i.reason for i in items if isinstance(i, Rejection)}
+    assert "not XML" in reasons["bad.kmz/broken.kml"]
+    assert "Model 1 ('m0') of doc.kml (0.dae): no <Location>" in reasons["bad.kmz/doc.kml#Model1"], reasons
+    assert "are not on the earth" in reasons["bad.kmz/doc.kml#Model2"]
+    assert "is not positive" in reasons["bad.kmz/doc.kml#Model3"]
+    meshes = [i for i in items if isinstance(i, RawMesh)]
+    assert len(meshes) == 3 and all(any("in its own frame" in n for n in m.notes) for m in meshes)

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from conftest import box
 from meshsom.errors import MeshError
 from meshsom.polygons import newell_normal
-from meshsom.polygons import extrude_polygon
+from meshsom.polygons import extrude_polygon, triangulate_polygon_2d
 from meshsom.preprocess import PreprocessParams, _close, _keep_one_side, preprocess, validate, weld
 from meshsom.topology import edge_table, signed_volume
 
@@ -1041,3 +1041,39 @@ def test_walls_between_parts_walked_both_ways_still_go(tmp_path):
     r = preprocess(v, np.vstack([fa, fa + len(a)]))
     assert r.volume_out == pytest.approx(8 * 3 * 3) and not any("two-sided" in x for x in r.repairs)
     assert any("internal walls" in x or "fins" in x for x in r.repairs), r.repairs
+
+
+def _comb_fanned(teeth, height=3.0):
+    """A comb-shaped block (a bar with ``teeth`` teeth), its top triangulated as a fan from one
+    corner: a non-convex face triangulated so (as naive exporters do) gives triangles facing down
+    over the notches, folded flat onto their neighbours, under and over triangles facing up. The
+    surface is closed and oriented and encloses exactly the block (signed areas add up), but no
+    triangle lies wholly inside an overlap and every vertex is a corner of the walls."""
+    ring = [(0.0, 0.0), (2.0 * teeth, 0.0), (2.0 * teeth, 1.0)]
+    for i in reversed(range(teeth)):
+        ring += [(2.0 * i + 1.5, 1.0), (2.0 * i + 1.5, 3.0), (2.0 * i + 0.5, 3.0), (2.0 * i + 0.5, 1.0)]
+    ring = np.array(ring + [(0.0, 1.0)])
+    k = len(ring)
+    v = np.concatenate([np.c_[ring, np.zeros(k)], np.c_[ring, np.full(k, height)]])
+    _, bottom = triangulate_polygon_2d(ring)
+    top = np.array([[0, i, i + 1] for i in range(1, k - 1)]) + k
+    walls = np.concatenate([[[i, (i + 1) % k, (i + 1) % k + k], [i, (i + 1) % k + k, i + k]] for i in range(k)])
+    return v, np.concatenate([bottom[:, ::-1], top, walls]), shapely.Polygon(ring)
+
+
+@pytest.mark.parametrize("teeth", [3, 12])
+def test_a_face_folded_over_itself_in_its_plane_is_retriangulated_by_its_net_cover(teeth):
+    """The fanned comb's top is re-triangulated by its net cover (step 4a (iv)): the earlier
+    repairs leave it open or folded (manifold3d cannot merge corners of walls), so before it the
+    block was rejected. The result is the block: shapely's area times the height, the outer
+    area, every top triangle facing up, no flat fold."""
+    v, f, poly = _comb_fanned(teeth)
+    assert validate(v, f) is None and signed_volume(v, f) == pytest.approx(poly.area * 3.0, rel=1e-12)
+    alpha = _fold_alpha_direct(v, f)
+    assert (np.minimum(alpha, 2 * np.pi - alpha) < 1e-9).sum() >= 2 * teeth
+    r = preprocess(v, f)
+    assert any(s.startswith("re-triangulated 1 planes where faces were folded flat") for s in r.repairs), r.repairs
+    _check_repaired(r, np.asarray(poly.exterior.coords)[:-1], 3.0)
+    top = r.faces[(r.vertices[r.faces][:, :, 2] == 3.0).all(axis=1)]
+    normals = np.cross(r.vertices[top[:, 1]] - r.vertices[top[:, 0]], r.vertices[top[:, 2]] - r.vertices[top[:, 0]])
+    assert (normals[:, 2] > 0).all() and normals[:, 2].sum() / 2 == pytest.approx(poly.area, rel=1e-12)

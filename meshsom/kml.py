@@ -1,0 +1,198 @@
+"""KML placements of COLLADA models: the KMZ files of Google Earth, SketchUp and 3D Warehouse.
+
+A KMZ is a zip of a KML document and the COLLADA (``.dae``) models it places. Each KML ``<Model>``
+links one model (``<Link><href>``, relative to the KML's folder) and puts the model's origin at a
+``<Location>`` (WGS 84 longitude and latitude, an altitude), turned by an ``<Orientation>``
+(``heading``: degrees clockwise from true north of the model's y axis; ``tilt`` and ``roll``), and
+scaled by ``<Scale>`` (x, y, z). A model's own frame is x east, y north, z up, in metres once
+:mod:`meshsom.io` has read its COLLADA ``<unit>`` and ``<up_axis>``.
+
+:func:`model_placements` reads a KML document; :meth:`ModelPlacement.place` moves a model into
+WGS 84's UTM zone at its location (:func:`meshsom.crs.utm_point`: the heading is turned onto the
+grid's north with the meridian convergence), its height from the altitude by ``altitudeMode``:
+``absolute`` is the altitude, ``relativeToGround`` is the altitude above a ground KML does not
+give (noted), ``clampToGround`` (the default) stands on a ground of unknown height (z from 0,
+noted). Buildings stand upright: a tilt or roll is noted and not applied.
+"""
+
+from __future__ import annotations
+
+import math
+import posixpath
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from urllib.parse import unquote
+
+import numpy as np
+
+__all__ = ["ModelPlacement", "model_placements"]
+
+#: KML's altitude modes (with Google's gx: extensions), and what each makes of the altitude.
+ALTITUDE_MODES = ("clampToGround", "relativeToGround", "absolute", "clampToSeaFloor", "relativeToSeaFloor")
+
+
+@dataclass(frozen=True)
+class ModelPlacement:
+    """One KML ``<Model>``: where it puts a COLLADA model.
+
+    Attributes
+    ----------
+    href : str
+        The model's path inside the archive (resolved against the KML's folder, ``/``-separated).
+    name : str or None
+        The placemark's ``<name>``.
+    latitude, longitude : float
+        Degrees, WGS 84.
+    altitude : float
+        Metres.
+    altitude_mode : str
+        One of :data:`ALTITUDE_MODES`.
+    heading, tilt, roll : float
+        Degrees.
+    scale : (3,) tuple of float
+    """
+
+    href: str
+    name: str | None
+    latitude: float
+    longitude: float
+    altitude: float = 0.0
+    altitude_mode: str = "clampToGround"
+    heading: float = 0.0
+    tilt: float = 0.0
+    roll: float = 0.0
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+    def place(self, vertices: np.ndarray) -> tuple[np.ndarray, str]:
+        """The model's vertices in WGS 84's UTM zone at its location.
+
+        Parameters
+        ----------
+        vertices : (V, 3) float64
+            Metres in the model's own frame (x east, y north, z up at heading 0).
+
+        Returns
+        -------
+        placed : (V, 3) float64
+            Metres: easting, northing, height.
+        note : str
+            Where it was put, in words (the EPSG code, the turn, the height's reading).
+
+        Raises
+        ------
+        ValueError
+            The location is outside UTM's extent (:func:`meshsom.crs.utm_point`).
+        """
+        from meshsom.crs import utm_point
+
+        point = utm_point(self.latitude, self.longitude)
+        absolute = self.altitude_mode == "absolute"
+        height = self.altitude if self.altitude_mode in ("absolute", "relativeToGround", "relativeToSeaFloor") else 0.0
+        placed = point.place(np.asarray(vertices, np.float64) * np.asarray(self.scale), math.radians(self.heading), height)
+        notes = [f"KML: placed by its Model{f' {self.name!r}' if self.name else ''} at ({self.latitude:.6f}, "
+                 f"{self.longitude:.6f}) in WGS 84 / UTM zone {point.zone} (EPSG:{point.epsg}), heading "
+                 f"{self.heading:g} degrees (turned {math.degrees(point.convergence - math.radians(self.heading)):.4g} "
+                 f"degrees on the grid)"]
+        if self.scale != (1.0, 1.0, 1.0):
+            notes.append(f"scaled by {', '.join(f'{s:g}' for s in self.scale)}")
+        if not absolute:
+            notes.append(f"its altitude is {self.altitude_mode} (the ground's height is not in KML): z from "
+                         f"{height:g} m above an unknown ground")
+        if self.tilt or self.roll:
+            notes.append(f"its tilt ({self.tilt:g}) and roll ({self.roll:g}) not applied (a building stands upright)")
+        return placed, "; ".join(notes)
+
+
+def _local(tag: str) -> str:
+    """A tag without its namespace (``{http://www.opengis.net/kml/2.2}Model`` -> ``Model``)."""
+    return tag.rsplit("}", 1)[-1]
+
+
+def _child(element, name: str):
+    return next((c for c in element if _local(c.tag) == name), None)
+
+
+def _number(element, name: str, default: float) -> float:
+    child = _child(element, name) if element is not None else None
+    if child is None or child.text is None or not child.text.strip():
+        return default
+    value = float(child.text.strip())  # ValueError: not a number, named by the caller
+    if not math.isfinite(value):
+        raise ValueError(f"<{name}> is {child.text.strip()!r}")
+    return value
+
+
+def model_placements(text: bytes, kml_path: str) -> tuple[list[ModelPlacement], list[tuple[str, str]]]:
+    """Every ``<Model>`` of a KML document.
+
+    Parameters
+    ----------
+    text : bytes
+        The KML document.
+    kml_path : str
+        Its path inside the archive (``/``-separated): hrefs are resolved against its folder.
+
+    Returns
+    -------
+    placements : list of ModelPlacement
+        In document order; a Model without a link or a location is left out.
+    problems : list of (str, str)
+        The Models left out: (``ModelN``, N from 1 in document order; why, naming it).
+
+    Raises
+    ------
+    ValueError
+        The document is not XML.
+    """
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as err:
+        raise ValueError(f"{kml_path} is not XML ({err})") from None
+    placements, problems = [], []
+    folder = posixpath.dirname(kml_path)
+    names = {}  # each Model's placemark name
+    for placemark in (e for e in root.iter() if _local(e.tag) == "Placemark"):
+        name = _child(placemark, "name")
+        for model in (e for e in placemark.iter() if _local(e.tag) == "Model"):
+            names[id(model)] = name.text.strip() if name is not None and name.text else None
+    for number, model in enumerate((e for e in root.iter() if _local(e.tag) == "Model"), start=1):
+        name = names.get(id(model))
+        what = f"Model {number}{f' ({name!r})' if name else ''} of {kml_path}"
+        link = _child(model, "Link")
+        link = link if link is not None else _child(model, "Url")  # (KML 2.0's name)
+        href = _child(link, "href") if link is not None else None
+        if href is None or not (href.text or "").strip():
+            problems.append((f"Model{number}", f"{what} links no model"))
+            continue
+        target = unquote(href.text.strip())
+        if "://" in target:
+            problems.append((f"Model{number}", f"{what} links {target!r}, outside the archive"))
+            continue
+        target = posixpath.normpath(posixpath.join(folder, target.replace("\\", "/"))).lstrip("/")
+        location, orientation, scale = _child(model, "Location"), _child(model, "Orientation"), _child(model, "Scale")
+        mode = _child(model, "altitudeMode")
+        mode = mode.text.strip() if mode is not None and mode.text else "clampToGround"
+        try:
+            if location is None or _child(location, "latitude") is None or _child(location, "longitude") is None:
+                raise ValueError("no <Location> with a latitude and longitude")
+            placement = ModelPlacement(
+                href=target, name=name,
+                latitude=_number(location, "latitude", 0.0), longitude=_number(location, "longitude", 0.0),
+                altitude=_number(location, "altitude", 0.0),
+                altitude_mode=mode if mode in ALTITUDE_MODES else "clampToGround",
+                heading=_number(orientation, "heading", 0.0), tilt=_number(orientation, "tilt", 0.0),
+                roll=_number(orientation, "roll", 0.0),
+                scale=tuple(_number(scale, axis, 1.0) for axis in ("x", "y", "z")),
+            )
+        except ValueError as err:
+            problems.append((f"Model{number}", f"{what} ({target}): {err}"))
+            continue
+        if not (-90 <= placement.latitude <= 90 and -180 <= placement.longitude <= 180):
+            problems.append((f"Model{number}", f"{what} ({target}): latitude {placement.latitude:g}, longitude "
+                                               f"{placement.longitude:g} are not on the earth"))
+            continue
+        if not all(s > 0 for s in placement.scale):
+            problems.append((f"Model{number}", f"{what} ({target}): its scale {placement.scale} is not positive"))
+            continue
+        placements.append(placement)
+    return placements, problems
