@@ -11,8 +11,9 @@ building is the outer surface of what its walls, slabs and roofs enclose:
    whole where its windows and doors are, so the envelope has no holes where a window was left out.
    Spaces, furniture, building services, openings, the site's terrain and annotations are never
    part of it.
-2. Each element is welded and must be a closed, oriented volume (the common case); one that is not
-   goes through :func:`meshsom.preprocess.close_surface` (capped, closed, oriented), and one that still is not (a door leaf
+2. Each element is welded and must be a closed, consistently oriented volume (the common case;
+   :func:`meshsom.preprocess.validate`); one that is not goes through
+   :func:`meshsom.preprocess.close_surface` (capped, closed, oriented), and one that still is not (a door leaf
    modelled as open surfaces, a railing of lines) is left out, counted by class in the mesh's notes.
 3. Elements of real models miss each other by hairlines (a gable wall's top a millimetre under
    the roof slab, at a slightly other slope): a crack that the union would keep, leading from
@@ -264,10 +265,25 @@ def _triangulated(model, elements: list, ifcopenshell) -> dict:
 
 
 def _closed_solid(vertices: np.ndarray, faces: np.ndarray, params):
-    """An element as a closed volume facing outwards (:func:`meshsom.preprocess.close_surface`:
-    welded, capped, oriented): ((V, 3), (F, 3)), or None."""
-    from meshsom.preprocess import close_surface
+    """An element as a closed volume facing outwards: ((V, 3), (F, 3)), or None.
 
+    Most elements are closed and consistently oriented once welded (IfcOpenShell writes each
+    face's corners apart, for normals): those are taken as they are (:func:`meshsom.preprocess.validate`
+    says so, turned over where they face inwards); the rest go through
+    :func:`meshsom.preprocess.close_surface` (capped, closed, oriented)."""
+    from meshsom.preprocess import close_surface, validate, weld
+
+    diag = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0))) if len(vertices) else 0.0
+    if not diag > 0:
+        return None
+    v, remap = weld(vertices, params.weld_tol * diag)
+    f = remap[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    problem = validate(v, f) if len(f) >= 4 else "too few faces"
+    if problem is None:
+        return v, f
+    if problem.startswith("oriented inward"):
+        return v, f[:, ::-1]
     try:
         return close_surface(vertices, faces, params)
     except MeshError:

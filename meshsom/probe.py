@@ -86,11 +86,19 @@ SHORTAGE_WAIT_S = 2.0
 #: What the reason of a probe that ran short on every try ends with.
 SHORTAGE_NOTE = "(the device or host ran short of memory: no verdict on the layout, not cached)"
 
+#: Signals a probe child dies of when something outside stopped it (a user's Ctrl-C, a job
+#: scheduler, a cluster shutting down, a ``kill``): no verdict on the layout, so tried again like a
+#: shortage and never cached (a device's own crash is SIGSEGV, SIGABRT, SIGILL, SIGBUS or SIGFPE).
+OUTSIDE_SIGNALS = ("SIGTERM", "SIGINT", "SIGHUP")
+#: What the reason of a probe stopped from outside on every try starts and ends with.
+OUTSIDE_REASON = "the probe's process was stopped from outside"
+OUTSIDE_NOTE = "(no verdict on the layout, not cached)"
+
 ENV_INJECT = "MESHSOM_KERNEL_INJECT"
 ENV_TIMEOUT = "MESHSOM_PROBE_TIMEOUT"
 #: Injected failures (test hook): name -> define added to the layout's build.
 INJECTIONS = {"error": "MESHSOM_INJECT_BUILD_ERROR", "trap": "MESHSOM_INJECT_TRAP",
-              "epoch-error": "MESHSOM_INJECT_EPOCH_ERROR"}
+              "epoch-error": "MESHSOM_INJECT_EPOCH_ERROR", "sigterm": "MESHSOM_INJECT_SIGTERM"}
 
 
 @dataclass(frozen=True)
@@ -256,9 +264,10 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
             wait = SHORTAGE_WAIT_S
             for attempt in range(SHORTAGE_TRIES):
                 verdict, keep = _probe_child(selector, defines, layout, name, key, timing)
-                if not short_of_memory(verdict):
+                if not short_of_memory(verdict) and not stopped_from_outside(verdict):
                     break
-                log.warning("probe of layout %r on %s ran short of memory (try %d of %d): %s", layout, name,
+                log.warning("probe of layout %r on %s %s (try %d of %d): %s", layout, name,
+                            "ran short of memory" if short_of_memory(verdict) else "was stopped from outside",
                             attempt + 1, SHORTAGE_TRIES, verdict.reason)
                 if attempt + 1 < SHORTAGE_TRIES:
                     time.sleep(wait)
@@ -266,6 +275,8 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
             log.info("layout %r on %s: %s in %.1f s", layout, name, "ok" if verdict.ok else "FAILED", verdict.seconds)
             if short_of_memory(verdict):
                 return replace(verdict, reason=f"{verdict.reason} {SHORTAGE_NOTE}")
+            if stopped_from_outside(verdict):
+                return replace(verdict, reason=f"{verdict.reason} {OUTSIDE_NOTE}")
             if keep:
                 _write(path, verdict)
         else:
@@ -277,6 +288,11 @@ def check(device, selector: str, defines: dict, source: str, options: list[str],
 def short_of_memory(verdict: Verdict) -> bool:
     """The probe failed for want of memory at that moment (:data:`SHORTAGE_MARKERS`), not for the layout."""
     return not verdict.ok and any(marker in verdict.reason for marker in SHORTAGE_MARKERS)
+
+
+def stopped_from_outside(verdict: Verdict) -> bool:
+    """The probe's child was stopped by one of :data:`OUTSIDE_SIGNALS`, not by the layout."""
+    return not verdict.ok and verdict.reason.startswith(OUTSIDE_REASON)
 
 
 #: What a compiler's or driver's message line starts with or holds, most telling first.
@@ -326,6 +342,8 @@ def _probe_child(selector: str, defines: dict, layout: str, name: str, key: str,
             sig = signal.Signals(-proc.returncode).name
         except ValueError:
             sig = f"signal {-proc.returncode}"
+        if sig in OUTSIDE_SIGNALS:
+            return Verdict(False, layout, name, f"{OUTSIDE_REASON} ({sig})", seconds, key), False
         reason = f"the build or first run killed its process ({sig}): {first_error_line(proc.stderr + proc.stdout)}"
         return Verdict(False, layout, name, reason, seconds, key), True
     reason = f"the probe exited with status {proc.returncode}: {first_error_line(proc.stderr + proc.stdout)}"
@@ -478,6 +496,8 @@ def _child(spec: dict) -> dict:
 
     cl = bmu_opencl._cl()
     defines = spec["defines"]
+    if int(defines.get(INJECTIONS["sigterm"], 0)):  # test hook: as if a user or scheduler stopped it
+        os.kill(os.getpid(), signal.SIGTERM)
     context = cl.Context([bmu_opencl.select_device(spec["selector"])])
     queue = cl.CommandQueue(context)
     X, W, index, sign = known_answer(defines)

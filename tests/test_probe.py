@@ -176,6 +176,24 @@ def test_a_probe_short_of_memory_is_tried_again_and_never_cached(ctx, fresh_verd
     assert not probe.short_of_memory(probe.Verdict(False, "gpu", "d", "clEnqueueReadBuffer failed: OUT_OF_RESOURCES", 0, ""))
 
 
+def test_a_probe_stopped_from_outside_is_tried_again_and_never_cached(ctx, fresh_verdicts, monkeypatch, caplog):
+    """A probe child killed by SIGTERM (a user, a scheduler, a cluster shutting down) says nothing
+    about the layout: it is tried again, and where every try was stopped the failure says so and is
+    kept neither on disk nor in memory (a cached 'killed' verdict would disable a working layout)."""
+    from meshsom import probe
+    from meshsom.bmu_opencl import probe_layout
+
+    monkeypatch.setattr(probe, "SHORTAGE_WAIT_S", 0.0)
+    monkeypatch.setenv(probe.ENV_INJECT, "tiled=sigterm")
+    with caplog.at_level(logging.WARNING, logger="meshsom.probe"):
+        verdict = probe_layout(ctx, "tiled", 9, 6)
+    assert not verdict.ok and verdict.reason == f"{probe.OUTSIDE_REASON} (SIGTERM) {probe.OUTSIDE_NOTE}"
+    assert sum("stopped from outside" in r.message for r in caplog.records) == probe.SHORTAGE_TRIES
+    assert list(fresh_verdicts.glob("*.json")) == [] and verdict.key not in probe._MEMO
+    # a device's own crash stays a verdict
+    assert not probe.stopped_from_outside(probe.Verdict(False, "cpu", "d", "the build or first run killed its process (SIGSEGV): x", 0, ""))
+
+
 def test_probe_that_hangs_is_stopped_by_the_timeout(ctx, monkeypatch):
     from meshsom.bmu_opencl import probe_layout
     from meshsom.probe import ENV_TIMEOUT
