@@ -93,13 +93,6 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
             if not files:
                 held = ", ".join(sorted(m.filename for m in members)[:8]) or "nothing"
                 raise InputFileError(str(path), f"holds no file that meshsom reads (it holds {held})")
-            placements, problems = _kml_placements(folder)
-            members = {f.path.relative_to(folder).as_posix() for f in files}
-            for member, reason in problems:  # ("doc.kml#Model2", why)
-                yield Rejection(f"{name}/{member}", f"{path}!/{member.split('#')[0]}", reason)
-            for href in sorted(set(placements) - members):
-                yield Rejection(f"{name}/{href}", f"{path}!/{href}", "a KML Model links it, but the archive does not "
-                                                                     "hold it (or holds nothing meshsom reads there)")
             for f in files:
                 member = f.path.relative_to(folder).as_posix()
                 source = f"{path}!/{member}"
@@ -112,7 +105,8 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
                         yield dataclasses.replace(item, source=_source(item.source, folder, path))
                         continue
                     item = dataclasses.replace(item, source=_source(item.source, folder, path))
-                    yield from _placed(item, placements.get(member, []))
+                    yield item if not _unplaced(item, f) else dataclasses.replace(
+                        item, notes=(*item.notes, "KML: no Model of the archive's KML places it: in its own frame"))
         finally:
             shutil.rmtree(folder, ignore_errors=True)
 
@@ -128,48 +122,9 @@ def _source(text: str, folder: Path, path: Path, anywhere: bool = False) -> str:
     return text
 
 
-def _kml_placements(folder: Path) -> tuple[dict, list[tuple[str, str]]]:
-    """The KML ``<Model>`` placements of an extracted archive (:mod:`meshsom.kml`), by the model's
-    member path, and the Models (or KML files) that cannot be used: (``doc.kml#Model2``, reason)."""
-    from meshsom.kml import model_placements
+def _unplaced(item, f) -> bool:
+    """Whether a model read from a KMZ is one no KML Model places (the models a KML places are
+    read through it: :func:`meshsom.kml.read_kml`)."""
+    from meshsom.kml import KML_SUFFIX
 
-    placements: dict[str, list] = {}
-    problems: list[tuple[str, str]] = []
-    for kml in sorted(folder.rglob("*")):
-        if not (kml.is_file() and kml.suffix.lower() == ".kml"):
-            continue
-        member = kml.relative_to(folder).as_posix()
-        try:
-            found, unusable = model_placements(kml.read_bytes(), member)
-        except ValueError as err:
-            problems.append((member, f"KML: {err}; its models are read in their own frames"))
-            continue
-        problems += [(f"{member}#{model}", f"KML: {reason}") for model, reason in unusable]
-        for placement in found:
-            placements.setdefault(placement.href, []).append(placement)
-    return placements, problems
-
-
-def _placed(item, placements: list) -> Iterator:
-    """A model as each KML Model places it (ids ``#...@2`` and on for a model placed more than
-    once), or as it is, noted, where none does."""
-    from meshsom.io import Rejection, recentre
-
-    if not placements:
-        yield item if not _kml_archive(item) else dataclasses.replace(
-            item, notes=(*item.notes, "KML: no Model of the archive's KML places it: in its own frame"))
-        return
-    for k, placement in enumerate(placements):
-        mesh_id = item.id if len(placements) == 1 else f"{item.id}@{k + 1}"
-        try:
-            world, note = placement.place(item.vertices + item.origin)
-        except ValueError as err:
-            yield Rejection(mesh_id, item.source, f"KML: {err}", len(item.faces), item.label)
-            continue
-        local, origin = recentre(world)
-        yield dataclasses.replace(item, id=mesh_id, vertices=local, origin=origin, notes=(*item.notes, note))
-
-
-def _kml_archive(item) -> bool:
-    """Whether a model came from a KMZ (whose models a KML is expected to place)."""
-    return ".kmz!" in item.source.lower()
+    return ".kmz!" in item.source.lower() and f.path.suffix.lower() != KML_SUFFIX

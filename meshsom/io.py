@@ -337,7 +337,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'ifc' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -349,6 +349,8 @@ def input_kind(path: Path) -> str:
         return "b3dm"
     if name.endswith((".zip", ".kmz")):  # a KMZ: a zip of a KML placemark and its COLLADA models
         return "zip"
+    if name.endswith(".kml") and name == path.name.lower():  # a KML beside the models it places
+        return "kml"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -371,7 +373,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz") + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml") + IFC_SUFFIXES
     return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
@@ -590,7 +592,9 @@ def expand_inputs(inputs: list[str | os.PathLike],
     """Turn files and folders into the list of files to read, each with its id prefix.
 
     Folders are searched recursively for known file types (other files in them
-    are not read: with ``skipped``, each is listed there with the reason). A path that does not
+    are not read: with ``skipped``, each is listed there with the reason; so is a tileset's content
+    and a model a KML file of the folder places, both read through the file that holds or places
+    them: :func:`meshsom.kml.read_kml`). A path that does not
     exist, a file named explicitly with an unknown type, or a file in a folder
     that is a link to somewhere outside that folder, is a rejection.
 
@@ -621,13 +625,19 @@ def expand_inputs(inputs: list[str | os.PathLike],
             found = []
             root = p.resolve()
             tilesets = sorted((t.parent for t in p.rglob(TILESET_NAME)), key=lambda t: (len(t.parts), t))  # outermost first
-            for q in sorted(p.rglob("*")):
+            entries = sorted(p.rglob("*"))
+            placed_by = _kml_models(entries)
+            for q in entries:
                 if any(_is_gdb(p / d) for d in q.relative_to(p).parents if d != Path(".")):
                     continue  # inside a File Geodatabase: the folder is read as one input
                 owner = next((t for t in tilesets if q.is_relative_to(t) and q != t / TILESET_NAME), None)
                 if owner is not None and (q.suffix.lower() in TILES_CONTENT_SUFFIXES or q.name == TILESET_NAME):
                     if skipped is not None:
                         skipped.append((str(q), f"content of the 3D Tiles tileset {owner / TILESET_NAME}, read through it"))
+                    continue
+                if q.is_file() and q.resolve() in placed_by:
+                    if skipped is not None:
+                        skipped.append((str(q), f"placed by a KML Model of {placed_by[q.resolve()]}, read through it"))
                     continue
                 if q.is_file() or _is_gdb(q):
                     try:
@@ -665,6 +675,19 @@ def expand_inputs(inputs: list[str | os.PathLike],
             )
         first[f.name] = f.path
     return files, rejected
+
+
+def _kml_models(entries: list[Path]) -> dict[Path, str]:
+    """The files of a folder that its KML files place (:func:`meshsom.kml.linked_models`), each with
+    the KML's path, relative to the folder: they are read through the KML."""
+    from meshsom.kml import KML_SUFFIX, linked_models
+
+    found: dict[Path, str] = {}
+    for kml in entries:
+        if kml.suffix.lower() == KML_SUFFIX and kml.is_file():
+            for model in linked_models(kml):
+                found.setdefault(model, str(kml))
+    return found
 
 
 def _is_gdb(path: Path) -> bool:
@@ -750,6 +773,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.archives import read_zip
 
             yield from read_zip(path, options, name)
+        elif kind == "kml":
+            from meshsom.kml import read_kml
+
+            yield from read_kml(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

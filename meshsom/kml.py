@@ -13,19 +13,28 @@ grid's north with the meridian convergence), its height from the altitude by ``a
 ``absolute`` is the altitude, ``relativeToGround`` is the altitude above a ground KML does not
 give (noted), ``clampToGround`` (the default) stands on a ground of unknown height (z from 0,
 noted). Buildings stand upright: a tilt or roll is noted and not applied.
+
+:func:`read_kml` reads a KML file on disk as an input (a KMZ's, once extracted, or one beside its
+models in a folder: an unzipped KMZ): every model its Models link, placed; :func:`linked_models`
+names those models, so that a folder's reader reads them through the KML only.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import posixpath
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
 from urllib.parse import unquote
 
 import numpy as np
 
-__all__ = ["ModelPlacement", "model_placements"]
+__all__ = ["ModelPlacement", "linked_models", "model_placements", "placed", "read_kml"]
+
+KML_SUFFIX = ".kml"
 
 #: KML's altitude modes (with Google's gx: extensions), and what each makes of the altitude.
 ALTITUDE_MODES = ("clampToGround", "relativeToGround", "absolute", "clampToSeaFloor", "relativeToSeaFloor")
@@ -196,3 +205,112 @@ def model_placements(text: bytes, kml_path: str) -> tuple[list[ModelPlacement], 
             continue
         placements.append(placement)
     return placements, problems
+
+
+def _model_file(kml: Path, href: str) -> Path | None:
+    """The file a Model's ``href`` (relative to the KML's folder) names, or None where it leaves
+    the KML's folder (a KML is read with the models beneath it, as a KMZ holds them)."""
+    target = (kml.parent / href).resolve()
+    return target if target.is_relative_to(kml.parent.resolve()) else None
+
+
+def linked_models(path: Path) -> set[Path]:
+    """The model files that a KML file's usable Models place (and which a folder's reader reads
+    through the KML only).
+
+    Parameters
+    ----------
+    path : Path
+        A KML file.
+
+    Returns
+    -------
+    set of Path
+        The existing model files (resolved); empty when the KML cannot be read or is not XML (its
+        models are then read as they are, in their own frames).
+    """
+    try:
+        found, _ = model_placements(path.read_bytes(), path.name)
+    except (OSError, ValueError):
+        return {}
+    files = (_model_file(path, p.href) for p in found)
+    return {f for f in files if f is not None and f.is_file()}
+
+
+def read_kml(path: Path, options, name: str | None = None) -> Iterator:
+    """Every model a KML file's Models link, placed (:meth:`ModelPlacement.place`): RawMesh or
+    Rejection items.
+
+    Models are read from beneath the KML's folder (:func:`meshsom.io.read_file`, any type meshsom
+    reads; COLLADA by KML's specification); a model's ids start with its path relative to the
+    KML's input root (``name``'s folder joined with the ``href``), with ``@2`` and on for a model
+    placed more than once. A Model that cannot be used is a Rejection ``<name>#ModelN`` saying why,
+    as is a linked model that is missing or outside the KML's folder
+    (``<name>#<href>``).
+
+    Parameters
+    ----------
+    path : Path
+        The KML file.
+    options : meshsom.io.ReaderOptions
+    name : str, optional
+        The KML's name relative to its input root (:attr:`meshsom.io.InputFile.name`); default: the
+        file name.
+
+    Raises
+    ------
+    InputFileError
+        The file cannot be read, is not XML, or holds no Model.
+    """
+    from meshsom.errors import InputFileError
+    from meshsom.io import Rejection, read_file
+
+    name = name or path.name
+    try:
+        text = path.read_bytes()
+    except OSError as err:
+        raise InputFileError(str(path), f"cannot be read ({type(err).__name__}: {err})") from None
+    try:
+        placements, problems = model_placements(text, path.name)
+    except ValueError as err:
+        raise InputFileError(str(path), f"KML: {err}; the models it links are read in their own frames") from None
+    if not placements and not problems:
+        raise InputFileError(str(path), "holds no KML <Model> linking a 3D model (KML placemarks, lines and polygons "
+                                        "are not read: convert a KML of extruded footprints with "
+                                        "`ogr2ogr -f GPKG out.gpkg in.kml` and read the GeoPackage)")
+    for model, reason in problems:  # ("Model2", why)
+        yield Rejection(f"{name}#{model}", str(path), f"KML: {reason}")
+    by_href: dict[str, list[ModelPlacement]] = {}
+    for placement in placements:
+        by_href.setdefault(placement.href, []).append(placement)
+    for href, group in by_href.items():
+        model_name = posixpath.join(posixpath.dirname(name), href)
+        target = _model_file(path, href)
+        if target is None:
+            yield Rejection(f"{name}#{href}", str(path), f"a KML Model of {path.name} links {href!r}, outside its folder; "
+                                                   "not followed (models are read from beneath the KML)")
+        elif not target.is_file():
+            yield Rejection(model_name, str(target), f"a KML Model of {path.name} links it, but there is no such file "
+                                                     "beneath the KML (its folder or archive does not hold it)")
+        else:
+            for item in read_file(target, options, model_name):
+                if isinstance(item, Rejection):
+                    yield item
+                else:
+                    yield from placed(item, group)
+
+
+def placed(item, placements: list[ModelPlacement]) -> Iterator:
+    """A read model (:class:`meshsom.io.RawMesh`) as each KML Model places it: ids ``#...@2`` and on
+    for a model placed more than once; a Rejection where a placement cannot be used."""
+    from meshsom.io import Rejection, recentre
+
+    for k, placement in enumerate(placements):
+        mesh_id = item.id if len(placements) == 1 else f"{item.id}@{k + 1}"
+        try:
+            world, note = placement.place(item.vertices + item.origin)
+        except ValueError as err:
+            yield Rejection(mesh_id, item.source, f"KML: {err}", len(item.faces), item.label)
+            continue
+        local, origin = recentre(world)
+        yield dataclasses.replace(item, id=mesh_id, vertices=local, origin=origin, notes=(*item.notes, note))

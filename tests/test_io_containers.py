@@ -808,26 +808,52 @@ KML = """<?xml version="1.0" encoding="UTF-8"?>
 </Document></kml>"""
 
 
+def _kmz_members(lat, lon, heading) -> dict[str, str]:
+    """A KMZ's members as SketchUp writes them: doc.kml placing models/a.dae (inches, z up) and a
+    missing c.dae; models/b.dae (y up) is placed by no Model."""
+    v, f = box(10.0, 6.0, 4.0)  # from the origin: x 0..10, y 0..6, z 0..4
+    return {"doc.kml": KML.format(lat=lat, lon=lon, heading=heading),
+            "models/a.dae": _collada(0.0254, "Z", v / 0.0254, f),
+            "models/b.dae": _collada(None, "Y", v[:, [0, 2, 1]] * [1, 1, -1], f)}
+
+
+@pytest.mark.parametrize("form", ["kmz", "folder", "kml"])
 @pytest.mark.parametrize("lat, lon, heading", [(52.0116, 4.3571, 30.0), (-33.92, 18.42, -75.0)])
-def test_a_kmz_places_its_collada_models_where_its_kml_says(tmp_path, lat, lon, heading):
+def test_a_kmz_places_its_collada_models_where_its_kml_says(tmp_path, lat, lon, heading, form):
     """A KMZ (Google Earth, SketchUp, 3D Warehouse: a KML and the COLLADA models it places, in a
-    zip): a model linked by a KML Model is moved to its location in WGS 84's UTM zone (the model's
-    origin at the projected point), turned by its heading (clockwise from true north) and the
-    meridian convergence (pyproj's), scaled, at its absolute altitude. A model no Model links stays
-    in its own frame, noted; a Model linking a model the archive lacks is a rejection."""
+    zip), the same unzipped into a folder, or its KML named by itself: a model linked by a KML Model
+    is moved to its location in WGS 84's UTM zone (the model's origin at the projected point),
+    turned by its heading (clockwise from true north) and the meridian convergence (pyproj's),
+    scaled, at its absolute altitude. A model no Model links stays in its own frame (noted in a
+    KMZ); a Model linking a model that is not there is a rejection."""
     import zipfile
 
     import pyproj
 
-    v, f = box(10.0, 6.0, 4.0)  # from the origin: x 0..10, y 0..6, z 0..4
-    with zipfile.ZipFile(tmp_path / "town.kmz", "w") as z:
-        z.writestr("doc.kml", KML.format(lat=lat, lon=lon, heading=heading))
-        z.writestr("models/a.dae", _collada(0.0254, "Z", v / 0.0254, f))  # SketchUp: inches, z up
-        z.writestr("models/b.dae", _collada(None, "Y", v[:, [0, 2, 1]] * [1, 1, -1], f))
-    items = list(read_file(tmp_path / "town.kmz"))
-    assert sorted(i.id for i in items) == ["town.kmz/models/a.dae#g", "town.kmz/models/b.dae#g", "town.kmz/models/c.dae"]
+    v, f = box(10.0, 6.0, 4.0)
+    members = _kmz_members(lat, lon, heading)
+    if form == "kmz":
+        with zipfile.ZipFile(tmp_path / "town.kmz", "w") as z:
+            for member, text in members.items():
+                z.writestr(member, text)
+        items, prefix = list(read_file(tmp_path / "town.kmz")), "town.kmz/"
+    else:
+        for member, text in members.items():
+            (tmp_path / "town" / member).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / "town" / member).write_text(text)
+        skipped = []
+        files, rejected = expand_inputs([tmp_path / "town" / "doc.kml" if form == "kml" else tmp_path / "town"], skipped)
+        assert not rejected
+        assert sorted(x.name for x in files) == (["doc.kml"] if form == "kml" else ["doc.kml", "models/b.dae"])
+        if form == "folder":  # a.dae is read through the KML only, once
+            assert skipped == [(str(tmp_path / "town/models/a.dae"), f"placed by a KML Model of {tmp_path / 'town/doc.kml'}, "
+                                                                       "read through it")], skipped
+        items, prefix = [i for x in files for i in read_file(x.path, ReaderOptions(), x.name)], ""
+        if form == "kml":  # the model no Model places is not read
+            items.append(next(read_file(tmp_path / "town/models/b.dae", ReaderOptions(), "models/b.dae")))
+    assert sorted(i.id for i in items) == [f"{prefix}models/a.dae#g", f"{prefix}models/b.dae#g", f"{prefix}models/c.dae"]
     placed, unplaced, lost = sorted(items, key=lambda i: i.id)
-    assert isinstance(lost, Rejection) and "does not hold it" in lost.reason
+    assert isinstance(lost, Rejection) and "does not hold it" in lost.reason, lost
     zone = int((lon + 180) // 6) + 1
     epsg = (32600 if lat > 0 else 32700) + zone
     east, north = pyproj.Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True).transform(lon, lat)
@@ -842,7 +868,7 @@ def test_a_kmz_places_its_collada_models_where_its_kml_says(tmp_path, lat, lon, 
     assert any(f"(EPSG:{epsg})" in n and "'town hall'" in n and "scaled by 2, 2, 2" in n for n in placed.notes), placed.notes
     world = unplaced.vertices + unplaced.origin
     np.testing.assert_allclose(world.max(axis=0) - world.min(axis=0), [10, 6, 4], atol=1e-5)
-    assert any("no Model of the archive's KML places it" in n for n in unplaced.notes), unplaced.notes
+    assert any("no Model of the archive's KML places it" in n for n in unplaced.notes) == (form == "kmz"), unplaced.notes
 
 
 def test_a_kmz_whose_kml_cannot_place_its_models_lists_why(tmp_path):
@@ -868,3 +894,23 @@ def test_a_kmz_whose_kml_cannot_place_its_models_lists_why(tmp_path):
     assert "is not positive" in reasons["bad.kmz/doc.kml#Model3"]
     meshes = [i for i in items if isinstance(i, RawMesh)]
     assert len(meshes) == 3 and all(any("in its own frame" in n for n in m.notes) for m in meshes)
+
+
+def test_a_kml_that_places_nothing_it_may_read_says_why(tmp_path):
+    """A KML whose Model links a model outside the KML's folder (not followed, as a link out of a
+    folder is not), or that holds no Model at all (placemarks or extruded polygons: a GIS file for
+    ogr2ogr), is a rejection naming the file and the problem; the model outside is not read."""
+    v, f = box(10.0, 6.0, 4.0)
+    (tmp_path / "elsewhere.dae").write_text(_collada(None, "Z", v, f))
+    (tmp_path / "town").mkdir()
+    (tmp_path / "town/doc.kml").write_text(
+        "<kml><Document><Placemark><Model><Location><longitude>4</longitude><latitude>52</latitude></Location>"
+        "<Link><href>../elsewhere.dae</href></Link></Model></Placemark></Document></kml>")
+    (tmp_path / "town/outlines.kml").write_text(
+        "<kml><Document><Placemark><Polygon><extrude>1</extrude></Polygon></Placemark></Document></kml>")
+    files, rejected = expand_inputs([tmp_path / "town"])
+    assert not rejected and [x.name for x in files] == ["doc.kml", "outlines.kml"]
+    items = [i for x in files for i in read_file(x.path, ReaderOptions(), x.name)]
+    assert all(isinstance(i, Rejection) for i in items) and [i.id for i in items] == ["doc.kml#../elsewhere.dae", "outlines.kml"]
+    assert "links '../elsewhere.dae', outside its folder; not followed" in items[0].reason
+    assert items[1].source == str(tmp_path / "town/outlines.kml") and "ogr2ogr" in items[1].reason, items[1]
