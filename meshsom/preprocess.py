@@ -1398,11 +1398,13 @@ def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
                     if x != y:
                         g = np.where(f == x, y, f)
                         trials.append(g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 0] != g[:, 2])])
-            for g in trials:
-                if len(g) < params.min_faces or validate(v, g) is not None:
+            for g in trials:  # the cheap tests first: the volume, then validity (the same choice)
+                if len(g) < params.min_faces:
                     continue
                 change = abs(signed_volume(v, g) - volume_in)
                 if change > params.volume_rtol * abs(volume_in) or (best is not None and change >= best[0]):
+                    continue
+                if validate(v, g) is not None:
                     continue
                 c = count(g)
                 if c < n_flat:
@@ -1903,25 +1905,47 @@ def _cut_flat(v, loop: list[int], dist: float, edges: set, cuts: int, through: b
     gives up (None).
     """
     search = {} if search is None else search
+    key = _spent_key(v, loop, dist, edges, cuts, through)
+    if key in _SPENT_SEARCHES:  # the same loop spent the budget before (another try of one mesh)
+        return None
 
     def off_plane(*pieces: list[int]) -> list[float]:
-        new = list({tuple(p): p for p in pieces if tuple(p) not in search}.values())
+        keys = [tuple(p) for p in pieces]
+        new = {k: p for k, p in zip(keys, pieces) if k not in search}
         if new:
             search["measures"] = search.get("measures", 0) + len(new)
             if search["measures"] > CUT_SEARCH_BUDGET:
                 raise _SearchSpent
-            for piece, d in zip(new, _off_planes(v, new).tolist()):
-                search[tuple(piece)] = d
-        return [search[tuple(p)] for p in pieces]
+            search.update(zip(new, _off_planes(v, list(new.values())).tolist()))
+        return [search[k] for k in keys]
 
     try:
         return _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane)
     except _SearchSpent:
+        if len(_SPENT_SEARCHES) >= MAX_SPENT_SEARCHES:
+            _SPENT_SEARCHES.clear()
+        _SPENT_SEARCHES.add(key)
         return None
 
 
 class _SearchSpent(Exception):
     """:data:`CUT_SEARCH_BUDGET` spent."""
+
+
+#: Loops whose cut search spent :data:`CUT_SEARCH_BUDGET` (:func:`_spent_key`): the repairs try a
+#: mesh several ways and meet the same loop again; the search is a function of the key, so it
+#: would spend the budget again. Cleared when it holds :data:`MAX_SPENT_SEARCHES`.
+_SPENT_SEARCHES: set = set()
+MAX_SPENT_SEARCHES = 256
+
+
+def _spent_key(v, loop: list[int], dist: float, edges: set, cuts: int, through: bool) -> tuple:
+    """What :func:`_cut_flat`'s search depends on: the loop's points, the chords it may not use
+    (mesh edges, by their positions in the loop), the tolerance, the cuts and ``through``."""
+    n = len(loop)
+    taken = [(i, j) for i in range(n) for j in range(i + 3, n)
+             if (min(loop[i], loop[j]), max(loop[i], loop[j])) in edges]
+    return np.asarray(v)[loop].tobytes(), tuple(taken), float(dist), int(cuts), bool(through)
 
 
 def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):

@@ -31,7 +31,9 @@ def _store_metrics(store: Path, run: str) -> dict:
 
 
 def _fits(text: str, width: int = 80) -> None:
-    long = [line for line in text.splitlines() if len(line) > width]
+    """Every line of ``text`` fits in ``width`` columns, but a ``store <path>`` line (as long as the
+    test's temporary folder, which depends on the runner)."""
+    long = [line for line in text.splitlines() if len(line) > width and not line.startswith("store /")]
     assert not long, long
 
 
