@@ -1968,7 +1968,11 @@ def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):
     for (i, j, a, b), da, db in zip(chords, measured[:len(chords)], measured[len(chords):]):
         if min(da, db) <= dist:  # one side flat: the other is flat too, or is cut again
             candidates.append((max(da, db), i, j, a, b) if da <= db else (max(da, db), i, j, b, a))
-    for _, _, _, flat, rest in sorted(candidates, key=lambda c: c[:3]):
+    for worst, _, _, flat, rest in sorted(candidates, key=lambda c: c[:3]):
+        if cuts == 1:  # the last cut: ``rest`` (measured, the worse side) must be flat as it is
+            if worst <= dist:
+                return [flat, rest]
+            continue
         more = _cut_flat_search(v, rest, dist, edges, cuts - 1, through, off_plane)
         if more is not None:
             return [flat, *more]
