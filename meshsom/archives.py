@@ -63,6 +63,14 @@ def _extract(archive: zipfile.ZipFile, member: zipfile.ZipInfo, folder: Path) ->
             left -= len(chunk)
 
 
+def open_zip(path: Path, what: str = "a zip archive") -> zipfile.ZipFile:
+    """The zip file at ``path``; InputFileError saying it cannot be read as ``what`` otherwise."""
+    try:
+        return zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError, ValueError) as err:
+        raise InputFileError(str(path), f"cannot be read as {what} ({type(err).__name__}: {err})") from None
+
+
 def read_zip(path: Path, options, name: str | None = None) -> Iterator:
     """Read every readable file of a zip archive (as the module says): RawMesh or Rejection items.
 
@@ -74,11 +82,7 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
     from meshsom.io import Rejection, expand_inputs, read_file
 
     name = name or path.name
-    try:
-        archive = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError, ValueError) as err:
-        raise InputFileError(str(path), f"cannot be read as a zip archive ({type(err).__name__}: {err})") from None
-    with archive:
+    with open_zip(path) as archive:
         members = [m for m in archive.infolist() if not m.is_dir() and not m.filename.startswith("__MACOSX/")]
         _check_sizes(path, members, options)
         folder = Path(tempfile.mkdtemp(prefix="meshsom-zip-"))

@@ -337,7 +337,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'ifc' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -351,6 +351,8 @@ def input_kind(path: Path) -> str:
         return "zip"
     if name.endswith(".kml") and name == path.name.lower():  # a KML beside the models it places
         return "kml"
+    if name.endswith(".slpk"):  # an Esri scene layer package (I3S)
+        return "slpk"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -373,7 +375,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz", ".kml") + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml", ".slpk") + IFC_SUFFIXES
     return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
@@ -777,6 +779,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.kml import read_kml
 
             yield from read_kml(path, options, name)
+        elif kind == "slpk":
+            from meshsom.i3s import read_slpk
+
+            yield from read_slpk(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1128,7 +1134,6 @@ CONVERSIONS = {
     ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",
     ".dxf": "DXF: export its 3D solids as OBJ or STL",
     ".dwg": "DWG: export its 3D solids as OBJ or STL",
-    ".slpk": "an Esri scene layer package: export the layer as 3D Tiles or a multipatch feature class",
     ".las": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".laz": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".pnts": "a 3D Tiles point cloud: not read",

@@ -1,0 +1,322 @@
+"""Reading Esri scene layer packages (``.slpk``): I3S 3D object layers, one mesh per feature.
+
+City models published from ArcGIS (multipatch feature classes shared as scene layers, New York's
+DoITT buildings among them) come as I3S, an OGC community standard: a zip (stored, not deflated)
+of gzipped JSON and binary resources. A *3D object* layer (``layerType`` ``3DObject``) holds
+features (buildings) in a tree of nodes whose finer nodes replace coarser ones (``node-switching``);
+the leaves hold every feature at full detail, so only they are read.
+
+- **Nodes**: from the node pages (``nodepages/<n>.json.gz``, I3S 1.7 and later: a node's mesh names
+  its geometry ``resource``, read from ``nodes/<resource>/geometries/<buffer>``) or, without them
+  (1.6 and earlier), by walking the node index documents from ``nodes/root``.
+- **Geometry**: the uncompressed geometry buffer (``geometryDefinitions``' buffer without
+  ``compressedAttributes``, or the 1.6 ``defaultGeometrySchema``): a header of ``vertexCount`` and
+  ``featureCount``, then each vertex attribute for every vertex (``position``, ``normal``, ``uv0``,
+  ``color``, ``uvRegion``, in that order), then each feature attribute for every feature (``id``,
+  ``faceRange``: the first and last triangle of the feature). Triangles are not indexed: every
+  three vertices make one. A layer whose geometry is only Draco-compressed is a rejection saying so.
+- **Coordinates**: positions are offsets from the node's centre (its oriented bounding box's, or
+  its bounding sphere's before 1.7): in degrees of longitude and latitude and metres of height for a
+  geographic layer (WGS 84, ``wkid`` 4326: converted to east-north-up metres about each building's
+  centre, :func:`meshsom.crs.to_metres`), in the CRS's units for a projected one (scaled to metres).
+  Heights are in ``heightModelInfo.heightUnit``.
+- **Ids**: ``name#<feature id>``; a feature found in several leaves is one mesh of all its
+  triangles (corners within :data:`SEAM_TOL_M` merged), noted.
+
+Not read, each a rejection saying why: integrated meshes (a city's photogrammetric surface, no
+features), point and point-cloud layers, building scene layers (BIM: a package of sublayers).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import gzip
+import json
+import zipfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+SLPK_SUFFIX = ".slpk"
+#: I3S value types and their NumPy dtypes (little-endian).
+VALUE_TYPES = {"UInt8": "<u1", "UInt16": "<u2", "UInt32": "<u4", "UInt64": "<u8", "Int8": "<i1", "Int16": "<i2",
+               "Int32": "<i4", "Int64": "<i8", "Float32": "<f4", "Float64": "<f8"}
+#: The order of the attributes in an I3S 1.7 geometry buffer (``geometryBuffer`` in the specification).
+VERTEX_ORDER = ("position", "normal", "uv0", "color", "uvRegion")
+FEATURE_ORDER = ("featureId", "faceRange")
+#: Metres per unit of ``heightModelInfo.heightUnit``.
+HEIGHT_UNITS = {"meter": 1.0, "metre": 1.0, "us-foot": 1200 / 3937, "foot": 0.3048, "international-foot": 0.3048,
+                "kilometer": 1000.0, "centimeter": 0.01, "millimeter": 0.001}
+#: Metres within which the corners of a feature split across leaf nodes are one vertex: each node
+#: stores float32 offsets about its own centre (a 400 m node rounds them to about 0.05 mm).
+SEAM_TOL_M = 1e-3
+#: Nodes walked at most (a package is a tree; this bounds a corrupt one).
+MAX_NODES = 1_000_000
+
+
+def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
+    """Read every feature of a scene layer package's leaves (as the module says): RawMesh or
+    Rejection items.
+
+    A leaf whose geometry is missing or corrupt is a Rejection ``name#node <resource>`` saying
+    why; the other leaves are read.
+
+    Raises
+    ------
+    InputFileError
+        Not a zip, not a 3D object layer, no geometry buffer that can be read, no features, or
+        more than ``options.max_bytes`` in all.
+    """
+    from meshsom.io import Rejection
+
+    from meshsom.archives import open_zip
+
+    name = name or path.name
+    with open_zip(path, "a scene layer package (a zip)") as archive:
+        package = _Package(archive, path, options)
+        layer = package.json("3dSceneLayer.json")
+        kind = str(layer.get("layerType", ""))
+        if kind.lower() not in ("3dobject", "3d object"):
+            raise InputFileError(str(path), f"is an I3S {kind or 'layer of no layerType'} layer; only 3D object layers (buildings as "
+                                            "features) are read" + _KIND_HINTS.get(kind.lower(), ""))
+        crs, notes = _layer_crs(layer, path)
+        schema = _buffer_schema(layer, path)
+        features: dict[int, list] = {}
+        leaves, broken = 0, []
+        for resource, centre, buffer in package.leaves(schema):
+            leaves += 1
+            try:
+                data = package.read(f"nodes/{resource}/geometries/{buffer}")
+                found = list(_features(data, schema, path, f"nodes/{resource}/geometries/{buffer}"))
+            except InputFileError as err:
+                if "ReaderOptions.max_bytes" in err.problem:
+                    raise
+                broken.append(Rejection(f"{name}#node {resource}", str(path), f"{err.problem}; the node's features are not read"))
+                continue
+            for fid, triangles in found:
+                features.setdefault(fid, []).append(triangles + centre)
+        if not features and not broken:
+            raise InputFileError(str(path), f"its {leaves} leaf nodes hold no features")
+        yield from broken
+        yield from _meshes(features, crs, notes, name, str(path))
+
+
+_KIND_HINTS = {
+    "integratedmesh": " (an integrated mesh is one surface, with no buildings in it)",
+    "building": " (a building scene layer: export its sublayers as multipatch feature classes, then as 3D object layers "
+                "or GeoPackage)",
+    "point": " (points are not buildings)",
+    "pointcloud": " (point clouds are not read: reconstruct buildings first)",
+}
+
+
+class _Package:
+    """The resources of an opened package, gunzipped, each at most ``options.max_bytes``."""
+
+    def __init__(self, archive: zipfile.ZipFile, path: Path, options):
+        self.archive, self.path, self.options = archive, path, options
+        self.names = set(archive.namelist())
+        self.total = 0
+
+    def read(self, member: str) -> bytes:
+        for candidate in (f"{member}.gz", member, f"{member}.bin.gz", f"{member}.bin"):
+            if candidate in self.names:
+                break
+        else:
+            raise InputFileError(str(self.path), f"does not hold {member} (nor {member}.gz)")
+        limit = int(self.options.max_bytes)
+        try:
+            with self.archive.open(candidate) as raw:
+                stream = gzip.GzipFile(fileobj=raw) if candidate.endswith(".gz") else raw
+                data = stream.read(limit - self.total + 1)
+        except (OSError, EOFError, zipfile.BadZipFile, ValueError) as err:
+            raise InputFileError(str(self.path), f"{candidate} cannot be read ({type(err).__name__}: {err})") from None
+        self.total += len(data)
+        if self.total > limit:
+            raise InputFileError(str(self.path), f"expands to more than {limit:,} bytes (ReaderOptions.max_bytes)")
+        return data
+
+    def json(self, member: str) -> dict:
+        try:
+            document = json.loads(self.read(member))
+        except (UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise InputFileError(str(self.path), f"{member} is not JSON ({err})") from None
+        if not isinstance(document, dict):
+            raise InputFileError(str(self.path), f"{member} is not a JSON object")
+        return document
+
+    def leaves(self, schema: dict) -> Iterator[tuple[str, np.ndarray, int]]:
+        """Each leaf node with a mesh: (resource folder, centre (3,), geometry buffer number)."""
+        pages = sorted((n for n in self.names if n.startswith("nodepages/")),
+                       key=lambda n: int(n.split("/")[1].split(".")[0]) if n.split("/")[1].split(".")[0].isdigit() else -1)
+        if pages:
+            for page in pages:
+                for node in self.json(page.removesuffix(".gz")).get("nodes", []):
+                    mesh = node.get("mesh") or {}
+                    geometry = mesh.get("geometry") or {}
+                    if node.get("children") or "resource" not in geometry:
+                        continue
+                    yield str(geometry["resource"]), _centre(node, self.path), schema["buffer"]
+            return
+        todo, seen = ["nodes/root"], set()
+        while todo:
+            folder = todo.pop()
+            if folder in seen or len(seen) > MAX_NODES:
+                continue
+            seen.add(folder)
+            node = self.json(f"{folder}/3dNodeIndexDocument.json")
+            children = node.get("children") or []
+            for child in children:
+                href = str(child.get("href") or child.get("id") or "")
+                todo.append(f"nodes/{href.rstrip('/').split('/')[-1]}")
+            if not children and node.get("geometryData"):
+                yield folder.split("/", 1)[1], _centre(node, self.path), schema["buffer"]
+
+
+def _centre(node: dict, path: Path) -> np.ndarray:
+    """A node's centre: its oriented bounding box's, else its bounding sphere's (three numbers)."""
+    obb = node.get("obb") or {}
+    centre = obb.get("center") if isinstance(obb, dict) else None
+    if centre is None:
+        centre = (node.get("mbs") or [None] * 3)[:3]
+    try:
+        out = np.asarray(centre, np.float64).reshape(3)
+    except (TypeError, ValueError):
+        out = np.full(3, np.nan)
+    if not np.isfinite(out).all():
+        raise InputFileError(str(path), f"node {node.get('index', node.get('id'))!r} has no centre (obb or mbs)")
+    return out
+
+
+def _layer_crs(layer: dict, path: Path) -> tuple:
+    """The layer's CRS (:class:`meshsom.crs.CoordinateSystem`, x east and y north) and notes."""
+    from meshsom.crs import UnknownCRS, coordinate_system
+
+    reference = layer.get("spatialReference") or {}
+    code = reference.get("latestWkid") or reference.get("wkid")
+    declared = f"EPSG:{int(code)}" if isinstance(code, (int, float)) else reference.get("wkt")
+    if not declared:
+        declared = (layer.get("store") or {}).get("vertexCRS")
+    if not declared:
+        raise InputFileError(str(path), "3dSceneLayer.json declares no spatialReference (wkid or wkt)")
+    try:
+        crs = coordinate_system(str(declared))
+    except UnknownCRS as err:
+        raise InputFileError(str(path), f"3dSceneLayer.json: {err}") from None
+    unit = str((layer.get("heightModelInfo") or {}).get("heightUnit") or "meter").lower()
+    if unit not in HEIGHT_UNITS:
+        raise InputFileError(str(path), f"heights are in {unit!r}; expected one of {', '.join(HEIGHT_UNITS)}")
+    crs = dataclasses.replace(crs, latitude_first=False, vertical_m=HEIGHT_UNITS[unit])  # I3S: x is east
+    return crs, [f"I3S 3D object layer in {crs.name} (heights in {unit})"]
+
+
+def _buffer_schema(layer: dict, path: Path) -> dict:
+    """Where the uncompressed geometry buffer's attributes lie: ``{"buffer": n, "header": [dtype,
+    ...], "vertex": [(name, dtype, components)], "feature": [(name, dtype, components)]}``."""
+    definitions = layer.get("geometryDefinitions")
+    if definitions:
+        buffers = (definitions[0] or {}).get("geometryBuffers") or []
+        for number, buffer in enumerate(buffers):
+            if "compressedAttributes" in buffer:
+                continue
+            offset = int(buffer.get("offset", 0))
+            if offset not in (0, 8):
+                raise InputFileError(str(path), f"geometry buffer {number} starts at {offset}; expected 0 or 8")
+            vertex = [(k, _dtype(buffer[k], path), int(buffer[k].get("component", 1))) for k in VERTEX_ORDER if k in buffer]
+            feature = [(k, _dtype(buffer[k], path), int(buffer[k].get("component", 1))) for k in FEATURE_ORDER if k in buffer]
+            if not vertex or vertex[0][0] != "position":
+                raise InputFileError(str(path), f"geometry buffer {number} has no positions")
+            return {"buffer": number, "header": ["<u4", "<u4"] if offset == 8 else [], "vertex": vertex, "feature": feature}
+        if buffers:
+            raise InputFileError(str(path), "holds its geometry Draco-compressed only (no uncompressed geometry buffer); "
+                                            "not read: republish the layer with I3S 1.6 geometry, or as 3D Tiles")
+    schema = (layer.get("store") or {}).get("defaultGeometrySchema")
+    if not schema:
+        raise InputFileError(str(path), "3dSceneLayer.json has neither geometryDefinitions nor store.defaultGeometrySchema")
+    if schema.get("geometryType", "triangles") != "triangles":
+        raise InputFileError(str(path), f"its geometry is {schema.get('geometryType')!r}; only triangles are read")
+    vertex_attributes, feature_attributes = schema.get("vertexAttributes") or {}, schema.get("featureAttributes") or {}
+    names = {"id": "featureId"}
+    return {
+        "buffer": 0,
+        "header": [VALUE_TYPES.get(h.get("type"), "<u4") for h in schema.get("header") or []],
+        "header_names": [h.get("property") for h in schema.get("header") or []],
+        "vertex": [(k, _dtype({"type": vertex_attributes[k].get("valueType")}, path), int(vertex_attributes[k].get("valuesPerElement", 1)))
+                   for k in schema.get("ordering") or [] if k in vertex_attributes],
+        "feature": [(names.get(k, k), _dtype({"type": feature_attributes[k].get("valueType")}, path),
+                     int(feature_attributes[k].get("valuesPerElement", 1)))
+                    for k in schema.get("featureAttributeOrder") or [] if k in feature_attributes],
+    }
+
+
+def _dtype(attribute: dict, path: Path) -> str:
+    kind = attribute.get("type")
+    if kind not in VALUE_TYPES:
+        raise InputFileError(str(path), f"a geometry attribute has the type {kind!r}; expected one of {', '.join(VALUE_TYPES)}")
+    return VALUE_TYPES[kind]
+
+
+def _features(data: bytes, schema: dict, path: Path, resource: str) -> Iterator[tuple[int, np.ndarray]]:
+    """Each feature of one geometry buffer: (id, triangles (T, 3, 3) float64 offsets from the
+    node's centre). Errors name the package and the resource."""
+    header = np.zeros(0)
+    offset = 0
+    if schema["header"]:
+        dtype = np.dtype([(f"h{i}", d) for i, d in enumerate(schema["header"])])
+        if len(data) < dtype.itemsize:
+            raise InputFileError(str(path), f"{resource} has {len(data)} bytes, fewer than its header's {dtype.itemsize}")
+        header = np.frombuffer(data, dtype, 1)[0]
+        offset = dtype.itemsize
+    names = schema.get("header_names") or ["vertexCount", "featureCount"]
+    counts = {n: int(header[i]) for i, n in enumerate(names) if i < len(header)}
+    vertices, feature_count = counts.get("vertexCount", 0), counts.get("featureCount", 0)
+    arrays = {}
+    for group, count in (("vertex", vertices), ("feature", feature_count)):
+        for attribute, dtype, components in schema[group]:
+            size = np.dtype(dtype).itemsize * components * count
+            if offset + size > len(data):
+                raise InputFileError(str(path), f"{resource} ends before its {attribute} ({count} x {components}, {len(data)} bytes)")
+            arrays[attribute] = np.frombuffer(data, dtype, components * count, offset).reshape(count, components)
+            offset += size
+    if vertices % 3:
+        raise InputFileError(str(path), f"{resource} holds {vertices} vertices, not a whole number of triangles")
+    position = arrays.get("position")
+    if position is None or position.shape[1] != 3:
+        raise InputFileError(str(path), f"{resource} holds no positions of three components")
+    triangles = position.astype(np.float64).reshape(-1, 3, 3)
+    if feature_count == 0 or "featureId" not in arrays or "faceRange" not in arrays:
+        raise InputFileError(str(path), f"{resource} holds triangles of no feature (no featureId and faceRange): not buildings")
+    ranges = arrays["faceRange"].astype(np.int64)
+    for fid, (first, last) in zip(arrays["featureId"][:, 0].tolist(), ranges.tolist()):
+        if not 0 <= first <= last < len(triangles):
+            raise InputFileError(str(path), f"{resource}: feature {fid}'s faceRange [{first}, {last}] is outside its {len(triangles)} triangles")
+        yield int(fid), triangles[first:last + 1]
+
+
+def _meshes(features: dict, crs, notes: list[str], name: str, source: str) -> Iterator:
+    from meshsom.crs import to_metres
+    from meshsom.io import RawMesh, Rejection, recentre
+
+    for fid in sorted(features):
+        pieces = features[fid]
+        triangles = np.concatenate(pieces)
+        mesh_id = f"{name}#{fid}"
+        if not np.isfinite(triangles).all():
+            yield Rejection(mesh_id, source, "has coordinates that are not finite numbers", len(triangles))
+            continue
+        world, inverse = np.unique(triangles.reshape(-1, 3), axis=0, return_inverse=True)  # one vertex per position
+        faces = inverse.reshape(-1, 3).astype(np.int64)
+        local, origin = recentre(world)
+        local, note = to_metres(local, origin, crs)
+        more = []
+        if len(pieces) > 1:  # float32 offsets about two centres: a shared corner differs by rounding
+            from meshsom.preprocess import weld
+
+            local, remap = weld(local, SEAM_TOL_M)
+            faces = remap[faces]
+            more = [f"its triangles are in {len(pieces)} leaf nodes, read as one mesh (corners within "
+                    f"{SEAM_TOL_M:g} m merged)"]
+        yield RawMesh(mesh_id, source, local, faces, origin, notes=tuple(notes + ([note] if note else []) + more))
