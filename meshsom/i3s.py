@@ -20,6 +20,8 @@ the leaves hold every feature at full detail, so only they are read.
   geographic layer (WGS 84, ``wkid`` 4326: converted to east-north-up metres about each building's
   centre, :func:`meshsom.crs.to_metres`), in the CRS's units for a projected one (scaled to metres).
   Heights are in ``heightModelInfo.heightUnit``.
+- **Labels**: the feature's value of :attr:`meshsom.io.ReaderOptions.label_attribute` where the
+  layer stores that attribute (``attributeStorageInfo``, per node, in the geometry's feature order).
 - **Ids**: ``name#<feature id>``; a feature found in several leaves is one mesh of all its
   triangles (corners within :data:`SEAM_TOL_M` merged), noted.
 
@@ -84,6 +86,8 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
                                             "features) are read" + _KIND_HINTS.get(kind.lower(), ""))
         crs, notes = _layer_crs(layer, path)
         schema = _buffer_schema(layer, path)
+        storage = next((a for a in layer.get("attributeStorageInfo") or [] if a.get("name") == options.label_attribute), None)
+        labels: dict[int, str] = {}
         features: dict[int, list] = {}
         leaves, broken = 0, []
         for resource, centre, buffer in package.leaves(schema):
@@ -98,10 +102,19 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
                 continue
             for fid, triangles in found:
                 features.setdefault(fid, []).append(triangles + centre)
+            if storage is not None:
+                try:
+                    values = _attribute(package.read(f"nodes/{resource}/attributes/{storage['key']}/0"), storage)
+                except (InputFileError, KeyError, ValueError) as err:
+                    notes = notes + [f"labels ({options.label_attribute}) of node {resource} not read: "
+                                     f"{getattr(err, 'problem', err)}"]
+                    values = []
+                for (fid, _), value in zip(found, values):
+                    labels.setdefault(fid, value)
         if not features and not broken:
             raise InputFileError(str(path), f"its {leaves} leaf nodes hold no features")
         yield from broken
-        yield from _meshes(features, crs, notes, name, str(path))
+        yield from _meshes(features, labels, crs, notes, name, str(path))
 
 
 _KIND_HINTS = {
@@ -296,7 +309,27 @@ def _features(data: bytes, schema: dict, path: Path, resource: str) -> Iterator[
         yield int(fid), triangles[first:last + 1]
 
 
-def _meshes(features: dict, crs, notes: list[str], name: str, source: str) -> Iterator:
+def _attribute(data: bytes, storage: dict) -> list[str]:
+    """The values of one attribute buffer of a node (``attributeStorageInfo``: a count, then the
+    values, strings after their byte counts), one per feature in the geometry's order, as text."""
+    count = int(np.frombuffer(data, "<u4", 1, 0)[0])
+    values = storage.get("attributeValues") or {}
+    kind = values.get("valueType")
+    if kind == "String":
+        sizes = np.frombuffer(data, "<u4", count, 4).astype(np.int64)
+        ends = 4 + 4 * count + np.cumsum(sizes)
+        if len(ends) and ends[-1] > len(data):
+            raise ValueError(f"{count} strings of {int(sizes.sum())} bytes in a buffer of {len(data)}")
+        return [data[e - n:e].rstrip(b"\0").decode("utf-8", "replace") for e, n in zip(ends.tolist(), sizes.tolist())]
+    dtype = {"Oid32": "<u4", "Oid64": "<u8"}.get(kind) or VALUE_TYPES.get(kind)
+    if dtype is None:
+        raise ValueError(f"attribute values of the type {kind!r}")
+    offset = 4 + (-4 % np.dtype(dtype).itemsize)  # values aligned to their size
+    return [(str(int(v)) if v.is_integer() else repr(v)) if isinstance(v, float) else str(v)
+            for v in np.frombuffer(data, dtype, count, offset).tolist()]
+
+
+def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, source: str) -> Iterator:
     from meshsom.crs import to_metres
     from meshsom.io import RawMesh, Rejection, recentre
 
@@ -319,4 +352,4 @@ def _meshes(features: dict, crs, notes: list[str], name: str, source: str) -> It
             faces = remap[faces]
             more = [f"its triangles are in {len(pieces)} leaf nodes, read as one mesh (corners within "
                     f"{SEAM_TOL_M:g} m merged)"]
-        yield RawMesh(mesh_id, source, local, faces, origin, notes=tuple(notes + ([note] if note else []) + more))
+        yield RawMesh(mesh_id, source, local, faces, origin, labels.get(fid), notes=tuple(notes + ([note] if note else []) + more))

@@ -229,3 +229,43 @@ def test_a_folder_reads_its_packages(tmp_path):
     assert [f.name for f in files] == ["a.slpk"] and not rejected
     (item,) = read_file(files[0].path, ReaderOptions(), files[0].name)
     assert item.id == "a.slpk#1"
+
+
+def test_labels_come_from_the_layers_attribute_buffers():
+    """``label_attribute`` names a stored attribute: OBJECTID, stored apart from the geometry, is
+    every feature's id (the buffers agree on the features' order); BIN is New York's building
+    number (seven digits, 1 for Manhattan); SOURCE_ID is a Float64 written whole."""
+    import dataclasses
+
+    for attribute in ("OBJECTID", "BIN", "SOURCE_ID"):
+        items = list(read_file(NYC, dataclasses.replace(ReaderOptions(), label_attribute=attribute)))
+        assert len(items) == 158 and all(i.label is not None for i in items)
+        if attribute == "OBJECTID":
+            assert all(i.label == i.id.split("#")[1] for i in items)
+        elif attribute == "BIN":
+            assert all(len(i.label) == 7 and i.label.startswith("1") for i in items), [i.label for i in items][:5]
+        else:
+            assert all(i.label.isdigit() for i in items), [i.label for i in items][:5]
+    assert all(i.label is None for i in read_file(NYC))  # the default, "family", is not stored
+
+
+def test_string_labels_are_read_after_their_byte_counts(tmp_path):
+    """A String attribute (I3S: a count, each value's byte count, then the values, each ended by a
+    zero byte) labels the features of its node in the geometry's order."""
+    triangles = _to_degrees(_box_triangles(10, 6, 4), (4.35, 52.0, 0.0))
+    write_slpk(tmp_path / "s.slpk", [[(5, triangles), (8, triangles + [0.001, 0, 0])]])
+    names = [b"h\xc3\xb4tel\0", b"school\0"]
+    buffer = struct.pack("<I", 2) + struct.pack("<2I", *map(len, names)) + b"".join(names)
+    with zipfile.ZipFile(tmp_path / "s.slpk") as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    layer = json.loads(gzip.decompress(members["3dSceneLayer.json.gz"]))
+    layer["attributeStorageInfo"] = [{"key": "f_0", "name": "family", "header": [{"property": "count", "valueType": "UInt32"}],
+                                      "ordering": ["attributeByteCounts", "attributeValues"],
+                                      "attributeByteCounts": {"valueType": "UInt32", "valuesPerElement": 1},
+                                      "attributeValues": {"valueType": "String", "valuesPerElement": 1}}]
+    members["3dSceneLayer.json.gz"] = gzip.compress(json.dumps(layer).encode())
+    members["nodes/0/attributes/f_0/0.bin.gz"] = gzip.compress(buffer)
+    with zipfile.ZipFile(tmp_path / "s.slpk", "w") as z:
+        for n, content in members.items():
+            z.writestr(n, content)
+    assert [(i.id, i.label) for i in read_file(tmp_path / "s.slpk")] == [("s.slpk#5", "h\u00f4tel"), ("s.slpk#8", "school")]
