@@ -42,7 +42,6 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 
-SLPK_SUFFIX = ".slpk"
 #: I3S value types and their NumPy dtypes (little-endian).
 VALUE_TYPES = {"UInt8": "<u1", "UInt16": "<u2", "UInt32": "<u4", "UInt64": "<u8", "Int8": "<i1", "Int16": "<i2",
                "Int32": "<i4", "Int64": "<i8", "Float32": "<f4", "Float64": "<f8"}
@@ -72,9 +71,8 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
         Not a zip, not a 3D object layer, no geometry buffer that can be read, no features, or
         more than ``options.max_bytes`` in all.
     """
-    from meshsom.io import Rejection
-
     from meshsom.archives import open_zip
+    from meshsom.io import Rejection
 
     name = name or path.name
     with open_zip(path, "a scene layer package (a zip)") as archive:
@@ -90,13 +88,13 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
         labels: dict[int, str] = {}
         features: dict[int, list] = {}
         leaves, broken = 0, []
-        for resource, centre, buffer in package.leaves(schema):
+        for resource, centre in package.leaves():
             leaves += 1
+            geometry = f"nodes/{resource}/geometries/{schema['buffer']}"
             try:
-                data = package.read(f"nodes/{resource}/geometries/{buffer}")
-                found = list(_features(data, schema, path, f"nodes/{resource}/geometries/{buffer}"))
+                found = list(_features(package.read(geometry), schema, path, geometry))
             except InputFileError as err:
-                if "ReaderOptions.max_bytes" in err.problem:
+                if package.total > int(options.max_bytes):  # the whole package is too large
                     raise
                 broken.append(Rejection(f"{name}#node {resource}", str(path), f"{err.problem}; the node's features are not read"))
                 continue
@@ -127,7 +125,7 @@ _KIND_HINTS = {
 
 
 class _Package:
-    """The resources of an opened package, gunzipped, each at most ``options.max_bytes``."""
+    """The resources of an opened package, gunzipped; all read together at most ``options.max_bytes``."""
 
     def __init__(self, archive: zipfile.ZipFile, path: Path, options):
         self.archive, self.path, self.options = archive, path, options
@@ -161,8 +159,8 @@ class _Package:
             raise InputFileError(str(self.path), f"{member} is not a JSON object")
         return document
 
-    def leaves(self, schema: dict) -> Iterator[tuple[str, np.ndarray, int]]:
-        """Each leaf node with a mesh: (resource folder, centre (3,), geometry buffer number)."""
+    def leaves(self) -> Iterator[tuple[str, np.ndarray]]:
+        """Each leaf node with a mesh: (resource folder, centre (3,))."""
         pages = sorted((n for n in self.names if n.startswith("nodepages/")),
                        key=lambda n: int(n.split("/")[1].split(".")[0]) if n.split("/")[1].split(".")[0].isdigit() else -1)
         if pages:
@@ -172,7 +170,7 @@ class _Package:
                     geometry = mesh.get("geometry") or {}
                     if node.get("children") or "resource" not in geometry:
                         continue
-                    yield str(geometry["resource"]), _centre(node, self.path), schema["buffer"]
+                    yield str(geometry["resource"]), _centre(node, self.path)
             return
         todo, seen = ["nodes/root"], set()
         while todo:
@@ -186,7 +184,7 @@ class _Package:
                 href = str(child.get("href") or child.get("id") or "")
                 todo.append(f"nodes/{href.rstrip('/').split('/')[-1]}")
             if not children and node.get("geometryData"):
-                yield folder.split("/", 1)[1], _centre(node, self.path), schema["buffer"]
+                yield folder.split("/", 1)[1], _centre(node, self.path)
 
 
 def _centre(node: dict, path: Path) -> np.ndarray:

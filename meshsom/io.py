@@ -680,8 +680,8 @@ def expand_inputs(inputs: list[str | os.PathLike],
 
 
 def _kml_models(entries: list[Path]) -> dict[Path, str]:
-    """The files of a folder that its KML files place (:func:`meshsom.kml.linked_models`), each with
-    the KML's path, relative to the folder: they are read through the KML."""
+    """The files of a folder that its KML files place (:func:`meshsom.kml.linked_models`), resolved,
+    each with the path of the (first) KML that places it: they are read through the KML."""
     from meshsom.kml import KML_SUFFIX, linked_models
 
     found: dict[Path, str] = {}

@@ -232,7 +232,7 @@ def linked_models(path: Path) -> set[Path]:
     try:
         found, _ = model_placements(path.read_bytes(), path.name)
     except (OSError, ValueError):
-        return {}
+        return set()
     files = (_model_file(path, p.href) for p in found)
     return {f for f in files if f is not None and f.is_file()}
 
