@@ -8,7 +8,12 @@ distance to the varied vector is found through the expansion
 ``chunk_rows x M`` distances exist at any time (never ``N x M x n``).
 
 Ties (DESIGN.md §4): the lowest unit, then the lowest variation (a later variation
-replaces the winner when strictly closer, or equally close at a lower unit).
+replaces the winner when strictly closer, or equally close at a lower unit); the winners of the
+variations are compared by their distances computed directly in float64 (:func:`exact_dist2`). A BLAS need not
+give equal columns of ``X @ W.T`` equal bits (OpenBLAS's blocked kernels round a column by
+where it falls in a tile), so units with the same prototype, which a random initialisation
+draws from repeated rows, are resolved by their identity, not their rounding
+(:func:`duplicate_units`): the lowest of them wins and the next lowest is second.
 
 This module is the reference that :mod:`meshsom.bmu_opencl` is tested against.
 """
@@ -276,6 +281,62 @@ def exact_dist2(X, W, index, sign, unit, variation) -> np.ndarray:
     return out
 
 
+def fma_norms(W: np.ndarray) -> np.ndarray:
+    """Squared norms of the codebook's rows as the kernels take a row's dot products: one
+    accumulator, ``fma(w[k], w[k], acc)`` for k = 0..D-1, rounded to float32 at every step.
+
+    A varied vector equal to a prototype then has distance ``wn - 2 acc + ||x_v||^2`` exactly 0 in
+    every variation (the three sums are the same chain), so equal prototypes reached by several
+    variations tie exactly and the tie rule, not rounding, picks the winner. :func:`bmu_numpy`
+    takes the same norms, so that the two searches differ only in the order of the dot products'
+    sums. float32 products are exact in float64, so each step is
+    the float32 fma but for a double rounding (about one step in 2^29). float64 codebooks: NumPy's
+    sums.
+
+    Parameters
+    ----------
+    W : (M, D) float32 or float64
+
+    Returns
+    -------
+    (M,) W.dtype
+    """
+    if W.dtype != np.float32:
+        return np.einsum("ij,ij->i", W, W)
+    wide = W.astype(np.float64)
+    acc = np.zeros(len(W), np.float32)
+    for k in range(W.shape[1]):
+        acc = (acc + wide[:, k] * wide[:, k]).astype(np.float32)
+    return acc
+
+
+def duplicate_units(W: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Units whose prototypes are equal bit for bit, resolved as the tie rule asks.
+
+    Parameters
+    ----------
+    W : (M, D) float
+        Codebook.
+
+    Returns
+    -------
+    (first, next) or None
+        ``first`` (M,) int64: the lowest unit with the same prototype as each unit (itself where
+        unique); ``next`` (M,) int64: the second lowest such unit, -1 where the prototype is
+        unique. None where every prototype is unique.
+    """
+    rows = np.ascontiguousarray(W).view(np.dtype((np.void, W.dtype.itemsize * W.shape[1]))).ravel()
+    _, group, counts = np.unique(rows, return_inverse=True, return_counts=True)
+    if len(counts) == len(W):
+        return None
+    group = group.ravel()
+    order = np.lexsort((np.arange(len(W)), group))  # units by prototype, lowest unit first
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    lowest = order[starts]
+    second = np.where(counts > 1, order[np.minimum(starts + 1, len(W) - 1)], -1)
+    return lowest[group].astype(np.int64), second[group].astype(np.int64)
+
+
 def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS) -> BMUResult:
     """BMUofN by BLAS distance expansion, chunked over rows.
 
@@ -301,17 +362,18 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
     X, W, index, sign = validate(X, W, index, sign)
     N = len(X)
     n = len(index)
-    wnorm = np.einsum("ij,ij->i", W, W)
+    wnorm = fma_norms(W)
     Wt2 = np.ascontiguousarray((-2 * W).T)  # exact scaling: -2 is a power of two
     unit = np.zeros(N, np.int64)
     variation = np.zeros(N, np.int64)
     second = np.zeros(N, np.int64)
     identity = [is_identity(index, sign, v) for v in range(n)]
+    duplicates = duplicate_units(W)
     for start in range(0, N, chunk_rows):
         stop = min(N, start + chunk_rows)
         rows = np.arange(stop - start)
         xc = X[start:stop]
-        best_d = np.full(stop - start, np.inf, X.dtype)
+        best_d = np.full(stop - start, np.inf)
         best_u = np.zeros(stop - start, np.int64)
         best_v = np.zeros(stop - start, np.int64)
         best_s = np.zeros(stop - start, np.int64)
@@ -320,9 +382,15 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
             g = xv @ Wt2
             g += wnorm
             u = np.argmin(g, axis=1)
-            d = g[rows, u] + np.einsum("ij,ij->i", xv, xv)
             g[rows, u] = np.inf
             s = np.argmin(g, axis=1)
+            if duplicates is not None:  # equal prototypes: by identity, not by BLAS rounding
+                first, following = duplicates
+                s = np.where(following[u] >= 0, following[u], first[s])
+                u = first[u]
+            # variations are ranked by their winners' direct distances: two variations that reach
+            # equal prototypes (a symmetric triangle's) tie exactly, whatever the expansion rounded
+            d = exact_dist2(xc, W, index, sign, u, np.full(len(u), v))
             better = (d < best_d) | ((d == best_d) & (u < best_u))
             best_d = np.where(better, d, best_d)
             best_u = np.where(better, u, best_u)

@@ -49,7 +49,7 @@ from importlib import resources
 
 import numpy as np
 
-from meshsom.bmu_numpy import BMUResult, exact_dist2, unit_order, validate
+from meshsom.bmu_numpy import BMUResult, exact_dist2, fma_norms, unit_order, validate
 from meshsom.metrics import COMPONENT
 from meshsom.errors import DeviceError
 from meshsom.probe import injected_defines
@@ -276,6 +276,7 @@ def _cl():
 def list_devices() -> list[tuple[str, str, object]]:
     """Every OpenCL device: (selector "P:D", "platform / device" name, device)."""
     from meshsom.caches import ensure_user_cache
+    from meshsom.pocl_target import retarget
 
     cl = _cl()
     ensure_user_cache()  # PoCL shows no device where its kernel cache cannot be written
@@ -290,6 +291,7 @@ def list_devices() -> list[tuple[str, str, object]]:
         except cl.Error:
             continue
         for d, device in enumerate(devices):
+            retarget(device)  # before anything is built on it (PoCL whose LLVM does not know the CPU)
             out.append((f"{p}:{d}", f"{platform.name.strip()} / {device.name.strip()}", device))
     return out
 
@@ -396,38 +398,16 @@ NON_AVX512_CPUS = frozenset({
 })
 
 
-#: Last part of a target triple before PoCL's CPU name in ``<driver>-<triple>-<cpu>``.
-_TRIPLE_ENDS = ("gnu", "gnueabihf", "gnueabi", "gnux32", "musl", "android", "eabi", "elf",
-                "linux", "darwin", "windows", "msvc", "freebsd")
-
-
 def kernel_target_cpu(device) -> str | None:
-    """The LLVM CPU name PoCL compiles kernels for, from its version strings; None elsewhere.
+    """The LLVM CPU name PoCL compiles kernels for (:func:`meshsom.pocl_target.kernel_target`:
+    the HSTR's, or the one :func:`meshsom.pocl_target.retarget` set); None on other devices.
 
-    PoCL's CPU devices name their kernel target as ``<driver>-<triple>-<cpu>`` (its "HSTR"),
-    e.g. ``pthread-x86_64-unknown-linux-gnu-icelake-client``: PoCL 3.0 ends the device version
-    with ``HSTR: ...``, other releases put it in the driver version. The CPU is what follows the
-    triple's last part (``-gnu-``, ``-linux-``, ...). LLVM's name for the host can lag the
-    hardware (LLVM 14 calls AMD Zen 4 ``znver3``), and kernels get only that CPU's features,
-    whatever vector widths the device reports. Non-PoCL devices give None.
+    LLVM's name for the host can lag the hardware (LLVM 14 calls AMD Zen 4 ``znver3``), and
+    kernels get only that CPU's features, whatever vector widths the device reports.
     """
-    tokens = []
-    for attribute in ("driver_version", "version"):
-        try:
-            text = getattr(device, attribute)
-        except Exception:  # a fake or failing device: nothing to read
-            continue
-        if not isinstance(text, str):
-            continue
-        if "HSTR:" in text:
-            tokens[:0] = text.split("HSTR:", 1)[1].split()[:1]  # the named one first
-        tokens.extend(text.split())
-    for token in tokens:
-        parts = token.split("-")
-        ends = [i for i, part in enumerate(parts[:-1]) if part in _TRIPLE_ENDS]
-        if len(parts) >= 4 and ends:
-            return "-".join(parts[max(ends) + 1:])
-    return None
+    from meshsom.pocl_target import kernel_target
+
+    return kernel_target(device)
 
 
 def target_vector_width(cpu_name: str | None, reported_width: int) -> int:
@@ -767,11 +747,21 @@ def build_options(context, defines: dict) -> list[str]:
     cl = _cl()
     options = [f"-D{k}={v}" for k, v in _program_key(context, defines) if k != "KERNEL"] + BUILD_OPTIONS
     device = context.devices[0]
+    options += target_options(device)
     if defines["KERNEL"] == "gemm":  # see kernels/bmu_gpu.cl: unrolled epilogue on GPUs only, EXACT
         options.append(f"-DUNROLL_EPILOGUE={int(not device.type & cl.device_type.CPU)}")
         options.append(f"-DEXACT={'double' if has_fp64(context) else defines['REAL']}")
         options += register_cap_options(device, defines.get("MAXREG", 0))
     return options
+
+
+def target_options(device) -> list[str]:
+    """A define naming the kernel target CPU where :mod:`meshsom.pocl_target` set it: PoCL keys its
+    kernel cache by source and options, not by that CPU, so binaries built for another stay apart."""
+    from meshsom.pocl_target import retargeted
+
+    name = retargeted(device)
+    return [f"-DMESHSOM_TARGET_CPU={''.join(c if c.isalnum() else '_' for c in name)}"] if name else []
 
 
 def register_cap_options(device, registers: int) -> list[str]:
@@ -1140,7 +1130,7 @@ def launch(context, queue, kernel, X, W, index, sign, defines: dict) -> tuple[np
     tile = defines["TN"] if defines["KERNEL"] == "gemm" else defines["VW"] * defines["UB"]
     MP = -(-M // tile) * tile
     wnorm = np.full(MP, np.inf, X.dtype)
-    wnorm[:M] = np.einsum("ij,ij->i", W, W)
+    wnorm[:M] = fma_norms(W)
     if defines["KERNEL"] == "gemm":
         WT = W  # read as it is: the kernel zero-pads its local tiles (no host transpose, kernels/bmu_gpu.cl)
     elif defines["KERNEL"] == "cpu":

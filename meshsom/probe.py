@@ -169,9 +169,13 @@ def injected_defines(layout: str) -> dict[str, int]:
 
 
 def device_identity(device) -> dict[str, str]:
-    """What a verdict depends on besides the kernel: platform, device and driver."""
+    """What a verdict depends on besides the kernel: platform, device, driver and the kernel target
+    CPU (:func:`meshsom.pocl_target.kernel_target`, which a process may have set)."""
+    from meshsom.pocl_target import kernel_target
+
     platform = device.platform
     return {
+        "kernel_target": str(kernel_target(device)),
         "platform": platform.name.strip(), "platform_version": platform.version.strip(),
         "device": device.name.strip(), "vendor": device.vendor.strip(),
         "driver": device.driver_version.strip(), "device_version": device.version.strip(),

@@ -15,7 +15,7 @@ PACKAGES = (
     "pycollada",
 )
 ENV_VARS = (
-    "PYOPENCL_CTX", "MESHSOM_OPENCL_DEVICE", "POCL_MAX_PTHREAD_COUNT", "OCL_ICD_VENDORS",
+    "PYOPENCL_CTX", "MESHSOM_OPENCL_DEVICE", "POCL_MAX_PTHREAD_COUNT", "POCL_LLVM_CPU_NAME", "OCL_ICD_VENDORS",
     "DASK_SCHEDULER_ADDRESS", "MLFLOW_TRACKING_URI", "MLFLOW_EXPERIMENT_NAME",
     "OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE", "OMP_NUM_THREADS",
 )
@@ -92,6 +92,9 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
             out.append({"platform": plat.name, "error": str(err)})
             continue
         for di, dev in enumerate(devices):
+            from meshsom.pocl_target import left_alone, retarget, retargeted
+
+            retarget(dev)  # as meshsom.bmu_opencl.list_devices does, before anything is built
             try:
                 from meshsom.bmu_opencl import device_params
 
@@ -122,6 +125,8 @@ def opencl_devices(kernels: bool = False) -> list[dict]:
                                  if dev.type & cl.device_type.CPU else "device (SOM update='auto' on a GPU)"),
                 "driver": dev.driver_version.strip(),
                 "kernel_target": _kernel_target(dev),
+                "kernel_target_note": (f"set by meshsom: PoCL's LLVM calls this CPU "
+                                       f"{hstr_cpu(dev)!r}" if retargeted(dev) else left_alone(dev)),
                 "gpu_tuning": _tuning(dev),
             })
             if kernels:
@@ -141,6 +146,14 @@ def _tuning(device) -> str:
     except Exception as err:  # doctor reports, never fails
         return f"unknown ({err})"
     return f"tuned: {candidate_name(found)}" if found else "default tiling (not tuned: meshsom tune)"
+
+
+def hstr_cpu(device) -> str | None:
+    """The CPU name PoCL itself shows for a device (before meshsom set another)."""
+    from meshsom.pocl_target import hstr_target
+
+    found = hstr_target(device)
+    return found[1] if found else None
 
 
 def _kernel_target(device) -> str | None:
@@ -214,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
             )
             target = f", kernel target CPU {d['kernel_target']}" if d.get("kernel_target") else ""
             print(f"        driver {d['driver']}{target}; BMUofN kernel: {d['bmu_kernel']}")
+            if d.get("kernel_target_note"):
+                print(f"        kernel target CPU {d['kernel_target_note']}")
             print(f"        gpu layout: {d['gpu_tuning']}")
             print(f"        per-unit sums and per-row errors of an epoch: on the {d['epoch_sums']}")
             print(f"        SOM.fit's epoch update: on the {d['epoch_update']}; the pipeline's: on the client's host")
