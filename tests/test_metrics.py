@@ -176,4 +176,6 @@ def test_t_error_ties_on_a_map_of_identical_vectors():
     naive = t_error(bmu.unit, bmu.second, 12, 15)
     want = _brute_force_t_bad(X, som.weights_, 12, 15).mean()
     assert som.evaluate(X)["t_error"] == pytest.approx(want)
-    assert naive > 0.5 and want < 0.05  # the ties made three quarters of the vectors look like errors
+    # the ties make a quarter of the vectors look like errors: the lowest of equal prototypes wins and
+    # the next lowest, often not a neighbour, is second
+    assert naive > 0.2 and want < 0.05
