@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import multiprocessing
 import os
 import platform
 import sys
@@ -210,7 +211,8 @@ def retarget(device) -> str | None:
     """Point a PoCL CPU device whose LLVM calls the host ``"generic"`` at the CPU of its kernel
     library (or at ``$POCL_LLVM_CPU_NAME``); the name written, else None.
 
-    Idempotent per device and process; logs one warning line when it writes. Does nothing on
+    Idempotent per device and process; logs one line when it writes (a warning in a main process, INFO
+    in a worker process that ``multiprocessing`` started). Does nothing on
     devices that are not PoCL's CPU devices, off Linux x86-64, or where the host CPU is known.
     """
     pointer = _pointer(device)
@@ -250,6 +252,8 @@ def retarget(device) -> str | None:
     ctypes.memmove(copy, raw, len(raw))
     ctypes.c_void_p.from_address(field).value = copy  # the old string (8 bytes) is left as it was
     _RETARGETED[pointer] = name
-    log.warning("OpenCL: %s; kernels are built for %s%s", why, name,
-                "" if wanted else f" (the CPU of PoCL's kernel library for this host; {ENV_CPU} picks another)")
+    # one line where the user looks: the main process warns; its worker processes (Dask's) say it at INFO
+    level = logging.WARNING if multiprocessing.parent_process() is None else logging.INFO
+    log.log(level, "OpenCL: %s; kernels are built for %s%s", why, name,
+            "" if wanted else f" (the CPU of PoCL's kernel library for this host; {ENV_CPU} picks another)")
     return name
