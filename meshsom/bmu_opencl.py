@@ -52,6 +52,7 @@ import numpy as np
 from meshsom.bmu_numpy import BMUResult, exact_dist2, fma_norms, unit_order, validate
 from meshsom.metrics import COMPONENT
 from meshsom.errors import DeviceError
+from meshsom.pocl_target import AVX512_CPUS, NON_AVX512_CPUS
 from meshsom.probe import injected_defines
 
 log = logging.getLogger(__name__)
@@ -370,32 +371,6 @@ def _largest_divisor(D: int, cap: int) -> int:
         if D % dt == 0:
             return dt
     return 1
-
-
-#: LLVM x86 CPU names (LLVM 14 to 19) with avx512f: 16 float lanes are one zmm register.
-AVX512_CPUS = frozenset({
-    "knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
-    "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
-    "graniterapids", "graniterapids-d", "emeraldrapids", "znver4", "znver5", "x86-64-v4",
-})
-
-#: LLVM x86 CPU names (LLVM 14 to 19) without avx512f: 16 float lanes take two registers or more.
-#: LLVM 14 and 15 call AMD Zen 4 (AVX-512) "znver3", so a Zen 4 host lands here with them.
-NON_AVX512_CPUS = frozenset({
-    "generic", "x86-64", "x86-64-v2", "x86-64-v3",
-    "i386", "i486", "i586", "i686", "pentium", "pentium-mmx", "pentiumpro", "pentium2", "pentium3",
-    "pentium3m", "pentium-m", "pentium4", "pentium4m", "prescott", "nocona", "yonah", "lakemont",
-    "core2", "penryn", "bonnell", "atom", "silvermont", "slm", "goldmont", "goldmont-plus", "tremont",
-    "nehalem", "corei7", "westmere", "sandybridge", "corei7-avx", "ivybridge", "core-avx-i",
-    "haswell", "core-avx2", "broadwell", "skylake", "alderlake", "raptorlake", "meteorlake",
-    "gracemont", "arrowlake", "arrowlake-s", "lunarlake", "pantherlake", "sierraforest",
-    "grandridge", "clearwaterforest",
-    "k6", "k6-2", "k6-3", "athlon", "athlon-tbird", "athlon-4", "athlon-xp", "athlon-mp", "k8",
-    "athlon64", "athlon-fx", "opteron", "k8-sse3", "athlon64-sse3", "opteron-sse3", "amdfam10",
-    "barcelona", "btver1", "btver2", "bdver1", "bdver2", "bdver3", "bdver4",
-    "znver1", "znver2", "znver3",
-    "geode", "winchip-c6", "winchip2", "c3", "c3-2",
-})
 
 
 def kernel_target_cpu(device) -> str | None:

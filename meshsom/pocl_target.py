@@ -10,10 +10,15 @@ EPYC 9005 series), and on any CPU whose vendor or family LLVM 14 does not list.
 :func:`retarget` sets such a device's kernel target to the LLVM 14 CPU that matches the kernel
 library PoCL itself picks from the host's features (:data:`DISTRO_TARGETS`, the "distro" build
 of pyopencl's PoCL: ``avx512`` on an AVX-512 host, compiled for ``skylake-avx512``), so the
-kernels and PoCL's built-in functions agree. PoCL 3.0 reads no setting for this (later releases
-read ``POCL_LLVM_CPU_NAME``), so the name is written into the device's ``llvm_cpu`` field, in
-this process, before anything is built on it: the field is found as the pointer to the HSTR's CPU
-name right after the pointer to its triple, and the device is left alone unless exactly one such
+kernels and PoCL's built-in functions agree. The same mismatch, milder, is a CPU LLVM names
+without AVX-512 while PoCL picks its AVX-512 library (LLVM 14 and 15 call AMD Zen 4 ``znver3``):
+kernels then build only with 8 lanes (16 abort the compiler, see ``kernels/bmu_common.cl``), so
+such a device is retargeted too, to ``skylake-avx512``.
+
+PoCL 3.0 reads no setting for its target (later releases read ``POCL_LLVM_CPU_NAME``), so the
+name is written into the device's ``llvm_cpu`` field, in this process, before anything is built
+on it: the field is found as the pointer to the HSTR's CPU name right after the pointer to its
+triple, and the device is left alone unless exactly one such
 pair is found. ``POCL_LLVM_CPU_NAME``, where set, names the CPU instead (on any PoCL CPU device,
 as later PoCL releases do). Every kernel is still probed before use (:mod:`meshsom.probe`), so a
 target that builds wrong code is a rejected layout, never a wrong answer.
@@ -57,6 +62,32 @@ DISTRO_TARGETS = (
 )
 #: What ``skylake-avx512`` compiles to beyond ``avx512f``: the host must have these too.
 SKYLAKE_AVX512 = frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl", "avx2", "fma", "bmi2"})
+
+#: LLVM x86 CPU names (LLVM 14 to 19) with avx512f: 16 float lanes are one zmm register.
+AVX512_CPUS = frozenset({
+    "knl", "knm", "skylake-avx512", "skx", "cascadelake", "cooperlake", "cannonlake",
+    "icelake-client", "icelake-server", "rocketlake", "tigerlake", "sapphirerapids",
+    "graniterapids", "graniterapids-d", "emeraldrapids", "znver4", "znver5", "x86-64-v4",
+})
+
+#: LLVM x86 CPU names (LLVM 14 to 19) without avx512f: 16 float lanes take two registers or more.
+#: LLVM 14 and 15 call AMD Zen 4 (AVX-512) "znver3", so a Zen 4 host lands here with them.
+NON_AVX512_CPUS = frozenset({
+    "generic", "x86-64", "x86-64-v2", "x86-64-v3",
+    "i386", "i486", "i586", "i686", "pentium", "pentium-mmx", "pentiumpro", "pentium2", "pentium3",
+    "pentium3m", "pentium-m", "pentium4", "pentium4m", "prescott", "nocona", "yonah", "lakemont",
+    "core2", "penryn", "bonnell", "atom", "silvermont", "slm", "goldmont", "goldmont-plus", "tremont",
+    "nehalem", "corei7", "westmere", "sandybridge", "corei7-avx", "ivybridge", "core-avx-i",
+    "haswell", "core-avx2", "broadwell", "skylake", "alderlake", "raptorlake", "meteorlake",
+    "gracemont", "arrowlake", "arrowlake-s", "lunarlake", "pantherlake", "sierraforest",
+    "grandridge", "clearwaterforest",
+    "k6", "k6-2", "k6-3", "athlon", "athlon-tbird", "athlon-4", "athlon-xp", "athlon-mp", "k8",
+    "athlon64", "athlon-fx", "opteron", "k8-sse3", "athlon64-sse3", "opteron-sse3", "amdfam10",
+    "barcelona", "btver1", "btver2", "bdver1", "bdver2", "bdver3", "bdver4",
+    "znver1", "znver2", "znver3",
+    "geode", "winchip-c6", "winchip2", "c3", "c3-2",
+})
+
 
 #: Last part of a target triple before PoCL's CPU name in ``<driver>-<triple>-<cpu>``.
 _TRIPLE_ENDS = ("gnu", "gnueabihf", "gnueabi", "gnux32", "musl", "android", "eabi", "elf",
@@ -208,8 +239,9 @@ def _host_flags() -> frozenset[str]:
 
 
 def retarget(device) -> str | None:
-    """Point a PoCL CPU device whose LLVM calls the host ``"generic"`` at the CPU of its kernel
-    library (or at ``$POCL_LLVM_CPU_NAME``); the name written, else None.
+    """Point a PoCL CPU device whose LLVM calls the host ``"generic"``, or names a CPU without the
+    AVX-512 of the kernel library PoCL picks for the host, at that library's CPU (or at
+    ``$POCL_LLVM_CPU_NAME``); the name written, else None.
 
     Idempotent per device and process; logs one line when it writes (a warning in a main process, INFO
     in a worker process that ``multiprocessing`` started). Does nothing on
@@ -223,15 +255,25 @@ def retarget(device) -> str | None:
     if pointer in _LEFT or not _is_pocl_cpu(device):
         return None
     target = hstr_target(device)
-    wanted = os.environ.get(ENV_CPU, "").strip()
-    if target is None or not (wanted or target[1] == UNKNOWN_CPU):
-        return None
-    if not sys.platform.startswith("linux") or platform.machine().lower() not in ("x86_64", "amd64"):
-        _LEFT[pointer] = f"kernel target {target[1]!r} left as it is off Linux x86-64"
+    if target is None:
         return None
     triple, cpu = target
-    why = f"set {ENV_CPU}" if wanted else f"PoCL's LLVM does not know this CPU (it calls it {cpu!r})"
-    name = wanted or distro_cpu(_host_flags())
+    wanted = os.environ.get(ENV_CPU, "").strip()
+    library = None if wanted or cpu == UNKNOWN_CPU else distro_cpu(_host_flags())
+    short = library == "skylake-avx512" and cpu.lower() in NON_AVX512_CPUS
+    if not (wanted or cpu == UNKNOWN_CPU or short):
+        return None
+    if not sys.platform.startswith("linux") or platform.machine().lower() not in ("x86_64", "amd64"):
+        _LEFT[pointer] = f"kernel target {cpu!r} left as it is off Linux x86-64"
+        return None
+    if wanted:
+        why = f"set {ENV_CPU}"
+    elif short:
+        why = (f"PoCL's LLVM names this CPU {cpu!r}, without the AVX-512 of the builtin library PoCL "
+               f"picks from its flags (LLVM 14 and 15 on AMD Zen 4)")
+    else:
+        why = f"PoCL's LLVM does not know this CPU (it calls it {cpu!r})"
+    name = wanted or library or distro_cpu(_host_flags())
     if not name:
         _LEFT[pointer] = f"{why}, and no LLVM CPU matches its features; set {ENV_CPU} to one"
         log.warning("OpenCL: %s", _LEFT[pointer])

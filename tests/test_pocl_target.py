@@ -145,12 +145,30 @@ def test_retarget_writes_the_kernel_library_cpu_once(monkeypatch, caplog):
 
 @only_x86_linux
 def test_a_known_cpu_is_left_alone_and_the_setting_overrides_it(monkeypatch):
-    monkeypatch.delenv(pocl_target.ENV_CPU, raising=False)
+    host(monkeypatch, HASWELL)
     known = FakePoclDevice("znver3")
     assert retarget(known) is None and known.word(88) == b"znver3"
+    host(monkeypatch, ZEN5_EPYC)
+    avx512 = FakePoclDevice("icelake-client")
+    assert retarget(avx512) is None and avx512.word(88) == b"icelake-client"
     monkeypatch.setenv(pocl_target.ENV_CPU, "haswell")
     chosen = FakePoclDevice("znver3")
     assert retarget(chosen) == "haswell" and chosen.word(88) == b"haswell"
+
+
+@only_x86_linux
+def test_zen4_named_without_avx512_gets_the_avx512_library_cpu(monkeypatch, caplog):
+    """LLVM 14 calls AMD Zen 4 "znver3" (no AVX-512) while PoCL picks its AVX-512 library from the
+    flags: 16-lane kernels abort the compiler there, so the target becomes the library's CPU."""
+    host(monkeypatch, ZEN5_EPYC)  # Zen 4 and Zen 5 share the AVX-512 flags that matter
+    zen4 = FakePoclDevice("znver3")
+    with caplog.at_level("WARNING", logger="meshsom.pocl_target"):
+        assert retarget(zen4) == "skylake-avx512"
+    assert zen4.word(88) == b"skylake-avx512" and "names this CPU 'znver3'" in caplog.text
+    from meshsom.bmu_opencl import layout_chain
+
+    zen4.preferred_vector_width_float = 16
+    assert layout_chain(zen4)[0] == "cpu"
 
 
 @only_x86_linux
