@@ -695,6 +695,7 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     """
     from meshsom.preprocess import PreprocessParams
     from meshsom import union
+    from meshsom.time_limit import check as check_time
 
     params = params or PreprocessParams()
     first = None
@@ -709,6 +710,8 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                 first = first or err
                 continue
             for order in UNION_ORDERS:
+                check_time(f"rebuilding it under its roofs ({split} roof triangles split, {order} union, "
+                           f"{snap.envelope_tol:g} m snap)")
                 envelope = None
                 try:
                     envelope = _unite(prisms, order, source)

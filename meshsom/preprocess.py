@@ -59,6 +59,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from meshsom.errors import MeshError
+from meshsom.time_limit import check as check_time
 from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_2d
 from meshsom.topology import edge_table, half_edges, signed_volume
 
@@ -176,6 +177,11 @@ class PreprocessParams:
         a roof model's union is one piece or a few (at most 21 in Zürich's and Delfshaven's 902
         buildings), a tree crown's a hundred and more (Cesium's 3D Tiles samples); 0: no limit
         (default 64).
+    max_seconds : float
+        Wall-clock seconds one mesh's preprocessing may take, its union of parts and its rebuild
+        under the roofs included (:mod:`meshsom.time_limit`, checked at each repair round, cut
+        search and union attempt); past it the mesh is rejected with the stage it stopped in. The
+        bundled corpora take at most a few seconds a building; 0: no limit (default 300).
     """
 
     weld_tol: float = 1e-8
@@ -200,6 +206,7 @@ class PreprocessParams:
     envelope_max_loss: float = 0.01
     envelope_max_roofs: int = 5000
     envelope_max_pieces: int = 64
+    max_seconds: float = 300.0
 
     def __post_init__(self):
         for name in ("weld_tol", "tjunction_tol", "planar_dist", "volume_rtol"):
@@ -225,6 +232,9 @@ class PreprocessParams:
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
                 raise ValueError(f"{name} must be an integer >= 0 (0: no limit); received {value!r}")
+        if not (isinstance(self.max_seconds, (int, float)) and not isinstance(self.max_seconds, bool)
+                and 0 <= self.max_seconds < math.inf):
+            raise ValueError(f"max_seconds must be a finite number >= 0 (0: no limit); received {self.max_seconds!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
@@ -291,6 +301,7 @@ def preprocess(
     vertices, faces = check_input(vertices, faces, source)
     faces_in = len(faces)
     repairs: list[str] = []
+    check_time("cleaning and closing")
     try:
         v, f = _clean(vertices, faces, params, source, repairs)
     except MeshError:
@@ -303,7 +314,9 @@ def preprocess(
     diag = _diagonal(v)
     if not volume_in > params.weld_tol * diag**3:  # thinner than the weld tolerance
         raise MeshError(source, f"zero volume (encloses {volume_in:.3g} cubic units)")
+    check_time("cleaning folds")
     v, f = _clean_folds(v, f, params, diag, volume_in, source, repairs)
+    check_time("re-triangulating")
     regions = 0
     out_v, out_f = v, f
     if params.retriangulate:
@@ -1386,6 +1399,7 @@ def _flip_or_collapse_flat_folds(v, f, params, volume_in, max_steps=64):
         return v, (f"{n_flat // 2} flat folds in {len(f)} faces, more than the {MAX_LOCAL_FOLD_WORK} "
                    f"folds x faces it tries"), None
     while n_flat and steps < max_steps:
+        check_time("flipping or collapsing flat folds")
         alpha, neighbour = _fold_angles(v, f)
         best = None  # (|volume change|, faces, flat folds)
         for t, k in zip(*np.nonzero(np.minimum(alpha, 2 * np.pi - alpha) < tol)):
@@ -1672,6 +1686,7 @@ def _collapse_tall_folds(v, f, regions, params, diag, volume_in, repairs, rounds
 
     collapsed = 0
     for _ in range(rounds):
+        check_time("collapsing tall folds")
         fold = folds(v, f, adjacency(f))
         nxt = np.roll(f, -1, axis=1)
         length = np.linalg.norm(v[nxt] - v[f], axis=2)
@@ -1949,6 +1964,7 @@ def _spent_key(v, loop: list[int], dist: float, edges: set, cuts: int, through: 
 
 
 def _cut_flat_search(v, loop, dist, edges, cuts, through, off_plane):
+    check_time(f"cutting a boundary loop of {len(loop)} vertices into flat pieces")
     if off_plane(loop)[0] <= dist:
         return [loop]
     if cuts == 0:
