@@ -280,7 +280,10 @@ def retarget(device) -> str | None:
         return None
     if name == cpu:
         return None
-    field = cpu_field(device, triple, cpu)
+    try:
+        field = cpu_field(device, triple, cpu)
+    except OSError:  # no /proc/self/maps to read (a sandbox): the structure is not searched
+        field = None
     if field is None:
         _LEFT[pointer] = f"{why}; its kernel target field was not found, so kernels cannot be retargeted to {name}"
         log.warning("OpenCL: %s", _LEFT[pointer])

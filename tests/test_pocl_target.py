@@ -185,6 +185,19 @@ def test_no_matching_cpu_or_no_field_is_said_and_left_alone(monkeypatch, caplog)
     assert caplog.text.count("OpenCL:") == 2
 
 
+@only_x86_linux
+def test_no_readable_memory_map_leaves_the_device_alone(monkeypatch):
+    host(monkeypatch, ZEN5_EPYC)
+
+    def unreadable():
+        raise PermissionError("/proc/self/maps")
+
+    monkeypatch.setattr(pocl_target, "_readable_spans", unreadable)
+    fake = FakePoclDevice()
+    assert retarget(fake) is None and fake.word(88) == b"generic"
+    assert "field was not found" in pocl_target.left_alone(fake)
+
+
 def test_other_devices_are_never_touched():
     import pyopencl as cl
 
