@@ -367,6 +367,7 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
     unit = np.zeros(N, np.int64)
     variation = np.zeros(N, np.int64)
     second = np.zeros(N, np.int64)
+    dist2 = np.zeros(N)
     identity = [is_identity(index, sign, v) for v in range(n)]
     duplicates = duplicate_units(W)
     for start in range(0, N, chunk_rows):
@@ -399,4 +400,5 @@ def bmu_numpy(X, W, index=None, sign=None, chunk_rows: int = DEFAULT_CHUNK_ROWS)
         unit[start:stop] = best_u
         variation[start:stop] = best_v
         second[start:stop] = best_s
-    return BMUResult(unit, variation, exact_dist2(X, W, index, sign, unit, variation), second)
+        dist2[start:stop] = best_d  # the winners' direct distances, as exact_dist2 gives them
+    return BMUResult(unit, variation, dist2, second)

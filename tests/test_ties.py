@@ -56,7 +56,7 @@ def case(seed: int = 7):
     return X, W, index, sign, want_unit, want_var, want_second
 
 
-def check(result, want_unit, want_var, want_second):
+def assert_follows_tie_rule(result, want_unit, want_var, want_second):
     np.testing.assert_array_equal(result.unit, want_unit)
     np.testing.assert_array_equal(result.variation, want_var)
     np.testing.assert_array_equal(result.dist2, 0.0)
@@ -68,7 +68,7 @@ def check(result, want_unit, want_var, want_second):
 @pytest.mark.parametrize("chunk_rows", [1, 5, 128])
 def test_numpy_resolves_exact_ties_by_the_rule(chunk_rows):
     X, W, index, sign, unit, var, second = case()
-    check(bmu_numpy(X, W, index, sign, chunk_rows=chunk_rows), unit, var, second)
+    assert_follows_tie_rule(bmu_numpy(X, W, index, sign, chunk_rows=chunk_rows), unit, var, second)
 
 
 @pytest.mark.parametrize("layout", list(KERNEL_PARAMS))
@@ -78,7 +78,7 @@ def test_every_kernel_layout_resolves_exact_ties_by_the_rule(layout):
     context = _opencl_context()
     X, W, index, sign, unit, var, second = case()
     got = bmu_opencl(X, W, index, sign, context=context, params=KernelParams(**KERNEL_PARAMS[layout]))
-    check(got, unit, var, second)
+    assert_follows_tie_rule(got, unit, var, second)
 
 
 def round_to_float32(q: Fraction) -> np.float32:
@@ -100,3 +100,15 @@ def test_fma_norms_are_the_sequential_float32_fma_chain():
     np.testing.assert_array_equal(fma_norms(W), want)
     W64 = W.astype(np.float64)
     np.testing.assert_array_equal(fma_norms(W64), np.einsum("ij,ij->i", W64, W64))
+
+
+def test_numpy_dist2_is_the_winners_direct_distance():
+    """The distances the variations were ranked by are the ones returned: exact_dist2's bits."""
+    from meshsom.bmu_numpy import exact_dist2
+
+    rng = np.random.default_rng(5)
+    X, W = rng.normal(size=(300, D)).astype(np.float32), rng.normal(size=(200, D)).astype(np.float32)
+    index = np.stack([np.arange(D), np.arange(D)[::-1], np.roll(np.arange(D), 3)]).astype(np.int64)
+    sign = np.ones((3, D), np.float32)
+    got = bmu_numpy(X, W, index, sign, chunk_rows=64)
+    np.testing.assert_array_equal(got.dist2, exact_dist2(X, W, index, sign, got.unit, got.variation))
