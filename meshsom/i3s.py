@@ -14,7 +14,13 @@ the leaves hold every feature at full detail, so only they are read.
   ``featureCount``, then each vertex attribute for every vertex (``position``, ``normal``, ``uv0``,
   ``color``, ``uvRegion``, in that order), then each feature attribute for every feature (``id``,
   ``faceRange``: the first and last triangle of the feature). Triangles are not indexed: every
-  three vertices make one. A layer whose geometry is only Draco-compressed is a rejection saying so.
+  three vertices make one. Where a layer declares only a Draco-compressed buffer
+  (``compressedAttributes``), or a node lacks its uncompressed one, the Draco buffer is decoded
+  (Google's decoder through DracoPy): positions (scaled back by the position attribute's
+  ``i3s-scale_x`` and ``i3s-scale_y`` metadata), indexed triangles, and each vertex's index into the
+  feature ids of the ``feature-index`` attribute's ``i3s-feature-ids`` metadata
+  (:mod:`meshsom.draco_metadata`); the positions are the publisher's quantisation (ArcGIS Pro's:
+  about 0.1 mm on New York's DA12 package).
 - **Coordinates**: positions are offsets from the node's centre (its oriented bounding box's, or
   its bounding sphere's before 1.7): in degrees of longitude and latitude and metres of height for a
   geographic layer (WGS 84, ``wkid`` 4326: converted to east-north-up metres about each building's
@@ -54,6 +60,11 @@ HEIGHT_UNITS = {"meter": 1.0, "metre": 1.0, "us-foot": 1200 / 3937, "foot": 0.30
 #: Metres within which the corners of a feature split across leaf nodes are one vertex: each node
 #: stores float32 offsets about its own centre (a 400 m node rounds them to about 0.05 mm).
 SEAM_TOL_M = 1e-3
+#: Metres within which the corners of a feature split across Draco-compressed leaves are one vertex:
+#: each node quantises its positions over its own extent (1 cm is a 100 m node at 13 bits).
+DRACO_SEAM_TOL_M = 1e-2
+#: Draco attribute types (``draco::GeometryAttribute::Type``).
+DRACO_POSITION, DRACO_GENERIC = 0, 4
 #: Nodes walked at most (a package is a tree; this bounds a corrupt one).
 MAX_NODES = 1_000_000
 
@@ -87,19 +98,22 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
         storage = next((a for a in layer.get("attributeStorageInfo") or [] if a.get("name") == options.label_attribute), None)
         labels: dict[int, str] = {}
         features: dict[int, list] = {}
+        decoded: set[int] = set()  # features read from Draco-compressed geometry
         leaves, broken = 0, []
         for resource, centre in package.leaves():
             leaves += 1
-            geometry = f"nodes/{resource}/geometries/{schema['buffer']}"
             try:
-                found = list(_features(package.read(geometry), schema, path, geometry))
+                found, compressed = _node_features(package, resource, schema, path)
             except InputFileError as err:
                 if package.total > int(options.max_bytes):  # the whole package is too large
                     raise
                 broken.append(Rejection(f"{name}#node {resource}", str(path), f"{err.problem}; the node's features are not read"))
                 continue
             for fid, triangles in found:
-                features.setdefault(fid, []).append(triangles + centre)
+                if len(triangles):
+                    features.setdefault(fid, []).append(triangles + centre)
+                    if compressed:
+                        decoded.add(fid)
             if storage is not None:
                 try:
                     values = _attribute(package.read(f"nodes/{resource}/attributes/{storage['key']}/0"), storage)
@@ -112,7 +126,7 @@ def read_slpk(path: Path, options, name: str | None = None) -> Iterator:
         if not features and not broken:
             raise InputFileError(str(path), f"its {leaves} leaf nodes hold no features")
         yield from broken
-        yield from _meshes(features, labels, crs, notes, name, str(path))
+        yield from _meshes(features, labels, crs, notes, name, str(path), decoded)
 
 
 _KIND_HINTS = {
@@ -132,11 +146,20 @@ class _Package:
         self.names = set(archive.namelist())
         self.total = 0
 
+    def holds(self, member: str) -> str | None:
+        """The name under which the package holds ``member`` (gzipped or not, with ``.bin`` or not), or None."""
+        return next((c for c in (f"{member}.gz", member, f"{member}.bin.gz", f"{member}.bin") if c in self.names), None)
+
+    def count(self, nbytes: int) -> None:
+        """Count ``nbytes`` more decoded (a Draco buffer's geometry) against ``options.max_bytes``."""
+        self.total += int(nbytes)
+        limit = int(self.options.max_bytes)
+        if self.total > limit:
+            raise InputFileError(str(self.path), f"expands to more than {limit:,} bytes (ReaderOptions.max_bytes)")
+
     def read(self, member: str) -> bytes:
-        for candidate in (f"{member}.gz", member, f"{member}.bin.gz", f"{member}.bin"):
-            if candidate in self.names:
-                break
-        else:
+        candidate = self.holds(member)
+        if candidate is None:
             raise InputFileError(str(self.path), f"does not hold {member} (nor {member}.gz)")
         limit = int(self.options.max_bytes)
         try:
@@ -225,13 +248,17 @@ def _layer_crs(layer: dict, path: Path) -> tuple:
 
 
 def _buffer_schema(layer: dict, path: Path) -> dict:
-    """Where the uncompressed geometry buffer's attributes lie: ``{"buffer": n, "header": [dtype,
-    ...], "vertex": [(name, dtype, components)], "feature": [(name, dtype, components)]}``."""
+    """Where the uncompressed geometry buffer's attributes lie: ``{"buffer": n, "draco": m or None,
+    "header": [dtype, ...], "vertex": [(name, dtype, components)], "feature": [(name, dtype,
+    components)]}``; ``{"buffer": None, "draco": m}`` for a layer whose geometry is only Draco-compressed."""
     definitions = layer.get("geometryDefinitions")
     if definitions:
         buffers = (definitions[0] or {}).get("geometryBuffers") or []
+        encodings = [None if "compressedAttributes" not in b else str((b["compressedAttributes"] or {}).get("encoding")).lower()
+                     for b in buffers]
+        draco = next((n for n, e in enumerate(encodings) if e == "draco"), None)
         for number, buffer in enumerate(buffers):
-            if "compressedAttributes" in buffer:
+            if encodings[number] is not None:
                 continue
             offset = int(buffer.get("offset", 0))
             if offset not in (0, 8):
@@ -240,10 +267,14 @@ def _buffer_schema(layer: dict, path: Path) -> dict:
             feature = [(k, _dtype(buffer[k], path), int(buffer[k].get("component", 1))) for k in FEATURE_ORDER if k in buffer]
             if not vertex or vertex[0][0] != "position":
                 raise InputFileError(str(path), f"geometry buffer {number} has no positions")
-            return {"buffer": number, "header": ["<u4", "<u4"] if offset == 8 else [], "vertex": vertex, "feature": feature}
+            return {"buffer": number, "draco": draco, "header": ["<u4", "<u4"] if offset == 8 else [], "vertex": vertex,
+                    "feature": feature}
+        if draco is not None:
+            return {"buffer": None, "draco": draco}
         if buffers:
-            raise InputFileError(str(path), "holds its geometry Draco-compressed only (no uncompressed geometry buffer); "
-                                            "not read: republish the layer with I3S 1.6 geometry, or as 3D Tiles")
+            kinds = sorted(set(map(str, encodings)))
+            raise InputFileError(str(path), f"holds its geometry compressed as {', '.join(kinds)} only; expected an uncompressed "
+                                            "geometry buffer or a Draco-compressed one")
     schema = (layer.get("store") or {}).get("defaultGeometrySchema")
     if not schema:
         raise InputFileError(str(path), "3dSceneLayer.json has neither geometryDefinitions nor store.defaultGeometrySchema")
@@ -253,6 +284,7 @@ def _buffer_schema(layer: dict, path: Path) -> dict:
     names = {"id": "featureId"}
     return {
         "buffer": 0,
+        "draco": None,
         "header": [VALUE_TYPES.get(h.get("type"), "<u4") for h in schema.get("header") or []],
         "header_names": [h.get("property") for h in schema.get("header") or []],
         "vertex": [(k, _dtype({"type": vertex_attributes[k].get("valueType")}, path), int(vertex_attributes[k].get("valuesPerElement", 1)))
@@ -268,6 +300,84 @@ def _dtype(attribute: dict, path: Path) -> str:
     if kind not in VALUE_TYPES:
         raise InputFileError(str(path), f"a geometry attribute has the type {kind!r}; expected one of {', '.join(VALUE_TYPES)}")
     return VALUE_TYPES[kind]
+
+
+def _node_features(package: _Package, resource: str, schema: dict, path: Path) -> tuple[list, bool]:
+    """A leaf's features in its geometry's feature order, ``[(id, triangles (T, 3, 3))]`` (T may be
+    0 for a Draco feature id with no triangles), and whether they were Draco-decoded: the
+    uncompressed buffer where the layer has one and the package holds it, else the Draco buffer."""
+    plain, draco = schema["buffer"], schema.get("draco")
+    if plain is not None and (draco is None or package.holds(f"nodes/{resource}/geometries/{plain}")):
+        member = f"nodes/{resource}/geometries/{plain}"
+        return list(_features(package.read(member), schema, path, member)), False
+    member = f"nodes/{resource}/geometries/{draco}"
+    if plain is not None and not package.holds(member):
+        raise InputFileError(str(path), f"does not hold nodes/{resource}/geometries/{plain} (nor .gz), nor its Draco-compressed "
+                                        f"{member}")
+    return _draco_features(package.read(member), package, path, member), True
+
+
+def _draco_features(data: bytes, package: _Package, path: Path, resource: str) -> list[tuple[int, np.ndarray]]:
+    """Each feature of one Draco-compressed geometry buffer, in the order of its ``i3s-feature-ids``:
+    (id, triangles (T, 3, 3) float64 offsets from the node's centre, x and y scaled back by the
+    position attribute's ``i3s-scale_x`` and ``i3s-scale_y``). Errors name the package and the resource."""
+    from meshsom.draco_metadata import MetadataError, entry_double, entry_int32s, entry_text, read_metadata
+
+    try:
+        import DracoPy
+    except ImportError as err:
+        raise InputFileError(str(path), f"holds Draco-compressed geometry and DracoPy is not importable ({err})") from None
+    try:
+        metadata = read_metadata(data)
+    except MetadataError as err:
+        raise InputFileError(str(path), f"{resource}: {err}") from None
+    try:
+        mesh = DracoPy.decode(bytes(data))
+    except Exception as err:  # DracoPy raises its own errors, and ValueError for corrupt data
+        raise InputFileError(str(path), f"{resource} cannot be decoded by Draco ({type(err).__name__}: {err})") from None
+    faces = getattr(mesh, "faces", None)
+    if faces is None or len(faces) == 0:
+        raise InputFileError(str(path), f"{resource} is a Draco point cloud or an empty mesh: no triangles")
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    attributes = list(getattr(mesh, "attributes", None) or [])
+    position = next((a for a in attributes if a.get("attribute_type") == DRACO_POSITION), None)
+    if position is None or int(position.get("num_components", 0)) != 3:
+        raise InputFileError(str(path), f"{resource} holds no Draco positions of three components")
+    points = np.asarray(position["data"], np.float64).reshape(-1, 3)
+    package.count(points.nbytes + faces.nbytes)
+    entries = metadata.attributes.get(int(position["unique_id"]), {})
+    try:
+        scale = [entry_double(entries, "i3s-scale_x"), entry_double(entries, "i3s-scale_y")]
+        index = next((a for a in attributes if entry_text(metadata.attributes.get(int(a["unique_id"]), {}), "i3s-attribute-type")
+                      == "feature-index"), None)
+        if index is None:  # the specification's type: a generic attribute of one integer per vertex
+            index = next((a for a in attributes if a.get("attribute_type") == DRACO_GENERIC and int(a.get("num_components", 0)) == 1
+                          and np.issubdtype(np.asarray(a["data"]).dtype, np.integer)), None)
+        ids = None if index is None else entry_int32s(metadata.attributes.get(int(index["unique_id"]), {}), "i3s-feature-ids")
+        if ids is None:
+            ids = entry_int32s(metadata.geometry, "i3s-feature-ids")
+    except MetadataError as err:
+        raise InputFileError(str(path), f"{resource}: {err}") from None
+    if index is None or ids is None:
+        missing = "no feature-index attribute" if index is None else "no i3s-feature-ids metadata"
+        raise InputFileError(str(path), f"{resource} holds Draco triangles of no feature ({missing}): not buildings")
+    for axis, factor in enumerate(scale):
+        if factor is not None:
+            if not (np.isfinite(factor) and factor > 0):
+                raise InputFileError(str(path), f"{resource}: i3s-scale_{'xy'[axis]} is {factor}; expected a positive number")
+            points[:, axis] *= factor
+    if faces.min() < 0 or faces.max() >= len(points):
+        raise InputFileError(str(path), f"{resource}: a Draco face names vertex {int(faces.max())} of {len(points)}")
+    per_vertex = np.asarray(index["data"]).reshape(-1).astype(np.int64)
+    per_face = per_vertex[faces[:, 0]]  # the specification: a triangle's three vertices share their feature
+    outside = (per_face < 0) | (per_face >= len(ids))
+    if outside.any():
+        raise InputFileError(str(path), f"{resource}: {int(outside.sum())} Draco triangles have a feature index outside the "
+                                        f"{len(ids)} i3s-feature-ids (e.g. {int(per_face[outside][0])})")
+    triangles = points[faces]
+    order = np.argsort(per_face, kind="stable")
+    pieces = np.split(triangles[order], np.cumsum(np.bincount(per_face, minlength=len(ids)))[:-1])
+    return [(int(fid), piece) for fid, piece in zip(ids.tolist(), pieces)]
 
 
 def _features(data: bytes, schema: dict, path: Path, resource: str) -> Iterator[tuple[int, np.ndarray]]:
@@ -327,7 +437,7 @@ def _attribute(data: bytes, storage: dict) -> list[str]:
             for v in np.frombuffer(data, dtype, count, offset).tolist()]
 
 
-def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, source: str) -> Iterator:
+def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, source: str, decoded: set) -> Iterator:
     from meshsom.crs import to_metres
     from meshsom.io import RawMesh, Rejection, recentre
 
@@ -342,12 +452,12 @@ def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, sour
         faces = inverse.reshape(-1, 3).astype(np.int64)
         local, origin = recentre(world)
         local, note = to_metres(local, origin, crs)
-        more = []
-        if len(pieces) > 1:  # float32 offsets about two centres: a shared corner differs by rounding
+        more = ["read from Draco-compressed geometry (positions as the publisher quantised them)"] if fid in decoded else []
+        if len(pieces) > 1:  # float32 offsets about two centres (quantised over two extents): a shared corner differs
             from meshsom.preprocess import weld
 
-            local, remap = weld(local, SEAM_TOL_M)
+            tol = DRACO_SEAM_TOL_M if fid in decoded else SEAM_TOL_M
+            local, remap = weld(local, tol)
             faces = remap[faces]
-            more = [f"its triangles are in {len(pieces)} leaf nodes, read as one mesh (corners within "
-                    f"{SEAM_TOL_M:g} m merged)"]
+            more.append(f"its triangles are in {len(pieces)} leaf nodes, read as one mesh (corners within {tol:g} m merged)")
         yield RawMesh(mesh_id, source, local, faces, origin, labels.get(fid), notes=tuple(notes + ([note] if note else []) + more))

@@ -100,10 +100,63 @@ LEGACY = {"geometryType": "triangles", "header": [{"property": "vertexCount", "t
                                 "faceRange": {"valueType": "UInt32", "valuesPerElement": 2}}}
 
 
+#: ArcGIS Pro's i3s-scale_x and i3s-scale_y for a geographic layer: degrees per equatorial metre.
+I3S_SCALE = 1 / 111319.49079327357
+DRACO_ONLY = [{"compressedAttributes": {"encoding": "draco", "attributes": ["position", "feature-index"]}}]
+
+
+def _varint(n: int) -> bytes:
+    out = b""
+    while True:
+        out += bytes([(n & 0x7F) | (0x80 if n > 0x7F else 0)])
+        n >>= 7
+        if not n:
+            return out
+
+
+def _metadata(entries: dict[str, bytes]) -> bytes:
+    """One Draco metadata as Draco's MetadataEncoder writes it: entries, then no sub-metadata."""
+    out = _varint(len(entries))
+    for key, value in entries.items():
+        out += bytes([len(key)]) + key.encode() + _varint(len(value)) + value
+    return out + _varint(0)
+
+
+def draco_with_metadata(points, faces, generic: dict[int, np.ndarray], position_entries: dict[str, bytes],
+                        attribute_entries: dict[int, dict[str, bytes]], geometry_entries=None) -> bytes:
+    """A Draco mesh encoded by Google's encoder (DracoPy, edgebreaker, 20 bits) with the given
+    metadata written in after its header, as Draco's encoder places it (DracoPy can write
+    attribute names only). ``generic`` and ``attribute_entries`` are keyed by unique id."""
+    import DracoPy
+
+    plain = DracoPy.encode(np.asarray(points, np.float32), np.asarray(faces, np.uint32), quantization_bits=20,
+                           generic_attributes=generic)
+    assert plain[:5] == b"DRACO" and int.from_bytes(plain[9:11], "little") == 0, plain[:11]
+    (position,) = [a["unique_id"] for a in DracoPy.decode(plain).attributes if a["attribute_type"] == 0]
+    by_attribute = {position: position_entries, **attribute_entries}
+    section = _varint(len(by_attribute)) + b"".join(_varint(k) + _metadata(v) for k, v in by_attribute.items())
+    section += _metadata(geometry_entries or {})
+    return plain[:9] + (0x8000).to_bytes(2, "little") + section + plain[11:]
+
+
+def _draco_buffer(features: list[tuple[int, np.ndarray]], centre: np.ndarray, geographic: bool) -> bytes:
+    """A Draco geometry buffer as ArcGIS Pro writes one: positions about the node's centre (x and y
+    divided by ``i3s-scale_x``/``_y`` where geographic), a feature index per vertex, the ids in its metadata."""
+    triangles = np.concatenate([t for _, t in features]).reshape(-1, 3) - centre
+    scale = I3S_SCALE if geographic else 1.0
+    triangles[:, :2] /= scale
+    index = np.repeat(np.arange(len(features), dtype=np.uint32), [3 * len(t) for _, t in features])[:, None]
+    return draco_with_metadata(
+        triangles, np.arange(len(triangles)).reshape(-1, 3), {5: index},
+        {"i3s-scale_x": struct.pack("<d", scale), "i3s-scale_y": struct.pack("<d", scale)},
+        {5: {"i3s-feature-ids": np.array([f for f, _ in features], "<i4").tobytes(), "i3s-attribute-type": b"feature-index"}})
+
+
 def write_slpk(path, leaves, version="1.7", wkid=4326, height_unit="meter", layer_type="3DObject", buffers=None):
     """A scene layer package of a root and one leaf per item of ``leaves`` (each a list of
     ``(feature id, triangles (T, 3, 3) in the CRS's units)``), laid out as ArcGIS Pro writes I3S
-    ``version`` (1.7: node pages; 1.6: node index documents and the default geometry schema)."""
+    ``version`` (1.7: node pages; 1.6: node index documents and the default geometry schema).
+    With ``buffers=DRACO_ONLY`` each leaf's geometry is one Draco buffer (``geometries/0``)."""
     def gz(obj):
         return gzip.compress(json.dumps(obj).encode() if not isinstance(obj, bytes) else obj)
 
@@ -132,7 +185,8 @@ def write_slpk(path, leaves, version="1.7", wkid=4326, height_unit="meter", laye
             if version != "1.7":
                 z.writestr(f"nodes/{k}/3dNodeIndexDocument.json.gz", gz(
                     {"id": str(k), "mbs": [*c, 50.0], "geometryData": [{"href": "./geometries/0"}]}))
-            z.writestr(f"nodes/{k}/geometries/0.bin.gz", gz(_buffer(leaf, c)))
+            data = _draco_buffer(leaf, c, wkid == 4326) if buffers is DRACO_ONLY else _buffer(leaf, c)
+            z.writestr(f"nodes/{k}/geometries/0.bin.gz", gz(data))
 
 
 def _box_triangles(sx, sy, sz, at=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -183,7 +237,8 @@ def test_a_projected_package_in_feet_is_scaled_to_metres(tmp_path):
 @pytest.mark.parametrize("change, says", [
     ({"layer_type": "IntegratedMesh"}, "an integrated mesh is one surface"),
     ({"layer_type": "Building"}, "building scene layer"),
-    ({"buffers": [{"compressedAttributes": {"encoding": "draco", "attributes": ["position"]}}]}, "Draco-compressed only"),
+    ({"buffers": [{"compressedAttributes": {"encoding": "lepcc-xyz", "attributes": ["position"]}}]},
+     "compressed as lepcc-xyz only; expected an uncompressed geometry buffer or a Draco-compressed one"),
     ({"height_unit": "furlong"}, "heights are in 'furlong'"),
     ({"wkid": 999999}, "not known to pyproj"),
 ])
@@ -269,3 +324,124 @@ def test_string_labels_are_read_after_their_byte_counts(tmp_path):
         for n, content in members.items():
             z.writestr(n, content)
     assert [(i.id, i.label) for i in read_file(tmp_path / "s.slpk")] == [("s.slpk#5", "h\u00f4tel"), ("s.slpk#8", "school")]
+
+
+# ----------------------------------------------------------------------------- Draco-compressed geometry
+
+
+def _draco_only_copy(source, target):
+    """``source`` as a package of Draco geometry only: its Draco buffers (``geometries/1``, as ArcGIS
+    Pro wrote them) become each node's only geometry (``geometries/0``) and the layer declares only them."""
+    with zipfile.ZipFile(source) as z, zipfile.ZipFile(target, "w", zipfile.ZIP_STORED) as out:
+        for name in z.namelist():
+            if "/geometries/0" in name:
+                continue
+            data = z.read(name)
+            if name == "3dSceneLayer.json.gz":
+                layer = json.loads(gzip.decompress(data))
+                (definition,) = layer["geometryDefinitions"]
+                definition["geometryBuffers"] = [b for b in definition["geometryBuffers"] if "compressedAttributes" in b]
+                assert definition["geometryBuffers"][0]["compressedAttributes"]["encoding"] == "draco"
+                data = gzip.compress(json.dumps(layer).encode())
+            out.writestr(name.replace("/geometries/1", "/geometries/0"), data)
+
+
+def test_new_york_package_read_from_its_draco_buffers_alone(tmp_path):
+    """ArcGIS Pro wrote DA12 with each node's geometry twice, plain and Draco-compressed. Read from
+    the Draco buffers alone (positions scaled by their i3s-scale metadata, triangles to features by
+    the feature-index attribute and i3s-feature-ids), every building has the triangles of its plain
+    read, every corner within a millimetre of it, and the stored OBJECTIDs still label each feature."""
+    import dataclasses
+
+    from scipy.spatial import cKDTree
+
+    _draco_only_copy(NYC, tmp_path / "DA12_subset.slpk")
+    options = dataclasses.replace(ReaderOptions(), label_attribute="OBJECTID")
+    plain = {i.id: i for i in read_file(NYC, options)}
+    draco = {i.id: i for i in read_file(tmp_path / "DA12_subset.slpk", options)}
+    assert len(draco) == 158 and set(draco) == set(plain) and all(isinstance(i, RawMesh) for i in draco.values())
+    for key, a in plain.items():
+        b = draco[key]
+        assert len(b.faces) == len(a.faces) and b.label == a.label == key.split("#")[1]
+        assert (abs(b.origin - a.origin) < [1e-8, 1e-8, 1e-3]).all(), (b.origin, a.origin)  # degrees, degrees, metres
+        for x, y in ((a.vertices, b.vertices), (b.vertices, a.vertices)):
+            assert cKDTree(y).query(x)[0].max() < 1e-3, key
+        area = lambda m: np.linalg.norm(np.cross(*(m.vertices[m.faces[:, 1:]] - m.vertices[m.faces[:, :1]]).transpose(1, 0, 2)), axis=1).sum()
+        assert abs(area(b) - area(a)) < 1e-4 * area(a), key
+        assert any("Draco-compressed" in n for n in b.notes) and not any("Draco" in n for n in a.notes)
+
+
+def test_a_node_without_its_plain_buffer_is_read_from_its_draco_buffer(tmp_path):
+    """A package whose layer declares both buffers but one node holds only the Draco one: that node
+    is decoded, the others read plain."""
+    with zipfile.ZipFile(NYC) as z, zipfile.ZipFile(tmp_path / "mixed.slpk", "w") as out:
+        for name in z.namelist():
+            if name != "nodes/3/geometries/0.bin.gz":
+                out.writestr(name, z.read(name))
+    items = {i.id: i for i in read_file(tmp_path / "mixed.slpk")}
+    assert len(items) == 158
+    decoded = [k for k, i in items.items() if any("Draco" in n for n in i.notes)]
+    assert decoded == ["mixed.slpk#156"]  # node 3's one feature
+
+
+@pytest.mark.parametrize("wkid", [4326, 2263])
+def test_a_draco_package_written_by_the_specification_reads_back_in_metres(tmp_path, wkid):
+    """Draco buffers written by Google's encoder with I3S's metadata: boxes of 10 x 6 x 4 m (x and y
+    scaled by i3s-scale where geographic) read back as such; a feature split across two leaves is one
+    closed mesh of 8 corners."""
+    if wkid == 4326:
+        origin = (-74.0105, 40.7128, 5.0)
+        a = _to_degrees(_box_triangles(10, 6, 4), origin)
+        b = _to_degrees(_box_triangles(10, 6, 4, at=(40.0, 0, 0)), origin)
+        size = [10, 6, 4]
+    else:  # New York's State Plane in US survey feet
+        a = _box_triangles(10, 6, 4, (980000.0, 200000.0, 30.0))
+        b = _box_triangles(10, 6, 4, (980040.0, 200000.0, 30.0))
+        size = np.array([10, 6, 4]) * 1200 / 3937
+    write_slpk(tmp_path / "d.slpk", [[(7, a), (9, b[:5])], [(9, b[5:])]], wkid=wkid,
+               height_unit="meter" if wkid == 4326 else "us-foot", buffers=DRACO_ONLY)
+    items = list(read_file(tmp_path / "d.slpk"))
+    assert [i.id for i in items] == ["d.slpk#7", "d.slpk#9"] and all(isinstance(i, RawMesh) for i in items), items
+    for item in items:
+        assert len(item.faces) == 12 and len(item.vertices) == 8
+        np.testing.assert_allclose(np.ptp(item.vertices, axis=0), size, atol=1e-3)
+    assert any("2 leaf nodes" in n for n in items[1].notes)
+
+
+def _draco_package(tmp_path, data: bytes):
+    """A one-leaf Draco-only package whose geometry is ``data``."""
+    triangles = _to_degrees(_box_triangles(10, 6, 4), (4.35, 52.0, 0.0))
+    write_slpk(tmp_path / "x.slpk", [[(1, triangles)]], buffers=DRACO_ONLY)
+    with zipfile.ZipFile(tmp_path / "x.slpk") as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    members["nodes/0/geometries/0.bin.gz"] = gzip.compress(data)
+    with zipfile.ZipFile(tmp_path / "x.slpk", "w") as z:
+        for n, content in members.items():
+            z.writestr(n, content)
+    return list(read_file(tmp_path / "x.slpk"))
+
+
+def test_draco_geometry_that_cannot_be_read_is_a_rejection_of_its_node(tmp_path):
+    """No feature ids, a feature index beyond them, metadata cut short, bytes that are no Draco:
+    each the node's rejection naming its resource and the problem."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    index = {5: np.zeros((4, 1), np.uint32)}
+    scale = {"i3s-scale_x": struct.pack("<d", I3S_SCALE), "i3s-scale_y": struct.pack("<d", I3S_SCALE)}
+    no_ids = draco_with_metadata(v, f, index, scale, {5: {"i3s-attribute-type": b"feature-index"}})
+    beyond = draco_with_metadata(v, f, {5: np.full((4, 1), 3, np.uint32)}, scale,
+                                 {5: {"i3s-feature-ids": np.array([1, 2], "<i4").tobytes(), "i3s-attribute-type": b"feature-index"}})
+    cut = draco_with_metadata(v, f, index, scale, {5: {"i3s-feature-ids": np.array([1], "<i4").tobytes()}})[:40]
+    cases = {"ids": (no_ids, "holds Draco triangles of no feature (no i3s-feature-ids metadata)"),
+             "beyond": (beyond, "4 Draco triangles have a feature index outside the 2 i3s-feature-ids (e.g. 3)"),
+             "cut": (cut, "the metadata ends inside"),
+             "noise": (b"DRACO\x02\x02\x01\x01\x00\x00" + bytes(range(40)), "cannot be decoded by Draco"),
+             "other": (b"glTF" + bytes(40), "is not a Draco bitstream")}
+    for key, (data, says) in cases.items():
+        (item,) = _draco_package(tmp_path, data)
+        assert isinstance(item, Rejection) and item.id == "x.slpk#node 0", (key, item)
+        assert "nodes/0/geometries/0" in item.reason and says in item.reason, (key, item.reason)
+    good = draco_with_metadata(v, f, index, scale, {5: {"i3s-feature-ids": np.array([4], "<i4").tobytes(),
+                                                        "i3s-attribute-type": b"feature-index"}})
+    (item,) = _draco_package(tmp_path, good)
+    assert isinstance(item, RawMesh) and item.id == "x.slpk#4" and len(item.faces) == 4
