@@ -85,6 +85,9 @@ CITYJSONSEQ_SUFFIXES = (".city.jsonl", ".jsonl")
 #: A readable name followed by this is a gzip-compressed input (gzip data is recognised by its
 #: content whatever the name).
 GZIP_SUFFIX = ".gz"
+#: Rhino models (:mod:`meshsom.rhino`) and DXF drawings (:mod:`meshsom.dxf`).
+RHINO_SUFFIX = ".3dm"
+DXF_SUFFIX = ".dxf"
 GZIP_MAGIC = b"\x1f\x8b"
 #: Bytes decompressed per read of a gzip input (the size guards are checked between reads).
 GZIP_CHUNK_BYTES = 1 << 20
@@ -337,7 +340,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', 'ifc' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -353,6 +356,10 @@ def input_kind(path: Path) -> str:
         return "kml"
     if name.endswith(".slpk"):  # an Esri scene layer package (I3S)
         return "slpk"
+    if name.endswith(RHINO_SUFFIX):
+        return "3dm"
+    if name.endswith(DXF_SUFFIX):
+        return "dxf"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -375,7 +382,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz", ".kml", ".slpk") + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX) + IFC_SUFFIXES
     return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
@@ -783,6 +790,14 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.i3s import read_slpk
 
             yield from read_slpk(path, options, name)
+        elif kind == "3dm":
+            from meshsom.rhino import read_3dm
+
+            yield from read_3dm(path, options, name)
+        elif kind == "dxf":
+            from meshsom.dxf import read_dxf
+
+            yield from read_dxf(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1130,10 +1145,8 @@ _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
 #: The way into meshsom for the building formats it does not read, named in their rejection.
 CONVERSIONS = {
     ".skp": "SketchUp: export it as OBJ (one object per building, two-sided faces are fine)",
-    ".3dm": "Rhino: export it as OBJ",
     ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",
-    ".dxf": "DXF: export its 3D solids as OBJ or STL",
-    ".dwg": "DWG: export its 3D solids as OBJ or STL",
+    ".dwg": "DWG: save it as DXF (SAVEAS or DXFOUT in AutoCAD, or the ODA File Converter), which is read",
     ".las": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".laz": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".pnts": "a 3D Tiles point cloud: not read",

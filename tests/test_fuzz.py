@@ -45,7 +45,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc")
+            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -193,7 +193,43 @@ def folder(tmp_path_factory) -> Path:
         for raw in read_file(write_house(inputs / "warm.ifc", garage=False)):
             process_one(raw, PreprocessParams())
         (inputs / "warm.ifc").unlink()
+    for suffix, seed in ((".dxf", _dxf_seed), (".3dm", _rhino_seed)):  # ezdxf reads its settings and fonts on import
+        (inputs / f"warm{suffix}").write_bytes(seed())
+        for raw in read_file(inputs / f"warm{suffix}"):
+            process_one(raw, PreprocessParams())
+        (inputs / f"warm{suffix}").unlink()
     return inputs
+
+
+def _dxf_seed() -> bytes:
+    """A DXF drawing (ezdxf) of a box as 3DFACEs and a block of it inserted, turned."""
+    import io
+
+    import ezdxf
+
+    doc = ezdxf.new("R2010")
+    v, f = _blocks(1)[0].vertices, _blocks(1)[0].faces
+    block = doc.blocks.new("house")
+    for a, b, c in f:
+        doc.modelspace().add_3dface([v[a], v[b], v[c], v[c]])
+        block.add_3dface([v[a], v[b], v[c], v[c]])
+    doc.modelspace().add_blockref("house", (100, 0, 0), dxfattribs={"rotation": 30})
+    text = io.StringIO()
+    doc.write(text)
+    return text.getvalue().encode()
+
+
+def _rhino_seed() -> bytes:
+    """A Rhino model (openNURBS) of a box polysurface in millimetres."""
+    import tempfile
+
+    import rhino3dm
+
+    model = rhino3dm.File3dm()
+    model.Objects.AddBrep(rhino3dm.Brep.CreateFromBox(rhino3dm.Box(rhino3dm.BoundingBox(0, 0, 0, 10000, 6000, 4000))))
+    with tempfile.TemporaryDirectory() as folder:
+        assert model.Write(f"{folder}/seed.3dm", 8)
+        return Path(f"{folder}/seed.3dm").read_bytes()
 
 
 @pytest.fixture(scope="module")
@@ -230,6 +266,8 @@ MAGIC = {
               b"b3dm" + struct.pack("<6I", 1, 4 * 10**9, 8, 0, 0, 0) + b'{}      glTF'],
     ".dae": [b"", b'<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">',
              b'<COLLADA><asset><unit meter="0"/><up_axis>Q_UP</up_axis></asset><library_geometries><geometry><mesh>'],
+    ".dxf": [b"", b"  0\nSECTION\n  2\nENTITIES\n  0\n3DFACE\n  8\n0\n 10\n", b"AutoCAD Binary DXF\r\n\x1a\x00"],
+    ".3dm": [b"", b"3D Geometry File Format        ", b"3D Geometry File Format        \x01\x00\x00\x00 3dm file"],
     ".ifc": [b"", b"ISO-10303-21;\nHEADER;\n", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n"
              b"#1=IFCBUILDING('0p49tVvDnBOh5$bRyf1JGA',$,'b',$,$,$,$,$,$,$,$,$);\n"],
     ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
@@ -313,6 +351,22 @@ def test_mutated_ifc_is_read_or_rejected(folder, tmp_path_factory):
     @given(data=mutated(seed))
     def check(data):
         read_bounded(_write(folder / "mutant.ifc", data))
+
+    check()
+
+
+@pytest.mark.parametrize("suffix", [".dxf", ".3dm"])
+def test_mutated_cad_files_are_read_or_rejected(folder, suffix):
+    """Mutations of a DXF drawing (its group codes and numbers, as text) and of a Rhino model
+    (openNURBS's binary chunks) are read or rejected; neither library takes the process down."""
+    seed = (_dxf_seed if suffix == ".dxf" else _rhino_seed)()
+    items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
+    assert records and all(r["status"] == "accepted" for r in records)  # the unmutated seed is read
+
+    @settings(FUZZ, max_examples=60)
+    @given(data=mutated(seed))
+    def check(data):
+        read_bounded(_write(folder / f"mutant{suffix}", data))
 
     check()
 
