@@ -15,7 +15,8 @@ triangulation, CRS handling and rejections behave as for CityJSON:
   OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (0 when absent) to
   ground + height, the ground being the footprint's lowest z (0 for a 2D footprint) (LoD ``"1"``);
   without a height, a storey count (``building:levels``, ``num_floors``) times ``storey_height``
-  (3 m) is used, with a note.
+  (3 m) is used, with a note; without either, :attr:`meshsom.io.ReaderOptions.default_height`
+  where it is set (else a rejection).
 - A 3D ``Polygon`` / ``MultiPolygon`` without any height is read as a MultiSurface (LoD ``"2"``):
   a solid written as its faces.
 - **CRS** (:mod:`meshsom.crs`): ``place`` is in the JSON-FG ``coordRefSys`` (the feature's, else the
@@ -178,7 +179,7 @@ def no_height(options) -> str:
     return f"is a footprint without a height (no property {names})"
 
 
-def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices
+def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True
                     ) -> tuple[dict | None, list[str]]:
     """Footprint polygons extruded by their height property (LoD ``"1"``), as the module says.
 
@@ -192,6 +193,10 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     options : ReaderOptions
     verts : FeatureVertices
         Receives the vertices.
+    flat : bool
+        Whether the polygons are a footprint (2D, or at one height): only then does
+        :attr:`meshsom.io.ReaderOptions.default_height` stand in for a missing height (3D polygons
+        are a solid's faces).
 
     Returns
     -------
@@ -207,6 +212,9 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height)
             notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
+    if height is None and flat and options.default_height is not None:
+        height = ("default_height", float(options.default_height))
+        notes.append(f"no height or storey count: extruded to the default {options.default_height:g} m (corpus.reader.default_height)")
     if height is None:
         return None, notes
     zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
@@ -266,7 +274,9 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
         g = _extruded(_polygons(base, where), lower, upper, where, verts)
     elif kind in ("Polygon", "MultiPolygon"):
         polygons = _polygons(geom, where)
-        g, notes = footprint_solid(polygons, props, where, options, verts)
+        heights = {_number(p[2]) for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
+                   for p in ring if isinstance(p, list) and len(p) > 2}
+        g, notes = footprint_solid(polygons, props, where, options, verts, flat=len(heights) <= 1)
         if g is None:
             try:
                 g = surfaces(polygons, where, verts)

@@ -88,6 +88,8 @@ GZIP_SUFFIX = ".gz"
 #: Rhino models (:mod:`meshsom.rhino`) and DXF drawings (:mod:`meshsom.dxf`).
 RHINO_SUFFIX = ".3dm"
 DXF_SUFFIX = ".dxf"
+#: OpenStreetMap extracts (:mod:`meshsom.osm`).
+OSM_SUFFIXES = (".osm", ".osm.pbf")
 GZIP_MAGIC = b"\x1f\x8b"
 #: Bytes decompressed per read of a gzip input (the size guards are checked between reads).
 GZIP_CHUNK_BYTES = 1 << 20
@@ -170,6 +172,10 @@ class ReaderOptions:
         height is given.
     storey_height : float
         Metres per storey.
+    default_height : float or None
+        Footprints (GeoJSON, GIS files, OpenStreetMap) with neither a height nor a storey count:
+        extruded to this many metres above their base, noted (OpenStreetMap maps most buildings
+        without either); None (the default) lists them as rejections naming the properties.
     layer : str or None
         GIS files (:mod:`meshsom.gis`: GeoPackage, FileGDB, ...): the layer to read; None reads
         every layer with geometry.
@@ -214,6 +220,7 @@ class ReaderOptions:
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround")
     storey_height: float = 3.0
+    default_height: float | None = None
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
@@ -241,6 +248,8 @@ class ReaderOptions:
             raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)}; received {self.up_axis!r}")
         if not self.storey_height > 0:
             raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
+        if self.default_height is not None and not (isinstance(self.default_height, (int, float)) and 0 < self.default_height < math.inf):
+            raise ValueError(f"default_height must be a height > 0 (metres) or null, received {self.default_height!r}")
         if self.layer is not None and not (isinstance(self.layer, str) and self.layer.strip()):
             raise ValueError(f"layer must be a layer's name (or null for every layer), received {self.layer!r}")
         if not self.max_bytes > 0:
@@ -340,7 +349,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'ifc' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -360,6 +369,8 @@ def input_kind(path: Path) -> str:
         return "3dm"
     if name.endswith(DXF_SUFFIX):
         return "dxf"
+    if name.endswith(OSM_SUFFIXES):
+        return "osm"
     if name.endswith(CITYJSONSEQ_SUFFIXES):
         return "cityjsonseq"
     if name.endswith(CITYJSON_SUFFIXES):
@@ -382,7 +393,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX) + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
     return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
 
 
@@ -798,6 +809,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.dxf import read_dxf
 
             yield from read_dxf(path, options, name)
+        elif kind == "osm":
+            from meshsom.osm import read_osm
+
+            yield from read_osm(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

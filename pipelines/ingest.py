@@ -386,7 +386,8 @@ def corpus_fold_statistics(meshes) -> dict | None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="*", metavar="INPUT",
                    help="CityJSON(Seq), CityGML, GeoJSON, GIS (GeoPackage, Shapefile, FileGDB, GeoParquet, ...), "
-                        "3D Tiles, IFC, mesh or zip files, or folders of them")
+                        "OpenStreetMap (.osm, .osm.pbf), 3D Tiles, scene layer packages, IFC, Rhino (.3dm), DXF, "
+                        "mesh or zip files, or folders of them")
     p.add_argument("--out", required=True, help="zarr store to create (e.g. out/city.zarr)")
     p.add_argument("--config", help="experiment YAML: its corpus.reader and preprocess sections are used")
     p.add_argument("--lod", help="CityJSON LoD: highest, lowest or a value such as 2.2")
@@ -400,6 +401,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height-attribute", action="append", metavar="NAME",
                    help="footprints: a property holding the building's height above the ground, tried before the "
                         "defaults (height, measuredHeight, building:height); may be given more than once")
+    p.add_argument("--default-height", type=float, metavar="M",
+                   help="footprints with neither a height nor a storey count (most of OpenStreetMap): extruded to M "
+                        "metres, noted; default: listed as rejections")
     p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
     p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
     p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
@@ -451,7 +455,8 @@ def run(args: argparse.Namespace) -> int:
         paths, generator = list(args.inputs), None
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
-                 ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components))
+                 ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components),
+                 ("default_height", args.default_height))
         changes = {k: v for k, v in given if v is not None}
         if args.height_attribute:
             changes["height_attributes"] = tuple(args.height_attribute) + tuple(

@@ -45,7 +45,7 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm")
+            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm", ".osm")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -267,6 +267,8 @@ MAGIC = {
     ".dae": [b"", b'<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">',
              b'<COLLADA><asset><unit meter="0"/><up_axis>Q_UP</up_axis></asset><library_geometries><geometry><mesh>'],
     ".dxf": [b"", b"  0\nSECTION\n  2\nENTITIES\n  0\n3DFACE\n  8\n0\n 10\n", b"AutoCAD Binary DXF\r\n\x1a\x00"],
+    ".osm": [b"", b'<?xml version="1.0"?><osm version="0.6"><node id="1" lat="47" lon="8"/><way id="2"><nd ref="1"/>',
+             b'<osm><relation id="1"><member type="way" ref="1" role="outer"/><tag k="type" v="multipolygon"/>'],
     ".3dm": [b"", b"3D Geometry File Format        ", b"3D Geometry File Format        \x01\x00\x00\x00 3dm file"],
     ".ifc": [b"", b"ISO-10303-21;\nHEADER;\n", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n"
              b"#1=IFCBUILDING('0p49tVvDnBOh5$bRyf1JGA',$,'b',$,$,$,$,$,$,$,$,$);\n"],

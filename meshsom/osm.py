@@ -1,0 +1,206 @@
+"""Reading OpenStreetMap extracts (``.osm``, ``.osm.pbf``; ``.osm`` also gzipped): buildings as the
+Simple 3D Buildings scheme (S3DB) tags them.
+
+OpenStreetMap is the footprint data every urban researcher has (a city's extract from Geofabrik or
+the Overpass API). Its areas are read by GDAL's OSM driver (through fiona) with meshsom's
+``osmconf.ini`` (:data:`CONFIG`: closed ways tagged ``building:part`` are areas too, which GDAL's
+own configuration reads as lines; every tag is kept):
+
+- **Buildings**: every area (closed way, or ``type=multipolygon`` relation, courtyards kept) tagged
+  ``building`` (any value but ``no``), id ``name#way/<id>`` or ``name#relation/<id>``.
+- **Parts**: areas tagged ``building:part``. As S3DB says, a building outline with parts inside is
+  shown by its parts: each part goes to the smallest outline holding a point inside it (shapely's
+  STRtree), and the building is its parts, united in preprocessing (BuildingParts of one Building,
+  as CityJSON's are; ``corpus.reader.parts: separate`` keeps them apart). A part without a height
+  of its own takes its building's; a part inside no outline is a building of its own, noted.
+- **Heights** (:func:`meshsom.geojson.footprint_solid`, as for GeoJSON footprints): ``height``
+  (roof included, metres, or text such as ``"12 m"``) above the ground, from ``min_height``;
+  else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
+  :attr:`meshsom.io.ReaderOptions.default_height` where set, else a rejection naming the tags.
+  Roof shapes (``roof:shape``) are not modelled: a roof is flat at the height, noted.
+- **Coordinates**: WGS 84 longitude and latitude, converted to east-north-up metres about each
+  building (:mod:`meshsom.crs`).
+- **Labels**: the tag :attr:`meshsom.io.ReaderOptions.label_attribute` names (``building`` gives
+  ``residential``, ``church``, ...).
+
+Other areas (land use, parks, parking) are not buildings: counted by their first tag in a note on
+the file's meshes. Points and lines (a building mapped as a node) are not read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+#: GDAL's OSM driver configuration used (see the module).
+CONFIG = Path(__file__).with_name("osmconf.ini")
+#: The GDAL layer of areas.
+LAYER = "multipolygons"
+#: The CRS of OpenStreetMap coordinates (longitude, latitude).
+CRS = "EPSG:4326"
+#: A tag value that says "not a building".
+NO = "no"
+#: ``other_tags`` as GDAL writes them: ``"key"=>"value"`` pairs, quotes and backslashes escaped.
+HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
+#: Tags a part takes from its building where it has none of them.
+INHERITED = ("height", "min_height", "building:levels", "building:min_level")
+#: Kinds of other areas named in the note, at most.
+OTHERS_SHOWN = 5
+
+
+def tags(text: str | None) -> dict[str, str]:
+    """The tags of GDAL's ``other_tags`` (hstore text), unescaped."""
+    if not text:
+        return {}
+    unescape = lambda v: re.sub(r"\\(.)", r"\1", v)  # noqa: E731
+    return {unescape(k): unescape(v) for k, v in HSTORE.findall(text)}
+
+
+@dataclasses.dataclass
+class _Area:
+    oid: str
+    tags: dict
+    geometry: dict
+
+
+def read_osm(path: Path, options, name: str | None = None) -> Iterator:
+    """Read every building of an OpenStreetMap extract (as the module says): RawMesh or Rejection items.
+
+    Raises
+    ------
+    InputFileError
+        Larger than ``options.max_bytes``, not OpenStreetMap data GDAL can read, or no building
+        among its areas.
+    """
+    name = name or path.name
+    size = path.stat().st_size
+    if size > int(options.max_bytes):
+        raise InputFileError(str(path), f"has {size:,} bytes, more than {int(options.max_bytes):,} (ReaderOptions.max_bytes)")
+    buildings, parts, others = _areas(path)
+    if not buildings and not parts:
+        kinds = ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) or "none"
+        raise InputFileError(str(path), f"holds no building (an area tagged building or building:part) among its areas: {kinds}")
+    notes = []
+    if others:
+        notes.append(f"{sum(others.values()):,} areas that are not buildings, not read ("
+                     + ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) + ")")
+    owner = _owners(buildings, parts)
+    yield from _meshes(buildings, parts, owner, notes, options, name, str(path))
+
+
+def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter]:
+    """The file's building outlines, building parts, and the other areas counted by their first tag."""
+    import fiona
+    from fiona.drvsupport import supported_drivers
+
+    supported_drivers.setdefault("OSM", "r")  # fiona lists GDAL's read-only OSM driver as unsupported
+    source = f"/vsigzip/{path}" if path.name.lower().endswith(".gz") else str(path)
+    buildings, parts, others = [], [], Counter()
+    try:
+        with fiona.Env(OSM_CONFIG_FILE=str(CONFIG)), fiona.open(source, layer=LAYER) as layer:
+            for feature in layer:
+                props = feature["properties"]
+                found = tags(props.get("other_tags"))
+                relation = props.get("osm_id")
+                oid = f"relation/{relation}" if relation else f"way/{props.get('osm_way_id')}"
+                geometry = feature["geometry"]
+                if geometry is None:
+                    continue
+                if found.get("building", NO) != NO:
+                    buildings.append(_Area(oid, found, geometry))
+                elif found.get("building:part", NO) != NO:
+                    parts.append(_Area(oid, found, geometry))
+                else:
+                    others[next(iter(found), "untagged")] += 1
+    except Exception as err:  # fiona and GDAL raise their own errors for unreadable data
+        if isinstance(err, InputFileError):
+            raise
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by GDAL ({type(err).__name__}: {err})") from None
+    return buildings, parts, others
+
+
+def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:
+    """For each part, the index of the smallest building outline holding a point inside it, or -1:
+    (P,) int64."""
+    import shapely
+    from shapely.geometry import shape
+
+    if not parts or not buildings:
+        return np.full(len(parts), -1, np.int64)
+    outlines = np.array([shape(b.geometry) for b in buildings], dtype=object)
+    inside = shapely.point_on_surface(np.array([shape(p.geometry) for p in parts], dtype=object))
+    part, outline = shapely.STRtree(outlines).query(inside, predicate="within")
+    owner = np.full(len(parts), -1, np.int64)
+    if len(part):
+        order = np.lexsort((shapely.area(outlines[outline]), part))  # by part, then smallest outline first
+        first = np.unique(part[order], return_index=True)[1]
+        owner[part[order][first]] = outline[order][first]
+    return owner
+
+
+def _props(found: dict, options) -> dict:
+    """A feature's tags as footprint properties: ``building:min_level`` as a ``min_height``."""
+    props = dict(found)
+    if "building:min_level" in props and not any(b in props for b in options.base_attributes):
+        from meshsom.geojson import _number
+
+        level = _number(props["building:min_level"])
+        if level is not None:
+            props[options.base_attributes[0] if options.base_attributes else "min_height"] = level * options.storey_height
+    return props
+
+
+def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes: list[str], options, name: str,
+            source: str) -> Iterator:
+    from meshsom.geojson import FeatureVertices, building, footprint_solid, no_height
+    from meshsom.gis import fiona_polygons
+    from meshsom.io import Rejection, _object_meshes, file_crs
+
+    system, unknown = file_crs(CRS, options)
+    system = dataclasses.replace(system, latitude_first=False)  # GDAL: longitude first
+    members: dict[int, list[int]] = {}
+    for k, b in enumerate(owner.tolist()):
+        members.setdefault(b, []).append(k)
+    items = [(b, members.get(b, [])) for b in range(len(buildings))] + [(-1 - k, []) for k in members.get(-1, [])]
+    for index, own_parts in items:
+        area = buildings[index] if index >= 0 else parts[-1 - index]
+        mesh_id = f"{name}#{area.oid}"
+        label = area.tags.get(options.label_attribute)
+        verts = FeatureVertices()
+        more = [] if index >= 0 else ["a building:part inside no building outline, read as a building of its own"]
+        try:
+            pieces = [(area, _props(area.tags, options))] if not own_parts else [
+                (parts[k], _props({**{t: area.tags[t] for t in INHERITED if t in area.tags and t not in parts[k].tags},
+                                   **parts[k].tags}, options)) for k in own_parts]
+            solids = []
+            for piece, props in pieces:
+                polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
+                solid, said = footprint_solid([[ring[:, :2].tolist() for ring in poly] for poly in polygons], props, mesh_id,
+                                              options, verts)
+                if solid is None:
+                    raise InputFileError(mesh_id, no_height(options) + (f" (its part {piece.oid})" if own_parts else ""))
+                solids.append((piece.oid, solid))
+                more += [n for n in said if n not in more]
+                if piece.tags.get("roof:shape", "flat") != "flat":
+                    more.append(f"roof:shape={piece.tags['roof:shape']} not modelled: a flat roof at the height")
+        except InputFileError as err:
+            yield Rejection(mesh_id, source, err.problem, 0, label)
+            continue
+        if own_parts:
+            more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)")
+            obj = {**building(None, area.tags, options), "geometry": [], "children": [oid for oid, _ in solids]}
+            objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}
+                                         for oid, solid in solids}}
+        else:
+            objects = {area.oid: building(solids[0][1], area.tags, options)}
+        for item in _object_meshes(objects, verts.array(), None, None, options, name, source, crs=(system, unknown)):
+            if not isinstance(item, Rejection):
+                item = dataclasses.replace(item, notes=tuple(more + notes) + item.notes)
+            yield item
