@@ -20,6 +20,12 @@ of a drawing, not the model).
   (from 1). A mirroring insert (negative determinant) has its faces' corners reversed, so that
   they keep their side. An INSERT of a block of 2D drawing only (a tree symbol, a north arrow) is
   not a building: it is counted with the 2D entities.
+- **2.5D outlines**: a closed LWPOLYLINE or 2D POLYLINE, or a CIRCLE, with a thickness (how older
+  block models draw a building: its outline at its base elevation, the thickness its height) is
+  the prism it draws: the outline (bulges and circles flattened within :data:`FLATTEN_REL` of its
+  extent) extruded by the thickness along its extrusion direction, id ``name#<handle>`` (in a
+  block, part of the INSERT's building). An open polyline with a thickness (a wall, a fence) and a
+  closed one without are 2D.
 - **Loose 3DFACEs**: the 3DFACEs of model space are grouped by layer, their corners merged within
   :data:`WELD_REL` times the layer's extent, and each layer's faces split into connected pieces
   (faces joined through corners), one building each, id ``name#<layer>/c<k>`` (k from 1, in the
@@ -97,7 +103,13 @@ M_CLOSED, POLYGON_MESH, N_CLOSED, POLYFACE = 1, 16, 32, 64
 SPLIT_02 = np.array([[0, 1, 2], [0, 2, 3]])
 SPLIT_13 = np.array([[0, 1, 3], [1, 2, 3]])
 
-_3D_WORDS = "3D faces (3DFACE, POLYFACE, POLYGON MESH, MESH, INSERT of them)"
+_3D_WORDS = ("3D faces (3DFACE, POLYFACE, POLYGON MESH, MESH, closed polylines or circles with a thickness, "
+             "INSERT of them)")
+#: Entities that are prisms where they have a thickness (2.5D block models): closed outlines.
+PRISM_TYPES = ("LWPOLYLINE", "POLYLINE", "CIRCLE")
+#: The largest distance of a flattened arc (a polyline's bulge, a circle) from the arc, as a
+#: fraction of the outline's extent (1 mm on a 10 m tower).
+FLATTEN_REL = 1e-4
 
 
 def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
@@ -137,7 +149,7 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
         kind = entity.dxftype()
         if kind == "3DFACE":
             loose.setdefault(entity.dxf.layer, []).append(_face_corners(entity))
-        elif kind == "MESH" or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)):
+        elif kind == "MESH" or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)) or _is_prism(entity):
             jobs.append(("mesh", entity))
         elif kind in ("INSERT", "MINSERT"):
             held = blocks.holds(entity.dxf.name)
@@ -352,9 +364,53 @@ def _face_corners(face) -> np.ndarray:
     return np.array([dxf.vtx0, dxf.vtx1, dxf.vtx2, dxf.get("vtx3", dxf.vtx2)], np.float64)
 
 
-def _entity_part(entity, matrix: np.ndarray | None) -> _Part:
-    """The faces of a 3DFACE, POLYFACE, POLYGON MESH or MESH entity, moved by ``matrix``."""
+def _is_prism(entity) -> bool:
+    """Whether ``entity`` is a closed outline with a thickness: a closed LWPOLYLINE or 2D POLYLINE,
+    or a CIRCLE (an open polyline with a thickness is a wall or a fence, not a building)."""
     kind = entity.dxftype()
+    if kind not in PRISM_TYPES or not float(entity.dxf.get("thickness", 0.0) or 0.0):
+        return False
+    if kind == "CIRCLE":
+        return True
+    if kind == "POLYLINE" and (entity.dxf.flags & (POLYFACE | POLYGON_MESH) or entity.is_3d_polyline):
+        return False
+    return bool(entity.closed if kind == "LWPOLYLINE" else entity.is_closed)
+
+
+def _prism_part(entity) -> _Part:
+    """A closed outline with a thickness as the prism it draws: the outline (bulges and circles
+    flattened within :data:`FLATTEN_REL` of its extent) extruded by the thickness along its
+    extrusion direction (its OCS z axis), from its elevation."""
+    from ezdxf import path as ezdxf_path
+    from ezdxf.math import OCS
+
+    from meshsom.polygons import extrude_polygon
+
+    ocs = OCS(entity.dxf.get("extrusion", (0.0, 0.0, 1.0)))
+    outline = ezdxf_path.make_path(entity)
+    box = np.asarray([tuple(p) for p in outline.control_vertices()], np.float64).reshape(-1, 3)
+    if len(box) < 2:
+        raise ValueError(f"a {entity.dxftype()} of {len(box)} vertices outlines nothing")
+    extent = float(np.linalg.norm(np.ptp(box, axis=0))) or 1.0
+    wcs = np.asarray([tuple(p) for p in outline.flattening(FLATTEN_REL * extent)], np.float64).reshape(-1, 3)
+    local = np.asarray([tuple(ocs.from_wcs(p)) for p in wcs], np.float64).reshape(-1, 3)
+    if len(local) > 1 and np.allclose(local[0], local[-1]):
+        local = local[:-1]
+    thickness = float(entity.dxf.thickness)
+    z0 = float(np.median(local[:, 2]))
+    v, f = extrude_polygon(local[:, :2], [], min(z0, z0 + thickness), max(z0, z0 + thickness))
+    axes = np.array([tuple(ocs.ux), tuple(ocs.uy), tuple(ocs.uz)], np.float64)
+    kind = entity.dxftype()
+    note = f"a {'' if kind == 'CIRCLE' else 'closed '}{kind} with a thickness, read as the prism it draws (2.5D)"
+    return _Part(v @ axes, [f], [note])
+
+
+def _entity_part(entity, matrix: np.ndarray | None) -> _Part:
+    """The faces of a 3DFACE, POLYFACE, POLYGON MESH or MESH entity, or of a closed outline with a
+    thickness (:func:`_prism_part`), moved by ``matrix``."""
+    kind = entity.dxftype()
+    if _is_prism(entity):
+        return _prism_part(entity).transformed(matrix)
     if kind == "3DFACE":
         return _Part(_face_corners(entity), [np.arange(4).reshape(1, 4)]).transformed(matrix)
     if kind == "MESH":
@@ -436,7 +492,8 @@ class _Blocks:
             return faces, acis, flat
         for entity in block:
             kind = entity.dxftype()
-            if kind in ("3DFACE", "MESH") or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)):
+            if kind in ("3DFACE", "MESH") or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)) or (
+                    _is_prism(entity)):
                 faces = True
             elif kind in ("INSERT", "MINSERT"):
                 held = self.holds(entity.dxf.name, depth + 1)
@@ -470,7 +527,7 @@ class _Blocks:
             kind = entity.dxftype()
             if kind == "3DFACE":
                 faces_at.setdefault(0, []).append(_face_corners(entity))
-            elif kind == "MESH" or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)):
+            elif kind == "MESH" or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)) or _is_prism(entity):
                 parts.append(_entity_part(entity, matrix))
             elif kind in ("INSERT", "MINSERT"):
                 if self.elsewhere(entity.dxf.name):

@@ -369,3 +369,39 @@ def test_concave_quads_split_inside_and_float_noise_welded(tmp_path):
     surface = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()  # a triangle turned over adds, not cancels
     assert surface == pytest.approx(2 * area + 3.0 * perimeter, rel=1e-9)
     assert signed_volume(m.vertices, m.faces) == pytest.approx(3.0 * area, rel=1e-9)
+
+
+def test_closed_outlines_with_a_thickness_are_prisms(tmp_path):
+    """2.5D block models: a closed L-shaped LWPOLYLINE 12 m thick at an elevation of 400 m, a
+    CIRCLE (a round tower), an outline with a bulge (a half-round end), one drawn in a mirrored OCS
+    (extrusion (0, 0, -1): x mirrored, extruded downwards), a closed old-style 2D POLYLINE, and the
+    same in a block, each the closed prism it draws, with the volume computed here; an open
+    polyline with a thickness (a wall, a fence) and a closed one without are 2D, noted."""
+    doc, msp = new_doc()
+    msp.add_lwpolyline([(0, 0), (20, 0), (20, 10), (10, 10), (10, 20), (0, 20)], close=True,
+                       dxfattribs={"thickness": 12, "elevation": 400})
+    msp.add_circle((100, 0), 5, dxfattribs={"thickness": 20})
+    msp.add_lwpolyline([(300, 0, 0), (320, 0, 1), (320, 10, 0), (300, 10, 0)], format="xyb", close=True,
+                       dxfattribs={"thickness": 3})
+    msp.add_lwpolyline([(200, 0), (210, 0), (210, 10), (200, 10)], close=True,
+                       dxfattribs={"thickness": 6, "extrusion": (0, 0, -1)})
+    msp.add_polyline2d([(500, 0), (504, 0), (504, 3), (500, 3)], close=True, dxfattribs={"thickness": 5})
+    block = doc.blocks.new("tower")
+    block.add_circle((0, 0), 2, dxfattribs={"thickness": 30})
+    msp.add_blockref("tower", (600, 0, 10))
+    msp.add_lwpolyline([(400, 0), (410, 0)], dxfattribs={"thickness": 3})
+    msp.add_lwpolyline([(700, 0), (710, 0), (710, 5)], close=True)
+    doc.saveas(tmp_path / "blocks.dxf")
+    items = read(tmp_path / "blocks.dxf")
+    assert all(isinstance(i, RawMesh) for i in items) and len(items) == 6, items
+    by_x = {round(float(i.origin[0])): i for i in items}
+    expected = {10: (300 * 12, [20, 20, 12], 406), 100: (math.pi * 25 * 20, [10, 10, 20], 10),
+                312: (200 * 3 + math.pi * 25 / 2 * 3, [25, 10, 3], 1.5), -205: (600, [10, 10, 6], -3),
+                502: (4 * 3 * 5, [4, 3, 5], 2.5), 600: (math.pi * 4 * 30, [4, 4, 30], 25)}
+    for x, (volume, size, z) in expected.items():
+        mesh = by_x[x]
+        assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(volume, rel=2e-3), x  # arcs flattened to 1e-4
+        assert np.ptp(mesh.vertices, axis=0) == pytest.approx(size, rel=1e-3), x
+        assert mesh.origin[2] == pytest.approx(z, abs=1e-6) and closed(mesh.faces), x
+        assert any("with a thickness, read as the prism it draws (2.5D)" in n for n in mesh.notes), x
+    assert any("LWPOLYLINE x 2" in n for n in items[0].notes), items[0].notes
