@@ -12,7 +12,9 @@ own configuration reads as lines; every tag is kept):
   shown by its parts: each part goes to the smallest outline holding a point inside it (shapely's
   STRtree), and the building is its parts, united in preprocessing (BuildingParts of one Building,
   as CityJSON's are; ``corpus.reader.parts: separate`` keeps them apart). A part without a height
-  of its own takes its building's; a part inside no outline is a building of its own, noted.
+  of its own takes its building's; an outline itself tagged ``building:part`` is one of its parts;
+  a part that cannot be extruded (no height, ``min_height`` above ``height``) is left out, noted;
+  a part inside no outline is a building of its own, noted.
 - **Heights** (:func:`meshsom.geojson.footprint_solid`, as for GeoJSON footprints): ``height``
   (roof included, metres, or text such as ``"12 m"``) above the ground, from ``min_height``;
   else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
@@ -175,26 +177,35 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
         label = area.tags.get(options.label_attribute)
         verts = FeatureVertices()
         more = [] if index >= 0 else ["a building:part inside no building outline, read as a building of its own"]
-        try:
-            pieces = [(area, _props(area.tags, options))] if not own_parts else [
-                (parts[k], _props({**{t: area.tags[t] for t in INHERITED if t in area.tags and t not in parts[k].tags},
-                                   **parts[k].tags}, options)) for k in own_parts]
-            solids = []
-            for piece, props in pieces:
+        if not own_parts:
+            pieces = [(area, _props(area.tags, options))]
+        else:  # the parts, each with its building's height where it has none; the outline too where it is a part
+            pieces = [(parts[k], _props({**{t: area.tags[t] for t in INHERITED if t in area.tags and t not in parts[k].tags},
+                                         **parts[k].tags}, options)) for k in own_parts]
+            if area.tags.get("building:part", NO) != NO:
+                pieces.insert(0, (area, _props(area.tags, options)))
+        solids, failed = [], []
+        for piece, props in pieces:
+            try:
                 polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
                 solid, said = footprint_solid([[ring[:, :2].tolist() for ring in poly] for poly in polygons], props, mesh_id,
                                               options, verts)
                 if solid is None:
-                    raise InputFileError(mesh_id, no_height(options) + (f" (its part {piece.oid})" if own_parts else ""))
-                solids.append((piece.oid, solid))
-                more += [n for n in said if n not in more]
-                if piece.tags.get("roof:shape", "flat") != "flat":
-                    more.append(f"roof:shape={piece.tags['roof:shape']} not modelled: a flat roof at the height")
-        except InputFileError as err:
-            yield Rejection(mesh_id, source, err.problem, 0, label)
+                    raise InputFileError(mesh_id, no_height(options))
+            except InputFileError as err:
+                failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
+                continue
+            solids.append((f"{piece.oid}/part" if piece is area and own_parts else piece.oid, solid))
+            more += [n for n in said if n not in more]
+            if piece.tags.get("roof:shape", "flat") != "flat":
+                more.append(f"roof:shape={piece.tags['roof:shape']} not modelled: a flat roof at the height")
+        if not solids:
+            yield Rejection(mesh_id, source, "; ".join(failed), 0, label)
             continue
+        more += [f"{problem}: left out" for problem in failed]
         if own_parts:
-            more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)")
+            more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)"
+                        + (" with the outline, itself tagged building:part" if area.tags.get("building:part", NO) != NO else ""))
             obj = {**building(None, area.tags, options), "geometry": [], "children": [oid for oid, _ in solids]}
             objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}
                                          for oid, solid in solids}}

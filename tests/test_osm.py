@@ -106,6 +106,9 @@ def _district(path):
     osm.way(31, (100, 0, 110, 10), **{PART: "yes"})
     osm.way(40, (120, 0, 130, 10), building="shed")
     osm.way(50, (140, 0, 150, 10), building="house", height="7", **{ROOF: "gabled"})
+    osm.way(80, (160, 0, 180, 10), building="church", height="10", **{PART: "yes"})
+    osm.way(81, (165, 2, 170, 7), height="40", **{PART: "yes"})
+    osm.way(82, (172, 2, 178, 8), height="5", min_height="9", **{PART: "yes"})
     osm.way(60, (0, 100, 50, 150), leisure="park")
     road = osm.ring(0, -10, 200, -9)[0][:2]
     osm.ways.append((70, "".join(f'<nd ref="{n}"/>' for n in road), {"highway": "residential"}))
@@ -116,7 +119,7 @@ def _district(path):
 def test_buildings_heights_and_courtyards(tmp_path):
     path, area = _district(tmp_path / "d.osm")
     items = {i.id.split("#")[1]: i for i in read_file(path)}
-    assert set(items) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50"}, sorted(items)
+    assert set(items) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80"}, sorted(items)
     house = items["way/10"]
     assert area[10] == pytest.approx(240, rel=3e-3)  # OSM's centimetre
     assert _volume(house) == pytest.approx(area[10] * 12.5, rel=1e-5)
@@ -148,6 +151,14 @@ def test_a_building_of_parts_is_its_parts_united(tmp_path):
     assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(
         area[21] * 6 + area[22] * 12, rel=1e-4)  # the parts' shared wall is not quite one line at OSM's precision
     assert _volume(items["way/30"]) == pytest.approx(area[31] * 8, rel=1e-5)
+    church = items["way/80"]  # an outline tagged building:part too, a tower on it, a part of no height left out
+    assert any("with the outline, itself tagged building:part" in n for n in church.notes)
+    assert any("its part way/82 its extrusion has no height (from 9 to 5): left out" in n for n in church.notes), church.notes
+    record, clean = process_one(church, PreprocessParams())
+    assert record["status"] == "accepted", record
+    t = clean.vertices[clean.faces]
+    assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(
+        area[80] * 10 + area[81] * 30, rel=1e-4)  # the tower stands 30 m above the nave
 
 
 def test_default_height_and_labels(tmp_path):
@@ -215,7 +226,7 @@ def test_meshsom_ingest_with_a_default_height(tmp_path):
     path, _ = _district(tmp_path / "d.osm")
     main(["ingest", str(path), "--out", str(tmp_path / "d.zarr"), "--default-height", "9"])
     records = {r["id"].split("#")[1]: r for r in read_manifest(tmp_path / "d.zarr")["records"]}
-    assert set(records) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50"}
+    assert set(records) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80"}
     assert all(r["status"] == "accepted" for r in records.values()), [r.get("reason") for r in records.values()]
     assert records["way/20"]["union"]["parts"] == 2
     assert any("default 9 m" in n for n in records["way/40"]["notes"])
