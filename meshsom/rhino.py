@@ -320,7 +320,8 @@ class _Model:
         missing = sum(m is None for m in meshes)
         if missing:
             curved = sum(not face.IsPlanar(self.tolerance) for face in faces)
-            raise _Unreadable(f"is a polysurface with {curved} curved faces of {len(faces)} and no render mesh for {missing} "
+            raise _Unreadable(f"is a polysurface with {curved} curved face{'s' * (curved != 1)} of {len(faces)} and no render "
+                              f"mesh for {missing} "
                               "(saved with 'Save small', or written by a script): open it in Rhino and save it with render "
                               "meshes, or export it as OBJ")
         pieces = [_mesh_arrays(m) for m in meshes]

@@ -213,7 +213,7 @@ def test_a_curved_polysurface_is_read_from_its_render_meshes(tmp_path):
     assert isinstance(meshed, RawMesh) and _volume(meshed.vertices, meshed.faces) == pytest.approx(prism, rel=1e-6)  # float32 mesh vertices
     assert _welded_edges_twice(meshed.vertices, meshed.faces)
     (bare,) = read_file(tmp_path / "bare.3dm")
-    assert isinstance(bare, Rejection) and "1 curved faces of 3 and no render mesh for 3" in bare.reason, bare
+    assert isinstance(bare, Rejection) and "1 curved face of 3 and no render mesh for 3" in bare.reason, bare
     assert "save it with render meshes, or export it as OBJ" in bare.reason
 
 
