@@ -812,7 +812,7 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
         elif kind == "osm":
             from meshsom.osm import read_osm
 
-            yield from read_osm(path, options, name)
+            yield from read_osm(path, options, name, feature_range)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:

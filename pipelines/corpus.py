@@ -85,7 +85,7 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
     byte_range : (start, stop, first_line), optional
         :func:`meshsom.io.cityjsonseq_ranges`.
     feature_range : list, optional
-        :func:`meshsom.gis.gis_ranges`.
+        :func:`meshsom.gis.gis_ranges` or :func:`meshsom.osm.osm_ranges`.
 
     Returns
     -------
@@ -487,6 +487,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.errors import StoreError
     from meshsom.gis import gis_ranges
     from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
+    from meshsom.osm import osm_ranges
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
     )
@@ -521,7 +522,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
             kind = input_kind(f.path)
             ranges = cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "cityjsonseq" else None
-            features = gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else None
+            features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
+                        osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
             if ranges:
                 sources += [{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
             elif features:

@@ -41,7 +41,9 @@ class DaskConfig:
         whole city's meshes (:func:`meshsom.io.cityjsonseq_ranges`).
     read_features : int
         A GIS layer (GeoPackage, FileGDB, GeoParquet, ...) of more than twice this many features
-        is read by several tasks in parallel, each this many features (:func:`meshsom.gis.gis_ranges`).
+        is read by several tasks in parallel, each this many features (:func:`meshsom.gis.gis_ranges`);
+        so is an OpenStreetMap extract of, by its size, more than twice this many buildings, each
+        task parsing the file and building the meshes of its range (:func:`meshsom.osm.osm_ranges`).
     dashboard : bool
         Serve the Dask dashboard (bokeh pages) of a LocalCluster on a free loopback port, and
         print its link; false: no dashboard is served.

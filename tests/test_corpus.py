@@ -332,3 +332,38 @@ def test_a_large_gis_file_is_read_by_several_tasks(cluster_client, tmp_path):
         [k for k in range(40) if k % 17 == 0])  # no height
     for name, array in arrays(whole).items():
         assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(ranged)[name][:])), name
+
+
+def test_a_large_osm_extract_is_read_by_several_tasks(cluster_client, tmp_path):
+    """An OpenStreetMap extract planned as several read tasks (each parses the file and builds
+    the meshes of its range of buildings, parts with their building): the store is the one a
+    single reader gives, and a file of no buildings is one rejection however many tasks read it."""
+    from test_osm import OsmWriter, _district
+
+    from meshsom.osm import osm_ranges
+
+    path, _ = _district(tmp_path / "d.osm")
+    density_ranges = osm_ranges(path, 1, None)
+    assert density_ranges is not None and len(density_ranges) > 3  # a few kilobytes, one building per task asked
+    stores, reads = {}, {}
+    for read_features in (10**6, 2):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(path)], "reader": {"default_height": 6.0}}, "encoding": {"levels": [1]},
+                                "dask": {"shard_meshes": 4, "read_features": read_features}, "store": {"chunk_rows": CHUNK}})
+        stores[read_features] = store = tmp_path / f"o{read_features}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_features] = {total for stage, _, total in calls if stage == "read"}
+    assert reads[10**6] == {1} and reads[2] == {len(osm_ranges(path, 2, None))} and len(osm_ranges(path, 2, None)) > 1
+    a, b = read_manifest(stores[10**6])["records"], read_manifest(stores[2])["records"]
+    assert a == b and len(a) == 8 and all(r["status"] == "accepted" for r in a)
+    for name, array in arrays(stores[10**6]).items():
+        assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(stores[2])[name][:])), name
+    park = OsmWriter()
+    for k in range(40):
+        park.way(k + 1, (20 * k, 0, 20 * k + 10, 10), landuse="grass")
+    (tmp_path / "park.osm").write_text(park.text())
+    cfg = build(RunConfig, {"corpus": {"paths": [str(tmp_path / "park.osm")]}, "encoding": {"levels": [1]},
+                            "dask": {"read_features": 1}, "store": {"chunk_rows": CHUNK}})
+    corpus.run_corpus(cluster_client, cfg, tmp_path / "park.zarr")
+    (record,) = read_manifest(tmp_path / "park.zarr")["records"]
+    assert record["status"] == "rejected" and "holds no building" in record["reason"], record
