@@ -19,8 +19,8 @@ files are read (openNURBS reads each older version).
   its holes triangulated in the face's plane (:func:`meshsom.polygons.triangulate_polygon_3d`) and
   turned to the face's side (its surface normal, reversed where the face is). A Brep with a curved
   face (a barrel roof, a round tower) is read from the render meshes Rhino saved with it (Rhino
-  meshes shared edges alike); one saved without them ("Save small", or written by a script) is a
-  rejection saying so.
+  meshes shared edges alike; an extrusion's render mesh is kept on the extrusion); one saved
+  without them ("Save small", or written by a script) is a rejection saying so.
 - **Units**: the model's unit system (``Settings.ModelUnitSystem``), scaled to metres
   (:data:`METRES_PER_UNIT`); a model of no unit is read as metres, noted. Rhino is z-up.
 - **Labels**: :attr:`meshsom.io.ReaderOptions.label_attribute` names an object's user text (the
@@ -274,7 +274,8 @@ class _Model:
             brep = geometry.ToBrep(False)
             if brep is None:
                 raise _Unreadable("is an extrusion with no polysurface form")
-            vertices, faces = self.brep(brep)
+            saved = geometry.GetMesh(self.rhino3dm.MeshType.Any)  # Rhino keeps an extrusion's render mesh on it
+            vertices, faces = self.brep(brep, saved)
         elif kind == kinds.Brep:
             vertices, faces = self.brep(geometry)
         elif kind == kinds.Surface:
@@ -311,11 +312,14 @@ class _Model:
         offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
         return np.concatenate([v for v, _ in pieces]), np.concatenate([f + o for (_, f), o in zip(pieces, offsets)])
 
-    def brep(self, brep) -> tuple[np.ndarray, np.ndarray]:
-        """A polysurface's triangles (as the module says): (V, 3) float64, (F, 3) int64."""
+    def brep(self, brep, saved=None) -> tuple[np.ndarray, np.ndarray]:
+        """A polysurface's triangles (as the module says): (V, 3) float64, (F, 3) int64. ``saved``
+        is the render mesh of the object it was made from (an extrusion's), used for curved faces."""
         faces = [brep.Faces[k] for k in range(len(brep.Faces))]
         if all(face.IsPlanar(self.tolerance) for face in faces):
             return self._planar_brep(brep, faces)
+        if saved is not None:
+            return _mesh_arrays(saved)
         meshes = [face.GetMesh(self.rhino3dm.MeshType.Any) for face in faces]
         missing = sum(m is None for m in meshes)
         if missing:

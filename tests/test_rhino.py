@@ -292,3 +292,43 @@ def test_a_folder_and_a_gzipped_model_are_read(tmp_path):
     items = list(read_file(files[0].path, ReaderOptions(), files[0].name))
     assert len(items) == 4 and all(isinstance(i, RawMesh) for i in items)
     assert "a.3dm.gz#tower" in {i.id for i in items}
+
+
+#: Writes a round tower as a Rhino extrusion (a capped cylinder, r = 3 m, h = 9 m) to argv[1], with
+#: the render mesh Rhino keeps on the extrusion (32 segments) where argv[2] is "meshed". In its own
+#: process: rhino3dm crashes on exit after a render mesh is set from Python.
+EXTRUSION = textwrap.dedent("""
+    import math, os, sys
+    import rhino3dm as r
+    model = r.File3dm()
+    model.Settings.ModelUnitSystem = r.UnitSystem.Meters
+    tower = r.Extrusion.CreateCylinderExtrusion(r.Cylinder(r.Circle(r.Point3d(0, 0, 0), 3), 9), True, True)
+    mesh, n = r.Mesh(), 32
+    for z in (0, 9):
+        for k in range(n):
+            mesh.Vertices.Add(3 * math.cos(2 * math.pi * k / n), 3 * math.sin(2 * math.pi * k / n), z)
+    bottom, top = mesh.Vertices.Add(0, 0, 0), mesh.Vertices.Add(0, 0, 9)
+    for i in range(n):
+        mesh.Faces.AddFace(i, (i + 1) % n, n + (i + 1) % n, n + i)
+        mesh.Faces.AddFace(bottom, (i + 1) % n, i)
+        mesh.Faces.AddFace(top, n + i, n + (i + 1) % n)
+    if sys.argv[2] == "meshed":
+        assert tower.SetMesh(mesh, r.MeshType.Render)
+    model.Objects.AddExtrusion(tower)
+    assert model.Write(sys.argv[1], 8)
+    sys.stdout.flush()
+    os._exit(0)
+""")
+
+
+def test_a_curved_extrusion_is_read_from_the_render_mesh_kept_on_it(tmp_path):
+    """Rhino keeps an extrusion's render mesh on the extrusion, not on the faces of its polysurface
+    form: a round tower saved so reads as that mesh (the 32-sided prism's volume); without it, a
+    rejection saying what to do."""
+    for kind in ("meshed", "bare"):
+        subprocess.run([sys.executable, "-c", EXTRUSION, str(tmp_path / f"{kind}.3dm"), kind], check=True, timeout=60)
+    (meshed,) = read_file(tmp_path / "meshed.3dm")
+    prism = 0.5 * 32 * 3**2 * math.sin(2 * math.pi / 32) * 9
+    assert isinstance(meshed, RawMesh) and _volume(meshed.vertices, meshed.faces) == pytest.approx(prism, rel=1e-6), meshed
+    (bare,) = read_file(tmp_path / "bare.3dm")
+    assert isinstance(bare, Rejection) and "no render mesh" in bare.reason, bare
