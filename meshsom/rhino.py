@@ -19,8 +19,11 @@ files are read (openNURBS reads each older version).
   its holes triangulated in the face's plane (:func:`meshsom.polygons.triangulate_polygon_3d`) and
   turned to the face's side (its surface normal, reversed where the face is). A Brep with a curved
   face (a barrel roof, a round tower) is read from the render meshes Rhino saved with it (Rhino
-  meshes shared edges alike; an extrusion's render mesh is kept on the extrusion); one saved
-  without them ("Save small", or written by a script) is a rejection saying so.
+  meshes shared edges alike; an extrusion's render mesh is kept on the extrusion). One saved
+  without them ("Save small", or written by a script with rhino3dm) is tessellated here where its
+  curved faces are untrimmed (cylinders, cones, vaults, spheres, lofts: :meth:`_Model._curved_face`,
+  the planar faces as above, the shared edges' points on both sides, so it closes); a trimmed
+  curved face (a hole in a round wall) without a render mesh is a rejection saying what to do.
 - **Units**: the model's unit system (``Settings.ModelUnitSystem``), scaled to metres
   (:data:`METRES_PER_UNIT`); a model of no unit is read as metres, noted. Rhino is z-up.
 - **Labels**: :attr:`meshsom.io.ReaderOptions.label_attribute` names an object's user text (the
@@ -61,6 +64,11 @@ NO_UNITS = ("None", "Unset", "CustomUnits")
 EDGE_SAMPLES_PER_SPAN = 8
 #: Points of one curved edge at most.
 EDGE_MAX_SAMPLES = 1024
+#: Points of each side of a curved face's domain, to find where its edges' points lie on it.
+SIDE_SAMPLES = 257
+#: Golden-section steps refining a point's parameter on a side (0.618^24: 1e-5 of two dense steps).
+GOLDEN_STEPS = 24
+GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 #: Block instances nested deeper than this are a rejection (a definition that names itself).
 MAX_BLOCK_DEPTH = 32
 #: Tolerance of "planar" and "linear", in model units, where the model gives none.
@@ -316,60 +324,156 @@ class _Model:
         """A polysurface's triangles (as the module says): (V, 3) float64, (F, 3) int64. ``saved``
         is the render mesh of the object it was made from (an extrusion's), used for curved faces."""
         faces = [brep.Faces[k] for k in range(len(brep.Faces))]
-        if all(face.IsPlanar(self.tolerance) for face in faces):
-            return self._planar_brep(brep, faces)
-        if saved is not None:
-            return _mesh_arrays(saved)
-        meshes = [face.GetMesh(self.rhino3dm.MeshType.Any) for face in faces]
-        missing = sum(m is None for m in meshes)
-        if missing:
-            curved = sum(not face.IsPlanar(self.tolerance) for face in faces)
-            raise _Unreadable(f"is a polysurface with {curved} curved face{'s' * (curved != 1)} of {len(faces)} and no render "
-                              f"mesh for {missing} "
-                              "(saved with 'Save small', or written by a script): open it in Rhino and save it with render "
-                              "meshes, or export it as OBJ")
-        pieces = [_mesh_arrays(m) for m in meshes]
-        offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
-        return np.concatenate([v for v, _ in pieces]), np.concatenate([f + o for (_, f), o in zip(pieces, offsets)])
-
-    def _planar_brep(self, brep, faces) -> tuple[np.ndarray, np.ndarray]:
-        from meshsom.polygons import triangulate_polygon_3d
-
+        planar = [face.IsPlanar(self.tolerance) for face in faces]
+        if not all(planar):
+            if saved is not None:
+                return _mesh_arrays(saved)
+            meshes = [face.GetMesh(self.rhino3dm.MeshType.Any) for face in faces]
+            if all(m is not None for m in meshes):
+                pieces = [_mesh_arrays(m) for m in meshes]
+                offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
+                return np.concatenate([v for v, _ in pieces]), np.concatenate([f + o for (_, f), o in zip(pieces, offsets)])
         edges: dict[int, np.ndarray] = {}
         vertices, triangles, count = [], [], 0
-        for face in faces:
-            rings = []
-            for loop in (face.Loops[k] for k in range(len(face.Loops))):
-                if loop.LoopType.name not in ("Outer", "Inner"):
-                    continue  # slits, curves and points on the surface bound nothing
-                ring = []
-                for trim in (loop.Trims[k] for k in range(len(loop.Trims))):
-                    index = trim.EdgeIndex
-                    if index < 0:
-                        continue  # a singular trim (a pole): no edge
-                    if index not in edges:
-                        edges[index] = self._edge_points(brep.Edges[index])
-                    points = edges[index][::-1] if trim.IsReversed else edges[index]
-                    ring.append(points[:-1])
-                if ring:
-                    ring = np.concatenate(ring)
-                    (rings.insert(0, ring) if loop.LoopType.name == "Outer" else rings.append(ring))
-            if not rings or len(rings[0]) < 3:
-                continue
-            found = triangulate_polygon_3d(rings)
-            if not len(found):
-                continue
-            points = np.concatenate(rings)
-            normal = self._face_normal(face)
-            tri = points[found]
-            if np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0) @ normal < 0:
-                found = found[:, ::-1]
-            vertices.append(points)
-            triangles.append(found + count)
-            count += len(points)
+        for face, flat in zip(faces, planar):
+            points, found = (self._planar_face if flat else self._curved_face)(brep, face, edges)
+            if len(found):
+                vertices.append(points)
+                triangles.append(found + count)
+                count += len(points)
         if not vertices:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
         return np.concatenate(vertices), np.concatenate(triangles).astype(np.int64)
+
+    def _edge(self, brep, edges: dict, index: int) -> np.ndarray:
+        if index not in edges:
+            edges[index] = self._edge_points(brep.Edges[index])
+        return edges[index]
+
+    def _planar_face(self, brep, face, edges: dict) -> tuple[np.ndarray, np.ndarray]:
+        """A planar face's triangles from its loops' edges (as the module says): points (P, 3), triangles (T, 3)."""
+        from meshsom.polygons import triangulate_polygon_3d
+
+        rings = []
+        for loop in (face.Loops[k] for k in range(len(face.Loops))):
+            if loop.LoopType.name not in ("Outer", "Inner"):
+                continue  # slits, curves and points on the surface bound nothing
+            ring = []
+            for trim in (loop.Trims[k] for k in range(len(loop.Trims))):
+                if trim.EdgeIndex < 0:
+                    continue  # a singular trim (a pole): no edge
+                points = self._edge(brep, edges, trim.EdgeIndex)
+                ring.append((points[::-1] if trim.IsReversed else points)[:-1])
+            if ring:
+                ring = np.concatenate(ring)
+                (rings.insert(0, ring) if loop.LoopType.name == "Outer" else rings.append(ring))
+        if not rings or len(rings[0]) < 3:
+            return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+        found = triangulate_polygon_3d(rings)
+        points = np.concatenate(rings)
+        if len(found):
+            tri = points[found]
+            if np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0) @ self._face_normal(face) < 0:
+                found = found[:, ::-1]
+        return points, found
+
+    def _curved_face(self, brep, face, edges: dict) -> tuple[np.ndarray, np.ndarray]:
+        """A curved face without a render mesh, tessellated here where it is untrimmed (its one loop
+        runs along its surface's domain, as a cylinder's, a cone's, a vault's or a sphere's does):
+        its boundary is its edges' polylines (the points its neighbours use), each point put at its
+        place on the domain's side (the nearest of :data:`SIDE_SAMPLES` points of that side,
+        refined by a golden-section search), the inside a grid of the surface's points
+        (:data:`EDGE_SAMPLES_PER_SPAN` per span), all triangulated in the domain (Delaunay) and
+        turned to the face's side.
+
+        Raises
+        ------
+        _Unreadable
+            The face is trimmed (a hole, or a loop inside its domain).
+        """
+        from scipy.spatial import Delaunay
+
+        domain = [face.Domain(0), face.Domain(1)]
+        (u0, u1), (v0, v1) = [(d.T0, d.T1) for d in domain]
+        loops = [face.Loops[k] for k in range(len(face.Loops))]
+        trimmed = _Unreadable("is a polysurface with a trimmed curved face and no render mesh (saved with 'Save small', "
+                              "or written by a script): open it in Rhino and save it with render meshes, or export it as OBJ")
+        if len(loops) != 1:
+            raise trimmed
+        t = np.linspace(0.0, 1.0, SIDE_SAMPLES)
+        sides = {"v0": np.column_stack([u0 + t * (u1 - u0), np.full_like(t, v0)]),
+                 "u1": np.column_stack([np.full_like(t, u1), v0 + t * (v1 - v0)]),
+                 "v1": np.column_stack([u1 - t * (u1 - u0), np.full_like(t, v1)]),
+                 "u0": np.column_stack([np.full_like(t, u0), v1 - t * (v1 - v0)])}
+        images = {name: self._points(face, uv) for name, uv in sides.items()}
+        size = max(float(np.ptp(np.concatenate(list(images.values())), axis=0).max()), self.tolerance)
+        reach = max(4.0 / SIDE_SAMPLES * size, 10 * self.tolerance)  # a side's dense points are this close to it
+        ring_uv, ring_xyz, previous = [], [], None
+        for trim in (loops[0].Trims[k] for k in range(len(loops[0].Trims))):
+            if trim.EdgeIndex < 0:
+                continue  # a singular side (a pole): its neighbours end at the pole
+            points = self._edge(brep, edges, trim.EdgeIndex)
+            points = points[::-1] if trim.IsReversed else points
+            distance = {name: np.sqrt(((points[:, None] - image[None]) ** 2).sum(-1)).min(axis=1).max() for name, image in images.items()}
+            candidates = [name for name, d in distance.items() if d <= reach]
+            if not candidates:
+                raise trimmed
+            uvs = {name: self._side_params(face, sides[name], images[name], points) for name in candidates}
+            name = min(candidates, key=lambda c: 0.0 if previous is None else float(np.abs(uvs[c][0] - previous).sum()))
+            ring_uv.append(uvs[name][:-1])
+            ring_xyz.append(points[:-1])
+            previous = uvs[name][-1]
+        if not ring_uv:
+            raise trimmed
+        spans = face.ToNurbsSurface()
+        counts = [int(np.clip(EDGE_SAMPLES_PER_SPAN * max(int(spans.SpanCount(d)) if spans else 1, 1), 2, EDGE_MAX_SAMPLES))
+                  for d in (0, 1)]
+        for name, side in sides.items():  # a side that is a point (a pole, an apex): its trim has no edge
+            if np.ptp(images[name], axis=0).max() <= reach:
+                levels = np.linspace(0.0, 1.0, counts[0 if name[0] == "v" else 1] + 1)
+                along = side[0] + levels[:, None] * (side[-1] - side[0])
+                ring_uv.append(along)
+                ring_xyz.append(np.repeat(images[name][:1], len(along), axis=0))
+        gu, gv = np.meshgrid(np.linspace(u0, u1, counts[0] + 1)[1:-1], np.linspace(v0, v1, counts[1] + 1)[1:-1], indexing="ij")
+        inside = np.column_stack([gu.ravel(), gv.ravel()])
+        uv = np.concatenate(ring_uv + [inside])
+        unit = (uv - [u0, v0]) / [u1 - u0, v1 - v0]
+        triangles = Delaunay(unit).simplices.astype(np.int64)
+        a, b, c = (unit[triangles[:, k]] for k in range(3))
+        ccw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        triangles[ccw < 0] = triangles[ccw < 0][:, ::-1]  # counter-clockwise in the domain: the surface's normal
+        if face.OrientationIsReversed:
+            triangles = triangles[:, ::-1]
+        points = np.concatenate(ring_xyz + [self._points(face, inside)])
+        return points, triangles
+
+    def _points(self, face, uv: np.ndarray) -> np.ndarray:
+        """The surface's points at parameters ``uv`` (K, 2): (K, 3) float64."""
+        found = [face.PointAt(float(u), float(v)) for u, v in uv]
+        return np.array([[p.X, p.Y, p.Z] for p in found], np.float64).reshape(-1, 3)
+
+    def _side_params(self, face, side_uv: np.ndarray, image: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """The parameters (K, 2) on one side of the domain of ``points`` (K, 3) on its image: the
+        nearest of the side's dense points, refined by a golden-section search between its neighbours."""
+        distance = np.sqrt(((points[:, None] - image[None]) ** 2).sum(-1))
+        nearest = distance.argmin(axis=1)
+        near = distance <= distance.min(axis=1, keepdims=True) + 1e-9 * (1.0 + distance.max())
+        nearest[0] = np.flatnonzero(near[0])[0]  # a closed side (a circle) starts and ends at one point:
+        nearest[-1] = np.flatnonzero(near[-1])[-1]  # its trim runs from the side's start to its end
+        out = side_uv[nearest].copy()
+        last = len(side_uv) - 1
+        for k, (p, j) in enumerate(zip(points, nearest.tolist())):
+            lo, hi = side_uv[max(j - 1, 0)], side_uv[min(j + 1, last)]
+            a, b = 0.0, 1.0
+            gap = lambda s: float(((self._points(face, (lo + s * (hi - lo))[None])[0] - p) ** 2).sum())  # noqa: E731
+            for _ in range(GOLDEN_STEPS):
+                c, d = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
+                if gap(c) < gap(d):
+                    b = d
+                else:
+                    a = c
+            out[k] = lo + 0.5 * (a + b) * (hi - lo)
+        return out
 
     def _face_normal(self, face) -> np.ndarray:
         """The side a face faces: its surface's normal at the middle of its domain, reversed where the face is."""
@@ -379,12 +483,15 @@ class _Model:
         return -normal if face.OrientationIsReversed else normal
 
     def _edge_points(self, edge) -> np.ndarray:
-        """An edge as a polyline from its start to its end: (K, 3) float64, K >= 2."""
+        """An edge as a polyline from its start to its end: (K, 3) float64, K >= 2 (a curved one at
+        :data:`EDGE_SAMPLES_PER_SPAN` points per span of its NURBS form: a circle's four spans, 32)."""
         if edge.IsLinear(self.tolerance):
             ends = (edge.PointAtStart, edge.PointAtEnd)
             return np.array([[p.X, p.Y, p.Z] for p in ends], np.float64)
         domain = edge.Domain
-        count = int(np.clip(EDGE_SAMPLES_PER_SPAN * max(int(edge.SpanCount), 1), 2, EDGE_MAX_SAMPLES))
+        nurbs = edge.ToNurbsCurve()
+        spans = max(int(edge.SpanCount), int(nurbs.SpanCount) if nurbs is not None else 1, 1)
+        count = int(np.clip(EDGE_SAMPLES_PER_SPAN * spans, 2, EDGE_MAX_SAMPLES))
         points = [edge.PointAt(t) for t in np.linspace(domain.T0, domain.T1, count + 1)]
         return np.array([[p.X, p.Y, p.Z] for p in points], np.float64)
 

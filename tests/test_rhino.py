@@ -205,16 +205,16 @@ TOWER = textwrap.dedent("""
 
 def test_a_curved_polysurface_is_read_from_its_render_meshes(tmp_path):
     """A round tower saved with render meshes reads as their closed union, the volume of the
-    32-sided prism they make; saved without them it is a rejection saying what to do."""
+    32-sided prism they make; saved without them it is tessellated here, closed, the same prism."""
     for kind in ("meshed", "bare"):
         subprocess.run([sys.executable, "-c", TOWER, str(tmp_path / f"{kind}.3dm"), kind], check=True, timeout=60)
     (meshed,) = read_file(tmp_path / "meshed.3dm")
     prism = 0.5 * 32 * 3**2 * math.sin(2 * math.pi / 32) * 9
     assert isinstance(meshed, RawMesh) and _volume(meshed.vertices, meshed.faces) == pytest.approx(prism, rel=1e-6)  # float32 mesh vertices
     assert _welded_edges_twice(meshed.vertices, meshed.faces)
-    (bare,) = read_file(tmp_path / "bare.3dm")
-    assert isinstance(bare, Rejection) and "1 curved face of 3 and no render mesh for 3" in bare.reason, bare
-    assert "save it with render meshes, or export it as OBJ" in bare.reason
+    (bare,) = read_file(tmp_path / "bare.3dm")  # tessellated here: the same 32 segments on its circles
+    assert isinstance(bare, RawMesh) and _volume(bare.vertices, bare.faces) == pytest.approx(prism, rel=1e-9), bare
+    assert _welded_edges_twice(bare.vertices, bare.faces)
 
 
 def test_units_and_layer_labels(tmp_path):
@@ -323,12 +323,55 @@ EXTRUSION = textwrap.dedent("""
 
 def test_a_curved_extrusion_is_read_from_the_render_mesh_kept_on_it(tmp_path):
     """Rhino keeps an extrusion's render mesh on the extrusion, not on the faces of its polysurface
-    form: a round tower saved so reads as that mesh (the 32-sided prism's volume); without it, a
-    rejection saying what to do."""
+    form: a round tower saved so reads as that mesh (the 32-sided prism's volume); without it, it
+    is tessellated here, closed, within 0.1 % of the 32-sided prism."""
     for kind in ("meshed", "bare"):
         subprocess.run([sys.executable, "-c", EXTRUSION, str(tmp_path / f"{kind}.3dm"), kind], check=True, timeout=60)
     (meshed,) = read_file(tmp_path / "meshed.3dm")
     prism = 0.5 * 32 * 3**2 * math.sin(2 * math.pi / 32) * 9
     assert isinstance(meshed, RawMesh) and _volume(meshed.vertices, meshed.faces) == pytest.approx(prism, rel=1e-6), meshed
-    (bare,) = read_file(tmp_path / "bare.3dm")
-    assert isinstance(bare, Rejection) and "no render mesh" in bare.reason, bare
+    (bare,) = read_file(tmp_path / "bare.3dm")  # tessellated here: its NURBS circles at 32 points, not evenly spread
+    assert isinstance(bare, RawMesh) and 0.999 * prism < _volume(bare.vertices, bare.faces) < math.pi * 9 * 9, bare
+    assert _welded_edges_twice(bare.vertices, bare.faces)
+
+
+def test_curved_polysurfaces_without_render_meshes_are_tessellated_watertight(tmp_path):
+    """Written by a script (no render meshes): a D-shaped tower (an extrusion of a rectangle ended
+    by a half circle: flat walls, a curved wall, caps whose arcs it shares) reads closed, with a
+    volume (between that of the half circle in 16 even segments, within 1e-4, and the round one's);
+    a cylinder turned inside out (Flip) has the prism's volume negative; a sphere (two poles, a
+    seam) is closed after preprocessing, its volume between that of
+    the ball its facets keep out of (cos 11.25 degrees) and the sphere's."""
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    outline = r.PolyCurve()
+    outline.Append(r.LineCurve(r.Point3d(0, 0, 0), r.Point3d(10, 0, 0)))
+    outline.Append(r.Arc(r.Point3d(10, 0, 0), r.Point3d(14, 4, 0), r.Point3d(10, 8, 0)))
+    outline.Append(r.LineCurve(r.Point3d(10, 8, 0), r.Point3d(0, 8, 0)))
+    outline.Append(r.LineCurve(r.Point3d(0, 8, 0), r.Point3d(0, 0, 0)))
+    model = r.File3dm()
+    model.Settings.ModelUnitSystem = r.UnitSystem.Meters
+    tower = r.ObjectAttributes()
+    tower.Name = "d"
+    model.Objects.AddExtrusion(r.Extrusion.Create(outline, 12, True), tower)
+    inside_out = r.Brep.CreateFromCylinder(r.Cylinder(r.Circle(r.Point3d(80, 0, 0), 3), 9), True, True)
+    inside_out.Flip()  # every face reversed: the faces turn with it
+    flipped = r.ObjectAttributes()
+    flipped.Name = "flipped"
+    model.Objects.AddBrep(inside_out, flipped)
+    ball = r.ObjectAttributes()
+    ball.Name = "ball"
+    model.Objects.AddBrep(r.Brep.CreateFromSphere(r.Sphere(r.Point3d(40, 0, 0), 5)), ball)
+    assert model.Write(str(tmp_path / "s.3dm"), 8)
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "s.3dm")}
+    d = items["d"]
+    half = 0.5 * 16 * 4**2 * math.sin(math.pi / 16)  # half of a 32-gon of radius 4
+    assert (80 + half) * 12 * 0.9999 < _volume(d.vertices, d.faces) < (80 + math.pi * 16 / 2) * 12  # 16 arc points, not evenly spread
+    assert _welded_edges_twice(d.vertices, d.faces)
+    prism = 0.5 * 32 * 3**2 * math.sin(2 * math.pi / 32) * 9
+    assert _volume(items["flipped"].vertices, items["flipped"].faces) == pytest.approx(-prism, rel=1e-9)
+    record, clean = process_one(items["ball"], PreprocessParams())
+    assert record["status"] == "accepted" and "envelope" not in record, record
+    sphere = 4 / 3 * math.pi * 5**3
+    assert sphere * math.cos(math.radians(11.25)) ** 3 < _volume(clean.vertices, clean.faces) < sphere
