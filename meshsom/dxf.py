@@ -141,6 +141,10 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
     source = str(path)
     doc, repaired = _document(path, options)
     to_metres, unit_note = _units(doc)
+    crs = file_crs(None, options)
+    if crs[0] is not None and to_metres != 1.0:  # a CRS given: coordinates are in its units, scaled by it
+        unit_note = f"{unit_note.split(',')[0]} not applied: coordinates read in the units of the CRS given ({crs[0].name})"
+        to_metres = 1.0
     blocks = _Blocks(doc)
     jobs: list = []  # (kind, entity) in model-space order
     loose: dict[str, list] = {}  # layer -> [(4, 3) corners]
@@ -168,7 +172,6 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
     notes = [unit_note] + ([repaired] if repaired else [])
     if flat:
         notes.append(f"2D drawing entities (not buildings) not read: {_counts(flat)}")
-    crs = file_crs(None, options)
     if crs[1]:
         notes.append(crs[1])
     pieces, empty = [], []

@@ -162,6 +162,11 @@ def read_3dm(path: Path, options, name: str | None = None) -> Iterator:
         notes.append(f"the model's unit system is {unit}: read as metres")
     else:
         raise InputFileError(str(path), f"its unit system is {unit!r}; expected one of {', '.join(METRES_PER_UNIT)}")
+    crs = file_crs(None, options)
+    if crs[0] is not None and scale != 1.0:  # a CRS given: coordinates are in its units, scaled by it
+        notes = [n for n in notes if not n.startswith("model units")]
+        notes.append(f"model units ({unit.lower()}) not applied: coordinates read in the units of the CRS given ({crs[0].name})")
+        scale = 1.0
     tolerance = float(model.Settings.ModelAbsoluteTolerance) or DEFAULT_TOLERANCE
     reader = _Model(model, rhino3dm, tolerance)
     buildings, skipped = reader.buildings()
@@ -170,7 +175,6 @@ def read_3dm(path: Path, options, name: str | None = None) -> Iterator:
         raise InputFileError(str(path), f"holds no polysurface, extrusion, mesh or block instance in model space: {kinds}")
     if skipped:
         notes.append("not buildings, not read: " + ", ".join(f"{k} x {n}" for k, n in sorted(skipped.items())))
-    crs = file_crs(None, options)
     for key, members in buildings:
         label = reader.label(members[0], options.label_attribute)
         mesh_id = f"{name}#{key}"

@@ -405,3 +405,16 @@ def test_closed_outlines_with_a_thickness_are_prisms(tmp_path):
         assert mesh.origin[2] == pytest.approx(z, abs=1e-6) and closed(mesh.faces), x
         assert any("with a thickness, read as the prism it draws (2.5D)" in n for n in mesh.notes), x
     assert any("LWPOLYLINE x 2" in n for n in items[0].notes), items[0].notes
+
+
+def test_a_crs_in_feet_is_not_applied_twice(tmp_path):
+    """A drawing in feet ($INSUNITS 2) of New York's State Plane (EPSG:2263, US survey feet), read
+    with that CRS: the CRS scales the coordinates, the drawing's unit is not applied as well."""
+    doc, msp = new_doc(units.FT)
+    add_box_faces(msp, box_corners((30, 20, 12), at=(980000, 200000, 30)))
+    doc.saveas(tmp_path / "ny.dxf")
+    (mesh,) = meshes(read(tmp_path / "ny.dxf", crs="EPSG:2263"))
+    assert np.ptp(mesh.vertices, axis=0) == pytest.approx(np.array([30, 20, 12]) * 1200 / 3937, rel=1e-9)
+    assert any("drawing units: feet not applied" in n for n in mesh.notes), mesh.notes
+    (plain,) = meshes(read(tmp_path / "ny.dxf"))
+    assert np.ptp(plain.vertices, axis=0) == pytest.approx(np.array([30, 20, 12]) * 0.3048, rel=1e-9)

@@ -375,3 +375,17 @@ def test_curved_polysurfaces_without_render_meshes_are_tessellated_watertight(tm
     assert record["status"] == "accepted" and "envelope" not in record, record
     sphere = 4 / 3 * math.pi * 5**3
     assert sphere * math.cos(math.radians(11.25)) ** 3 < _volume(clean.vertices, clean.faces) < sphere
+
+
+def test_a_crs_in_feet_is_not_applied_twice(tmp_path):
+    """A model in feet read with a CRS in US survey feet (EPSG:2263): the CRS scales, the model's
+    unit is not applied as well."""
+    import dataclasses
+
+    model = r.File3dm()
+    model.Settings.ModelUnitSystem = r.UnitSystem.Feet
+    model.Objects.AddBrep(_box(980000, 200000, 30, 980030, 200020, 42))
+    assert model.Write(str(tmp_path / "ny.3dm"), 8)
+    (item,) = read_file(tmp_path / "ny.3dm", dataclasses.replace(ReaderOptions(), crs="EPSG:2263"))
+    assert np.ptp(item.vertices, axis=0) == pytest.approx(np.array([30, 20, 12]) * 1200 / 3937, rel=1e-9)
+    assert any("model units (feet) not applied" in n for n in item.notes), item.notes
