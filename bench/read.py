@@ -3,9 +3,10 @@
     .venv/bin/python bench/read.py [--blocks 20000] [--seed 0]
 
 Writes one synthetic city (``meshsom generate`` blocks with LoD2 roofs, on Swiss LV95 offsets) as
-CityJSON, CityJSONSeq, CityGML, gzipped CityJSON / CityJSONSeq, and as 3D GIS layers (each building
+CityJSON, CityJSONSeq, CityGML, gzipped CityJSON / CityJSONSeq, as 3D GIS layers (each building
 a MultiPolygon Z of its triangles, as the 3D BAG's GeoPackage layers hold them: GeoPackage written
-by GDAL, GeoParquet by pyarrow), then reads every building of
+by GDAL, GeoParquet by pyarrow), as DXF (a POLYFACE per building, by ezdxf) and as a Rhino model
+(a mesh object per building, by openNURBS), then reads every building of
 each file with :func:`meshsom.io.read_file`, as ``meshsom ingest`` does, in a child process of its
 own, and prints per container: file size, wall seconds (best of ``--repeat``), buildings per
 second, and the peak memory the read allocates (``tracemalloc``: Python objects and NumPy arrays,
@@ -36,7 +37,8 @@ sys.path.insert(0, str(ROOT))
 FORMATS = [("CityJSON", "city.city.json", "cityjson"), ("CityJSON, gzip", "city.city.json.gz", "cityjson"),
            ("CityJSONSeq", "city.city.jsonl", "cityjsonseq"), ("CityJSONSeq, gzip", "city.city.jsonl.gz", "cityjsonseq"),
            ("CityGML 2.0", "city.gml", "citygml"), ("GeoPackage, 3D", "city.gpkg", "gpkg"),
-           ("GeoParquet, 3D", "city.parquet", "parquet")]
+           ("GeoParquet, 3D", "city.parquet", "parquet"), ("DXF (a POLYFACE each)", "city.dxf", "dxf"),
+           ("Rhino 8 (a mesh object each)", "city.3dm", "3dm")]
 
 
 def _multipolygon(mesh) -> dict:
@@ -65,6 +67,39 @@ def write_geoparquet(path, meshes) -> None:
            "columns": {"geometry": {"encoding": "WKB", "geometry_types": [], "crs": pyproj.CRS("EPSG:2056").to_json_dict()}}}
     table = pa.table({"id": [str(m.id) for m in meshes], "geometry": wkb})
     pq.write_table(table.replace_schema_metadata({b"geo": json.dumps(geo).encode()}), path)
+
+
+def write_dxf(path, meshes) -> None:
+    """Each mesh a POLYFACE entity (ezdxf), in metres, on LV95 offsets (float64 in DXF's text)."""
+    import ezdxf
+
+    doc = ezdxf.new("R2010")
+    doc.units = ezdxf.units.M
+    space = doc.modelspace()
+    for m in meshes:
+        polyface = space.add_polyface()
+        polyface.append_faces([[tuple(p) for p in m.vertices[f]] for f in m.faces])
+        polyface.optimize()
+    doc.saveas(path)
+
+
+def write_3dm(path, meshes) -> None:
+    """Each mesh a Rhino mesh object named by its id (openNURBS, double-precision vertices), in metres."""
+    import rhino3dm
+
+    model = rhino3dm.File3dm()
+    model.Settings.ModelUnitSystem = rhino3dm.UnitSystem.Meters
+    for m in meshes:
+        mesh = rhino3dm.Mesh()
+        mesh.Vertices.UseDoublePrecisionVertices = True
+        for x, y, z in m.vertices.tolist():
+            mesh.Vertices.Add(x, y, z)
+        for a, b, c in m.faces.tolist():
+            mesh.Faces.AddFace(a, b, c)
+        attributes = rhino3dm.ObjectAttributes()
+        attributes.Name = str(m.id)
+        model.Objects.AddMesh(mesh, attributes)
+    assert model.Write(str(path), 8)
 
 
 def child(path: str, repeat: int) -> None:
@@ -137,7 +172,7 @@ def main() -> None:
     print(f"{len(blocks)} buildings, {sum(len(b.faces) for b in blocks):,} triangles, generated in "
           f"{time.perf_counter() - t0:.1f} s; their vertex and face arrays: {arrays_mb:.1f} MB")
     writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml, "gpkg": write_gpkg,
-               "parquet": write_geoparquet}
+               "parquet": write_geoparquet, "dxf": write_dxf, "3dm": write_3dm}
     with tempfile.TemporaryDirectory(prefix="meshsom-read-") as tmp:
         print("\n| container | file MB | read s | buildings/s | peak alloc MB | peak / arrays |")
         print("|---|---:|---:|---:|---:|---:|")

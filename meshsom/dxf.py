@@ -2,8 +2,8 @@
 
 Swiss and German cities publish their 3D models as DXF (Zürich's 3D-Blockmodell and Dachmodell,
 swissBUILDINGS3D), and CAD users exchange massing models in it. An ASCII DXF file is read with ezdxf's
-recovering reader (:func:`ezdxf.recover.read`: damaged files are repaired as far as they can be), a
-binary one by ezdxf's loader and then audited; plain or gzipped, under
+plain loader and audited (ezdxf's recovering reader, :func:`ezdxf.recover.read`, where that fails:
+damaged files are repaired as far as they can be), a binary one by ezdxf's loader and then audited; plain or gzipped, under
 :attr:`meshsom.io.ReaderOptions.max_bytes`. Only model space is read (paper space layouts are sheets
 of a drawing, not the model).
 
@@ -269,12 +269,34 @@ def _document(path: Path, options):
             doc = Drawing.load(binary_tags_loader(content))
             auditor = doc.audit()
         else:
-            doc, auditor = recover.read(io.BytesIO(content))
+            try:  # ezdxf's plain loader, then its audit: three times as fast as the recovering reader
+                doc = _plain(content)
+                auditor = doc.audit()
+            except Exception:  # a damaged file (DXFStructureError and others): the recovering reader
+                doc, auditor = recover.read(io.BytesIO(content))
     except Exception as err:  # ezdxf raises many types for files that are not DXF (DXFStructureError most)
         raise InputFileError(str(path), f"cannot be read as DXF ({type(err).__name__}: {err}); expected a DXF drawing "
                                         "(ASCII or binary)") from None
     problems = len(auditor.fixes) + len(auditor.errors)
     return doc, f"damaged DXF: ezdxf's audit found {problems} problems (repaired where it could)" if problems else None
+
+
+def _plain(content: bytes):
+    """An ASCII DXF document loaded by ezdxf's plain loader, decoded as its header says
+    (``$DWGCODEPAGE``; UTF-8 from R2007 on), as :func:`ezdxf.decode_base64` does.
+
+    Raises
+    ------
+    Exception
+        Whatever ezdxf raises for a file it cannot load plainly (a damaged one: read it with
+        :mod:`ezdxf.recover`).
+    """
+    import ezdxf
+    from ezdxf.filemanagement import dxf_stream_info
+
+    text = content.replace(b"\r\n", b"\n")
+    info = dxf_stream_info(io.StringIO(text.decode("utf-8", errors="ignore")))
+    return ezdxf.read(io.StringIO(text.decode(info.encoding, errors="surrogateescape")))
 
 
 def _units(doc) -> tuple[float, str]:
