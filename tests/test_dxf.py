@@ -418,3 +418,22 @@ def test_a_crs_in_feet_is_not_applied_twice(tmp_path):
     assert any("drawing units: feet not applied" in n for n in mesh.notes), mesh.notes
     (plain,) = meshes(read(tmp_path / "ny.dxf"))
     assert np.ptp(plain.vertices, axis=0) == pytest.approx(np.array([30, 20, 12]) * 0.3048, rel=1e-9)
+
+
+def test_a_file_the_plain_loader_refuses_is_recovered(tmp_path):
+    """A drawing cut before its EOF marker: ezdxf's plain loader refuses it, its recovering reader
+    reads it, and the box is there."""
+    import io
+
+    from meshsom.dxf import _plain
+
+    doc, msp = new_doc()
+    add_box_faces(msp, box_corners())
+    text = io.StringIO()
+    doc.write(text)
+    cut = text.getvalue().rsplit("  0\nEOF", 1)[0].encode()
+    with pytest.raises(Exception):
+        _plain(cut)
+    (tmp_path / "cut.dxf").write_bytes(cut)
+    (mesh,) = meshes(read(tmp_path / "cut.dxf"))
+    assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(VOLUME)
