@@ -423,7 +423,10 @@ def _prism_part(entity) -> _Part:
         local = local[:-1]
     thickness = float(entity.dxf.thickness)
     z0 = float(np.median(local[:, 2]))
-    v, f = extrude_polygon(local[:, :2], [], min(z0, z0 + thickness), max(z0, z0 + thickness))
+    try:
+        v, f = extrude_polygon(local[:, :2], [], min(z0, z0 + thickness), max(z0, z0 + thickness))
+    except Exception as err:  # GEOS on an outline that crosses itself, NumPy on a degenerate one
+        raise ValueError(f"its outline cannot be triangulated ({type(err).__name__}: {err})") from None
     axes = np.array([tuple(ocs.ux), tuple(ocs.uy), tuple(ocs.uz)], np.float64)
     kind = entity.dxftype()
     note = f"a {'' if kind == 'CIRCLE' else 'closed '}{kind} with a thickness, read as the prism it draws (2.5D)"

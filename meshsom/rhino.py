@@ -188,6 +188,9 @@ def read_3dm(path: Path, options, name: str | None = None) -> Iterator:
         except _Unreadable as err:
             yield Rejection(mesh_id, str(path), str(err), 0, label)
             continue
+        except Exception as err:  # openNURBS, SciPy's Qhull or NumPy on geometry they cannot handle
+            yield Rejection(mesh_id, str(path), f"its geometry cannot be made a mesh ({type(err).__name__}: {err})", 0, label)
+            continue
         if not pieces:
             yield Rejection(mesh_id, str(path), "holds no faces", 0, label)
             continue
