@@ -20,6 +20,8 @@ of a drawing, not the model).
   (from 1). A mirroring insert (negative determinant) has its faces' corners reversed, so that
   they keep their side. An INSERT of a block of 2D drawing only (a tree symbol, a north arrow) is
   not a building: it is counted with the 2D entities.
+- **One mesh of a district**: with :attr:`meshsom.io.ReaderOptions.split_components` each connected
+  piece of a POLYFACE, MESH or INSERT is a building (``...#cN``), as for mesh files.
 - **2.5D outlines**: a closed LWPOLYLINE or 2D POLYLINE, or a CIRCLE, with a thickness (how older
   block models draw a building: its outline at its base elevation, the thickness its height) is
   the prism it draws: the outline (bulges and circles flattened within :data:`FLATTEN_REL` of its
@@ -207,7 +209,7 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
                 yield Rejection(mesh_id, source, f"its {_type_words(entity)} cannot be read ({type(err).__name__}: {err})",
                                 0, layer_label)
                 continue
-            yield _building(mesh_id, source, [part], to_metres, crs, notes + part.notes, layer_label, options)
+            yield from _building(mesh_id, source, [part], to_metres, crs, notes + part.notes, layer_label, options)
             continue
         label = layer_label if options.label_attribute == "layer" else _attrib_label(entity, options.label_attribute)
         block = entity.dxf.name
@@ -231,7 +233,7 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
             if flat_in:
                 more.append(f"entities of its block that hold no faces (2D drawing) not read: {_counts(flat_in)}")
             more.extend(dict.fromkeys(n for p in parts for n in p.notes))
-            yield _building(mesh_id, source, parts, to_metres, crs, notes + more, label, options)
+            yield from _building(mesh_id, source, parts, to_metres, crs, notes + more, label, options)
     for layer, n in empty:
         yield Rejection(unique(f"{name}#{layer}"), source, f"its {n} loose 3DFACE entities all have zero area (or "
                         "coordinates that are not finite numbers)", n, layer if options.label_attribute == "layer" else None)
@@ -705,24 +707,32 @@ def _welded_triangles(vertices: np.ndarray, faces: list) -> tuple[np.ndarray, np
     return welded, tri[keep], n_faces - len(np.unique(face_of[keep]))
 
 
-def _building(mesh_id: str, source: str, parts: list, to_metres: float, crs, notes: list, label, options):
-    """One building of ``parts`` (drawing units, world positions): RawMesh or Rejection."""
+def _building(mesh_id: str, source: str, parts: list, to_metres: float, crs, notes: list, label, options) -> list:
+    """One building of ``parts`` (drawing units, world positions): [RawMesh or Rejection], or one per
+    connected piece with :attr:`meshsom.io.ReaderOptions.split_components`."""
     from meshsom.io import Rejection
 
     n_faces = sum(len(f) for p in parts for f in p.faces)
     if not n_faces:
-        return Rejection(mesh_id, source, "holds no faces", 0, label)
+        return [Rejection(mesh_id, source, "holds no faces", 0, label)]
     offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
     vertices = np.concatenate([p.vertices for p in parts]) * to_metres
     faces = [f + o for p, o in zip(parts, offsets) for f in p.faces]
     if not np.isfinite(vertices).all():
-        return Rejection(mesh_id, source, "has coordinates that are not finite numbers", n_faces, label)
+        return [Rejection(mesh_id, source, "has coordinates that are not finite numbers", n_faces, label)]
     v, tri, dropped = _welded_triangles(vertices, faces)
     if dropped:
         notes = notes + [f"{dropped} of its {n_faces} faces have zero area, dropped"]
     if not len(tri):
-        return Rejection(mesh_id, source, f"its {n_faces} faces all have zero area", n_faces, label)
-    return _finished(mesh_id, source, v, tri, crs, notes, label, options, n_faces)
+        return [Rejection(mesh_id, source, f"its {n_faces} faces all have zero area", n_faces, label)]
+    if options.split_components:  # a district drawn as one mesh: a building per connected piece
+        from meshsom.io import _connected_pieces
+
+        split = _connected_pieces(mesh_id, v, tri, label)
+        if len(split) > 1:
+            more = [f"one of {len(split)} connected pieces of its entity (split_components)"]
+            return [_finished(i, source, pv, pf, crs, notes + more, label, options) for i, pv, pf, _ in split]
+    return [_finished(mesh_id, source, v, tri, crs, notes, label, options, n_faces)]
 
 
 def _finished(mesh_id: str, source: str, vertices: np.ndarray, triangles: np.ndarray, crs, notes: list, label, options,

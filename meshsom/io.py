@@ -188,7 +188,8 @@ class ReaderOptions:
         or game tools): their coordinates are then turned a quarter about x, (x, y, z) -> (x, -z, y),
         so that z is up.
     split_components : bool
-        Mesh files (OBJ, PLY, STL, OFF, glTF): each mesh (object, node) is split into its connected
+        Mesh files (OBJ, PLY, STL, OFF, glTF), Rhino objects and DXF meshes and blocks (not a
+        Rhino group, which is one building by its maker's choice): each mesh (object, node) is split into its connected
         pieces (faces joined through vertices at the same position), one building each, as a city
         exported as one mesh (an STL or PLY of a district) needs; a piece gets the id ``mesh#cN``
         (N from 1, in the order of its first face). Default False: a file or object is one

@@ -397,7 +397,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--up", choices=("z", "y"), help="up axis of mesh files (glTF and many OBJ exports: y); default z")
     p.add_argument("--layer", help="GIS files (GeoPackage, FileGDB, ...): the layer to read; default every layer")
     p.add_argument("--split-components", action="store_true", default=None,
-                   help="mesh files: each connected piece of a mesh is a building (a city exported as one STL or PLY)")
+                   help="mesh files, Rhino objects, DXF meshes: each connected piece is a building (a city exported as "
+                        "one STL, PLY or mesh object)")
     p.add_argument("--height-attribute", action="append", metavar="NAME",
                    help="footprints: a property holding the building's height above the ground, tried before the "
                         "defaults (height, measuredHeight, building:height); may be given more than once")

@@ -437,3 +437,22 @@ def test_a_file_the_plain_loader_refuses_is_recovered(tmp_path):
     (tmp_path / "cut.dxf").write_bytes(cut)
     (mesh,) = meshes(read(tmp_path / "cut.dxf"))
     assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(VOLUME)
+
+
+def test_a_district_in_one_polyface_is_split_on_request(tmp_path):
+    """Two boxes in one POLYFACE (a district exported as one mesh): one building as it is, two with
+    ``split_components`` (``#<handle>#c1``, ``#c2``), each the box's volume."""
+    doc, msp = new_doc()
+    polyface = msp.add_polyface()
+    for at in ((0, 0, 0), (30, 0, 0)):
+        corners = box_corners(at=at)
+        polyface.append_faces([[tuple(p) for p in corners[q]] for q in QUADS])
+    polyface.optimize()
+    doc.saveas(tmp_path / "district.dxf")
+    (whole,) = meshes(read(tmp_path / "district.dxf"))
+    assert signed_volume(whole.vertices, whole.faces) == pytest.approx(2 * VOLUME)
+    pieces = meshes(read(tmp_path / "district.dxf", split_components=True))
+    assert [p.id for p in pieces] == [f"{whole.id}#c1", f"{whole.id}#c2"]
+    for piece in pieces:
+        assert signed_volume(piece.vertices, piece.faces) == pytest.approx(VOLUME) and closed(piece.faces)
+        assert any("one of 2 connected pieces" in n for n in piece.notes)

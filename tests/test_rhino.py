@@ -389,3 +389,28 @@ def test_a_crs_in_feet_is_not_applied_twice(tmp_path):
     (item,) = read_file(tmp_path / "ny.3dm", dataclasses.replace(ReaderOptions(), crs="EPSG:2263"))
     assert np.ptp(item.vertices, axis=0) == pytest.approx(np.array([30, 20, 12]) * 1200 / 3937, rel=1e-9)
     assert any("model units (feet) not applied" in n for n in item.notes), item.notes
+
+
+def test_a_district_in_one_mesh_object_is_split_on_request(tmp_path):
+    """A district exported to Rhino as one mesh object of two boxes: one building as it is, two
+    with ``split_components``, each a box's volume."""
+    import dataclasses
+
+    mesh = r.Mesh()
+    for dx in (0, 30):
+        base = len(mesh.Vertices)
+        for x, y, z in [(0, 0, 0), (4, 0, 0), (4, 3, 0), (0, 3, 0), (0, 0, 2), (4, 0, 2), (4, 3, 2), (0, 3, 2)]:
+            mesh.Vertices.Add(x + dx, y, z)
+        for quad in [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]:
+            mesh.Faces.AddFace(*[base + k for k in quad])
+    model = r.File3dm()
+    model.Settings.ModelUnitSystem = r.UnitSystem.Meters
+    named = r.ObjectAttributes()
+    named.Name = "district"
+    model.Objects.AddMesh(mesh, named)
+    assert model.Write(str(tmp_path / "d.3dm"), 8)
+    (whole,) = read_file(tmp_path / "d.3dm")
+    assert whole.id == "d.3dm#district" and _volume(whole.vertices, whole.faces) == pytest.approx(48)
+    pieces = list(read_file(tmp_path / "d.3dm", dataclasses.replace(ReaderOptions(), split_components=True)))
+    assert [p.id for p in pieces] == ["d.3dm#district#c1", "d.3dm#district#c2"]
+    assert all(_volume(p.vertices, p.faces) == pytest.approx(24) for p in pieces)
