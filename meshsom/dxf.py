@@ -421,7 +421,7 @@ def _prism_part(entity) -> _Part:
     extent = float(np.linalg.norm(np.ptp(box, axis=0))) or 1.0
     wcs = np.asarray([tuple(p) for p in outline.flattening(FLATTEN_REL * extent)], np.float64).reshape(-1, 3)
     local = np.asarray([tuple(ocs.from_wcs(p)) for p in wcs], np.float64).reshape(-1, 3)
-    if len(local) > 1 and np.allclose(local[0], local[-1]):
+    if len(local) > 1 and np.allclose(local[0], local[-1], rtol=0.0, atol=FLATTEN_REL * extent * 1e-3):
         local = local[:-1]
     thickness = float(entity.dxf.thickness)
     z0 = float(np.median(local[:, 2]))

@@ -105,7 +105,7 @@ def _district(path):
     osm.way(30, (100, 0, 110, 10), building="yes", height="8")
     osm.way(31, (100, 0, 110, 10), **{PART: "yes"})
     osm.way(40, (120, 0, 130, 10), building="shed")
-    osm.way(50, (140, 0, 150, 10), building="house", height="7", **{ROOF: "gabled"})
+    osm.way(50, (140, 0, 150, 10), building="house", height="7", **{ROOF: "gabled", "roof:height": "2"})
     osm.way(80, (160, 0, 180, 10), building="church", height="10", **{PART: "yes"})
     osm.way(81, (165, 2, 170, 7), height="40", **{PART: "yes"})
     osm.way(82, (172, 2, 178, 8), height="5", min_height="9", **{PART: "yes"})
@@ -130,7 +130,10 @@ def test_buildings_heights_and_courtyards(tmp_path):
     assert any("storeys x 3 m" in n for n in items["way/11"].notes)
     assert _volume(items["relation/14"]) == pytest.approx((area[12] - area[13]) * 9, rel=1e-5)
     assert isinstance(items["way/40"], Rejection) and "is a footprint without a height" in items["way/40"].reason
-    assert any("roof:shape=gabled not modelled" in n for n in items["way/50"].notes)
+    gabled = items["way/50"]  # 10 x 10 m, 7 m high, its roof 2 m of it: a block to 5 m and a triangular prism
+    assert _volume(gabled) == pytest.approx(area[50] * 5 + area[50] * 2 / 2, rel=1e-5)
+    assert np.ptp(gabled.vertices[:, 2]) == pytest.approx(7, abs=1e-3)
+    assert any("roof:shape=gabled built (S3DB): eaves 5 m, top 7 m" in n for n in gabled.notes), gabled.notes
 
 
 def test_a_building_of_parts_is_its_parts_united(tmp_path):
