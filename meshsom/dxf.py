@@ -67,9 +67,8 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 
-__all__ = ["DXF_SUFFIX", "INSUNITS", "read_dxf"]
+__all__ = ["INSUNITS", "read_dxf"]
 
-DXF_SUFFIX = ".dxf"
 #: How a binary DXF file starts.
 BINARY_SENTINEL = b"AutoCAD Binary DXF\r\n\x1a\x00"
 
@@ -259,9 +258,6 @@ def _document(path: Path, options):
 
     from meshsom.io import read_input_bytes
 
-    if path.stat().st_size > options.max_bytes:
-        raise InputFileError(str(path), f"is {path.stat().st_size:,} bytes, larger than {options.max_bytes:,} bytes "
-                                        "(ReaderOptions.max_bytes)")
     content = bytes(read_input_bytes(path, options))
     try:
         if content.startswith(BINARY_SENTINEL):  # ezdxf's recovering reader reads ASCII DXF only

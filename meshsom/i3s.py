@@ -168,9 +168,7 @@ class _Package:
                 data = stream.read(limit - self.total + 1)
         except (OSError, EOFError, zipfile.BadZipFile, ValueError) as err:
             raise InputFileError(str(self.path), f"{candidate} cannot be read ({type(err).__name__}: {err})") from None
-        self.total += len(data)
-        if self.total > limit:
-            raise InputFileError(str(self.path), f"expands to more than {limit:,} bytes (ReaderOptions.max_bytes)")
+        self.count(len(data))
         return data
 
     def json(self, member: str) -> dict:

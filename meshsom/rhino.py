@@ -149,7 +149,7 @@ def read_3dm(path: Path, options, name: str | None = None) -> Iterator:
     damage = chunk_damage(data)
     if damage:
         raise InputFileError(str(path), f"is a damaged Rhino model: {damage}")
-    model = rhino3dm.File3dm.FromByteArray(bytes(data))
+    model = rhino3dm.File3dm.FromByteArray(data)  # the buffer itself, not a copy
     del data
     if model is None:
         raise InputFileError(str(path), "cannot be read as a Rhino model by openNURBS (damaged, or newer than Rhino 8)")
