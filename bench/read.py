@@ -5,7 +5,8 @@
 Writes one synthetic city (``meshsom generate`` blocks with LoD2 roofs, on Swiss LV95 offsets) as
 CityJSON, CityJSONSeq, CityGML, gzipped CityJSON / CityJSONSeq, as 3D GIS layers (each building
 a MultiPolygon Z of its triangles, as the 3D BAG's GeoPackage layers hold them: GeoPackage written
-by GDAL, GeoParquet by pyarrow), as DXF (a POLYFACE per building, by ezdxf) and as a Rhino model
+by GDAL, GeoParquet by pyarrow), as DXF (a POLYFACE per building, by ezdxf; and an ACIS 3DSOLID per
+building, its triangles the faces of the solid, placed by a block reference) and as a Rhino model
 (a mesh object per building, by openNURBS), then reads every building of
 each file with :func:`meshsom.io.read_file`, as ``meshsom ingest`` does, in a child process of its
 own, and prints per container: file size, wall seconds (best of ``--repeat``), buildings per
@@ -38,7 +39,7 @@ FORMATS = [("CityJSON", "city.city.json", "cityjson"), ("CityJSON, gzip", "city.
            ("CityJSONSeq", "city.city.jsonl", "cityjsonseq"), ("CityJSONSeq, gzip", "city.city.jsonl.gz", "cityjsonseq"),
            ("CityGML 2.0", "city.gml", "citygml"), ("GeoPackage, 3D", "city.gpkg", "gpkg"),
            ("GeoParquet, 3D", "city.parquet", "parquet"), ("DXF (a POLYFACE each)", "city.dxf", "dxf"),
-           ("Rhino 8 (a mesh object each)", "city.3dm", "3dm")]
+           ("DXF R2018 (an ACIS 3DSOLID each)", "city_solids.dxf", "dxf-solids"), ("Rhino 8 (a mesh object each)", "city.3dm", "3dm")]
 
 
 def _multipolygon(mesh) -> dict:
@@ -80,6 +81,28 @@ def write_dxf(path, meshes) -> None:
         polyface = space.add_polyface()
         polyface.append_faces([[tuple(p) for p in m.vertices[f]] for f in m.faces])
         polyface.optimize()
+    doc.saveas(path)
+
+
+def write_dxf_solids(path, meshes) -> None:
+    """Each mesh a 3DSOLID (R2018: SAB), its triangles the faces of an ACIS body (ezdxf's ``body_from_mesh``), in metres,
+    about its own origin and placed by the body's transformation (SAB keeps doubles; ezdxf writes the transformation
+    to 6 digits, so the offsets go in the insertion of a block per building instead)."""
+    import ezdxf
+    from ezdxf.acis import api as acis
+    from ezdxf.render import MeshBuilder
+
+    doc = ezdxf.new("R2018")
+    doc.units = ezdxf.units.M
+    space = doc.modelspace()
+    for k, m in enumerate(meshes):
+        origin = m.vertices.min(axis=0)
+        builder = MeshBuilder()
+        builder.vertices = [tuple(p) for p in (m.vertices - origin).tolist()]
+        builder.faces = [tuple(f) for f in m.faces.tolist()]
+        block = doc.blocks.new(f"B{k}")
+        acis.export_dxf(block.add_3dsolid(), [acis.body_from_mesh(builder)])
+        space.add_blockref(f"B{k}", tuple(origin))
     doc.saveas(path)
 
 
@@ -172,7 +195,7 @@ def main() -> None:
     print(f"{len(blocks)} buildings, {sum(len(b.faces) for b in blocks):,} triangles, generated in "
           f"{time.perf_counter() - t0:.1f} s; their vertex and face arrays: {arrays_mb:.1f} MB")
     writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml, "gpkg": write_gpkg,
-               "parquet": write_geoparquet, "dxf": write_dxf, "3dm": write_3dm}
+               "parquet": write_geoparquet, "dxf": write_dxf, "dxf-solids": write_dxf_solids, "3dm": write_3dm}
     with tempfile.TemporaryDirectory(prefix="meshsom-read-") as tmp:
         print("\n| container | file MB | read s | buildings/s | peak alloc MB | peak / arrays |")
         print("|---|---:|---:|---:|---:|---:|")

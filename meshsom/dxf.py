@@ -47,8 +47,16 @@ of a drawing, not the model).
   by the text of its ATTRIB of that tag (tags compared without case: AutoCAD writes them in upper
   case); otherwise no label.
 
-Not read, each said: ACIS solids and surfaces (3DSOLID, BODY, REGION, SURFACE and its kinds) are a
-rejection each (ezdxf cannot tessellate ACIS data); a building's faces that cannot be read, or more
+- **ACIS solids**: each 3DSOLID and BODY (AutoCAD's solid modeller: EXTRUDE, PRESSPULL, UNION,
+  SUBTRACT) is one building, id ``name#<handle>`` (in a block, part of the INSERT's building),
+  tessellated from its ACIS boundary representation by :func:`meshsom.acis.acis_mesh` (SAT text in
+  DXF R2000-R2010, SAB from R2013): planar faces with their holes, and cylindrical and conical faces
+  (curved facades, round towers), arcs within :data:`FLATTEN_REL` of the solid's extent; a block's
+  solid is tessellated once for all its references. A solid with spherical, toroidal or spline faces
+  (domes, fillets, free forms) is a rejection saying so (in a block, noted, the rest of the block read).
+
+Not read, each said: ACIS sheets (REGION, SURFACE and its kinds: not solids) are a rejection each;
+a building's faces that cannot be read, or more
 vertices than :attr:`~meshsom.io.ReaderOptions.max_vertices`, are a rejection; 2D entities (LINE,
 LWPOLYLINE, TEXT, HATCH, ...) are counted by type in a note on every mesh of the file, and a file
 with nothing 3D in its model space is refused (:class:`meshsom.errors.InputFileError`) saying what
@@ -65,6 +73,7 @@ from typing import Iterator
 
 import numpy as np
 
+from meshsom.acis import AcisError
 from meshsom.errors import InputFileError
 
 __all__ = ["INSUNITS", "read_dxf"]
@@ -91,11 +100,15 @@ WELD_REL = 1e-9
 DEGENERATE_REL = 1e-10
 #: Levels of nested block references followed at most (a block that refers to itself is corrupt).
 MAX_BLOCK_DEPTH = 32
-#: ACIS entities: solids and surfaces stored as ACIS (SAT/SAB) data, which cannot be tessellated here.
-ACIS_TYPES = ("3DSOLID", "BODY", "REGION", "SURFACE", "EXTRUDEDSURFACE", "LOFTEDSURFACE", "REVOLVEDSURFACE",
-              "SWEPTSURFACE", "PLANESURFACE", "NURBSURFACE")
-#: What to do with an ACIS entity, in its rejection.
-ACIS_ADVICE = "not tessellated here; convert it to a mesh in the CAD program (MESHSMOOTH, or export as STL/OBJ)"
+#: ACIS solids, tessellated from their boundary representation (:mod:`meshsom.acis`).
+SOLID_TYPES = ("3DSOLID", "BODY")
+#: ACIS entities that are sheets, not solids (a flat region, a surface): not buildings.
+SHEET_TYPES = ("REGION", "SURFACE", "EXTRUDEDSURFACE", "LOFTEDSURFACE", "REVOLVEDSURFACE", "SWEPTSURFACE",
+               "PLANESURFACE", "NURBSURFACE")
+ACIS_TYPES = SOLID_TYPES + SHEET_TYPES
+#: What to do with an ACIS sheet, in its rejection.
+ACIS_ADVICE = ("a sheet, not a solid: not a building; make a solid of it in the CAD program (THICKEN, SURFSCULPT) "
+               "or export the model as STL/OBJ")
 #: Entities in a block that are no geometry (attribute definitions): not counted as left out.
 NOT_GEOMETRY = ("ATTDEF",)
 #: POLYLINE flags (group code 70): closed in M, polygon mesh, closed in N, polyface mesh.
@@ -134,7 +147,7 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
     ------
     InputFileError
         The file is larger than ``options.max_bytes``, is not DXF or cannot be read, or its model
-        space holds no 3D faces and no ACIS solids.
+        space holds no 3D faces and no ACIS entities.
     """
     from meshsom.io import Rejection, file_crs
 
@@ -164,8 +177,10 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
                 flat["INSERT (of a 2D block)"] += 1
             else:
                 jobs.append((held, entity))
-        elif kind in ACIS_TYPES:
+        elif kind in SOLID_TYPES:
             jobs.append(("solid", entity))
+        elif kind in SHEET_TYPES:
+            jobs.append(("sheet", entity))
         else:
             flat["3D polyline (POLYLINE)" if kind == "POLYLINE" and entity.is_3d_polyline else kind] += 1
     if not jobs and not loose:
@@ -196,14 +211,17 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
     for kind, entity in jobs:
         handle = entity.dxf.handle
         layer_label = entity.dxf.layer if options.label_attribute == "layer" else None
-        if kind == "solid":
+        if kind == "sheet":
             yield Rejection(unique(f"{name}#{handle}"), source,
                             f"an ACIS {_acis_words(entity.dxftype())} ({entity.dxftype()}): {ACIS_ADVICE}", 0, layer_label)
             continue
-        if kind == "mesh":
+        if kind in ("mesh", "solid"):
             mesh_id = unique(f"{name}#{handle}")
             try:
-                part = _entity_part(entity, None)
+                part = _entity_part(entity, None) if kind == "mesh" else blocks.solid(entity)
+            except AcisError as err:
+                yield Rejection(mesh_id, source, f"an ACIS solid ({entity.dxftype()}) that {err}", 0, layer_label)
+                continue
             except _ENTITY_ERRORS as err:
                 yield Rejection(mesh_id, source, f"its {_type_words(entity)} cannot be read ({type(err).__name__}: {err})",
                                 0, layer_label)
@@ -218,7 +236,7 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
         for suffix, matrix in _copies(entity):
             mesh_id = unique(f"{name}#{block}@{handle}{suffix}")
             if kind == "acis":
-                yield Rejection(mesh_id, source, f"its block {block!r} holds only ACIS solids "
+                yield Rejection(mesh_id, source, f"its block {block!r} holds only ACIS sheets "
                                 f"({_counts(blocks.content(block)[1])}): {ACIS_ADVICE}", 0, label)
                 continue
             try:
@@ -226,9 +244,13 @@ def read_dxf(path: Path, options, name: str | None = None) -> Iterator:
             except _ENTITY_ERRORS as err:
                 yield Rejection(mesh_id, source, f"its block {block!r} cannot be read ({type(err).__name__}: {err})", 0, label)
                 continue
+            if not parts and acis:
+                yield Rejection(mesh_id, source, f"its block {block!r} holds no faces that can be read: "
+                                f"{_acis_left_out(acis)}", 0, label)
+                continue
             more = []
             if acis:
-                more.append(f"ACIS solids in its block not read ({_counts(acis)}): {ACIS_ADVICE}")
+                more.append(f"ACIS entities in its block not read: {_acis_left_out(acis)}")
             if flat_in:
                 more.append(f"entities of its block that hold no faces (2D drawing) not read: {_counts(flat_in)}")
             more.extend(dict.fromkeys(n for p in parts for n in p.notes))
@@ -326,6 +348,13 @@ def _what_instead(doc, flat: Counter) -> str:
 def _counts(counter: Counter) -> str:
     """``LINE x 40, TEXT x 3``: the commonest first."""
     return ", ".join(f"{kind} x {n}" for kind, n in sorted(counter.items(), key=lambda kv: (-kv[1], kv[0])))
+
+
+def _acis_left_out(acis: Counter) -> str:
+    """What a block's ACIS entities left out were: sheets (counted by type) and solids (by why)."""
+    sheets = Counter({k: n for k, n in acis.items() if k in SHEET_TYPES})
+    why = [f"{n} ACIS solid{'s' * (n != 1)} that {k}" for k, n in acis.items() if k not in SHEET_TYPES]
+    return "; ".join(([f"{_counts(sheets)}: {ACIS_ADVICE}"] if sheets else []) + why)
 
 
 def _acis_words(kind: str) -> str:
@@ -431,6 +460,30 @@ def _prism_part(entity) -> _Part:
     return _Part(v @ axes, [f], [note])
 
 
+def _solid_part(entity) -> _Part:
+    """A 3DSOLID's or BODY's ACIS data tessellated (:func:`meshsom.acis.acis_mesh`, arcs within
+    :data:`FLATTEN_REL` of its extent).
+
+    Raises
+    ------
+    AcisError
+    """
+    from meshsom.acis import acis_mesh
+
+    if entity.doc is not None and entity.doc.dxfversion < "AC1015":
+        raise AcisError("is in a drawing older than DXF R2000, whose ACIS data is not read")
+    data = entity.sab if entity.has_binary_data else entity.sat
+    mesh = acis_mesh(data, FLATTEN_REL)
+    notes = []
+    curved = {k: n for k, n in mesh.faces.items() if k != "plane"}
+    if curved:
+        kinds = ", ".join(f"{n} {k}" for k, n in curved.items())
+        notes.append(f"curved faces of ACIS solids ({kinds}) tessellated, chords within {FLATTEN_REL:g} of the solid's extent")
+    if mesh.dropped:
+        notes.append(f"{mesh.dropped} triangles of an ACIS solid's faces left out (face boundaries that cross)")
+    return _Part(mesh.vertices, [mesh.triangles], notes)
+
+
 def _entity_part(entity, matrix: np.ndarray | None) -> _Part:
     """The faces of a 3DFACE, POLYFACE, POLYGON MESH or MESH entity, or of a closed outline with a
     thickness (:func:`_prism_part`), moved by ``matrix``."""
@@ -498,6 +551,26 @@ class _Blocks:
     def __init__(self, doc):
         self.doc = doc
         self._held: dict[str, str] = {}
+        self._solids: dict[str, object] = {}  # handle -> _Part or AcisError: a block's solid, tessellated once
+
+    def solid(self, entity) -> "_Part":
+        """The triangles of a 3DSOLID or BODY (:func:`meshsom.acis.acis_mesh`), in its own coordinates; memoised
+        per entity (a block's solids are placed by every INSERT of it).
+
+        Raises
+        ------
+        AcisError
+        """
+        handle = entity.dxf.handle
+        if handle not in self._solids:
+            try:
+                self._solids[handle] = _solid_part(entity)
+            except AcisError as err:
+                self._solids[handle] = err
+        found = self._solids[handle]
+        if isinstance(found, AcisError):
+            raise found
+        return found
 
     def elsewhere(self, name: str) -> str | None:
         """Why the faces of block ``name`` are not in this drawing (an external reference, a block
@@ -518,22 +591,23 @@ class _Blocks:
             return faces, acis, flat
         for entity in block:
             kind = entity.dxftype()
-            if kind in ("3DFACE", "MESH") or (kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)) or (
-                    _is_prism(entity)):
+            if kind in ("3DFACE", "MESH") + SOLID_TYPES or (
+                    kind == "POLYLINE" and entity.dxf.flags & (POLYFACE | POLYGON_MESH)) or _is_prism(entity):
                 faces = True
             elif kind in ("INSERT", "MINSERT"):
                 held = self.holds(entity.dxf.name, depth + 1)
                 faces |= held == "3d"
                 if held == "acis":
                     acis.update(self.content(entity.dxf.name, depth + 1)[1])
-            elif kind in ACIS_TYPES:
+            elif kind in SHEET_TYPES:
                 acis[kind] += 1
             elif kind not in NOT_GEOMETRY:
                 flat[kind] += 1
         return faces, acis, flat
 
     def holds(self, name: str, depth: int = 0) -> str:
-        """``"3d"`` (faces), ``"acis"`` (ACIS solids and no faces) or ``"2d"`` (neither): block ``name``'s content."""
+        """``"3d"`` (faces or ACIS solids), ``"acis"`` (ACIS sheets and no faces) or ``"2d"`` (neither): block
+        ``name``'s content."""
         if name not in self._held:
             self._held[name] = "2d"  # while it is looked at: a block that refers to itself holds nothing more
             faces, acis, _ = self.content(name, depth)
@@ -541,7 +615,8 @@ class _Blocks:
         return self._held[name]
 
     def parts(self, name: str, matrix: np.ndarray, depth: int = 0) -> tuple[list, Counter, Counter]:
-        """The faces of block ``name`` moved by ``matrix`` (4, 4), and the ACIS and 2D entities left out."""
+        """The faces of block ``name`` moved by ``matrix`` (4, 4), and the ACIS entities (sheets by type, solids by
+        why) and 2D entities left out."""
         if depth > MAX_BLOCK_DEPTH:
             raise RecursionError(f"block references nested more than {MAX_BLOCK_DEPTH} deep (a block that refers to itself?)")
         parts, acis, flat = [], Counter(), Counter()
@@ -566,7 +641,12 @@ class _Blocks:
                         flat.update(more_flat)
                 else:
                     flat["INSERT (of a 2D block)"] += 1
-            elif kind in ACIS_TYPES:
+            elif kind in SOLID_TYPES:
+                try:
+                    parts.append(self.solid(entity).transformed(matrix))
+                except AcisError as err:
+                    acis[str(err)] += 1
+            elif kind in SHEET_TYPES:
                 acis[kind] += 1
             elif kind not in NOT_GEOMETRY:
                 flat[kind] += 1

@@ -211,18 +211,22 @@ def test_labels_from_the_layer(tmp_path):
     assert [m.label for m in read(tmp_path / "layers.dxf")] == [None, None]
 
 
-def test_solids_are_rejected_saying_what_to_do_and_the_rest_read(tmp_path):
+def test_an_empty_solid_and_a_region_are_rejected_saying_why_and_the_rest_read(tmp_path):
     doc, msp = new_doc()
     solid = msp.add_3dsolid()
     solid.sat = ["700 0 1 0", "@33 Open Design Alliance ACIS Builder @12 ACIS 219.0 @24 Thu Jan  1 00:00:00 2025",
                  "1000 9.9999999999999995e-07 1e-10", "End-of-ACIS-data"]  # ezdxf writes no ACIS entity without data
+    region = msp.add_region()
+    region.sat = list(solid.sat)
     add_box_faces(msp, box_corners())
     msp.add_line((0, 0), (1, 1))
     doc.saveas(tmp_path / "solid.dxf")
     items = read(tmp_path / "solid.dxf")
-    (rejection,) = [r for r in items if isinstance(r, Rejection)]
-    assert rejection.id == f"solid.dxf#{solid.dxf.handle}"
-    assert "ACIS solid (3DSOLID)" in rejection.reason and "MESHSMOOTH" in rejection.reason
+    empty, sheet = [r for r in items if isinstance(r, Rejection)]
+    assert empty.id == f"solid.dxf#{solid.dxf.handle}"
+    assert empty.reason == "an ACIS solid (3DSOLID) that holds no ACIS body"
+    assert sheet.id == f"solid.dxf#{region.dxf.handle}" and "ACIS region (REGION)" in sheet.reason
+    assert "not a solid" in sheet.reason and "THICKEN" in sheet.reason
     (m,) = meshes(items)
     assert "2D drawing entities (not buildings) not read: LINE x 1" in m.notes
 
@@ -342,9 +346,12 @@ def test_blocks_of_solids_and_external_references(tmp_path):
     doc.saveas(tmp_path / "blocks.dxf")
     items = read(tmp_path / "blocks.dxf")
     assert [m.id for m in items] == [f"blocks.dxf#{b}@{r.dxf.handle}" for b, r in zip(("SOLIDS", "MIXED", "NACHBAR"), refs)]
-    assert isinstance(items[0], Rejection) and "only ACIS solids (3DSOLID x 1)" in items[0].reason
+    assert isinstance(items[0], Rejection)
+    assert items[0].reason.startswith("its block 'SOLIDS' holds no faces that can be read: 1 ACIS solid that has ACIS "
+                                      "data that cannot be read (")
     assert isinstance(items[1], RawMesh) and signed_volume(items[1].vertices, items[1].faces) == pytest.approx(VOLUME)
-    assert any("ACIS solids in its block not read (3DSOLID x 1)" in n for n in items[1].notes)
+    assert any(n.startswith("ACIS entities in its block not read: 1 ACIS solid that has ACIS data that cannot be read")
+               for n in items[1].notes)
     assert any("(2D drawing) not read: LINE x 1" in n for n in items[1].notes)
     assert isinstance(items[2], Rejection) and "external drawing" in items[2].reason and "nachbar.dxf" in items[2].reason
 

@@ -219,6 +219,23 @@ def _dxf_seed() -> bytes:
     return text.getvalue().encode()
 
 
+def _dxf_solid_seed() -> bytes:
+    """A DXF drawing (R2010: SAT text) of an ACIS solid: a block with a curved facade, a courtyard and a round light
+    well (planes, cylinders, arcs, holes)."""
+    import io
+
+    import ezdxf
+    from acis_solids import add_solid, extrusion_body
+
+    outline = [("line", (20.0, 0.0)), ("arc", (20.0, 12.0), (20.0, 6.0)), ("line", (0.0, 12.0)), ("line", (0.0, 0.0))]
+    well = [("circle", (8.0, 6.0), 2.0, False)]
+    doc = ezdxf.new("R2010")
+    add_solid(doc.modelspace(), [extrusion_body([outline, well], 0.0, 15.0)])
+    text = io.StringIO()
+    doc.write(text)
+    return text.getvalue().encode()
+
+
 def _rhino_seed() -> bytes:
     """A Rhino model (openNURBS) of a box polysurface in millimetres."""
     import tempfile
@@ -357,11 +374,12 @@ def test_mutated_ifc_is_read_or_rejected(folder, tmp_path_factory):
     check()
 
 
-@pytest.mark.parametrize("suffix", [".dxf", ".3dm"])
-def test_mutated_cad_files_are_read_or_rejected(folder, suffix):
-    """Mutations of a DXF drawing (its group codes and numbers, as text) and of a Rhino model
-    (openNURBS's binary chunks) are read or rejected; neither library takes the process down."""
-    seed = (_dxf_seed if suffix == ".dxf" else _rhino_seed)()
+@pytest.mark.parametrize("suffix,seeder", [(".dxf", _dxf_seed), (".dxf", _dxf_solid_seed), (".3dm", _rhino_seed)],
+                         ids=["dxf", "dxf of an ACIS solid", "3dm"])
+def test_mutated_cad_files_are_read_or_rejected(folder, suffix, seeder):
+    """Mutations of a DXF drawing (its group codes and numbers, as text; and of an ACIS solid's SAT records) and of a
+    Rhino model (openNURBS's binary chunks) are read or rejected; neither library takes the process down."""
+    seed = seeder()
     items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
     assert records and all(r["status"] == "accepted" for r in records)  # the unmutated seed is read
 

@@ -1,0 +1,590 @@
+"""ACIS solids as triangle meshes: the boundary representation inside DXF 3DSOLID and BODY entities.
+
+AutoCAD, BricsCAD and the other CAD programs with a solid modeller store a 3D solid as ACIS data
+(SAT text in DXF R2000-R2010, SAB binary from R2013): a body of lumps, each of shells, each of faces
+bounded by loops of coedges, which run along edges between vertices. ezdxf parses both encodings into
+that graph but knows only the plane and the straight line of its geometry. This module adds the two
+curved kinds building massing models are made of, the ``ellipse-curve`` (a circular or elliptical
+edge) and the ``cone-surface`` (a cylindrical or conical face: a curved facade, a round tower), and
+tessellates a body:
+
+- **Edges** are sampled once each, so the two faces that share an edge share its points and the mesh
+  is watertight: a straight edge is its two vertices; an elliptical arc is split into equal steps of
+  its parameter whose chords stay within ``flatten`` (a length) of the arc where it bends most. Tolerant modelling's ``tedge``,
+  ``tvertex`` and ``tcoedge`` are read as their plain kinds.
+- **A planar face**: its loops (outer boundary and holes: the largest is the boundary) triangulated
+  in its plane (:func:`meshsom.polygons.triangulate_polygon_3d`, constrained Delaunay, no new points).
+- **A cylindrical or conical face**: its loops unrolled onto (angle x radius, height along the
+  axis) and triangulated there. A face that goes all the way round (a tower's wall, bounded by two
+  loops that each wrap round the axis) is cut along a seam between the two loops, placed away from any
+  hole. Only the boundary's points are used: cylinders and cones are ruled along their generators,
+  which straight edges follow and which the triangles' edges approximate as the arcs' chords do.
+- **Orientation**: ACIS runs a loop's coedges with the face on their left seen from outside the
+  solid; each face's triangles are turned to run its first edge the same way, so a closed body comes
+  out with outward normals whatever the face's sense. The body's transformation is applied (a
+  mirroring one reverses the triangles).
+
+Not tessellated, each raising :class:`AcisError` that names them: spheres, tori, spline surfaces and
+spline edges (domes, fillets, free forms), and a cone whose face closes in its apex (a conical roof
+bounded by one circle). Such bodies are converted to a mesh in the CAD program (MESHSMOOTH) or
+exported as STL or OBJ.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+__all__ = ["AcisError", "AcisMesh", "acis_mesh"]
+
+#: The fewest segments of a whole ellipse, however coarse ``flatten`` is against it.
+MIN_SEGMENTS_PER_TURN = 8
+#: Two vertex positions closer than this fraction of the body's extent are one point (an edge that
+#: starts where it ends is a whole ellipse).
+SAME_POINT_REL = 1e-9
+#: An edge inside a curved face may span this many of its arcs' angle steps before it is split (its
+#: chord then stays within about this number squared times ``flatten`` of the surface; 1 would split
+#: every edge whose ends are out of phase with the arcs, a cascade of thin triangles).
+INSIDE_SPAN_STEPS = 2.0
+#: The most passes of edge splitting on one curved face (each pass splits many edges at once; a face
+#: needs about log2 of its widest triangle's angle over the step).
+MAX_REFINE_PASSES = 256
+#: Names of the topology entities, whose tolerant kinds (``tvertex-vertex``, ...) are read as the plain
+#: kind named after the last hyphen.
+_TOPOLOGY = ("body", "lump", "shell", "face", "loop", "coedge", "edge", "vertex", "point", "transform")
+
+
+class AcisError(ValueError):
+    """ACIS data that cannot be read or tessellated; the message, a predicate (``"has faces of ..."``), says why
+    and the caller names the entity and the file."""
+
+
+class AcisMesh:
+    """The triangles of one ACIS entity's bodies.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64
+        Drawing units, world (the bodies' transformations applied).
+    triangles : (T, 3) int64
+        Outward for a closed body.
+    faces : Counter
+        Faces read, by surface kind (``plane``, ``cylindrical``, ``conical``).
+    dropped : int
+        Triangles left out where a face's loops cross themselves or each other.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, faces: Counter, dropped: int):
+        self.vertices, self.triangles, self.faces, self.dropped = vertices, triangles, faces, dropped
+
+
+def acis_mesh(data, flatten_rel: float) -> AcisMesh:
+    """Tessellate the ACIS data of a DXF entity (as the module says).
+
+    Parameters
+    ----------
+    data : list of str or bytes
+        SAT lines (DXF R2000-R2010: ezdxf's ``entity.sat``) or SAB bytes (R2013 and later: ``entity.sab``).
+    flatten_rel : float
+        The largest distance of a chord from its arc, as a fraction of the entity's extent.
+
+    Returns
+    -------
+    AcisMesh
+
+    Raises
+    ------
+    AcisError
+        The data cannot be parsed, holds no solid, or has faces or edges of kinds not tessellated here.
+    """
+    from ezdxf.acis.const import AcisException
+
+    try:
+        bodies = _loader(data).bodies_read()
+    except (AcisException, ValueError, TypeError, IndexError, KeyError, AttributeError, UnicodeError,
+            RecursionError) as err:
+        raise AcisError(f"has ACIS data that cannot be read ({type(err).__name__}: {err})") from None
+    if not bodies:
+        raise AcisError("holds no ACIS body")
+    try:
+        return _Tessellation(bodies, flatten_rel).run()
+    except AcisError:
+        raise
+    except (AttributeError, TypeError, ValueError, IndexError, ZeroDivisionError) as err:
+        # a NONE reference where a face, loop or vertex must be: a damaged graph
+        raise AcisError(f"is not a whole boundary representation ({type(err).__name__}: {err})") from None
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing: ezdxf's loaders with the two curved kinds added
+# --------------------------------------------------------------------------------------------
+
+def _curved_classes():
+    from ezdxf.acis import entities as acis
+    from ezdxf.acis.const import AcisException
+
+    acis_errors = (AcisException, ValueError, IndexError, TypeError)
+
+    class Ellipse(acis.Curve):
+        """``ellipse-curve``: P(t) = center + major cos t + ratio (normal x major) sin t."""
+
+        type = "ellipse-curve"
+
+        def restore_data(self, loader) -> None:
+            self.center = np.array(loader.read_vec3(), np.float64)
+            self.normal = np.array(loader.read_vec3(), np.float64)
+            self.major = np.array(loader.read_vec3(), np.float64)
+            self.ratio = float(loader.read_double())
+
+        def evaluate(self, param: float):
+            return self.center + self.major * np.cos(param) + self.ratio * np.cross(self.normal, self.major) * np.sin(param)
+
+    class Cone(acis.Surface):
+        """``cone-surface``: its base ellipse (origin, axis, major axis, ratio); the half angle is not needed to
+        unroll it."""
+
+        type = "cone-surface"
+
+        def restore_data(self, loader) -> None:
+            self.origin = np.array(loader.read_vec3(), np.float64)
+            self.axis = np.array(loader.read_vec3(), np.float64)
+            self.major = np.array(loader.read_vec3(), np.float64)
+            self.ratio = float(loader.read_double())
+            self.sine = None  # the half angle's sine: 0 for a cylinder; after the base ellipse's range (newer ACIS)
+            try:
+                for _ in range(2):
+                    loader.read_interval()
+            except acis_errors:
+                pass
+            try:
+                self.sine = float(loader.read_double())
+            except acis_errors:
+                pass
+
+        def evaluate(self, u: float, v: float):  # not used: faces are tessellated from their edges
+            raise NotImplementedError
+
+    return {"ellipse-curve": Ellipse, "cone-surface": Cone}
+
+
+def _loader(data):
+    from ezdxf.acis import entities as acis
+
+    curved = _curved_classes()
+
+    class Factory:
+        def entity_factory(self, raw):
+            uid = id(raw)
+            entity = self.entities.get(uid)
+            if entity is None:
+                name = str(raw.name)
+                cls = curved.get(name) or acis.ENTITY_TYPES.get(name)
+                last = name.rsplit("-", 1)[-1]
+                if cls is None and last in _TOPOLOGY:
+                    cls = acis.ENTITY_TYPES.get(last)
+                entity = (cls or acis.AcisEntity)()
+                entity.acis_name = name
+                self.entities[uid] = entity
+            return entity
+
+        def bodies_read(self):
+            self.load_entities()
+            return self.bodies()
+
+    if isinstance(data, (bytes, bytearray)):
+        return type("SabLoader", (Factory, acis.SabLoader), {})(data)
+    return type("SatLoader", (Factory, acis.SatLoader), {})(data)
+
+
+# --------------------------------------------------------------------------------------------
+# Tessellation
+# --------------------------------------------------------------------------------------------
+
+def _walk(first, link: str) -> list:
+    """The entities of a linked list from ``first`` along attribute ``link`` (until a NONE or a repeat)."""
+    out, seen, item = [], set(), first
+    while not item.is_none and id(item) not in seen:
+        seen.add(id(item))
+        out.append(item)
+        item = getattr(item, link)
+    return out
+
+
+def _name(entity) -> str:
+    return getattr(entity, "acis_name", entity.type)
+
+
+class _Tessellation:
+    def __init__(self, bodies: list, flatten_rel: float):
+        self.bodies = bodies
+        self.flatten_rel = float(flatten_rel)
+        self.points: list[np.ndarray] = []
+        self.vertex_index: dict[int, int] = {}
+        self.edge_index: dict[int, np.ndarray] = {}
+        self.kinds: Counter = Counter()
+        self.dropped = 0
+
+    def run(self) -> AcisMesh:
+        faces = [(body, face) for body in self.bodies for lump in _walk(body.lump, "next_lump")
+                 for shell in _walk(lump.shell, "next_shell") for face in _walk(shell.face, "next_face")]
+        if not faces:
+            raise AcisError("has ACIS bodies of no faces (a wire or an empty solid)")
+        unknown = Counter(_name(face.surface) for _, face in faces
+                          if face.surface.type not in ("plane-surface", "cone-surface"))
+        if unknown:
+            raise AcisError(f"has faces of curved kinds not tessellated here ({_kinds(unknown)}: domes, fillets, free "
+                            "forms); convert it to a mesh in the CAD program (MESHSMOOTH) or export it as STL/OBJ")
+        extent = self._extent(faces)
+        self.flatten, self.same = self.flatten_rel * extent, SAME_POINT_REL * extent
+        out, placed = [np.zeros((0, 3), np.int64)], []
+        for body in self.bodies:
+            first_point = len(self.points)
+            mine = [self._face(face) for owner, face in faces if owner is body]
+            matrix = _matrix(body)
+            if matrix is not None:
+                placed.append((first_point, len(self.points), matrix))
+                if np.linalg.det(matrix[:3, :3]) < 0:  # mirrored: the triangles keep their side
+                    mine = [t[:, ::-1] for t in mine]
+            out.extend(mine)
+        vertices = np.asarray(self.points, np.float64).reshape(-1, 3)
+        for start, stop, m in placed:
+            vertices[start:stop] = vertices[start:stop] @ m[:3, :3] + m[3, :3]
+        return AcisMesh(vertices, np.concatenate(out).astype(np.int64), self.kinds, self.dropped)
+
+    # ---- geometry of the body -------------------------------------------------------------
+
+    def _extent(self, faces: list) -> float:
+        pts = []
+        for _, face in faces:
+            for loop in _walk(face.loop, "next_loop"):
+                for coedge in _walk(loop.coedge, "next_coedge"):
+                    edge = coedge.edge
+                    pts.append(_location(edge.start_vertex))
+                    curve = edge.curve
+                    if curve.type == "ellipse-curve":  # its circle's box: r sqrt(1 - n_i^2) about the centre
+                        normal = curve.normal / np.linalg.norm(curve.normal)
+                        half = float(np.linalg.norm(curve.major)) * np.sqrt(np.clip(1.0 - normal ** 2, 0.0, 1.0))
+                        pts.extend([curve.center - half, curve.center + half])
+        if not pts:
+            raise AcisError("has ACIS faces without edges")
+        pts = np.asarray(pts, np.float64)
+        extent = float(np.linalg.norm(np.ptp(pts, axis=0)))
+        if not np.isfinite(extent):
+            raise AcisError("has coordinates that are not finite numbers")
+        return extent or 1.0
+
+    def _vertex(self, vertex) -> int:
+        key = id(vertex)
+        if key not in self.vertex_index:
+            self.vertex_index[key] = len(self.points)
+            self.points.append(_location(vertex))
+        return self.vertex_index[key]
+
+    def _edge(self, edge) -> np.ndarray:
+        """Indices of the edge's points, from its start vertex to its end vertex."""
+        key = id(edge)
+        if key in self.edge_index:
+            return self.edge_index[key]
+        a, b = self._vertex(edge.start_vertex), self._vertex(edge.end_vertex)
+        curve = edge.curve
+        kind = curve.type
+        if kind == "straight-curve" or curve.is_none:
+            idx = np.array([a, b], np.int64)
+        elif kind == "ellipse-curve":
+            inner = self._arc(curve, self.points[a], self.points[b], bool(edge.sense), a == b)
+            idx = np.concatenate([[a], np.arange(len(self.points), len(self.points) + len(inner)), [b]]).astype(np.int64)
+            self.points.extend(inner)
+        else:
+            raise AcisError(f"has edges of kinds not tessellated here ({_name(curve)}: a spline or an intersection "
+                            "curve); convert it to a mesh in the CAD program (MESHSMOOTH) or export it as STL/OBJ")
+        self.edge_index[key] = idx
+        return idx
+
+    def _arc(self, curve, start: np.ndarray, end: np.ndarray, reversed_: bool, closed: bool) -> list:
+        """The inner points of an elliptical arc from ``start`` to ``end`` (the curve's direction, or against it)."""
+        r = float(np.linalg.norm(curve.major))
+        normal = curve.normal / np.linalg.norm(curve.normal)
+        u = curve.major / r
+        v = np.cross(normal, u)
+        minor = r * curve.ratio
+
+        def angle(p):
+            d = p - curve.center
+            return float(np.arctan2(d @ v / minor, d @ u / r))
+
+        t0, t1 = angle(start), angle(end)
+        turn = 2.0 * np.pi
+        if closed or np.linalg.norm(start - end) <= self.same:
+            sweep = -turn if reversed_ else turn
+        elif reversed_:
+            sweep = -((t0 - t1) % turn)
+        else:
+            sweep = (t1 - t0) % turn
+        step = self._step(r) * min(1.0, abs(curve.ratio))  # an ellipse's sharpest bend: radius r ratio^2
+        n = max(1, int(np.ceil(abs(sweep) / step - 1e-9)))
+        t = t0 + sweep * np.arange(1, n) / n
+        return list(curve.center + np.outer(np.cos(t), u * r) + np.outer(np.sin(t), v * minor))
+
+    # ---- faces -----------------------------------------------------------------------------
+
+    def _loops(self, face) -> list[np.ndarray]:
+        """Each loop of ``face`` as point indices in its coedges' order (not closed); loops of fewer than 3
+        distinct points (an apex, a degenerate seam) left out."""
+        loops = []
+        for loop in _walk(face.loop, "next_loop"):
+            ring = []
+            for coedge in _walk(loop.coedge, "next_coedge"):
+                idx = self._edge(coedge.edge)
+                ring.append((idx[::-1] if coedge.sense else idx)[:-1])
+            if ring:
+                ring = np.concatenate(ring)
+                if len(np.unique(ring)) >= 3:
+                    loops.append(ring)
+        return loops
+
+    def _face(self, face) -> np.ndarray:
+        loops = self._loops(face)
+        if not loops:
+            return np.zeros((0, 3), np.int64)
+        surface = face.surface
+        if surface.type == "plane-surface":
+            self.kinds["plane"] += 1
+            tri = self._planar(surface, loops)
+        else:
+            self.kinds["cylindrical" if _is_cylinder(surface) else "conical"] += 1
+            tri = self._unrolled(surface, loops)
+        return _oriented(tri, loops[0])
+
+    def _planar(self, surface, loops: list[np.ndarray]) -> np.ndarray:
+        from meshsom.polygons import plane_frame, triangulate_polygon_3d
+
+        if len(loops) == 1 and len(loops[0]) == 3:  # a triangle (a mesh turned into a solid is made of them)
+            return loops[0][None, :].astype(np.int64)
+        pts = np.asarray(self.points, np.float64)
+        if len(loops) > 1:  # the boundary first: the loop of the largest area in the plane
+            frame = plane_frame(np.array(tuple(surface.normal), np.float64))
+            areas = [_signed_area((pts[r] - pts[r].mean(axis=0)) @ frame.T) for r in loops]
+            loops = [loops[k] for k in np.argsort(-np.abs(areas), kind="stable")]
+        rings = loops
+        tri = triangulate_polygon_3d([pts[r] for r in rings])
+        expected = sum(len(r) for r in rings) - 2 + 2 * (len(rings) - 1)  # n + 2 holes - 2
+        self.dropped += max(0, expected - len(tri))
+        return np.concatenate(rings)[tri].reshape(-1, 3)
+
+    def _unrolled(self, surface, loops: list[np.ndarray]) -> np.ndarray:
+        from meshsom.polygons import triangulate_polygon_2d
+
+        pts = np.asarray(self.points, np.float64)
+        axis = surface.axis / np.linalg.norm(surface.axis)
+        u = surface.major - (surface.major @ axis) * axis
+        u /= np.linalg.norm(u)
+        w = np.cross(axis, u)
+        turn = 2.0 * np.pi
+        unrolled, wraps = [], []
+        for ring in loops:
+            d = pts[ring] - surface.origin
+            theta = np.unwrap(np.arctan2(d @ w, d @ u)[np.arange(len(ring) + 1) % len(ring)])  # round and back to the start
+            wraps.append(int(np.rint((theta[-1] - theta[0]) / turn)))
+            unrolled.append(np.stack([theta[:-1], d @ axis], axis=1))
+        radius = float(np.mean(np.linalg.norm(np.cross(pts[np.concatenate(loops)] - surface.origin, axis), axis=1))) or 1.0
+        wrapping = [k for k, n in enumerate(wraps) if n]
+        holes = [k for k, n in enumerate(wraps) if not n]
+        if not wrapping:
+            areas = [_signed_area(p) for p in unrolled]
+            outer = int(np.argmax(np.abs(areas)))
+            centre = unrolled[outer][:, 0].mean()
+            rings = [outer] + [k for k in holes if k != outer]
+            flat = [_shifted(unrolled[k], centre) for k in rings]
+            index = np.concatenate([loops[k] for k in rings])
+        elif len(wrapping) == 2:
+            (a, b), others = wrapping, holes
+            hole_angles = np.concatenate([unrolled[k][:, 0] for k in others]) if others else np.zeros(0)
+            shell, index = _seam_polygon(unrolled[a], loops[a], wraps[a], unrolled[b], loops[b], wraps[b], hole_angles)
+            centre = shell[:, 0].min() + np.pi
+            flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
+            index = np.concatenate([index] + [loops[k] for k in others])
+        else:
+            raise AcisError(f"has a {'cylindrical' if _is_cylinder(surface) else 'conical'} face bounded by "
+                            f"{len(wrapping)} loop{'s' * (len(wrapping) != 1)} going round its axis (a cone closing in "
+                            "its apex: not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) or "
+                            "export it as STL/OBJ")
+        scale = np.array([radius, 1.0])
+        scaled = [p * scale for p in flat]
+        points, tri = triangulate_polygon_2d(scaled[0], scaled[1:])
+        keep = (tri < len(index)).all(axis=1)
+        expected = sum(len(p) for p in flat) - 2 + 2 * (len(flat) - 1)
+        self.dropped += max(0, expected - int(keep.sum()))
+        # triangles that span more than an arc's step of angle cut through the solid: split them
+        boundary = pts[np.concatenate(loops)] - surface.origin
+        radii = np.linalg.norm(np.cross(boundary, axis), axis=1)
+        unrolled_points, tri = _refined(points[: len(index)] / scale, tri[keep], INSIDE_SPAN_STEPS * self._step(float(radii.max())) * min(1.0, abs(surface.ratio)))
+        new = unrolled_points[len(index):]
+        if len(new):  # on the surface: the base ellipse's shape at the new angle, scaled linearly along the axis
+            ratio = abs(surface.ratio) or 1.0
+
+            def shape(theta):
+                return 1.0 / np.sqrt(np.cos(theta) ** 2 + (np.sin(theta) / ratio) ** 2)
+
+            heights = boundary @ axis
+            scales = radii / shape(np.arctan2(boundary @ w, boundary @ u))
+            slope = 0.0 if np.ptp(heights) <= self.same else np.polyfit(heights, scales, 1)[0]
+            r = (scales.mean() + slope * (new[:, 1] - heights.mean())) * shape(new[:, 0])
+            placed = (surface.origin + new[:, 1:2] * axis + r[:, None] * (np.cos(new[:, :1]) * u + np.sin(new[:, :1]) * w))
+            index = np.concatenate([index, np.arange(len(self.points), len(self.points) + len(new))])
+            self.points.extend(placed)
+        tri = index[tri]
+        return tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])]
+
+    def _step(self, r: float) -> float:
+        """The angle of an arc of radius ``r`` whose chord stays within ``flatten`` of it."""
+        turn = 2.0 * np.pi
+        step = 2.0 * np.arccos(max(-1.0, 1.0 - self.flatten / r)) if r > 0 else turn
+        return min(step, turn / MIN_SEGMENTS_PER_TURN)
+
+
+def _refined(points: np.ndarray, tri: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Split the triangles of an unrolled face until no edge inside the face spans more than ``step`` of angle.
+
+    Longest-edge bisection (Rivara): each pass splits, at its midpoint, every edge that both its
+    triangles pick as their longest (by angle, then by key) of the edges to split, so the mesh stays
+    conforming; the face's boundary edges are never split (its neighbours share them).
+
+    Parameters
+    ----------
+    points : (P, 2) float64
+        (angle, height) of the face's points.
+    tri : (T, 3) int64
+    step : float
+
+    Returns
+    -------
+    points : (P + Q, 2) float64
+        ``points`` followed by the Q midpoints added.
+    tri : (T', 3) int64
+    """
+    points = np.asarray(points, np.float64)
+    for _ in range(MAX_REFINE_PASSES):
+        if not len(tri):
+            break
+        n = len(points)
+        ends = np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], axis=1)  # (T, 3, 2)
+        key = ends.min(axis=2) * n + ends.max(axis=2)
+        span = np.abs(points[ends[..., 0], 0] - points[ends[..., 1], 0])
+        keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        inverse = inverse.reshape(key.shape)
+        long = (counts[inverse] == 2) & (span > step * (1.0 + 1e-9))
+        if not long.any():
+            break
+        edge_span = np.zeros(len(keys))
+        edge_span[inverse.reshape(-1)] = span.reshape(-1)
+        rank = np.empty(len(keys), np.int64)
+        rank[np.lexsort((keys, edge_span))] = np.arange(len(keys))
+        choice = np.where(long, rank[inverse], -1)
+        local = np.argmax(choice, axis=1)
+        rows = np.flatnonzero(choice[np.arange(len(tri)), local] >= 0)
+        picked = inverse[rows, local[rows]]
+        edges, picks = np.unique(picked, return_counts=True)
+        split = edges[picks == 2]
+        go = np.isin(picked, split)
+        rows, picked = rows[go], picked[go]
+        local = local[rows]
+        turned = tri[rows[:, None], (local[:, None] + np.arange(3)) % 3]  # the edge to split first
+        a, b = turned[:, 0], turned[:, 1]
+        mid_of = np.full(len(keys), -1, np.int64)
+        mid_of[split] = n + np.arange(len(split))
+        first = {}
+        for e, p, q in zip(picked.tolist(), a.tolist(), b.tolist()):
+            first.setdefault(e, (p, q))
+        ends_of = np.array([first[e] for e in split.tolist()], np.int64).reshape(-1, 2)
+        points = np.concatenate([points, 0.5 * (points[ends_of[:, 0]] + points[ends_of[:, 1]])])
+        m = mid_of[picked]
+        halves = np.concatenate([np.stack([a, m, turned[:, 2]], axis=1), np.stack([m, b, turned[:, 2]], axis=1)])
+        kept = np.ones(len(tri), bool)
+        kept[rows] = False
+        tri = np.concatenate([tri[kept], halves])
+    return points, tri
+
+
+def _location(vertex) -> np.ndarray:
+    return np.array(tuple(vertex.point.location), np.float64)
+
+
+def _matrix(body) -> np.ndarray | None:
+    transform = body.transform
+    if transform.is_none:
+        return None
+    m = np.array(list(transform.matrix), np.float64).reshape(4, 4)
+    return None if np.allclose(m, np.eye(4), rtol=0.0, atol=0.0) else m
+
+
+def _is_cylinder(surface) -> bool:
+    """Whether a cone surface is a cylinder (its half angle's sine 0; unknown: a cone)."""
+    return getattr(surface, "sine", None) is not None and abs(surface.sine) < 1e-12
+
+
+def _kinds(counter: Counter) -> str:
+    return ", ".join(f"{n} {kind}" for kind, n in counter.most_common())
+
+
+def _signed_area(p: np.ndarray) -> float:
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def _shifted(p: np.ndarray, centre: float) -> np.ndarray:
+    """``p`` (K, 2) moved by whole turns in angle so that its mean angle is nearest ``centre``."""
+    turns = np.rint((centre - p[:, 0].mean()) / (2.0 * np.pi))
+    return p + np.array([turns * 2.0 * np.pi, 0.0])
+
+
+def _seam_polygon(pa, ia, wa, pb, ib, wb, hole_angles):
+    """The unrolled polygon of a face going round its axis between wrapping loops a and b, cut along a seam.
+
+    Returns the polygon's (P, 2) points and their (P,) point indices (the seam's two ends repeated,
+    one turn apart).
+    """
+    turn = 2.0 * np.pi
+
+    def ascending(p, idx, w):
+        return (p, idx) if w > 0 else (p[::-1], idx[::-1])
+
+    pa, ia = ascending(pa, ia, wa)
+    pb, ib = ascending(pb, ib, wb)
+    # the seam starts at the point of loop a farthest (in angle) from every hole
+    if len(hole_angles):
+        gap = np.abs(np.angle(np.exp(1j * (pa[:, 0][:, None] - hole_angles[None, :])))).min(axis=1)
+        s = int(np.argmax(gap))
+    else:
+        s = 0
+    pa, ia = _rolled(pa, ia, s)
+    theta = pa[0, 0]
+    nearest = np.abs(np.angle(np.exp(1j * (pb[:, 0] - theta))))
+    pb, ib = _rolled(pb, ib, int(np.argmin(nearest)))
+    pb = pb + np.array([np.rint((theta - pb[0, 0]) / turn) * turn, 0.0])
+    a_end = pa[0] + np.array([turn, 0.0])
+    b_end = pb[0] + np.array([turn, 0.0])
+    shell = np.concatenate([pa, [a_end], [b_end], pb[::-1]])
+    index = np.concatenate([ia, [ia[0]], [ib[0]], ib[::-1]])
+    return shell, index
+
+
+def _rolled(p: np.ndarray, idx: np.ndarray, start: int):
+    """A loop's points from ``start`` on, their angles continuous (ascending by a turn at most)."""
+    p = np.roll(p, -start, axis=0).copy()
+    idx = np.roll(idx, -start)
+    p[:, 0] = np.unwrap(p[:, 0])
+    return p, idx
+
+
+def _oriented(tri: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """``tri`` turned, all together, to run the loop's first edge ring[0] -> ring[1] as the loop does."""
+    if not len(tri):
+        return tri
+    a, b = int(ring[0]), int(ring[1])
+    for k in range(3):
+        if ((tri[:, k] == a) & (tri[:, (k + 1) % 3] == b)).any():
+            return tri
+        if ((tri[:, k] == b) & (tri[:, (k + 1) % 3] == a)).any():
+            return tri[:, ::-1].copy()
+    return tri

@@ -1,0 +1,268 @@
+"""ACIS solids (DXF 3DSOLID / BODY) tessellated: closed, outward, on their exact geometry, in both encodings.
+
+The solids are written here (tests/acis_solids.py: extruded profiles of lines and arcs, as AutoCAD's
+EXTRUDE makes them) in SAT text (ACIS 700, DXF R2000; 20800 with the asm header of R2004-R2010) and
+SAB binary (R2013 and later); every figure checked is computed from the profile, not from a mesh.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import ezdxf
+import numpy as np
+import pytest
+from ezdxf.math import Matrix44
+
+from acis_solids import (add_solid, extrusion_body, profile_area, sab_bytes, sat_lines, sphere_body,
+                         tower_with_window_body)
+from meshsom.acis import AcisError, acis_mesh
+from meshsom.dxf import FLATTEN_REL, read_dxf
+from meshsom.io import RawMesh, ReaderOptions, Rejection
+from test_dxf import closed, signed_volume
+
+ENCODINGS = {
+    "SAT 700": lambda bodies: sat_lines(bodies, 700),
+    "SAT 20800": lambda bodies: sat_lines(bodies, 20800),
+    "SAB 21800": sab_bytes,
+}
+SQUARE = [("line", (10.0, 0.0)), ("line", (10.0, 6.0)), ("line", (0.0, 6.0)), ("line", (0.0, 0.0))]
+PROFILES = {
+    "box": [SQUARE],
+    # a curved facade bulging out (a half circle of radius 4 about (10, 4)) and one cut in
+    "convex facade": [[("line", (10.0, 0.0)), ("arc", (10.0, 8.0), (10.0, 4.0)), ("line", (0.0, 8.0)), ("line", (0.0, 0.0))]],
+    "concave facade": [[("line", (10.0, 0.0)), ("arc", (10.0, 8.0), (10.0, 4.0), False), ("line", (0.0, 8.0)),
+                        ("line", (0.0, 0.0))]],
+    "round tower": [[("circle", (3.0, 4.0), 5.0)]],
+    # a block with a round courtyard and a square light well
+    "courtyards": [[("line", (20.0, 0.0)), ("line", (20.0, 20.0)), ("line", (0.0, 20.0)), ("line", (0.0, 0.0))],
+                   [("circle", (10.0, 10.0), 4.0, False)],
+                   [("line", (2.0, 5.0)), ("line", (5.0, 5.0)), ("line", (5.0, 2.0)), ("line", (2.0, 2.0))]],
+}
+#: (centre, radius) of each profile's circular arcs: every point of the side there lies on that cylinder.
+ARCS = {"convex facade": [((10.0, 4.0), 4.0)], "concave facade": [((10.0, 4.0), 4.0)],
+        "round tower": [((3.0, 4.0), 5.0)], "courtyards": [((10.0, 10.0), 4.0)]}
+ARC_LENGTH = {"box": 0.0, "convex facade": 4 * math.pi, "concave facade": 4 * math.pi, "round tower": 10 * math.pi,
+              "courtyards": 8 * math.pi}
+Z0, Z1 = 2.0, 14.0
+#: How closely an encoding keeps coordinates: ezdxf writes SAT numbers to 6 significant digits (AutoCAD to 17), SAB
+#: as doubles.
+DIGITS = {"SAT 700": 1e-5, "SAT 20800": 1e-5, "SAB 21800": 1e-12}
+
+
+def check_solid(vertices: np.ndarray, triangles: np.ndarray, exact_volume: float, arc_length: float, extent: float):
+    """Closed (each edge twice, once each way), outward, and of the exact volume within what chords can lose: the
+    arcs' length x the chords' largest distance (``FLATTEN_REL`` x extent) x the height."""
+    assert closed(triangles)
+    volume = signed_volume(vertices, triangles)
+    assert volume > 0
+    assert abs(volume - exact_volume) <= arc_length * FLATTEN_REL * extent * (Z1 - Z0) + 1e-9 * exact_volume
+    return volume
+
+
+@pytest.mark.parametrize("encoding", ENCODINGS)
+@pytest.mark.parametrize("name", PROFILES)
+def test_extruded_profiles_are_closed_outward_and_exact(name, encoding):
+    profile = PROFILES[name]
+    mesh = acis_mesh(ENCODINGS[encoding]([extrusion_body(profile, Z0, Z1)]), FLATTEN_REL)
+    pts = np.array([seg[1] for loop in profile for seg in loop if seg[0] != "circle"]
+                   + [np.add(seg[1], seg[2]) for loop in profile for seg in loop if seg[0] == "circle"])
+    extent = float(np.linalg.norm(np.append(np.ptp(pts, axis=0) + 10.0, Z1 - Z0)))  # above the solid's box
+    check_solid(mesh.vertices, mesh.triangles, profile_area(profile) * (Z1 - Z0), ARC_LENGTH[name], extent)
+    assert set(np.unique(mesh.vertices[:, 2])) == {Z0, Z1}  # nothing made up between the caps
+    curved = mesh.faces.get("cylindrical", 0)
+    assert curved == len(ARCS.get(name, []))
+    assert mesh.faces["plane"] == 2 + sum(len(loop) for loop in profile if loop[0][0] != "circle") - curved + sum(
+        1 for loop in profile if loop[0][0] == "circle")
+    for (cx, cy), r in ARCS.get(name, []):
+        off = np.abs(np.hypot(mesh.vertices[:, 0] - cx, mesh.vertices[:, 1] - cy) - r)
+        on = off < 1e-6
+        assert on.sum() >= 2 * 8  # arcs sampled, on the cylinder to rounding
+        assert off[on].max() < 1e-12 * 100
+
+
+def test_arcs_are_sampled_within_the_tolerance_and_shared_by_both_faces():
+    """The tower's circles: chords within FLATTEN_REL of the extent, and each circle's points are the cap's and the wall's."""
+    mesh = acis_mesh(sat_lines([extrusion_body(PROFILES["round tower"], Z0, Z1)], 700), FLATTEN_REL)
+    v = mesh.vertices
+    bottom = np.flatnonzero(v[:, 2] == Z0)
+    angles = np.sort(np.arctan2(v[bottom, 1] - 4.0, v[bottom, 0] - 3.0))
+    gaps = np.diff(np.append(angles, angles[0] + 2 * math.pi))
+    sagitta = 5.0 * (1 - np.cos(gaps.max() / 2))
+    extent = np.linalg.norm([10.0, 10.0, Z1 - Z0])  # the solid's box
+    assert sagitta <= FLATTEN_REL * extent * (1 + 1e-9)
+    assert np.ptp(gaps) < 1e-9  # equal angles
+    walls = mesh.triangles[np.ptp(v[mesh.triangles][:, :, 2], axis=1) > 0]
+    caps = mesh.triangles[np.ptp(v[mesh.triangles][:, :, 2], axis=1) == 0]
+    assert set(np.unique(walls)) == set(np.unique(caps))  # one set of points: watertight by construction
+
+
+@pytest.mark.parametrize("window", [(0.5, 1.2, 5.0, 9.0), (-0.3, 0.4, 5.0, 9.0)], ids=["window", "window across 0"])
+@pytest.mark.parametrize("encoding", ["SAT 700", "SAB 21800"])
+def test_a_wall_going_round_with_a_hole_is_cut_along_a_seam_and_stays_on_its_cylinder(window, encoding):
+    """Two wrapping loops and a hole (the patch filling it another face of the same cylinder): no triangle cuts
+    through the tower (each is within the chord tolerance of the cylinder), and the volume is the tower's."""
+    r = 5.0
+    mesh = acis_mesh(ENCODINGS[encoding]([tower_with_window_body((3.0, 4.0), r, Z0, Z1, window)]), FLATTEN_REL)
+    assert mesh.faces == {"plane": 2, "cylindrical": 2}
+    extent = float(np.linalg.norm([2 * r, 2 * r, Z1 - Z0]))
+    check_solid(mesh.vertices, mesh.triangles, math.pi * r * r * (Z1 - Z0), 2 * math.pi * r * 4, extent)
+    tri = mesh.vertices[mesh.triangles]
+    side = np.ptp(tri[:, :, 2], axis=1) > 0
+    centroid = tri[side].mean(axis=1)
+    depth = r - np.hypot(centroid[:, 0] - 3.0, centroid[:, 1] - 4.0)
+    assert depth.max() <= 4 * FLATTEN_REL * extent  # INSIDE_SPAN_STEPS ** 2 x the arcs' tolerance
+    assert np.abs(np.hypot(mesh.vertices[:, 0] - 3.0, mesh.vertices[:, 1] - 4.0)[
+        (mesh.vertices[:, 2] > Z0) & (mesh.vertices[:, 2] < Z1)] - r).max() < DIGITS[encoding] * 10
+
+
+def test_an_elliptical_tower_with_a_window_stays_on_its_ellipse():
+    """An elliptical cylinder (ratio 0.5): arcs sampled where the ellipse bends most, the points added inside the wall
+    on the ellipse, the volume pi a b h."""
+    a, ratio = 6.0, 0.5
+    body = tower_with_window_body((0.0, 0.0), a, Z0, Z1, (0.3, 1.4, 5.0, 9.0), ratio)
+    mesh = acis_mesh(sab_bytes([body]), FLATTEN_REL)
+    extent = float(np.linalg.norm([2 * a, 2 * a * ratio, Z1 - Z0]))
+    check_solid(mesh.vertices, mesh.triangles, math.pi * a * a * ratio * (Z1 - Z0), 2 * math.pi * a * 4, extent)
+    x, y = mesh.vertices[:, 0], mesh.vertices[:, 1]
+    wall = (mesh.vertices[:, 2] > Z0) & (mesh.vertices[:, 2] < Z1)
+    assert wall.sum() > 8 and np.abs((x / a) ** 2 + (y / (a * ratio)) ** 2 - 1.0)[wall].max() < 1e-9
+    tri = mesh.vertices[mesh.triangles]
+    centroid = tri[np.ptp(tri[:, :, 2], axis=1) > 0].mean(axis=1)
+    inside = 1.0 - np.sqrt((centroid[:, 0] / a) ** 2 + (centroid[:, 1] / (a * ratio)) ** 2)  # relative depth
+    assert inside.max() * a <= 4 * FLATTEN_REL * extent
+    bottom = mesh.vertices[mesh.vertices[:, 2] == Z0]
+    t = np.sort(np.arctan2(bottom[:, 1] / ratio, bottom[:, 0]))
+    chord_mid = 0.5 * (np.stack([np.cos(t), ratio * np.sin(t)], 1) + np.stack([np.cos(np.roll(t, -1)), ratio * np.sin(
+        np.roll(t, -1))], 1)) * a
+    assert (1.0 - np.sqrt((chord_mid[:, 0] / a) ** 2 + (chord_mid[:, 1] / (a * ratio)) ** 2)).max() * a <= (
+        FLATTEN_REL * extent)
+
+
+@pytest.mark.parametrize("encoding", ["SAT 700", "SAB 21800"])
+def test_the_bodys_transformation_is_applied_and_a_mirror_keeps_it_outward(encoding):
+    profile = PROFILES["convex facade"]
+    exact = profile_area(profile) * (Z1 - Z0)
+    # a quarter turn: its coefficients survive the writer's 6 digits (ezdxf writes a transform's numbers so)
+    turn = Matrix44.chain(Matrix44.z_rotate(math.radians(90.0)), Matrix44.translate(2_600_000.0, 1_200_000.0, 400.0))
+    mesh = acis_mesh(ENCODINGS[encoding]([extrusion_body(profile, Z0, Z1, turn)]), FLATTEN_REL)
+    plain = acis_mesh(ENCODINGS[encoding]([extrusion_body(profile, Z0, Z1)]), FLATTEN_REL)
+    expected = np.array(list(turn.transform_vertices(plain.vertices.tolist())))
+    assert np.abs(mesh.vertices - expected).max() < DIGITS[encoding] * 30.0  # the solid's size
+    assert signed_volume(mesh.vertices - mesh.vertices.mean(axis=0), mesh.triangles) == pytest.approx(
+        signed_volume(plain.vertices, plain.triangles), rel=1e-6)
+    mirrored = acis_mesh(ENCODINGS[encoding]([extrusion_body(profile, Z0, Z1, Matrix44.scale(-1, 1, 1))]), FLATTEN_REL)
+    assert np.allclose(mirrored.vertices[:, 0], -plain.vertices[:, 0])
+    assert closed(mirrored.triangles) and signed_volume(mirrored.vertices, mirrored.triangles) == pytest.approx(
+        signed_volume(plain.vertices, plain.triangles), rel=1e-12)
+    assert abs(signed_volume(plain.vertices, plain.triangles) - exact) < 0.01 * exact
+
+
+def test_several_bodies_of_one_entity_are_one_mesh_of_their_pieces():
+    a = extrusion_body([SQUARE], 0.0, 3.0)
+    b = extrusion_body(PROFILES["round tower"], 0.0, 9.0, Matrix44.translate(30.0, 0.0, 0.0))
+    mesh = acis_mesh(sat_lines([a, b], 700), FLATTEN_REL)
+    assert closed(mesh.triangles)
+    assert signed_volume(mesh.vertices, mesh.triangles) == pytest.approx(60.0 * 3.0 + math.pi * 25.0 * 9.0, rel=1e-3)
+
+
+def test_domes_and_damaged_data_raise_saying_what():
+    with pytest.raises(AcisError, match=r"^has faces of curved kinds not tessellated here \(1 sphere-surface"):
+        acis_mesh(sat_lines([sphere_body((0.0, 0.0, 0.0), 5.0)], 700), FLATTEN_REL)
+    lines = sat_lines([extrusion_body(PROFILES["convex facade"], Z0, Z1)], 700)
+    with pytest.raises(AcisError, match=r"^has ACIS data that cannot be read \("):
+        acis_mesh(lines[: len(lines) // 2], FLATTEN_REL)
+    with pytest.raises(AcisError, match=r"^holds no ACIS body$"):
+        acis_mesh(lines[:3], FLATTEN_REL)
+    with pytest.raises(AcisError, match=r"^has ACIS data that cannot be read \(ParsingError: not a SAB file"):
+        acis_mesh(b"not ACIS at all" * 4, FLATTEN_REL)
+    spline = [line.replace("ellipse-curve", "intcurve-curve") for line in lines]
+    with pytest.raises(AcisError, match=r"^has edges of kinds not tessellated here \(intcurve-curve"):
+        acis_mesh(spline, FLATTEN_REL)
+
+
+def test_autocad_style_records_of_a_later_acis_version_are_read():
+    """AutoCAD 2010's SAT layout: the cone's base ellipse range, sine, cosine, scale and sense after its ratio, and
+    tolerant edges and vertices (``tedge``, ``tvertex``, read as plain ones)."""
+    lines = sat_lines([extrusion_body(PROFILES["convex facade"], Z0, Z1)], 20800)
+    assert any(line.startswith("cone-surface") and " I I 0 1 4 forward I I I I #" in line for line in lines)
+    tolerant = [line.replace("edge $", "tedge-edge $", 1) if line.startswith("edge ") else line for line in lines]
+    tolerant = [line.replace("vertex $", "tvertex-vertex $", 1) if line.startswith("vertex ") else line for line in tolerant]
+    plain = acis_mesh(lines, FLATTEN_REL)
+    mesh = acis_mesh(tolerant, FLATTEN_REL)
+    assert np.array_equal(mesh.vertices, plain.vertices) and np.array_equal(mesh.triangles, plain.triangles)
+
+
+# --------------------------------------------------------------------------------------------
+# Through the DXF reader and preprocessing
+# --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("version", ["R2010", "R2018"])
+def test_solids_in_model_space_and_in_blocks_are_buildings(tmp_path, version):
+    from meshsom.preprocess import preprocess, validate
+
+    doc = ezdxf.new(version)
+    doc.units = ezdxf.units.M
+    msp = doc.modelspace()
+    tower = add_solid(msp, [extrusion_body(PROFILES["round tower"], 0.0, 20.0,
+                                           Matrix44.translate(2_683_000.0, 1_248_000.0, 410.0))])
+    dome = add_solid(msp, [sphere_body((0.0, 0.0, 0.0), 5.0)])
+    house = doc.blocks.new("HOUSE")
+    add_solid(house, [extrusion_body(PROFILES["convex facade"], 0.0, 9.0)])
+    add_solid(house, [sphere_body((5.0, 4.0, 12.0), 3.0)])
+    turned = msp.add_blockref("HOUSE", (2_683_100.0, 1_248_050.0, 410.0), dxfattribs={"rotation": 30})
+    mirrored = msp.add_blockref("HOUSE", (2_683_200.0, 1_248_050.0, 410.0), dxfattribs={"xscale": -1})
+    domes = doc.blocks.new("DOMES")
+    add_solid(domes, [sphere_body((0.0, 0.0, 0.0), 2.0)])
+    only_dome = msp.add_blockref("DOMES", (0.0, 0.0, 0.0))
+    path = tmp_path / f"solids_{version}.dxf"
+    doc.saveas(path)
+    items = list(read_dxf(path, ReaderOptions()))
+    name = path.name
+    assert [i.id for i in items] == [f"{name}#{tower.dxf.handle}", f"{name}#{dome.dxf.handle}",
+                                     f"{name}#HOUSE@{turned.dxf.handle}", f"{name}#HOUSE@{mirrored.dxf.handle}",
+                                     f"{name}#DOMES@{only_dome.dxf.handle}"]
+    assert [type(i) for i in items] == [RawMesh, Rejection, RawMesh, RawMesh, Rejection]
+    assert items[1].reason.startswith("an ACIS solid (3DSOLID) that has faces of curved kinds not tessellated here "
+                                      "(1 sphere-surface") and "MESHSMOOTH" in items[1].reason
+    assert items[4].reason.startswith("its block 'DOMES' holds no faces that can be read: 1 ACIS solid that has faces")
+    assert np.allclose(items[0].origin[:2], [2_683_003.0, 1_248_004.0])
+    assert any("curved faces of ACIS solids (1 cylindrical) tessellated" in n for n in items[0].notes)
+    assert any(n.startswith("ACIS entities in its block not read: 1 ACIS solid that has faces of curved kinds")
+               for n in items[2].notes)
+    house_volume = profile_area(PROFILES["convex facade"]) * 9.0
+    for item, exact in ((items[0], math.pi * 25.0 * 20.0), (items[2], house_volume), (items[3], house_volume)):
+        assert closed(item.faces)
+        assert signed_volume(item.vertices, item.faces) == pytest.approx(exact, rel=2e-3)
+        r = preprocess(item.vertices, item.faces, source=item.id)
+        assert validate(r.vertices, r.faces) is None
+        assert signed_volume(r.vertices, r.faces) == pytest.approx(exact, rel=2e-3)
+    # the mirrored house is the turned one's mirror image: the same plan area, x reversed about the insert
+    assert np.ptp(items[3].vertices, axis=0) == pytest.approx(np.array([14.0, 8.0, 9.0]), abs=1e-6)
+
+
+def test_a_solid_in_a_drawing_older_than_r2000_cannot_be_there(tmp_path):
+    """DXF R12 has no 3DSOLID: ezdxf refuses to add one, so the reader never meets one (a guard, not a path)."""
+    doc = ezdxf.new("R12")
+    with pytest.raises(ezdxf.DXFVersionError):
+        doc.modelspace().add_3dsolid()
+
+
+def test_a_block_of_solids_is_tessellated_once_for_all_its_references(tmp_path, monkeypatch):
+    import meshsom.acis as acis_module
+
+    doc = ezdxf.new("R2018")
+    block = doc.blocks.new("TOWER")
+    add_solid(block, [extrusion_body(PROFILES["round tower"], 0.0, 20.0)])
+    for k in range(12):
+        doc.modelspace().add_blockref("TOWER", (30.0 * k, 0.0, 0.0))
+    doc.saveas(tmp_path / "towers.dxf")
+    calls = []
+    real = acis_module.acis_mesh
+    monkeypatch.setattr(acis_module, "acis_mesh", lambda *a: calls.append(1) or real(*a))
+    items = list(read_dxf(Path(tmp_path / "towers.dxf"), ReaderOptions()))
+    assert len(items) == 12 and all(isinstance(i, RawMesh) for i in items) and len(calls) == 1
+    origins = np.array([i.origin for i in items])
+    assert np.allclose(origins - origins[0], [[30.0 * k, 0.0, 0.0] for k in range(12)], rtol=0.0, atol=1e-9)
+    assert all(np.allclose(i.vertices, items[0].vertices, rtol=0.0, atol=1e-9) for i in items)
