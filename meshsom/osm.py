@@ -30,7 +30,9 @@ own configuration reads as lines; every tag is kept):
   ``residential``, ``church``, ...).
 
 Other areas (land use, parks, parking) are not buildings: counted by their first tag in a note on
-the file's meshes. Points and lines (a building mapped as a node) are not read.
+the file's meshes. A building (or building part) mapped as a node, or as a way that does not
+close, has no outline to build: each is a rejection saying so (id ``name#node/<id>``,
+``name#way/<id>``), so that every building of the extract is either read or listed.
 """
 
 from __future__ import annotations
@@ -122,9 +124,9 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     size = path.stat().st_size
     if size > int(options.max_bytes):
         raise InputFileError(str(path), f"has {size:,} bytes, more than {int(options.max_bytes):,} (ReaderOptions.max_bytes)")
-    buildings, parts, others = _areas(path)
+    buildings, parts, others, strays = _areas(path)
     part_of = (0, 1) if feature_range is None else (int(feature_range[1]), int(feature_range[2]))
-    if not buildings and not parts:
+    if not buildings and not parts and not strays:
         if part_of[0]:
             return  # the first range says it
         kinds = ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) or "none"
@@ -135,10 +137,16 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
                      + ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) + ")")
     owner = _owners(buildings, parts)
     yield from _meshes(buildings, parts, owner, notes, options, name, str(path), part_of)
+    if part_of[0] == part_of[1] - 1:  # the last range lists the buildings that have no outline: the order of one task
+        from meshsom.io import Rejection
+
+        for oid, kind, problem in strays:
+            yield Rejection(f"{name}#{oid}", str(path), f"a {kind} {problem}: it has no outline to build", 0, None)
 
 
-def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter]:
-    """The file's building outlines, building parts, and the other areas counted by their first tag."""
+def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[str, str, str]]]:
+    """The file's building outlines, building parts, the other areas counted by their first tag, and the
+    buildings and parts without an area: (id, ``building`` or ``building:part``, how it is mapped)."""
     import fiona
     from fiona.drvsupport import supported_drivers
 
@@ -161,11 +169,20 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter]:
                     parts.append(_Area(oid, found, geometry))
                 else:
                     others[next(iter(found), "untagged")] += 1
+        strays = []
+        for layer_name, element, problem in (("points", "node", "mapped as a point (a node)"),
+                                              ("lines", "way", "mapped as a way that does not close")):
+            with fiona.Env(OSM_CONFIG_FILE=str(CONFIG)), fiona.open(source, layer=layer_name) as layer:
+                for feature in layer:
+                    props = feature["properties"]
+                    kind = next((k for k in ("building", "building:part") if (props.get(k) or NO) != NO), None)
+                    if kind is not None:
+                        strays.append((f"{element}/{props.get('osm_id')}", kind, problem))
     except Exception as err:  # fiona and GDAL raise their own errors for unreadable data
         if isinstance(err, InputFileError):
             raise
         raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by GDAL ({type(err).__name__}: {err})") from None
-    return buildings, parts, others
+    return buildings, parts, others, strays
 
 
 def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:

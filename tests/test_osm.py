@@ -112,6 +112,12 @@ def _district(path):
     osm.way(60, (0, 100, 50, 150), leisure="park")
     road = osm.ring(0, -10, 200, -9)[0][:2]
     osm.ways.append((70, "".join(f'<nd ref="{n}"/>' for n in road), {"highway": "residential"}))
+    # a building mapped as a node, and one whose way does not close: no outline, each a rejection
+    open_way = osm.ring(210, 0, 220, 10)[0][:3]
+    osm.ways.append((91, "".join(f'<nd ref="{n}"/>' for n in open_way), {"building": "house", "height": "6"}))
+    lon, lat = _lonlat([(200.0, 0.0)])[0]  # node ids increase through the file, as OpenStreetMap writes them
+    osm.nodes.append(f'  <node id="9000" version="1" lat="{lat:.7f}" lon="{lon:.7f}"><tag k="building" v="yes"/></node>')
+    osm.nodes.append(f'  <node id="9001" version="1" lat="{lat:.7f}" lon="{lon:.7f}"><tag k="amenity" v="bench"/></node>')
     path.write_text(osm.text())
     return path, osm.area
 
@@ -119,7 +125,10 @@ def _district(path):
 def test_buildings_heights_and_courtyards(tmp_path):
     path, area = _district(tmp_path / "d.osm")
     items = {i.id.split("#")[1]: i for i in read_file(path)}
-    assert set(items) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80"}, sorted(items)
+    assert set(items) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80", "node/9000",
+                          "way/91"}, sorted(items)
+    assert items["node/9000"].reason == "a building mapped as a point (a node): it has no outline to build"
+    assert items["way/91"].reason == "a building mapped as a way that does not close: it has no outline to build"
     house = items["way/10"]
     assert area[10] == pytest.approx(240, rel=3e-3)  # OSM's centimetre
     assert _volume(house) == pytest.approx(area[10] * 12.5, rel=1e-5)
@@ -222,14 +231,18 @@ def test_hstore_tags_are_unescaped():
 
 def test_meshsom_ingest_with_a_default_height(tmp_path):
     """`meshsom ingest d.osm --default-height 9`: every building accounted for and accepted (the
-    shed at 9 m), the office as one building of two parts."""
+    shed at 9 m), the office as one building of two parts; the node and the open way listed as rejected."""
     from meshsom.store import read_manifest
     from pipelines.cli import main
 
     path, _ = _district(tmp_path / "d.osm")
     main(["ingest", str(path), "--out", str(tmp_path / "d.zarr"), "--default-height", "9"])
     records = {r["id"].split("#")[1]: r for r in read_manifest(tmp_path / "d.zarr")["records"]}
-    assert set(records) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80"}
-    assert all(r["status"] == "accepted" for r in records.values()), [r.get("reason") for r in records.values()]
+    assert set(records) == {"way/10", "way/11", "relation/14", "way/20", "way/30", "way/40", "way/50", "way/80",
+                            "node/9000", "way/91"}
+    outlineless = ("node/9000", "way/91")
+    assert all(records[k]["status"] == "rejected" and "no outline to build" in records[k]["reason"] for k in outlineless)
+    assert all(r["status"] == "accepted" for k, r in records.items() if k not in outlineless), [
+        r.get("reason") for r in records.values()]
     assert records["way/20"]["union"]["parts"] == 2
     assert any("default 9 m" in n for n in records["way/40"]["notes"])
