@@ -14,19 +14,22 @@ tessellates a body:
   ``tvertex`` and ``tcoedge`` are read as their plain kinds.
 - **A planar face**: its loops (outer boundary and holes: the largest is the boundary) triangulated
   in its plane (:func:`meshsom.polygons.triangulate_polygon_3d`, constrained Delaunay, no new points).
-- **A cylindrical or conical face**: its loops unrolled onto (angle x radius, height along the
-  axis) and triangulated there. A face that goes all the way round (a tower's wall, bounded by two
-  loops that each wrap round the axis) is cut along a seam between the two loops, placed away from any
-  hole. Only the boundary's points are used: cylinders and cones are ruled along their generators,
-  which straight edges follow and which the triangles' edges approximate as the arcs' chords do.
+- **A cylindrical or conical face** (circular or elliptical): its loops unrolled onto (angle x
+  radius, height along the axis) and triangulated there. A face that goes all the way round is
+  read in each of ACIS's forms: one loop running up a seam edge and back down (AutoCAD's CYLINDER),
+  two loops that each wrap round the axis (cut here along a seam between them, placed away from any
+  hole), a cone's loop running up a seam to an apex vertex and back (AutoCAD's CONE), or a cone
+  bounded by its base alone (its apex where the surface closes, from the half angle). Triangles
+  whose edges span more than :data:`INSIDE_SPAN_STEPS` of the arcs' angle step would cut through
+  the solid: they are split (longest-edge bisection) with points placed on the surface; edges from
+  an apex are generators and never split.
 - **Orientation**: ACIS runs a loop's coedges with the face on their left seen from outside the
   solid; each face's triangles are turned to run its first edge the same way, so a closed body comes
   out with outward normals whatever the face's sense. The body's transformation is applied (a
   mirroring one reverses the triangles).
 
 Not tessellated, each raising :class:`AcisError` that names them: spheres, tori, spline surfaces and
-spline edges (domes, fillets, free forms), and a cone whose face closes in its apex (a conical roof
-bounded by one circle). Such bodies are converted to a mesh in the CAD program (MESHSMOOTH) or
+spline edges (domes, fillets, free forms). Such bodies are converted to a mesh in the CAD program (MESHSMOOTH) or
 exported as STL or OBJ.
 """
 
@@ -50,6 +53,8 @@ INSIDE_SPAN_STEPS = 2.0
 #: The most passes of edge splitting on one curved face (each pass splits many edges at once; a face
 #: needs about log2 of its widest triangle's angle over the step).
 MAX_REFINE_PASSES = 256
+#: How SAT text from ASM (AutoCAD 2013 and later) ends.
+END_OF_ASM_DATA = "End-of-ASM-data"
 #: Names of the topology entities, whose tolerant kinds (``tvertex-vertex``, ...) are read as the plain
 #: kind named after the last hyphen.
 _TOPOLOGY = ("body", "lump", "shell", "face", "loop", "coedge", "edge", "vertex", "point", "transform")
@@ -151,7 +156,7 @@ def _curved_classes():
             self.axis = np.array(loader.read_vec3(), np.float64)
             self.major = np.array(loader.read_vec3(), np.float64)
             self.ratio = float(loader.read_double())
-            self.sine = None  # the half angle's sine: 0 for a cylinder; after the base ellipse's range (newer ACIS)
+            self.sine = self.cosine = None  # the half angle's: sine 0 for a cylinder; after the base ellipse's range
             try:
                 for _ in range(2):
                     loader.read_interval()
@@ -159,8 +164,9 @@ def _curved_classes():
                 pass
             try:
                 self.sine = float(loader.read_double())
+                self.cosine = float(loader.read_double())
             except acis_errors:
-                pass
+                self.sine = self.cosine = None
 
         def evaluate(self, u: float, v: float):  # not used: faces are tessellated from their edges
             raise NotImplementedError
@@ -194,7 +200,14 @@ def _loader(data):
 
     if isinstance(data, (bytes, bytearray)):
         return type("SabLoader", (Factory, acis.SabLoader), {})(data)
-    return type("SatLoader", (Factory, acis.SatLoader), {})(data)
+    lines = [data] if isinstance(data, str) else list(data)
+    if len(lines) == 1:
+        lines = lines[0].splitlines()
+    for k, line in enumerate(lines):  # ASM's end marker (AutoCAD 2013 and later), which ezdxf's SAT parser reads as a record
+        if line.startswith(END_OF_ASM_DATA):
+            lines = lines[:k]
+            break
+    return type("SatLoader", (Factory, acis.SatLoader), {})(lines)
 
 
 # --------------------------------------------------------------------------------------------
@@ -381,16 +394,39 @@ class _Tessellation:
         u /= np.linalg.norm(u)
         w = np.cross(axis, u)
         turn = 2.0 * np.pi
-        unrolled, wraps = [], []
-        for ring in loops:
+        unrolled, wraps, through_apex = [], [], None
+        for k, ring in enumerate(loops):
             d = pts[ring] - surface.origin
+            at_apex = np.linalg.norm(np.cross(d, axis), axis=1) <= self.same
+            if at_apex.sum() == 1 and through_apex is None:  # AutoCAD's cone: a seam up to the apex and back
+                last = int(np.flatnonzero(at_apex)[0])
+                loops[k] = ring = np.roll(ring, -(last + 1))  # the apex last
+                d = np.roll(d, -(last + 1), axis=0)
+                theta = np.unwrap(np.arctan2(d[:-1] @ w, d[:-1] @ u))
+                through_apex = k
+                wraps.append(0)
+                height = float(d[-1] @ axis)  # the loop's path, then its apex at both ends' angles
+                unrolled.append(np.concatenate([np.stack([theta, d[:-1] @ axis], axis=1),
+                                                [[theta[-1], height], [theta[0], height]]]))
+                continue
             theta = np.unwrap(np.arctan2(d @ w, d @ u)[np.arange(len(ring) + 1) % len(ring)])  # round and back to the start
             wraps.append(int(np.rint((theta[-1] - theta[0]) / turn)))
             unrolled.append(np.stack([theta[:-1], d @ axis], axis=1))
         radius = float(np.mean(np.linalg.norm(np.cross(pts[np.concatenate(loops)] - surface.origin, axis), axis=1))) or 1.0
         wrapping = [k for k, n in enumerate(wraps) if n]
         holes = [k for k, n in enumerate(wraps) if not n]
-        if not wrapping:
+        if through_apex is not None:
+            if wrapping:
+                raise AcisError("has a conical face bounded both by a seam to its apex and by a loop going round its "
+                                "axis (not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) or "
+                                "export it as STL/OBJ")
+            shell = unrolled[through_apex]
+            centre = 0.5 * (shell[:, 0].min() + shell[:, 0].max())
+            others = [k for k in holes if k != through_apex]
+            flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
+            apex_index = loops[through_apex][-1]
+            index = np.concatenate([loops[through_apex][:-1], [apex_index, apex_index]] + [loops[k] for k in others])
+        elif not wrapping:
             areas = [_signed_area(p) for p in unrolled]
             outer = int(np.argmax(np.abs(areas)))
             centre = unrolled[outer][:, 0].mean()
@@ -404,11 +440,22 @@ class _Tessellation:
             centre = shell[:, 0].min() + np.pi
             flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
             index = np.concatenate([index] + [loops[k] for k in others])
+        elif len(wrapping) == 1 and _apex_height(surface) is not None:  # a cone closing in its apex
+            (a,), others = wrapping, holes
+            apex = surface.origin + _apex_height(surface) * axis
+            hole_angles = np.concatenate([unrolled[k][:, 0] for k in others]) if others else np.zeros(0)
+            shell, index = _apex_polygon(unrolled[a], loops[a], wraps[a], _apex_height(surface), len(self.points),
+                                         hole_angles)
+            self.points.append(apex)
+            pts = np.asarray(self.points, np.float64)
+            centre = shell[:, 0].min() + np.pi
+            flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
+            index = np.concatenate([index] + [loops[k] for k in others])
+            loops = loops + [np.array([len(self.points) - 1])]
         else:
             raise AcisError(f"has a {'cylindrical' if _is_cylinder(surface) else 'conical'} face bounded by "
-                            f"{len(wrapping)} loop{'s' * (len(wrapping) != 1)} going round its axis (a cone closing in "
-                            "its apex: not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) or "
-                            "export it as STL/OBJ")
+                            f"{len(wrapping)} loop{'s' * (len(wrapping) != 1)} going round its axis (not tessellated "
+                            "here); convert it to a mesh in the CAD program (MESHSMOOTH) or export it as STL/OBJ")
         scale = np.array([radius, 1.0])
         scaled = [p * scale for p in flat]
         points, tri = triangulate_polygon_2d(scaled[0], scaled[1:])
@@ -418,7 +465,8 @@ class _Tessellation:
         # triangles that span more than an arc's step of angle cut through the solid: split them
         boundary = pts[np.concatenate(loops)] - surface.origin
         radii = np.linalg.norm(np.cross(boundary, axis), axis=1)
-        unrolled_points, tri = _refined(points[: len(index)] / scale, tri[keep], INSIDE_SPAN_STEPS * self._step(float(radii.max())) * min(1.0, abs(surface.ratio)))
+        apexes = np.linalg.norm(np.cross(pts[index] - surface.origin, axis), axis=1) <= self.same
+        unrolled_points, tri = _refined(points[: len(index)] / scale, tri[keep], apexes, INSIDE_SPAN_STEPS * self._step(float(radii.max())) * min(1.0, abs(surface.ratio)))
         new = unrolled_points[len(index):]
         if len(new):  # on the surface: the base ellipse's shape at the new angle, scaled linearly along the axis
             ratio = abs(surface.ratio) or 1.0
@@ -443,18 +491,21 @@ class _Tessellation:
         return min(step, turn / MIN_SEGMENTS_PER_TURN)
 
 
-def _refined(points: np.ndarray, tri: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+def _refined(points: np.ndarray, tri: np.ndarray, apexes: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Split the triangles of an unrolled face until no edge inside the face spans more than ``step`` of angle.
 
     Longest-edge bisection (Rivara): each pass splits, at its midpoint, every edge that both its
     triangles pick as their longest (by angle, then by key) of the edges to split, so the mesh stays
-    conforming; the face's boundary edges are never split (its neighbours share them).
+    conforming; the face's boundary edges are never split (its neighbours share them), nor edges from a
+    cone's apex (a generator, straight on the surface whatever angle its unrolled copy spans).
 
     Parameters
     ----------
     points : (P, 2) float64
         (angle, height) of the face's points.
     tri : (T, 3) int64
+    apexes : (P,) bool
+        The points at the cone's apex.
     step : float
 
     Returns
@@ -473,7 +524,9 @@ def _refined(points: np.ndarray, tri: np.ndarray, step: float) -> tuple[np.ndarr
         span = np.abs(points[ends[..., 0], 0] - points[ends[..., 1], 0])
         keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
         inverse = inverse.reshape(key.shape)
-        long = (counts[inverse] == 2) & (span > step * (1.0 + 1e-9))
+        at_apex = np.zeros(n, bool)
+        at_apex[: len(apexes)] = apexes
+        long = (counts[inverse] == 2) & (span > step * (1.0 + 1e-9)) & ~at_apex[ends].any(axis=2)
         if not long.any():
             break
         edge_span = np.zeros(len(keys))
@@ -566,6 +619,32 @@ def _seam_polygon(pa, ia, wa, pb, ib, wb, hole_angles):
     b_end = pb[0] + np.array([turn, 0.0])
     shell = np.concatenate([pa, [a_end], [b_end], pb[::-1]])
     index = np.concatenate([ia, [ia[0]], [ib[0]], ib[::-1]])
+    return shell, index
+
+
+def _apex_height(surface) -> float | None:
+    """Where a cone (not a cylinder) closes, along its axis from its base ellipse: -r cos / sin (r the base's major
+    radius; ACIS's sine and cosine of the half angle); None for a cylinder or where they were not read."""
+    sine, cosine = getattr(surface, "sine", None), getattr(surface, "cosine", None)
+    if sine is None or cosine is None or abs(sine) < 1e-12:
+        return None
+    return -float(np.linalg.norm(surface.major)) * cosine / sine
+
+
+def _apex_polygon(pa, ia, wa, height: float, apex: int, hole_angles):
+    """The unrolled polygon of a cone's face from its one wrapping loop up to its apex (index ``apex``), repeated at
+    both ends of the turn (the triangle between the two copies has no area on the cone and is dropped)."""
+    turn = 2.0 * np.pi
+    if wa < 0:
+        pa, ia = pa[::-1], ia[::-1]
+    if len(hole_angles):
+        gap = np.abs(np.angle(np.exp(1j * (pa[:, 0][:, None] - hole_angles[None, :])))).min(axis=1)
+        pa, ia = _rolled(pa, ia, int(np.argmax(gap)))
+    else:
+        pa, ia = _rolled(pa, ia, 0)
+    theta = pa[0, 0]
+    shell = np.concatenate([pa, [[theta + turn, pa[0, 1]]], [[theta + turn, height]], [[theta, height]]])
+    index = np.concatenate([ia, [ia[0]], [apex, apex]])
     return shell, index
 
 

@@ -295,3 +295,41 @@ def sphere_body(centre, radius: float) -> acis.Body:
     b = _Builder()
     b.face(Sphere(centre, radius), [])
     return b.body()
+
+
+def seam_cylinder_body(centre, r: float, z0: float, z1: float) -> acis.Body:
+    """A round tower as AutoCAD's CYLINDER makes it: the wall one face of one loop, its two circles joined by a seam
+    edge that the loop runs up and back down."""
+    cx, cy = centre
+    b = _Builder()
+    v0, v1 = _vertex((cx + r, cy, z0)), _vertex((cx + r, cy, z1))
+    e0 = b.edge(v0, v0, Ellipse((cx, cy, z0), (0, 0, 1), (r, 0, 0)))
+    e1 = b.edge(v1, v1, Ellipse((cx, cy, z1), (0, 0, 1), (r, 0, 0)))
+    seam = b.edge(v0, v1, acis.StraightCurve())
+    seam.curve.origin, seam.curve.direction = v0.point.location, Vec3(0, 0, 1)
+    b.face(_plane((cx, cy, z1), (0, 0, 1)), [[(e1, False)]])
+    b.face(_plane((cx, cy, z0), (0, 0, -1)), [[(e0, True)]])
+    b.face(Cone((cx, cy, z0), (0, 0, 1), (r, 0, 0)), [[(e0, False), (seam, False), (e1, True), (seam, True)]])
+    return b.body()
+
+
+def cone_body(centre, r: float, z0: float, z1: float, seam: bool) -> acis.Body:
+    """A cone (a conical roof as a solid) of base radius ``r`` at ``z0``, its apex at ``z1`` above the centre. Its
+    curved face is bounded by the base circle alone (``seam=False``: the apex is where the surface closes), or, as
+    AutoCAD's CONE makes it, also by a seam edge from the base to an apex vertex, run up and back down."""
+    cx, cy = centre
+    b = _Builder()
+    height = z1 - z0
+    slant = math.hypot(r, height)
+    v0 = _vertex((cx + r, cy, z0))
+    e0 = b.edge(v0, v0, Ellipse((cx, cy, z0), (0, 0, 1), (r, 0, 0)))
+    surface = Cone((cx, cy, z0), (0, 0, 1), (r, 0, 0), sine=r / slant, cosine=-height / slant)
+    b.face(_plane((cx, cy, z0), (0, 0, -1)), [[(e0, True)]])
+    if seam:
+        top = _vertex((cx, cy, z1))
+        line = b.edge(v0, top, acis.StraightCurve())
+        line.curve.origin, line.curve.direction = v0.point.location, (top.point.location - v0.point.location).normalize()
+        b.face(surface, [[(e0, False), (line, False), (line, True)]])
+    else:
+        b.face(surface, [[(e0, False)]])
+    return b.body()

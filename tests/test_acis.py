@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from ezdxf.math import Matrix44
 
-from acis_solids import (add_solid, extrusion_body, profile_area, sab_bytes, sat_lines, sphere_body,
-                         tower_with_window_body)
+from acis_solids import (add_solid, cone_body, extrusion_body, profile_area, sab_bytes, sat_lines, seam_cylinder_body,
+                         sphere_body, tower_with_window_body)
 from meshsom.acis import AcisError, acis_mesh
 from meshsom.dxf import FLATTEN_REL, read_dxf
 from meshsom.io import RawMesh, ReaderOptions, Rejection
@@ -51,13 +51,14 @@ Z0, Z1 = 2.0, 14.0
 DIGITS = {"SAT 700": 1e-5, "SAT 20800": 1e-5, "SAB 21800": 1e-12}
 
 
-def check_solid(vertices: np.ndarray, triangles: np.ndarray, exact_volume: float, arc_length: float, extent: float):
+def check_solid(vertices: np.ndarray, triangles: np.ndarray, exact_volume: float, arc_length: float, extent: float,
+                height: float = Z1 - Z0):
     """Closed (each edge twice, once each way), outward, and of the exact volume within what chords can lose: the
     arcs' length x the chords' largest distance (``FLATTEN_REL`` x extent) x the height."""
     assert closed(triangles)
     volume = signed_volume(vertices, triangles)
     assert volume > 0
-    assert abs(volume - exact_volume) <= arc_length * FLATTEN_REL * extent * (Z1 - Z0) + 1e-9 * exact_volume
+    assert abs(volume - exact_volume) <= arc_length * FLATTEN_REL * extent * height + 1e-9 * exact_volume
     return volume
 
 
@@ -115,6 +116,83 @@ def test_a_wall_going_round_with_a_hole_is_cut_along_a_seam_and_stays_on_its_cyl
     assert depth.max() <= 4 * FLATTEN_REL * extent  # INSIDE_SPAN_STEPS ** 2 x the arcs' tolerance
     assert np.abs(np.hypot(mesh.vertices[:, 0] - 3.0, mesh.vertices[:, 1] - 4.0)[
         (mesh.vertices[:, 2] > Z0) & (mesh.vertices[:, 2] < Z1)] - r).max() < DIGITS[encoding] * 10
+
+
+@pytest.mark.parametrize("encoding", ["SAT 700", "SAB 21800"])
+@pytest.mark.parametrize("kind", ["cylinder with a seam", "cone closing in its apex", "cone with a seam to its apex"])
+def test_periodic_faces_as_autocad_makes_them(kind, encoding):
+    """AutoCAD's CYLINDER and CONE: a wall of one loop running up a seam edge and back down (to an apex vertex for the
+    cone), or a cone face bounded by its base circle alone (its apex where the surface closes, from its half angle)."""
+    r, centre = 5.0, (3.0, 4.0)
+    if kind.startswith("cylinder"):
+        body, exact, cone = seam_cylinder_body(centre, r, Z0, Z1), math.pi * r * r * (Z1 - Z0), False
+    else:
+        body, exact, cone = cone_body(centre, r, Z0, Z1, seam="seam" in kind), math.pi * r * r * (Z1 - Z0) / 3, True
+    mesh = acis_mesh(ENCODINGS[encoding]([body]), FLATTEN_REL)
+    assert mesh.faces == ({"plane": 1, "conical": 1} if cone else {"plane": 2, "cylindrical": 1})
+    extent = float(np.linalg.norm([2 * r, 2 * r, Z1 - Z0]))
+    check_solid(mesh.vertices, mesh.triangles, exact, 2 * math.pi * r * (1 if cone else 2), extent)
+    v = mesh.vertices
+    radius = np.hypot(v[:, 0] - centre[0], v[:, 1] - centre[1])
+    expected = r * (Z1 - v[:, 2]) / (Z1 - Z0) if cone else np.full(len(v), r)
+    side = (v[:, 2] > Z0) | ~cone
+    if cone:  # one apex, on the axis at the top (from the half angle: to the writer's digits)
+        top = np.flatnonzero(v[:, 2] > Z0 + 1e-9)
+        assert len(top) == 1 and np.allclose(v[top[0]], [*centre, Z1], atol=DIGITS[encoding] * 10)
+    assert np.abs(radius - expected)[side & (v[:, 2] < Z1 - 1e-6)].max() < 1e-9
+
+
+#: A round tower (radius 4 about (2, 3), 9 m high) as AutoCAD 2013 and later write a CYLINDER in SAT text (ASM 227):
+#: the asm header, history attributes on every face, edges with their parameter ranges and convexity, the wall one
+#: loop with a seam, the base circle's major axis pointing to -x, and ASM's end marker.
+AUTOCAD_CYLINDER = """20800 33 2 0
+16 Autodesk AutoCAD 20 ASM 227.0.0.65535 NT 0
+1 9.999999999999999547e-07 1.000000000000000036e-10
+asmheader $-1 -1 @13 227.0.0.65535 #
+body $-1 -1 $-1 $2 $-1 $3 #
+lump $-1 -1 $-1 $-1 $4 $1 #
+transform $-1 -1 1 0 0 0 1 0 0 0 1 2 3 0 1 no_rotate no_reflect no_shear #
+shell $-1 -1 $-1 $-1 $-1 $5 $-1 $2 #
+face $6 -1 $-1 $7 $8 $4 $-1 $9 forward single #
+persubent-acadSolidHistory-attrib $-1 -1 $-1 $-1 $5 1 1 1000000000 1001 #
+face $10 -1 $-1 $11 $12 $4 $-1 $13 forward single #
+loop $-1 -1 $-1 $-1 $14 $5 #
+cone-surface $-1 -1 $-1 0 0 0 0 0 1 -4 0 0 1 I I 0 1 4 forward I I I I #
+persubent-acadSolidHistory-attrib $-1 -1 $-1 $-1 $7 1 1 1000000000 1002 #
+face $15 -1 $-1 $-1 $16 $4 $-1 $17 reversed single #
+loop $-1 -1 $-1 $-1 $18 $7 #
+plane-surface $-1 -1 $-1 0 0 9 0 0 1 1 0 0 forward_v I I I I #
+coedge $-1 -1 $-1 $19 $20 $21 $22 forward $8 $-1 #
+persubent-acadSolidHistory-attrib $-1 -1 $-1 $-1 $11 1 1 1000000000 1003 #
+loop $-1 -1 $-1 $-1 $21 $11 #
+plane-surface $-1 -1 $-1 0 0 0 0 0 1 1 0 0 forward_v I I I I #
+coedge $-1 -1 $-1 $18 $18 $23 $24 forward $12 $-1 #
+coedge $-1 -1 $-1 $23 $14 $20 $25 forward $8 $-1 #
+coedge $-1 -1 $-1 $14 $23 $19 $25 reversed $8 $-1 #
+coedge $-1 -1 $-1 $21 $21 $14 $22 reversed $16 $-1 #
+edge $-1 -1 $-1 $26 -3.141592653589793 $26 3.141592653589793 $14 $27 forward @7 unknown #
+coedge $-1 -1 $-1 $20 $19 $18 $24 reversed $8 $-1 #
+edge $-1 -1 $-1 $28 -3.141592653589793 $28 3.141592653589793 $23 $29 forward @7 unknown #
+edge $-1 -1 $-1 $26 0 $28 9 $19 $30 forward @7 tangent #
+vertex $-1 -1 $-1 $22 $31 #
+ellipse-curve $-1 -1 $-1 0 0 0 0 0 1 -4 0 0 1 I I #
+vertex $-1 -1 $-1 $25 $32 #
+ellipse-curve $-1 -1 $-1 0 0 9 0 0 1 -4 0 0 1 I I #
+straight-curve $-1 -1 $-1 4 0 0 0 0 1 I I #
+point $-1 -1 $-1 4 0 0 #
+point $-1 -1 $-1 4 0 9 #
+End-of-ASM-data
+"""
+
+
+def test_autocad_2013_sat_text_of_a_cylinder_is_read():
+    mesh = acis_mesh(AUTOCAD_CYLINDER.splitlines(), FLATTEN_REL)
+    assert mesh.faces == {"plane": 2, "cylindrical": 1}
+    extent = float(np.linalg.norm([8.0, 8.0, 9.0]))
+    check_solid(mesh.vertices, mesh.triangles, math.pi * 16.0 * 9.0, 2 * 2 * math.pi * 4.0, extent, height=9.0)
+    v = mesh.vertices
+    assert np.abs(np.hypot(v[:, 0] - 2.0, v[:, 1] - 3.0) - 4.0).max() < 1e-12  # the transformation's move applied
+    assert set(np.unique(v[:, 2])) == {0.0, 9.0}
 
 
 def test_an_elliptical_tower_with_a_window_stays_on_its_ellipse():
