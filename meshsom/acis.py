@@ -3,10 +3,10 @@
 AutoCAD, BricsCAD and the other CAD programs with a solid modeller store a 3D solid as ACIS data
 (SAT text in DXF R2000-R2010, SAB binary from R2013): a body of lumps, each of shells, each of faces
 bounded by loops of coedges, which run along edges between vertices. ezdxf parses both encodings into
-that graph but knows only the plane and the straight line of its geometry. This module adds the two
+that graph but knows only the plane and the straight line of its geometry. This module adds the
 curved kinds building massing models are made of, the ``ellipse-curve`` (a circular or elliptical
-edge) and the ``cone-surface`` (a cylindrical or conical face: a curved facade, a round tower), and
-tessellates a body:
+edge), the ``cone-surface`` (a cylindrical or conical face: a curved facade, a round tower, a spire)
+and the ``sphere-surface`` (a dome), and tessellates a body:
 
 - **Edges** are sampled once each, so the two faces that share an edge share its points and the mesh
   is watertight: a straight edge is its two vertices; an elliptical arc is split into equal steps of
@@ -22,15 +22,20 @@ tessellates a body:
   bounded by its base alone (its apex where the surface closes, from the half angle). Triangles
   whose edges span more than :data:`INSIDE_SPAN_STEPS` of the arcs' angle step would cut through
   the solid: they are split (longest-edge bisection) with points placed on the surface; edges from
-  an apex are generators and never split.
+  an apex are generators and never split. So is a triangle turned more than
+  :data:`MAX_TILT_DEGREES` from the surface (three points of one loop, lying across the face).
+- **A spherical face** (a dome, a cupola, a spherical cap): mapped to the plane by the azimuthal
+  equidistant projection about the sphere's pole nearer to it (a cap round its pole is a disk, a band
+  an annulus: no seam to cut), triangulated there, and refined the same way by chord length in space;
+  AutoCAD's meridian seam up to a pole vertex and back is a slit there and is left out.
 - **Orientation**: ACIS runs a loop's coedges with the face on their left seen from outside the
   solid; each face's triangles are turned to run its first edge the same way, so a closed body comes
   out with outward normals whatever the face's sense. The body's transformation is applied (a
   mirroring one reverses the triangles).
 
-Not tessellated, each raising :class:`AcisError` that names them: spheres, tori, spline surfaces and
-spline edges (domes, fillets, free forms). Such bodies are converted to a mesh in the CAD program (MESHSMOOTH) or
-exported as STL or OBJ.
+Not tessellated, each raising :class:`AcisError` that names them: tori, spline surfaces and spline
+edges (fillets, free forms), and whole balls (a sphere without edges). Such bodies are converted to a
+mesh in the CAD program (MESHSMOOTH) or exported as STL or OBJ.
 """
 
 from __future__ import annotations
@@ -50,6 +55,9 @@ SAME_POINT_REL = 1e-9
 #: chord then stays within about this number squared times ``flatten`` of the surface; 1 would split
 #: every edge whose ends are out of phase with the arcs, a cascade of thin triangles).
 INSIDE_SPAN_STEPS = 2.0
+#: A triangle of a curved face turned more than this from the surface (its normal against the surface's
+#: at its centre) is split, however short its edges: it lies across the surface, not along it.
+MAX_TILT_DEGREES = 30.0
 #: The most passes of edge splitting on one curved face (each pass splits many edges at once; a face
 #: needs about log2 of its widest triangle's angle over the step).
 MAX_REFINE_PASSES = 256
@@ -171,7 +179,21 @@ def _curved_classes():
         def evaluate(self, u: float, v: float):  # not used: faces are tessellated from their edges
             raise NotImplementedError
 
-    return {"ellipse-curve": Ellipse, "cone-surface": Cone}
+    class Sphere(acis.Surface):
+        """``sphere-surface``: centre, radius (negative: its normals point in), origin of longitude, pole."""
+
+        type = "sphere-surface"
+
+        def restore_data(self, loader) -> None:
+            self.center = np.array(loader.read_vec3(), np.float64)
+            self.radius = float(loader.read_double())
+            self.uv_origin = np.array(loader.read_vec3(), np.float64)
+            self.pole = np.array(loader.read_vec3(), np.float64)
+
+        def evaluate(self, u: float, v: float):  # not used: faces are tessellated from their edges
+            raise NotImplementedError
+
+    return {"ellipse-curve": Ellipse, "cone-surface": Cone, "sphere-surface": Sphere}
 
 
 def _loader(data):
@@ -244,9 +266,9 @@ class _Tessellation:
         if not faces:
             raise AcisError("has ACIS bodies of no faces (a wire or an empty solid)")
         unknown = Counter(_name(face.surface) for _, face in faces
-                          if face.surface.type not in ("plane-surface", "cone-surface"))
+                          if face.surface.type not in ("plane-surface", "cone-surface", "sphere-surface"))
         if unknown:
-            raise AcisError(f"has faces of curved kinds not tessellated here ({_kinds(unknown)}: domes, fillets, free "
+            raise AcisError(f"has faces of curved kinds not tessellated here ({_kinds(unknown)}: fillets, free "
                             "forms); convert it to a mesh in the CAD program (MESHSMOOTH) or export it as STL/OBJ")
         extent = self._extent(faces)
         self.flatten, self.same = self.flatten_rel * extent, SAME_POINT_REL * extent
@@ -280,7 +302,8 @@ class _Tessellation:
                         half = float(np.linalg.norm(curve.major)) * np.sqrt(np.clip(1.0 - normal ** 2, 0.0, 1.0))
                         pts.extend([curve.center - half, curve.center + half])
         if not pts:
-            raise AcisError("has ACIS faces without edges")
+            raise AcisError("has no edges: a closed surface without a boundary (a whole sphere or torus), not "
+                            "tessellated here")
         pts = np.asarray(pts, np.float64)
         extent = float(np.linalg.norm(np.ptp(pts, axis=0)))
         if not np.isfinite(extent):
@@ -364,8 +387,11 @@ class _Tessellation:
         if surface.type == "plane-surface":
             self.kinds["plane"] += 1
             tri = self._planar(surface, loops)
+        elif surface.type == "sphere-surface":
+            self.kinds["spherical"] += 1
+            tri = self._spherical(surface, loops)
         else:
-            self.kinds["cylindrical" if _is_cylinder(surface) else "conical"] += 1
+            self.kinds[_Revolved(surface).kind] += 1
             tri = self._unrolled(surface, loops)
         return _oriented(tri, loops[0])
 
@@ -389,14 +415,12 @@ class _Tessellation:
         from meshsom.polygons import triangulate_polygon_2d
 
         pts = np.asarray(self.points, np.float64)
-        axis = surface.axis / np.linalg.norm(surface.axis)
-        u = surface.major - (surface.major @ axis) * axis
-        u /= np.linalg.norm(u)
-        w = np.cross(axis, u)
+        shape = _Revolved(surface)
+        origin, axis, u, w = shape.origin, shape.axis, shape.u, shape.w
         turn = 2.0 * np.pi
         unrolled, wraps, through_apex = [], [], None
         for k, ring in enumerate(loops):
-            d = pts[ring] - surface.origin
+            d = pts[ring] - origin
             at_apex = np.linalg.norm(np.cross(d, axis), axis=1) <= self.same
             if at_apex.sum() == 1 and through_apex is None:  # AutoCAD's cone: a seam up to the apex and back
                 last = int(np.flatnonzero(at_apex)[0])
@@ -412,14 +436,15 @@ class _Tessellation:
             theta = np.unwrap(np.arctan2(d @ w, d @ u)[np.arange(len(ring) + 1) % len(ring)])  # round and back to the start
             wraps.append(int(np.rint((theta[-1] - theta[0]) / turn)))
             unrolled.append(np.stack([theta[:-1], d @ axis], axis=1))
-        radius = float(np.mean(np.linalg.norm(np.cross(pts[np.concatenate(loops)] - surface.origin, axis), axis=1))) or 1.0
+        radius = float(np.mean(np.linalg.norm(np.cross(pts[np.concatenate(loops)] - origin, axis), axis=1))) or 1.0
         wrapping = [k for k, n in enumerate(wraps) if n]
         holes = [k for k, n in enumerate(wraps) if not n]
+        closing = shape.closing_height() if len(wrapping) == 1 else None
         if through_apex is not None:
             if wrapping:
-                raise AcisError("has a conical face bounded both by a seam to its apex and by a loop going round its "
-                                "axis (not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) or "
-                                "export it as STL/OBJ")
+                raise AcisError(f"has a {shape.kind} face bounded both by a seam to its apex and by a loop going round "
+                                "its axis (not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) "
+                                "or export it as STL/OBJ")
             shell = unrolled[through_apex]
             centre = 0.5 * (shell[:, 0].min() + shell[:, 0].max())
             others = [k for k in holes if k != through_apex]
@@ -440,49 +465,106 @@ class _Tessellation:
             centre = shell[:, 0].min() + np.pi
             flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
             index = np.concatenate([index] + [loops[k] for k in others])
-        elif len(wrapping) == 1 and _apex_height(surface) is not None:  # a cone closing in its apex
+        elif closing is not None:  # a cone closing in its apex
             (a,), others = wrapping, holes
-            apex = surface.origin + _apex_height(surface) * axis
             hole_angles = np.concatenate([unrolled[k][:, 0] for k in others]) if others else np.zeros(0)
-            shell, index = _apex_polygon(unrolled[a], loops[a], wraps[a], _apex_height(surface), len(self.points),
-                                         hole_angles)
-            self.points.append(apex)
+            shell, index = _apex_polygon(unrolled[a], loops[a], wraps[a], closing, len(self.points), hole_angles)
+            self.points.append(origin + closing * axis)
             pts = np.asarray(self.points, np.float64)
             centre = shell[:, 0].min() + np.pi
             flat = [shell] + [_shifted(unrolled[k], centre) for k in others]
             index = np.concatenate([index] + [loops[k] for k in others])
             loops = loops + [np.array([len(self.points) - 1])]
         else:
-            raise AcisError(f"has a {'cylindrical' if _is_cylinder(surface) else 'conical'} face bounded by "
-                            f"{len(wrapping)} loop{'s' * (len(wrapping) != 1)} going round its axis (not tessellated "
-                            "here); convert it to a mesh in the CAD program (MESHSMOOTH) or export it as STL/OBJ")
+            raise AcisError(f"has a {shape.kind} face bounded by {len(wrapping)} loop{'s' * (len(wrapping) != 1)} going "
+                            "round its axis (not tessellated here); convert it to a mesh in the CAD program (MESHSMOOTH) "
+                            "or export it as STL/OBJ")
         scale = np.array([radius, 1.0])
         scaled = [p * scale for p in flat]
         points, tri = triangulate_polygon_2d(scaled[0], scaled[1:])
         keep = (tri < len(index)).all(axis=1)
         expected = sum(len(p) for p in flat) - 2 + 2 * (len(flat) - 1)
         self.dropped += max(0, expected - int(keep.sum()))
-        # triangles that span more than an arc's step of angle cut through the solid: split them
-        boundary = pts[np.concatenate(loops)] - surface.origin
-        radii = np.linalg.norm(np.cross(boundary, axis), axis=1)
-        apexes = np.linalg.norm(np.cross(pts[index] - surface.origin, axis), axis=1) <= self.same
-        unrolled_points, tri = _refined(points[: len(index)] / scale, tri[keep], apexes, INSIDE_SPAN_STEPS * self._step(float(radii.max())) * min(1.0, abs(surface.ratio)))
+        # triangles whose edges span more than the arcs' steps cut through the solid: split them
+        shape.fit(pts[np.concatenate(loops)])
+        apexes = np.linalg.norm(np.cross(pts[index] - origin, axis), axis=1) <= self.same
+        limit = INSIDE_SPAN_STEPS * self._step(shape.largest_radius) * shape.sharpness
+
+        known = pts[index]
+
+        def too_long(points2: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            # straight along the generators: what counts is the angle; an apex's edges are generators
+            span = np.abs(points2[ends[..., 0], 0] - points2[ends[..., 1], 0])
+            pinned = np.zeros(len(points2), bool)
+            pinned[: len(apexes)] = apexes
+            corners = np.concatenate([known, shape.placed(points2[len(known):])])[ends[..., 0]]
+            tilted = _tilted(corners, shape.normal(corners.mean(axis=1)))
+            return ((span > limit * (1.0 + 1e-9)) | tilted[:, None]) & ~pinned[ends].any(axis=-1), span
+
+        unrolled_points, tri = _refined(points[: len(index)] / scale, tri[keep], too_long)
         new = unrolled_points[len(index):]
-        if len(new):  # on the surface: the base ellipse's shape at the new angle, scaled linearly along the axis
-            ratio = abs(surface.ratio) or 1.0
-
-            def shape(theta):
-                return 1.0 / np.sqrt(np.cos(theta) ** 2 + (np.sin(theta) / ratio) ** 2)
-
-            heights = boundary @ axis
-            scales = radii / shape(np.arctan2(boundary @ w, boundary @ u))
-            slope = 0.0 if np.ptp(heights) <= self.same else np.polyfit(heights, scales, 1)[0]
-            r = (scales.mean() + slope * (new[:, 1] - heights.mean())) * shape(new[:, 0])
-            placed = (surface.origin + new[:, 1:2] * axis + r[:, None] * (np.cos(new[:, :1]) * u + np.sin(new[:, :1]) * w))
+        if len(new):
             index = np.concatenate([index, np.arange(len(self.points), len(self.points) + len(new))])
-            self.points.extend(placed)
+            self.points.extend(shape.placed(new))
         tri = index[tri]
         return tri[(tri[:, 0] != tri[:, 1]) & (tri[:, 1] != tri[:, 2]) & (tri[:, 0] != tri[:, 2])]
+
+    def _spherical(self, surface, loops: list[np.ndarray]) -> np.ndarray:
+        """A face on a sphere (a dome), mapped to the plane by the azimuthal equidistant projection about the pole
+        nearer to it (so a cap round its pole is a disk, a band an annulus: no seam), triangulated there and refined
+        until no chord inside is longer than the arcs' allow, new points placed back on the sphere. A seam edge run
+        up and back within one loop (AutoCAD's meridian to a pole vertex) is a slit in the plane: it is left out."""
+        from meshsom.polygons import triangulate_polygon_2d
+
+        loops = [ring for ring in (_without_spurs(r) for r in loops) if len(np.unique(ring)) >= 3]
+        if not loops:
+            return np.zeros((0, 3), np.int64)
+        pts = np.asarray(self.points, np.float64)
+        centre, radius = surface.center, abs(surface.radius)
+        pole = surface.pole / np.linalg.norm(surface.pole)
+        if float(np.mean((pts[np.concatenate(loops)] - centre) @ pole)) < 0:
+            pole = -pole
+        u = np.cross(pole, [1.0, 0.0, 0.0] if abs(pole[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        w = np.cross(pole, u)
+
+        def project(p: np.ndarray) -> np.ndarray:
+            d = (p - centre) / radius
+            arc = np.arccos(np.clip(d @ pole, -1.0, 1.0)) * radius
+            theta = np.arctan2(d @ w, d @ u)
+            return np.stack([arc * np.cos(theta), arc * np.sin(theta)], axis=1)
+
+        def placed(q: np.ndarray) -> np.ndarray:
+            rho = np.linalg.norm(q, axis=1)
+            across = np.where(rho[:, None] > 0, q / np.where(rho > 0, rho, 1.0)[:, None], [1.0, 0.0])
+            angle = rho / radius
+            return centre + radius * (np.cos(angle)[:, None] * pole + np.sin(angle)[:, None] * (
+                across[:, :1] * u + across[:, 1:] * w))
+
+        flat = [project(pts[r]) for r in loops]
+        outer = int(np.argmax([abs(_signed_area(f)) for f in flat]))
+        order = [outer] + [k for k in range(len(loops)) if k != outer]
+        index = np.concatenate([loops[k] for k in order])
+        points, tri = triangulate_polygon_2d(flat[outer], [flat[k] for k in order[1:]])
+        keep = (tri < len(index)).all(axis=1)
+        expected = len(index) - 2 + 2 * (len(loops) - 1)
+        self.dropped += max(0, expected - int(keep.sum()))
+        known = pts[index]
+        longest = 2.0 * radius * np.sin(INSIDE_SPAN_STEPS * self._step(radius) / 2.0) * (1.0 + 1e-9)
+
+        def too_long(points2: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            where = np.concatenate([known, placed(points2[len(known):])])
+            length = np.linalg.norm(where[ends[..., 0]] - where[ends[..., 1]], axis=-1)
+            corners = where[ends[..., 0]]
+            tilted = _tilted(corners, corners.mean(axis=1) - centre)
+            return (length > longest) | tilted[:, None], length
+
+        flat_points, tri = _refined(points[: len(index)], tri[keep], too_long)
+        new = flat_points[len(index):]
+        if len(new):
+            index = np.concatenate([index, np.arange(len(self.points), len(self.points) + len(new))])
+            self.points.extend(placed(new))
+        return index[tri]
 
     def _step(self, r: float) -> float:
         """The angle of an arc of radius ``r`` whose chord stays within ``flatten`` of it."""
@@ -491,22 +573,22 @@ class _Tessellation:
         return min(step, turn / MIN_SEGMENTS_PER_TURN)
 
 
-def _refined(points: np.ndarray, tri: np.ndarray, apexes: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """Split the triangles of an unrolled face until no edge inside the face spans more than ``step`` of angle.
+def _refined(points: np.ndarray, tri: np.ndarray, too_long) -> tuple[np.ndarray, np.ndarray]:
+    """Split the triangles of an unrolled face until no edge inside the face is too long.
 
     Longest-edge bisection (Rivara): each pass splits, at its midpoint, every edge that both its
-    triangles pick as their longest (by angle, then by key) of the edges to split, so the mesh stays
-    conforming; the face's boundary edges are never split (its neighbours share them), nor edges from a
-    cone's apex (a generator, straight on the surface whatever angle its unrolled copy spans).
+    triangles pick as their longest (by the measure ``too_long`` gives, then by key) of the edges to
+    split, so the mesh stays conforming; the face's boundary edges are never split (its neighbours
+    share them).
 
     Parameters
     ----------
     points : (P, 2) float64
         (angle, height) of the face's points.
     tri : (T, 3) int64
-    apexes : (P,) bool
-        The points at the cone's apex.
-    step : float
+    too_long : callable
+        ``too_long(points, ends)`` with ``ends`` (T, 3, 2) point indices: ((T, 3) bool, the edges to split;
+        (T, 3) float, their lengths in its measure).
 
     Returns
     -------
@@ -521,12 +603,12 @@ def _refined(points: np.ndarray, tri: np.ndarray, apexes: np.ndarray, step: floa
         n = len(points)
         ends = np.stack([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]], axis=1)  # (T, 3, 2)
         key = ends.min(axis=2) * n + ends.max(axis=2)
-        span = np.abs(points[ends[..., 0], 0] - points[ends[..., 1], 0])
+        split_these, span = too_long(points, ends)
         keys, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
         inverse = inverse.reshape(key.shape)
-        at_apex = np.zeros(n, bool)
-        at_apex[: len(apexes)] = apexes
-        long = (counts[inverse] == 2) & (span > step * (1.0 + 1e-9)) & ~at_apex[ends].any(axis=2)
+        marked = np.zeros(len(keys), bool)  # an edge one of its triangles wants split is split for both
+        marked[inverse[split_these]] = True
+        long = (counts[inverse] == 2) & marked[inverse]
         if not long.any():
             break
         edge_span = np.zeros(len(keys))
@@ -571,9 +653,64 @@ def _matrix(body) -> np.ndarray | None:
     return None if np.allclose(m, np.eye(4), rtol=0.0, atol=0.0) else m
 
 
-def _is_cylinder(surface) -> bool:
-    """Whether a cone surface is a cylinder (its half angle's sine 0; unknown: a cone)."""
-    return getattr(surface, "sine", None) is not None and abs(surface.sine) < 1e-12
+class _Revolved:
+    """A cone or cylinder as the faces on it are unrolled: its frame (``origin``, unit ``axis``, ``u`` and ``w`` across
+    it), its kind, how to place a point of (angle, height along the axis) on it."""
+
+    def __init__(self, surface):
+        self.surface = surface
+        self.origin, self.ratio = surface.origin, abs(surface.ratio) or 1.0
+        self.axis = surface.axis / np.linalg.norm(surface.axis)
+        u = surface.major - (surface.major @ self.axis) * self.axis
+        self.u = u / np.linalg.norm(u)
+        self.w = np.cross(self.axis, self.u)
+        self.sharpness = min(1.0, self.ratio)  # an ellipse bends most at its major vertices: radius r ratio^2
+        self.scale = self.slope = self.mean_height = self.largest_radius = 0.0
+
+    @property
+    def kind(self) -> str:
+        """``cylindrical`` (the half angle's sine 0) or ``conical`` (also where the angle was not read)."""
+        sine = getattr(self.surface, "sine", None)
+        return "cylindrical" if sine is not None and abs(sine) < 1e-12 else "conical"
+
+    def _shape(self, theta: np.ndarray) -> np.ndarray:
+        """The base ellipse's radius at angle ``theta``, its major radius 1."""
+        return 1.0 / np.sqrt(np.cos(theta) ** 2 + (np.sin(theta) / self.ratio) ** 2)
+
+    def fit(self, boundary: np.ndarray) -> None:
+        """A cone's radius along its axis, fitted to points on it (its faces' loops): linear."""
+        d = boundary - self.origin
+        radii = np.linalg.norm(np.cross(d, self.axis), axis=1)
+        self.largest_radius = float(radii.max())
+        heights = d @ self.axis
+        scales = radii / self._shape(np.arctan2(d @ self.w, d @ self.u))
+        self.mean_height, self.scale = float(heights.mean()), float(scales.mean())
+        self.slope = 0.0 if np.ptp(heights) <= 1e-12 * max(1.0, self.scale) else float(np.polyfit(heights, scales, 1)[0])
+
+    def placed(self, unrolled: np.ndarray) -> np.ndarray:
+        """(K, 3) points on the surface of (K, 2) (angle, height along the axis)."""
+        theta, h = unrolled[:, 0], unrolled[:, 1]
+        r = (self.scale + self.slope * (h - self.mean_height)) * self._shape(theta)
+        return (self.origin + h[:, None] * self.axis
+                + r[:, None] * (np.cos(theta)[:, None] * self.u + np.sin(theta)[:, None] * self.w))
+
+    def normal(self, p: np.ndarray) -> np.ndarray:
+        """(K, 3) directions across the surface at points (K, 3) near it (unnormalised; either side): the gradient of
+        sqrt(x^2 + y^2 / ratio^2) - s(h), s the fitted scale along the axis (away from the axis for a circular cylinder,
+        tilted by the slope for a cone, towards the minor axis's ends for an elliptical one)."""
+        d = p - self.origin
+        x, y = d @ self.u, d @ self.w
+        across = x[:, None] * self.u + (y / self.ratio ** 2)[:, None] * self.w
+        across /= np.maximum(np.hypot(x, y / self.ratio), 1e-300)[:, None]
+        return across - self.slope * self.axis
+
+    def closing_height(self) -> float | None:
+        """Where a cone bounded by one loop going round its axis closes, along the axis: its apex, -r cos / sin (r its
+        base's major radius; ACIS's sine and cosine of its half angle); None for a cylinder or unknown angles."""
+        sine, cosine = getattr(self.surface, "sine", None), getattr(self.surface, "cosine", None)
+        if sine is None or cosine is None or abs(sine) < 1e-12:
+            return None
+        return -float(np.linalg.norm(self.surface.major)) * cosine / sine
 
 
 def _kinds(counter: Counter) -> str:
@@ -622,15 +759,6 @@ def _seam_polygon(pa, ia, wa, pb, ib, wb, hole_angles):
     return shell, index
 
 
-def _apex_height(surface) -> float | None:
-    """Where a cone (not a cylinder) closes, along its axis from its base ellipse: -r cos / sin (r the base's major
-    radius; ACIS's sine and cosine of the half angle); None for a cylinder or where they were not read."""
-    sine, cosine = getattr(surface, "sine", None), getattr(surface, "cosine", None)
-    if sine is None or cosine is None or abs(sine) < 1e-12:
-        return None
-    return -float(np.linalg.norm(surface.major)) * cosine / sine
-
-
 def _apex_polygon(pa, ia, wa, height: float, apex: int, hole_angles):
     """The unrolled polygon of a cone's face from its one wrapping loop up to its apex (index ``apex``), repeated at
     both ends of the turn (the triangle between the two copies has no area on the cone and is dropped)."""
@@ -646,6 +774,31 @@ def _apex_polygon(pa, ia, wa, height: float, apex: int, hole_angles):
     shell = np.concatenate([pa, [[theta + turn, pa[0, 1]]], [[theta + turn, height]], [[theta, height]]])
     index = np.concatenate([ia, [ia[0]], [apex, apex]])
     return shell, index
+
+
+def _tilted(corners: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(T,) bool: triangles (T, 3, 3) whose plane is turned more than :data:`MAX_TILT_DEGREES` from the surface, whose
+    normal (T, 3) near them is given: a triangle of three points of one boundary loop lying in the loop's plane (an
+    ear the face beyond that loop may make too, where the two would overlap)."""
+    n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    cos = np.abs(np.einsum("ij,ij->i", n, normal)) / np.maximum(
+        np.linalg.norm(n, axis=1) * np.linalg.norm(normal, axis=1), 1e-300)
+    return cos < np.cos(np.radians(MAX_TILT_DEGREES))
+
+
+def _without_spurs(ring: np.ndarray) -> np.ndarray:
+    """A loop without the spurs it runs out and back along (a seam edge used twice: ..., a, b, a, ... -> ..., a, ...)."""
+    ring = list(ring)
+    changed = True
+    while changed and len(ring) >= 3:
+        changed = False
+        for k in range(len(ring)):
+            if ring[k - 1] == ring[(k + 1) % len(ring)]:
+                drop = {k, (k + 1) % len(ring)}
+                ring = [p for j, p in enumerate(ring) if j not in drop]
+                changed = True
+                break
+    return np.asarray(ring, np.int64)
 
 
 def _rolled(p: np.ndarray, idx: np.ndarray, start: int):

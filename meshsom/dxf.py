@@ -50,10 +50,11 @@ of a drawing, not the model).
 - **ACIS solids**: each 3DSOLID and BODY (AutoCAD's solid modeller: EXTRUDE, PRESSPULL, UNION,
   SUBTRACT) is one building, id ``name#<handle>`` (in a block, part of the INSERT's building),
   tessellated from its ACIS boundary representation by :func:`meshsom.acis.acis_mesh` (SAT text in
-  DXF R2000-R2010, SAB from R2013): planar faces with their holes, and cylindrical and conical faces
-  (curved facades, round towers), arcs within :data:`FLATTEN_REL` of the solid's extent; a block's
-  solid is tessellated once for all its references. A solid with spherical, toroidal or spline faces
-  (domes, fillets, free forms) is a rejection saying so (in a block, noted, the rest of the block read).
+  DXF R2000-R2010, SAB from R2013): planar faces with their holes, cylindrical and conical faces
+  (curved facades, round towers) and spherical ones (domes), arcs within :data:`FLATTEN_REL` of the
+  solid's extent; a block's solid is tessellated once for all its references. A solid with toroidal
+  or spline faces (fillets, free forms) is a rejection saying so (in a block, noted, the rest of the
+  block read).
 
 Not read, each said: ACIS sheets (REGION, SURFACE and its kinds: not solids) are a rejection each;
 a building's faces that cannot be read, or more

@@ -91,6 +91,30 @@ class Sphere(acis.Surface):
         raise NotImplementedError
 
 
+class Torus(acis.Surface):
+    """A torus (a fillet, a ring), which the reader does not tessellate."""
+
+    type = "torus-surface"
+
+    def __init__(self, centre, major: float, minor: float):
+        self.centre, self.major, self.minor = Vec3(centre), float(major), float(minor)
+
+    def write_common(self, exporter) -> None:
+        super().write_common(exporter)
+
+    def write_data(self, exporter) -> None:
+        exporter.write_loc_vec3(self.centre)
+        exporter.write_dir_vec3(Vec3(0, 0, 1))
+        exporter.write_double(self.major)
+        exporter.write_double(self.minor)
+        exporter.write_dir_vec3(Vec3(1, 0, 0))
+        exporter.write_bool(False, "reverse_v", "forward_v")
+        super().write_data(exporter)
+
+    def evaluate(self, u, v):
+        raise NotImplementedError
+
+
 def _vertex(p) -> acis.Vertex:
     v = acis.Vertex()
     v.point = acis.Point()
@@ -291,10 +315,56 @@ def tower_with_window_body(centre, r: float, z0: float, z1: float, window: tuple
 
 
 def sphere_body(centre, radius: float) -> acis.Body:
-    """A whole sphere: one face, no loops (a dome's kind of surface)."""
+    """A whole sphere: one face, no loops (a ball: no edges at all)."""
     b = _Builder()
     b.face(Sphere(centre, radius), [])
     return b.body()
+
+
+def torus_body(centre, major: float, minor: float) -> acis.Body:
+    """A whole torus: one face, no loops."""
+    b = _Builder()
+    b.face(Torus(centre, major, minor), [])
+    return b.body()
+
+
+def ring_fillet_body(centre, r: float, z0: float, z1: float) -> acis.Body:
+    """A tower whose wall meets its roof in a torus (a fillet): a face of a kind the reader does not tessellate."""
+    cx, cy = centre
+    b = _Builder()
+    v0, v1 = _vertex((cx + r, cy, z0)), _vertex((cx + r, cy, z1))
+    e0 = b.edge(v0, v0, Ellipse((cx, cy, z0), (0, 0, 1), (r, 0, 0)))
+    e1 = b.edge(v1, v1, Ellipse((cx, cy, z1), (0, 0, 1), (r, 0, 0)))
+    b.face(_plane((cx, cy, z0), (0, 0, -1)), [[(e0, True)]])
+    b.face(Torus((cx, cy, z1), r, 1.0), [[(e0, False)], [(e1, True)]])
+    return b.body()
+
+
+def dome_body(centre, r: float, z0: float, drum: float = 0.0, seam: bool = False,
+              transform: Matrix44 | None = None) -> acis.Body:
+    """A hemispherical dome of radius ``r`` on a round drum of height ``drum`` (none: the dome on the ground), its base
+    at ``z0``. The dome's face is bounded by its springing circle alone (the pole where the sphere closes), or, with
+    ``seam``, also by a meridian edge up to a pole vertex, run up and back down; ``transform`` places it."""
+    cx, cy = centre
+    b = _Builder()
+    spring = z0 + drum
+    v0 = _vertex((cx + r, cy, z0))
+    e0 = b.edge(v0, v0, Ellipse((cx, cy, z0), (0, 0, 1), (r, 0, 0)))
+    b.face(_plane((cx, cy, z0), (0, 0, -1)), [[(e0, True)]])
+    if drum:
+        v1 = _vertex((cx + r, cy, spring))
+        e1 = b.edge(v1, v1, Ellipse((cx, cy, spring), (0, 0, 1), (r, 0, 0)))
+        b.face(Cone((cx, cy, z0), (0, 0, 1), (r, 0, 0)), [[(e0, False)], [(e1, True)]])
+    else:
+        v1, e1 = v0, e0
+    sphere = Sphere((cx, cy, spring), r)
+    if seam:
+        pole = _vertex((cx, cy, spring + r))
+        meridian = b.edge(v1, pole, Ellipse((cx, cy, spring), (0, -1, 0), (r, 0, 0)))
+        b.face(sphere, [[(e1, False), (meridian, False), (meridian, True)]])
+    else:
+        b.face(sphere, [[(e1, False)]])
+    return b.body(transform)
 
 
 def seam_cylinder_body(centre, r: float, z0: float, z1: float) -> acis.Body:

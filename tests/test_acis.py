@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from ezdxf.math import Matrix44
 
-from acis_solids import (add_solid, cone_body, extrusion_body, profile_area, sab_bytes, sat_lines, seam_cylinder_body,
-                         sphere_body, tower_with_window_body)
+from acis_solids import (add_solid, cone_body, dome_body, extrusion_body, profile_area, ring_fillet_body, sab_bytes,
+                         sat_lines, seam_cylinder_body, sphere_body, torus_body, tower_with_window_body)
 from meshsom.acis import AcisError, acis_mesh
 from meshsom.dxf import FLATTEN_REL, read_dxf
 from meshsom.io import RawMesh, ReaderOptions, Rejection
@@ -219,6 +219,40 @@ def test_an_elliptical_tower_with_a_window_stays_on_its_ellipse():
 
 
 @pytest.mark.parametrize("encoding", ["SAT 700", "SAB 21800"])
+@pytest.mark.parametrize("drum, seam", [(0.0, False), (0.0, True), (6.0, False), (6.0, True)],
+                         ids=["dome on the ground", "dome with a seam to its pole", "dome on a drum",
+                              "dome on a drum, seam"])
+def test_domes_are_closed_outward_and_on_their_sphere(drum, seam, encoding):
+    """A hemispherical dome (bounded by its springing circle alone, or also by a meridian seam up to a pole vertex as
+    AutoCAD writes one): every point added inside on the sphere, no triangle sinking in deeper than the chords'
+    tolerance allows, the volume 2/3 pi r^3 (+ the drum's)."""
+    r, centre = 4.0, (3.0, -2.0)
+    mesh = acis_mesh(ENCODINGS[encoding]([dome_body(centre, r, Z0, drum, seam)]), FLATTEN_REL)
+    assert mesh.faces == ({"plane": 1, "spherical": 1, "cylindrical": 1} if drum else {"plane": 1, "spherical": 1})
+    # the extent the tolerance is relative to: its edges' box (the pole's height counts only where a vertex is there)
+    extent = float(np.linalg.norm([2 * r, 2 * r, drum + (r if seam else 0.0)]))
+    spring = Z0 + drum
+    exact = 2.0 / 3.0 * math.pi * r ** 3 + math.pi * r * r * drum
+    area = 2 * math.pi * r * r + 2 * math.pi * r * drum + math.pi * r * r
+    # what the chords lose: the surface's area x how deep a triangle may sink (INSIDE_SPAN_STEPS ** 2 x the tolerance)
+    check_solid(mesh.vertices, mesh.triangles, exact, 4 * area / (r + drum), extent, height=r + drum)
+    v = mesh.vertices
+    d = v - [*centre, spring]
+    on_dome = v[:, 2] > spring + 1e-9
+    assert on_dome.sum() > 50 and np.abs(np.linalg.norm(d[on_dome], axis=1) - r).max() < DIGITS[encoding] * 10
+    top = v[np.argmax(v[:, 2])]
+    assert top[2] > spring + r - FLATTEN_REL * extent  # it reaches up to its pole
+    tri = v[mesh.triangles]
+    above = tri[:, :, 2].min(axis=1) >= spring - 1e-9
+    above &= np.ptp(tri[:, :, 2], axis=1) > 0
+    depth = r - np.linalg.norm(tri[above].mean(axis=1) - [*centre, spring], axis=1)
+    # chords of INSIDE_SPAN_STEPS (2) arcs' steps sag 4 x the tolerance; a triangle of three such edges sinks at most
+    # its circumradius (L / sqrt 3) squared over 2r below the sphere: 4/3 of that
+    assert depth.max() <= 16 / 3 * FLATTEN_REL * extent
+    assert 500 < len(v) < 20_000
+
+
+@pytest.mark.parametrize("encoding", ["SAT 700", "SAB 21800"])
 def test_the_bodys_transformation_is_applied_and_a_mirror_keeps_it_outward(encoding):
     profile = PROFILES["convex facade"]
     exact = profile_area(profile) * (Z1 - Z0)
@@ -245,8 +279,12 @@ def test_several_bodies_of_one_entity_are_one_mesh_of_their_pieces():
     assert signed_volume(mesh.vertices, mesh.triangles) == pytest.approx(60.0 * 3.0 + math.pi * 25.0 * 9.0, rel=1e-3)
 
 
-def test_domes_and_damaged_data_raise_saying_what():
-    with pytest.raises(AcisError, match=r"^has faces of curved kinds not tessellated here \(1 sphere-surface"):
+def test_tori_whole_balls_and_damaged_data_raise_saying_what():
+    with pytest.raises(AcisError, match=r"^has faces of curved kinds not tessellated here \(1 torus-surface"):
+        acis_mesh(sat_lines([ring_fillet_body((0.0, 0.0), 5.0, Z0, Z1)], 700), FLATTEN_REL)
+    with pytest.raises(AcisError, match=r"^has faces of curved kinds not tessellated here \(1 torus-surface"):
+        acis_mesh(sat_lines([torus_body((0.0, 0.0, 0.0), 5.0, 1.0)], 700), FLATTEN_REL)
+    with pytest.raises(AcisError, match=r"^has no edges: a closed surface without a boundary \(a whole sphere"):
         acis_mesh(sat_lines([sphere_body((0.0, 0.0, 0.0), 5.0)], 700), FLATTEN_REL)
     lines = sat_lines([extrusion_body(PROFILES["convex facade"], Z0, Z1)], 700)
     with pytest.raises(AcisError, match=r"^has ACIS data that cannot be read \("):
@@ -285,39 +323,44 @@ def test_solids_in_model_space_and_in_blocks_are_buildings(tmp_path, version):
     msp = doc.modelspace()
     tower = add_solid(msp, [extrusion_body(PROFILES["round tower"], 0.0, 20.0,
                                            Matrix44.translate(2_683_000.0, 1_248_000.0, 410.0))])
-    dome = add_solid(msp, [sphere_body((0.0, 0.0, 0.0), 5.0)])
+    fillet = add_solid(msp, [ring_fillet_body((0.0, 0.0), 5.0, 0.0, 9.0)])
+    chapel = add_solid(msp, [dome_body((0.0, 0.0), 4.0, 0.0, drum=6.0, seam=True,
+                                       transform=Matrix44.translate(2_683_300.0, 1_248_000.0, 410.0))])
     house = doc.blocks.new("HOUSE")
     add_solid(house, [extrusion_body(PROFILES["convex facade"], 0.0, 9.0)])
-    add_solid(house, [sphere_body((5.0, 4.0, 12.0), 3.0)])
+    add_solid(house, [ring_fillet_body((5.0, 4.0), 3.0, 12.0, 15.0)])
     turned = msp.add_blockref("HOUSE", (2_683_100.0, 1_248_050.0, 410.0), dxfattribs={"rotation": 30})
     mirrored = msp.add_blockref("HOUSE", (2_683_200.0, 1_248_050.0, 410.0), dxfattribs={"xscale": -1})
-    domes = doc.blocks.new("DOMES")
-    add_solid(domes, [sphere_body((0.0, 0.0, 0.0), 2.0)])
-    only_dome = msp.add_blockref("DOMES", (0.0, 0.0, 0.0))
+    fillets = doc.blocks.new("FILLETS")
+    add_solid(fillets, [ring_fillet_body((0.0, 0.0), 2.0, 0.0, 3.0)])
+    only_fillet = msp.add_blockref("FILLETS", (0.0, 0.0, 0.0))
     path = tmp_path / f"solids_{version}.dxf"
     doc.saveas(path)
     items = list(read_dxf(path, ReaderOptions()))
     name = path.name
-    assert [i.id for i in items] == [f"{name}#{tower.dxf.handle}", f"{name}#{dome.dxf.handle}",
-                                     f"{name}#HOUSE@{turned.dxf.handle}", f"{name}#HOUSE@{mirrored.dxf.handle}",
-                                     f"{name}#DOMES@{only_dome.dxf.handle}"]
-    assert [type(i) for i in items] == [RawMesh, Rejection, RawMesh, RawMesh, Rejection]
+    assert [i.id for i in items] == [f"{name}#{tower.dxf.handle}", f"{name}#{fillet.dxf.handle}",
+                                     f"{name}#{chapel.dxf.handle}", f"{name}#HOUSE@{turned.dxf.handle}",
+                                     f"{name}#HOUSE@{mirrored.dxf.handle}", f"{name}#FILLETS@{only_fillet.dxf.handle}"]
+    assert [type(i) for i in items] == [RawMesh, Rejection, RawMesh, RawMesh, RawMesh, Rejection]
     assert items[1].reason.startswith("an ACIS solid (3DSOLID) that has faces of curved kinds not tessellated here "
-                                      "(1 sphere-surface") and "MESHSMOOTH" in items[1].reason
-    assert items[4].reason.startswith("its block 'DOMES' holds no faces that can be read: 1 ACIS solid that has faces")
+                                      "(1 torus-surface") and "MESHSMOOTH" in items[1].reason
+    assert items[5].reason.startswith("its block 'FILLETS' holds no faces that can be read: 1 ACIS solid that has faces")
     assert np.allclose(items[0].origin[:2], [2_683_003.0, 1_248_004.0])
     assert any("curved faces of ACIS solids (1 cylindrical) tessellated" in n for n in items[0].notes)
+    assert any("curved faces of ACIS solids (1 cylindrical, 1 spherical) tessellated" in n for n in items[2].notes)
     assert any(n.startswith("ACIS entities in its block not read: 1 ACIS solid that has faces of curved kinds")
-               for n in items[2].notes)
+               for n in items[3].notes)
     house_volume = profile_area(PROFILES["convex facade"]) * 9.0
-    for item, exact in ((items[0], math.pi * 25.0 * 20.0), (items[2], house_volume), (items[3], house_volume)):
+    chapel_volume = math.pi * 16.0 * 6.0 + 2.0 / 3.0 * math.pi * 64.0
+    for item, exact in ((items[0], math.pi * 25.0 * 20.0), (items[2], chapel_volume), (items[3], house_volume),
+                        (items[4], house_volume)):
         assert closed(item.faces)
         assert signed_volume(item.vertices, item.faces) == pytest.approx(exact, rel=2e-3)
         r = preprocess(item.vertices, item.faces, source=item.id)
         assert validate(r.vertices, r.faces) is None
         assert signed_volume(r.vertices, r.faces) == pytest.approx(exact, rel=2e-3)
     # the mirrored house is the turned one's mirror image: the same plan area, x reversed about the insert
-    assert np.ptp(items[3].vertices, axis=0) == pytest.approx(np.array([14.0, 8.0, 9.0]), abs=1e-6)
+    assert np.ptp(items[4].vertices, axis=0) == pytest.approx(np.array([14.0, 8.0, 9.0]), abs=1e-6)
 
 
 def test_a_solid_in_a_drawing_older_than_r2000_cannot_be_there(tmp_path):
