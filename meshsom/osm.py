@@ -19,11 +19,14 @@ own configuration reads as lines; every tag is kept):
   (roof included, metres, or text such as ``"12 m"``) above the ground, from ``min_height``;
   else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
   :attr:`meshsom.io.ReaderOptions.default_height` where set, else a rejection naming the tags.
-  Roofs: ``roof:shape`` ``pyramidal``, ``skillion``, ``gabled`` and ``hipped`` are built
-  (:mod:`meshsom.roofs`: gabled and hipped on four-cornered convex footprints) from
-  ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch), eaves at the
-  height less the roof's, ``roof:direction`` and ``roof:orientation`` followed; other shapes, and
-  footprints they cannot be built on, are flat at the height, noted.
+  Roofs: ``roof:shape`` ``pyramidal``, ``skillion``, ``gabled``, ``hipped``, ``half-hipped``,
+  ``gambrel``, ``saltbox``, ``round``, ``dome`` and ``onion`` are built (:mod:`meshsom.roofs`:
+  hipped on any simple footprint by its straight skeleton, the profiled ones on any, half-hipped
+  on four-cornered convex ones, the pointed ones where their apex sees every wall) from
+  ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
+  its width), eaves at the height less the roof's, ``roof:direction`` and ``roof:orientation``
+  followed; other shapes (mansard, ...), footprints with courtyards, and footprints a shape cannot
+  be built on, are flat at the height, noted with the reason.
 - **Coordinates**: WGS 84 longitude and latitude, converted to east-north-up metres about each
   building (:mod:`meshsom.crs`).
 - **Labels**: the tag :attr:`meshsom.io.ReaderOptions.label_attribute` names (``building`` gives
@@ -216,7 +219,7 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
         The flat block's vertices (its base and top heights).
     """
     from meshsom.geojson import _number
-    from meshsom.roofs import SHAPES, roof_faces, roof_height
+    from meshsom.roofs import SHAPES, UNBUILT, roof_faces, roof_height
 
     shape = str(found.get("roof:shape", "flat")).strip().lower()
     if shape == "flat":
@@ -241,7 +244,7 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
     faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees,
                        across=str(found.get("roof:orientation", "")).strip().lower() == "across")
     if faces is None:
-        return None, f"roof:shape={shape} not modelled on this footprint (gabled and hipped: four corners, convex): flat"
+        return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}
     return solid, f"roof:shape={shape} built (S3DB): eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above its base"
 

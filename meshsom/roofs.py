@@ -11,7 +11,20 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
 - ``gabled`` and ``hipped`` (four-cornered convex footprints): a ridge along the longer sides
   (across them with ``roof:orientation=across``) between the short sides' midpoints, gable walls
   of five corners; a hipped roof's ridge is shortened by half the short side at each end (a
-  pyramid where that leaves none).
+  pyramid where that leaves none);
+- ``half-hipped`` (the same footprints): a gabled roof whose gables are hipped above
+  :data:`HALF_HIP_SHARE` of the roof's height, the hips at the roof's pitch;
+- ``hipped`` on any other simple footprint (an L, a T, a courtyard-less block of many corners): the
+  straight skeleton's roof (every face rising from its wall at one pitch; py-straight-skeleton),
+  checked (each face holds its wall's edge, lies in the plane through it at the pitch, and the faces
+  tile the footprint) and modelled flat where the skeleton fails that;
+- ``gabled`` on any other simple footprint, and ``gambrel``, ``saltbox`` and ``round`` on any: a
+  roof whose height is a profile across one ridge line (along the footprint's minimum rotated
+  rectangle, across it with ``roof:orientation=across``), the footprint cut into strips where the
+  profile bends, each strip one plane, the walls rising to the profile (OSM2World's reading of a
+  gable on a footprint that is not a rectangle);
+- ``dome`` and ``onion`` (star-shaped footprints, as ``pyramidal``): rings of the footprint scaled
+  about its centroid up a quarter circle (an onion's bulb: out, then in to its tip).
 
 The functions take a footprint ring in any planar coordinates (longitude and latitude included:
 every point they place is an affine combination of the corners, computed in those coordinates) and
@@ -24,21 +37,57 @@ import math
 
 import numpy as np
 
-__all__ = ["SHAPES", "roof_faces", "roof_height"]
+__all__ = ["SHAPES", "UNBUILT", "roof_faces", "roof_height"]
 
 #: The roof shapes built (others are modelled flat by the caller).
-SHAPES = ("pyramidal", "skillion", "gabled", "hipped")
+SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion")
+#: Why :func:`roof_faces` gives None for a shape on a footprint, for the caller's note.
+UNBUILT = {
+    "pyramidal": "its apex over the corners' mean does not see every wall",
+    "dome": "its tip over the corners' mean does not see every wall",
+    "onion": "its tip over the corners' mean does not see every wall",
+    "skillion": "a footprint of no area",
+    "gabled": "not a simple polygon, or its cut into strips failed its check",
+    "gambrel": "not a simple polygon, or its cut into strips failed its check",
+    "saltbox": "not a simple polygon, or its cut into strips failed its check",
+    "round": "not a simple polygon, or its cut into strips failed its check",
+    "hipped": "its straight skeleton could not be computed or failed its check",
+    "half-hipped": "four corners, convex",
+}
 #: The pitch of a roof whose height is not tagged (degrees): a common pitched roof.
 DEFAULT_PITCH_DEG = 30.0
-#: Corners of the footprints a gabled or hipped roof is built on.
+#: Corners of the footprints a gabled or hipped roof is built on by its short sides' midpoints.
 QUAD = 4
+#: The share of a half-hipped roof's height its hips take (the gable walls rise to the rest).
+HALF_HIP_SHARE = 0.5
+#: Profiles across the ridge line: (distance from the ridge line as a fraction of the farthest
+#: corner's, signed; height as a fraction of the roof's), knots in order, eaves at 0 on both sides.
+#: A gambrel bends at half the half-width, three quarters up (a barn); a saltbox's ridge stands a
+#: third of the width from one side.
+PROFILES = {
+    "gabled": ((-1.0, 0.0), (0.0, 1.0), (1.0, 0.0)),
+    "gambrel": ((-1.0, 0.0), (-0.5, 0.75), (0.0, 1.0), (0.5, 0.75), (1.0, 0.0)),
+    "saltbox": ((-1.0, 0.0), (-1.0 / 3.0, 1.0), (1.0, 0.0)),
+}
+#: Segments of a round (barrel) roof's half circle, and of a dome's or onion's quarter circle.
+CURVE_SEGMENTS = 8
+#: An onion dome's outline: (scale of the footprint about its centroid, height as a fraction of the
+#: roof's), from the eaves up to the tip (a bulb a third wider than its drum at a quarter height).
+ONION = ((1.0, 0.0), (1.25, 0.12), (1.33, 0.25), (1.25, 0.38), (1.0, 0.5), (0.68, 0.62), (0.4, 0.74), (0.18, 0.86),
+         (0.0, 1.0))
+#: How far (a fraction of the footprint's extent) a point cut by the profile may lie from the footprint's
+#: ring with its cuts for it to be that point; beyond, the cut failed and the roof is modelled flat.
+SNAP_REL = 1e-7
+#: Numerical tolerance of the roofs' checks: heights and areas (relative to the footprint's extent and area).
+CHECK_REL = 1e-6
 
 
 def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: dict, storey_height: float,
                 number) -> float:
     """The roof's height (metres from eaves to top): ``roof:height``, else ``roof:levels`` x
     ``storey_height``, else the height of a roof pitched at ``roof:angle`` (else
-    :data:`DEFAULT_PITCH_DEG`) over half the footprint's width (its whole width for a skillion).
+    :data:`DEFAULT_PITCH_DEG`) over half the footprint's width (its whole width for a skillion; a
+    dome and a round roof: half the width, a half circle; an onion: the width).
 
     Parameters
     ----------
@@ -55,10 +104,14 @@ def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: 
     levels = number(tags.get("roof:levels"))
     if levels is not None:
         return max(float(levels), 0.0) * storey_height
-    angle = number(tags.get("roof:angle"))
-    pitch = math.radians(float(angle) if angle is not None and 0 < angle < 90 else DEFAULT_PITCH_DEG)
     metric = ring * np.asarray(scale, np.float64)
     width = _width(metric)
+    if shape in ("dome", "round"):  # a half circle across it
+        return width / 2
+    if shape == "onion":
+        return width
+    angle = number(tags.get("roof:angle"))
+    pitch = math.radians(float(angle) if angle is not None and 0 < angle < 90 else DEFAULT_PITCH_DEG)
     return math.tan(pitch) * (width if shape == "skillion" else width / 2)
 
 
@@ -90,7 +143,7 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         Skillion: the way the roof faces, degrees clockwise from north (default: across the
         longest edge, down towards it).
     across : bool
-        Gabled, hipped: the ridge across the longer sides.
+        Gabled, hipped, gambrel, saltbox, round: the ridge across the longer sides.
     """
     ring = np.asarray(ring, np.float64)[:, :2]
     if len(ring) >= 2 and np.array_equal(ring[0], ring[-1]):
@@ -107,10 +160,23 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _skillion(ring, metric, z0, z_eaves, z_top, direction_deg)
     if shape == "pyramidal":
         return _pyramid(ring, metric, z0, z_eaves, z_top)
-    if shape in ("gabled", "hipped"):
-        if len(ring) != QUAD or not _convex(metric):
-            return None
-        return _ridged(ring, metric, z0, z_eaves, z_top, shape == "hipped", across)
+    if shape in ("gabled", "hipped", "half-hipped") and len(ring) == QUAD and _convex(metric):
+        hip = {"gabled": 0.0, "hipped": 1.0, "half-hipped": HALF_HIP_SHARE}[shape]
+        return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
+    if shape == "hipped":
+        return _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top)
+    if shape in PROFILES:
+        return _profiled(ring, metric, z0, z_eaves, z_top, np.array(PROFILES[shape]), across)
+    if shape == "round":
+        angle = np.linspace(np.pi, 0.0, CURVE_SEGMENTS + 1)
+        return _profiled(ring, metric, z0, z_eaves, z_top, np.column_stack([np.cos(angle), np.sin(angle)]), across)
+    if shape in ("dome", "onion"):
+        if shape == "dome":
+            angle = np.linspace(0.0, np.pi / 2, CURVE_SEGMENTS + 1)
+            outline = np.column_stack([np.cos(angle), np.sin(angle)])
+        else:
+            outline = np.array(ONION)
+        return _domed(ring, metric, z0, z_eaves, z_top, outline)
     return None
 
 
@@ -159,7 +225,9 @@ def _skillion(ring, metric, z0, z_eaves, z_top, direction_deg) -> list[np.ndarra
     return faces
 
 
-def _ridged(ring, metric, z0, z_eaves, z_top, hipped: bool, across: bool) -> list[np.ndarray]:
+def _ridged(ring, metric, z0, z_eaves, z_top, hip: float, across: bool) -> list[np.ndarray]:
+    """A ridge between the short sides' midpoints; ``hip`` the share of the roof's height hipped at each end (0:
+    gabled, 1: hipped, between: half-hipped, the gable walls up to where the hips start)."""
     lengths = np.linalg.norm(np.roll(metric, -1, axis=0) - metric, axis=1)
     short_first = lengths[0] + lengths[2] <= lengths[1] + lengths[3]  # edges 0-1 and 2-3 are the short sides
     if across:
@@ -169,23 +237,226 @@ def _ridged(ring, metric, z0, z_eaves, z_top, hipped: bool, across: bool) -> lis
     c, m = ring[order], metric[order]  # short sides c0-c1 and c2-c3
     r0, r1 = (c[0] + c[1]) / 2, (c[2] + c[3]) / 2
     walls = _floor_and_walls(c, z0, np.full(QUAD, z_eaves))
-    if hipped:
-        m0, m1 = (m[0] + m[1]) / 2, (m[2] + m[3]) / 2
-        run = float(np.linalg.norm(m1 - m0))
-        inset = 0.5 * float(np.linalg.norm(m[1] - m[0]) + np.linalg.norm(m[3] - m[2])) / 2
-        if run <= 2 * inset:
-            return _pyramid(c, m, z0, z_eaves, z_top)
-        t = inset / run
-        a, b = r0 + t * (r1 - r0), r1 - t * (r1 - r0)
+    if hip == 0.0:  # gabled: the short walls rise to the ridge (five corners); the roof is two planes
+        floor, w0, w1, w2, w3 = walls
+        w0 = np.array([[*c[0], z0], [*c[1], z0], [*c[1], z_eaves], [*r0, z_top], [*c[0], z_eaves]])
+        w2 = np.array([[*c[2], z0], [*c[3], z0], [*c[3], z_eaves], [*r1, z_top], [*c[2], z_eaves]])
+        roof = [np.array([[*c[1], z_eaves], [*c[2], z_eaves], [*r1, z_top], [*r0, z_top]]),
+                np.array([[*c[3], z_eaves], [*c[0], z_eaves], [*r0, z_top], [*r1, z_top]])]
+        return [floor, w0, w1, w2, w3] + roof
+    m0, m1 = (m[0] + m[1]) / 2, (m[2] + m[3]) / 2
+    run = float(np.linalg.norm(m1 - m0))
+    inset = hip * 0.5 * float(np.linalg.norm(m[1] - m[0]) + np.linalg.norm(m[3] - m[2])) / 2
+    if run <= 2 * inset * (1.0 + CHECK_REL):  # the hips meet (a square, to rounding): a pyramid, no ridge
+        return _pyramid(c, m, z0, z_eaves, z_top)
+    t = inset / run
+    a, b = r0 + t * (r1 - r0), r1 - t * (r1 - r0)
+    if hip == 1.0:
         roof = [np.array([[*c[0], z_eaves], [*c[1], z_eaves], [*a, z_top]]),
                 np.array([[*c[1], z_eaves], [*c[2], z_eaves], [*b, z_top], [*a, z_top]]),
                 np.array([[*c[2], z_eaves], [*c[3], z_eaves], [*b, z_top]]),
                 np.array([[*c[3], z_eaves], [*c[0], z_eaves], [*a, z_top], [*b, z_top]])]
         return walls + roof
-    # gabled: the short walls rise to the ridge (five corners); the roof is two planes
+    # half-hipped: the gable walls to where the hips start, on the lines from the eaves' corners to the ridge's ends
+    z_mid = z_top - hip * (z_top - z_eaves)
+    q = [c[0] + (1 - hip) * (r0 - c[0]), c[1] + (1 - hip) * (r0 - c[1]),
+         c[2] + (1 - hip) * (r1 - c[2]), c[3] + (1 - hip) * (r1 - c[3])]
     floor, w0, w1, w2, w3 = walls
-    w0 = np.array([[*c[0], z0], [*c[1], z0], [*c[1], z_eaves], [*r0, z_top], [*c[0], z_eaves]])
-    w2 = np.array([[*c[2], z0], [*c[3], z0], [*c[3], z_eaves], [*r1, z_top], [*c[2], z_eaves]])
-    roof = [np.array([[*c[1], z_eaves], [*c[2], z_eaves], [*r1, z_top], [*r0, z_top]]),
-            np.array([[*c[3], z_eaves], [*c[0], z_eaves], [*r0, z_top], [*r1, z_top]])]
+    w0 = np.array([[*c[0], z0], [*c[1], z0], [*c[1], z_eaves], [*q[1], z_mid], [*q[0], z_mid], [*c[0], z_eaves]])
+    w2 = np.array([[*c[2], z0], [*c[3], z0], [*c[3], z_eaves], [*q[3], z_mid], [*q[2], z_mid], [*c[2], z_eaves]])
+    roof = [np.array([[*c[1], z_eaves], [*c[2], z_eaves], [*q[2], z_mid], [*b, z_top], [*a, z_top], [*q[1], z_mid]]),
+            np.array([[*c[3], z_eaves], [*c[0], z_eaves], [*q[0], z_mid], [*a, z_top], [*b, z_top], [*q[3], z_mid]]),
+            np.array([[*q[0], z_mid], [*q[1], z_mid], [*a, z_top]]),
+            np.array([[*q[2], z_mid], [*q[3], z_mid], [*b, z_top]])]
     return [floor, w0, w1, w2, w3] + roof
+
+def _star_centre(ring, metric):
+    """The footprint's vertex mean (ring units, metres) where it sees every wall from there, else None."""
+    m_apex = metric.mean(axis=0)
+    d = np.roll(metric, -1, axis=0) - metric
+    if not ((d[:, 0] * (m_apex[1] - metric[:, 1]) - d[:, 1] * (m_apex[0] - metric[:, 0])) > 0).all():
+        return None
+    return ring.mean(axis=0), m_apex
+
+
+def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.ndarray] | None:
+    """Rings of the footprint scaled about its centre by ``outline`` (K, 2) (scale, height fraction), from the
+    eaves (scale 1) to a tip (scale 0): a trapezoid between two rings under each wall, triangles at the tip."""
+    centre = _star_centre(ring, metric)
+    if centre is None:
+        return None
+    c = centre[0]
+    n = len(ring)
+    rings = [c + s * (ring - c) for s in outline[:-1, 0]]
+    heights = z_eaves + outline[:, 1] * (z_top - z_eaves)
+    faces = _floor_and_walls(ring, z0, np.full(n, z_eaves))
+    for k in range(len(rings) - 1):
+        a, b, za, zb = rings[k], rings[k + 1], heights[k], heights[k + 1]
+        faces += [np.array([[*a[i], za], [*a[(i + 1) % n], za], [*b[(i + 1) % n], zb], [*b[i], zb]]) for i in range(n)]
+    last, z_last = rings[-1], heights[-2]
+    faces += [np.array([[*last[i], z_last], [*last[(i + 1) % n], z_last], [*c, z_top]]) for i in range(n)]
+    return faces
+
+
+def _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top) -> list[np.ndarray] | None:
+    """A hipped roof on any simple footprint: its straight skeleton lifted (a node's height its time, the distance
+    the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the skeleton cannot be
+    computed or fails its check (a face per wall, each holding its wall's edge, each node at its time's height
+    above the lines of the walls of every face it is on, the faces tiling the footprint)."""
+    from py_straight_skeleton import compute_skeleton
+
+    n = len(ring)
+    origin = metric.mean(axis=0)
+    local = metric - origin
+    extent = float(np.linalg.norm(np.ptp(local, axis=0)))
+    try:
+        skeleton = compute_skeleton(exterior=local.tolist(), holes=[])
+        faces = skeleton.get_faces()
+        nodes = skeleton.nodes
+    except Exception:  # the library fails on degenerate events in several ways (RuntimeError, ZeroDivisionError, ...)
+        return None
+    where = np.array([[node.position.x, node.position.y] for node in nodes], np.float64)
+    time = np.array([node.time for node in nodes], np.float64)
+    if len(faces) != n or not np.isfinite(where).all() or not np.isfinite(time).all() or time.max() <= 0:
+        return None
+    corner = np.full(len(nodes), -1, np.int64)  # each ring corner's node
+    at_eaves = np.flatnonzero(np.abs(time) <= CHECK_REL * extent)
+    for k in at_eaves:
+        distance = np.linalg.norm(local - where[k], axis=1)
+        if distance.min() > CHECK_REL * extent:
+            return None
+        corner[k] = int(np.argmin(distance))
+    if sorted(corner[at_eaves].tolist()) != list(range(n)):
+        return None
+    edges = np.roll(local, -1, axis=0) - local
+    inward = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1)[:, None]
+    tol = CHECK_REL * extent
+    covered = 0.0
+    rise = (z_top - z_eaves) / float(time.max())
+    points = (where + origin) / np.asarray(scale, np.float64)  # back in the ring's units, its corners exactly
+    points[corner >= 0] = ring[corner[corner >= 0]]
+    roof = []
+    seen = set()
+    for face in faces:
+        face = [int(i) for i in face]
+        if len(face) > 1 and face[0] == face[-1]:  # closed: its first node repeated
+            face = face[:-1]
+        on_ring = [corner[i] for i in face if corner[i] >= 0]
+        wall = next((i for i in on_ring if (i + 1) % n in on_ring), None)
+        if wall is None or wall in seen:
+            return None
+        seen.add(wall)
+        p = where[face]
+        if np.abs((p - local[wall]) @ inward[wall] - time[face]).max() > tol:  # on its wall's plane at the pitch
+            return None
+        area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+        if area <= 0:
+            return None
+        covered += area
+        z = z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])
+        roof.append(np.column_stack([points[face], z]))
+    footprint = 0.5 * float(np.sum(local[:, 0] * np.roll(local[:, 1], -1) - np.roll(local[:, 0], -1) * local[:, 1]))
+    if abs(covered - footprint) > CHECK_REL * footprint:
+        return None
+    return _floor_and_walls(ring, z0, np.full(n, z_eaves)) + roof
+
+
+def _profiled(ring, metric, z0, z_eaves, z_top, knots: np.ndarray, across: bool) -> list[np.ndarray] | None:
+    """A roof whose height is a piecewise linear profile across a ridge line on any simple footprint.
+
+    The ridge runs through the centre of the footprint's minimum rotated rectangle along its longer side (its
+    shorter one with ``across``); ``knots`` (K, 2) are (signed distance from it over the farthest corner's, height
+    fraction). The footprint is cut at each knot's line into strips, each strip lifted as one plane, and every wall
+    rises to the profile, bending where a knot's line crosses it. The cutting (shapely) works in the ridge's frame,
+    the knots' lines exactly at their abscissae and the corners within :data:`SNAP_REL` of one on it, so a wall along
+    a knot's line is cut along, not across; each piece's corners are then matched to the ring's, its crossings
+    included. None where a piece has a corner the ring does not (the roof is modelled flat).
+    """
+    import shapely
+    from scipy.spatial import cKDTree
+
+    n = len(ring)
+    rectangle = np.asarray(shapely.minimum_rotated_rectangle(shapely.Polygon(metric)).exterior.coords)[:4]
+    sides = np.diff(np.vstack([rectangle, rectangle[:1]]), axis=0)[:2]
+    long_side = int(np.argmax(np.linalg.norm(sides, axis=1)))
+    along = sides[1 - long_side if across else long_side]
+    along = along / np.linalg.norm(along)
+    normal = np.array([-along[1], along[0]])
+    centre = rectangle.mean(axis=0)
+    d = (metric - centre) @ normal
+    half = float(np.abs(d).max())
+    if not half > 0:
+        return None
+    cuts, levels = knots[:, 0], z_eaves + knots[:, 1] * (z_top - z_eaves)
+    u, v = d / half, -((metric - centre) @ along) / half  # the ridge's frame in half-widths (turned, not mirrored)
+    nearest = np.argmin(np.abs(u[:, None] - cuts[None, :]), axis=1)
+    on_cut = np.abs(u - cuts[nearest]) <= SNAP_REL
+    u[on_cut] = cuts[nearest[on_cut]]  # a corner on a knot's line is on it: no crossing a rounding away
+
+    # the ring with every crossing of a knot's line inserted: ring units, frame, heights; per edge, the top's bends
+    pts, frame, zs, tops = [], [], [], []
+    for i in range(n):
+        j = (i + 1) % n
+        pts.append(ring[i]); frame.append((u[i], v[i])); zs.append(float(np.interp(u[i], cuts, levels)))
+        lo, hi = sorted((u[i], u[j]))
+        inner = np.array([k for k in range(len(cuts)) if lo < cuts[k] < hi], np.int64)
+        t = (cuts[inner] - u[i]) / (u[j] - u[i])
+        bends = []
+        for k, tk in zip(inner[np.argsort(t)], np.sort(t)):
+            bends.append(len(pts))
+            pts.append(ring[i] + tk * (ring[j] - ring[i])); frame.append((cuts[k], v[i] + tk * (v[j] - v[i])))
+            zs.append(float(levels[k]))
+        tops.append(bends)
+    pts, frame, zs = np.array(pts), np.array(frame), np.array(zs)
+    corner_at = np.cumsum([0] + [1 + len(b) for b in tops])[:-1]
+    faces = [np.column_stack([ring[::-1], np.full(n, z0)])]
+    for i in range(n):
+        j = (i + 1) % n
+        top = [corner_at[j]] + tops[i][::-1] + [corner_at[i]]
+        faces.append(np.vstack([[*ring[i], z0], [*ring[j], z0], np.column_stack([pts[top], zs[top]])]))
+    footprint = shapely.Polygon(frame)
+    if not footprint.is_valid:
+        return None
+    tree = cKDTree(frame)
+    span = 2.0 * float(np.abs(frame).max()) + 1.0
+    covered = 0.0
+    for k in range(len(cuts) - 1):  # the outermost strips reach beyond the footprint (no cut along its farthest walls)
+        a = cuts[k] if k > 0 else -span
+        b = cuts[k + 1] if k < len(cuts) - 2 else span
+        strip = shapely.box(a, -span, b, span)
+        for piece in shapely.get_parts(shapely.intersection(footprint, strip)):
+            if piece.geom_type != "Polygon" or piece.area <= 0:
+                continue
+            distance, index = tree.query(np.asarray(piece.exterior.coords)[:-1])
+            if distance.max() > SNAP_REL * span:
+                return None
+            index = _without_backtracks(index, frame)
+            if len(index) < 3:
+                continue
+            p = frame[index]
+            area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+            if area < 0:
+                index, area = index[::-1], -area
+            covered += area
+            faces.append(np.column_stack([pts[index], zs[index]]))
+    if abs(covered - footprint.area) > CHECK_REL * footprint.area:
+        return None
+    return faces
+
+
+def _without_backtracks(index: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """A ring of point indices without repeats and without the spikes overlay leaves along a cut: a corner whose next
+    edge runs back along its previous one (zero area) is dropped, until none is."""
+    ring = [int(i) for i in index]
+    changed = True
+    while changed and len(ring) >= 3:
+        changed = False
+        for k in range(len(ring)):
+            a, b, c = points[ring[k - 1]], points[ring[k]], points[ring[(k + 1) % len(ring)]]
+            ab, bc = b - a, c - b
+            if ring[k] == ring[k - 1] or (abs(ab[0] * bc[1] - ab[1] * bc[0]) <= SNAP_REL * max(1.0, float(
+                    np.abs(points).max())) ** 2 and float(ab @ bc) < 0):
+                del ring[k]
+                changed = True
+                break
+    return np.asarray(ring, np.int64)

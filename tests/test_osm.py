@@ -52,8 +52,11 @@ class OsmWriter:
         self.nodes, self.ways, self.relations, self.next, self.area = [], [], [], 1, {}
 
     def ring(self, x0, y0, x1, y1) -> tuple[list[int], float]:
+        return self.polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+
+    def polygon(self, corners) -> tuple[list[int], float]:
         ids, stored = [], []
-        for lon, lat in _lonlat([(x0, y0), (x1, y0), (x1, y1), (x0, y1)]):
+        for lon, lat in _lonlat(corners):
             lon, lat = round(lon, 7), round(lat, 7)
             self.nodes.append(f'  <node id="{self.next}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>')
             ids.append(self.next)
@@ -62,7 +65,8 @@ class OsmWriter:
         return ids + ids[:1], _enu_area(stored)
 
     def way(self, way_id: int, rect, **tags) -> int:
-        ring, self.area[way_id] = self.ring(*rect)
+        """A closed way round ``rect`` (x0, y0, x1, y1), or round a polygon's corners ((x, y), ...)."""
+        ring, self.area[way_id] = self.polygon(rect) if np.ndim(rect) == 2 else self.ring(*rect)
         refs = "".join(f'<nd ref="{n}"/>' for n in ring)
         self.ways.append((way_id, refs, tags))
         return way_id
@@ -143,6 +147,58 @@ def test_buildings_heights_and_courtyards(tmp_path):
     assert _volume(gabled) == pytest.approx(area[50] * 5 + area[50] * 2 / 2, rel=1e-5)
     assert np.ptp(gabled.vertices[:, 2]) == pytest.approx(7, abs=1e-3)
     assert any("roof:shape=gabled built (S3DB): eaves 5 m, top 7 m" in n for n in gabled.notes), gabled.notes
+
+
+def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
+    """An L-shaped hipped house and an L-shaped gabled one (footprints of six corners), a half-hipped house, a
+    square with a dome, a church of a nave and an onion-domed tower (parts), and a mansard roof (not built: flat,
+    noted): each closed and accepted by preprocessing, at the volume :mod:`meshsom.roofs` builds on the footprint in
+    metres (to OpenStreetMap's centimetre), its notes saying what was built."""
+    from meshsom.preprocess import PreprocessParams
+    from meshsom.roofs import roof_faces
+    from pipelines.ingest import process_one
+    from test_roofs import _volume_closed
+
+    el = [(200.0, 0.0), (210.0, 0.0), (210.0, 4.0), (204.0, 4.0), (204.0, 10.0), (200.0, 10.0)]
+    osm = OsmWriter()
+    osm.way(1, el, building="house", height="9", **{ROOF: "hipped", "roof:height": "3"})
+    osm.way(2, [(x + 20.0, y) for x, y in el], building="house", height="9", **{ROOF: "gabled", "roof:height": "3"})
+    osm.way(3, (240, 0, 252, 8), building="house", height="9", **{ROOF: "half-hipped", "roof:height": "3"})
+    osm.way(4, (260, 0, 270, 10), building="chapel", height="12", **{ROOF: "dome", "roof:height": "5"})
+    osm.way(5, (280, 0, 300, 10), building="church", height="10")
+    osm.way(6, (280, 0, 292, 10), height="10", **{PART: "yes", ROOF: "gabled", "roof:height": "4"})
+    osm.way(7, (292, 1, 300, 9), height="30", **{PART: "yes", ROOF: "onion", "roof:height": "8"})
+    osm.way(8, (310, 0, 320, 8), building="house", height="9", **{ROOF: "mansard", "roof:height": "3"})
+    path = tmp_path / "roofs.osm"
+    path.write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+
+    def expected(corners, z_eaves, z_top, shape):
+        ring = np.asarray(corners, float)
+        return _volume_closed(roof_faces(ring - ring.mean(axis=0), 0.0, z_eaves, z_top, shape, (1.0, 1.0)))
+
+    box = [(240, 0), (252, 0), (252, 8), (240, 8)]
+    for way, corners, eaves, top, shape in [("way/1", el, 6.0, 9.0, "hipped"), ("way/2", el, 6.0, 9.0, "gabled"),
+                                            ("way/3", box, 6.0, 9.0, "half-hipped"),
+                                            ("way/4", [(0, 0), (10, 0), (10, 10), (0, 10)], 7.0, 12.0, "dome")]:
+        item = items[way]
+        assert any(f"roof:shape={shape} built (S3DB)" in n for n in item.notes), item.notes
+        assert _volume(item) == pytest.approx(expected(corners, eaves, top, shape), rel=2e-3)
+        assert np.ptp(item.vertices[:, 2]) == pytest.approx(top, abs=1e-3)
+        record, clean = process_one(item, PreprocessParams())
+        assert record["status"] == "accepted", record
+    church = items["way/5"]
+    record, clean = process_one(church, PreprocessParams())
+    assert record["status"] == "accepted", record
+    t = clean.vertices[clean.faces]
+    nave = expected([(0, 0), (12, 0), (12, 10), (0, 10)], 6.0, 10.0, "gabled")
+    tower = expected([(0, 0), (8, 0), (8, 8), (0, 8)], 22.0, 30.0, "onion")
+    assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(nave + tower,
+                                                                                                        rel=2e-3)
+    assert np.ptp(clean.vertices[:, 2]) == pytest.approx(30.0, abs=1e-3)
+    mansard = items["way/8"]
+    assert any("roof:shape=mansard not modelled: a flat roof at the height" in n for n in mansard.notes), mansard.notes
+    assert _volume(mansard) == pytest.approx(osm.area[8] * 9, rel=1e-5)
 
 
 def test_a_building_of_parts_is_its_parts_united(tmp_path):

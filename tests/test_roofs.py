@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from meshsom.polygons import triangulate_polygon_3d
-from meshsom.roofs import roof_faces, roof_height
+from meshsom.roofs import SHAPES, UNBUILT, roof_faces, roof_height
 
 
 def _mesh(faces):
@@ -68,15 +68,19 @@ def test_pyramidal_and_skillion_volumes():
 
 
 def test_shapes_that_cannot_be_built_and_roof_heights():
-    """Gabled on an L (six corners) or a non-convex quad, a pyramid over a footprint its apex does
-    not see: None (the caller models them flat). Heights from roof:height, roof:levels, roof:angle,
+    """Gabled or hipped on a non-convex quad (a dart), half-hipped on an L, a pyramid, dome or onion over a
+    footprint its apex does not see, a shape not built: None (the caller models them flat). Heights from roof:height, roof:levels, roof:angle,
     and the 30 degree default over half the width (8 m: 4 tan 30)."""
     el = np.array([[0, 0], [10, 0], [10, 4], [4, 4], [4, 10], [0, 10]], float)
     dart = np.array([[0, 0], [10, 5], [0, 10], [3, 5]], float)
-    assert roof_faces(el, 0, 5, 8, "gabled", (1, 1)) is None and roof_faces(dart, 0, 5, 8, "hipped", (1, 1)) is None
+    assert roof_faces(dart, 0, 5, 8, "gabled", (1, 1)) is not None  # gabled: a profile across its ridge line
+    assert roof_faces(dart, 0, 5, 8, "hipped", (1, 1)) is not None  # hipped: its straight skeleton
     crescent = np.array([[0, 0], [10, 0], [10, 10], [0, 10], [9, 5]], float)
-    assert roof_faces(crescent, 0, 5, 8, "pyramidal", (1, 1)) is None
-    assert roof_faces(RECT, 0, 5, 8, "onion", (1, 1)) is None
+    for shape in ("pyramidal", "dome", "onion"):  # an apex or tip over a point that does not see every wall
+        assert roof_faces(crescent, 0, 5, 8, shape, (1, 1)) is None
+    assert roof_faces(el, 0, 5, 8, "half-hipped", (1, 1)) is None
+    assert roof_faces(RECT, 0, 5, 8, "mansard", (1, 1)) is None
+    assert set(UNBUILT) == set(SHAPES)  # a reason for the note wherever a shape is not built
 
     def number(v):
         return None if v is None else float(v)
@@ -86,3 +90,207 @@ def test_shapes_that_cannot_be_built_and_roof_heights():
     assert roof_height("gabled", RECT, (1, 1), {"roof:angle": "45"}, 3.0, number) == pytest.approx(4.0)
     assert roof_height("gabled", RECT, (1, 1), {}, 3.0, number) == pytest.approx(4 * math.tan(math.radians(30)))
     assert roof_height("skillion", RECT, (1, 1), {}, 3.0, number) == pytest.approx(8 * math.tan(math.radians(30)))
+    assert roof_height("dome", RECT, (1, 1), {}, 3.0, number) == pytest.approx(4.0)  # a half circle over the width
+    assert roof_height("round", RECT, (1, 1), {}, 3.0, number) == pytest.approx(4.0)
+    assert roof_height("onion", RECT, (1, 1), {}, 3.0, number) == pytest.approx(8.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Shapes on any footprint: checked against what defines them, volumes integrated independently
+# --------------------------------------------------------------------------------------------
+
+EL = np.array([[0, 0], [10, 0], [10, 4], [4, 4], [4, 10], [0, 10]], float)  # arms 4 m wide
+TEE = np.array([[0, 0], [12, 0], [12, 4], [8, 4], [8, 10], [4, 10], [4, 4], [0, 4]], float)
+YOU = np.array([[0, 0], [12, 0], [12, 10], [8, 10], [8, 4], [4, 4], [4, 10], [0, 10]], float)
+
+
+def _heptagon(r=5.0):
+    k = np.arange(7)
+    return np.column_stack([r * np.cos(2 * np.pi * k / 7), r * np.sin(2 * np.pi * k / 7)])
+
+
+def _grid_volume(ring, height, step=0.02):
+    """The integral of ``height`` (a function of (N, 2) points) over the footprint: midpoints of a fine grid."""
+    import shapely
+
+    poly = shapely.Polygon(ring)
+    x0, y0, x1, y1 = poly.bounds
+    xs, ys = np.meshgrid(np.arange(x0 + step / 2, x1, step), np.arange(y0 + step / 2, y1, step))
+    p = np.column_stack([xs.ravel(), ys.ravel()])
+    p = p[shapely.contains_xy(poly, p[:, 0], p[:, 1])]
+    return float(height(p).sum() * step * step)
+
+
+def _roof_of(faces, z_eaves):
+    """The roof faces: those not vertical and not the floor."""
+    return [f for f in faces if not np.allclose(f[:, 2], f[0, 2]) or f[0, 2] >= z_eaves]
+
+
+@pytest.mark.parametrize("name, ring", [("L", EL), ("T", TEE), ("U", YOU), ("heptagon", _heptagon()),
+                                        ("dart", np.array([[0, 0], [10, 5], [0, 10], [3, 5]], float))])
+def test_hipped_on_any_footprint_is_its_straight_skeleton(name, ring):
+    """What defines a straight-skeleton roof, checked face by face: one face per wall, holding that wall's edge,
+    every corner of it at one pitch above that edge's line (height / distance the same on every face, the highest
+    point the top); closed and outward. A convex footprint's roof is the lowest of its walls' planes: its volume
+    integrated over a grid agrees."""
+    faces = roof_faces(ring, 0.0, 6.0, 9.0, "hipped", (1.0, 1.0))
+    assert faces is not None
+    volume = _volume_closed(faces)
+    n = len(ring)
+    roof = faces[n + 1:]
+    assert len(roof) == n
+    slopes, walls = [], []
+    for face in roof:
+        at_eaves = [k for k in range(n) if any(np.allclose(p[:2], ring[k]) and p[2] == 6.0 for p in face)]
+        wall = [k for k in at_eaves if (k + 1) % n in at_eaves]
+        assert len(wall) == 1, (face, at_eaves)
+        a, b = ring[wall[0]], ring[(wall[0] + 1) % n]
+        inward = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+        distance = (face[:, :2] - a) @ inward
+        assert (distance > -1e-9).all()
+        up = distance > 1e-9
+        slopes += list((face[up, 2] - 6.0) / distance[up])
+        walls += wall
+    assert sorted(walls) == list(range(n))
+    assert np.ptp(slopes) < 1e-6 * np.mean(slopes)
+    assert max(f[:, 2].max() for f in roof) == pytest.approx(9.0)
+    if name == "heptagon":
+        lines = [(ring[k], ring[(k + 1) % n]) for k in range(n)]
+
+        def lowest(p):
+            return np.min([((p - a) @ np.array([-(b - a)[1], (b - a)[0]])) / np.linalg.norm(b - a) for a, b in lines],
+                          axis=0) * slopes[0]
+
+        area = _grid_volume(ring, lambda p: np.ones(len(p)))
+        assert volume == pytest.approx(6.0 * area + _grid_volume(ring, lowest), rel=2e-3)
+
+
+def test_a_rectangles_skeleton_is_its_hipped_roof_and_a_square_is_a_pyramid():
+    from meshsom.roofs import _skeleton_hipped
+
+    faces = _skeleton_hipped(RECT, RECT, (1.0, 1.0), 0.0, 6.0, 9.0)
+    assert _volume_closed(faces) == pytest.approx(12 * 8 * 6 + 3 * 8 * (12 - 8) / 2 + 3 * 8 * 8 / 3)
+    turn = np.array([[math.cos(0.7), -math.sin(0.7)], [math.sin(0.7), math.cos(0.7)]])
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float) @ turn.T + [2_683_000.0, 1_248_000.0]
+    faces = roof_faces(square, 0.0, 6.0, 9.0, "hipped", (1.0, 1.0))  # the ridge of no length, to rounding
+    assert _volume_closed([f - [2_683_000.0, 1_248_000.0, 0.0] for f in faces]) == pytest.approx(100 * 6 + 100 * 3 / 3)
+    assert sum(1 for f in faces if f[:, 2].max() == 9.0) == 4 and len({tuple(p) for f in faces for p in f if p[2] == 9.0}) == 1
+
+
+def test_half_hipped_gables_are_hipped_above_half_the_roof():
+    """12 x 8 m, eaves 6 m, top 9 m: the gabled volume less a tetrahedron at each end (the hip from half the roof's
+    height up, at the roof's pitch: q0 (0, 6, 7.5), q1 (0, 2, 7.5), the gable's top (0, 4, 9), the ridge's end
+    (2, 4, 9): 12 / 6 = 2 m^3)."""
+    faces = roof_faces(RECT, 0.0, 6.0, 9.0, "half-hipped", (1.0, 1.0))
+    assert _volume_closed(faces) == pytest.approx(12 * 8 * 6 + 12 * 8 * 3 / 2 - 2 * 2)
+    top = sorted({tuple(p) for f in faces for p in f if p[2] == 9.0})
+    assert top == [(2.0, 4.0, 9.0), (10.0, 4.0, 9.0)]
+    gables = [f for f in faces if np.ptp(f[:, 0]) == 0 and len(f) == 6]
+    assert len(gables) == 2 and all(f[:, 2].max() == 7.5 for f in gables)
+
+
+def _profile_height(ring, knots, z_eaves, z_top, across=False):
+    """The profile's height over points, its ridge line found here from the footprint's minimum rotated rectangle."""
+    import shapely
+
+    rect = np.asarray(shapely.minimum_rotated_rectangle(shapely.Polygon(ring)).exterior.coords)[:4]
+    e0, e1 = rect[1] - rect[0], rect[2] - rect[1]
+    along = (e0 if (np.linalg.norm(e0) >= np.linalg.norm(e1)) != across else e1)
+    along = along / np.linalg.norm(along)
+    normal = np.array([-along[1], along[0]])
+    centre = rect.mean(axis=0)
+    half = np.abs((ring - centre) @ normal).max()
+    knots = np.asarray(knots)
+
+    def height(p):
+        return z_eaves + np.interp((p - centre) @ normal / half, knots[:, 0], knots[:, 1]) * (z_top - z_eaves)
+    return height
+
+
+@pytest.mark.parametrize("shape", ["gabled", "gambrel", "saltbox", "round"])
+@pytest.mark.parametrize("name, ring", [("L", EL), ("T", TEE), ("U", YOU), ("heptagon", _heptagon()),
+                                        ("rectangle", RECT)])
+def test_profiled_roofs_follow_their_profile_on_any_footprint(shape, name, ring):
+    """Every corner of the roof at its profile's height over it, closed and outward, and the volume the profile's
+    integral over the footprint (a fine grid); a gabled rectangle is the four-cornered gabled roof."""
+    from meshsom.roofs import CURVE_SEGMENTS, PROFILES
+
+    if shape == "round":
+        angle = np.linspace(np.pi, 0.0, CURVE_SEGMENTS + 1)
+        knots = np.column_stack([np.cos(angle), np.sin(angle)])
+    else:
+        knots = PROFILES[shape]
+    if shape == "gabled" and name == "rectangle":
+        from meshsom.roofs import _profiled
+
+        faces = _profiled(RECT, RECT, 0.0, 6.0, 9.0, np.array(knots), False)
+        assert _volume_closed(faces) == pytest.approx(_volume_closed(roof_faces(RECT, 0.0, 6.0, 9.0, "gabled", (1, 1))))
+    faces = roof_faces(ring, 0.0, 6.0, 9.0, shape, (1.0, 1.0))
+    volume = _volume_closed(faces)
+    height = _profile_height(ring, knots, 6.0, 9.0)
+    for face in faces:
+        raised = face[face[:, 2] > 0]
+        assert raised[:, 2] == pytest.approx(height(raised[:, :2]), abs=1e-9)
+    assert volume == pytest.approx(_grid_volume(ring, height), rel=2e-3)
+
+
+@pytest.mark.parametrize("shape", ["dome", "onion"])
+def test_domes_and_onions_are_rings_scaled_about_the_centre(shape):
+    """Over a regular heptagon: each band a frustum of the footprint scaled about its centre (volume A h / 3 (s0^2 +
+    s0 s1 + s1^2)), the top a pyramid; every corner at its ring's scale and height."""
+    from meshsom.roofs import CURVE_SEGMENTS, ONION
+
+    ring = _heptagon()
+    area = 0.5 * 7 * 25 * math.sin(2 * math.pi / 7)
+    if shape == "dome":
+        angle = np.linspace(0.0, np.pi / 2, CURVE_SEGMENTS + 1)
+        outline = np.column_stack([np.cos(angle), np.sin(angle)])
+    else:
+        outline = np.array(ONION)
+    s, z = outline[:, 0], 6.0 + 3.0 * outline[:, 1]
+    exact = area * 6.0 + sum(area * (z[k + 1] - z[k]) / 3 * (s[k] ** 2 + s[k] * s[k + 1] + s[k + 1] ** 2)
+                             for k in range(len(s) - 1))
+    faces = roof_faces(ring, 0.0, 6.0, 9.0, shape, (1.0, 1.0))
+    assert _volume_closed(faces) == pytest.approx(exact)
+    points = np.unique(np.concatenate(faces), axis=0)
+    raised = points[points[:, 2] > 6.0]
+    radius = np.linalg.norm(raised[:, :2], axis=1)
+    assert radius == pytest.approx(5.0 * np.interp(raised[:, 2], z, s), abs=1e-9)
+    if shape == "onion":
+        assert radius.max() == pytest.approx(5.0 * max(s))  # the bulb wider than its drum
+
+
+def test_every_shape_on_many_real_footprints_is_closed_or_flat():
+    """Footprints of the kind city models hold (unions of rectangles: L, T, U, stepped blocks; turned; in longitude
+    and latitude, as OpenStreetMap gives them, with their metres per degree): every shape either builds a closed,
+    outward block, its volume between the block's and the block with a full-height roof's (an onion bulges out),
+    or says it cannot (None: flat)."""
+    import shapely
+    from shapely.geometry import box
+
+    rng = np.random.default_rng(7)
+    built = dict.fromkeys(SHAPES, 0)
+    tried = 0
+    while tried < 40:
+        rects = [box(x, y, x + w, y + h) for x, y, w, h in rng.integers([0, 0, 3, 3], [10, 10, 10, 10], (rng.integers(1, 5), 4))]
+        union = shapely.union_all(rects)
+        if union.geom_type != "Polygon" or len(union.interiors):
+            continue
+        ring = np.asarray(shapely.simplify(union, 0).exterior.coords)[:-1]
+        turn = rng.uniform(0, 2 * np.pi)
+        ring = ring @ np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]]).T
+        scale = np.array([75_000.0, 111_000.0]) if tried % 2 else np.ones(2)
+        origin = np.array([8.54, 47.37]) if tried % 2 else np.zeros(2)
+        area = shapely.Polygon(ring).area
+        tried += 1
+        for shape in SHAPES:
+            faces = roof_faces(ring / scale + origin, 0.0, 6.0, 9.0, shape, tuple(scale))
+            if faces is None:
+                continue
+            metric = [np.column_stack([(f[:, :2] - origin) * scale, f[:, 2]]) for f in faces]
+            volume = _volume_closed(metric)
+            assert 6.0 * area * (1 - 1e-9) < volume, shape
+            assert volume < 9.0 * area * (1 + 1e-9) or shape == "onion", shape
+            built[shape] += 1
+    for shape in ("gabled", "hipped", "gambrel", "saltbox", "round", "skillion"):
+        assert built[shape] >= 36, built  # on (almost) every footprint
