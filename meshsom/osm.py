@@ -226,11 +226,14 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
         return None, None
     if shape not in SHAPES:
         return None, f"roof:shape={shape} not modelled: a flat roof at the height"
-    if len(flat) != 1 or len(flat[0]) != 1:
-        return None, f"roof:shape={shape} not modelled on a footprint of courtyards or several polygons: flat"
+    if len(flat) != 1:
+        return None, f"roof:shape={shape} not modelled on a footprint of several polygons: flat"
+    if len(flat[0]) != 1 and shape != "hipped":
+        return None, f"roof:shape={shape} not modelled on a footprint with courtyards (hipped is): flat"
     ring = np.asarray(flat[0][0], np.float64)[:, :2]
     if np.array_equal(ring[0], ring[-1]):
         ring = ring[:-1]
+    holes = [np.asarray(hole, np.float64)[:, :2] for hole in flat[0][1:]]
     latitude = math.radians(float(ring[:, 1].mean()))
     scale = (METRES_PER_DEGREE * math.cos(latitude), METRES_PER_DEGREE)
     z0, z1 = float(block[:, 2].min()), float(block[:, 2].max())
@@ -242,7 +245,7 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
     if direction is not None and degrees is None:
         degrees = _number(direction)
     faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees,
-                       across=str(found.get("roof:orientation", "")).strip().lower() == "across")
+                       across=str(found.get("roof:orientation", "")).strip().lower() == "across", holes=holes)
     if faces is None:
         return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}

@@ -124,7 +124,8 @@ def _width(metric: np.ndarray) -> float:
 
 
 def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape: str, scale: tuple[float, float],
-               direction_deg: float | None = None, across: bool = False) -> list[np.ndarray] | None:
+               direction_deg: float | None = None, across: bool = False,
+               holes: tuple | list = ()) -> list[np.ndarray] | None:
     """The faces of a block of footprint ``ring`` from ``z0`` to its eaves with a roof of ``shape``
     up to ``z_top``: each (n, 3) float64, counter-clockwise seen from outside; None where the shape
     cannot be built on this footprint (the caller models it flat).
@@ -144,6 +145,9 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         longest edge, down towards it).
     across : bool
         Gabled, hipped, gambrel, saltbox, round: the ridge across the longer sides.
+    holes : sequence of (H, 2) float64
+        Courtyards, each a ring (not closed, either orientation): a hipped roof is built round them (the
+        skeleton of the footprint with its holes); the other shapes are not (None).
     """
     ring = np.asarray(ring, np.float64)[:, :2]
     if len(ring) >= 2 and np.array_equal(ring[0], ring[-1]):
@@ -156,6 +160,18 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return None
     if area < 0:  # counter-clockwise seen from above
         ring, metric = ring[::-1].copy(), metric[::-1].copy()
+    if len(holes):
+        inner = []
+        for hole in holes:
+            hole = np.asarray(hole, np.float64)[:, :2]
+            if len(hole) >= 2 and np.array_equal(hole[0], hole[-1]):
+                hole = hole[:-1]
+            if len(hole) < 3:
+                return None
+            m = hole * np.asarray(scale, np.float64)
+            clockwise = np.sum(m[:, 0] * np.roll(m[:, 1], -1) - np.roll(m[:, 0], -1) * m[:, 1]) < 0
+            inner.append(hole if clockwise else hole[::-1].copy())
+        return _skeleton_hipped([ring] + inner, scale, z0, z_eaves, z_top) if shape == "hipped" else None
     if shape == "skillion":
         return _skillion(ring, metric, z0, z_eaves, z_top, direction_deg)
     if shape == "pyramidal":
@@ -164,7 +180,7 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         hip = {"gabled": 0.0, "hipped": 1.0, "half-hipped": HALF_HIP_SHARE}[shape]
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
-        return _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top)
+        return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
     if shape in PROFILES:
         return _profiled(ring, metric, z0, z_eaves, z_top, np.array(PROFILES[shape]), across)
     if shape == "round":
@@ -298,19 +314,29 @@ def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.nda
     return faces
 
 
-def _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top) -> list[np.ndarray] | None:
-    """A hipped roof on any simple footprint: its straight skeleton lifted (a node's height its time, the distance
-    the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the skeleton cannot be
-    computed or fails its check (a face per wall, each holding its wall's edge, each node at its time's height
-    above the lines of the walls of every face it is on, the faces tiling the footprint)."""
+def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top) -> list[np.ndarray] | None:
+    """A hipped roof on any footprint, courtyards included: its straight skeleton lifted (a node's height its time,
+    the distance the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the
+    skeleton cannot be computed or fails its check (a face per wall, each holding its wall's edge, each node at its
+    time's height above the line of its face's wall, the faces tiling the footprint).
+
+    ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
+    footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below."""
     from py_straight_skeleton import compute_skeleton
 
+    scale = np.asarray(scale, np.float64)
+    ring = np.concatenate(rings)
     n = len(ring)
+    starts = np.cumsum([0] + [len(r) for r in rings])
+    following = np.concatenate([np.roll(np.arange(a, b), -1) for a, b in zip(starts[:-1], starts[1:])])
+    metric = ring * scale
     origin = metric.mean(axis=0)
     local = metric - origin
     extent = float(np.linalg.norm(np.ptp(local, axis=0)))
+    tol = CHECK_REL * extent
     try:
-        skeleton = compute_skeleton(exterior=local.tolist(), holes=[])
+        skeleton = compute_skeleton(exterior=local[: starts[1]].tolist(),
+                                    holes=[local[a:b].tolist() for a, b in zip(starts[1:-1], starts[2:])])
         faces = skeleton.get_faces()
         nodes = skeleton.nodes
     except Exception:  # the library fails on degenerate events in several ways (RuntimeError, ZeroDivisionError, ...)
@@ -320,29 +346,28 @@ def _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top) -> list[np.ndarray
     if len(faces) != n or not np.isfinite(where).all() or not np.isfinite(time).all() or time.max() <= 0:
         return None
     corner = np.full(len(nodes), -1, np.int64)  # each ring corner's node
-    at_eaves = np.flatnonzero(np.abs(time) <= CHECK_REL * extent)
+    at_eaves = np.flatnonzero(np.abs(time) <= tol)
     for k in at_eaves:
         distance = np.linalg.norm(local - where[k], axis=1)
-        if distance.min() > CHECK_REL * extent:
+        if distance.min() > tol:
             return None
         corner[k] = int(np.argmin(distance))
     if sorted(corner[at_eaves].tolist()) != list(range(n)):
         return None
-    edges = np.roll(local, -1, axis=0) - local
+    edges = local[following] - local
     inward = np.column_stack([-edges[:, 1], edges[:, 0]]) / np.linalg.norm(edges, axis=1)[:, None]
-    tol = CHECK_REL * extent
     covered = 0.0
     rise = (z_top - z_eaves) / float(time.max())
-    points = (where + origin) / np.asarray(scale, np.float64)  # back in the ring's units, its corners exactly
+    points = (where + origin) / scale  # back in the ring's units, its corners exactly
     points[corner >= 0] = ring[corner[corner >= 0]]
-    roof = []
+    roof, below = [], []
     seen = set()
     for face in faces:
         face = [int(i) for i in face]
         if len(face) > 1 and face[0] == face[-1]:  # closed: its first node repeated
             face = face[:-1]
-        on_ring = [corner[i] for i in face if corner[i] >= 0]
-        wall = next((i for i in on_ring if (i + 1) % n in on_ring), None)
+        on_ring = {int(corner[i]) for i in face if corner[i] >= 0}
+        wall = next((i for i in on_ring if int(following[i]) in on_ring), None)
         if wall is None or wall in seen:
             return None
         seen.add(wall)
@@ -355,10 +380,14 @@ def _skeleton_hipped(ring, metric, scale, z0, z_eaves, z_top) -> list[np.ndarray
         covered += area
         z = z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])
         roof.append(np.column_stack([points[face], z]))
-    footprint = 0.5 * float(np.sum(local[:, 0] * np.roll(local[:, 1], -1) - np.roll(local[:, 0], -1) * local[:, 1]))
+        below.append(np.column_stack([points[face][::-1], np.full(len(face), z0)]))
+    footprint = sum(0.5 * float(np.sum(r[:, 0] * np.roll(r[:, 1], -1) - np.roll(r[:, 0], -1) * r[:, 1]))
+                    for r in (local[a:b] for a, b in zip(starts[:-1], starts[1:])))
     if abs(covered - footprint) > CHECK_REL * footprint:
         return None
-    return _floor_and_walls(ring, z0, np.full(n, z_eaves)) + roof
+    walls = [w for r in rings for w in _floor_and_walls(r, z0, np.full(len(r), z_eaves))[1:]]
+    floor = below if len(rings) > 1 else [np.column_stack([rings[0][::-1], np.full(len(rings[0]), z0)])]
+    return floor + walls + roof
 
 
 def _profiled(ring, metric, z0, z_eaves, z_top, knots: np.ndarray, across: bool) -> list[np.ndarray] | None:

@@ -151,8 +151,8 @@ def test_buildings_heights_and_courtyards(tmp_path):
 
 def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     """An L-shaped hipped house and an L-shaped gabled one (footprints of six corners), a half-hipped house, a
-    square with a dome, a church of a nave and an onion-domed tower (parts), and a mansard roof (not built: flat,
-    noted): each closed and accepted by preprocessing, at the volume :mod:`meshsom.roofs` builds on the footprint in
+    square with a dome, a church of a nave and an onion-domed tower (parts), a perimeter block hipped round its
+    courtyard, and a mansard roof and a gabled courtyard block (not built: flat, noted): each closed and accepted by preprocessing, at the volume :mod:`meshsom.roofs` builds on the footprint in
     metres (to OpenStreetMap's centimetre), its notes saying what was built."""
     from meshsom.preprocess import PreprocessParams
     from meshsom.roofs import roof_faces
@@ -169,6 +169,12 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     osm.way(6, (280, 0, 292, 10), height="10", **{PART: "yes", ROOF: "gabled", "roof:height": "4"})
     osm.way(7, (292, 1, 300, 9), height="30", **{PART: "yes", ROOF: "onion", "roof:height": "8"})
     osm.way(8, (310, 0, 320, 8), building="house", height="9", **{ROOF: "mansard", "roof:height": "3"})
+    osm.way(9, (330, 0, 360, 20))
+    osm.way(10, (335, 5, 355, 15))
+    osm.relation(11, 9, 10, building="apartments", height="9", **{ROOF: "hipped", "roof:height": "3"})
+    osm.way(12, (370, 0, 400, 20))
+    osm.way(13, (375, 5, 395, 15))
+    osm.relation(14, 12, 13, building="apartments", height="9", **{ROOF: "gabled", "roof:height": "3"})
     path = tmp_path / "roofs.osm"
     path.write_text(osm.text())
     items = {i.id.split("#")[1]: i for i in read_file(path)}
@@ -196,6 +202,17 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(nave + tower,
                                                                                                         rel=2e-3)
     assert np.ptp(clean.vertices[:, 2]) == pytest.approx(30.0, abs=1e-3)
+    block = items["relation/11"]  # a perimeter block hipped round its courtyard
+    assert any("roof:shape=hipped built (S3DB)" in n for n in block.notes), block.notes
+    outer, court = [(0, 0), (30, 0), (30, 20), (0, 20)], np.array([[5, 5], [25, 5], [25, 15], [5, 15]], float) - 15.0
+    assert _volume(block) == pytest.approx(_volume_closed(roof_faces(np.asarray(outer, float) - 15.0, 0.0, 6.0, 9.0,
+                                                                     "hipped", (1.0, 1.0), holes=[court])), rel=2e-3)
+    record, clean = process_one(block, PreprocessParams())
+    assert record["status"] == "accepted", record
+    gabled_block = items["relation/14"]
+    assert any("roof:shape=gabled not modelled on a footprint with courtyards (hipped is): flat" in n
+               for n in gabled_block.notes), gabled_block.notes
+    assert _volume(gabled_block) == pytest.approx((osm.area[12] - osm.area[13]) * 9, rel=1e-5)
     mansard = items["way/8"]
     assert any("roof:shape=mansard not modelled: a flat roof at the height" in n for n in mansard.notes), mansard.notes
     assert _volume(mansard) == pytest.approx(osm.area[8] * 9, rel=1e-5)

@@ -168,7 +168,7 @@ def test_hipped_on_any_footprint_is_its_straight_skeleton(name, ring):
 def test_a_rectangles_skeleton_is_its_hipped_roof_and_a_square_is_a_pyramid():
     from meshsom.roofs import _skeleton_hipped
 
-    faces = _skeleton_hipped(RECT, RECT, (1.0, 1.0), 0.0, 6.0, 9.0)
+    faces = _skeleton_hipped([RECT], (1.0, 1.0), 0.0, 6.0, 9.0)
     assert _volume_closed(faces) == pytest.approx(12 * 8 * 6 + 3 * 8 * (12 - 8) / 2 + 3 * 8 * 8 / 3)
     turn = np.array([[math.cos(0.7), -math.sin(0.7)], [math.sin(0.7), math.cos(0.7)]])
     square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float) @ turn.T + [2_683_000.0, 1_248_000.0]
@@ -294,3 +294,34 @@ def test_every_shape_on_many_real_footprints_is_closed_or_flat():
             built[shape] += 1
     for shape in ("gabled", "hipped", "gambrel", "saltbox", "round", "skillion"):
         assert built[shape] >= 36, built  # on (almost) every footprint
+
+
+def test_a_hipped_roof_goes_round_courtyards():
+    """A perimeter block (30 x 20 m about a 20 x 10 m courtyard: a frame 5 m wide) hipped: a face per wall, inner
+    ones included, each at the roof's pitch above its wall's line; the height at a point the time the walls' fronts
+    reach it, the outer wall's moving in (the distance to its nearest side), the courtyard's moving out with mitred
+    corners (the larger of the distances beyond its x and y ranges): the volume that integrated on a grid. The other
+    shapes are not built round courtyards."""
+    outer = np.array([[0, 0], [30, 0], [30, 20], [0, 20]], float)
+    court = np.array([[5, 5], [25, 5], [25, 15], [5, 15]], float)  # either orientation: turned clockwise inside
+    faces = roof_faces(outer, 0.0, 6.0, 9.0, "hipped", (1.0, 1.0), holes=[court])
+    volume = _volume_closed(faces)
+    roof = [f for f in faces if np.ptp(f[:, 2]) > 0 and not (np.ptp(f[:, 0]) == 0 or np.ptp(f[:, 1]) == 0)]
+    assert len(roof) == 8
+    assert max(f[:, 2].max() for f in faces) == pytest.approx(9.0)
+    slope = 3.0 / 2.5
+
+    def height(p):
+        to_outer = np.min([p[:, 0], 30 - p[:, 0], p[:, 1], 20 - p[:, 1]], axis=0)
+        to_court = np.maximum(np.abs(p[:, 0] - 15) - 10, np.abs(p[:, 1] - 10) - 5)
+        return 6.0 + slope * np.minimum(to_outer, to_court)
+
+    import shapely
+
+    ring_area = shapely.Polygon(outer, [court]).area
+    assert ring_area == 400
+    grid = _grid_volume(outer, lambda p: np.where((np.abs(p[:, 0] - 15) < 10) & (np.abs(p[:, 1] - 10) < 5), 0.0,
+                                                   height(p)))
+    assert volume == pytest.approx(grid, rel=2e-3)
+    for shape in ("gabled", "pyramidal", "dome", "half-hipped"):
+        assert roof_faces(outer, 0.0, 6.0, 9.0, shape, (1.0, 1.0), holes=[court]) is None
