@@ -20,7 +20,8 @@ own configuration reads as lines; every tag is kept):
   else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
   :attr:`meshsom.io.ReaderOptions.default_height` where set, else a rejection naming the tags.
   Roofs: ``roof:shape`` ``pyramidal``, ``skillion``, ``gabled``, ``hipped``, ``half-hipped``,
-  ``gambrel``, ``saltbox``, ``round``, ``dome`` and ``onion`` are built (:mod:`meshsom.roofs`:
+  ``gambrel``, ``saltbox``, ``round``, ``dome`` and ``onion`` (and their other spellings,
+  :data:`meshsom.roofs.ALIASES`) are built (:mod:`meshsom.roofs`:
   hipped on any simple footprint by its straight skeleton, the profiled ones on any, half-hipped
   on four-cornered convex ones, the pointed ones where their apex sees every wall) from
   ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
@@ -219,9 +220,10 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
         The flat block's vertices (its base and top heights).
     """
     from meshsom.geojson import _number
-    from meshsom.roofs import SHAPES, UNBUILT, roof_faces, roof_height
+    from meshsom.roofs import ALIASES, SHAPES, UNBUILT, roof_faces, roof_height
 
-    shape = str(found.get("roof:shape", "flat")).strip().lower()
+    tagged = str(found.get("roof:shape", "flat")).strip().lower()
+    shape = ALIASES.get(tagged, tagged)
     if shape == "flat":
         return None, None
     if shape not in SHAPES:
@@ -249,7 +251,9 @@ def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, ver
     if faces is None:
         return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}
-    return solid, f"roof:shape={shape} built (S3DB): eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above its base"
+    read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
+    return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above "
+                   "its base")
 
 
 def _props(found: dict, options) -> dict:

@@ -37,10 +37,16 @@ import math
 
 import numpy as np
 
-__all__ = ["SHAPES", "UNBUILT", "roof_faces", "roof_height"]
+__all__ = ["ALIASES", "SHAPES", "UNBUILT", "roof_faces", "roof_height"]
 
 #: The roof shapes built (others are modelled flat by the caller).
 SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion")
+#: Other spellings of the shapes in the wild (OpenStreetMap's variants, Overture's underscores), read as the shape;
+#: a cone (a round tower's roof) is a pyramid over its many corners.
+ALIASES = {"half_hipped": "half-hipped", "halfhipped": "half-hipped", "half hipped": "half-hipped",
+           "gable": "gabled", "hip": "hipped", "pyramid": "pyramidal", "cone": "pyramidal", "conical": "pyramidal",
+           "domed": "dome", "barrel": "round", "arched": "round", "lean_to": "skillion", "lean-to": "skillion",
+           "mono-pitched": "skillion", "monopitch": "skillion"}
 #: Why :func:`roof_faces` gives None for a shape on a footprint, for the caller's note.
 UNBUILT = {
     "pyramidal": "its apex over the corners' mean does not see every wall",

@@ -169,6 +169,7 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     osm.way(6, (280, 0, 292, 10), height="10", **{PART: "yes", ROOF: "gabled", "roof:height": "4"})
     osm.way(7, (292, 1, 300, 9), height="30", **{PART: "yes", ROOF: "onion", "roof:height": "8"})
     osm.way(8, (310, 0, 320, 8), building="house", height="9", **{ROOF: "mansard", "roof:height": "3"})
+    osm.way(15, (410, 0, 422, 8), building="house", height="9", **{ROOF: "Half_Hipped", "roof:height": "3"})
     osm.way(9, (330, 0, 360, 20))
     osm.way(10, (335, 5, 355, 15))
     osm.relation(11, 9, 10, building="apartments", height="9", **{ROOF: "hipped", "roof:height": "3"})
@@ -202,6 +203,10 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(nave + tower,
                                                                                                         rel=2e-3)
     assert np.ptp(clean.vertices[:, 2]) == pytest.approx(30.0, abs=1e-3)
+    spelled = items["way/15"]  # another spelling, read as the shape
+    assert any("roof:shape=half-hipped built (S3DB) (roof:shape=half_hipped read as half-hipped)" in n
+               for n in spelled.notes), spelled.notes
+    assert _volume(spelled) == pytest.approx(_volume(items["way/3"]), rel=1e-4)
     block = items["relation/11"]  # a perimeter block hipped round its courtyard
     assert any("roof:shape=hipped built (S3DB)" in n for n in block.notes), block.notes
     outer, court = [(0, 0), (30, 0), (30, 20), (0, 20)], np.array([[5, 5], [25, 5], [25, 15], [5, 15]], float) - 15.0

@@ -81,6 +81,9 @@ def test_shapes_that_cannot_be_built_and_roof_heights():
     assert roof_faces(el, 0, 5, 8, "half-hipped", (1, 1)) is None
     assert roof_faces(RECT, 0, 5, 8, "mansard", (1, 1)) is None
     assert set(UNBUILT) == set(SHAPES)  # a reason for the note wherever a shape is not built
+    from meshsom.roofs import ALIASES
+
+    assert set(ALIASES.values()) <= set(SHAPES) and not set(ALIASES) & set(SHAPES)
 
     def number(v):
         return None if v is None else float(v)
