@@ -41,6 +41,9 @@ __all__ = ["ALIASES", "SHAPES", "UNBUILT", "roof_faces", "roof_height"]
 
 #: The roof shapes built (others are modelled flat by the caller).
 SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion")
+#: The most corners (courtyards' included) a hipped roof's straight skeleton is computed for: it takes about
+#: n^2 time in Python (256 corners 0.4 s, 1,000 corners 6 s); beyond, the roof is modelled flat.
+MAX_SKELETON_CORNERS = 400
 #: Other spellings of the shapes in the wild (OpenStreetMap's variants, Overture's underscores), read as the shape;
 #: a cone (a round tower's roof) is a pyramid over its many corners.
 ALIASES = {"half_hipped": "half-hipped", "halfhipped": "half-hipped", "half hipped": "half-hipped",
@@ -57,7 +60,8 @@ UNBUILT = {
     "gambrel": "not a simple polygon, or its cut into strips failed its check",
     "saltbox": "not a simple polygon, or its cut into strips failed its check",
     "round": "not a simple polygon, or its cut into strips failed its check",
-    "hipped": "its straight skeleton could not be computed or failed its check",
+    "hipped": f"its straight skeleton could not be computed or failed its check, or more than {MAX_SKELETON_CORNERS} "
+              "corners",
     "half-hipped": "four corners, convex",
 }
 #: The pitch of a roof whose height is not tagged (degrees): a common pitched roof.
@@ -327,12 +331,15 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top) -> list[np.ndarray]
     time's height above the line of its face's wall, the faces tiling the footprint).
 
     ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
-    footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below."""
+    footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below. None, too,
+    beyond :data:`MAX_SKELETON_CORNERS`."""
     from py_straight_skeleton import compute_skeleton
 
     scale = np.asarray(scale, np.float64)
     ring = np.concatenate(rings)
     n = len(ring)
+    if n > MAX_SKELETON_CORNERS:
+        return None
     starts = np.cumsum([0] + [len(r) for r in rings])
     following = np.concatenate([np.roll(np.arange(a, b), -1) for a, b in zip(starts[:-1], starts[1:])])
     metric = ring * scale

@@ -84,6 +84,11 @@ def test_shapes_that_cannot_be_built_and_roof_heights():
     from meshsom.roofs import ALIASES
 
     assert set(ALIASES.values()) <= set(SHAPES) and not set(ALIASES) & set(SHAPES)
+    from meshsom.roofs import MAX_SKELETON_CORNERS
+
+    k = np.arange(MAX_SKELETON_CORNERS + 1)  # a round building of too many corners for the skeleton's time: flat
+    many = np.column_stack([np.cos(2 * np.pi * k / len(k)), np.sin(2 * np.pi * k / len(k))]) * 20.0
+    assert roof_faces(many, 0, 5, 8, "hipped", (1, 1)) is None and roof_faces(many, 0, 5, 8, "gabled", (1, 1))
 
     def number(v):
         return None if v is None else float(v)
