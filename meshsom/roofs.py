@@ -85,8 +85,9 @@ CURVE_SEGMENTS = 8
 #: roof's), from the eaves up to the tip (a bulb a third wider than its drum at a quarter height).
 ONION = ((1.0, 0.0), (1.25, 0.12), (1.33, 0.25), (1.25, 0.38), (1.0, 0.5), (0.68, 0.62), (0.4, 0.74), (0.18, 0.86),
          (0.0, 1.0))
-#: How far (a fraction of the footprint's extent) a point cut by the profile may lie from the footprint's
-#: ring with its cuts for it to be that point; beyond, the cut failed and the roof is modelled flat.
+#: How far (in the ridge's frame, whose unit is the footprint's half-width) a corner may lie from a knot's line to be
+#: on it, and a point cut by the profile from the ring with its cuts to be that point; beyond, the cut failed and the
+#: roof is modelled flat.
 SNAP_REL = 1e-7
 #: Numerical tolerance of the roofs' checks: heights and areas (relative to the footprint's extent and area).
 CHECK_REL = 1e-6
@@ -223,15 +224,7 @@ def _convex(metric: np.ndarray) -> bool:
 
 
 def _pyramid(ring, metric, z0, z_eaves, z_top) -> list[np.ndarray] | None:
-    apex = ring.mean(axis=0)
-    m_apex = metric.mean(axis=0)
-    d = np.roll(metric, -1, axis=0) - metric
-    if not ((d[:, 0] * (m_apex[1] - metric[:, 1]) - d[:, 1] * (m_apex[0] - metric[:, 0])) > 0).all():
-        return None  # the apex does not see every wall: not star-shaped about it
-    faces = _floor_and_walls(ring, z0, np.full(len(ring), z_eaves))
-    n = len(ring)
-    faces += [np.array([[*ring[i], z_eaves], [*ring[(i + 1) % n], z_eaves], [*apex, z_top]]) for i in range(n)]
-    return faces
+    return _domed(ring, metric, z0, z_eaves, z_top, np.array([[1.0, 0.0], [0.0, 1.0]]))
 
 
 def _skillion(ring, metric, z0, z_eaves, z_top, direction_deg) -> list[np.ndarray]:
@@ -296,24 +289,17 @@ def _ridged(ring, metric, z0, z_eaves, z_top, hip: float, across: bool) -> list[
             np.array([[*q[2], z_mid], [*q[3], z_mid], [*b, z_top]])]
     return [floor, w0, w1, w2, w3] + roof
 
-def _star_centre(ring, metric):
-    """The footprint's vertex mean (ring units, metres) where it sees every wall from there, else None."""
-    m_apex = metric.mean(axis=0)
-    d = np.roll(metric, -1, axis=0) - metric
-    if not ((d[:, 0] * (m_apex[1] - metric[:, 1]) - d[:, 1] * (m_apex[0] - metric[:, 0])) > 0).all():
-        return None
-    return ring.mean(axis=0), m_apex
-
-
 def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.ndarray] | None:
     """Rings of the footprint scaled about its centre by ``outline`` (K, 2) (scale, height fraction), from the
-    eaves (scale 1) to a tip (scale 0): a trapezoid between two rings under each wall, triangles at the tip."""
-    centre = _star_centre(ring, metric)
-    if centre is None:
+    eaves (scale 1) to a tip (scale 0): a trapezoid between two rings under each wall, triangles at the tip (a
+    pyramid: the outline (1, 0), (0, 1)). None where the centre (the corners' mean) does not see every wall."""
+    m_centre = metric.mean(axis=0)
+    d = np.roll(metric, -1, axis=0) - metric
+    if not ((d[:, 0] * (m_centre[1] - metric[:, 1]) - d[:, 1] * (m_centre[0] - metric[:, 0])) > 0).all():
         return None
-    c = centre[0]
+    c = ring.mean(axis=0)
     n = len(ring)
-    rings = [c + s * (ring - c) for s in outline[:-1, 0]]
+    rings = [ring] + [c + s * (ring - c) for s in outline[1:-1, 0]]  # the eaves exactly the walls' tops
     heights = z_eaves + outline[:, 1] * (z_top - z_eaves)
     faces = _floor_and_walls(ring, z0, np.full(n, z_eaves))
     for k in range(len(rings) - 1):
