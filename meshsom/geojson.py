@@ -17,6 +17,10 @@ triangulation, CRS handling and rejections behave as for CityJSON:
   without a height, a storey count (``building:levels``, ``num_floors``) times ``storey_height``
   (3 m) is used, with a note; without either, :attr:`meshsom.io.ReaderOptions.default_height`
   where it is set (else a rejection).
+- **Roofs**: a footprint whose properties give a roof shape (OpenStreetMap's ``roof:shape``,
+  ``roof:height``, ...; Overture's ``roof_shape``, ``roof_height``, ...; osmtogeojson's tags nested
+  under ``tags`` read as properties) gets it up to its height (:func:`roofed_solid`,
+  :mod:`meshsom.roofs`; LoD ``"2"``), unless :attr:`meshsom.io.ReaderOptions.roofs` is off.
 - A 3D ``Polygon`` / ``MultiPolygon`` without any height is read as a MultiSurface (LoD ``"2"``):
   a solid written as its faces.
 - **CRS** (:mod:`meshsom.crs`): ``place`` is in the JSON-FG ``coordRefSys`` (the feature's, else the
@@ -51,6 +55,11 @@ _FEET = re.compile(r"""^\s*(\d+(?:\.\d+)?)\s*(?:'|ft\b|feet\b|foot\b)\s*(?:(\d+(
 _DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
 #: Metres per foot and per inch.
 FOOT, INCH = 0.3048, 0.0254
+#: The largest share of a building's height its roof takes (the walls keep the rest).
+MAX_ROOF_SHARE = 0.95
+#: A roof's direction given as a compass point, in degrees clockwise from north.
+CARDINAL = {k: 22.5 * i for i, k in enumerate(("N", "NNE", "NE", "ENE", "E", "ESE", "SE", "SSE", "S", "SSW", "SW", "WSW",
+                                                 "W", "WNW", "NW", "NNW"))}
 
 
 def is_geojson(document) -> bool:
@@ -179,9 +188,11 @@ def no_height(options) -> str:
     return f"is a footprint without a height (no property {names})"
 
 
-def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True
-                    ) -> tuple[dict | None, list[str]]:
-    """Footprint polygons extruded by their height property (LoD ``"1"``), as the module says.
+def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,
+                    crs=None) -> tuple[dict | None, list[str]]:
+    """Footprint polygons extruded by their height property (LoD ``"1"``), as the module says, with
+    the roof their roof attributes describe (:func:`roofed_solid`, LoD ``"2"``) where
+    :attr:`meshsom.io.ReaderOptions.roofs` is on.
 
     Parameters
     ----------
@@ -195,15 +206,17 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         Receives the vertices.
     flat : bool
         Whether the polygons are a footprint (2D, or at one height): only then does
-        :attr:`meshsom.io.ReaderOptions.default_height` stand in for a missing height (3D polygons
-        are a solid's faces).
+        :attr:`meshsom.io.ReaderOptions.default_height` stand in for a missing height, and is a
+        roof built (3D polygons are a solid's faces).
+    crs : CoordinateSystem or None
+        The polygons' CRS (None: metres), for the lengths that decide a roof's shape.
 
     Returns
     -------
     solid : dict or None
         The CityJSON-like Solid; None when ``props`` give no height (nothing is added to ``verts``).
     notes : list of str
-        Says so where the height came from a storey count.
+        Says so where the height came from a storey count, and what became of a roof.
     """
     notes: list[str] = []
     height = first_number(props, options.height_attributes)
@@ -221,7 +234,85 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
           for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
     bottom = first_number(props, options.base_attributes)
     ground = min(zs) if zs else 0.0
-    return _extruded(polygons, ground + (bottom[1] if bottom else 0.0), ground + height[1], where, verts), notes
+    z0, z1 = ground + (bottom[1] if bottom else 0.0), ground + height[1]
+    if flat and options.roofs and z1 > z0:
+        solid, said = roofed_solid(polygons, props, z0, z1, crs, options, where, verts)
+        if said:
+            notes.append(said)
+        if solid is not None:
+            return solid, notes
+    return _extruded(polygons, z0, z1, where, verts), notes
+
+
+def roof_scale(ring: np.ndarray, crs) -> tuple[float, float]:
+    """Height units per unit of x and of y of a footprint ``ring`` ((K, 2) in ``crs``; None:
+    metres): what :func:`meshsom.roofs.roof_faces` measures the footprint with, so that a pitch is
+    a pitch whatever the units (a CRS in feet; degrees: the ellipsoid's meridian and prime vertical
+    radii of curvature at the ring's mean latitude, so that a 12 m house is measured to 1e-6)."""
+    if crs is None:
+        return 1.0, 1.0
+    if crs.geographic:
+        latitude = math.radians(float(ring[:, 0 if crs.latitude_first else 1].mean()))
+        e2 = crs.flattening * (2.0 - crs.flattening)
+        w = 1.0 - e2 * math.sin(latitude) ** 2
+        meridian, prime_vertical = crs.semi_major * (1.0 - e2) / w ** 1.5, crs.semi_major / math.sqrt(w)
+        along = (math.radians(meridian), math.radians(prime_vertical) * math.cos(latitude))  # metres per degree
+        return tuple(v / crs.vertical_m for v in (along if crs.latitude_first else along[::-1]))
+    return crs.horizontal_m / crs.vertical_m, crs.horizontal_m / crs.vertical_m
+
+
+def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options, where: str, verts: FeatureVertices
+                 ) -> tuple[dict | None, str | None]:
+    """A footprint's block from ``z0`` to ``z1`` with the roof its attributes describe
+    (:func:`meshsom.roofs.roof_tags`: OpenStreetMap's S3DB tags or Overture's columns;
+    :mod:`meshsom.roofs`) as a Solid over ``verts``, and a note; (None, note or None) where it is
+    modelled flat (no roof shape, ``flat``, or a shape not built on this footprint: the note says
+    why).
+
+    Parameters
+    ----------
+    polygons : list
+        The footprint's polygons (GeoJSON nesting), in ``crs``.
+    z0, z1 : float
+        Its base and top (the roof's top).
+    crs : CoordinateSystem or None
+        As :func:`footprint_solid` takes it.
+    """
+    from meshsom.roofs import ALIASES, SHAPES, UNBUILT, roof_faces, roof_height, roof_tags
+
+    found = roof_tags(props)
+    tagged = str(found.get("roof:shape", "flat")).strip().lower()
+    shape = ALIASES.get(tagged, tagged)
+    if shape in ("flat", ""):
+        return None, None
+    if shape not in SHAPES:
+        return None, f"roof:shape={shape} not modelled: a flat roof at the height"
+    if len(polygons) != 1:
+        return None, f"roof:shape={shape} not modelled on a footprint of several polygons: flat"
+    if len(polygons[0]) != 1 and shape != "hipped":
+        return None, f"roof:shape={shape} not modelled on a footprint with courtyards (hipped is): flat"
+    for ring in polygons[0]:
+        FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
+    ring = np.asarray(polygons[0][0], np.float64)[:, :2]
+    if np.array_equal(ring[0], ring[-1]):
+        ring = ring[:-1]
+    holes = [np.asarray(hole, np.float64)[:, :2] for hole in polygons[0][1:]]
+    scale = roof_scale(ring, crs)
+    rise = min(roof_height(shape, ring, scale, found, options.storey_height, _number), MAX_ROOF_SHARE * (z1 - z0))
+    if not rise > 0:
+        return None, None
+    direction = found.get("roof:direction")
+    degrees = CARDINAL.get(str(direction).strip().upper()) if direction is not None else None
+    if direction is not None and degrees is None:
+        degrees = _number(direction)
+    faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees,
+                       across=str(found.get("roof:orientation", "")).strip().lower() == "across", holes=holes)
+    if faces is None:
+        return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
+    solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}
+    read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
+    return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above "
+                   "its base")
 
 
 def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:
@@ -230,8 +321,11 @@ def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:
     return {"type": "MultiSurface", "lod": "2", "boundaries": [[verts.ring(r, where) for r in poly] for poly in polygons]}
 
 
-def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray, str, list[str]]:
+def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, np.ndarray, str, list[str]]:
     """One feature as a CityJSON-like Building object over its own vertices.
+
+    ``crs`` (a :class:`meshsom.crs.CoordinateSystem`, None: metres) is the CRS of its coordinates,
+    for the lengths that decide a footprint's roof.
 
     Returns
     -------
@@ -247,7 +341,7 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
     InputFileError
         The feature holds no building geometry, or its geometry cannot be read.
     """
-    props = feature.get("properties") if isinstance(feature.get("properties"), dict) else {}
+    props = properties(feature)
     place, geometry = feature.get("place"), feature.get("geometry")
     member, geom = ("place", place) if isinstance(place, dict) else ("geometry", geometry)
     if not isinstance(geom, dict):
@@ -276,7 +370,7 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
         polygons = _polygons(geom, where)
         heights = {_number(p[2]) for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
                    for p in ring if isinstance(p, list) and len(p) > 2}
-        g, notes = footprint_solid(polygons, props, where, options, verts, flat=len(heights) <= 1)
+        g, notes = footprint_solid(polygons, props, where, options, verts, flat=len(heights) <= 1, crs=crs)
         if g is None:
             try:
                 g = surfaces(polygons, where, verts)
@@ -287,6 +381,39 @@ def feature_object(feature: dict, where: str, options) -> tuple[dict, np.ndarray
     else:
         raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
     return building(g, props, options), verts.array(), member, notes
+
+
+def properties(feature: dict) -> dict:
+    """A feature's properties; OpenStreetMap's tags that osmtogeojson nests under ``tags`` (its
+    output without ``flatProperties``) read as properties too (the feature's own win)."""
+    props = feature.get("properties") if isinstance(feature.get("properties"), dict) else {}
+    nested = props.get("tags")
+    return {**nested, **props} if isinstance(nested, dict) else props
+
+
+def _extent(value, depth: int = 0) -> float | None:
+    """The largest magnitude of any position's x or y in nested coordinate lists; None where there
+    is none (or the nesting is not lists of numbers: the reader says so later)."""
+    if not isinstance(value, list) or depth > 6 or not value:
+        return None
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return max(abs(float(v)) for v in value[:2]) if len(value) >= 2 else None
+    found = [e for e in (_extent(v, depth + 1) for v in value) if e is not None]
+    return max(found) if found else None
+
+
+def declared_crs(feature: dict, collection_crs: str | None, old_crs: str | None, options) -> str | None:
+    """The CRS a feature's coordinates are in, as the module says: the JSON-FG ``coordRefSys`` of
+    its ``place``; else an old-style ``crs`` member; else WGS 84 (``OGC:CRS84h``) where every x
+    and y lies within +/-180 and no :attr:`meshsom.io.ReaderOptions.crs` is set; else None
+    (projected data written without one)."""
+    if isinstance(feature.get("place"), dict):
+        return _reference(feature.get("coordRefSys")) or collection_crs
+    if old_crs is not None:
+        return old_crs
+    geometry = feature.get("geometry")
+    extent = _extent(geometry.get("coordinates")) if isinstance(geometry, dict) else None
+    return GEOJSON_CRS if extent is not None and extent <= 180 and options.crs is None else None
 
 
 def building(geometry: dict, props: dict, options) -> dict:
@@ -316,26 +443,18 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         fid = feature.get("id")
         oid = str(fid) if isinstance(fid, (str, int)) and not isinstance(fid, bool) else f"feature-{k}"
         mesh_id = f"{name}#{oid}"
+        crs = file_crs(declared_crs(feature, collection_crs, old_crs, options), options)
         try:
             try:
-                obj, vertices, member, notes = feature_object(feature, mesh_id, options)
+                obj, vertices, member, notes = feature_object(feature, mesh_id, options, crs[0])
             except (TypeError, ValueError, AttributeError, KeyError, IndexError) as err:  # nesting not as GeoJSON says
                 raise InputFileError(mesh_id, f"its geometry is not nested as GeoJSON / JSON-FG says "
                                               f"({type(err).__name__}: {str(err)[:80]})") from None
         except InputFileError as err:
-            label = (feature.get("properties") or {}).get(options.label_attribute) if isinstance(
-                feature.get("properties"), dict) else None
+            label = properties(feature).get(options.label_attribute)
             yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
             continue
-        if member == "place":
-            declared = _reference(feature.get("coordRefSys")) or collection_crs
-        elif old_crs is not None:
-            declared = old_crs
-        elif len(vertices) and np.abs(vertices[:, :2]).max() <= 180 and options.crs is None:
-            declared = GEOJSON_CRS
-        else:
-            declared = None  # beyond +/-180: projected, written without a crs member
-        for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=file_crs(declared, options)):
+        for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=crs):
             if notes and not isinstance(item, Rejection):
                 item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
             yield item

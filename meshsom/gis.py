@@ -10,7 +10,8 @@ choice, triangulation, CRS handling and rejections apply:
 - **Footprints**: a 2D geometry, or a 3D one whose polygons all lie within
   :data:`FOOTPRINT_TILT_DEG` of horizontal (footprints draped on the terrain), with a height
   property (:attr:`meshsom.io.ReaderOptions.height_attributes`; a storey count otherwise) is
-  extruded from its lowest z (:func:`meshsom.geojson.footprint_solid`). Without either it is a
+  extruded from its lowest z (:func:`meshsom.geojson.footprint_solid`), with the roof its roof
+  columns describe (Overture's ``roof_shape``, ``roof_height``, ...). Without either it is a
   rejection that names the properties looked for.
 - **3D surfaces**: a ``PolyhedralSurface``, ``TIN``, or 3D ``(Multi)Polygon`` with faces that are
   not horizontal (walls) is read as a MultiSurface of its polygons (LoD ``"2"``), closed or refused
@@ -243,7 +244,7 @@ def fiona_polygons(geometry, where: str) -> tuple[list[list[np.ndarray]], set[st
 
 
 def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: bool, props: dict, where: str,
-                   options) -> tuple[dict, np.ndarray, list[str]]:
+                   options, crs=None) -> tuple[dict, np.ndarray, list[str]]:
     """One feature as a CityJSON-like Building object over its own vertices (as the module says).
 
     Parameters
@@ -254,6 +255,9 @@ def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: boo
         The feature's properties.
     where : str
     options : ReaderOptions
+    crs : CoordinateSystem or None
+        The layer's CRS (x = easting or longitude), for the lengths that decide a footprint's roof
+        (:func:`meshsom.geojson.footprint_solid`); None: metres.
 
     Returns
     -------
@@ -274,7 +278,8 @@ def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: boo
                              "has no geometry (it is empty)")
     verts = FeatureVertices()
     if not has_z or (not kinds & _SOLID_KINDS and horizontal(polygons)):
-        solid, notes = footprint_solid([[ring.tolist() for ring in poly] for poly in polygons], props, where, options, verts)
+        solid, notes = footprint_solid([[ring.tolist() for ring in poly] for poly in polygons], props, where, options, verts,
+                                       crs=crs)
         if solid is None:
             raise InputFileError(where, no_height(options))
     else:
@@ -398,19 +403,19 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     from meshsom.io import Rejection, _object_meshes, file_crs
 
     mesh_id = f"{name}#{oid}"
+    system, unknown = file_crs(layer.crs, options)
+    if system is not None and system.geographic:
+        system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     try:
         if geometry is None:
             raise InputFileError(mesh_id, "has no geometry")
         polygons, kinds, has_z = (wkb_polygons(geometry, mesh_id) if isinstance(geometry, (bytes, bytearray, memoryview))
                                   else fiona_polygons(geometry, mesh_id))
-        obj, vertices, notes = feature_object(polygons, kinds, has_z, props, mesh_id, options)
+        obj, vertices, notes = feature_object(polygons, kinds, has_z, props, mesh_id, options, system)
     except InputFileError as err:
         label = props.get(options.label_attribute)
         yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
         return
-    system, unknown = file_crs(layer.crs, options)
-    if system is not None and system.geographic:
-        system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=(system, unknown)):
         if notes and not isinstance(item, Rejection):
             item = dataclasses.replace(item, notes=tuple(notes) + item.notes)

@@ -176,6 +176,11 @@ class ReaderOptions:
         Footprints (GeoJSON, GIS files, OpenStreetMap) with neither a height nor a storey count:
         extruded to this many metres above their base, noted (OpenStreetMap maps most buildings
         without either); None (the default) lists them as rejections naming the properties.
+    roofs : bool
+        Footprints (GeoJSON, GIS files, OpenStreetMap): build the roof their roof attributes
+        describe (OpenStreetMap's ``roof:shape``, ``roof:height``, ...; Overture's ``roof_shape``,
+        ``roof_height``, ...; :mod:`meshsom.roofs`) on the block, up to the building's height
+        (default True); False extrudes every footprint flat (LoD 1).
     layer : str or None
         GIS files (:mod:`meshsom.gis`: GeoPackage, FileGDB, ...): the layer to read; None reads
         every layer with geometry.
@@ -222,6 +227,7 @@ class ReaderOptions:
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround")
     storey_height: float = 3.0
     default_height: float | None = None
+    roofs: bool = True
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
@@ -251,6 +257,8 @@ class ReaderOptions:
             raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
         if self.default_height is not None and not (isinstance(self.default_height, (int, float)) and 0 < self.default_height < math.inf):
             raise ValueError(f"default_height must be a height > 0 (metres) or null, received {self.default_height!r}")
+        if not isinstance(self.roofs, bool):
+            raise ValueError(f"roofs must be true or false, received {self.roofs!r}")
         if self.layer is not None and not (isinstance(self.layer, str) and self.layer.strip()):
             raise ValueError(f"layer must be a layer's name (or null for every layer), received {self.layer!r}")
         if not self.max_bytes > 0:

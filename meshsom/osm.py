@@ -42,7 +42,6 @@ close, has no outline to build: each is a rejection saying so (id ``name#node/<i
 from __future__ import annotations
 
 import dataclasses
-import math
 import re
 from collections import Counter
 from pathlib import Path
@@ -64,13 +63,6 @@ NO = "no"
 HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
 #: Tags a part takes from its building where it has none of them.
 INHERITED = ("height", "min_height", "building:levels", "building:min_level")
-#: Metres per degree of latitude (and of longitude at the equator): lengths that decide a roof's shape.
-METRES_PER_DEGREE = 111_320.0
-#: The largest share of a building's height its roof takes (the walls keep the rest).
-MAX_ROOF_SHARE = 0.95
-#: ``roof:direction`` given as a compass point, in degrees clockwise from north.
-CARDINAL = {k: 22.5 * i for i, k in enumerate(("N", "NNE", "NE", "ENE", "E", "ESE", "SE", "SSE", "S", "SSW", "SW", "WSW",
-                                                 "W", "WNW", "NW", "NNW"))}
 #: Kinds of other areas named in the note, at most.
 OTHERS_SHOWN = 5
 #: Buildings per kilobyte of an extract, to plan its read tasks before reading it (Geofabrik's
@@ -208,54 +200,6 @@ def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:
     return owner
 
 
-def _roofed(flat: list, found: dict, block: np.ndarray, options, where: str, verts) -> tuple[dict | None, str | None]:
-    """The footprint's block with the roof its tags describe (:mod:`meshsom.roofs`) as a Solid over
-    ``verts``, and a note; (None, note or None) where it is modelled flat.
-
-    Parameters
-    ----------
-    flat : list
-        The footprint's polygons (GeoJSON nesting, longitude and latitude).
-    block : (V, 3) float64
-        The flat block's vertices (its base and top heights).
-    """
-    from meshsom.geojson import _number
-    from meshsom.roofs import ALIASES, SHAPES, UNBUILT, roof_faces, roof_height
-
-    tagged = str(found.get("roof:shape", "flat")).strip().lower()
-    shape = ALIASES.get(tagged, tagged)
-    if shape == "flat":
-        return None, None
-    if shape not in SHAPES:
-        return None, f"roof:shape={shape} not modelled: a flat roof at the height"
-    if len(flat) != 1:
-        return None, f"roof:shape={shape} not modelled on a footprint of several polygons: flat"
-    if len(flat[0]) != 1 and shape != "hipped":
-        return None, f"roof:shape={shape} not modelled on a footprint with courtyards (hipped is): flat"
-    ring = np.asarray(flat[0][0], np.float64)[:, :2]
-    if np.array_equal(ring[0], ring[-1]):
-        ring = ring[:-1]
-    holes = [np.asarray(hole, np.float64)[:, :2] for hole in flat[0][1:]]
-    latitude = math.radians(float(ring[:, 1].mean()))
-    scale = (METRES_PER_DEGREE * math.cos(latitude), METRES_PER_DEGREE)
-    z0, z1 = float(block[:, 2].min()), float(block[:, 2].max())
-    rise = min(roof_height(shape, ring, scale, found, options.storey_height, _number), MAX_ROOF_SHARE * (z1 - z0))
-    if not rise > 0:
-        return None, None
-    direction = found.get("roof:direction")
-    degrees = CARDINAL.get(str(direction).strip().upper()) if direction is not None else None
-    if direction is not None and degrees is None:
-        degrees = _number(direction)
-    faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees,
-                       across=str(found.get("roof:orientation", "")).strip().lower() == "across", holes=holes)
-    if faces is None:
-        return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
-    solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}
-    read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
-    return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above "
-                   "its base")
-
-
 def _props(found: dict, options) -> dict:
     """A feature's tags as footprint properties: ``building:min_level`` as a ``min_height``."""
     props = dict(found)
@@ -301,20 +245,14 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
             try:
                 polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
                 flat = [[ring[:, :2].tolist() for ring in poly] for poly in polygons]
-                block = FeatureVertices()
-                solid, said = footprint_solid(flat, props, mesh_id, options, block)
+                solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
                 if solid is None:
                     raise InputFileError(mesh_id, no_height(options))
-                roofed, roof_note = _roofed(flat, piece.tags, block.array(), options, mesh_id, verts)
-                if roofed is None:
-                    solid, said = footprint_solid(flat, props, mesh_id, options, verts)
-                else:
-                    solid = roofed
             except InputFileError as err:
                 failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
                 continue
             solids.append((f"{piece.oid}/part" if piece is area and own_parts else piece.oid, solid))
-            more += [n for n in said + ([roof_note] if roof_note else []) if n not in more]
+            more += [n for n in said if n not in more]
         if not solids:
             yield Rejection(mesh_id, source, "; ".join(failed), 0, label)
             continue

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-__all__ = ["ALIASES", "SHAPES", "UNBUILT", "roof_faces", "roof_height"]
+__all__ = ["ALIASES", "OVERTURE", "SHAPES", "UNBUILT", "roof_faces", "roof_height", "roof_tags"]
 
 #: The roof shapes built (others are modelled flat by the caller).
 SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion")
@@ -50,6 +50,11 @@ ALIASES = {"half_hipped": "half-hipped", "halfhipped": "half-hipped", "half hipp
            "gable": "gabled", "hip": "hipped", "pyramid": "pyramidal", "cone": "pyramidal", "conical": "pyramidal",
            "domed": "dome", "barrel": "round", "arched": "round", "lean_to": "skillion", "lean-to": "skillion",
            "mono-pitched": "skillion", "monopitch": "skillion"}
+#: Overture Maps' columns (and GeoJSON properties) for the S3DB roof tags: its buildings carry ``roof_shape``,
+#: ``roof_height``, ``roof_direction`` and ``roof_orientation``; the others are read too where a data set spells
+#: the S3DB keys so.
+OVERTURE = {"roof_shape": "roof:shape", "roof_height": "roof:height", "roof_levels": "roof:levels",
+            "roof_angle": "roof:angle", "roof_direction": "roof:direction", "roof_orientation": "roof:orientation"}
 #: Why :func:`roof_faces` gives None for a shape on a footprint, for the caller's note.
 UNBUILT = {
     "pyramidal": "its apex over the corners' mean does not see every wall",
@@ -91,6 +96,17 @@ ONION = ((1.0, 0.0), (1.25, 0.12), (1.33, 0.25), (1.25, 0.38), (1.0, 0.5), (0.68
 SNAP_REL = 1e-7
 #: Numerical tolerance of the roofs' checks: heights and areas (relative to the footprint's extent and area).
 CHECK_REL = 1e-6
+
+
+def roof_tags(props: dict) -> dict:
+    """A feature's roof attributes under their S3DB keys (``roof:shape``, ``roof:height``, ...):
+    OpenStreetMap's own, else Overture's (:data:`OVERTURE`); values as given, None-valued ones
+    (a GeoParquet column's nulls) left out."""
+    found = {key: props[key] for key in OVERTURE.values() if props.get(key) is not None}
+    for column, key in OVERTURE.items():
+        if key not in found and props.get(column) is not None:
+            found[key] = props[column]
+    return found
 
 
 def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: dict, storey_height: float,

@@ -405,6 +405,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--default-height", type=float, metavar="M",
                    help="footprints with neither a height nor a storey count (most of OpenStreetMap): extruded to M "
                         "metres, noted; default: listed as rejections")
+    p.add_argument("--flat-roofs", action="store_true", default=None,
+                   help="footprints: extrude every one flat, whatever its roof attributes (roof:shape, roof_shape) say")
     p.add_argument("--repair", action="store_true", default=None, help="try a pymeshlab repair before rejecting a mesh")
     p.add_argument("--generate", type=int, metavar="N", help="add N synthetic blocks (seed from --seed)")
     p.add_argument("--seed", type=int, default=0, help="seed of --generate (default %(default)s)")
@@ -457,7 +459,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
                  ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components),
-                 ("default_height", args.default_height))
+                 ("default_height", args.default_height), ("roofs", False if args.flat_roofs else None))
         changes = {k: v for k, v in given if v is not None}
         if args.height_attribute:
             changes["height_attributes"] = tuple(args.height_attribute) + tuple(

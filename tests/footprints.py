@@ -51,14 +51,12 @@ def gabled_house():
     return faces, 10 * 6 * 4 + 0.5 * 6 * 3 * 10
 
 
-def write_geoparquet(path, features, crs="absent", wkb=None):
-    """GeoParquet 1.1 as its specification lays it out: a WKB column and the "geo" metadata."""
+def write_geoparquet(path, features, crs="absent", wkb=None, extra=()):
+    """GeoParquet 1.1 as its specification lays it out: a WKB column and the "geo" metadata;
+    ``extra`` names more property columns (nulls where a feature has none)."""
     geometries = wkb or [shapely.to_wkb(shapely.geometry.shape(g)) for _, g, _ in features]
     columns = {"id": [f for f, _, _ in features],
-               "height": [p.get("height") for _, _, p in features],
-               "min_height": [p.get("min_height") for _, _, p in features],
-               "num_floors": [p.get("num_floors") for _, _, p in features],
-               "family": [p.get("family") for _, _, p in features],
+               **{k: [p.get(k) for _, _, p in features] for k in ("height", "min_height", "num_floors", "family", *extra)},
                "geometry": geometries}
     column_meta = {"encoding": "WKB", "geometry_types": []}
     if crs != "absent":
@@ -66,3 +64,19 @@ def write_geoparquet(path, features, crs="absent", wkb=None):
     table = pa.table(columns).replace_schema_metadata(
         {b"geo": json.dumps({"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": column_meta}}).encode()})
     pq.write_table(table, path)
+
+
+#: A W x D house (W along x, the longer side), eaves e, roof rise r: its volume by hand for each
+#: roof shape built on a rectangle (the hipped roof's height is the pitch times the distance to the
+#: nearest wall, whose integral over the rectangle is D^2 (3W - D) / 12).
+HOUSE = {
+    "gabled": lambda W, D, e, r: W * D * e + 0.5 * D * r * W,
+    "hipped": lambda W, D, e, r: W * D * e + r * D * (3 * W - D) / 6,
+    "pyramidal": lambda W, D, e, r: W * D * (e + r / 3),
+    "skillion": lambda W, D, e, r: W * D * (e + r / 2),
+}
+
+
+def rectangle(x0, y0, w, d):
+    """A w x d rectangle's ring (metres), from its corner (x0, y0)."""
+    return [(x0, y0), (x0 + w, y0), (x0 + w, y0 + d), (x0, y0 + d)]

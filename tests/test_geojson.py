@@ -15,10 +15,10 @@ import sys
 import numpy as np
 import pytest
 
-from meshsom.io import RawMesh, Rejection, read_file
+from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
 from meshsom.preprocess import preprocess
 
-from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat
+from footprints import COURT_IN, COURT_OUT, HOUSE, L_SHAPE, area, closed, gabled_house, lonlat, rectangle
 
 def _feature(fid, geometry, **props):
     f = {"type": "Feature", "geometry": geometry, "properties": props}
@@ -119,6 +119,67 @@ def test_json_fg_solids_and_prisms(tmp_path):
     assert _volume(got["two"]) == pytest.approx(2 * house_volume, rel=1e-12)
     assert _volume(got["prism"]) == pytest.approx(area(L_SHAPE) * 7.5, rel=1e-12)
     assert isinstance(got["flat"], Rejection) and "no height" in got["flat"].reason
+
+
+def _house(fid, x0, w, d, **props):
+    return _feature(fid, {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(x0, 0, w, d)))]}, **props)
+
+
+def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
+    """Footprints with roof attributes, as Overture Maps writes them (roof_shape, roof_height,
+    roof_direction, roof_orientation), as Overpass turbo exports OpenStreetMap (roof:shape, ...)
+    and as osmtogeojson nests OSM's tags (properties.tags): each house is built with its roof, at
+    the volume worked out by hand for its shape; the pitch of a roof without a height is measured
+    in metres although the footprint is in degrees."""
+    pitch = np.tan(np.radians(30.0)) * 4.0  # the 30 degree default over half of an 8 m width
+    features = [
+        _house("gabled", 0, 12, 8, height=9, roof_shape="gabled", roof_height=3, family="house"),
+        _house("hipped", 20, 12, 8, height=9.0, roof_shape="hipped", roof_height=3.0),
+        _house("pyramid", 40, 10, 10, height="10", **{"roof:shape": "pyramidal", "roof:angle": "45"}),
+        _feature("way/7", {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(60, 0, 10, 6)))]}, type="way", id=7,
+                 tags={"building": "house", "height": "8", "roof:shape": "skillion", "roof:height": "2",
+                       "roof:direction": "S"}, relations=[], meta={}),
+        _house("pitched", 80, 12, 8, height=9, roof_shape="gabled"),
+        _house("across", 100, 12, 8, height=9, roof_shape="gabled", roof_height=3, roof_orientation="across"),
+        _house("north", 120, 10, 6, height=8, roof_shape="skillion", roof_height=2, roof_direction=0),
+        _house("half", 140, 12, 8, height=9, roof_shape="half_hipped", roof_height=3),
+        _house("mansard", 160, 12, 8, height=9, roof_shape="mansard", roof_height=3),
+        _house("flat", 180, 12, 8, height=9, roof_shape="flat", roof_height=None),
+        _house("many", 200, 12, 8, height=9, roof_shape="gabled", roof_height=3, roof_direction=None),
+    ]
+    features[-1]["geometry"] = {"type": "MultiPolygon", "coordinates": [
+        [closed(lonlat(rectangle(200, 0, 5, 8)))], [closed(lonlat(rectangle(210, 0, 5, 8)))]]}
+    path = tmp_path / "overture.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    got = _by_id(read_file(path))
+    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    for fid, shape, (w, d, e, r) in [("gabled", "gabled", (12, 8, 6, 3)), ("hipped", "hipped", (12, 8, 6, 3)),
+                                     ("pyramid", "pyramidal", (10, 10, 5, 5)), ("way/7", "skillion", (10, 6, 6, 2)),
+                                     ("pitched", "gabled", (12, 8, 9 - pitch, pitch)),
+                                     ("across", "gabled", (12, 8, 6, 3)), ("north", "skillion", (10, 6, 6, 2))]:
+        assert _volume(got[fid]) == pytest.approx(HOUSE[shape](w, d, e, r), rel=1e-5), fid
+        assert got[fid].lod == "2" and any(f"roof:shape={shape} built (S3DB)" in n for n in got[fid].notes), got[fid].notes
+    assert got["gabled"].label == "house"
+    # the ridge along the longer sides (12 m east-west), or across them (8 m north-south)
+    for fid, spread in (("gabled", 0), ("across", 1)):
+        v = got[fid].vertices
+        top = v[v[:, 2] > v[:, 2].max() - 1e-6]
+        assert np.ptp(top[:, spread]) == pytest.approx((12, 8)[spread], abs=1e-4), (fid, top)
+    # a skillion faces the way roof:direction says: its low side to the south (S), to the north (0)
+    for fid, low_side_north in (("way/7", False), ("north", True)):
+        v = got[fid].vertices
+        low, high = v[np.isclose(v[:, 2], v[:, 2].min() + 6, atol=1e-4)], v[np.isclose(v[:, 2], v[:, 2].max(), atol=1e-4)]
+        assert (low[:, 1].mean() > high[:, 1].mean()) == low_side_north, fid
+    assert any("roof:shape=half-hipped built (S3DB) (roof:shape=half_hipped read as half-hipped)" in n
+               for n in got["half"].notes), got["half"].notes
+    assert any("roof:shape=mansard not modelled: a flat roof at the height" in n for n in got["mansard"].notes)
+    assert any("not modelled on a footprint of several polygons: flat" in n for n in got["many"].notes)
+    for fid, volume in (("mansard", 12 * 8 * 9), ("flat", 12 * 8 * 9), ("many", 2 * 5 * 8 * 9)):
+        assert _volume(got[fid]) == pytest.approx(volume, rel=1e-5) and got[fid].lod == "1", fid
+    # roofs off: every footprint a flat block at its height
+    flat = _by_id(read_file(path, ReaderOptions(roofs=False)))
+    assert _volume(flat["gabled"]) == pytest.approx(12 * 8 * 9, rel=1e-5) and flat["gabled"].lod == "1"
+    assert _volume(flat["way/7"]) == pytest.approx(10 * 6 * 8, rel=1e-5)
 
 
 def test_geojson_files_through_meshsom_ingest(tmp_path):

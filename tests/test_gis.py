@@ -31,7 +31,8 @@ from meshsom.gis import horizontal, wkb_polygons
 from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 from meshsom.preprocess import preprocess
 
-from footprints import COURT_IN, COURT_OUT, L_SHAPE, area, closed, gabled_house, lonlat, write_geoparquet
+from footprints import (COURT_IN, COURT_OUT, HOUSE, L_SHAPE, area, closed, gabled_house, lonlat, rectangle,
+                        write_geoparquet)
 
 ZURICH = Path(__file__).resolve().parents[1] / "data/real/zurich-lod2-subset/zurich_subset_lod2.city.json"
 
@@ -242,6 +243,38 @@ def test_projected_feet_and_unknown_crs(tmp_path):
 
     write_geoparquet(tmp_path / "ny.parquet", features, crs=pyproj.CRS("EPSG:2263").to_json_dict())
     assert _volume(_by_id(read_file(tmp_path / "ny.parquet"))["L"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
+
+
+def test_overture_roofs_in_geoparquet_and_a_crs_in_feet(tmp_path):
+    """Overture Maps' buildings as GeoParquet (roof_shape, roof_height, roof_direction columns,
+    nulls where a building has none) and a GeoPackage in New York's feet: each house gets its roof,
+    at the volume worked out by hand; a roof without a height is pitched at 30 degrees whatever the
+    footprint's unit (degrees, US survey feet)."""
+    pitch = np.tan(np.radians(30.0)) * 4.0  # over half of an 8 m width, metres
+    def multi(ring):
+        return {"type": "MultiPolygon", "coordinates": [[closed(ring)]]}
+    features = [("g", multi(lonlat(rectangle(0, 0, 12, 8))), {"height": 9.0, "roof_shape": "gabled", "roof_height": 3.0}),
+                ("h", multi(lonlat(rectangle(20, 0, 12, 8))), {"height": 9.0, "roof_shape": "hipped", "roof_direction": 90.0}),
+                ("s", multi(lonlat(rectangle(40, 0, 10, 6))), {"height": 8.0, "roof_shape": "skillion", "roof_height": 2.0}),
+                ("b", multi(lonlat(rectangle(60, 0, 10, 6))), {"height": 8.0})]
+    write_geoparquet(tmp_path / "overture.parquet", features, extra=("roof_shape", "roof_height", "roof_direction"))
+    got = _by_id(read_file(tmp_path / "overture.parquet"))
+    assert _volume(got["g"]) == pytest.approx(HOUSE["gabled"](12, 8, 6, 3), rel=1e-5)
+    assert _volume(got["h"]) == pytest.approx(HOUSE["hipped"](12, 8, 9 - pitch, pitch), rel=1e-5)
+    assert _volume(got["s"]) == pytest.approx(HOUSE["skillion"](10, 6, 6, 2), rel=1e-5)
+    assert _volume(got["b"]) == pytest.approx(10 * 6 * 8, rel=1e-5) and got["b"].lod == "1"
+    assert any("roof:shape=hipped built (S3DB)" in n for n in got["h"].notes), got["h"].notes
+    feet = 1200 / 3937  # US survey foot
+    in_feet = lambda r: [((984000 + x / feet), (190000 + y / feet)) for x, y in r]  # noqa: E731 (EPSG:2263)
+    schema = {"geometry": "MultiPolygon", "properties": {"id": "str", "height": "float", "roof_shape": "str",
+                                                         "roof_height": "float"}}
+    _write_fiona(tmp_path / "ny.gpkg", "GPKG", [
+        ("g", multi(in_feet(rectangle(0, 0, 12, 8))), {"height": 9 / feet, "roof_shape": "gabled"}),
+        ("p", multi(in_feet(rectangle(20, 0, 10, 10))), {"height": 10 / feet, "roof_shape": "pyramidal",
+                                                          "roof_height": 5 / feet})], "EPSG:2263", schema=schema)
+    got = _by_id(read_file(tmp_path / "ny.gpkg"))
+    assert _volume(got["g"]) == pytest.approx(HOUSE["gabled"](12, 8, 9 - pitch, pitch), rel=1e-9)
+    assert _volume(got["p"]) == pytest.approx(HOUSE["pyramidal"](10, 10, 5, 5), rel=1e-9)
 
 
 # ----------------------------------------------------------------------------- 3D layers from real LoD2
