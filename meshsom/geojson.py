@@ -278,7 +278,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     crs : CoordinateSystem or None
         As :func:`footprint_solid` takes it.
     """
-    from meshsom.roofs import ALIASES, SHAPES, UNBUILT, roof_faces, roof_height, roof_tags
+    from meshsom.roofs import ALIASES, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces, roof_height, roof_tags
 
     found = roof_tags(props)
     tagged = str(found.get("roof:shape", "flat")).strip().lower()
@@ -289,8 +289,9 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         return None, f"roof:shape={shape} not modelled: a flat roof at the height"
     if len(polygons) != 1:
         return None, f"roof:shape={shape} not modelled on a footprint of several polygons: flat"
-    if len(polygons[0]) != 1 and shape != "hipped":
-        return None, f"roof:shape={shape} not modelled on a footprint with courtyards (hipped is): flat"
+    if len(polygons[0]) != 1 and shape not in ROUND_COURTYARDS:
+        return None, (f"roof:shape={shape} not modelled on a footprint with courtyards ({' and '.join(ROUND_COURTYARDS)} "
+                      "are): flat")
     for ring in polygons[0]:
         FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
     ring = np.asarray(polygons[0][0], np.float64)[:, :2]

@@ -20,13 +20,13 @@ own configuration reads as lines; every tag is kept):
   else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
   :attr:`meshsom.io.ReaderOptions.default_height` where set, else a rejection naming the tags.
   Roofs: ``roof:shape`` ``pyramidal``, ``skillion``, ``gabled``, ``hipped``, ``half-hipped``,
-  ``gambrel``, ``saltbox``, ``round``, ``dome`` and ``onion`` (and their other spellings,
+  ``gambrel``, ``saltbox``, ``round``, ``dome``, ``onion`` and ``mansard`` (and their other spellings,
   :data:`meshsom.roofs.ALIASES`) are built (:mod:`meshsom.roofs`:
-  hipped on any simple footprint by its straight skeleton, the profiled ones on any, half-hipped
+  hipped (and mansard, its gambrel-bent kin) on any footprint by its straight skeleton, the profiled ones on any, half-hipped
   on four-cornered convex ones, the pointed ones where their apex sees every wall) from
   ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
   its width), eaves at the height less the roof's, ``roof:direction`` and ``roof:orientation``
-  followed; other shapes (mansard, ...), footprints with courtyards, and footprints a shape cannot
+  followed; other shapes (sawtooth, ...), footprints with courtyards (but for hipped and mansard), and footprints a shape cannot
   be built on, are flat at the height, noted with the reason.
 - **Coordinates**: WGS 84 longitude and latitude, converted to east-north-up metres about each
   building (:mod:`meshsom.crs`).

@@ -18,6 +18,9 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
   straight skeleton's roof (every face rising from its wall at one pitch; py-straight-skeleton),
   checked (each face holds its wall's edge, lies in the plane through it at the pitch, and the faces
   tile the footprint) and modelled flat where the skeleton fails that;
+- ``mansard`` on any simple footprint, courtyards included: the hipped roof with the gambrel's
+  bend (:data:`MANSARD`: steep from the walls to three quarters of the height half way in, shallow
+  above), each skeleton face cut where its height's profile bends;
 - ``gabled`` on any other simple footprint, and ``gambrel``, ``saltbox`` and ``round`` on any: a
   roof whose height is a profile across one ridge line (along the footprint's minimum rotated
   rectangle, across it with ``roof:orientation=across``), the footprint cut into strips where the
@@ -40,7 +43,10 @@ import numpy as np
 __all__ = ["ALIASES", "OVERTURE", "SHAPES", "UNBUILT", "roof_faces", "roof_height", "roof_tags"]
 
 #: The roof shapes built (others are modelled flat by the caller).
-SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion")
+SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion",
+          "mansard")
+#: The shapes built on a footprint with courtyards (their straight skeleton's; the others need a simple polygon).
+ROUND_COURTYARDS = ("hipped", "mansard")
 #: The most corners (courtyards' included) a hipped roof's straight skeleton is computed for: it takes about
 #: n^2 time in Python (256 corners 0.4 s, 1,000 corners 6 s); beyond, the roof is modelled flat.
 MAX_SKELETON_CORNERS = 400
@@ -69,6 +75,7 @@ UNBUILT = {
               "corners",
     "half-hipped": "four corners, convex",
 }
+UNBUILT["mansard"] = UNBUILT["hipped"]
 #: The pitch of a roof whose height is not tagged (degrees): a common pitched roof.
 DEFAULT_PITCH_DEG = 30.0
 #: Corners of the footprints a gabled or hipped roof is built on by its short sides' midpoints.
@@ -84,6 +91,9 @@ PROFILES = {
     "gambrel": ((-1.0, 0.0), (-0.5, 0.75), (0.0, 1.0), (0.5, 0.75), (1.0, 0.0)),
     "saltbox": ((-1.0, 0.0), (-1.0 / 3.0, 1.0), (1.0, 0.0)),
 }
+#: A mansard roof's profile: (distance in from the walls as a fraction of the farthest, the straight skeleton's
+#: greatest time; height as a fraction of the roof's), knots in order: the gambrel's half, from the eaves to the top.
+MANSARD = ((0.0, 0.0), (0.5, 0.75), (1.0, 1.0))
 #: Segments of a round (barrel) roof's half circle, and of a dome's or onion's quarter circle.
 CURVE_SEGMENTS = 8
 #: An onion dome's outline: (scale of the footprint about its centroid, height as a fraction of the
@@ -198,7 +208,9 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
             m = hole * np.asarray(scale, np.float64)
             clockwise = np.sum(m[:, 0] * np.roll(m[:, 1], -1) - np.roll(m[:, 0], -1) * m[:, 1]) < 0
             inner.append(hole if clockwise else hole[::-1].copy())
-        return _skeleton_hipped([ring] + inner, scale, z0, z_eaves, z_top) if shape == "hipped" else None
+        if shape not in ROUND_COURTYARDS:
+            return None
+        return _skeleton_hipped([ring] + inner, scale, z0, z_eaves, z_top, MANSARD if shape == "mansard" else None)
     if shape == "skillion":
         return _skillion(ring, metric, z0, z_eaves, z_top, direction_deg)
     if shape == "pyramidal":
@@ -208,6 +220,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
+    if shape == "mansard":
+        return _skeleton_hipped([ring], scale, z0, z_eaves, z_top, MANSARD)
     if shape in PROFILES:
         return _profiled(ring, metric, z0, z_eaves, z_top, np.array(PROFILES[shape]), across)
     if shape == "round":
@@ -326,11 +340,14 @@ def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.nda
     return faces
 
 
-def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top) -> list[np.ndarray] | None:
+def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None) -> list[np.ndarray] | None:
     """A hipped roof on any footprint, courtyards included: its straight skeleton lifted (a node's height its time,
     the distance the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the
     skeleton cannot be computed or fails its check (a face per wall, each holding its wall's edge, each node at its
     time's height above the line of its face's wall, the faces tiling the footprint).
+
+    ``profile``: (time as a fraction of the greatest, height as a fraction of the roof's) knots (a mansard's,
+    :data:`MANSARD`): the height is the profile of the time, each face cut where the profile bends (:func:`_bent`).
 
     ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
     footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below. None, too,
@@ -375,7 +392,7 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top) -> list[np.ndarray]
     rise = (z_top - z_eaves) / float(time.max())
     points = (where + origin) / scale  # back in the ring's units, its corners exactly
     points[corner >= 0] = ring[corner[corner >= 0]]
-    roof, below = [], []
+    roof, below, kept = [], [], []
     seen = set()
     for face in faces:
         face = [int(i) for i in face]
@@ -395,14 +412,102 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top) -> list[np.ndarray]
         covered += area
         z = z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])
         roof.append(np.column_stack([points[face], z]))
+        kept.append(face)
         below.append(np.column_stack([points[face][::-1], np.full(len(face), z0)]))
     footprint = sum(0.5 * float(np.sum(r[:, 0] * np.roll(r[:, 1], -1) - np.roll(r[:, 0], -1) * r[:, 1]))
                     for r in (local[a:b] for a, b in zip(starts[:-1], starts[1:])))
     if abs(covered - footprint) > CHECK_REL * footprint:
         return None
+    if profile is not None:
+        share = np.where(corner >= 0, 0.0, time / float(time.max()))
+        roof = _bent(kept, points, where, share, np.asarray(profile, np.float64), z_eaves, z_top)
+        if roof is None:
+            return None
     walls = [w for r in rings for w in _floor_and_walls(r, z0, np.full(len(r), z_eaves))[1:]]
     floor = below if len(rings) > 1 else [np.column_stack([rings[0][::-1], np.full(len(rings[0]), z0)])]
     return floor + walls + roof
+
+
+def _bent(faces: list, points: np.ndarray, local: np.ndarray, share: np.ndarray, knots: np.ndarray, z_eaves: float,
+          z_top: float) -> list[np.ndarray] | None:
+    """Roof faces over skeleton faces whose height is a profile of the nodes' ``share`` of the greatest time.
+
+    Parameters
+    ----------
+    faces : list of lists of int
+        Each face's nodes, counter-clockwise seen from above.
+    points : (N, 2) float64
+        The nodes in the ring's units; ``local`` the same in metres (for the triangulation).
+    share : (N,) float64
+        Each node's time as a fraction of the greatest: on a face, an affine function of the position.
+    knots : (K, 2) float64
+        (share, height as a fraction of the roof's), shares rising from 0 to 1.
+
+    Returns
+    -------
+    list of (n, 3) float64, or None
+        A face lying within one stretch of the profile is kept whole, lifted; one across a bend is triangulated and
+        each triangle cut at the bends into planar pieces. A cut point on an edge is computed from its end nodes in
+        one order, so the faces (and triangles) sharing the edge share it exactly: the roof stays closed. None where a
+        face cannot be triangulated on its own corners.
+    """
+    from meshsom.polygons import triangulate_polygon_2d
+
+    bends = knots[1:-1, 0]
+    tol = CHECK_REL
+
+    def lift(s):
+        return z_eaves + (z_top - z_eaves) * np.interp(s, knots[:, 0], knots[:, 1])
+
+    cut: dict = {}
+
+    def vertex(key):  # a node (a,), or the cut at bend k of the edge between nodes a < b: (a, b, k)
+        if len(key) == 1:
+            return points[key[0]], share[key[0]]
+        if key not in cut:
+            a, b, k = key
+            f = (bends[k] - share[a]) / (share[b] - share[a])
+            cut[key] = (points[a] + f * (points[b] - points[a]), bends[k])
+        return cut[key]
+
+    def on_edge(p, q):  # the nodes of the triangle edge that piece corners p and q lie on
+        nodes = sorted(set(p[:2] if len(p) == 3 else p) | set(q[:2] if len(q) == 3 else q))
+        return nodes if len(nodes) == 2 else None
+
+    out = []
+    for face in faces:
+        s = share[face]
+        if not any(((s < b - tol).any() and (s > b + tol).any()) for b in bends):
+            out.append(np.column_stack([points[face], lift(s)]))
+            continue
+        _, triangles = triangulate_polygon_2d(local[face])
+        if len(triangles) != len(face) - 2 or (triangles >= len(face)).any():
+            return None
+        for triangle in triangles:
+            pieces = [[(face[i],) for i in triangle]]
+            for k, b in enumerate(bends):
+                split = []
+                for piece in pieces:
+                    lower, upper = [], []
+                    for i, p in enumerate(piece):
+                        q = piece[(i + 1) % len(piece)]
+                        sp, sq = vertex(p)[1], vertex(q)[1]
+                        if sp <= b + tol:
+                            lower.append(p)
+                        if sp >= b - tol:
+                            upper.append(p)
+                        if (sp < b - tol and sq > b + tol) or (sp > b + tol and sq < b - tol):
+                            nodes = on_edge(p, q)
+                            if nodes is None:  # a cut segment is level: it never crosses another bend
+                                return None
+                            lower.append((*nodes, k))
+                            upper.append((*nodes, k))
+                    split += [part for part in (lower, upper) if len(part) >= 3]
+                pieces = split
+            for piece in pieces:
+                corners = [vertex(key) for key in piece]
+                out.append(np.array([[*xy, float(lift(s))] for xy, s in corners]))
+    return out
 
 
 def _profiled(ring, metric, z0, z_eaves, z_top, knots: np.ndarray, across: bool) -> list[np.ndarray] | None:

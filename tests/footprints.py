@@ -66,10 +66,22 @@ def write_geoparquet(path, features, crs="absent", wkb=None, extra=()):
     pq.write_table(table, path)
 
 
+def _mansard(W, D, e, r, knots=((0.0, 0.0), (0.5, 0.75), (1.0, 1.0))):
+    """A mansard's volume: its height a profile of the distance t to the nearest wall (up to D / 2),
+    integrated as the sum over the profile's stretches of their slope times the integral of the area
+    farther in than t, (W - 2t) (D - 2t), whose antiderivative is W D t - (W + D) t^2 + 4 t^3 / 3."""
+    def F(t):
+        return W * D * t - (W + D) * t ** 2 + 4 * t ** 3 / 3
+    T = D / 2
+    return W * D * e + sum(r * (h1 - h0) / (T * (s1 - s0)) * (F(s1 * T) - F(s0 * T))
+                           for (s0, h0), (s1, h1) in zip(knots[:-1], knots[1:]))
+
+
 #: A W x D house (W along x, the longer side), eaves e, roof rise r: its volume by hand for each
 #: roof shape built on a rectangle (the hipped roof's height is the pitch times the distance to the
 #: nearest wall, whose integral over the rectangle is D^2 (3W - D) / 12).
 HOUSE = {
+    "mansard": _mansard,
     "gabled": lambda W, D, e, r: W * D * e + 0.5 * D * r * W,
     "hipped": lambda W, D, e, r: W * D * e + r * D * (3 * W - D) / 6,
     "pyramidal": lambda W, D, e, r: W * D * (e + r / 3),

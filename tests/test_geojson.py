@@ -144,6 +144,7 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
         _house("north", 120, 10, 6, height=8, roof_shape="skillion", roof_height=2, roof_direction=0),
         _house("half", 140, 12, 8, height=9, roof_shape="half_hipped", roof_height=3),
         _house("mansard", 160, 12, 8, height=9, roof_shape="mansard", roof_height=3),
+        _house("sawtooth", 220, 12, 8, height=9, roof_shape="sawtooth", roof_height=3),
         _house("flat", 180, 12, 8, height=9, roof_shape="flat", roof_height=None),
         _house("many", 200, 12, 8, height=9, roof_shape="gabled", roof_height=3, roof_direction=None),
     ]
@@ -156,7 +157,8 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     for fid, shape, (w, d, e, r) in [("gabled", "gabled", (12, 8, 6, 3)), ("hipped", "hipped", (12, 8, 6, 3)),
                                      ("pyramid", "pyramidal", (10, 10, 5, 5)), ("way/7", "skillion", (10, 6, 6, 2)),
                                      ("pitched", "gabled", (12, 8, 9 - pitch, pitch)),
-                                     ("across", "gabled", (12, 8, 6, 3)), ("north", "skillion", (10, 6, 6, 2))]:
+                                     ("across", "gabled", (12, 8, 6, 3)), ("north", "skillion", (10, 6, 6, 2)),
+                                     ("mansard", "mansard", (12, 8, 6, 3))]:
         assert _volume(got[fid]) == pytest.approx(HOUSE[shape](w, d, e, r), rel=1e-5), fid
         assert got[fid].lod == "2" and any(f"roof:shape={shape} built (S3DB)" in n for n in got[fid].notes), got[fid].notes
     assert got["gabled"].label == "house"
@@ -172,9 +174,9 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
         assert (low[:, 1].mean() > high[:, 1].mean()) == low_side_north, fid
     assert any("roof:shape=half-hipped built (S3DB) (roof:shape=half_hipped read as half-hipped)" in n
                for n in got["half"].notes), got["half"].notes
-    assert any("roof:shape=mansard not modelled: a flat roof at the height" in n for n in got["mansard"].notes)
+    assert any("roof:shape=sawtooth not modelled: a flat roof at the height" in n for n in got["sawtooth"].notes)
     assert any("not modelled on a footprint of several polygons: flat" in n for n in got["many"].notes)
-    for fid, volume in (("mansard", 12 * 8 * 9), ("flat", 12 * 8 * 9), ("many", 2 * 5 * 8 * 9)):
+    for fid, volume in (("sawtooth", 12 * 8 * 9), ("flat", 12 * 8 * 9), ("many", 2 * 5 * 8 * 9)):
         assert _volume(got[fid]) == pytest.approx(volume, rel=1e-5) and got[fid].lod == "1", fid
     # roofs off: every footprint a flat block at its height
     flat = _by_id(read_file(path, ReaderOptions(roofs=False)))

@@ -152,7 +152,7 @@ def test_buildings_heights_and_courtyards(tmp_path):
 def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     """An L-shaped hipped house and an L-shaped gabled one (footprints of six corners), a half-hipped house, a
     square with a dome, a church of a nave and an onion-domed tower (parts), a perimeter block hipped round its
-    courtyard, and a mansard roof and a gabled courtyard block (not built: flat, noted): each closed and accepted by preprocessing, at the volume :mod:`meshsom.roofs` builds on the footprint in
+    courtyard, a mansard roof, and a sawtooth roof and a gabled courtyard block (not built: flat, noted): each closed and accepted by preprocessing, at the volume :mod:`meshsom.roofs` builds on the footprint in
     metres (to OpenStreetMap's centimetre), its notes saying what was built."""
     from meshsom.preprocess import PreprocessParams
     from meshsom.roofs import roof_faces
@@ -170,6 +170,7 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     osm.way(7, (292, 1, 300, 9), height="30", **{PART: "yes", ROOF: "onion", "roof:height": "8"})
     osm.way(8, (310, 0, 320, 8), building="house", height="9", **{ROOF: "mansard", "roof:height": "3"})
     osm.way(15, (410, 0, 422, 8), building="house", height="9", **{ROOF: "Half_Hipped", "roof:height": "3"})
+    osm.way(16, (430, 0, 440, 8), building="industrial", height="9", **{ROOF: "sawtooth", "roof:height": "3"})
     osm.way(9, (330, 0, 360, 20))
     osm.way(10, (335, 5, 355, 15))
     osm.relation(11, 9, 10, building="apartments", height="9", **{ROOF: "hipped", "roof:height": "3"})
@@ -187,7 +188,8 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     box = [(240, 0), (252, 0), (252, 8), (240, 8)]
     for way, corners, eaves, top, shape in [("way/1", el, 6.0, 9.0, "hipped"), ("way/2", el, 6.0, 9.0, "gabled"),
                                             ("way/3", box, 6.0, 9.0, "half-hipped"),
-                                            ("way/4", [(0, 0), (10, 0), (10, 10), (0, 10)], 7.0, 12.0, "dome")]:
+                                            ("way/4", [(0, 0), (10, 0), (10, 10), (0, 10)], 7.0, 12.0, "dome"),
+                                            ("way/8", [(0, 0), (10, 0), (10, 8), (0, 8)], 6.0, 9.0, "mansard")]:
         item = items[way]
         assert any(f"roof:shape={shape} built (S3DB)" in n for n in item.notes), item.notes
         assert _volume(item) == pytest.approx(expected(corners, eaves, top, shape), rel=2e-3)
@@ -215,12 +217,12 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     record, clean = process_one(block, PreprocessParams())
     assert record["status"] == "accepted", record
     gabled_block = items["relation/14"]
-    assert any("roof:shape=gabled not modelled on a footprint with courtyards (hipped is): flat" in n
+    assert any("roof:shape=gabled not modelled on a footprint with courtyards (hipped and mansard are): flat" in n
                for n in gabled_block.notes), gabled_block.notes
     assert _volume(gabled_block) == pytest.approx((osm.area[12] - osm.area[13]) * 9, rel=1e-5)
-    mansard = items["way/8"]
-    assert any("roof:shape=mansard not modelled: a flat roof at the height" in n for n in mansard.notes), mansard.notes
-    assert _volume(mansard) == pytest.approx(osm.area[8] * 9, rel=1e-5)
+    sawtooth = items["way/16"]
+    assert any("roof:shape=sawtooth not modelled: a flat roof at the height" in n for n in sawtooth.notes), sawtooth.notes
+    assert _volume(sawtooth) == pytest.approx(osm.area[16] * 9, rel=1e-5)
 
 
 def test_a_building_of_parts_is_its_parts_united(tmp_path):
