@@ -6,6 +6,12 @@ national footprint layers); JSON-FG, OGC's extension of GeoJSON, adds solids. Ea
 the objects the CityJSON reader works on (:func:`meshsom.io._object_meshes`), so LoD choice,
 triangulation, CRS handling and rejections behave as for CityJSON:
 
+- **Building parts** (:func:`building_parts`): footprints tagged ``building:part`` (not
+  ``building``: an Overpass turbo or osmtogeojson export of buildings and their parts), and
+  Overture's ``building_part`` features (``building_id`` naming a footprint of the collection),
+  are read as OpenStreetMap extracts read them (:func:`meshsom.osm.building_meshes`): a building
+  with parts is its parts (BuildingParts, united in preprocessing), a part without a height takes
+  its building's, a part inside no outline is a building of its own, noted.
 - **JSON-FG solids**: a feature's ``place`` of type ``Polyhedron`` (shells of polygons) or
   ``MultiPolyhedron`` is a Solid or MultiSolid (LoD ``"2"``); a ``Prism`` (a ``Polygon`` or
   ``MultiPolygon`` base extruded from ``lower``, default 0, to ``upper``) is a Solid (LoD ``"1"``).
@@ -417,6 +423,80 @@ def declared_crs(feature: dict, collection_crs: str | None, old_crs: str | None,
     return GEOJSON_CRS if extent is not None and extent <= 180 and options.crs is None else None
 
 
+def _feature_id(feature: dict, index: int) -> str:
+    """A feature's id as the mesh ids use it: its ``id``, else ``feature-<index + 1>``."""
+    fid = feature.get("id")
+    return str(fid) if isinstance(fid, (str, int)) and not isinstance(fid, bool) else f"feature-{index + 1}"
+
+
+def _is_part_feature(props: dict) -> bool:
+    """OpenStreetMap's tagging of a building part (``building:part``, any value but ``no``, on an area not itself
+    tagged ``building``)."""
+    def said(key):
+        return str(props.get(key) or "no").strip().lower() != "no"
+    return said("building:part") and not said("building")
+
+
+def building_parts(features: list) -> tuple[set[int], dict[int, list[int]]]:
+    """Which footprint features of a collection are parts of another, as OpenStreetMap's Simple 3D Buildings scheme
+    and Overture Maps say it.
+
+    A part is a footprint (a ``Polygon`` or ``MultiPolygon`` ``geometry``) tagged ``building:part`` and not
+    ``building`` (an Overpass turbo or osmtogeojson export of buildings and their parts), or one whose
+    ``building_id`` (Overture's ``building_part``) is the id of another footprint of the collection. It belongs to
+    that building, else to the smallest footprint that is not a part holding a point inside it (shapely).
+
+    Returns
+    -------
+    owned : set of int
+        The indices (in ``features``) of the parts that belong to a building of the collection.
+    parts_of : dict of int to list of int
+        For every building with parts, and every OSM-tagged part inside none (with no parts: read as a building of
+        its own, noted), the indices of its parts, in file order.
+    """
+    from shapely.geometry import shape
+
+    from meshsom.osm import _Area, _owners
+
+    footprints, ids = {}, {}
+    for k, feature in enumerate(features):
+        if not isinstance(feature, dict) or isinstance(feature.get("place"), dict):
+            continue
+        geometry = feature.get("geometry")
+        if isinstance(geometry, dict) and geometry.get("type") in ("Polygon", "MultiPolygon"):
+            footprints[k] = properties(feature)
+            for key in (feature.get("id"), footprints[k].get("id")):
+                if isinstance(key, (str, int)) and not isinstance(key, bool):
+                    ids.setdefault(str(key), k)
+    parts = [k for k, props in footprints.items() if _is_part_feature(props) or (
+        isinstance(props.get("building_id"), (str, int)) and ids.get(str(props["building_id"]), k) != k)]
+    if not parts:
+        return set(), {}
+    part_set = set(parts)
+    owner = {k: ids[str(footprints[k]["building_id"])] for k in parts
+             if str(footprints[k].get("building_id")) in ids and ids[str(footprints[k]["building_id"])] not in part_set}
+
+    def readable(k):
+        try:
+            g = shape(features[k]["geometry"])
+            return g.is_valid and g.area > 0
+        except Exception:  # malformed coordinates: the feature's own reading says so
+            return False
+
+    outlines = [k for k in footprints if k not in part_set and readable(k)]
+    loose = [k for k in parts if k not in owner and readable(k)]
+    found = _owners([_Area(str(k), {}, features[k]["geometry"]) for k in outlines],
+                    [_Area(str(k), {}, features[k]["geometry"]) for k in loose])
+    owner.update({k: outlines[b] for k, b in zip(loose, found.tolist()) if b >= 0})
+    parts_of: dict[int, list[int]] = {}
+    for k in parts:
+        if k in owner:
+            parts_of.setdefault(owner[k], []).append(k)
+        elif _is_part_feature(footprints[k]):
+            parts_of.setdefault(k, [])
+    return set(owner), parts_of
+
+
 def building(geometry: dict, props: dict, options) -> dict:
     """A CityJSON-like Building object of one geometry, labelled by the property
     :attr:`meshsom.io.ReaderOptions.label_attribute`."""
@@ -437,14 +517,24 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         raise InputFileError(str(path), "is a FeatureCollection without a \"features\" list")
     collection_crs = _reference(document.get("coordRefSys"))
     old_crs = _reference(document.get("crs"))
+    owned, parts_of = building_parts(features)
     for k, feature in enumerate(features, 1):
         if not isinstance(feature, dict) or feature.get("type") != "Feature":
             yield Rejection(f"{name}#feature-{k}", str(path), "is not a GeoJSON Feature")
             continue
-        fid = feature.get("id")
-        oid = str(fid) if isinstance(fid, (str, int)) and not isinstance(fid, bool) else f"feature-{k}"
+        if k - 1 in owned:
+            continue  # read with its building
+        oid = _feature_id(feature, k - 1)
         mesh_id = f"{name}#{oid}"
         crs = file_crs(declared_crs(feature, collection_crs, old_crs, options), options)
+        if k - 1 in parts_of:
+            from meshsom.osm import _Area, building_meshes
+
+            area = _Area(oid, properties(feature), feature["geometry"])
+            own = [_Area(_feature_id(features[j], j), properties(features[j]), features[j]["geometry"]) for j in parts_of[k - 1]]
+            yield from building_meshes(area, own, _is_part_feature(properties(feature)) and not own, options, name,
+                                       str(path), crs)
+            continue
         try:
             try:
                 obj, vertices, member, notes = feature_object(feature, mesh_id, options, crs[0])

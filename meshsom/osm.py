@@ -216,9 +216,7 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
             source: str, part_of: tuple[int, int] = (0, 1)) -> Iterator:
     """The meshes of the buildings (and of the parts inside no outline), those of range
     ``part_of`` = (k, n): the k-th of n equal ranges, in file order."""
-    from meshsom.geojson import FeatureVertices, building, footprint_solid, no_height
-    from meshsom.gis import fiona_polygons
-    from meshsom.io import Rejection, _object_meshes, file_crs
+    from meshsom.io import file_crs
 
     system, unknown = file_crs(CRS, options)
     system = dataclasses.replace(system, latitude_first=False)  # GDAL: longitude first
@@ -229,43 +227,77 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
     k, n = part_of
     for index, own_parts in items[k * len(items) // n:(k + 1) * len(items) // n]:
         area = buildings[index] if index >= 0 else parts[-1 - index]
-        mesh_id = f"{name}#{area.oid}"
-        label = area.tags.get(options.label_attribute)
-        verts = FeatureVertices()
-        more = [] if index >= 0 else ["a building:part inside no building outline, read as a building of its own"]
-        if not own_parts:
-            pieces = [(area, _props(area.tags, options))]
-        else:  # the parts, each with its building's height where it has none; the outline too where it is a part
-            pieces = [(parts[k], _props({**{t: area.tags[t] for t in INHERITED if t in area.tags and t not in parts[k].tags},
-                                         **parts[k].tags}, options)) for k in own_parts]
-            if area.tags.get("building:part", NO) != NO:
-                pieces.insert(0, (area, _props(area.tags, options)))
-        solids, failed = [], []
-        for piece, props in pieces:
-            try:
-                polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
-                flat = [[ring[:, :2].tolist() for ring in poly] for poly in polygons]
-                solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
-                if solid is None:
-                    raise InputFileError(mesh_id, no_height(options))
-            except InputFileError as err:
-                failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
-                continue
-            solids.append((f"{piece.oid}/part" if piece is area and own_parts else piece.oid, solid))
-            more += [n for n in said if n not in more]
-        if not solids:
-            yield Rejection(mesh_id, source, "; ".join(failed), 0, label)
+        yield from building_meshes(area, [parts[k] for k in own_parts], index < 0, options, name, source,
+                                   (system, unknown), notes)
+
+
+def building_meshes(area: _Area, own_parts: list[_Area], stray: bool, options, name: str, source: str, crs: tuple,
+                    notes: list[str] = ()) -> Iterator:
+    """The mesh of one footprint building as S3DB reads it: its outline extruded (with its roof), or, with
+    ``own_parts``, its parts (each with its building's height where it has none; the outline too where it is itself
+    tagged ``building:part``) as BuildingParts of one Building; a Rejection where nothing of it can be built.
+
+    Parameters
+    ----------
+    area : _Area
+        The building (or, ``stray``, a part inside no outline: a building of its own, noted).
+    own_parts : list of _Area
+        The parts inside its outline.
+    crs : (CoordinateSystem or None, str or None)
+        As :func:`meshsom.io.file_crs` gives it, x = easting or longitude.
+    notes : list of str
+        Added to the mesh's notes (the file's).
+    """
+    from meshsom.geojson import FeatureVertices, building, footprint_solid, no_height
+    from meshsom.gis import fiona_polygons
+    from meshsom.io import Rejection, _object_meshes
+
+    system = crs[0]
+    mesh_id = f"{name}#{area.oid}"
+    label = area.tags.get(options.label_attribute)
+    verts = FeatureVertices()
+    more = ["a building:part inside no building outline, read as a building of its own"] if stray else []
+    inherited = tuple(dict.fromkeys(INHERITED + tuple(options.height_attributes) + tuple(options.levels_attributes)))
+    if not own_parts:
+        pieces = [(area, _props(area.tags, options))]
+    else:  # the parts, each with its building's height where it has none; the outline too where it is a part
+        pieces = [(part, _props({**{t: area.tags[t] for t in inherited if t in area.tags and t not in part.tags},
+                                 **part.tags}, options)) for part in own_parts]
+        if _is_part(area.tags):
+            pieces.insert(0, (area, _props(area.tags, options)))
+    solids, failed = [], []
+    for piece, props in pieces:
+        try:
+            polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
+            flat = [[ring.tolist() for ring in poly] for poly in polygons]
+            solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
+            if solid is None:
+                raise InputFileError(mesh_id, no_height(options))
+        except InputFileError as err:
+            failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
             continue
-        more += [f"{problem}: left out" for problem in failed]
-        if own_parts:
-            more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)"
-                        + (" with the outline, itself tagged building:part" if area.tags.get("building:part", NO) != NO else ""))
-            obj = {**building(None, area.tags, options), "geometry": [], "children": [oid for oid, _ in solids]}
-            objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}
-                                         for oid, solid in solids}}
-        else:
-            objects = {area.oid: building(solids[0][1], area.tags, options)}
-        for item in _object_meshes(objects, verts.array(), None, None, options, name, source, crs=(system, unknown)):
-            if not isinstance(item, Rejection):
-                item = dataclasses.replace(item, notes=tuple(more + notes) + item.notes)
-            yield item
+        solids.append((f"{piece.oid}/part" if piece is area and own_parts else piece.oid, solid))
+        more += [n for n in said if n not in more]
+    if not solids:
+        yield Rejection(mesh_id, source, "; ".join(failed), 0, None if label is None else str(label))
+        return
+    more += [f"{problem}: left out" for problem in failed]
+    if own_parts:
+        lod = max(solid["lod"] for _, solid in solids)  # one LoD: the reader keeps a building's highest, and a flat
+        solids = [(oid, {**solid, "lod": lod}) for oid, solid in solids]  # part beside a roofed one is still part of it
+        more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)"
+                    + (" with the outline, itself tagged building:part" if _is_part(area.tags) else ""))
+        obj = {**building(None, area.tags, options), "geometry": [], "children": [oid for oid, _ in solids]}
+        objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}
+                                     for oid, solid in solids}}
+    else:
+        objects = {area.oid: building(solids[0][1], area.tags, options)}
+    for item in _object_meshes(objects, verts.array(), None, None, options, name, source, crs=crs):
+        if not isinstance(item, Rejection):
+            item = dataclasses.replace(item, notes=tuple(more + list(notes)) + item.notes)
+        yield item
+
+
+def _is_part(found: dict) -> bool:
+    """Whether tags say ``building:part`` (any value but ``no``)."""
+    return str(found.get("building:part") or NO).strip().lower() != NO

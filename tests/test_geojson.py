@@ -184,6 +184,56 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert _volume(flat["way/7"]) == pytest.approx(10 * 6 * 8, rel=1e-5)
 
 
+def _united_volume(mesh) -> float:
+    """The volume of a building as ingest preprocesses it (its parts united)."""
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    record, clean = process_one(mesh, PreprocessParams())
+    assert record["status"] == "accepted", record
+    t = clean.vertices[clean.faces]
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
+
+
+def test_buildings_made_of_parts_in_one_collection(tmp_path):
+    """Buildings and their parts in one collection, as an Overpass turbo export of building and building:part
+    ways gives them (OSM tags as properties; osmtogeojson nests them under tags), and as Overture Maps' building
+    and building_part features (building_id): each building is its parts, united (S3DB), the outline's own block
+    not added (a flat nave is kept beside its roofed tower: both were LoD-labelled apart, and the reader kept the
+    tower alone as the building's "highest"); a part without a height takes its building's; a part inside no
+    outline is a building of its own,
+    noted; a building_id that names no feature is just a property. Every feature is read or rejected."""
+    def way(fid, rect, **tags):
+        return _feature(fid, {"type": "Polygon", "coordinates": [closed(lonlat(rect))]}, **tags)
+
+    features = [
+        way("way/1", rectangle(0, 0, 20, 10), building="church", height="10"),  # the outline: nave + tower
+        way("way/2", rectangle(0, 0, 12, 10), **{"building:part": "yes"}),  # no height: the church's 10 m
+        _feature("way/3", {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(12, 1, 8, 8)))]},
+                 type="way", id=3, tags={"building:part": "tower", "height": "30", "roof:shape": "pyramidal",
+                                         "roof:height": "6"}),
+        way("way/4", rectangle(40, 0, 10, 10), **{"building:part": "yes", "height": "5"}),  # inside no outline
+        way("b1", rectangle(60, 0, 20, 10), id="b1", height=12.0, has_parts=True),  # Overture
+        way("p1", rectangle(60, 0, 10, 10), id="p1", building_id="b1", height=12.0),
+        way("p2", rectangle(70, 0, 10, 10), id="p2", building_id="b1", min_height=4.0, height=8.0),
+        way("solo", rectangle(90, 0, 10, 10), height=6.0, building_id="nowhere"),
+    ]
+    path = tmp_path / "overpass.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    got = _by_id(read_file(path))
+    assert sorted(got) == ["b1", "solo", "way/1", "way/4"]
+    church = got["way/1"]
+    assert any("2 building:part areas inside its outline, read as its parts (S3DB)" in n for n in church.notes)
+    assert _united_volume(church) == pytest.approx(12 * 10 * 10 + 8 * 8 * (24 + 6 / 3), rel=1e-5)
+    assert np.ptp(church.vertices[:, 2]) == pytest.approx(30, abs=1e-3)
+    assert _united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+    assert any("a building:part inside no building outline" in n for n in got["way/4"].notes)
+    assert _volume(got["way/4"]) == pytest.approx(10 * 10 * 5, rel=1e-5)
+    assert _volume(got["solo"]) == pytest.approx(10 * 10 * 6, rel=1e-5) and got["solo"].notes[0].startswith("converted")
+    separate = _by_id(read_file(path, ReaderOptions(parts="separate")))
+    assert sorted(separate) == ["p1", "p2", "solo", "way/2", "way/3", "way/4"]  # each part a building of its own
+
+
 def test_geojson_files_through_meshsom_ingest(tmp_path):
     import subprocess
 

@@ -171,6 +171,9 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     osm.way(8, (310, 0, 320, 8), building="house", height="9", **{ROOF: "mansard", "roof:height": "3"})
     osm.way(15, (410, 0, 422, 8), building="house", height="9", **{ROOF: "Half_Hipped", "roof:height": "3"})
     osm.way(16, (430, 0, 440, 8), building="industrial", height="9", **{ROOF: "sawtooth", "roof:height": "3"})
+    osm.way(17, (450, 0, 470, 10), building="church", height="10")  # a flat nave beside a roofed tower
+    osm.way(18, (450, 0, 462, 10), **{PART: "yes"})
+    osm.way(19, (462, 1, 470, 9), height="30", **{PART: "yes", ROOF: "pyramidal", "roof:height": "6"})
     osm.way(9, (330, 0, 360, 20))
     osm.way(10, (335, 5, 355, 15))
     osm.relation(11, 9, 10, building="apartments", height="9", **{ROOF: "hipped", "roof:height": "3"})
@@ -220,6 +223,10 @@ def test_roof_shapes_on_footprints_of_every_kind(tmp_path):
     assert any("roof:shape=gabled not modelled on a footprint with courtyards (hipped and mansard are): flat" in n
                for n in gabled_block.notes), gabled_block.notes
     assert _volume(gabled_block) == pytest.approx((osm.area[12] - osm.area[13]) * 9, rel=1e-5)
+    record, clean = process_one(items["way/17"], PreprocessParams())  # the nave kept: one LoD for all parts
+    t = clean.vertices[clean.faces]
+    assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(
+        12 * 10 * 10 + 8 * 8 * (24 + 6 / 3), rel=2e-3)
     sawtooth = items["way/16"]
     assert any("roof:shape=sawtooth not modelled: a flat roof at the height" in n for n in sawtooth.notes), sawtooth.notes
     assert _volume(sawtooth) == pytest.approx(osm.area[16] * 9, rel=1e-5)
