@@ -21,7 +21,12 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
 - ``mansard`` on any simple footprint, courtyards included: the hipped roof with the gambrel's
   bend (:data:`MANSARD`: steep from the walls to three quarters of the height half way in, shallow
   above), each skeleton face cut where its height's profile bends;
-- ``gabled`` on any other simple footprint, and ``gambrel``, ``saltbox`` and ``round`` on any: a
+- ``gabled`` on any other simple footprint with wings (an L, a T, a U, a stepped block): the hipped
+  roof with a gable at the end of each wing (the hip's apex moved out onto the end wall, the wall
+  rising to it), the valleys where wings meet kept; wing ends not square to their sides keep their
+  hips;
+- ``gabled`` on a footprint without wing ends (a round or many-sided one), and ``gambrel``,
+  ``saltbox`` and ``round`` on any: a
   roof whose height is a profile across one ridge line (along the footprint's minimum rotated
   rectangle, across it with ``roof:orientation=across``), the footprint cut into strips where the
   profile bends, each strip one plane, the walls rising to the profile (OSM2World's reading of a
@@ -220,6 +225,10 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
+    if shape == "gabled":
+        gabled = _skeleton_hipped([ring], scale, z0, z_eaves, z_top, gables=True)
+        if gabled is not None:
+            return gabled
     if shape == "mansard":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top, MANSARD)
     if shape in PROFILES:
@@ -340,7 +349,8 @@ def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.nda
     return faces
 
 
-def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None) -> list[np.ndarray] | None:
+def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gables: bool = False
+                     ) -> list[np.ndarray] | None:
     """A hipped roof on any footprint, courtyards included: its straight skeleton lifted (a node's height its time,
     the distance the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the
     skeleton cannot be computed or fails its check (a face per wall, each holding its wall's edge, each node at its
@@ -348,6 +358,13 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None) -> li
 
     ``profile``: (time as a fraction of the greatest, height as a fraction of the roof's) knots (a mansard's,
     :data:`MANSARD`): the height is the profile of the time, each face cut where the profile bends (:func:`_bent`).
+
+    ``gables``: a gabled roof: every hip that ends a wing (a triangle over its wall, its apex a node of three faces)
+    becomes a gable, the apex moved out onto the wall (straight out: the point of the wall's line nearest to it) and
+    the wall rising to it, where the faces beside the hip stay planes (the moved apex as far from their walls' lines
+    as the apex was: a wing end square to its sides). Hips that cannot are kept (a corner cut at 45 degrees keeps its
+    small hip); None where a footprint without courtyards has no end that can (the caller cuts the footprint in
+    strips instead).
 
     ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
     footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below. None, too,
@@ -392,7 +409,7 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None) -> li
     rise = (z_top - z_eaves) / float(time.max())
     points = (where + origin) / scale  # back in the ring's units, its corners exactly
     points[corner >= 0] = ring[corner[corner >= 0]]
-    roof, below, kept = [], [], []
+    roof, below, kept, face_walls = [], [], [], []
     seen = set()
     for face in faces:
         face = [int(i) for i in face]
@@ -413,17 +430,40 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None) -> li
         z = z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])
         roof.append(np.column_stack([points[face], z]))
         kept.append(face)
+        face_walls.append(wall)
         below.append(np.column_stack([points[face][::-1], np.full(len(face), z0)]))
     footprint = sum(0.5 * float(np.sum(r[:, 0] * np.roll(r[:, 1], -1) - np.roll(r[:, 0], -1) * r[:, 1]))
                     for r in (local[a:b] for a, b in zip(starts[:-1], starts[1:])))
     if abs(covered - footprint) > CHECK_REL * footprint:
         return None
+    walls = [w for r in rings for w in _floor_and_walls(r, z0, np.full(len(r), z_eaves))[1:]]
+    if gables:
+        holding = np.bincount(np.concatenate([np.asarray(face) for face in kept]), minlength=len(nodes))
+        gabled = []
+        for k, (face, wall) in enumerate(zip(kept, face_walls)):
+            apex = [i for i in face if corner[i] < 0]
+            if len(face) != 3 or len(apex) != 1 or holding[apex[0]] != 3:
+                continue
+            c, a, b = apex[0], wall, int(following[wall])
+            ab = local[b] - local[a]
+            along = float((where[c] - local[a]) @ ab / (ab @ ab))
+            moved = local[a] + along * ab
+            beside = [w for f, w in zip(kept, face_walls) if c in f and w != wall]
+            if not 0 < along < 1 or any(abs(float((moved - local[w]) @ inward[w]) - time[c]) > tol for w in beside):
+                continue
+            points[c] = ring[a] + along * (ring[b] - ring[a])  # the same affine point, in the ring's units
+            top = z_eaves + rise * time[c]
+            walls[wall] = np.insert(walls[wall], 3, [*points[c], top], axis=0)  # a0, b0, b at the eaves, apex, a
+            gabled.append(k)
+        if not gabled and len(rings) == 1:
+            return None
+        roof = [np.column_stack([points[face], z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])])
+                for k, face in enumerate(kept) if k not in gabled]
     if profile is not None:
         share = np.where(corner >= 0, 0.0, time / float(time.max()))
         roof = _bent(kept, points, where, share, np.asarray(profile, np.float64), z_eaves, z_top)
         if roof is None:
             return None
-    walls = [w for r in rings for w in _floor_and_walls(r, z0, np.full(len(r), z_eaves))[1:]]
     floor = below if len(rings) > 1 else [np.column_stack([rings[0][::-1], np.full(len(rings[0]), z0)])]
     return floor + walls + roof
 

@@ -226,7 +226,7 @@ def _profile_height(ring, knots, z_eaves, z_top, across=False):
 def test_profiled_roofs_follow_their_profile_on_any_footprint(shape, name, ring):
     """Every corner of the roof at its profile's height over it, closed and outward, and the volume the profile's
     integral over the footprint (a fine grid); a gabled rectangle is the four-cornered gabled roof."""
-    from meshsom.roofs import CURVE_SEGMENTS, PROFILES
+    from meshsom.roofs import CURVE_SEGMENTS, PROFILES, _profiled
 
     if shape == "round":
         angle = np.linspace(np.pi, 0.0, CURVE_SEGMENTS + 1)
@@ -234,17 +234,45 @@ def test_profiled_roofs_follow_their_profile_on_any_footprint(shape, name, ring)
     else:
         knots = PROFILES[shape]
     if shape == "gabled" and name == "rectangle":
-        from meshsom.roofs import _profiled
-
         faces = _profiled(RECT, RECT, 0.0, 6.0, 9.0, np.array(knots), False)
         assert _volume_closed(faces) == pytest.approx(_volume_closed(roof_faces(RECT, 0.0, 6.0, 9.0, "gabled", (1, 1))))
-    faces = roof_faces(ring, 0.0, 6.0, 9.0, shape, (1.0, 1.0))
+    faces = (roof_faces(ring, 0.0, 6.0, 9.0, shape, (1.0, 1.0)) if shape != "gabled" else  # gabled: the skeleton's, below
+             _profiled(ring, ring, 0.0, 6.0, 9.0, np.array(knots), False))
     volume = _volume_closed(faces)
     height = _profile_height(ring, knots, 6.0, 9.0)
     for face in faces:
         raised = face[face[:, 2] > 0]
         assert raised[:, 2] == pytest.approx(height(raised[:, :2]), abs=1e-9)
     assert volume == pytest.approx(_grid_volume(ring, height), rel=2e-3)
+
+
+@pytest.mark.parametrize("name, ring, ends", [("L", EL, 2), ("T", TEE, 3), ("U", YOU, 2),
+                                              ("chamfered", np.array([[0, 0], [10, 0], [10, 3], [9, 4], [0, 4]], float), 1)])
+def test_a_gabled_roof_on_wings_has_a_gable_at_each_end_and_valleys_between(name, ring, ends):
+    """Gabled on an L, a T, a U (wings 4 m wide): the straight skeleton's roof with a gable wall at the end of each
+    wing (its hip's apex moved out onto the end wall) and the valleys where wings meet kept. Each end adds to the
+    hipped roof's volume the gable's prism less the hip's pyramid: (4 x 3 / 2) x 2 - (4 x 2) x 3 / 3 = 4 m^3 (walls 4 m
+    apart, 3 m of rise, the hip 2 m deep). The L's is worked out by hand: 64 m^2 x 6 m of walls, 36 m^3 of roof over
+    each arm beyond the corner (a gable prism 6 m long: 4 x 3 / 2 x 6), and 24 m^3 over the corner square (the
+    height 1.5 x min(m, 4 - m), m = min(x, y), whose integral is 1.5 x (56 / 3 - 8 / 3)). A cut corner keeps its
+    small hip. A footprint with no wing ends (a heptagon) is cut in strips across a ridge instead."""
+    from meshsom.roofs import PROFILES, _profiled
+
+    faces = roof_faces(ring, 0.0, 6.0, 9.0, "gabled", (1.0, 1.0))
+    hipped = roof_faces(ring, 0.0, 6.0, 9.0, "hipped", (1.0, 1.0))
+    volume = _volume_closed(faces)
+    assert all(_planar(f) for f in faces)
+    assert volume == pytest.approx(_volume_closed(hipped) + 4.0 * ends, rel=1e-8)  # the skeleton: to ~1e-8
+    if name == "L":
+        assert volume == pytest.approx(64 * 6 + 2 * 36 + 24, rel=1e-12)
+    gables = [f for f in faces if len(f) == 5 and np.ptp(f[:, 2]) == 9.0 and np.linalg.svd(f - f.mean(axis=0))[2][-1][2] == 0]
+    assert len(gables) == ends  # vertical pentagons up to the ridge
+    assert max(f[:, 2].max() for f in faces) == 9.0
+    valleys = {tuple(p) for f in faces for p in f if p[2] == 6.0} - {(*c, 6.0) for c in ring}
+    assert not valleys  # every roof corner at the eaves is a corner of the footprint
+    heptagon = roof_faces(_heptagon(), 0.0, 6.0, 9.0, "gabled", (1.0, 1.0))
+    strips = _profiled(_heptagon(), _heptagon(), 0.0, 6.0, 9.0, np.array(PROFILES["gabled"]), False)
+    assert len(heptagon) == len(strips) and all(np.array_equal(a, b) for a, b in zip(heptagon, strips))
 
 
 @pytest.mark.parametrize("shape", ["dome", "onion"])
@@ -301,8 +329,12 @@ def test_every_shape_on_many_real_footprints_is_closed_or_flat():
 
 
 def _planar(face) -> bool:
+    """Within the roofs' tolerance of a plane (CHECK_REL of its size: the straight skeleton's nodes are computed to
+    about 1e-8 of the footprint)."""
+    from meshsom.roofs import CHECK_REL
+
     centred = face - face.mean(axis=0)
-    return np.linalg.svd(centred, compute_uv=False)[-1] <= 1e-9 * max(1.0, float(np.abs(centred).max()))
+    return np.linalg.svd(centred, compute_uv=False)[-1] <= CHECK_REL * max(1.0, float(np.abs(centred).max()))
 
 
 def _hipped_height(faces, points):
