@@ -225,8 +225,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
-    if shape == "gabled":
-        gabled = _skeleton_hipped([ring], scale, z0, z_eaves, z_top, gables=True)
+    if shape in ("gabled", "gambrel", "round") and not (len(ring) == QUAD and _convex(metric)):
+        gabled = _skeleton_hipped([ring], scale, z0, z_eaves, z_top, _half_profile(shape), gables=True)
         if gabled is not None:
             return gabled
     if shape == "mansard":
@@ -244,6 +244,19 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
             outline = np.array(ONION)
         return _domed(ring, metric, z0, z_eaves, z_top, outline)
     return None
+
+
+def _half_profile(shape: str) -> np.ndarray | None:
+    """A symmetric profile's half from the eaves to the ridge as (share of the way in, height as a fraction of the
+    roof's) knots, the profile of a skeleton roof with gables (None: a gabled roof's straight slopes)."""
+    if shape == "gabled":
+        return None
+    if shape == "round":
+        angle = np.linspace(np.pi, np.pi / 2, CURVE_SEGMENTS // 2 + 1)
+        return np.column_stack([1.0 + np.cos(angle), np.sin(angle)])
+    knots = np.array(PROFILES[shape])
+    knots = knots[knots[:, 0] <= 0]
+    return np.column_stack([knots[:, 0] + 1.0, knots[:, 1]])
 
 
 def _floor_and_walls(ring: np.ndarray, z0: float, tops: np.ndarray) -> list[np.ndarray]:
@@ -439,7 +452,9 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
     walls = [w for r in rings for w in _floor_and_walls(r, z0, np.full(len(r), z_eaves))[1:]]
     if gables:
         holding = np.bincount(np.concatenate([np.asarray(face) for face in kept]), minlength=len(nodes))
-        gabled = []
+        node_of = np.full(n, -1, np.int64)
+        node_of[corner[corner >= 0]] = np.flatnonzero(corner >= 0)
+        gabled, ends = [], []
         for k, (face, wall) in enumerate(zip(kept, face_walls)):
             apex = [i for i in face if corner[i] < 0]
             if len(face) != 3 or len(apex) != 1 or holding[apex[0]] != 3:
@@ -452,20 +467,43 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
             if not 0 < along < 1 or any(abs(float((moved - local[w]) @ inward[w]) - time[c]) > tol for w in beside):
                 continue
             points[c] = ring[a] + along * (ring[b] - ring[a])  # the same affine point, in the ring's units
+            where[c] = moved
             top = z_eaves + rise * time[c]
             walls[wall] = np.insert(walls[wall], 3, [*points[c], top], axis=0)  # a0, b0, b at the eaves, apex, a
             gabled.append(k)
+            ends.append((wall, int(node_of[a]), c, int(node_of[b])))
         if not gabled and len(rings) == 1:
             return None
+        kept = [face for k, face in enumerate(kept) if k not in gabled]
         roof = [np.column_stack([points[face], z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])])
-                for k, face in enumerate(kept) if k not in gabled]
+                for face in kept]
     if profile is not None:
+        knots = np.asarray(profile, np.float64)
         share = np.where(corner >= 0, 0.0, time / float(time.max()))
-        roof = _bent(kept, points, where, share, np.asarray(profile, np.float64), z_eaves, z_top)
+        roof = _bent(kept, points, where, share, knots, z_eaves, z_top)
         if roof is None:
             return None
+        for wall, a, c, b in (ends if gables else []):  # a gable's top through the cuts of the roof's edges up to it
+            rising = [bend for bend in knots[1:-1, 0] if bend + CHECK_REL < share[c]]
+            top = ([[*_cut_point(points, share, b, c, bend), _lift(bend, knots, z_eaves, z_top)] for bend in rising]
+                   + [[*points[c], _lift(share[c], knots, z_eaves, z_top)]]
+                   + [[*_cut_point(points, share, a, c, bend), _lift(bend, knots, z_eaves, z_top)] for bend in rising[::-1]])
+            walls[wall] = np.concatenate([walls[wall][:3], np.array(top), walls[wall][-1:]])
     floor = below if len(rings) > 1 else [np.column_stack([rings[0][::-1], np.full(len(rings[0]), z0)])]
     return floor + walls + roof
+
+
+def _lift(share, knots: np.ndarray, z_eaves: float, z_top: float):
+    """The height of a profile (``knots``: share, height as a fraction of the roof's) at ``share``."""
+    return z_eaves + (z_top - z_eaves) * np.interp(share, knots[:, 0], knots[:, 1])
+
+
+def _cut_point(points: np.ndarray, share: np.ndarray, a: int, b: int, level: float) -> np.ndarray:
+    """The point of the edge between nodes ``a`` and ``b`` at ``share`` ``level``, computed from the lower-numbered
+    node: every face (and gable wall) holding the edge gets the same floats."""
+    a, b = min(a, b), max(a, b)
+    f = (level - share[a]) / (share[b] - share[a])
+    return points[a] + f * (points[b] - points[a])
 
 
 def _bent(faces: list, points: np.ndarray, local: np.ndarray, share: np.ndarray, knots: np.ndarray, z_eaves: float,
@@ -497,7 +535,7 @@ def _bent(faces: list, points: np.ndarray, local: np.ndarray, share: np.ndarray,
     tol = CHECK_REL
 
     def lift(s):
-        return z_eaves + (z_top - z_eaves) * np.interp(s, knots[:, 0], knots[:, 1])
+        return _lift(s, knots, z_eaves, z_top)
 
     cut: dict = {}
 
@@ -505,9 +543,7 @@ def _bent(faces: list, points: np.ndarray, local: np.ndarray, share: np.ndarray,
         if len(key) == 1:
             return points[key[0]], share[key[0]]
         if key not in cut:
-            a, b, k = key
-            f = (bends[k] - share[a]) / (share[b] - share[a])
-            cut[key] = (points[a] + f * (points[b] - points[a]), bends[k])
+            cut[key] = (_cut_point(points, share, key[0], key[1], bends[key[2]]), bends[key[2]])
         return cut[key]
 
     def on_edge(p, q):  # the nodes of the triangle edge that piece corners p and q lie on
