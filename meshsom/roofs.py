@@ -21,12 +21,12 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
 - ``mansard`` on any simple footprint, courtyards included: the hipped roof with the gambrel's
   bend (:data:`MANSARD`: steep from the walls to three quarters of the height half way in, shallow
   above), each skeleton face cut where its height's profile bends;
-- ``gabled`` on any other simple footprint with wings (an L, a T, a U, a stepped block): the hipped
-  roof with a gable at the end of each wing (the hip's apex moved out onto the end wall, the wall
-  rising to it), the valleys where wings meet kept; wing ends not square to their sides keep their
-  hips;
-- ``gabled`` on a footprint without wing ends (a round or many-sided one), and ``gambrel``,
-  ``saltbox`` and ``round`` on any: a
+- ``gabled``, ``gambrel`` and ``round`` on any other simple footprint with wings (an L, a T, a U, a
+  stepped block): the hipped roof with a gable at the end of each wing (the hip's apex moved out
+  onto the end wall, the wall rising to it), the valleys where wings meet kept, the height the
+  shape's profile of the way in to the ridge (:func:`_half_profile`; faces cut where it bends);
+  wing ends not square to their sides keep their hips;
+- the same on a footprint without wing ends (a round or many-sided one), and ``saltbox`` on any: a
   roof whose height is a profile across one ridge line (along the footprint's minimum rotated
   rectangle, across it with ``roof:orientation=across``), the footprint cut into strips where the
   profile bends, each strip one plane, the walls rising to the profile (OSM2World's reading of a
