@@ -85,6 +85,9 @@ UNBUILT["mansard"] = UNBUILT["hipped"]
 DEFAULT_PITCH_DEG = 30.0
 #: Corners of the footprints a gabled or hipped roof is built on by its short sides' midpoints.
 QUAD = 4
+#: A hip becomes a gable (gabled, gambrel and round roofs on wings) where its wall is within this many degrees of
+#: square to the walls beside it: a wing's end as traced footprints draw it, not a corner cut at 45 degrees.
+GABLE_SQUARE_DEG = 20.0
 #: The share of a half-hipped roof's height its hips take (the gable walls rise to the rest).
 HALF_HIP_SHARE = 0.5
 #: Profiles across the ridge line: (distance from the ridge line as a fraction of the farthest
@@ -406,11 +409,12 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
     :data:`MANSARD`): the height is the profile of the time, each face cut where the profile bends (:func:`_bent`).
 
     ``gables``: a gabled roof: every hip that ends a wing (a triangle over its wall, its apex a node of three faces)
-    becomes a gable, the apex moved out onto the wall (straight out: the point of the wall's line nearest to it) and
-    the wall rising to it, where the faces beside the hip stay planes (the moved apex as far from their walls' lines
-    as the apex was: a wing end square to its sides). Hips that cannot are kept (a corner cut at 45 degrees keeps its
-    small hip); None where a footprint without courtyards has no end that can (the caller cuts the footprint in
-    strips instead).
+    becomes a gable, the apex moved out along the ridge onto the wall's line and the wall rising to it. Along the
+    ridge the apex stays as far from the two side walls' lines as from each other's, so the faces beside the hip stay
+    planes, exactly, on a wing whose end is not quite square to its sides or whose sides are not quite parallel (as
+    traced footprints are: the ridge then rises or falls a little to the end, the highest point still the top). Hips
+    that cannot are kept (a corner cut at 45 degrees keeps its small hip); None where a footprint without courtyards
+    has no end that can (the caller cuts the footprint in strips instead).
 
     ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
     footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below. None, too,
@@ -493,18 +497,32 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
             if len(face) != 3 or len(apex) != 1 or holding[apex[0]] != 3:
                 continue
             c, a, b = apex[0], wall, int(following[wall])
-            ab = local[b] - local[a]
-            along = float((where[c] - local[a]) @ ab / (ab @ ab))
-            moved = local[a] + along * ab
             beside = [w for f, w in zip(kept, face_walls) if c in f and w != wall]
-            if not 0 < along < 1 or any(abs(float((moved - local[w]) @ inward[w]) - time[c]) > tol for w in beside):
+            ridge = [i for f in kept for i in f if c in f and i not in (a, b, c) and corner[i] < 0]
+            if len(beside) != 2:
+                continue
+            # along the ridge (as far from the one side's wall line as from the other's: both faces stay planes) out
+            # to the end wall's line: x = a + s (b - a) with d1(x) = d2(x), each d linear in s
+            ab = local[b] - local[a]
+            d_a = [float((local[a] - local[w]) @ inward[w]) for w in beside]
+            d_ab = [float(ab @ inward[w]) for w in beside]
+            if min(abs(d) for d in d_ab) < math.cos(math.radians(GABLE_SQUARE_DEG)) * float(np.linalg.norm(ab)):
+                continue  # not a wing's end: a corner cut at an angle keeps its hip
+            if abs(d_ab[0] - d_ab[1]) <= CHECK_REL * float(np.linalg.norm(ab)):
+                continue
+            along = (d_a[1] - d_a[0]) / (d_ab[0] - d_ab[1])
+            moved = local[a] + along * ab
+            height = d_a[0] + along * d_ab[0]
+            out = [float((moved - where[c]) @ (where[c] - where[r])) for r in set(ridge)]
+            if not 0 < along < 1 or not height > 0 or any(o < -tol * tol for o in out):
                 continue
             points[c] = ring[a] + along * (ring[b] - ring[a])  # the same affine point, in the ring's units
-            where[c] = moved
-            top = z_eaves + rise * time[c]
-            walls[wall] = np.insert(walls[wall], 3, [*points[c], top], axis=0)  # a0, b0, b at the eaves, apex, a
+            where[c], time[c] = moved, height
             gabled.append(k)
             ends.append((wall, int(node_of[a]), c, int(node_of[b])))
+        rise = (z_top - z_eaves) / float(time.max())  # a ridge rising to a wider end: the top stays the top
+        for wall, _, c, _ in ends:
+            walls[wall] = np.insert(walls[wall], 3, [*points[c], z_eaves + rise * time[c]], axis=0)  # a0 b0 b c a
         if not gabled and len(rings) == 1:
             return None
         kept = [face for k, face in enumerate(kept) if k not in gabled]

@@ -304,6 +304,38 @@ def test_roofs_on_wings_have_a_gable_at_each_end_and_valleys_between(shape, name
     assert len(heptagon) == len(strips) and all(np.array_equal(a, b) for a, b in zip(heptagon, strips))
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_gables_on_wings_traced_not_quite_square(seed):
+    """Traced footprints are not quite square: an L, a T and a U with every corner moved up to 15 cm (corners of 86 to
+    94 degrees, sides not parallel), in longitude and latitude. The gabled roof still has a gable at each wing's end
+    (its apex moved along the ridge, so its faces stay planes, exactly), every roof face rising from its wall at one
+    pitch (the height over a corner the pitch times its distance to the face's wall line, the same pitch on every face:
+    the roof's defining property), the highest point the top; closed and outward."""
+    rng = np.random.default_rng(seed)
+    clean = (EL, TEE, YOU)[seed % 3]
+    ring = clean + rng.uniform(-0.15, 0.15, clean.shape)
+    scale, origin = np.array([75_529.4, 111_178.1]), np.array([8.54, 47.37])
+    faces = roof_faces(ring / scale + origin, 0.0, 6.0, 9.0, "gabled", tuple(scale))
+    faces = [np.column_stack([(f[:, :2] - origin) * scale, f[:, 2]]) for f in faces]
+    _volume_closed(faces)
+    assert all(_planar(f) for f in faces)
+    n = len(ring)
+    walls, roof = faces[1:n + 1], faces[n + 1:]
+    gables = [w for w in walls if len(w) == 5]
+    assert len(gables) == {0: 2, 1: 3, 2: 2}[seed % 3]
+    assert max(f[:, 2].max() for f in roof) == pytest.approx(9.0, abs=1e-9)
+    pitches = []
+    for face in roof:
+        eaves = [k for k in range(n) if any(np.allclose(p, [*ring[k], 6.0], atol=1e-6) for p in face)]
+        (wall,) = [k for k in eaves if (k + 1) % n in eaves]
+        a, b = ring[wall], ring[(wall + 1) % n]
+        inward = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+        distance = (face[:, :2] - a) @ inward
+        up = distance > 1e-6
+        pitches += list((face[up, 2] - 6.0) / distance[up])
+    assert np.ptp(pitches) < 1e-6 * np.mean(pitches)
+
+
 @pytest.mark.parametrize("shape", ["dome", "onion"])
 def test_domes_and_onions_are_rings_scaled_about_the_centre(shape):
     """Over a regular heptagon: each band a frustum of the footprint scaled about its centre (volume A h / 3 (s0^2 +
