@@ -22,8 +22,9 @@ own configuration reads as lines; every tag is kept):
   Roofs: ``roof:shape`` ``pyramidal``, ``skillion``, ``gabled``, ``hipped``, ``half-hipped``,
   ``gambrel``, ``saltbox``, ``round``, ``dome``, ``onion`` and ``mansard`` (and their other spellings,
   :data:`meshsom.roofs.ALIASES`) are built (:mod:`meshsom.roofs`:
-  hipped (and mansard, its gambrel-bent kin) on any footprint by its straight skeleton, the profiled ones on any, half-hipped
-  on four-cornered convex ones, the pointed ones where their apex sees every wall) from
+  hipped (and mansard, its gambrel-bent kin) on any footprint by its straight skeleton; gabled, gambrel, round and
+  half-hipped with a gable at each wing's end of it, else across one ridge; the pointed ones where their apex sees
+  every wall) from
   ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
   its width), eaves at the height less the roof's, ``roof:direction`` and ``roof:orientation``
   followed; other shapes (sawtooth, ...), footprints with courtyards (but for hipped and mansard), and footprints a shape cannot

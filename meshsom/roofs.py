@@ -12,8 +12,8 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
   (across them with ``roof:orientation=across``) between the short sides' midpoints, gable walls
   of five corners; a hipped roof's ridge is shortened by half the short side at each end (a
   pyramid where that leaves none);
-- ``half-hipped`` (the same footprints): a gabled roof whose gables are hipped above
-  :data:`HALF_HIP_SHARE` of the roof's height, the hips at the roof's pitch;
+- ``half-hipped`` (the same footprints, and wings, below): a gabled roof whose gables are hipped
+  above :data:`HALF_HIP_SHARE` of the roof's height, the hips at the roof's pitch;
 - ``hipped`` on any other simple footprint (an L, a T, a courtyard-less block of many corners): the
   straight skeleton's roof (every face rising from its wall at one pitch; py-straight-skeleton),
   checked (each face holds its wall's edge, lies in the plane through it at the pitch, and the faces
@@ -21,11 +21,12 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
 - ``mansard`` on any simple footprint, courtyards included: the hipped roof with the gambrel's
   bend (:data:`MANSARD`: steep from the walls to three quarters of the height half way in, shallow
   above), each skeleton face cut where its height's profile bends;
-- ``gabled``, ``gambrel`` and ``round`` on any other simple footprint with wings (an L, a T, a U, a
-  stepped block): the hipped roof with a gable at the end of each wing (the hip's apex moved out
-  onto the end wall, the wall rising to it), the valleys where wings meet kept, the height the
-  shape's profile of the way in to the ridge (:func:`_half_profile`; faces cut where it bends);
-  wing ends not square to their sides keep their hips;
+- ``gabled``, ``gambrel``, ``round`` and ``half-hipped`` on any other simple footprint with wings
+  (an L, a T, a U, a stepped block, traced not quite square): the hipped roof with a gable at the
+  end of each wing (the hip's apex moved out along the ridge onto the end wall, the wall rising to
+  it; half-hipped: to half its height, a hip above), the valleys where wings meet kept, the height
+  the shape's profile of the way in to the ridge (:func:`_half_profile`; faces cut where it
+  bends); wing ends not square to their sides keep their hips;
 - the same on a footprint without wing ends (a round or many-sided one), and ``saltbox`` on any: a
   roof whose height is a profile across one ridge line (along the footprint's minimum rotated
   rectangle, across it with ``roof:orientation=across``), the footprint cut into strips where the
@@ -78,7 +79,7 @@ UNBUILT = {
     "round": "not a simple polygon, or its cut into strips failed its check",
     "hipped": f"its straight skeleton could not be computed or failed its check, or more than {MAX_SKELETON_CORNERS} "
               "corners",
-    "half-hipped": "four corners, convex",
+    "half-hipped": "no wing end square to its sides (four convex corners, or the straight skeleton's wings)",
 }
 UNBUILT["mansard"] = UNBUILT["hipped"]
 #: The pitch of a roof whose height is not tagged (degrees): a common pitched roof.
@@ -233,6 +234,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
+    if shape == "half-hipped":
+        return _skeleton_hipped([ring], scale, z0, z_eaves, z_top, gables=True, hip=HALF_HIP_SHARE)
     if shape in ("gabled", "gambrel", "round") and not (len(ring) == QUAD and _convex(metric)):
         gabled = _skeleton_hipped([ring], scale, z0, z_eaves, z_top, _half_profile(shape), gables=True)
         if gabled is not None:
@@ -398,7 +401,7 @@ def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.nda
     return faces
 
 
-def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gables: bool = False
+def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gables: bool = False, hip: float = 0.0
                      ) -> list[np.ndarray] | None:
     """A hipped roof on any footprint, courtyards included: its straight skeleton lifted (a node's height its time,
     the distance the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the
@@ -415,6 +418,9 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
     traced footprints are: the ridge then rises or falls a little to the end, the highest point still the top). Hips
     that cannot are kept (a corner cut at 45 degrees keeps its small hip); None where a footprint without courtyards
     has no end that can (the caller cuts the footprint in strips instead).
+
+    ``hip`` (with ``gables``): a half-hipped roof: each gable wall rises to ``1 - hip`` of its height, and a hip from
+    there meets the ridge at the roof's pitch (a wing too short for it keeps its whole gable).
 
     ``rings``: the outer ring counter-clockwise, then the courtyards clockwise ((K, 2) each, ring units), so the
     footprint lies left of every edge. With courtyards the floor is the roof's faces seen from below. None, too,
@@ -526,6 +532,32 @@ def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gable
         if not gabled and len(rings) == 1:
             return None
         kept = [face for k, face in enumerate(kept) if k not in gabled]
+        if hip > 0:  # half-hipped: each gable wall up to (1 - hip) of its height, a hip at the roof's pitch above
+            fresh = len(time)
+            points, where = np.vstack([points, np.zeros((3 * len(ends), 2))]), np.vstack([where, np.zeros((3 * len(ends), 2))])
+            time, corner = np.concatenate([time, np.zeros(3 * len(ends))]), np.concatenate([corner, np.full(3 * len(ends), -1)])
+            for wall, na, c, nb in ends:
+                side_a = next(f for f in kept if c in f and na in f)  # c follows a in it, and precedes b in the other
+                side_b = next(f for f in kept if c in f and nb in f)
+                i = side_a.index(c)
+                r = side_a[(i + 1) % len(side_a)]  # the ridge's next node
+                low = (1.0 - hip) * time[c]
+                d_c, d_r = ((where[[c, r]] - local[wall]) @ inward[wall]).tolist()
+                t = (low + d_c - time[c]) / ((time[r] - time[c]) - (d_r - d_c))  # where the hip meets the ridge
+                if not 0 < t < 1:
+                    continue  # a wing too short for its hip: its gable kept
+                qa, qb, top = fresh, fresh + 1, fresh + 2
+                fresh += 3
+                for node, (u, v, f) in ((qa, (na, c, 1.0 - hip)), (qb, (nb, c, 1.0 - hip)), (top, (c, r, t))):
+                    points[node] = points[u] + f * (points[v] - points[u])
+                    where[node] = where[u] + f * (where[v] - where[u])
+                    time[node] = (time[u] if corner[u] < 0 else 0.0) + f * (time[v] - (time[u] if corner[u] < 0 else 0.0))
+                side_a[i:i + 1] = [qa, top]
+                j = side_b.index(c)
+                side_b[j:j + 1] = [top, qb]
+                kept.append([qa, qb, top])
+                walls[wall] = np.concatenate([walls[wall][:3], [[*points[qb], z_eaves + rise * time[qb]],
+                                                                [*points[qa], z_eaves + rise * time[qa]]], walls[wall][-1:]])
         roof = [np.column_stack([points[face], z_eaves + rise * np.where(corner[face] >= 0, 0.0, time[face])])
                 for face in kept]
     if profile is not None:

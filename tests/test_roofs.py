@@ -73,17 +73,16 @@ def test_pyramidal_and_skillion_volumes():
 
 
 def test_shapes_that_cannot_be_built_and_roof_heights():
-    """Gabled or hipped on a non-convex quad (a dart), half-hipped on an L, a pyramid, dome or onion over a
+    """Gabled or hipped on a non-convex quad (a dart), half-hipped on a heptagon, a pyramid, dome or onion over a
     footprint its apex does not see, a shape not built: None (the caller models them flat). Heights from roof:height, roof:levels, roof:angle,
     and the 30 degree default over half the width (8 m: 4 tan 30)."""
-    el = np.array([[0, 0], [10, 0], [10, 4], [4, 4], [4, 10], [0, 10]], float)
     dart = np.array([[0, 0], [10, 5], [0, 10], [3, 5]], float)
     assert roof_faces(dart, 0, 5, 8, "gabled", (1, 1)) is not None  # gabled: a profile across its ridge line
     assert roof_faces(dart, 0, 5, 8, "hipped", (1, 1)) is not None  # hipped: its straight skeleton
     crescent = np.array([[0, 0], [10, 0], [10, 10], [0, 10], [9, 5]], float)
     for shape in ("pyramidal", "dome", "onion"):  # an apex or tip over a point that does not see every wall
         assert roof_faces(crescent, 0, 5, 8, shape, (1, 1)) is None
-    assert roof_faces(el, 0, 5, 8, "half-hipped", (1, 1)) is None
+    assert roof_faces(_heptagon(), 0, 5, 8, "half-hipped", (1, 1)) is None  # no wing ends
     assert roof_faces(RECT, 0, 5, 8, "sawtooth", (1, 1)) is None
     assert set(UNBUILT) == set(SHAPES)  # a reason for the note wherever a shape is not built
     from meshsom.roofs import ALIASES
@@ -304,6 +303,22 @@ def test_roofs_on_wings_have_a_gable_at_each_end_and_valleys_between(shape, name
     assert len(heptagon) == len(strips) and all(np.array_equal(a, b) for a, b in zip(heptagon, strips))
 
 
+@pytest.mark.parametrize("name, ring, ends", [("L", EL, 2), ("T", TEE, 3), ("U", YOU, 2)])
+def test_half_hipped_wings_are_gabled_below_half_the_height_and_hipped_above(name, ring, ends):
+    """Half-hipped on an L, a T, a U: each wing's gable wall rises to half the ridge's height (1.5 m of 3), where a hip
+    at the roof's pitch (1.5 m up per metre in) starts and meets the ridge 1 m in. Each end is the gabled roof less a
+    tetrahedron of the gable's top (the ridge's end m (0, 0, 3), the hip's foot q (0, -1, 1.5) and (0, 1, 1.5), its
+    top on the ridge (1, 0, 3)): |det| / 6 = 3 / 6 = 0.5 m^3. Closed, outward, every face planar; the gable walls
+    six-cornered."""
+    faces = roof_faces(ring, 0.0, 6.0, 9.0, "half-hipped", (1.0, 1.0))
+    gabled = roof_faces(ring, 0.0, 6.0, 9.0, "gabled", (1.0, 1.0))
+    assert _volume_closed(faces) == pytest.approx(_volume_closed(gabled) - 0.5 * ends, rel=1e-12)
+    assert all(_planar(f) for f in faces)
+    n = len(ring)
+    assert sorted(len(w) for w in faces[1:n + 1])[-ends:] == [6] * ends
+    assert sum(1 for w in faces[1:n + 1] if len(w) == 6 and w[:, 2].max() == 7.5) == ends  # up to half the roof
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_gables_on_wings_traced_not_quite_square(seed):
     """Traced footprints are not quite square: an L, a T and a U with every corner moved up to 15 cm (corners of 86 to
@@ -334,6 +349,10 @@ def test_gables_on_wings_traced_not_quite_square(seed):
         up = distance > 1e-6
         pitches += list((face[up, 2] - 6.0) / distance[up])
     assert np.ptp(pitches) < 1e-6 * np.mean(pitches)
+    half = roof_faces(ring / scale + origin, 0.0, 6.0, 9.0, "half-hipped", tuple(scale))  # its gables hipped above
+    half = [np.column_stack([(f[:, :2] - origin) * scale, f[:, 2]]) for f in half]
+    assert _volume_closed(half) < _volume_closed(faces) and all(_planar(f) for f in half)
+    assert sum(1 for w in half[1:n + 1] if len(w) == 6) == len(gables)
 
 
 @pytest.mark.parametrize("shape", ["dome", "onion"])
