@@ -195,7 +195,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         Skillion: the way the roof faces, degrees clockwise from north (default: across the
         longest edge, down towards it).
     across : bool
-        Gabled, hipped, gambrel, saltbox, round: the ridge across the longer sides.
+        Gabled, hipped, half-hipped, gambrel, saltbox, round: the ridge across the longer sides (four convex corners;
+        on wings, gabled, gambrel and round are then cut in strips across one ridge: the wings decide the ridges).
     holes : sequence of (H, 2) float64
         Courtyards, each a ring (not closed, either orientation): a hipped roof is built round them (the
         skeleton of the footprint with its holes); the other shapes are not (None).
@@ -234,9 +235,9 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         return _ridged(ring, metric, z0, z_eaves, z_top, hip, across)
     if shape == "hipped":
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top)
-    if shape == "half-hipped":
+    if shape == "half-hipped":  # (across: the ridge's way is the wings')
         return _skeleton_hipped([ring], scale, z0, z_eaves, z_top, gables=True, hip=HALF_HIP_SHARE)
-    if shape in ("gabled", "gambrel", "round") and not (len(ring) == QUAD and _convex(metric)):
+    if shape in ("gabled", "gambrel", "round") and not (len(ring) == QUAD and _convex(metric)) and not across:
         gabled = _skeleton_hipped([ring], scale, z0, z_eaves, z_top, _half_profile(shape), gables=True)
         if gabled is not None:
             return gabled
