@@ -527,14 +527,22 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         oid = _feature_id(feature, k - 1)
         mesh_id = f"{name}#{oid}"
         crs = file_crs(declared_crs(feature, collection_crs, old_crs, options), options)
-        if k - 1 in parts_of:
-            from meshsom.osm import _Area, building_meshes
+        props = properties(feature)
+        if k - 1 in parts_of or (options.part_files and isinstance(feature.get("geometry"), dict)):
+            from meshsom.osm import STRAY, _Area, building_meshes
+            from meshsom.part_files import placement
 
-            area = _Area(oid, properties(feature), feature["geometry"])
-            own = [_Area(_feature_id(features[j], j), properties(features[j]), features[j]["geometry"]) for j in parts_of[k - 1]]
-            yield from building_meshes(area, own, _is_part_feature(properties(feature)) and not own, options, name,
-                                       str(path), crs)
-            continue
+            own = [_Area(_feature_id(features[j], j), properties(features[j]), features[j]["geometry"])
+                   for j in parts_of.get(k - 1, [])]
+            skip, elsewhere, alone = placement(path, props, oid, options)  # Overture's parts, in files of their own
+            if skip:
+                continue  # read with its building
+            own += elsewhere
+            alone = alone or (STRAY if _is_part_feature(props) and not own else None)
+            if own or alone:
+                yield from building_meshes(_Area(oid, props, feature["geometry"]), own, alone, options, name, str(path),
+                                           crs)
+                continue
         try:
             try:
                 obj, vertices, member, notes = feature_object(feature, mesh_id, options, crs[0])

@@ -406,6 +406,21 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     system, unknown = file_crs(layer.crs, options)
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
+    if options.part_files and geometry is not None:  # Overture's building parts, in files of their own
+        from meshsom.osm import _Area, building_meshes
+        from meshsom.part_files import as_geojson, placement
+
+        skip, own, alone = placement(path, props, oid, options)
+        if skip:
+            return  # read with its building
+        if own or alone:
+            try:
+                area = _Area(oid, props, as_geojson(geometry, mesh_id))
+            except InputFileError as err:
+                yield Rejection(mesh_id, str(path), err.problem, 0, None)
+                return
+            yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown))
+            return
     try:
         if geometry is None:
             raise InputFileError(mesh_id, "has no geometry")

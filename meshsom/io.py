@@ -181,6 +181,14 @@ class ReaderOptions:
         describe (OpenStreetMap's ``roof:shape``, ``roof:height``, ...; Overture's ``roof_shape``,
         ``roof_height``, ...; :mod:`meshsom.roofs`) on the block, up to the building's height
         (default True); False extrudes every footprint flat (LoD 1).
+    part_files : tuple of str
+        Files of building parts whose buildings are in :attr:`building_files` (Overture's
+        ``building_part``, naming its building by ``building_id``; :mod:`meshsom.part_files`): a
+        building with parts there is read as its parts, and a part file yields only the parts of
+        no building. Set by ``meshsom ingest`` / ``meshsom run`` from the inputs
+        (:func:`meshsom.part_files.pair`); default none.
+    building_files : tuple of str
+        The footprint files whose buildings the parts of :attr:`part_files` belong to.
     layer : str or None
         GIS files (:mod:`meshsom.gis`: GeoPackage, FileGDB, ...): the layer to read; None reads
         every layer with geometry.
@@ -228,6 +236,8 @@ class ReaderOptions:
     storey_height: float = 3.0
     default_height: float | None = None
     roofs: bool = True
+    part_files: tuple[str, ...] = ()
+    building_files: tuple[str, ...] = ()
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "z"
@@ -259,6 +269,10 @@ class ReaderOptions:
             raise ValueError(f"default_height must be a height > 0 (metres) or null, received {self.default_height!r}")
         if not isinstance(self.roofs, bool):
             raise ValueError(f"roofs must be true or false, received {self.roofs!r}")
+        for name in ("part_files", "building_files"):
+            value = getattr(self, name)
+            if not (isinstance(value, tuple) and all(isinstance(v, str) for v in value)):
+                raise ValueError(f"{name} must be a list of file paths, received {value!r}")
         if self.layer is not None and not (isinstance(self.layer, str) and self.layer.strip()):
             raise ValueError(f"layer must be a layer's name (or null for every layer), received {self.layer!r}")
         if not self.max_bytes > 0:
@@ -1503,6 +1517,10 @@ def _document_items(cj, path: Path, options: ReaderOptions, name: str | None) ->
             found = True
             yield item
         if not found:
+            from meshsom.part_files import is_part_file
+
+            if is_part_file(path, options):
+                return  # every part read with its building
             raise InputFileError(str(path), "is a GeoJSON FeatureCollection of no features")
         return
     from meshsom.tiles3d import is_tileset, read_tileset

@@ -64,6 +64,8 @@ NO = "no"
 HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
 #: Tags a part takes from its building where it has none of them.
 INHERITED = ("height", "min_height", "building:levels", "building:min_level")
+#: The note on a building part inside no building outline.
+STRAY = "a building:part inside no building outline, read as a building of its own"
 #: Kinds of other areas named in the note, at most.
 OTHERS_SHOWN = 5
 #: Buildings per kilobyte of an extract, to plan its read tasks before reading it (Geofabrik's
@@ -228,12 +230,12 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
     k, n = part_of
     for index, own_parts in items[k * len(items) // n:(k + 1) * len(items) // n]:
         area = buildings[index] if index >= 0 else parts[-1 - index]
-        yield from building_meshes(area, [parts[k] for k in own_parts], index < 0, options, name, source,
-                                   (system, unknown), notes)
+        yield from building_meshes(area, [parts[k] for k in own_parts], STRAY if index < 0 else None, options, name,
+                                   source, (system, unknown), notes)
 
 
-def building_meshes(area: _Area, own_parts: list[_Area], stray: bool, options, name: str, source: str, crs: tuple,
-                    notes: list[str] = ()) -> Iterator:
+def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, options, name: str, source: str,
+                    crs: tuple, notes: list[str] = ()) -> Iterator:
     """The mesh of one footprint building as S3DB reads it: its outline extruded (with its roof), or, with
     ``own_parts``, its parts (each with its building's height where it has none; the outline too where it is itself
     tagged ``building:part``) as BuildingParts of one Building; a Rejection where nothing of it can be built.
@@ -241,7 +243,9 @@ def building_meshes(area: _Area, own_parts: list[_Area], stray: bool, options, n
     Parameters
     ----------
     area : _Area
-        The building (or, ``stray``, a part inside no outline: a building of its own, noted).
+        The building, or a part of no building read as a building of its own.
+    alone : str or None
+        For such a part: the note that says so (:data:`STRAY`).
     own_parts : list of _Area
         The parts inside its outline.
     crs : (CoordinateSystem or None, str or None)
@@ -257,13 +261,14 @@ def building_meshes(area: _Area, own_parts: list[_Area], stray: bool, options, n
     mesh_id = f"{name}#{area.oid}"
     label = area.tags.get(options.label_attribute)
     verts = FeatureVertices()
-    more = ["a building:part inside no building outline, read as a building of its own"] if stray else []
+    more = [alone] if alone else []
     inherited = tuple(dict.fromkeys(INHERITED + tuple(options.height_attributes) + tuple(options.levels_attributes)))
     if not own_parts:
         pieces = [(area, _props(area.tags, options))]
     else:  # the parts, each with its building's height where it has none; the outline too where it is a part
-        pieces = [(part, _props({**{t: area.tags[t] for t in inherited if t in area.tags and t not in part.tags},
-                                 **part.tags}, options)) for part in own_parts]
+        pieces = [(part, _props({**part.tags, **{t: area.tags[t] for t in inherited  # a null column is no value
+                                                  if area.tags.get(t) is not None and part.tags.get(t) is None}},
+                                options)) for part in own_parts]
         if _is_part(area.tags):
             pieces.insert(0, (area, _props(area.tags, options)))
     solids, failed = [], []

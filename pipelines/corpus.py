@@ -35,7 +35,7 @@ import json
 import logging
 import time
 import uuid
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -488,6 +488,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.gis import gis_ranges
     from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
+    from meshsom.part_files import pair
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
     )
@@ -518,6 +519,10 @@ def run_corpus(client, cfg, store, resume: bool = False,
     if plan is None:
         files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
         root = root or create_store(path, overwrite=True)
+        reader = pair([f.path for f in files], cfg.corpus.reader)  # Overture's parts, in files of their own
+        if reader.part_files:
+            log.info("building parts in %s, read with the buildings of %s", ", ".join(reader.part_files),
+                     ", ".join(reader.building_files))
         sources = []
         for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
             kind = input_kind(f.path)
@@ -531,7 +536,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             else:
                 sources.append({"kind": "file", "path": str(f.path), "name": f.name})
         for i, src in enumerate(sources):
-            read_futures[i] = client.submit(read_source, src["path"], cfg.corpus.reader, src["name"], src.get("range"),
+            read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
                                             src.get("features"), pure=False, key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
@@ -542,7 +547,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         for src, renames in zip(sources, repeated_ids(sources, ids)):
             if renames:
                 src["repeats"] = renames
-        missing += _files_of_no_buildings(sources, counts, cfg.corpus.reader)
+        missing += _files_of_no_buildings([s for s in sources if s["path"] not in reader.part_files], counts,
+                                          cfg.corpus.reader)
         size = int(cfg.dask.shard_meshes)
         shards = [Shard(f"s{i:04d}-{a:08d}", i, a, min(counts[i], a + size))
                   for i in range(len(sources)) for a in range(0, counts[i], size)]
@@ -553,6 +559,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             shards += [Shard(f"s{g:04d}-{a:08d}", g, a, min(n, a + size)) for a in range(0, n, size)]
         plan = {
             "fingerprint": fingerprint,
+            "parts": {"part_files": list(reader.part_files), "building_files": list(reader.building_files)},
             "sources": sources,
             "shards": [asdict(s) for s in shards],
             "missing": [_rejection_record(r, cfg.preprocess) for r in missing],
@@ -560,6 +567,9 @@ def run_corpus(client, cfg, store, resume: bool = False,
         write_plan(root, plan)
     sources = plan["sources"]
     shards = [Shard(**s) for s in plan["shards"]]
+    parts = plan.get("parts", {})
+    reader = replace(cfg.corpus.reader, part_files=tuple(parts.get("part_files", ())),
+                     building_files=tuple(parts.get("building_files", ())))
 
     # ---- shards: preprocess + encode + staging write, done ones skipped
     def submit(sh):
@@ -569,7 +579,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
                                   key=f"corpus-generate-{run_id}-{sh.name}")
         else:
             if sh.source not in read_futures:
-                read_futures[sh.source] = client.submit(read_source, src["path"], cfg.corpus.reader, src.get("name"),
+                read_futures[sh.source] = client.submit(read_source, src["path"], reader, src.get("name"),
                                                         src.get("range"), src.get("features"), pure=False,
                                                         key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,

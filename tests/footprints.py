@@ -92,3 +92,14 @@ HOUSE = {
 def rectangle(x0, y0, w, d):
     """A w x d rectangle's ring (metres), from its corner (x0, y0)."""
     return [(x0, y0), (x0 + w, y0), (x0 + w, y0 + d), (x0, y0 + d)]
+
+
+def united_volume(mesh) -> float:
+    """The volume of a building as ingest preprocesses it (its parts united), accepted."""
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    record, clean = process_one(mesh, PreprocessParams())
+    assert record["status"] == "accepted", record
+    t = clean.vertices[clean.faces]
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)

@@ -18,7 +18,8 @@ import pytest
 from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
 from meshsom.preprocess import preprocess
 
-from footprints import COURT_IN, COURT_OUT, HOUSE, L_SHAPE, area, closed, gabled_house, lonlat, rectangle
+from footprints import (COURT_IN, COURT_OUT, HOUSE, L_SHAPE, area, closed, gabled_house, lonlat, rectangle,
+                        united_volume)
 
 def _feature(fid, geometry, **props):
     f = {"type": "Feature", "geometry": geometry, "properties": props}
@@ -184,17 +185,6 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert _volume(flat["way/7"]) == pytest.approx(10 * 6 * 8, rel=1e-5)
 
 
-def _united_volume(mesh) -> float:
-    """The volume of a building as ingest preprocesses it (its parts united)."""
-    from meshsom.preprocess import PreprocessParams
-    from pipelines.ingest import process_one
-
-    record, clean = process_one(mesh, PreprocessParams())
-    assert record["status"] == "accepted", record
-    t = clean.vertices[clean.faces]
-    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6)
-
-
 def test_buildings_made_of_parts_in_one_collection(tmp_path):
     """Buildings and their parts in one collection, as an Overpass turbo export of building and building:part
     ways gives them (OSM tags as properties; osmtogeojson nests them under tags), and as Overture Maps' building
@@ -224,9 +214,9 @@ def test_buildings_made_of_parts_in_one_collection(tmp_path):
     assert sorted(got) == ["b1", "solo", "way/1", "way/4"]
     church = got["way/1"]
     assert any("2 building:part areas inside its outline, read as its parts (S3DB)" in n for n in church.notes)
-    assert _united_volume(church) == pytest.approx(12 * 10 * 10 + 8 * 8 * (24 + 6 / 3), rel=1e-5)
+    assert united_volume(church) == pytest.approx(12 * 10 * 10 + 8 * 8 * (24 + 6 / 3), rel=1e-5)
     assert np.ptp(church.vertices[:, 2]) == pytest.approx(30, abs=1e-3)
-    assert _united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+    assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
     assert any("a building:part inside no building outline" in n for n in got["way/4"].notes)
     assert _volume(got["way/4"]) == pytest.approx(10 * 10 * 5, rel=1e-5)
     assert _volume(got["solo"]) == pytest.approx(10 * 10 * 6, rel=1e-5) and got["solo"].notes[0].startswith("converted")

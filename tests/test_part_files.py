@@ -1,0 +1,97 @@
+"""Overture's building parts in files of their own (meshsom.part_files): read with their buildings.
+
+Overture ships buildings and building parts as two feature types, downloaded as two files; a part
+names its building by ``building_id``. Volumes below are worked out by hand from footprints drawn
+in metres (placed in longitude and latitude by PROJ, tests/footprints.py) and checked on the
+building as ingest preprocesses it (its parts united).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from meshsom.io import RawMesh, ReaderOptions, read_file
+from meshsom.part_files import holds_parts, pair
+
+from footprints import closed, lonlat, rectangle, united_volume, write_geoparquet
+
+
+def _multi(rect):
+    return {"type": "MultiPolygon", "coordinates": [[closed(lonlat(rect))]]}
+
+
+BUILDINGS = [("b1", _multi(rectangle(0, 0, 20, 10)), {"height": 12.0, "has_parts": True, "family": "church"}),
+             ("b2", _multi(rectangle(30, 0, 10, 10)), {"height": 6.0})]
+PARTS = [("p1", _multi(rectangle(0, 0, 10, 10)), {"building_id": "b1"}),  # no height: its building's 12 m
+         ("p2", _multi(rectangle(10, 0, 10, 10)), {"building_id": "b1", "height": 8.0, "min_height": 4.0}),
+         ("p3", _multi(rectangle(60, 0, 5, 5)), {"building_id": "gone", "height": 3.0})]  # its building not here
+
+
+def _geoparquet_pair(folder):
+    write_geoparquet(folder / "buildings.parquet", BUILDINGS, extra=("has_parts",))
+    write_geoparquet(folder / "parts.parquet", PARTS, extra=("building_id",))
+    return folder / "buildings.parquet", folder / "parts.parquet"
+
+
+def _geojson_pair(folder):
+    def collection(rows):
+        return {"type": "FeatureCollection", "features": [
+            {"type": "Feature", "id": fid, "geometry": g, "properties": {"id": fid, **props}} for fid, g, props in rows]}
+    (folder / "buildings.geojson").write_text(json.dumps(collection(BUILDINGS)))
+    (folder / "parts.geojson").write_text(json.dumps(collection(PARTS)))
+    return folder / "buildings.geojson", folder / "parts.geojson"
+
+
+@pytest.mark.parametrize("make", [_geoparquet_pair, _geojson_pair], ids=["geoparquet", "geojson"])
+def test_overture_parts_are_read_with_their_buildings(tmp_path, make):
+    """Two Overture downloads, buildings and building_parts: the church b1 is its two parts (10 x 10 x 12 m, the
+    nave taking the church's height, and a part from 4 to 8 m: 1,200 + 400 m^3), not its own 12 m block; b2 has no
+    parts and is its block; the part p3, whose building is in neither file, is a building of its own, noted; the
+    parts file yields nothing else. Every feature is read once."""
+    buildings, parts = make(tmp_path)
+    options = pair([buildings, parts], ReaderOptions())
+    assert options.part_files == (str(parts),) and options.building_files == (str(buildings),)
+    got = {m.id.split("#", 1)[1]: m for m in read_file(buildings, options)}
+    assert sorted(got) == ["b1", "b2"] and all(isinstance(m, RawMesh) for m in got.values()), got
+    assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+    assert any("2 building:part areas" in n for n in got["b1"].notes), got["b1"].notes
+    assert got["b1"].label == "church"
+    assert united_volume(got["b2"]) == pytest.approx(10 * 10 * 6, rel=1e-5)
+    (alone,) = list(read_file(parts, options))
+    assert alone.id.endswith("#p3") and any("building_part whose building (gone) is in no input" in n for n in alone.notes)
+    assert united_volume(alone) == pytest.approx(5 * 5 * 3, rel=1e-5)
+    # read apart (no pairing), as before: each part a building of its own beside the church's block
+    apart = [m.id.split("#", 1)[1] for f in (buildings, parts) for m in read_file(f)]
+    assert sorted(apart) == ["b1", "b2", "p1", "p2", "p3"]
+
+
+def test_a_building_id_that_is_the_features_own_is_no_part(tmp_path):
+    """A footprint layer whose own id column is called building_id (as some cities name it) holds no parts."""
+    rows = [(fid, g, {**props, "building_id": fid}) for fid, g, props in BUILDINGS]
+    write_geoparquet(tmp_path / "city.parquet", rows, extra=("building_id",))
+    assert not holds_parts(tmp_path / "city.parquet", ReaderOptions())
+    buildings, parts = _geoparquet_pair(tmp_path)
+    assert holds_parts(parts, ReaderOptions()) and not holds_parts(buildings, ReaderOptions())
+    assert pair([tmp_path / "city.parquet", buildings], ReaderOptions()).part_files == ()
+
+
+def test_overture_downloads_through_meshsom_ingest(tmp_path):
+    """``meshsom ingest`` on a folder of the two downloads (a Dask client, a zarr store): three buildings, the
+    church of its parts, the lone part noted; no part read twice, no file listed as holding nothing."""
+    folder = tmp_path / "overture"
+    folder.mkdir()
+    _geoparquet_pair(folder)
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "o.zarr"),
+                          "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    assert (summary["inputs"], summary["accepted"], summary["rejected"]) == (3, 3, 0), summary
+    manifest = json.loads((tmp_path / "o.zarr" / "manifest.json").read_text())
+    ids = sorted(r["id"] for r in manifest["records"])
+    assert ids == ["buildings.parquet#b1", "buildings.parquet#b2", "parts.parquet#p3"], ids
+    church = next(r for r in manifest["records"] if r["id"].endswith("#b1"))
+    assert church["volume"] == pytest.approx(1600, rel=1e-5)
