@@ -34,6 +34,8 @@ BUILDING_ID = "building_id"
 OWN_ID = "id"
 #: Rows (features) looked at to tell a part file from a building file.
 SNIFF_FEATURES = 100
+#: Bytes of a GeoJSON file looked through for :data:`BUILDING_ID` before it is parsed to be sure.
+SNIFF_BYTES = 1 << 20
 
 
 def _kind(path: Path) -> str | None:
@@ -82,6 +84,8 @@ def holds_parts(path: Path, options) -> bool:
     """Whether a file's features are building parts: among its first :data:`SNIFF_FEATURES`, one
     names a building (:data:`BUILDING_ID`) other than itself. Files that cannot be read are not
     (their reader says why)."""
+    if _kind(Path(path)) == "geojson" and not _mentions(Path(path), BUILDING_ID):
+        return False  # not parsed whole at planning: most GeoJSON inputs hold no parts
     try:
         for oid, props, _ in features(path, options, SNIFF_FEATURES):
             named = props.get(BUILDING_ID)
@@ -90,6 +94,19 @@ def holds_parts(path: Path, options) -> bool:
     except Exception:  # unreadable: read as any other input, which says why
         return False
     return False
+
+
+def _mentions(path: Path, key: str) -> bool:
+    """Whether the first :data:`SNIFF_BYTES` of a (gzipped) text file hold ``"key"``."""
+    import gzip
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(2)
+        with (gzip.open if head == b"\x1f\x8b" else open)(path, "rb") as fh:
+            return f'"{key}"'.encode() in fh.read(SNIFF_BYTES)
+    except (OSError, EOFError):
+        return False
 
 
 def pair(paths: Sequence[Path], options):
