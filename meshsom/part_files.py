@@ -226,5 +226,5 @@ def placement(path, props: dict, oid: str, options) -> tuple[bool, list, str | N
     return False, index.get(str(own) if own is not None else oid, index.get(oid, [])), None
 
 
-#: The note on a part read alone.
-ALONE = "an Overture building_part whose building ({}) is in no input, read as a building of its own"
+#: The note on a part read alone (its building's id after "; ": ingest counts the notes by what precedes it).
+ALONE = "an Overture building_part whose building is in no input, read as a building of its own; building_id {}"

@@ -62,7 +62,8 @@ def test_overture_parts_are_read_with_their_buildings(tmp_path, make):
     assert got["b1"].label == "church"
     assert united_volume(got["b2"]) == pytest.approx(10 * 10 * 6, rel=1e-5)
     (alone,) = list(read_file(parts, options))
-    assert alone.id.endswith("#p3") and any("building_part whose building (gone) is in no input" in n for n in alone.notes)
+    assert alone.id.endswith("#p3") and any("building_part whose building is in no input, read as a building of its own; building_id gone" in n
+                                           for n in alone.notes)
     assert united_volume(alone) == pytest.approx(5 * 5 * 3, rel=1e-5)
     # read apart (no pairing), as before: each part a building of its own beside the church's block
     apart = [m.id.split("#", 1)[1] for f in (buildings, parts) for m in read_file(f)]
