@@ -11,7 +11,8 @@ triangulation, CRS handling and rejections behave as for CityJSON:
   Overture's ``building_part`` features (``building_id`` naming a footprint of the collection),
   are read as OpenStreetMap extracts read them (:func:`meshsom.osm.building_meshes`): a building
   with parts is its parts (BuildingParts, united in preprocessing), a part without a height takes
-  its building's, a part inside no outline is a building of its own, noted.
+  its building's, a part inside no outline is a building of its own, noted. Overture's parts
+  downloaded to a file of their own: :mod:`meshsom.part_files`.
 - **JSON-FG solids**: a feature's ``place`` of type ``Polyhedron`` (shells of polygons) or
   ``MultiPolyhedron`` is a Solid or MultiSolid (LoD ``"2"``); a ``Prism`` (a ``Polygon`` or
   ``MultiPolygon`` base extruded from ``lower``, default 0, to ``upper``) is a Solid (LoD ``"1"``).

@@ -13,6 +13,9 @@ choice, triangulation, CRS handling and rejections apply:
   extruded from its lowest z (:func:`meshsom.geojson.footprint_solid`), with the roof its roof
   columns describe (Overture's ``roof_shape``, ``roof_height``, ...). Without either it is a
   rejection that names the properties looked for.
+- **Building parts in files of their own** (Overture's ``building_part`` downloads, paired with
+  the buildings' file by :func:`meshsom.part_files.pair`): a building with parts is its parts, a
+  part of no building a building of its own, noted.
 - **3D surfaces**: a ``PolyhedralSurface``, ``TIN``, or 3D ``(Multi)Polygon`` with faces that are
   not horizontal (walls) is read as a MultiSurface of its polygons (LoD ``"2"``), closed or refused
   by preprocessing like any other building. Geometry collections are read through.
