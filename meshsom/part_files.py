@@ -86,6 +86,18 @@ def holds_parts(path: Path, options) -> bool:
     (their reader says why)."""
     if _kind(Path(path)) == "geojson" and not _mentions(Path(path), BUILDING_ID):
         return False  # not parsed whole at planning: most GeoJSON inputs hold no parts
+    if _kind(Path(path)) == "parquet":  # two columns, read whole: parts after the buildings of one file are found
+        try:
+            import pyarrow.parquet as pq
+
+            if BUILDING_ID not in pq.ParquetFile(path).schema_arrow.names:
+                return False
+            table = pq.read_table(path, columns=[c for c in (OWN_ID, BUILDING_ID) if c in pq.ParquetFile(path).schema_arrow.names])
+            named = table.column(BUILDING_ID).to_pylist()
+            own = table.column(OWN_ID).to_pylist() if OWN_ID in table.column_names else [None] * len(named)
+            return any(n is not None and str(n) != str(o) for n, o in zip(named, own))
+        except Exception:  # unreadable: read as any other input, which says why
+            return False
     try:
         for oid, props, _ in features(path, options, SNIFF_FEATURES):
             named = props.get(BUILDING_ID)
@@ -111,9 +123,9 @@ def _mentions(path: Path, key: str) -> bool:
 
 def pair(paths: Sequence[Path], options):
     """``options`` with :attr:`~meshsom.io.ReaderOptions.part_files` and
-    :attr:`~meshsom.io.ReaderOptions.building_files` set from a run's input files: the files of
-    parts, and the other footprint files (GeoParquet, GIS, GeoJSON); unchanged where none holds
-    parts or the options name part files already."""
+    :attr:`~meshsom.io.ReaderOptions.building_files` set from a run's input files: the files that
+    hold parts, and every footprint file (GeoParquet, GIS, GeoJSON; a file may hold buildings and
+    parts both); unchanged where none holds parts or the options name part files already."""
     if options.part_files:
         return options
     footprints = [Path(p) for p in paths if _kind(Path(p)) is not None]
@@ -121,7 +133,7 @@ def pair(paths: Sequence[Path], options):
     if not parts:
         return options
     return dataclasses.replace(options, part_files=tuple(str(p) for p in parts),
-                               building_files=tuple(str(p) for p in footprints if p not in parts))
+                               building_files=tuple(str(p) for p in footprints))
 
 
 def _stamp(paths: Sequence[str]) -> tuple:
@@ -214,14 +226,12 @@ def placement(path, props: dict, oid: str, options) -> tuple[bool, list, str | N
     """
     if not options.part_files:
         return False, [], None
-    if is_part_file(path, options):
-        named = props.get(BUILDING_ID)
-        if named is None:
-            return False, [], None
+    named = props.get(BUILDING_ID)
+    if named is not None and is_part_file(path, options) and str(named) != str(props.get(OWN_ID, oid)):
         if str(named) in building_ids(options):
             return True, [], None
         return False, [], ALONE.format(named)
-    index = parts_index(options)
+    index = parts_index(options)  # a building (of a building file, or among the parts of a file of both)
     own = props.get(OWN_ID)
     return False, index.get(str(own) if own is not None else oid, index.get(oid, [])), None
 

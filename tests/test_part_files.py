@@ -54,7 +54,7 @@ def test_overture_parts_are_read_with_their_buildings(tmp_path, make):
     parts file yields nothing else. Every feature is read once."""
     buildings, parts = make(tmp_path)
     options = pair([buildings, parts], ReaderOptions())
-    assert options.part_files == (str(parts),) and options.building_files == (str(buildings),)
+    assert options.part_files == (str(parts),) and options.building_files == (str(buildings), str(parts))
     got = {m.id.split("#", 1)[1]: m for m in read_file(buildings, options)}
     assert sorted(got) == ["b1", "b2"] and all(isinstance(m, RawMesh) for m in got.values()), got
     assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
@@ -96,3 +96,17 @@ def test_overture_downloads_through_meshsom_ingest(tmp_path):
     assert ids == ["buildings.parquet#b1", "buildings.parquet#b2", "parts.parquet#p3"], ids
     church = next(r for r in manifest["records"] if r["id"].endswith("#b1"))
     assert church["volume"] == pytest.approx(1600, rel=1e-5)
+
+
+def test_buildings_and_their_parts_in_one_geoparquet_file(tmp_path):
+    """One GeoParquet file of both (a query that unions Overture's two types, the parts last, beyond the first rows a
+    file is sniffed by): read as the two downloads are."""
+    others = [(f"x{k}", BUILDINGS[1][1], {"height": 6.0}) for k in range(118)]
+    rows = BUILDINGS + others + PARTS  # the parts after 120 buildings
+    write_geoparquet(tmp_path / "overture.parquet", rows, extra=("has_parts", "building_id"))
+    options = pair([tmp_path / "overture.parquet"], ReaderOptions())
+    assert options.part_files == (str(tmp_path / "overture.parquet"),)
+    got = {m.id.split("#", 1)[1]: m for m in read_file(tmp_path / "overture.parquet", options)}
+    assert "p1" not in got and "p2" not in got and "p3" in got
+    assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+    assert len(got) == 120 + 1
