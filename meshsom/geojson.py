@@ -538,7 +538,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
             skip, elsewhere, alone = placement(path, props, oid, options)  # Overture's parts, in files of their own
             if skip:
                 continue  # read with its building
-            own += elsewhere
+            own += [part for part in elsewhere if part.oid not in {mine.oid for mine in own}]  # this file's: found
             alone = alone or (STRAY if _is_part_feature(props) and not own else None)
             if own or alone:
                 yield from building_meshes(_Area(oid, props, feature["geometry"]), own, alone, options, name, str(path),

@@ -110,3 +110,16 @@ def test_buildings_and_their_parts_in_one_geoparquet_file(tmp_path):
     assert "p1" not in got and "p2" not in got and "p3" in got
     assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
     assert len(got) == 120 + 1
+
+
+def test_buildings_and_their_parts_in_one_geojson_file(tmp_path):
+    """One GeoJSON collection of both: each part read once, with its building (grouped within the file and paired:
+    not twice), the lone part alone."""
+    rows = BUILDINGS + PARTS
+    (tmp_path / "overture.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "id": fid, "geometry": g, "properties": {"id": fid, **props}} for fid, g, props in rows]}))
+    options = pair([tmp_path / "overture.geojson"], ReaderOptions())
+    got = {m.id.split("#", 1)[1]: m for m in read_file(tmp_path / "overture.geojson", options)}
+    assert sorted(got) == ["b1", "b2", "p3"]
+    assert sorted(got["b1"].parts) == ["p1", "p2"]
+    assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
