@@ -294,33 +294,38 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         return None, None
     if shape not in SHAPES:
         return None, f"roof:shape={shape} not modelled: a flat roof at the height"
-    if len(polygons) != 1:
-        return None, f"roof:shape={shape} not modelled on a footprint of several polygons: flat"
-    if len(polygons[0]) != 1 and shape not in ROUND_COURTYARDS:
+    if any(len(polygon) != 1 for polygon in polygons) and shape not in ROUND_COURTYARDS:
         return None, (f"roof:shape={shape} not modelled on a footprint with courtyards ({' and '.join(ROUND_COURTYARDS)} "
                       "are): flat")
-    for ring in polygons[0]:
-        FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
-    ring = np.asarray(polygons[0][0], np.float64)[:, :2]
-    if np.array_equal(ring[0], ring[-1]):
-        ring = ring[:-1]
-    holes = [np.asarray(hole, np.float64)[:, :2] for hole in polygons[0][1:]]
-    scale = roof_scale(ring, crs)
-    rise = min(roof_height(shape, ring, scale, found, options.storey_height, _number), MAX_ROOF_SHARE * (z1 - z0))
-    if not rise > 0:
-        return None, None
     direction = found.get("roof:direction")
     degrees = CARDINAL.get(str(direction).strip().upper()) if direction is not None else None
     if direction is not None and degrees is None:
         degrees = _number(direction)
-    faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees,
-                       across=str(found.get("roof:orientation", "")).strip().lower() == "across", holes=holes)
-    if faces is None:
-        return None, f"roof:shape={shape} not modelled on this footprint ({UNBUILT[shape]}): flat"
-    solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in faces]]}
+    across = str(found.get("roof:orientation", "")).strip().lower() == "across"
+    built, eaves = [], []
+    for polygon in polygons:  # several (a building in pieces): each its own roof, of the same tags
+        for ring in polygon:
+            FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
+        ring = np.asarray(polygon[0], np.float64)[:, :2]
+        if np.array_equal(ring[0], ring[-1]):
+            ring = ring[:-1]
+        holes = [np.asarray(hole, np.float64)[:, :2] for hole in polygon[1:]]
+        scale = roof_scale(ring, crs)
+        rise = min(roof_height(shape, ring, scale, found, options.storey_height, _number), MAX_ROOF_SHARE * (z1 - z0))
+        if not rise > 0:
+            return None, None
+        faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees, across=across, holes=holes)
+        if faces is None:
+            which = f" (its polygon {len(built) + 1} of {len(polygons)})" if len(polygons) > 1 else ""
+            return None, f"roof:shape={shape} not modelled on this footprint{which} ({UNBUILT[shape]}): flat"
+        built += faces
+        eaves.append(z1 - rise - z0)
+    solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in built]]}
     read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
-    return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {z1 - rise - z0:.3g} m, top {z1 - z0:.3g} m above "
-                   "its base")
+    low, high = min(eaves), max(eaves)
+    return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {low:.3g}"
+                   + (f" to {high:.3g}" if high - low > 1e-9 * max(abs(high), 1.0) else "")
+                   + f" m, top {z1 - z0:.3g} m above its base" + (f", on {len(polygons)} polygons" if len(polygons) > 1 else ""))
 
 
 def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:

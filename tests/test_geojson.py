@@ -176,8 +176,10 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert any("roof:shape=half-hipped built (S3DB) (roof:shape=half_hipped read as half-hipped)" in n
                for n in got["half"].notes), got["half"].notes
     assert any("roof:shape=sawtooth not modelled: a flat roof at the height" in n for n in got["sawtooth"].notes)
-    assert any("not modelled on a footprint of several polygons: flat" in n for n in got["many"].notes)
-    for fid, volume in (("sawtooth", 12 * 8 * 9), ("flat", 12 * 8 * 9), ("many", 2 * 5 * 8 * 9)):
+    assert any("roof:shape=gabled built (S3DB): eaves 6 m, top 9 m above its base, on 2 polygons" in n
+               for n in got["many"].notes), got["many"].notes  # a building in two pieces: a roof on each
+    assert _volume(got["many"]) == pytest.approx(2 * HOUSE["gabled"](8, 5, 6, 3), rel=1e-5)
+    for fid, volume in (("sawtooth", 12 * 8 * 9), ("flat", 12 * 8 * 9)):
         assert _volume(got[fid]) == pytest.approx(volume, rel=1e-5) and got[fid].lod == "1", fid
     # roofs off: every footprint a flat block at its height
     flat = _by_id(read_file(path, ReaderOptions(roofs=False)))
