@@ -189,10 +189,11 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVe
     return {"type": "Solid", "lod": "1", "boundaries": [faces]}
 
 
-def no_height(options) -> str:
-    """The reason a footprint without a height is refused."""
+def no_height(options, notes=()) -> str:
+    """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
+    a height given as unknown)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
-    return f"is a footprint without a height (no property {names})"
+    return f"is a footprint without a height (no property {names})" + "".join(f"; {n}" for n in notes)
 
 
 def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,
@@ -227,6 +228,11 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     """
     notes: list[str] = []
     height = first_number(props, options.height_attributes)
+    if height is not None and not height[1] > 0:  # Microsoft's footprints write -1 for "not known"
+        others = first_number({k: v for k, v in props.items() if (_number(v) or 0) > 0}, options.height_attributes)
+        if others is None:
+            notes.append(f"{height[0]} = {height[1]:g} read as no height (a height is above 0)")
+        height = others
     if height is None:
         levels = first_number(props, options.levels_attributes)
         if levels is not None and levels[1] > 0:
@@ -390,7 +396,7 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
             except InputFileError as err:
                 if "three coordinates" not in err.problem:
                     raise
-                raise InputFileError(where, no_height(options)) from None
+                raise InputFileError(where, no_height(options, notes)) from None
     else:
         raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
     return building(g, props, options), verts.array(), member, notes
@@ -552,6 +558,8 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         try:
             try:
                 obj, vertices, member, notes = feature_object(feature, mesh_id, options, crs[0])
+            except InputFileError:
+                raise  # said already (an InputFileError is a ValueError too: not to be wrapped below)
             except (TypeError, ValueError, AttributeError, KeyError, IndexError) as err:  # nesting not as GeoJSON says
                 raise InputFileError(mesh_id, f"its geometry is not nested as GeoJSON / JSON-FG says "
                                               f"({type(err).__name__}: {str(err)[:80]})") from None

@@ -278,7 +278,7 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
             flat = [[ring.tolist() for ring in poly] for poly in polygons]
             solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
             if solid is None:
-                raise InputFileError(mesh_id, no_height(options))
+                raise InputFileError(mesh_id, no_height(options, said))
         except InputFileError as err:
             failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
             continue
