@@ -81,9 +81,10 @@ def features(path: Path, options, limit: int | None = None) -> Iterator[tuple[st
 
 
 def holds_parts(path: Path, options) -> bool:
-    """Whether a file's features are building parts: among its first :data:`SNIFF_FEATURES`, one
-    names a building (:data:`BUILDING_ID`) other than itself. Files that cannot be read are not
-    (their reader says why)."""
+    """Whether a file's features are building parts: one names a building (:data:`BUILDING_ID`)
+    other than itself, among all of a GeoParquet file's (two columns read), among the first
+    :data:`SNIFF_FEATURES` of other files (a GeoJSON file only where its first :data:`SNIFF_BYTES`
+    mention it). Files that cannot be read are not (their reader says why)."""
     if _kind(Path(path)) == "geojson" and not _mentions(Path(path), BUILDING_ID):
         return False  # not parsed whole at planning: most GeoJSON inputs hold no parts
     if _kind(Path(path)) == "parquet":  # two columns, read whole: parts after the buildings of one file are found

@@ -51,6 +51,10 @@ __all__ = ["ALIASES", "OVERTURE", "SHAPES", "UNBUILT", "roof_faces", "roof_heigh
 #: The roof shapes built (others are modelled flat by the caller).
 SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel", "saltbox", "round", "dome", "onion",
           "mansard")
+#: Starts of the outer ring a straight skeleton is tried from before a roof is modelled flat (:func:`_skeleton_hipped`),
+#: on footprints of at most this many corners.
+SKELETON_TRIES = 8
+SKELETON_RETRY_CORNERS = 200
 #: The shapes built on a footprint with courtyards (their straight skeleton's; the others need a simple polygon).
 ROUND_COURTYARDS = ("hipped", "mansard")
 #: The most corners (courtyards' included) a hipped roof's straight skeleton is computed for: it takes about
@@ -404,6 +408,22 @@ def _domed(ring, metric, z0, z_eaves, z_top, outline: np.ndarray) -> list[np.nda
 
 def _skeleton_hipped(rings: list, scale, z0, z_eaves, z_top, profile=None, gables: bool = False, hip: float = 0.0
                      ) -> list[np.ndarray] | None:
+    """:func:`_skeleton_roof` of ``rings``, tried again from other corners of the outer ring where the straight
+    skeleton fails (py-straight-skeleton's event order depends on where the ring starts: a union of rectangles whose
+    skeleton fails from one corner builds from another), at most :data:`SKELETON_TRIES` times, and only up to
+    :data:`SKELETON_RETRY_CORNERS` corners (each try takes about n^2 time)."""
+    n = len(rings[0])
+    tries = SKELETON_TRIES if sum(len(r) for r in rings) <= SKELETON_RETRY_CORNERS else 1
+    for shift in list(dict.fromkeys([0] + [n * k // tries for k in range(1, tries)]))[:tries]:
+        built = _skeleton_roof([np.roll(rings[0], -shift, axis=0)] + list(rings[1:]), scale, z0, z_eaves, z_top, profile,
+                               gables, hip)
+        if built is not None:
+            return built
+    return None
+
+
+def _skeleton_roof(rings: list, scale, z0, z_eaves, z_top, profile=None, gables: bool = False, hip: float = 0.0
+                   ) -> list[np.ndarray] | None:
     """A hipped roof on any footprint, courtyards included: its straight skeleton lifted (a node's height its time,
     the distance the walls' lines moved in to meet there, scaled so the highest is ``z_top``). None where the
     skeleton cannot be computed or fails its check (a face per wall, each holding its wall's edge, each node at its

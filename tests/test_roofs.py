@@ -538,3 +538,25 @@ def test_footprints_as_real_data_spoils_them_get_the_same_roofs():
                     assert got == pytest.approx(expected, rel=1e-3 if name.startswith("row") else 1e-6), (k, shape, name)
         if len(clean) >= 4:
             assert roof_faces(clean[[0, 2, 1, 3]] / scale + origin, 0.0, 6.0, 9.0, "gabled", tuple(scale)) is None
+
+
+def test_a_skeleton_that_fails_from_one_corner_is_tried_from_others():
+    """py-straight-skeleton fails on some unions of rectangles from where their ring starts ("Antiparallel segments,
+    can't determine if the bisector is in"): 5 of 500 here. Started from other corners they build: each hipped roof
+    closed, outward, at the volume of the roof it builds from one such start (the hipped roof is one surface,
+    whatever corner its computation starts from)."""
+    from bench.roofs import turned_unions
+    from meshsom.roofs import _skeleton_roof, _tidy
+
+    rings = turned_unions(500, 11)
+    for k in (64, 285, 312, 372, 489):
+        ring = _tidy(rings[k], (1.0, 1.0))
+        if np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1]) < 0:
+            ring = ring[::-1].copy()
+        assert _skeleton_roof([ring], (1.0, 1.0), 0.0, 6.0, 9.0) is None  # from its first corner: fails
+        faces = roof_faces(rings[k], 0.0, 6.0, 9.0, "hipped", (1.0, 1.0))
+        assert faces is not None, k
+        other = next(f for f in (_skeleton_roof([np.roll(ring, -s, axis=0)], (1.0, 1.0), 0.0, 6.0, 9.0)
+                                 for s in range(1, len(ring))) if f is not None)
+        assert _volume_closed(faces) == pytest.approx(_volume_closed(other), rel=1e-9)
+        assert roof_faces(rings[k], 0.0, 6.0, 9.0, "mansard", (1.0, 1.0)) is not None
