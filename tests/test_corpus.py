@@ -368,3 +368,31 @@ def test_a_large_osm_extract_is_read_by_several_tasks(cluster_client, tmp_path):
     corpus.run_corpus(cluster_client, cfg, tmp_path / "park.zarr")
     (record,) = read_manifest(tmp_path / "park.zarr")["records"]
     assert record["status"] == "rejected" and "holds no building" in record["reason"], record
+
+
+def test_overture_parts_files_on_a_cluster_read_in_ranges(cluster_client, tmp_path):
+    """Overture's two downloads (20 buildings, 3 parts) on 2 worker processes, the buildings' file read as one task
+    or in ranges of 2 features (10 tasks, each holding the parts): the same store; the church of its parts, the lone
+    part noted, no part read twice."""
+    from test_part_files import BUILDINGS, PARTS
+
+    from footprints import write_geoparquet
+
+    others = [(f"x{k:02d}", BUILDINGS[1][1], {"height": 6.0}) for k in range(18)]
+    write_geoparquet(tmp_path / "buildings.parquet", BUILDINGS + others, extra=("has_parts",))
+    write_geoparquet(tmp_path / "parts.parquet", PARTS, extra=("building_id",))
+    stores, reads = {}, {}
+    for read_features in (10**6, 2):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(tmp_path / "buildings.parquet"), str(tmp_path / "parts.parquet")]},
+                                "encoding": {"levels": [1]}, "dask": {"shard_meshes": 4, "read_features": read_features},
+                                "store": {"chunk_rows": CHUNK}})
+        stores[read_features] = store = tmp_path / f"ov{read_features}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_features] = {total for stage, _, total in calls if stage == "read"}
+    assert reads[10**6] == {2} and reads[2] == {11}  # 10 ranges of the buildings' file, the parts' file whole
+    a, b = read_manifest(stores[10**6])["records"], read_manifest(stores[2])["records"]
+    assert a == b and len(a) == 21 and all(r["status"] == "accepted" for r in a)
+    assert sum(r["id"].endswith("#p3") for r in a) == 1 and not any(r["id"].endswith(("#p1", "#p2")) for r in a)
+    church = next(r for r in a if r["id"].endswith("#b1"))
+    assert church["volume"] == pytest.approx(1600, rel=1e-5)
