@@ -521,8 +521,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         root = root or create_store(path, overwrite=True)
         reader = pair([f.path for f in files], cfg.corpus.reader)  # Overture's parts, in files of their own
         if reader.part_files:
-            log.info("building parts in %s, read with the buildings of %s", ", ".join(reader.part_files),
-                     ", ".join(reader.building_files))
+            log.info("building parts in %s: each read with its building, where an input holds it",
+                     ", ".join(reader.part_files))
         sources = []
         for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
             kind = input_kind(f.path)
