@@ -34,8 +34,9 @@ BUILDING_ID = "building_id"
 OWN_ID = "id"
 #: Rows (features) looked at to tell a part file from a building file.
 SNIFF_FEATURES = 100
-#: Bytes of a GeoJSON file looked through for :data:`BUILDING_ID` before it is parsed to be sure.
-SNIFF_BYTES = 1 << 20
+#: Bytes of a GeoJSON file looked through for :data:`BUILDING_ID` before it is parsed to be sure (a parts file names
+#: it in its first feature; a run of thousands of GeoJSON tiles reads this much of each at planning).
+SNIFF_BYTES = 1 << 16
 
 
 def _kind(path: Path) -> str | None:
