@@ -64,6 +64,9 @@ _DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
 FOOT, INCH = 0.3048, 0.0254
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
+#: Shapes built as another where they cannot be built on a footprint (a half-hipped roof on one without a square wing
+#: end: the hipped roof, which its hips make it most like), noted; others are flat there.
+FALLBACK = {"half-hipped": "hipped"}
 #: A roof's direction given as a compass point, in degrees clockwise from north.
 CARDINAL = {k: 22.5 * i for i, k in enumerate(("N", "NNE", "NE", "ENE", "E", "ESE", "SE", "SSE", "S", "SSW", "SW", "WSW",
                                                  "W", "WNW", "NW", "NNW"))}
@@ -308,7 +311,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     if direction is not None and degrees is None:
         degrees = _number(direction)
     across = str(found.get("roof:orientation", "")).strip().lower() == "across"
-    built, eaves = [], []
+    built, eaves, fell_back = [], [], []
     for polygon in polygons:  # several (a building in pieces): each its own roof, of the same tags
         for ring in polygon:
             FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
@@ -321,6 +324,10 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         if not rise > 0:
             return None, None
         faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees, across=across, holes=holes)
+        if faces is None and shape in FALLBACK:  # a half-hipped roof without a wing end to hip: its hipped kin
+            faces = roof_faces(ring, z0, z1 - rise, z1, FALLBACK[shape], scale, degrees, across=across, holes=holes)
+            if faces is not None:
+                fell_back.append(f"roof:shape={shape} built as {FALLBACK[shape]} ({UNBUILT[shape]})")
         if faces is None:
             which = f" (its polygon {len(built) + 1} of {len(polygons)})" if len(polygons) > 1 else ""
             return None, f"roof:shape={shape} not modelled on this footprint{which} ({UNBUILT[shape]}): flat"
@@ -329,6 +336,8 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in built]]}
     read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
     low, high = min(eaves), max(eaves)
+    if fell_back:
+        read_as += f" ({fell_back[0]}" + (f", on {len(fell_back)} of its polygons" if len(polygons) > 1 else "") + ")"
     return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {low:.3g}"
                    + (f" to {high:.3g}" if high - low > 1e-9 * max(abs(high), 1.0) else "")
                    + f" m, top {z1 - z0:.3g} m above its base" + (f", on {len(polygons)} polygons" if len(polygons) > 1 else ""))

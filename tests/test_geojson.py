@@ -146,6 +146,9 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
         _house("half", 140, 12, 8, height=9, roof_shape="half_hipped", roof_height=3),
         _house("mansard", 160, 12, 8, height=9, roof_shape="mansard", roof_height=3),
         _house("sawtooth", 220, 12, 8, height=9, roof_shape="sawtooth", roof_height=3),
+        _feature("hexagon", {"type": "Polygon", "coordinates": [closed(lonlat(
+            [(240 + 5 * np.cos(a), 5 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 7)[:-1]]))]},
+            height=9, roof_shape="half_hipped", roof_height=3),  # no wing end: hipped, noted
         _house("flat", 180, 12, 8, height=9, roof_shape="flat", roof_height=None),
         _house("many", 200, 12, 8, height=9, roof_shape="gabled", roof_height=3, roof_direction=None),
     ]
@@ -176,6 +179,10 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert any("roof:shape=half-hipped built (S3DB) (roof:shape=half_hipped read as half-hipped)" in n
                for n in got["half"].notes), got["half"].notes
     assert any("roof:shape=sawtooth not modelled: a flat roof at the height" in n for n in got["sawtooth"].notes)
+    hexagon = np.array([(5 * np.cos(a), 5 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 7)[:-1]])
+    assert any("(roof:shape=half_hipped read as half-hipped) (roof:shape=half-hipped built as hipped (no wing end" in n
+               for n in got["hexagon"].notes), got["hexagon"].notes
+    assert _volume(got["hexagon"]) == pytest.approx(area(hexagon) * (6 + 3 / 3), rel=1e-5)  # a pyramid on its walls
     assert any("roof:shape=gabled built (S3DB): eaves 6 m, top 9 m above its base, on 2 polygons" in n
                for n in got["many"].notes), got["many"].notes  # a building in two pieces: a roof on each
     assert _volume(got["many"]) == pytest.approx(2 * HOUSE["gabled"](8, 5, 6, 3), rel=1e-5)
