@@ -531,6 +531,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
     import dataclasses
 
     from meshsom.io import Rejection, _object_meshes, file_crs
+    from meshsom.part_files import Placement
 
     name = name or path.name
     features = [document] if document.get("type") == "Feature" else document.get("features")
@@ -539,6 +540,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
     collection_crs = _reference(document.get("coordRefSys"))
     old_crs = _reference(document.get("crs"))
     owned, parts_of = building_parts(features)
+    placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
     for k, feature in enumerate(features, 1):
         if not isinstance(feature, dict) or feature.get("type") != "Feature":
             yield Rejection(f"{name}#feature-{k}", str(path), "is not a GeoJSON Feature")
@@ -551,11 +553,10 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         props = properties(feature)
         if k - 1 in parts_of or (options.part_files and isinstance(feature.get("geometry"), dict)):
             from meshsom.osm import STRAY, _Area, building_meshes
-            from meshsom.part_files import placement
 
             own = [_Area(_feature_id(features[j], j), properties(features[j]), features[j]["geometry"])
                    for j in parts_of.get(k - 1, [])]
-            skip, elsewhere, alone = placement(path, props, oid, options)  # Overture's parts, in files of their own
+            skip, elsewhere, alone = placement.of(props, oid) if placement else (False, [], None)  # Overture's parts
             if skip:
                 continue  # read with its building
             own += [part for part in elsewhere if part.oid not in {mine.oid for mine in own}]  # this file's: found

@@ -384,36 +384,40 @@ def read_gis(path: Path, options, name: str | None = None, feature_range: Sequen
         The file cannot be opened, is gzip-compressed, has no layer with geometry (or not the
         layer asked for), or holds no features.
     """
+    from meshsom.part_files import Placement
+
     name = name or path.name
     layers = _chosen_layers(path, options)
+    placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
     if feature_range is not None:
         _, layer_name, prefix, id_field, start, stop = feature_range
         (layer,) = [layer for layer in layers if layer.name == layer_name]
         for oid, props, geometry in _records(path, layer.name, id_field, int(start), int(stop)):
-            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options)
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement)
         return
     found = False
     for layer in layers:
         prefix = f"{layer.name}/" if len(layers) > 1 else ""
         for oid, props, geometry in _records(path, layer.name, _id_field(path, layer.name, options), 0, None):
             found = True
-            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options)
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement)
     if not found:
         raise InputFileError(str(path), "holds no features" + (f" in layer {options.layer!r}" if options.layer else ""))
 
 
-def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, layer: Layer, options) -> Iterator:
+def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, layer: Layer, options,
+                    placement=None) -> Iterator:
     from meshsom.io import Rejection, _object_meshes, file_crs
 
     mesh_id = f"{name}#{oid}"
     system, unknown = file_crs(layer.crs, options)
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
-    if options.part_files and geometry is not None:  # Overture's building parts, in files of their own
+    if placement is not None and geometry is not None:  # Overture's building parts, in files of their own
         from meshsom.osm import _Area, building_meshes
-        from meshsom.part_files import as_geojson, placement
+        from meshsom.part_files import as_geojson
 
-        skip, own, alone = placement(path, props, oid, options)
+        skip, own, alone = placement.of(props, oid)
         if skip:
             return  # read with its building
         if own or alone:

@@ -92,9 +92,10 @@ def holds_parts(path: Path, options) -> bool:
         try:
             import pyarrow.parquet as pq
 
-            if BUILDING_ID not in pq.ParquetFile(path).schema_arrow.names:
+            names = pq.ParquetFile(path).schema_arrow.names
+            if BUILDING_ID not in names:
                 return False
-            table = pq.read_table(path, columns=[c for c in (OWN_ID, BUILDING_ID) if c in pq.ParquetFile(path).schema_arrow.names])
+            table = pq.read_table(path, columns=[c for c in (OWN_ID, BUILDING_ID) if c in names])
             named = table.column(BUILDING_ID).to_pylist()
             own = table.column(OWN_ID).to_pylist() if OWN_ID in table.column_names else [None] * len(named)
             return any(n is not None and str(n) != str(o) for n, o in zip(named, own))
@@ -214,28 +215,40 @@ def is_part_file(path, options) -> bool:
     return bool(options.part_files) and Path(path).resolve() in {Path(p).resolve() for p in options.part_files}
 
 
-def placement(path, props: dict, oid: str, options) -> tuple[bool, list, str | None]:
-    """Where a footprint feature of ``path`` goes when parts come in files of their own.
+class Placement:
+    """Where the footprint features of one file go when parts come in files of their own: made once per read of
+    the file (the files' sizes and times of change looked at once, the parts and building ids read once per
+    process), asked per feature (:meth:`of`)."""
 
-    Returns
-    -------
-    skip : bool
-        A part whose building is in a building file: read with it, not here.
-    parts : list of meshsom.osm._Area
-        A building's parts (its ``id`` property, else ``oid``, named by them).
-    alone : str or None
-        A part of no building: the note that says it is read as a building of its own.
-    """
-    if not options.part_files:
-        return False, [], None
-    named = props.get(BUILDING_ID)
-    if named is not None and is_part_file(path, options) and str(named) != str(props.get(OWN_ID, oid)):
-        if str(named) in building_ids(options):
-            return True, [], None
-        return False, [], ALONE.format(named)
-    index = parts_index(options)  # a building (of a building file, or among the parts of a file of both)
-    own = props.get(OWN_ID)
-    return False, index.get(str(own) if own is not None else oid, index.get(oid, [])), None
+    def __init__(self, path, options):
+        self.options = options
+        self.is_part_file = is_part_file(path, options)
+        self._parts: dict | None = None
+        self._ids: frozenset | None = None
+
+    def of(self, props: dict, oid: str) -> tuple[bool, list, str | None]:
+        """Where one feature goes.
+
+        Returns
+        -------
+        skip : bool
+            A part whose building is in a building file: read with it, not here.
+        parts : list of meshsom.osm._Area
+            A building's parts (its ``id`` property, else ``oid``, named by them).
+        alone : str or None
+            A part of no building: the note that says it is read as a building of its own.
+        """
+        named = props.get(BUILDING_ID)
+        if named is not None and self.is_part_file and str(named) != str(props.get(OWN_ID, oid)):
+            if self._ids is None:
+                self._ids = building_ids(self.options)
+            if str(named) in self._ids:
+                return True, [], None
+            return False, [], ALONE.format(named)
+        if self._parts is None:  # a building (of a building file, or among the parts of a file of both)
+            self._parts = parts_index(self.options)
+        own = props.get(OWN_ID)
+        return False, self._parts.get(str(own) if own is not None else oid, self._parts.get(oid, [])), None
 
 
 #: The note on a part read alone (its building's id after "; ": ingest counts the notes by what precedes it).
