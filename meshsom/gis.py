@@ -13,6 +13,12 @@ choice, triangulation, CRS handling and rejections apply:
   extruded from its lowest z (:func:`meshsom.geojson.footprint_solid`), with the roof its roof
   columns describe (Overture's ``roof_shape``, ``roof_height``, ...). Without either it is a
   rejection that names the properties looked for.
+- **OpenStreetMap data converted by GDAL** (``ogr2ogr`` of an extract: its ``other_tags``,
+  :func:`meshsom.osm.gdal_properties`) is read as the extract is (:func:`meshsom.osm.building_meshes`,
+  the extract's ids); a row not tagged as a building is a rejection naming its first tag.
+- **Building parts in the same file** (:func:`part_grouping`), tagged as OpenStreetMap tags them (a
+  ``building:part`` column, or in ``other_tags``): a building with parts is its parts, a part in no
+  building's outline a building of its own, noted; closed lines (GDAL's ``lines`` layer) are areas.
 - **Building parts in files of their own** (Overture's ``building_part`` downloads, paired with
   the buildings' file by :func:`meshsom.part_files.pair`): a building with parts is its parts, a
   part of no building a building of its own, noted.
@@ -41,6 +47,7 @@ of millions of footprints is not held.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import struct
@@ -309,6 +316,131 @@ class Layer:
     features: int
 
 
+@dataclasses.dataclass(frozen=True)
+class PartGrouping:
+    """The building parts among a GIS file's features, tagged as OpenStreetMap tags them (a ``building:part``
+    column, or GDAL's ``other_tags``: an extract converted by ``ogr2ogr``, or a QuickOSM export), and the
+    buildings they belong to (:func:`part_grouping`). Ids are the features' as :func:`read_gis` gives them
+    (``<layer>/<id>`` where several layers are read).
+
+    Attributes
+    ----------
+    owned : frozenset of str
+        The parts read with their building.
+    parts_of : dict of str to list of meshsom.osm._Area
+        A building's parts (GeoJSON-like geometry), in file order.
+    strays : frozenset of str
+        The parts inside no building outline: each read as a building of its own, noted.
+    """
+
+    owned: frozenset
+    parts_of: dict
+    strays: frozenset
+
+    def __contains__(self, oid: str) -> bool:
+        return oid in self.owned or oid in self.parts_of or oid in self.strays
+
+
+def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | None:
+    """The building parts of a GIS file's ``layers`` and their buildings (:class:`PartGrouping`), as OpenStreetMap
+    extracts are read (:func:`meshsom.osm.building_meshes`): each part goes to the smallest building outline (a
+    feature of any of the layers not itself a part) holding a point inside it. None where no feature is a part
+    (a scan of the columns that say it, where a layer has them). Read once per process and file (its size and
+    time of change in the key): each read task of a large file (:func:`gis_ranges`) holds the parts, not the
+    buildings."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return None
+    keyed = tuple(layer.name for layer in layers)
+    if not any(_has_part_columns(path, name) for name in keyed):
+        return None
+    return _part_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
+
+
+#: Columns that can say a feature is a building part (OpenStreetMap's key; GDAL's OSM driver's tags).
+PART_COLUMNS = ("building:part", "other_tags")
+
+
+def _has_part_columns(path: Path, layer: str) -> bool:
+    if _is_parquet(path):
+        import pyarrow.parquet as pq
+
+        return bool(set(PART_COLUMNS) & set(pq.read_schema(path).names))
+    import fiona
+
+    try:
+        with fiona.open(path, layer=layer) as collection:
+            return bool(set(PART_COLUMNS) & set(collection.schema["properties"]))
+    except _gdal_errors():
+        return False  # the read says why
+
+
+@functools.lru_cache(maxsize=4)
+def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attributes: tuple) -> PartGrouping | None:
+    from shapely.geometry import mapping, shape
+
+    from meshsom.geojson import _is_part_feature
+    from meshsom.osm import _Area, _said, area_geometry, from_gdal, owners
+
+    if not any(_is_part_feature(props) for name in layers for props in _attributes(Path(path), name)):
+        return None
+    outline_ids, outlines, part_ids, parts = [], [], [], []
+    for name in layers:
+        id_field = _id_field_of(Path(path), name, id_attributes)
+        prefix = f"{name}/" if len(layers) > 1 else ""
+        for oid, props, geometry in _records(Path(path), name, id_field, 0, None):
+            part = _is_part_feature(props)
+            if geometry is None or not part and from_gdal(props) and not _said(props, "building"):
+                continue
+            try:
+                footprint = _footprint(area_geometry(geometry), f"{path}#{prefix}{oid}")
+                polygon = shape(footprint) if footprint is not None else None
+            except Exception:  # damaged geometry: its own reading says so
+                continue
+            if polygon is None or not polygon.is_valid or polygon.area <= 0:
+                continue
+            if part:  # named in notes by its OpenStreetMap id (unique across layers) where it has one
+                part_ids.append((f"{prefix}{oid}", oid if from_gdal(props) else f"{prefix}{oid}", props, mapping(polygon)))
+                parts.append(polygon)
+            else:
+                outline_ids.append(f"{prefix}{oid}")
+                outlines.append(polygon)
+    found = owners(np.array(outlines, dtype=object), np.array(parts, dtype=object))
+    parts_of: dict[str, list] = {}
+    owned, strays = set(), set()
+    for (oid, child, props, geometry), b in zip(part_ids, found.tolist()):
+        if b >= 0:
+            parts_of.setdefault(outline_ids[b], []).append(_Area(child, props, geometry))
+            owned.add(oid)
+        else:
+            strays.add(oid)
+    return PartGrouping(frozenset(owned), parts_of, frozenset(strays))
+
+
+def _attributes(path: Path, layer: str) -> Iterator[dict]:
+    """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
+    that can say a feature is a part, and ``building``, of a GeoParquet file."""
+    from meshsom.osm import gdal_properties
+
+    if _is_parquet(path):
+        import pyarrow.parquet as pq
+
+        names = pq.read_schema(path).names
+        wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id") if c in names]
+        for values in pq.read_table(path, columns=wanted).to_pylist():
+            yield gdal_properties(values)
+        return
+    import fiona
+
+    try:
+        with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
+            for feature in collection:
+                yield gdal_properties(dict(feature.properties))
+    except _gdal_errors() as err:
+        raise _gdal_error(path, err) from None
+
+
 def _chosen_layers(path: Path, options) -> list[Layer]:
     """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
     if path.is_file():
@@ -389,32 +521,35 @@ def read_gis(path: Path, options, name: str | None = None, feature_range: Sequen
     name = name or path.name
     layers = _chosen_layers(path, options)
     placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
+    grouping = part_grouping(path, layers, options) if placement is None else None  # OpenStreetMap's building:part
     if feature_range is not None:
         _, layer_name, prefix, id_field, start, stop = feature_range
         (layer,) = [layer for layer in layers if layer.name == layer_name]
         for oid, props, geometry in _records(path, layer.name, id_field, int(start), int(stop)):
-            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement)
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement,
+                                       grouping)
         return
     found = False
     for layer in layers:
         prefix = f"{layer.name}/" if len(layers) > 1 else ""
         for oid, props, geometry in _records(path, layer.name, _id_field(path, layer.name, options), 0, None):
             found = True
-            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement)
+            yield from _feature_meshes(path, name, f"{prefix}{oid}", props, geometry, layer, options, placement,
+                                       grouping)
     if not found:
         raise InputFileError(str(path), "holds no features" + (f" in layer {options.layer!r}" if options.layer else ""))
 
 
 def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, layer: Layer, options,
-                    placement=None) -> Iterator:
+                    placement=None, grouping: "PartGrouping | None" = None) -> Iterator:
     from meshsom.io import Rejection, _object_meshes, file_crs
+    from meshsom.osm import STRAY, _Area, area_geometry, building_meshes, from_gdal, no_outline, not_a_building
 
     mesh_id = f"{name}#{oid}"
     system, unknown = file_crs(layer.crs, options)
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     if placement is not None and geometry is not None:  # Overture's building parts, in files of their own
-        from meshsom.osm import _Area, building_meshes
         from meshsom.part_files import as_geojson
 
         skip, own, alone = placement.of(props, oid)
@@ -427,6 +562,27 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
                 yield Rejection(mesh_id, str(path), err.problem, 0, None)
                 return
             yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown))
+            return
+    osm = from_gdal(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does
+    if osm and geometry is not None and (reason := not_a_building(props)) is not None:
+        label = props.get(options.label_attribute)
+        yield Rejection(mesh_id, str(path), reason, 0, None if label is None else str(label))
+        return
+    if geometry is not None and (osm or grouping is not None and oid in grouping):
+        if grouping is not None and oid in grouping.owned:
+            return  # read with its building
+        try:
+            area = _footprint(area_geometry(geometry), mesh_id)
+        except InputFileError as err:
+            yield Rejection(mesh_id, str(path), err.problem, 0, None)
+            return
+        if area is None and osm and (reason := no_outline(props, area_geometry(geometry))) is not None:
+            yield Rejection(mesh_id, str(path), reason, 0, None)
+            return
+        if area is not None:  # else not a footprint: said below
+            own = grouping.parts_of.get(oid, []) if grouping is not None else []
+            stray = STRAY if grouping is not None and oid in grouping.strays else None
+            yield from building_meshes(_Area(oid, props, area), own, stray, options, name, str(path), (system, unknown))
             return
     try:
         if geometry is None:
@@ -442,6 +598,20 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         if notes and not isinstance(item, Rejection):
             item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
         yield item
+
+
+def _footprint(geometry, where: str) -> dict | None:
+    """A 2D (Multi)Polygon as a GeoJSON-like dict (WKB decoded); None for any other geometry."""
+    if isinstance(geometry, (bytes, bytearray, memoryview)):
+        polygons, kinds, has_z = wkb_polygons(geometry, where)
+        if not polygons or not kinds <= {"Polygon", "MultiPolygon"} or has_z and not horizontal(polygons):
+            return None
+        return {"type": "MultiPolygon", "coordinates": [[ring.tolist() for ring in poly] for poly in polygons]}
+    try:
+        kind = geometry["type"]
+    except (KeyError, TypeError):
+        return None
+    return geometry if kind in ("Polygon", "MultiPolygon") else None
 
 
 def _gdal_error(path: Path, err: Exception) -> InputFileError:
@@ -481,21 +651,25 @@ def _unique_column(values: list) -> bool:
 
 def _id_field(path: Path, layer: str, options) -> str | None:
     """The first of ``options.id_attributes`` whose values are given and unique over the layer."""
-    if not options.id_attributes:
+    return _id_field_of(path, layer, tuple(options.id_attributes))
+
+
+def _id_field_of(path: Path, layer: str, id_attributes: tuple) -> str | None:
+    if not id_attributes:
         return None
     if _is_parquet(path):
         import pyarrow.parquet as pq
 
         column, _ = _parquet_geo(path)
         names = pq.read_schema(path).names
-        for candidate in options.id_attributes:
+        for candidate in id_attributes:
             if candidate in names and candidate != column and _unique_column(
                     pq.read_table(path, columns=[candidate]).column(0).to_pylist()):
                 return candidate
         return None
     import fiona
 
-    values: dict[str, list] = {c: [] for c in options.id_attributes}
+    values: dict[str, list] = {c: [] for c in id_attributes}
     try:
         with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
             for feature in collection:
@@ -510,7 +684,10 @@ def _id_field(path: Path, layer: str, options) -> str | None:
 def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int | None
              ) -> Iterator[tuple[str, dict, object]]:
     """(id, properties, geometry) of features ``start`` to ``stop`` of a layer, streamed: fiona's
-    geometry (GeoJSON-like) or GeoParquet's WKB."""
+    geometry (GeoJSON-like) or GeoParquet's WKB; the properties of GDAL's OSM driver with the tags of
+    its ``other_tags`` read in, and its ids as :mod:`meshsom.osm` gives them (``way/<id>``)."""
+    from meshsom.osm import gdal_id, gdal_properties
+
     if _is_parquet(path):
         yield from _parquet_records(path, id_field, start, stop)
         return
@@ -519,8 +696,8 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
     try:
         with fiona.open(path, layer=layer) as collection:
             for feature in collection.filter(start, stop):
-                props = dict(feature.properties)
-                yield str(props.get(id_field) if id_field else feature.id), props, feature.geometry
+                props = gdal_properties(dict(feature.properties))
+                yield gdal_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
 
@@ -569,7 +746,10 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
     ``start`` on (a range task does not decode the rows before it)."""
     import pyarrow.parquet as pq
 
+    from meshsom.osm import gdal_id, gdal_properties
+
     column, _ = _parquet_geo(path)
+    stem = Path(path.name).stem  # the layer's name
     pf = pq.ParquetFile(path)
     sizes = [pf.metadata.row_group(g).num_rows for g in range(pf.metadata.num_row_groups)]
     firsts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
@@ -587,6 +767,7 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
             batch = batch.slice(0, max(min(stop - first, batch.num_rows), 0))
         for k, values in enumerate(batch.slice(skip).to_pylist(), first + skip + 1):
             wkb = values.pop(column, None)
-            yield str(values.get(id_field) if id_field else k), values, wkb
+            values = gdal_properties(values)
+            yield gdal_id(values, stem) or str(values.get(id_field) if id_field else k), values, wkb
         if stop is not None and row >= stop:
             return

@@ -38,6 +38,11 @@ Other areas (land use, parks, parking) are not buildings: counted by their first
 the file's meshes. A building (or building part) mapped as a node, or as a way that does not
 close, has no outline to build: each is a rejection saying so (id ``name#node/<id>``,
 ``name#way/<id>``), so that every building of the extract is either read or listed.
+
+An extract converted by GDAL (``ogr2ogr`` to a GeoPackage, Shapefile, FlatGeobuf, GeoParquet or
+GeoJSON) keeps the tags without a column of their own in ``other_tags``; :mod:`meshsom.gis` and
+:mod:`meshsom.geojson` read those rows as this module does (:func:`gdal_properties`,
+:func:`gdal_id`, :func:`not_a_building`, :func:`no_outline`, :func:`area_geometry`).
 """
 
 from __future__ import annotations
@@ -73,12 +78,116 @@ OTHERS_SHOWN = 5
 BUILDINGS_PER_KB = {"pbf": 7.0, "xml": 0.7}
 
 
+#: GDAL's OSM driver's column of the tags its configuration gives no column of their own (hstore text).
+GDAL_TAGS = "other_tags"
+#: GDAL's OSM driver's id columns of an area: a closed way's, else (a multipolygon relation's) ``osm_id``.
+GDAL_WAY_ID, GDAL_ID = "osm_way_id", "osm_id"
+#: Columns of GDAL's OSM driver that are not tags (passed over when a note names an area's first tag).
+GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order")
+
+
 def tags(text: str | None) -> dict[str, str]:
     """The tags of GDAL's ``other_tags`` (hstore text), unescaped."""
     if not text:
         return {}
     unescape = lambda v: re.sub(r"\\(.)", r"\1", v)  # noqa: E731
     return {unescape(k): unescape(v) for k, v in HSTORE.findall(text)}
+
+
+def from_gdal(props: dict) -> bool:
+    """Whether a feature's properties are a row of GDAL's OSM driver (an extract converted by ``ogr2ogr`` to a
+    GeoPackage, Shapefile, FlatGeobuf, GeoParquet or GeoJSON): it has an :data:`GDAL_TAGS` or :data:`GDAL_WAY_ID`
+    column."""
+    return GDAL_TAGS in props or GDAL_WAY_ID in props
+
+
+def gdal_properties(props: dict) -> dict:
+    """A feature's properties with the tags of GDAL's :data:`GDAL_TAGS` column read in (unescaped), under its
+    columns where those are given (a null column is no value; GDAL's own, :data:`GDAL_COLUMNS`, are kept, for
+    :func:`from_gdal` and :func:`gdal_id`); as they are for features not of GDAL's OSM driver."""
+    if not from_gdal(props) or not isinstance(props.get(GDAL_TAGS), (str, type(None))):
+        return props
+    return {**tags(props.get(GDAL_TAGS)), **{k: v for k, v in props.items() if v is not None or k in GDAL_COLUMNS}}
+
+
+#: The kind of OpenStreetMap element in each layer of GDAL's OSM driver whose ``osm_id`` is its id (its areas layer,
+#: :data:`LAYER`: a closed way's id in :data:`GDAL_WAY_ID`, else a relation's in ``osm_id``).
+GDAL_ELEMENTS = {"points": "node", "lines": "way", "multilinestrings": "relation", "other_relations": "relation"}
+
+
+def gdal_id(props: dict, layer: str | None = None) -> str | None:
+    """The OpenStreetMap id of a row of GDAL's OSM driver (:func:`from_gdal`): ``way/<id>`` or ``relation/<id>`` in
+    its areas layer (as :func:`read_osm` names them), ``node/<id>`` in its ``points`` layer, ...
+    (:data:`GDAL_ELEMENTS`, by the layer's name); else None."""
+    if not from_gdal(props):
+        return None
+    if GDAL_WAY_ID in props:
+        columns = ((GDAL_WAY_ID, "way"), (GDAL_ID, "relation"))
+    elif layer in GDAL_ELEMENTS:
+        columns = ((GDAL_ID, GDAL_ELEMENTS[layer]),)
+    else:
+        return None
+    for column, kind in columns:
+        value = props.get(column)
+        if value is not None and str(value).strip():
+            text = str(value).strip()
+            return f"{kind}/{text[:-2] if text.endswith('.0') else text}"  # a Shapefile's number column: 10.0
+    return None
+
+
+def no_outline(props: dict, geometry) -> str | None:
+    """For a row of GDAL's OSM driver tagged ``building`` or ``building:part`` with a point or a way that does not
+    close, the reason it is not read, as :func:`read_osm` gives it; else None."""
+    try:
+        kind = geometry["type"]
+    except (KeyError, TypeError):
+        return None
+    how = {"Point": "mapped as a point (a node)", "LineString": "mapped as a way that does not close",
+           "MultiLineString": "mapped as lines that do not close"}.get(kind)
+    if how is None or not from_gdal(props):
+        return None
+    return f"is a {'building' if _said(props, 'building') else 'building:part'} {how}: it has no outline to build"
+
+
+def not_a_building(props: dict) -> str | None:
+    """For a row of GDAL's OSM driver (:func:`from_gdal`) tagged neither ``building`` nor ``building:part``, the
+    reason it is not read (its first tag named); else None."""
+    if not from_gdal(props) or _said(props, "building") or _said(props, "building:part"):
+        return None
+    first = next(((k, v) for k, v in props.items() if k not in GDAL_COLUMNS and v is not None and str(v).strip()), None)
+    return ("is not a building: an OpenStreetMap feature tagged " + (f"{first[0]}={first[1]}" if first else "with nothing")
+            + " (neither building nor building:part)")
+
+
+def area_geometry(geometry):
+    """A feature's geometry (GeoJSON-like, or WKB) as a GeoJSON-like polygon where it is a closed ``LineString``:
+    GDAL's OSM driver puts closed ways in its ``lines`` layer unless its configuration calls their tags areas
+    (its own does not for ``building:part``); else as it is."""
+    if isinstance(geometry, (bytes, bytearray, memoryview)):
+        if len(geometry) < 5 or (int.from_bytes(bytes(geometry[1:5]), "little" if geometry[0] == 1 else "big")
+                                  & 0x0FFFFFFF) % 1000 != 2:  # not a LineString (ISO WKB, or EWKB's flags)
+            return geometry
+        import shapely
+
+        try:
+            line = shapely.from_wkb(bytes(geometry))
+        except Exception:  # damaged WKB: its reading says so
+            return geometry
+        coordinates = [list(c) for c in line.coords]
+    else:
+        try:
+            if geometry is None or geometry["type"] != "LineString":
+                return geometry
+            coordinates = [list(c) for c in geometry["coordinates"]]
+        except (KeyError, TypeError):
+            return geometry
+    if len(coordinates) >= 4 and coordinates[0] == coordinates[-1]:
+        return {"type": "Polygon", "coordinates": [coordinates]}
+    return geometry
+
+
+def _said(props: dict, key: str) -> bool:
+    return str(props.get(key) or NO).strip().lower() != NO
 
 
 @dataclasses.dataclass
@@ -187,13 +296,33 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[st
 def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:
     """For each part, the index of the smallest building outline holding a point inside it, or -1:
     (P,) int64."""
-    import shapely
     from shapely.geometry import shape
 
     if not parts or not buildings:
         return np.full(len(parts), -1, np.int64)
-    outlines = np.array([shape(b.geometry) for b in buildings], dtype=object)
-    inside = shapely.point_on_surface(np.array([shape(p.geometry) for p in parts], dtype=object))
+    return owners(np.array([shape(b.geometry) for b in buildings], dtype=object),
+                  np.array([shape(p.geometry) for p in parts], dtype=object))
+
+
+def owners(outlines: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """For each part, the index of the smallest outline holding a point inside it (shapely's STRtree), or -1.
+
+    Parameters
+    ----------
+    outlines : (B,) object
+        Building outlines, shapely geometries.
+    parts : (P,) object
+        Building parts, shapely geometries.
+
+    Returns
+    -------
+    (P,) int64
+    """
+    import shapely
+
+    if not len(parts) or not len(outlines):
+        return np.full(len(parts), -1, np.int64)
+    inside = shapely.point_on_surface(parts)
     part, outline = shapely.STRtree(outlines).query(inside, predicate="within")
     owner = np.full(len(parts), -1, np.int64)
     if len(part):

@@ -333,3 +333,150 @@ def test_meshsom_ingest_with_a_default_height(tmp_path):
         r.get("reason") for r in records.values()]
     assert records["way/20"]["union"]["parts"] == 2
     assert any("default 9 m" in n for n in records["way/40"]["notes"])
+
+
+def _gdal_conversion(osm_path, out, driver, layers, config=None):
+    """``ogr2ogr`` of an extract to another format, as fiona (GDAL) does it: the given layers of GDAL's OSM driver,
+    with GDAL's own osmconf.ini (``config`` None) or meshsom's; GeoParquet written by pyarrow from the same rows."""
+    import fiona
+    from fiona.drvsupport import supported_drivers
+
+    supported_drivers.setdefault("OSM", "r")
+    env = {"OSM_CONFIG_FILE": str(config)} if config else {}
+    for layer in layers:
+        with fiona.Env(**env), fiona.open(str(osm_path), layer=layer) as src:
+            features, schema, crs = list(src), src.schema, src.crs
+        if driver == "GeoParquet":
+            import json
+
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+            import shapely
+            from shapely.geometry import shape
+
+            columns = {k: [f.properties[k] for f in features] for k in schema["properties"]}
+            columns["geometry"] = [shapely.to_wkb(shape(f.geometry)) for f in features]
+            meta = {"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": {"encoding": "WKB"}}}
+            pq.write_table(pa.table(columns).replace_schema_metadata({b"geo": json.dumps(meta).encode()}), out)
+            continue
+        with fiona.open(str(out), "w", driver=driver, schema=schema, crs=crs,
+                        **({"layer": layer} if driver == "GPKG" else {})) as dst:
+            dst.writerecords(features)
+    return out
+
+
+@pytest.mark.parametrize("driver, suffix, layers, own_config", [
+    ("GPKG", "gpkg", ("points", "lines", "multipolygons"), False),  # `ogr2ogr city.gpkg city.osm.pbf`: parts are lines
+    ("FlatGeobuf", "fgb", ("multipolygons",), True),
+    ("ESRI Shapefile", "shp", ("multipolygons",), True),
+    ("GeoJSON", "geojson", ("multipolygons",), True),
+    ("GeoParquet", "parquet", ("multipolygons",), True),
+])
+def test_an_extract_converted_by_gdal_reads_as_the_extract(tmp_path, driver, suffix, layers, own_config):
+    """An extract converted by GDAL (its tags in ``other_tags``) gives the extract's buildings: the same ids, parts
+    (from the lines layer where GDAL's own configuration put them there), volumes (the office's by hand) and
+    labels; the park and the road are refused as not buildings, the node and the open way as having no outline."""
+    from meshsom.osm import CONFIG
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    options = dataclasses.replace(ReaderOptions(), label_attribute="building")
+    xml, area = _district(tmp_path / "d.osm")
+    converted = _gdal_conversion(xml, tmp_path / f"d.{suffix}", driver, layers, CONFIG if own_config else None)
+    reference = {i.id.split("#")[1]: i for i in read_file(xml, options)}
+    got = {i.id.split("#")[1].removeprefix("multipolygons/"): i for i in read_file(converted, options)}
+    built = {k for k, i in reference.items() if isinstance(i, RawMesh)}
+    assert built == {k for k, i in got.items() if isinstance(i, RawMesh)} == {
+        "way/10", "way/11", "relation/14", "way/20", "way/30", "way/50", "way/80"}, sorted(got)
+    for key in built:
+        mine, theirs = got[key], reference[key]
+        assert mine.label == theirs.label and len(mine.parts or ()) == len(theirs.parts or ()), key
+        assert _volume(mine) == pytest.approx(_volume(theirs), rel=1e-9), key
+    record, clean = process_one(got["way/20"], PreprocessParams())
+    assert record["status"] == "accepted" and _volume(clean) == pytest.approx(area[21] * 6 + area[22] * 12, rel=1e-4)
+    reasons = {k: i.reason for k, i in got.items() if isinstance(i, Rejection)}
+    assert reasons.pop("way/60") == ("is not a building: an OpenStreetMap feature tagged leisure=park "
+                                     "(neither building nor building:part)")
+    assert "footprint without a height" in reasons.pop("way/40")
+    if "lines" in layers:
+        assert reasons.pop("lines/way/70").endswith("tagged highway=residential (neither building nor building:part)")
+        assert reasons.pop("lines/way/91") == "is a building mapped as a way that does not close: it has no outline to build"
+        assert reasons.pop("points/node/9000") == "is a building mapped as a point (a node): it has no outline to build"
+        assert "amenity=bench" in reasons.pop("points/node/9001")
+    assert not reasons, reasons
+
+
+def _quickosm_layer(path, rows):
+    """A GeoPackage layer as QuickOSM (QGIS) saves an Overpass query: a column per key (``building:part`` among
+    them), no ``other_tags``; ``rows`` are (id, rectangle in metres, tags)."""
+    import fiona
+
+    keys = ("full_id", "osm_id", "osm_type", "building", "building:part", "height", "min_height", "roof:shape")
+    schema = {"geometry": "Polygon", "properties": {k: "str" for k in keys}}
+    with fiona.open(str(path), "w", driver="GPKG", schema=schema, crs="EPSG:4326", layer="buildings") as dst:
+        for oid, (x0, y0, x1, y1), found in rows:
+            ring = _lonlat([(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)])
+            dst.write({"geometry": {"type": "Polygon", "coordinates": [ring]},
+                       "properties": {"full_id": f"w{oid}", "osm_id": str(oid), "osm_type": "way",
+                                      **{k: found.get(k) for k in keys[3:]}}})
+    return path
+
+
+def test_building_parts_within_one_gis_layer_whole_or_in_ranges(tmp_path):
+    """Parts saved beside their buildings in one layer (after them, as Overpass gives them, and before) are read
+    with them: the building is its parts (a part without a height takes its building's), each part is read once,
+    a part inside no outline is a building of its own, noted; the same when the layer is read in ranges, each part
+    then held by the range of its building."""
+    from meshsom.gis import gis_ranges, read_gis
+    from meshsom.osm import STRAY
+
+    rows = [(5, (60, 0, 70, 10), {PART: "yes", "height": "6"}),  # a part before its building
+            (1, (0, 0, 20, 10), {"building": "house", "height": "8"}),
+            (2, (60, 0, 80, 10), {"building": "office", "height": "15"}),
+            (3, (0, 0, 10, 10), {PART: "yes", "height": "12"}),
+            (4, (10, 0, 20, 10), {PART: "yes"}),
+            (6, (70, 0, 80, 10), {PART: "yes", "min_height": "3"}),
+            (7, (200, 0, 210, 10), {PART: "yes", "height": "4"}),  # inside no building
+            (8, (300, 0, 310, 10), {"building": "shed", "height": "3"})]
+    path = _quickosm_layer(tmp_path / "q.gpkg", rows)
+    options = ReaderOptions()
+    whole = {i.id.split("#")[1]: i for i in read_gis(path, options)}
+    assert set(whole) == {"1", "2", "7", "8"}, sorted(whole)
+    area = {oid: _enu_area(_lonlat([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])) for oid, (x0, y0, x1, y1), _ in rows}
+    assert len(whole["1"].parts) == len(whole["2"].parts) == 2  # parts side by side: their volumes add up
+    assert _volume(whole["1"]) == pytest.approx(area[3] * 12 + area[4] * 8, rel=1e-5)  # part 4 at its building's 8 m
+    assert _volume(whole["2"]) == pytest.approx(area[5] * 6 + area[6] * 12, rel=1e-5)
+    assert STRAY in whole["7"].notes and _volume(whole["7"]) == pytest.approx(area[7] * 4, rel=1e-5)
+    assert _volume(whole["8"]) == pytest.approx(area[8] * 3, rel=1e-5) and not whole["8"].parts
+    ranges = gis_ranges(path, 1, options)
+    assert ranges is not None and len(ranges) == len(rows)
+    pieces = [i for r in ranges for i in read_gis(path, options, feature_range=r)]
+    assert sorted(i.id.split("#")[1] for i in pieces) == sorted(whole)
+    for item in pieces:
+        assert _volume(item) == pytest.approx(_volume(whole[item.id.split("#")[1]]), rel=1e-12)
+
+
+
+def test_meshsom_ingest_of_a_converted_extract_stores_the_extract(tmp_path):
+    """`meshsom ingest` of the district converted by `ogr2ogr d.gpkg d.osm` (every layer) stores the buildings the
+    extract gives, record for record (faces, parts united, notes), and lists every other row as rejected."""
+    from meshsom.store import read_manifest
+    from pipelines.cli import main
+
+    xml, _ = _district(tmp_path / "d.osm")
+    gpkg = _gdal_conversion(xml, tmp_path / "d.gpkg", "GPKG", ("points", "lines", "multipolygons"))
+    stores = {}
+    for path in (xml, gpkg):
+        main(["ingest", str(path), "--out", str(tmp_path / f"{path.suffix[1:]}.zarr"), "--default-height", "9"])
+        stores[path.suffix] = {r["id"].split("#")[1].removeprefix("multipolygons/"): r
+                               for r in read_manifest(tmp_path / f"{path.suffix[1:]}.zarr")["records"]}
+    extract, converted = stores[".osm"], stores[".gpkg"]
+    accepted = {k for k, r in extract.items() if r["status"] == "accepted"}
+    assert accepted == {k for k, r in converted.items() if r["status"] == "accepted"} and len(accepted) == 8
+    for key in accepted:
+        mine, theirs = converted[key], extract[key]
+        assert {k: v for k, v in mine.items() if k not in ("id", "source")} == {
+            k: v if k != "notes" else [n for n in v if "areas that are not buildings" not in n]  # the extract's own
+            for k, v in theirs.items() if k not in ("id", "source")}, key
+    rejected = {k: r["reason"] for k, r in converted.items() if r["status"] != "accepted"}
+    assert set(rejected) == {"way/60", "lines/way/70", "lines/way/91", "points/node/9000", "points/node/9001"}, rejected
