@@ -196,7 +196,9 @@ def no_height(options, notes=()) -> str:
     """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
     a height given as unknown)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
-    return f"is a footprint without a height (no property {names})" + "".join(f"; {n}" for n in notes)
+    return (f"is a footprint without a height (no property {names})" + "".join(f"; {n}" for n in notes)
+            + "; --height-attribute NAME names your data's height, --default-height M (corpus.reader.default_height) "
+              "extrudes such footprints to M metres")
 
 
 def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,

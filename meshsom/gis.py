@@ -1,5 +1,6 @@
-"""Reading buildings from GIS files: GeoPackage, Shapefile, FlatGeobuf, Esri File Geodatabase and
-GeoJSONSeq through GDAL (fiona), GeoParquet through pyarrow.
+"""Reading buildings from GIS files: GeoPackage, Shapefile, FlatGeobuf, Esri File Geodatabase,
+GeoJSONSeq and CSV (footprints as WKT: Google's Open Buildings) through GDAL (fiona), GeoParquet
+through pyarrow.
 
 Footprint layers with heights (national cadastres, OpenStreetMap extracts, Overture Maps' and
 Microsoft's building footprints) and 3D layers (the 3D BAG's ``lod22_3d``, Esri multipatches, 3D
@@ -32,6 +33,10 @@ choice, triangulation, CRS handling and rejections apply:
   Ids are ``name#<id>``, or ``name#<layer>/<id>`` when the file has several layers with geometry;
   ``<id>`` is the first property of :attr:`meshsom.io.ReaderOptions.id_attributes` whose values
   are given and unique over the layer, else the feature id (GDAL's FID; a GeoParquet row from 1).
+- **CSV** (:data:`CSV_SUFFIX`, also gzipped) whose lines are GeoJSON features (Microsoft's global release): read
+  as GeoJSONSeq. Whose header names a WKT column (:data:`CSV_GEOMETRY_COLUMNS`): read by GDAL's CSV driver; declaring no CRS, with its first footprint within +/-180 and +/-90, it is
+  read as WGS 84 longitude, latitude (:data:`CSV_DEGREES_CRS`), noted, unless
+  :attr:`meshsom.io.ReaderOptions.crs` is set.
 - **CRS**: the layer's (GDAL's) or the GeoParquet column's (``crs`` absent means OGC:CRS84, as
   the GeoParquet specification says; ``null`` means unknown); else
   :attr:`meshsom.io.ReaderOptions.crs`. GDAL and GeoParquet give x = easting or longitude
@@ -51,6 +56,7 @@ import functools
 import json
 import math
 import struct
+import warnings
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -61,6 +67,19 @@ from meshsom.errors import InputFileError
 #: File name endings read through GDAL (fiona). ``.gdb`` is a folder (Esri File Geodatabase);
 #: ``.shz`` and ``.shp.zip`` are zipped shapefiles.
 OGR_SUFFIXES = (".gpkg", ".shp", ".shz", ".shp.zip", ".fgb", ".gdb", ".geojsonl", ".geojsons", ".geojsonseq")
+#: CSV files of footprints written as WKT (Google's Open Buildings, QGIS's "CSV, geometry AS_WKT"), plain or gzipped:
+#: read through GDAL's CSV driver where a column named as one of :data:`CSV_GEOMETRY_COLUMNS` (any case) holds them.
+CSV_SUFFIX = ".csv"
+CSV_GEOMETRY_COLUMNS = ("geometry", "wkt", "the_geom", "geom", "wkb_geometry")
+#: What :func:`csv_geometry_column` says of a ``.csv`` file whose lines are GeoJSON features.
+GEOJSON_LINES = "(GeoJSON lines)"
+#: Bytes of a CSV file looked through for its header line.
+CSV_HEADER_BYTES = 1 << 16
+#: The CRS of a CSV file that declares none (no ``.prj`` beside it) whose first footprint lies within +/-180 and
+#: +/-90: WGS 84 longitude, latitude, as Google's Open Buildings (and most CSV exports of footprints) are written.
+CSV_DEGREES_CRS = "OGC:CRS84"
+CSV_DEGREES_NOTE = ("the CSV file declares no CRS (no .prj beside it): its coordinates, within +/-180 and +/-90, are "
+                    "read as WGS 84 longitude, latitude (--crs names another)")
 #: File name endings read as GeoParquet (through pyarrow).
 PARQUET_SUFFIXES = (".parquet", ".geoparquet")
 GIS_SUFFIXES = OGR_SUFFIXES + PARQUET_SUFFIXES
@@ -309,11 +328,15 @@ class Layer:
         unknown.
     features : int
         The feature count (-1 where the driver cannot tell without reading them all).
+    degrees : bool
+        No CRS is declared and the first feature lies within +/-180 and +/-90 (a CSV file: read as
+        :data:`CSV_DEGREES_CRS` unless :attr:`meshsom.io.ReaderOptions.crs` is set).
     """
 
     name: str
     crs: str | None
     features: int
+    degrees: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -367,10 +390,8 @@ def _has_part_columns(path: Path, layer: str) -> bool:
         import pyarrow.parquet as pq
 
         return bool(set(PART_COLUMNS) & set(pq.read_schema(path).names))
-    import fiona
-
     try:
-        with fiona.open(path, layer=layer) as collection:
+        with _open(path, layer) as collection:
             return bool(set(PART_COLUMNS) & set(collection.schema["properties"]))
     except _gdal_errors():
         return False  # the read says why
@@ -431,10 +452,8 @@ def _attributes(path: Path, layer: str) -> Iterator[dict]:
         for values in pq.read_table(path, columns=wanted).to_pylist():
             yield gdal_properties(values)
         return
-    import fiona
-
     try:
-        with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
+        with _open(path, layer, ignore_geometry=True) as collection:
             for feature in collection:
                 yield gdal_properties(dict(feature.properties))
     except _gdal_errors() as err:
@@ -443,7 +462,7 @@ def _attributes(path: Path, layer: str) -> Iterator[dict]:
 
 def _chosen_layers(path: Path, options) -> list[Layer]:
     """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
-    if path.is_file():
+    if path.is_file() and not is_csv(path):
         with open(path, "rb") as fh:
             if fh.read(2) == b"\x1f\x8b":
                 raise InputFileError(str(path), "is gzip-compressed; GIS files are read uncompressed (gunzip it first)")
@@ -546,7 +565,9 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     from meshsom.osm import STRAY, _Area, area_geometry, building_meshes, from_gdal, no_outline, not_a_building
 
     mesh_id = f"{name}#{oid}"
-    system, unknown = file_crs(layer.crs, options)
+    assumed = layer.crs is None and layer.degrees and options.crs is None  # a CSV file in degrees, declaring no CRS
+    system, unknown = file_crs(CSV_DEGREES_CRS if assumed else layer.crs, options)
+    file_notes = [CSV_DEGREES_NOTE] if assumed else []
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     if placement is not None and geometry is not None:  # Overture's building parts, in files of their own
@@ -561,7 +582,7 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             except InputFileError as err:
                 yield Rejection(mesh_id, str(path), err.problem, 0, None)
                 return
-            yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown))
+            yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown), file_notes)
             return
     osm = from_gdal(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does
     if osm and geometry is not None and (reason := not_a_building(props)) is not None:
@@ -582,7 +603,8 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         if area is not None:  # else not a footprint: said below
             own = grouping.parts_of.get(oid, []) if grouping is not None else []
             stray = STRAY if grouping is not None and oid in grouping.strays else None
-            yield from building_meshes(_Area(oid, props, area), own, stray, options, name, str(path), (system, unknown))
+            yield from building_meshes(_Area(oid, props, area), own, stray, options, name, str(path), (system, unknown),
+                                       file_notes)
             return
     try:
         if geometry is None:
@@ -594,6 +616,7 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         label = props.get(options.label_attribute)
         yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
         return
+    notes = notes + file_notes
     for item in _object_meshes({oid: obj}, vertices, None, None, options, name, str(path), crs=(system, unknown)):
         if notes and not isinstance(item, Rejection):
             item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
@@ -625,24 +648,95 @@ def _gdal_errors():
     return (fiona.errors.FionaError, fiona.errors.DriverError, OSError, RuntimeError, ValueError)
 
 
+def is_csv(path: Path) -> bool:
+    """Whether a file is named as a CSV file (``.csv``, ``.csv.gz``)."""
+    from meshsom.io import format_name
+
+    return format_name(Path(path)).endswith(CSV_SUFFIX)
+
+
+def csv_geometry_column(path: Path) -> str | None:
+    """How a CSV file (plain or gzipped) holds its geometry: the name of its WKT column (the first of its header's
+    names that is one of :data:`CSV_GEOMETRY_COLUMNS`, any case), or :data:`GEOJSON_LINES` where its lines are GeoJSON
+    features (Microsoft's global building footprints, shipped as ``.csv.gz``); None where neither (or the file
+    cannot be read)."""
+    import csv
+    import gzip
+    import io
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(2)
+        with (gzip.open if head == b"\x1f\x8b" else open)(path, "rb") as fh:
+            text = fh.read(CSV_HEADER_BYTES).decode("utf-8-sig", errors="replace")
+        if text.lstrip().startswith("{"):
+            return GEOJSON_LINES
+        header = next(csv.reader(io.StringIO(text.splitlines()[0] if text else "")), [])
+    except (OSError, EOFError, csv.Error, StopIteration):
+        return None
+    names = {name.strip().lower(): name.strip() for name in header}
+    return next((names[c] for c in CSV_GEOMETRY_COLUMNS if c in names), None)
+
+
+def _open(path: Path, layer: str | None = None, **kwargs):
+    """fiona's collection of a layer of a GIS file; a CSV file's (gzipped: through GDAL's /vsigzip/) with its WKT
+    column as the geometry (GDAL's CSV open options), or read as GeoJSONSeq."""
+    import fiona
+
+    if not is_csv(path):
+        return fiona.open(path, layer=layer, **kwargs)
+    column = csv_geometry_column(path)
+    with open(path, "rb") as fh:
+        source = f"/vsigzip/{Path(path).resolve()}" if fh.read(2) == b"\x1f\x8b" else str(path)
+    if column == GEOJSON_LINES:
+        return fiona.open(f"GeoJSONSeq:{source}", layer=layer, **kwargs)
+    return fiona.open(source, layer=layer, GEOM_POSSIBLE_NAMES=column, KEEP_GEOM_COLUMNS="NO", **kwargs)
+
+
 def _ogr_layers(path: Path) -> list[Layer]:
+    """The layers of a GDAL file, looked at once per process (the file's size and time of change in the key: a CSV
+    file's features are counted by reading them all)."""
+    st = Path(path).stat()
+    return list(_ogr_layers_of(str(path), st.st_size, st.st_mtime_ns))
+
+
+@functools.lru_cache(maxsize=16)
+def _ogr_layers_of(path: str, size: int, mtime: int) -> tuple[Layer, ...]:
     import fiona
     import fiona.errors
 
+    path = Path(path)
     try:
         layers = []
-        for layer_name in fiona.listlayers(path):
-            with fiona.open(path, layer=layer_name) as collection:
+        names = [None] if is_csv(path) else fiona.listlayers(path)
+        for layer_name in names:
+            with _open(path, layer_name) as collection:
                 try:
                     if collection.schema.get("geometry") in (None, "None"):
                         continue  # an attribute table
                 except fiona.errors.UnsupportedGeometryTypeError:
                     pass  # a multipatch ('3D Unknown'): its features are read all the same
                 crs = collection.crs
-                layers.append(Layer(str(layer_name), crs.to_string() if crs else None, len(collection)))
-        return layers
+                degrees = False
+                if not crs and is_csv(path):
+                    first = next(iter(collection), None)
+                    degrees = first is not None and first.geometry is not None and _within_degrees(first.geometry)
+                layers.append(Layer(str(layer_name or collection.name), crs.to_string() if crs else None, len(collection),
+                                    degrees))
+        return tuple(layers)
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
+
+
+def _within_degrees(geometry) -> bool:
+    """Whether a (GeoJSON-like) geometry's x lie within +/-180 and its y within +/-90."""
+    from shapely.geometry import shape
+
+    try:
+        x0, y0, x1, y1 = shape(geometry).bounds
+    except Exception:  # no shape: no evidence of degrees
+        return False
+    return -180 <= x0 <= x1 <= 180 and -90 <= y0 <= y1 <= 90
 
 
 def _unique_column(values: list) -> bool:
@@ -667,11 +761,9 @@ def _id_field_of(path: Path, layer: str, id_attributes: tuple) -> str | None:
                     pq.read_table(path, columns=[candidate]).column(0).to_pylist()):
                 return candidate
         return None
-    import fiona
-
     values: dict[str, list] = {c: [] for c in id_attributes}
     try:
-        with fiona.open(path, layer=layer, ignore_geometry=True) as collection:
+        with _open(path, layer, ignore_geometry=True) as collection:
             for feature in collection:
                 props = dict(feature.properties)
                 for candidate, column in values.items():
@@ -691,11 +783,12 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
     if _is_parquet(path):
         yield from _parquet_records(path, id_field, start, stop)
         return
-    import fiona
-
     try:
-        with fiona.open(path, layer=layer) as collection:
-            for feature in collection.filter(start, stop):
+        with _open(path, layer) as collection:
+            with warnings.catch_warnings():  # a CSV file has no fast feature count: a range is read from its start
+                warnings.filterwarnings("ignore", "Layer does not support OLC_FASTFEATURECOUNT", RuntimeWarning)
+                features = collection.filter(start, stop)
+            for feature in features:
                 props = gdal_properties(dict(feature.properties))
                 yield gdal_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:

@@ -374,12 +374,18 @@ def format_name(path: Path) -> str:
 def input_kind(path: Path) -> str:
     """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
-    from meshsom.gis import GIS_SUFFIXES
+    from meshsom.gis import CSV_GEOMETRY_COLUMNS, CSV_SUFFIX, GIS_SUFFIXES, csv_geometry_column
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     name = format_name(path)
     if name.endswith(GIS_SUFFIXES):
         return "gis"
+    if name.endswith(CSV_SUFFIX):  # footprints as WKT (Google's Open Buildings), else not an input (labels.csv)
+        if csv_geometry_column(path) is not None:
+            return "gis"
+        raise InputFileError(str(path), f"is a CSV file without a geometry column (one named "
+                                        f"{', '.join(CSV_GEOMETRY_COLUMNS)}, any case, holding footprints as WKT) "
+                                        f"or lines of GeoJSON features")
     if name.endswith(B3DM_SUFFIXES):
         return "b3dm"
     if name.endswith((".zip", ".kmz")):  # a KMZ: a zip of a KML placemark and its COLLADA models
@@ -417,7 +423,8 @@ def readable_types() -> str:
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
         ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
-    return f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}"
+    return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
+            f".csv (footprints as WKT, also gzipped)")
 
 
 def _gzip_limit(path: Path, compressed: int, options: ReaderOptions) -> int:

@@ -233,10 +233,11 @@ def test_buildings_made_of_parts_in_one_collection(tmp_path):
     assert sorted(separate) == ["p1", "p2", "solo", "way/2", "way/3", "way/4"]  # each part a building of its own
 
 
-@pytest.mark.parametrize("suffix", [".geojson", ".geojsonl"])
+@pytest.mark.parametrize("suffix", [".geojson", ".geojsonl", ".csv.gz"])
 def test_microsofts_unknown_height_of_minus_one(tmp_path, suffix):
     """Microsoft's building footprints write "height": -1 where the height is not known (GeoJSON, and line-delimited
-    GeoJSONSeq read through GDAL): no height, said so in the rejection; with default_height the footprint is
+    GeoJSONSeq read through GDAL, also as its global release ships it: gzipped lines of GeoJSON named ``.csv.gz``):
+    no height, said so in the rejection; with default_height the footprint is
     extruded to it (before, the footprint was refused as an extrusion from 0 to -1 m even with a default), a
     positive height another property gives is taken."""
     features = [_feature("a", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height=-1.0, confidence=-1.0),
@@ -245,10 +246,12 @@ def test_microsofts_unknown_height_of_minus_one(tmp_path, suffix):
     path = tmp_path / f"ms{suffix}"
     if suffix == ".geojson":
         path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    elif suffix == ".csv.gz":
+        path.write_bytes(gzip.compress("".join(json.dumps(f) + "\n" for f in features).encode()))
     else:
         path.write_text("".join(json.dumps(f) + "\n" for f in features))
     got = _by_id(read_file(path))
-    key = "a" if suffix == ".geojson" else next(k for k in got if got[k].id.endswith(("#a", "#1")))
+    key = "a" if suffix == ".geojson" else next(k for k in got if got[k].id.endswith(("#a", "#1", "#0")))
     assert isinstance(got[key], Rejection) and "height = -1 read as no height" in got[key].reason, got[key]
     assert got[key].reason.startswith("is a footprint without a height (no property height, ")  # said as it is: not
     # wrapped as "its geometry is not nested as GeoJSON says (InputFileError: ...", cut at 80 characters, as before

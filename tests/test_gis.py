@@ -450,3 +450,72 @@ def test_curved_footprints_are_linearised_by_gdal(tmp_path):
     assert isinstance(m, RawMesh), m
     assert _volume(m) == pytest.approx((100 + np.pi * 25 / 2) * 6, rel=1e-3)
     assert len(m.vertices) > 2 * 20  # the half circle in many segments, top and bottom
+
+
+# ----------------------------------------------------------------------------- footprints in CSV files (WKT)
+
+
+def _wkt(geometry) -> str:
+    return shapely.geometry.shape(geometry).wkt
+
+
+def test_open_buildings_csv_plain_gzipped_and_in_ranges(tmp_path):
+    """Google's Open Buildings as it ships (a gzipped CSV: latitude, longitude, area_in_meters, confidence, a WKT
+    ``geometry``, full_plus_code; no CRS, no height): read as WGS 84, noted, extruded to ``--default-height``,
+    volumes by hand; the same read plain, gzipped and in ranges of one feature; ``meshsom ingest`` of the folder
+    stores every footprint, a ``labels.csv`` beside it not taken for footprints, a CSV of points refused by name."""
+    rows = [(L_SHAPE, 0.81), ([(0, 0), (12, 0), (12, 7), (0, 7)], 0.93), (COURT_OUT, 0.7)]
+    header = "latitude,longitude,area_in_meters,confidence,geometry,full_plus_code\n"
+    lines = []
+    for k, (ring, confidence) in enumerate(rows):
+        polygon = shapely.geometry.Polygon([(x + 40 * k, y) for x, y in lonlat(ring)])
+        c = polygon.centroid
+        lines.append(f'{c.y:.7f},{c.x:.7f},{area(ring):.2f},{confidence},"{polygon.wkt}",6GCRPR{k}C+4Q\n')
+    folder = tmp_path / "in"
+    folder.mkdir()
+    (folder / "0e1_buildings.csv.gz").write_bytes(gzip.compress((header + "".join(lines)).encode()))
+    (tmp_path / "plain.csv").write_text(header + "".join(lines))
+    options = ReaderOptions(default_height=6.0)
+    expected = [area(ring) * 6 for ring, _ in rows]
+    for path in (folder / "0e1_buildings.csv.gz", tmp_path / "plain.csv"):
+        got = _by_id(read_file(path, options))
+        assert sorted(got) == ["1", "2", "3"], got
+        assert [_volume(got[k]) for k in ("1", "2", "3")] == pytest.approx(expected, rel=1e-5)
+        assert all(any("declares no CRS" in n and "WGS 84 longitude, latitude" in n for n in got[k].notes) for k in got)
+    from meshsom.gis import gis_ranges, read_gis
+
+    ranges = gis_ranges(folder / "0e1_buildings.csv.gz", 1, options)
+    assert ranges is not None and len(ranges) == 3
+    pieces = [i for r in ranges for i in read_gis(folder / "0e1_buildings.csv.gz", options, feature_range=r)]
+    assert [i.id.split("#")[1] for i in pieces] == ["1", "2", "3"]
+    assert [_volume(i) for i in pieces] == pytest.approx([_volume(got[k]) for k in ("1", "2", "3")], rel=1e-12)
+    # without a default height: each footprint a rejection naming what was looked for
+    assert all(isinstance(i, Rejection) and "without a height" in i.reason for i in read_file(tmp_path / "plain.csv"))
+    (folder / "labels.csv").write_text("file,label\n0e1_buildings.csv.gz#1,L\n")
+    (tmp_path / "points.csv").write_text("latitude,longitude,name\n47.37,8.54,tower\n")
+    files, rejected = expand_inputs([folder, tmp_path / "points.csv"])
+    assert [f.name for f in files] == ["0e1_buildings.csv.gz"]
+    assert [r.reason for r in rejected] == ["is a CSV file without a geometry column (one named geometry, wkt, the_geom, "
+                                            "geom, wkb_geometry, any case, holding footprints as WKT) or lines of GeoJSON features"]
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "o.zarr"),
+                          "--default-height", "6"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "3 meshes: 3 accepted, 0 rejected" in out.stdout, out.stdout
+    manifest = json.loads((tmp_path / "o.zarr" / "manifest.json").read_text())
+    assert {r["id"]: r["volume"] for r in manifest["records"]} == pytest.approx(
+        {f"0e1_buildings.csv.gz#{k}": v for k, v in zip("123", expected)}, rel=1e-5)
+
+
+def test_a_csv_in_a_projected_crs_with_heights(tmp_path):
+    """A CSV as QGIS exports a layer (a ``WKT`` column, a height column, EPSG:28992 metres): its coordinates beyond
+    +/-180 are not taken for degrees, so ``--crs`` places it; volumes by hand."""
+    rd = lambda r: [(84600 + x, 447400 + y) for x, y in r]  # noqa: E731 (RD New)
+    text = "WKT,fid,hoogte\n" + "".join(
+        f'"{_wkt({"type": "Polygon", "coordinates": [closed(rd(ring))]})}",{k},{h}\n'
+        for k, (ring, h) in enumerate([(L_SHAPE, 12.5), (COURT_OUT, 4.0)]))
+    (tmp_path / "pand.csv").write_text(text)
+    options = ReaderOptions(crs="EPSG:28992", height_attributes=("hoogte",))
+    got = _by_id(read_file(tmp_path / "pand.csv", options))
+    assert _volume(got["1"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
+    assert _volume(got["2"]) == pytest.approx(area(COURT_OUT) * 4, rel=1e-9)
+    assert not any("declares no CRS" in n for n in got["1"].notes)
