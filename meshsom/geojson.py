@@ -416,12 +416,12 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
 def properties(feature: dict) -> dict:
     """A feature's properties; OpenStreetMap's tags that osmtogeojson nests under ``tags`` (its
     output without ``flatProperties``), and those of GDAL's ``other_tags`` (``ogr2ogr``'s output of an
-    extract, :func:`meshsom.osm.gdal_properties`), read as properties too (the feature's own win)."""
-    from meshsom.osm import gdal_properties
+    extract, :func:`meshsom.osm.osm_properties`), read as properties too (the feature's own win)."""
+    from meshsom.osm import osm_properties
 
     props = feature.get("properties") if isinstance(feature.get("properties"), dict) else {}
     nested = props.get("tags")
-    return gdal_properties({**nested, **props} if isinstance(nested, dict) else props)
+    return osm_properties({**nested, **props} if isinstance(nested, dict) else props)
 
 
 def _extent(value, depth: int = 0) -> float | None:
@@ -451,12 +451,12 @@ def declared_crs(feature: dict, collection_crs: str | None, old_crs: str | None,
 
 def _feature_id(feature: dict, index: int) -> str:
     """A feature's id as the mesh ids use it: its OpenStreetMap id where GDAL's OSM driver wrote it
-    (:func:`meshsom.osm.gdal_id`), else its ``id``, else ``feature-<index + 1>``."""
-    from meshsom.osm import gdal_id
+    (:func:`meshsom.osm.osm_row_id`), else its ``id``, else ``feature-<index + 1>``."""
+    from meshsom.osm import osm_row_id
 
     fid = feature.get("id")
     props = feature.get("properties")
-    osm = gdal_id(props) if isinstance(props, dict) else None
+    osm = osm_row_id(props) if isinstance(props, dict) else None
     return osm or (str(fid) if isinstance(fid, (str, int)) and not isinstance(fid, bool) else f"feature-{index + 1}")
 
 
@@ -541,7 +541,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
     import dataclasses
 
     from meshsom.io import Rejection, _object_meshes, file_crs
-    from meshsom.osm import area_geometry, from_gdal, no_outline, not_a_building
+    from meshsom.osm import area_geometry, osm_row, no_outline, not_a_building
     from meshsom.part_files import Placement
 
     name = name or path.name
@@ -552,7 +552,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
     old_crs = _reference(document.get("crs"))
     features = [{**f, "geometry": area_geometry(f["geometry"])}  # GDAL's OSM lines layer: its closed ways are areas
                 if isinstance(f, dict) and isinstance(f.get("geometry"), dict) and f["geometry"].get("type") == "LineString"
-                and from_gdal(properties(f)) else f for f in features]
+                and osm_row(properties(f)) else f for f in features]
     owned, parts_of = building_parts(features)
     placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
     for k, feature in enumerate(features, 1):
@@ -565,12 +565,12 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
         mesh_id = f"{name}#{oid}"
         crs = file_crs(declared_crs(feature, collection_crs, old_crs, options), options)
         props = properties(feature)
-        if from_gdal(props) and feature.get("geometry") is not None and (
+        if osm_row(props) and feature.get("geometry") is not None and (
                 reason := not_a_building(props) or no_outline(props, feature.get("geometry"))) is not None:
             label = props.get(options.label_attribute)
             yield Rejection(mesh_id, str(path), reason, 0, None if label is None else str(label))
             continue
-        if k - 1 in parts_of or (options.part_files or from_gdal(props)) and isinstance(feature.get("geometry"), dict):
+        if k - 1 in parts_of or (options.part_files or osm_row(props)) and isinstance(feature.get("geometry"), dict):
             from meshsom.osm import STRAY, _Area, building_meshes
 
             own = [_Area(_feature_id(features[j], j), properties(features[j]), features[j]["geometry"])
@@ -580,7 +580,7 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
                 continue  # read with its building
             own += [part for part in elsewhere if part.oid not in {mine.oid for mine in own}]  # this file's: found
             alone = alone or (STRAY if _is_part_feature(props) and not own else None)
-            if own or alone or from_gdal(props) and feature["geometry"].get("type") in ("Polygon", "MultiPolygon"):
+            if own or alone or osm_row(props) and feature["geometry"].get("type") in ("Polygon", "MultiPolygon"):
                 yield from building_meshes(_Area(oid, props, feature["geometry"]), own, alone, options, name, str(path),
                                            crs)
                 continue

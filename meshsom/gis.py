@@ -15,7 +15,7 @@ choice, triangulation, CRS handling and rejections apply:
   columns describe (Overture's ``roof_shape``, ``roof_height``, ...). Without either it is a
   rejection that names the properties looked for.
 - **OpenStreetMap data converted by GDAL** (``ogr2ogr`` of an extract: its ``other_tags``,
-  :func:`meshsom.osm.gdal_properties`) is read as the extract is (:func:`meshsom.osm.building_meshes`,
+  :func:`meshsom.osm.osm_properties`) or by QuackOSM (GeoParquet) is read as the extract is (:func:`meshsom.osm.building_meshes`,
   the extract's ids); a row not tagged as a building is a rejection naming its first tag.
 - **Building parts in the same file** (:func:`part_grouping`), tagged as OpenStreetMap tags them (a
   ``building:part`` column, or in ``other_tags``): a building with parts is its parts, a part in no
@@ -381,8 +381,8 @@ def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | No
     return _part_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
 
 
-#: Columns that can say a feature is a building part (OpenStreetMap's key; GDAL's OSM driver's tags).
-PART_COLUMNS = ("building:part", "other_tags")
+#: Columns that can say a feature is a building part (OpenStreetMap's key; GDAL's OSM driver's tags; QuackOSM's).
+PART_COLUMNS = ("building:part", "other_tags", "tags")
 
 
 def _has_part_columns(path: Path, layer: str) -> bool:
@@ -402,7 +402,7 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
     from shapely.geometry import mapping, shape
 
     from meshsom.geojson import _is_part_feature
-    from meshsom.osm import _Area, _said, area_geometry, from_gdal, owners
+    from meshsom.osm import _Area, _said, area_geometry, osm_row, owners
 
     if not any(_is_part_feature(props) for name in layers for props in _attributes(Path(path), name)):
         return None
@@ -412,7 +412,7 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
         prefix = f"{name}/" if len(layers) > 1 else ""
         for oid, props, geometry in _records(Path(path), name, id_field, 0, None):
             part = _is_part_feature(props)
-            if geometry is None or not part and from_gdal(props) and not _said(props, "building"):
+            if geometry is None or not part and osm_row(props) and not _said(props, "building"):
                 continue
             try:
                 footprint = _footprint(area_geometry(geometry), f"{path}#{prefix}{oid}")
@@ -422,7 +422,7 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
             if polygon is None or not polygon.is_valid or polygon.area <= 0:
                 continue
             if part:  # named in notes by its OpenStreetMap id (unique across layers) where it has one
-                part_ids.append((f"{prefix}{oid}", oid if from_gdal(props) else f"{prefix}{oid}", props, mapping(polygon)))
+                part_ids.append((f"{prefix}{oid}", oid if osm_row(props) else f"{prefix}{oid}", props, mapping(polygon)))
                 parts.append(polygon)
             else:
                 outline_ids.append(f"{prefix}{oid}")
@@ -442,20 +442,20 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
 def _attributes(path: Path, layer: str) -> Iterator[dict]:
     """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
     that can say a feature is a part, and ``building``, of a GeoParquet file."""
-    from meshsom.osm import gdal_properties
+    from meshsom.osm import osm_properties
 
     if _is_parquet(path):
         import pyarrow.parquet as pq
 
         names = pq.read_schema(path).names
-        wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id") if c in names]
+        wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id", "feature_id") if c in names]
         for values in pq.read_table(path, columns=wanted).to_pylist():
-            yield gdal_properties(values)
+            yield osm_properties(values)
         return
     try:
         with _open(path, layer, ignore_geometry=True) as collection:
             for feature in collection:
-                yield gdal_properties(dict(feature.properties))
+                yield osm_properties(dict(feature.properties))
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
 
@@ -562,7 +562,7 @@ def read_gis(path: Path, options, name: str | None = None, feature_range: Sequen
 def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, layer: Layer, options,
                     placement=None, grouping: "PartGrouping | None" = None) -> Iterator:
     from meshsom.io import Rejection, _object_meshes, file_crs
-    from meshsom.osm import STRAY, _Area, area_geometry, building_meshes, from_gdal, no_outline, not_a_building
+    from meshsom.osm import STRAY, _Area, area_geometry, building_meshes, osm_row, no_outline, not_a_building
 
     mesh_id = f"{name}#{oid}"
     assumed = layer.crs is None and layer.degrees and options.crs is None  # a CSV file in degrees, declaring no CRS
@@ -584,7 +584,7 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
                 return
             yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown), file_notes)
             return
-    osm = from_gdal(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does
+    osm = osm_row(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does
     if osm and geometry is not None and (reason := not_a_building(props)) is not None:
         label = props.get(options.label_attribute)
         yield Rejection(mesh_id, str(path), reason, 0, None if label is None else str(label))
@@ -778,7 +778,7 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
     """(id, properties, geometry) of features ``start`` to ``stop`` of a layer, streamed: fiona's
     geometry (GeoJSON-like) or GeoParquet's WKB; the properties of GDAL's OSM driver with the tags of
     its ``other_tags`` read in, and its ids as :mod:`meshsom.osm` gives them (``way/<id>``)."""
-    from meshsom.osm import gdal_id, gdal_properties
+    from meshsom.osm import osm_row_id, osm_properties
 
     if _is_parquet(path):
         yield from _parquet_records(path, id_field, start, stop)
@@ -789,8 +789,8 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
                 warnings.filterwarnings("ignore", "Layer does not support OLC_FASTFEATURECOUNT", RuntimeWarning)
                 features = collection.filter(start, stop)
             for feature in features:
-                props = gdal_properties(dict(feature.properties))
-                yield gdal_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
+                props = osm_properties(dict(feature.properties))
+                yield osm_row_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
 
@@ -839,7 +839,7 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
     ``start`` on (a range task does not decode the rows before it)."""
     import pyarrow.parquet as pq
 
-    from meshsom.osm import gdal_id, gdal_properties
+    from meshsom.osm import osm_row_id, osm_properties
 
     column, _ = _parquet_geo(path)
     stem = Path(path.name).stem  # the layer's name
@@ -860,7 +860,7 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
             batch = batch.slice(0, max(min(stop - first, batch.num_rows), 0))
         for k, values in enumerate(batch.slice(skip).to_pylist(), first + skip + 1):
             wkb = values.pop(column, None)
-            values = gdal_properties(values)
-            yield gdal_id(values, stem) or str(values.get(id_field) if id_field else k), values, wkb
+            values = osm_properties(values)
+            yield osm_row_id(values, stem) or str(values.get(id_field) if id_field else k), values, wkb
         if stop is not None and row >= stop:
             return

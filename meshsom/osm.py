@@ -41,8 +41,8 @@ close, has no outline to build: each is a rejection saying so (id ``name#node/<i
 
 An extract converted by GDAL (``ogr2ogr`` to a GeoPackage, Shapefile, FlatGeobuf, GeoParquet or
 GeoJSON) keeps the tags without a column of their own in ``other_tags``; :mod:`meshsom.gis` and
-:mod:`meshsom.geojson` read those rows as this module does (:func:`gdal_properties`,
-:func:`gdal_id`, :func:`not_a_building`, :func:`no_outline`, :func:`area_geometry`).
+:mod:`meshsom.geojson` read those rows as this module does (:func:`osm_properties`,
+:func:`osm_row_id`, :func:`not_a_building`, :func:`no_outline`, :func:`area_geometry`).
 """
 
 from __future__ import annotations
@@ -82,8 +82,13 @@ BUILDINGS_PER_KB = {"pbf": 7.0, "xml": 0.7}
 GDAL_TAGS = "other_tags"
 #: GDAL's OSM driver's id columns of an area: a closed way's, else (a multipolygon relation's) ``osm_id``.
 GDAL_WAY_ID, GDAL_ID = "osm_way_id", "osm_id"
+#: QuackOSM's columns (its GeoParquet of an extract): the element's id (``way/<id>``), and its tags as a map where
+#: they are not a column each.
+QUACKOSM_ID, QUACKOSM_TAGS = "feature_id", "tags"
+#: An OpenStreetMap element's id as :func:`read_osm` and QuackOSM write it.
+ELEMENT_ID = re.compile(r"^(node|way|relation)/\d+$")
 #: Columns of GDAL's OSM driver that are not tags (passed over when a note names an area's first tag).
-GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order")
+GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order", QUACKOSM_ID)
 
 
 def tags(text: str | None) -> dict[str, str]:
@@ -94,20 +99,29 @@ def tags(text: str | None) -> dict[str, str]:
     return {unescape(k): unescape(v) for k, v in HSTORE.findall(text)}
 
 
-def from_gdal(props: dict) -> bool:
-    """Whether a feature's properties are a row of GDAL's OSM driver (an extract converted by ``ogr2ogr`` to a
-    GeoPackage, Shapefile, FlatGeobuf, GeoParquet or GeoJSON): it has an :data:`GDAL_TAGS` or :data:`GDAL_WAY_ID`
-    column."""
-    return GDAL_TAGS in props or GDAL_WAY_ID in props
+def osm_row(props: dict) -> bool:
+    """Whether a feature's properties are a row of OpenStreetMap data converted to a GIS format: GDAL's OSM driver's
+    (an extract converted by ``ogr2ogr`` to a GeoPackage, Shapefile, FlatGeobuf, GeoParquet or GeoJSON: a
+    :data:`GDAL_TAGS` or :data:`GDAL_WAY_ID` column), or QuackOSM's (GeoParquet: a :data:`QUACKOSM_ID` of
+    ``way/<id>``, ..., and its tags in a :data:`QUACKOSM_TAGS` map or a column each)."""
+    return GDAL_TAGS in props or GDAL_WAY_ID in props or bool(ELEMENT_ID.match(str(props.get(QUACKOSM_ID) or "")))
 
 
-def gdal_properties(props: dict) -> dict:
-    """A feature's properties with the tags of GDAL's :data:`GDAL_TAGS` column read in (unescaped), under its
-    columns where those are given (a null column is no value; GDAL's own, :data:`GDAL_COLUMNS`, are kept, for
-    :func:`from_gdal` and :func:`gdal_id`); as they are for features not of GDAL's OSM driver."""
-    if not from_gdal(props) or not isinstance(props.get(GDAL_TAGS), (str, type(None))):
+def osm_properties(props: dict) -> dict:
+    """A feature's properties with the tags of GDAL's :data:`GDAL_TAGS` column (hstore, unescaped) or of QuackOSM's
+    :data:`QUACKOSM_TAGS` map read in, under its columns where those are given (a null column is no value; GDAL's own,
+    :data:`GDAL_COLUMNS`, are kept, for :func:`osm_row` and :func:`osm_row_id`); as they are for features that are not
+    :func:`osm_row`."""
+    if not osm_row(props):
         return props
-    return {**tags(props.get(GDAL_TAGS)), **{k: v for k, v in props.items() if v is not None or k in GDAL_COLUMNS}}
+    found = tags(props[GDAL_TAGS]) if isinstance(props.get(GDAL_TAGS), str) else {}
+    pairs = props.get(QUACKOSM_TAGS)
+    if isinstance(pairs, dict):
+        found.update({str(k): v for k, v in pairs.items()})
+    elif isinstance(pairs, (list, tuple)) and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in pairs):
+        found.update({str(k): v for k, v in pairs})  # an Arrow map, as pyarrow gives it: (key, value) pairs
+    return {**found, **{k: v for k, v in props.items()
+                        if (v is not None or k in GDAL_COLUMNS) and not (k == QUACKOSM_TAGS and pairs is not None)}}
 
 
 #: The kind of OpenStreetMap element in each layer of GDAL's OSM driver whose ``osm_id`` is its id (its areas layer,
@@ -115,12 +129,14 @@ def gdal_properties(props: dict) -> dict:
 GDAL_ELEMENTS = {"points": "node", "lines": "way", "multilinestrings": "relation", "other_relations": "relation"}
 
 
-def gdal_id(props: dict, layer: str | None = None) -> str | None:
-    """The OpenStreetMap id of a row of GDAL's OSM driver (:func:`from_gdal`): ``way/<id>`` or ``relation/<id>`` in
-    its areas layer (as :func:`read_osm` names them), ``node/<id>`` in its ``points`` layer, ...
-    (:data:`GDAL_ELEMENTS`, by the layer's name); else None."""
-    if not from_gdal(props):
+def osm_row_id(props: dict, layer: str | None = None) -> str | None:
+    """The OpenStreetMap id of a converted row (:func:`osm_row`), as :func:`read_osm` names them: QuackOSM's
+    :data:`QUACKOSM_ID`; GDAL's ``way/<id>`` or ``relation/<id>`` in its areas layer, ``node/<id>`` in its ``points``
+    layer, ... (:data:`GDAL_ELEMENTS`, by the layer's name); else None."""
+    if not osm_row(props):
         return None
+    if ELEMENT_ID.match(str(props.get(QUACKOSM_ID) or "")):
+        return str(props[QUACKOSM_ID])
     if GDAL_WAY_ID in props:
         columns = ((GDAL_WAY_ID, "way"), (GDAL_ID, "relation"))
     elif layer in GDAL_ELEMENTS:
@@ -144,15 +160,15 @@ def no_outline(props: dict, geometry) -> str | None:
         return None
     how = {"Point": "mapped as a point (a node)", "LineString": "mapped as a way that does not close",
            "MultiLineString": "mapped as lines that do not close"}.get(kind)
-    if how is None or not from_gdal(props):
+    if how is None or not osm_row(props):
         return None
     return f"is a {'building' if _said(props, 'building') else 'building:part'} {how}: it has no outline to build"
 
 
 def not_a_building(props: dict) -> str | None:
-    """For a row of GDAL's OSM driver (:func:`from_gdal`) tagged neither ``building`` nor ``building:part``, the
+    """For a row of GDAL's OSM driver (:func:`osm_row`) tagged neither ``building`` nor ``building:part``, the
     reason it is not read (its first tag named); else None."""
-    if not from_gdal(props) or _said(props, "building") or _said(props, "building:part"):
+    if not osm_row(props) or _said(props, "building") or _said(props, "building:part"):
         return None
     first = next(((k, v) for k, v in props.items() if k not in GDAL_COLUMNS and v is not None and str(v).strip()), None)
     return ("is not a building: an OpenStreetMap feature tagged " + (f"{first[0]}={first[1]}" if first else "with nothing")

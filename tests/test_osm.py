@@ -346,6 +346,9 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
     for layer in layers:
         with fiona.Env(**env), fiona.open(str(osm_path), layer=layer) as src:
             features, schema, crs = list(src), src.schema, src.crs
+        if driver.startswith("QuackOSM"):  # its GeoParquet: feature_id "way/<id>", tags a map (or a column each)
+            _quackosm(features, out, exploded=driver.endswith("exploded"))
+            continue
         if driver == "GeoParquet":
             import json
 
@@ -365,7 +368,34 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
     return out
 
 
+def _quackosm(features, out, exploded):
+    """QuackOSM's GeoParquet of the rows GDAL reads: ``feature_id`` (``way/<id>``), the tags as a map column
+    ``tags`` (``exploded``: a column each, nulls where a feature has none), WKB ``geometry``, OGC:CRS84."""
+    import json
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import shapely
+    from shapely.geometry import shape
+
+    from meshsom.osm import tags
+
+    ids = [f"way/{f.properties['osm_way_id']}" if f.properties["osm_way_id"] else f"relation/{f.properties['osm_id']}"
+           for f in features]
+    found = [tags(f.properties["other_tags"]) for f in features]
+    if exploded:
+        keys = sorted({k for t in found for k in t})
+        columns = {"feature_id": ids, **{k: [t.get(k) for t in found] for k in keys}}
+    else:
+        columns = {"feature_id": ids, "tags": pa.array([list(t.items()) for t in found], pa.map_(pa.string(), pa.string()))}
+    columns["geometry"] = [shapely.to_wkb(shape(f.geometry)) for f in features]
+    meta = {"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": {"encoding": "WKB"}}}
+    pq.write_table(pa.table(columns).replace_schema_metadata({b"geo": json.dumps(meta).encode()}), out)
+
+
 @pytest.mark.parametrize("driver, suffix, layers, own_config", [
+    ("QuackOSM", "parquet", ("multipolygons",), True),  # tags in a map column
+    ("QuackOSM-exploded", "parquet", ("multipolygons",), True),  # a column per tag
     ("GPKG", "gpkg", ("points", "lines", "multipolygons"), False),  # `ogr2ogr city.gpkg city.osm.pbf`: parts are lines
     ("FlatGeobuf", "fgb", ("multipolygons",), True),
     ("ESRI Shapefile", "shp", ("multipolygons",), True),
