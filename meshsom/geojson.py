@@ -192,13 +192,13 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVe
     return {"type": "Solid", "lod": "1", "boundaries": [faces]}
 
 
-def no_height(options, notes=()) -> str:
+def no_height(options, notes=(), hint: bool = True) -> str:
     """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
-    a height given as unknown)."""
+    a height given as unknown; ``hint``: and the options that would read it)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
     return (f"is a footprint without a height (no property {names})" + "".join(f"; {n}" for n in notes)
-            + "; --height-attribute NAME names your data's height, --default-height M (corpus.reader.default_height) "
-              "extrudes such footprints to M metres")
+            + ("; --height-attribute NAME names your data's height, --default-height M (corpus.reader.default_height) "
+               "extrudes such footprints to M metres" if hint else ""))
 
 
 def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,
@@ -232,19 +232,22 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         Says so where the height came from a storey count, and what became of a roof.
     """
     notes: list[str] = []
+    units = HeightUnits(crs, options)
     height = first_number(props, options.height_attributes)
     if height is not None and not height[1] > 0:  # Microsoft's footprints write -1 for "not known"
         others = first_number({k: v for k, v in props.items() if (_number(v) or 0) > 0}, options.height_attributes)
         if others is None:
             notes.append(f"{height[0]} = {height[1]:g} read as no height (a height is above 0)")
         height = others
+    if height is not None:
+        height = (height[0], units.of(props[height[0]]))
     if height is None:
         levels = first_number(props, options.levels_attributes)
         if levels is not None and levels[1] > 0:
-            height = (levels[0], levels[1] * options.storey_height)
+            height = (levels[0], levels[1] * options.storey_height * units.per_metre)
             notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
     if height is None and flat and options.default_height is not None:
-        height = ("default_height", float(options.default_height))
+        height = ("default_height", float(options.default_height) * units.per_metre)
         notes.append(f"no height or storey count: extruded to the default {options.default_height:g} m (corpus.reader.default_height)")
     if height is None:
         return None, notes
@@ -252,7 +255,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
           for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
     bottom = first_number(props, options.base_attributes)
     ground = min(zs) if zs else 0.0
-    z0, z1 = ground + (bottom[1] if bottom else 0.0), ground + height[1]
+    z0, z1 = ground + (units.of(props[bottom[0]]) if bottom else 0.0), ground + height[1]
     if flat and options.roofs and z1 > z0:
         solid, said = roofed_solid(polygons, props, z0, z1, crs, options, where, verts)
         if said:
@@ -260,6 +263,28 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         if solid is not None:
             return solid, notes
     return _extruded(polygons, z0, z1, where, verts), notes
+
+
+class HeightUnits:
+    """A footprint's heights in its coordinates' vertical unit (the CRS's; metres where it is geographic or unknown),
+    from attributes in :attr:`meshsom.io.ReaderOptions.height_unit` (else in that vertical unit) and from metres
+    (storeys, the default height)."""
+
+    def __init__(self, crs, options):
+        from meshsom.io import HEIGHT_UNITS
+
+        self.per_metre = 1.0 / crs.vertical_m if crs is not None else 1.0
+        self.per_unit = HEIGHT_UNITS[options.height_unit] * self.per_metre if options.height_unit else 1.0
+
+    def of(self, value) -> float | None:
+        """An attribute's value (a number, or text: ``"12"``, ``"12 m"``, ``"40 ft"``) in the vertical unit; None
+        where it is not a length."""
+        number = _number(value)
+        if number is None:
+            return None
+        if isinstance(value, str) and re.search(r"[a-zA-Z'\"]", value):  # written with its unit: read in metres
+            return number * self.per_metre
+        return number * self.per_unit
 
 
 def roof_scale(ring: np.ndarray, crs) -> tuple[float, float]:
@@ -322,7 +347,10 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
             ring = ring[:-1]
         holes = [np.asarray(hole, np.float64)[:, :2] for hole in polygon[1:]]
         scale = roof_scale(ring, crs)
-        rise = min(roof_height(shape, ring, scale, found, options.storey_height, _number), MAX_ROOF_SHARE * (z1 - z0))
+        units = HeightUnits(crs, options)
+        rise = min(roof_height(shape, ring, scale, found, options.storey_height * units.per_metre, _number,
+                               units.of),
+                   MAX_ROOF_SHARE * (z1 - z0))
         if not rise > 0:
             return None, None
         faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees, across=across, holes=holes)

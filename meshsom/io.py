@@ -57,6 +57,9 @@ if TYPE_CHECKING:
 
 #: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
 UP_AXES = ("z", "y")
+#: Units a footprint's height attributes may be given in (:attr:`ReaderOptions.height_unit`): metres per unit
+#: (the international foot; the US survey foot).
+HEIGHT_UNITS = {"m": 1.0, "ft": 0.3048, "us-ft": 1200 / 3937}
 #: IFC element classes (with their subclasses) whose solids make a building's envelope
 #: (:mod:`meshsom.ifc`; ``ReaderOptions.ifc_classes``). Classes a file's schema lacks (``IfcChimney``
 #: in IFC2X3) are passed over.
@@ -170,6 +173,12 @@ class ReaderOptions:
     levels_attributes : tuple of str
         The properties that may hold a storey count, used (times ``storey_height``) where no
         height is given.
+    height_unit : str or None
+        The unit of the height attributes (height, base, ``roof:height``) of footprints: one of
+        :data:`HEIGHT_UNITS` (``"ft"`` for New York's building footprints as GeoJSON, whose
+        ``heightroof`` is in feet while their coordinates are degrees); None (the default): the
+        CRS's vertical unit (feet for EPSG:2263), metres for geographic and unknown CRSs. A value
+        written with its unit (``"40 ft"``, ``"12 m"``) is read in that unit.
     storey_height : float
         Metres per storey.
     default_height : float or None
@@ -233,6 +242,7 @@ class ReaderOptions:
     height_attributes: tuple[str, ...] = ("height", "measuredHeight", "building:height")
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround")
+    height_unit: str | None = None
     storey_height: float = 3.0
     default_height: float | None = None
     roofs: bool = True
@@ -263,6 +273,9 @@ class ReaderOptions:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
         if self.up_axis not in UP_AXES:
             raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)}; received {self.up_axis!r}")
+        if self.height_unit is not None and self.height_unit not in HEIGHT_UNITS:
+            raise ValueError(f"height_unit must be one of {', '.join(HEIGHT_UNITS)} or null (the CRS's vertical unit), "
+                             f"received {self.height_unit!r}")
         if not self.storey_height > 0:
             raise ValueError(f"storey_height must be > 0 (metres), received {self.storey_height}")
         if self.default_height is not None and not (isinstance(self.default_height, (int, float)) and 0 < self.default_height < math.inf):
@@ -2190,12 +2203,14 @@ def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions)
     attributes = obj.get("attributes") if isinstance(obj.get("attributes"), dict) else {}
     height = first_number(attributes, options.height_attributes)
     if height is not None and height[1] > 0:
-        return f"extruded from its LoD {lod} footprint by {height[0]} = {height[1]:g}", height[1]
+        unit = HEIGHT_UNITS[options.height_unit] if options.height_unit else 1.0
+        return (f"extruded from its LoD {lod} footprint by {height[0]} = {height[1]:g}"
+                + (f" {options.height_unit}" if options.height_unit else ""), height[1] * unit)
     levels = first_number(attributes, options.levels_attributes)
     if levels is not None and levels[1] > 0:
         return (f"extruded from its LoD {lod} footprint by {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m",
                 levels[1] * options.storey_height)
-    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options)[2:]}")
+    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options, hint=False)[2:]}")
 
 
 def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions,

@@ -138,7 +138,7 @@ def roof_tags(props: dict) -> dict:
 
 
 def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: dict, storey_height: float,
-                number) -> float:
+                number, length=None) -> float:
     """The roof's height (metres from eaves to top): ``roof:height``, else ``roof:levels`` x
     ``storey_height``, else the height of a roof pitched at ``roof:angle`` (else
     :data:`DEFAULT_PITCH_DEG`) over half the footprint's width (its whole width for a skillion; a
@@ -152,8 +152,10 @@ def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: 
         Metres per unit of x and y.
     number : callable
         Reads a tag value as a number (``meshsom.geojson._number``), None where it is none.
+    length : callable, optional
+        Reads ``roof:height`` in the height's unit (:class:`meshsom.geojson.HeightUnits`); default ``number``.
     """
-    height = number(tags.get("roof:height"))
+    height = (length or number)(tags.get("roof:height"))
     if height is not None:
         return max(float(height), 0.0)
     levels = number(tags.get("roof:levels"))

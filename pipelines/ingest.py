@@ -18,6 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from meshsom.errors import ConfigError, MeshError, StoreError
+from meshsom.io import HEIGHT_UNITS
 
 log = logging.getLogger(__name__)
 
@@ -402,6 +403,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height-attribute", action="append", metavar="NAME",
                    help="footprints: a property holding the building's height above the ground, tried before the "
                         "defaults (height, measuredHeight, building:height); may be given more than once")
+    p.add_argument("--height-unit", choices=tuple(HEIGHT_UNITS),
+                   help="footprints: the unit of their height properties (New York's footprints as GeoJSON: ft); "
+                        "default the CRS's vertical unit, metres for degrees")
     p.add_argument("--default-height", type=float, metavar="M",
                    help="footprints with neither a height nor a storey count (most of OpenStreetMap): extruded to M "
                         "metres, noted; default: listed as rejections")
@@ -459,7 +463,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
                  ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components),
-                 ("default_height", args.default_height), ("roofs", False if args.flat_roofs else None))
+                 ("default_height", args.default_height), ("roofs", False if args.flat_roofs else None),
+                 ("height_unit", args.height_unit))
         changes = {k: v for k, v in given if v is not None}
         if args.height_attribute:
             changes["height_attributes"] = tuple(args.height_attribute) + tuple(

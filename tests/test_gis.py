@@ -519,3 +519,51 @@ def test_a_csv_in_a_projected_crs_with_heights(tmp_path):
     assert _volume(got["1"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-9)
     assert _volume(got["2"]) == pytest.approx(area(COURT_OUT) * 4, rel=1e-9)
     assert not any("declares no CRS" in n for n in got["1"].notes)
+
+
+def test_storeys_and_default_heights_are_metres_in_a_crs_in_feet(tmp_path):
+    """In New York's EPSG:2263 (US survey feet, heights in feet too), a height from storeys (4 x 3 m) and the default
+    height (9 m) are metres: 12 m and 9 m, not 12 and 9 feet as they were read before."""
+    feet = 1200 / 3937
+    ring = [((984000 + x / feet), (190000 + y / feet)) for x, y in L_SHAPE]
+    features = [(name, {"type": "MultiPolygon", "coordinates": [[closed(ring)]]}, props)
+                for name, props in (("floors", {"num_floors": 4}), ("none", {}), ("feet", {"height": 30 / feet}))]
+    _write_fiona(tmp_path / "ny.gpkg", "GPKG", features, "EPSG:2263")
+    got = _by_id(read_file(tmp_path / "ny.gpkg", ReaderOptions(default_height=9.0)))
+    assert _volume(got["floors"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-9)
+    assert _volume(got["none"]) == pytest.approx(area(L_SHAPE) * 9, rel=1e-9)
+    assert _volume(got["feet"]) == pytest.approx(area(L_SHAPE) * 30, rel=1e-9)
+
+
+def test_height_unit_reads_heights_in_feet_over_degrees(tmp_path):
+    """New York's building footprints as GeoJSON: coordinates in degrees, ``heightroof`` and ``roof:height`` in feet
+    (``height_unit: ft``); a value written with its unit is read in it; storeys stay metres; an unknown unit is
+    refused by name."""
+    import dataclasses
+
+    w, d = 12.0, 8.0
+
+    def feature(fid, dx, **props):
+        return {"type": "Feature", "id": fid, "properties": props,
+                "geometry": {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(dx, 0, w, d)))]}}
+
+    ft = 0.3048
+    features = [feature("nyc", 0, heightroof=40.0), feature("text", 30, heightroof="12 m"),
+                feature("floors", 60, num_floors=3),
+                feature("gabled", 90, heightroof=30.0, **{"roof:shape": "gabled", "roof:height": 10.0})]
+    path = tmp_path / "nyc.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    options = dataclasses.replace(ReaderOptions(), height_unit="ft", height_attributes=("heightroof",))
+    got = _by_id(read_file(path, options))
+    base = w * d
+    assert _volume(got["nyc"]) == pytest.approx(base * 40 * ft, rel=1e-5)
+    assert _volume(got["text"]) == pytest.approx(base * 12, rel=1e-5)
+    assert _volume(got["floors"]) == pytest.approx(base * 9, rel=1e-5)
+    assert _volume(got["gabled"]) == pytest.approx(HOUSE["gabled"](w, d, 20 * ft, 10 * ft), rel=1e-5)
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(path), "--out", str(tmp_path / "n.zarr"),
+                          "--height-attribute", "heightroof", "--height-unit", "ft"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    volumes = {r["id"]: r["volume"] for r in json.loads((tmp_path / "n.zarr" / "manifest.json").read_text())["records"]}
+    assert volumes["nyc.geojson#nyc"] == pytest.approx(base * 40 * ft, rel=1e-5)
+    with pytest.raises(ValueError, match="height_unit must be one of m, ft, us-ft"):
+        dataclasses.replace(ReaderOptions(), height_unit="yard")
