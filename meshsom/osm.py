@@ -85,6 +85,9 @@ GDAL_WAY_ID, GDAL_ID = "osm_way_id", "osm_id"
 #: QuackOSM's columns (its GeoParquet of an extract): the element's id (``way/<id>``), and its tags as a map where
 #: they are not a column each.
 QUACKOSM_ID, QUACKOSM_TAGS = "feature_id", "tags"
+#: The properties osmtogeojson (Overpass turbo: ``@id`` = ``way/<id>``) and ``osmium export`` (``@type``, ``@id``)
+#: name an element by.
+EXPORT_ID, EXPORT_TYPE = "@id", "@type"
 #: An OpenStreetMap element's id as :func:`read_osm` and QuackOSM write it.
 ELEMENT_ID = re.compile(r"^(node|way|relation)/\d+$")
 #: Columns of GDAL's OSM driver that are not tags (passed over when a note names an area's first tag).
@@ -102,9 +105,24 @@ def tags(text: str | None) -> dict[str, str]:
 def osm_row(props: dict) -> bool:
     """Whether a feature's properties are a row of OpenStreetMap data converted to a GIS format: GDAL's OSM driver's
     (an extract converted by ``ogr2ogr`` to a GeoPackage, Shapefile, FlatGeobuf, GeoParquet or GeoJSON: a
-    :data:`GDAL_TAGS` or :data:`GDAL_WAY_ID` column), or QuackOSM's (GeoParquet: a :data:`QUACKOSM_ID` of
-    ``way/<id>``, ..., and its tags in a :data:`QUACKOSM_TAGS` map or a column each)."""
-    return GDAL_TAGS in props or GDAL_WAY_ID in props or bool(ELEMENT_ID.match(str(props.get(QUACKOSM_ID) or "")))
+    :data:`GDAL_TAGS` or :data:`GDAL_WAY_ID` column), or one that names its element (:func:`element_id`: QuackOSM's
+    GeoParquet, Overpass turbo's and osmium's GeoJSON)."""
+    return GDAL_TAGS in props or GDAL_WAY_ID in props or element_id(props) is not None
+
+
+def element_id(props: dict) -> str | None:
+    """The OpenStreetMap element (``way/<id>``, ...) a feature's properties name as the tools that export it write
+    it: QuackOSM's :data:`QUACKOSM_ID`, Overpass turbo's (osmtogeojson's) ``@id``; osmium export's ``@type`` and
+    ``@id``; osmtogeojson's nested form's ``type`` and ``id`` beside its ``tags``; else None."""
+    for key in (QUACKOSM_ID, EXPORT_ID):
+        value = props.get(key)
+        if value is not None and ELEMENT_ID.match(str(value)):
+            return str(value)
+    pairs = [(EXPORT_TYPE, EXPORT_ID)] + ([("type", "id")] if isinstance(props.get(QUACKOSM_TAGS), dict) else [])
+    for kind, number in pairs:
+        if props.get(kind) in ("node", "way", "relation") and re.fullmatch(r"\d+", str(props.get(number))):
+            return f"{props[kind]}/{props[number]}"
+    return None
 
 
 def osm_properties(props: dict) -> dict:
@@ -135,8 +153,8 @@ def osm_row_id(props: dict, layer: str | None = None) -> str | None:
     layer, ... (:data:`GDAL_ELEMENTS`, by the layer's name); else None."""
     if not osm_row(props):
         return None
-    if ELEMENT_ID.match(str(props.get(QUACKOSM_ID) or "")):
-        return str(props[QUACKOSM_ID])
+    if (named := element_id(props)) is not None:
+        return named
     if GDAL_WAY_ID in props:
         columns = ((GDAL_WAY_ID, "way"), (GDAL_ID, "relation"))
     elif layer in GDAL_ELEMENTS:
@@ -170,7 +188,8 @@ def not_a_building(props: dict) -> str | None:
     reason it is not read (its first tag named); else None."""
     if not osm_row(props) or _said(props, "building") or _said(props, "building:part"):
         return None
-    first = next(((k, v) for k, v in props.items() if k not in GDAL_COLUMNS and v is not None and str(v).strip()), None)
+    first = next(((k, v) for k, v in props.items() if k not in GDAL_COLUMNS and not str(k).startswith("@")
+                  and not isinstance(v, (dict, list)) and v is not None and str(v).strip()), None)
     return ("is not a building: an OpenStreetMap feature tagged " + (f"{first[0]}={first[1]}" if first else "with nothing")
             + " (neither building nor building:part)")
 

@@ -349,6 +349,9 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
         if driver.startswith("QuackOSM"):  # its GeoParquet: feature_id "way/<id>", tags a map (or a column each)
             _quackosm(features, out, exploded=driver.endswith("exploded"))
             continue
+        if driver in ("Overpass turbo", "osmium"):  # GeoJSON of the tags, the element named by "@id" (and "@type")
+            _exported_geojson(features, out, osmium=driver == "osmium")
+            continue
         if driver == "GeoParquet":
             import json
 
@@ -366,6 +369,27 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
                         **({"layer": layer} if driver == "GPKG" else {})) as dst:
             dst.writerecords(features)
     return out
+
+
+def _exported_geojson(features, out, osmium):
+    """The rows as Overpass turbo exports them (a FeatureCollection, properties the tags and ``"@id": "way/<id>"``), or
+    as ``osmium export -f geojsonseq -a type,id`` writes them (a feature a line, ``"@type": "way"``, ``"@id": 10``)."""
+    import json
+
+    from shapely.geometry import mapping, shape
+
+    from meshsom.osm import tags
+
+    rows = []
+    for f in features:
+        kind, number = ("way", f.properties["osm_way_id"]) if f.properties["osm_way_id"] else ("relation", f.properties["osm_id"])
+        named = {"@type": kind, "@id": int(number)} if osmium else {"@id": f"{kind}/{number}"}
+        rows.append({"type": "Feature", "properties": {**named, **tags(f.properties["other_tags"])},
+                     "geometry": mapping(shape(f.geometry))})
+    if osmium:
+        out.write_text("".join("\x1e" + json.dumps(r) + "\n" for r in rows))  # RFC 8142 record separators
+    else:
+        out.write_text(json.dumps({"type": "FeatureCollection", "features": rows}))
 
 
 def _quackosm(features, out, exploded):
@@ -394,6 +418,8 @@ def _quackosm(features, out, exploded):
 
 
 @pytest.mark.parametrize("driver, suffix, layers, own_config", [
+    ("Overpass turbo", "geojson", ("multipolygons",), True),
+    ("osmium", "geojsons", ("multipolygons",), True),
     ("QuackOSM", "parquet", ("multipolygons",), True),  # tags in a map column
     ("QuackOSM-exploded", "parquet", ("multipolygons",), True),  # a column per tag
     ("GPKG", "gpkg", ("points", "lines", "multipolygons"), False),  # `ogr2ogr city.gpkg city.osm.pbf`: parts are lines
