@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     owners = len(grouping.parts_of) if grouping else 0
     print(f"{args.buildings:,} buildings, {owners:,} of them of two parts, {len(areas) - args.buildings - 2 * owners:,} "
           f"parks; best of {args.repeat} after a warm-up read\n")
-    print(f"| Input | Buildings read | Seconds | ms per building | vs reference |\n|---|---|---|---|---|")
+    print("| Input | Buildings read | Seconds | ms per building | vs reference |\n|---|---|---|---|---|")
     reference = results[0][1] / max(results[0][2], 1)
     for label, seconds, meshes in results:
         per = seconds / max(meshes, 1)
