@@ -354,11 +354,15 @@ class PartGrouping:
         A building's parts (GeoJSON-like geometry), in file order.
     strays : frozenset of str
         The parts inside no building outline: each read as a building of its own, noted.
+    named : dict of str to str
+        Where a building is no feature of the file (INSPIRE's parts, :mod:`meshsom.inspire`): its first part's id
+        (a key of ``parts_of``) to the building's id, which the mesh takes.
     """
 
     owned: frozenset
     parts_of: dict
     strays: frozenset
+    named: dict = dataclasses.field(default_factory=dict)
 
     def __contains__(self, oid: str) -> bool:
         return oid in self.owned or oid in self.parts_of or oid in self.strays
@@ -376,11 +380,17 @@ def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | No
     except OSError:
         return None
     keyed = tuple(layer.name for layer in layers)
+    if _is_gml(path) and INSPIRE_PARTS in keyed:  # INSPIRE's building parts: grouped by the building their ids name
+        return _inspire_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
     if not any(_has_part_columns(path, name) for name in keyed):
         return None
     return _part_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
 
 
+#: The layer GDAL's GML driver gives INSPIRE's building parts (:mod:`meshsom.inspire`), and the layers of buildings
+#: (any other, such as Catastro's OtherConstruction, is refused by name).
+INSPIRE_PARTS = "BuildingPart"
+INSPIRE_BUILDINGS = ("Building", INSPIRE_PARTS)
 #: Columns that can say a feature is a building part (OpenStreetMap's key; GDAL's OSM driver's tags; QuackOSM's).
 PART_COLUMNS = ("building:part", "other_tags", "tags")
 
@@ -439,6 +449,43 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
     return PartGrouping(frozenset(owned), parts_of, frozenset(strays))
 
 
+@functools.lru_cache(maxsize=4)
+def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attributes: tuple) -> PartGrouping:
+    """INSPIRE's building parts (:data:`INSPIRE_PARTS` layer) grouped by the building their ``gml_id`` names
+    (:func:`meshsom.inspire.part_building`); a part that names none, or whose footprint cannot be read, is read as
+    a feature of its own."""
+    from meshsom.inspire import part_building
+    from meshsom.osm import _Area
+
+    groups: dict[str, list] = {}
+    for name in layers:
+        if name != INSPIRE_PARTS:
+            continue
+        prefix = f"{name}/" if len(layers) > 1 else ""
+        for oid, props, geometry in _records(Path(path), name, _id_field_of(Path(path), name, id_attributes), 0, None):
+            building = part_building(props.get("gml_id") or oid)
+            try:
+                footprint = _footprint(geometry, f"{path}#{prefix}{oid}") if geometry is not None else None
+            except InputFileError:  # damaged: its own reading says so
+                footprint = None
+            if building is not None and footprint is not None:
+                groups.setdefault(building, []).append(_Area(f"{prefix}{oid}", props, footprint))
+    parts_of = {parts[0].oid: parts for parts in groups.values()}
+    owned = {part.oid for parts in groups.values() for part in parts[1:]}
+    return PartGrouping(frozenset(owned), parts_of, frozenset(), {parts[0].oid: b for b, parts in groups.items()})
+
+
+def _attributes_of(path: Path, column: str) -> Iterator:
+    """One column's values over every layer of a GDAL file, no geometry decoded (None where a feature has none)."""
+    for layer in _ogr_layers(path):
+        try:
+            with _open(path, layer.name, ignore_geometry=True) as collection:
+                for feature in collection:
+                    yield feature.properties.get(column)
+        except _gdal_errors() as err:
+            raise _gdal_error(path, err) from None
+
+
 def _attributes(path: Path, layer: str) -> Iterator[dict]:
     """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
     that can say a feature is a part, and ``building``, of a GeoParquet file."""
@@ -462,7 +509,7 @@ def _attributes(path: Path, layer: str) -> Iterator[dict]:
 
 def _chosen_layers(path: Path, options) -> list[Layer]:
     """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
-    if path.is_file() and not is_csv(path):
+    if path.is_file() and not is_csv(path) and not _is_gml(path):
         with open(path, "rb") as fh:
             if fh.read(2) == b"\x1f\x8b":
                 raise InputFileError(str(path), "is gzip-compressed; GIS files are read uncompressed (gunzip it first)")
@@ -540,7 +587,7 @@ def read_gis(path: Path, options, name: str | None = None, feature_range: Sequen
     name = name or path.name
     layers = _chosen_layers(path, options)
     placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
-    grouping = part_grouping(path, layers, options) if placement is None else None  # OpenStreetMap's building:part
+    grouping = part_grouping(path, layers, options)  # OpenStreetMap's building:part, INSPIRE's BuildingPart
     if feature_range is not None:
         _, layer_name, prefix, id_field, start, stop = feature_range
         (layer,) = [layer for layer in layers if layer.name == layer_name]
@@ -584,6 +631,9 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
                 return
             yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown), file_notes)
             return
+    if _is_gml(path) and layer.name not in INSPIRE_BUILDINGS:  # Catastro's otherconstruction.gml: pools, sheds' roofs
+        yield Rejection(mesh_id, str(path), f"is an INSPIRE {layer.name}, not a building ({' or '.join(INSPIRE_BUILDINGS)})")
+        return
     osm = osm_row(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does
     if osm and geometry is not None and (reason := not_a_building(props)) is not None:
         label = props.get(options.label_attribute)
@@ -603,8 +653,10 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         if area is not None:  # else not a footprint: said below
             own = grouping.parts_of.get(oid, []) if grouping is not None else []
             stray = STRAY if grouping is not None and oid in grouping.strays else None
-            yield from building_meshes(_Area(oid, props, area), own, stray, options, name, str(path), (system, unknown),
-                                       file_notes)
+            building = grouping.named.get(oid) if grouping is not None else None  # INSPIRE: the building its parts name
+            how = f"{len(own)} INSPIRE BuildingParts of {building}, read as its parts" if building else None
+            yield from building_meshes(_Area(building or oid, props if building is None else {}, area), own, stray,
+                                       options, name, str(path), (system, unknown), file_notes, how=how)
             return
     try:
         if geometry is None:
@@ -678,19 +730,36 @@ def csv_geometry_column(path: Path) -> str | None:
     return next((names[c] for c in CSV_GEOMETRY_COLUMNS if c in names), None)
 
 
+def _gzipped(path: Path) -> bool:
+    with open(path, "rb") as fh:
+        return fh.read(2) == b"\x1f\x8b"
+
+
+def _source(path: Path) -> str:
+    """What GDAL opens for a file: its path, or through /vsigzip/ where it is gzip data (a CSV or GML file)."""
+    return f"/vsigzip/{Path(path).resolve()}" if _gzipped(path) else str(path)
+
+
+def _is_gml(path: Path) -> bool:
+    from meshsom.io import format_name
+
+    return format_name(Path(path)).endswith(".gml")
+
+
 def _open(path: Path, layer: str | None = None, **kwargs):
     """fiona's collection of a layer of a GIS file; a CSV file's (gzipped: through GDAL's /vsigzip/) with its WKT
-    column as the geometry (GDAL's CSV open options), or read as GeoJSONSeq."""
+    column as the geometry (GDAL's CSV open options), or read as GeoJSONSeq; a GML file's (INSPIRE buildings,
+    :mod:`meshsom.inspire`) without GDAL's ``.gfs`` file written beside it."""
     import fiona
 
+    if _is_gml(path):
+        return fiona.open(_source(path), layer=layer, WRITE_GFS="NO", **kwargs)
     if not is_csv(path):
         return fiona.open(path, layer=layer, **kwargs)
     column = csv_geometry_column(path)
-    with open(path, "rb") as fh:
-        source = f"/vsigzip/{Path(path).resolve()}" if fh.read(2) == b"\x1f\x8b" else str(path)
     if column == GEOJSON_LINES:
-        return fiona.open(f"GeoJSONSeq:{source}", layer=layer, **kwargs)
-    return fiona.open(source, layer=layer, GEOM_POSSIBLE_NAMES=column, KEEP_GEOM_COLUMNS="NO", **kwargs)
+        return fiona.open(f"GeoJSONSeq:{_source(path)}", layer=layer, **kwargs)
+    return fiona.open(_source(path), layer=layer, GEOM_POSSIBLE_NAMES=column, KEEP_GEOM_COLUMNS="NO", **kwargs)
 
 
 def _ogr_layers(path: Path) -> list[Layer]:
@@ -708,7 +777,8 @@ def _ogr_layers_of(path: str, size: int, mtime: int) -> tuple[Layer, ...]:
     path = Path(path)
     try:
         layers = []
-        names = [None] if is_csv(path) else fiona.listlayers(path)
+        names = [None] if is_csv(path) else (
+            fiona.listlayers(_source(path), WRITE_GFS="NO") if _is_gml(path) else fiona.listlayers(path))
         for layer_name in names:
             with _open(path, layer_name) as collection:
                 try:

@@ -241,7 +241,7 @@ class ReaderOptions:
     crs: str | None = None
     height_attributes: tuple[str, ...] = ("height", "measuredHeight", "building:height")
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
-    levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround")
+    levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround", "numberOfFloorsAboveGround")
     height_unit: str | None = None
     storey_height: float = 3.0
     default_height: float | None = None
@@ -422,7 +422,9 @@ def input_kind(path: Path) -> str:
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
-        return "citygml"
+        from meshsom.inspire import is_inspire
+
+        return "gis" if name.endswith(".gml") and is_inspire(path) else "citygml"  # INSPIRE: footprints, through GDAL
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     way = CONVERSIONS.get(Path(name).suffix)
     raise InputFileError(str(path), f"unknown file type {suffix or '(no extension)'!r}{f' ({way})' if way else ''}; "

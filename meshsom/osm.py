@@ -399,7 +399,7 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
 
 
 def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, options, name: str, source: str,
-                    crs: tuple, notes: list[str] = ()) -> Iterator:
+                    crs: tuple, notes: list[str] = (), how: str | None = None) -> Iterator:
     """The mesh of one footprint building as S3DB reads it: its outline extruded (with its roof), or, with
     ``own_parts``, its parts (each with its building's height where it has none; the outline too where it is itself
     tagged ``building:part``) as BuildingParts of one Building; a Rejection where nothing of it can be built.
@@ -416,6 +416,8 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         As :func:`meshsom.io.file_crs` gives it, x = easting or longitude.
     notes : list of str
         Added to the mesh's notes (the file's).
+    how : str, optional
+        The note that says where its parts come from (default: inside its outline, as S3DB says).
     """
     from meshsom.geojson import FeatureVertices, building, footprint_solid, no_height
     from meshsom.gis import fiona_polygons
@@ -455,7 +457,7 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
     if own_parts:
         lod = max(solid["lod"] for _, solid in solids)  # one LoD: the reader keeps a building's highest, and a flat
         solids = [(oid, {**solid, "lod": lod}) for oid, solid in solids]  # part beside a roofed one is still part of it
-        more.insert(0, f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)"
+        more.insert(0, how or f"{len(own_parts)} building:part areas inside its outline, read as its parts (S3DB)"
                     + (" with the outline, itself tagged building:part" if _is_part(area.tags) else ""))
         obj = {**building(None, area.tags, options), "geometry": [], "children": [oid for oid, _ in solids]}
         objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}

@@ -40,13 +40,18 @@ SNIFF_BYTES = 1 << 16
 
 
 def _kind(path: Path) -> str | None:
-    """``"parquet"``, ``"gis"`` or ``"geojson"`` for the footprint formats parts come in, else None."""
+    """``"parquet"``, ``"gis"``, ``"inspire"`` (:mod:`meshsom.inspire`) or ``"geojson"`` for the footprint formats
+    parts come in, else None."""
     from meshsom.gis import OGR_SUFFIXES, PARQUET_SUFFIXES
     from meshsom.io import format_name
 
     name = format_name(path)
     if name.endswith(PARQUET_SUFFIXES):
         return "parquet"
+    if name.endswith(".gml"):
+        from meshsom.inspire import is_inspire
+
+        return "inspire" if is_inspire(path) else None
     if name.endswith(OGR_SUFFIXES):
         return "gis"
     if name.endswith((".geojson", ".json")) and not name.endswith(".city.json"):
@@ -71,7 +76,7 @@ def features(path: Path, options, limit: int | None = None) -> Iterator[tuple[st
             document.get("features") if isinstance(document, dict) else None)
         rows = ((_feature_id(f, k), properties(f), f.get("geometry")) for k, f in enumerate(found or [])
                 if isinstance(f, dict))
-    elif kind in ("parquet", "gis"):
+    elif kind in ("parquet", "gis", "inspire"):
         from meshsom.gis import _chosen_layers, _records
 
         rows = ((str(props.get(OWN_ID, oid)) if props.get(OWN_ID) is not None else oid, props, geometry)
@@ -88,6 +93,10 @@ def holds_parts(path: Path, options) -> bool:
     mention it). Files that cannot be read are not (their reader says why)."""
     if _kind(Path(path)) == "geojson" and not _mentions(Path(path), BUILDING_ID):
         return False  # not parsed whole at planning: most GeoJSON inputs hold no parts
+    if _kind(Path(path)) == "inspire":
+        from meshsom.inspire import holds_parts as inspire_parts
+
+        return inspire_parts(Path(path))
     if _kind(Path(path)) == "parquet":  # two columns, read whole: parts after the buildings of one file are found
         try:
             import pyarrow.parquet as pq
@@ -162,6 +171,25 @@ def building_ids(options) -> frozenset[str]:
     return _building_ids(_stamp(options.building_files), _reading(options))
 
 
+def inspire_buildings(options) -> frozenset[str]:
+    """The ids of the buildings INSPIRE's building parts among :attr:`~meshsom.io.ReaderOptions.part_files` name
+    (:func:`meshsom.inspire.part_building`): read from their parts."""
+    return _inspire_buildings(_stamp(options.part_files), _reading(options))
+
+
+@functools.lru_cache(maxsize=4)
+def _inspire_buildings(stamped: tuple, options) -> frozenset[str]:
+    from meshsom.gis import _attributes_of
+    from meshsom.inspire import part_building
+
+    ids = set()
+    for path, _, _ in stamped:
+        if _kind(Path(path)) == "inspire":
+            ids.update(b for gml_id in _attributes_of(Path(path), "gml_id")
+                       if (b := part_building(gml_id or "")) is not None)
+    return frozenset(ids)
+
+
 def _reading(options):
     """The options that decide how the files are read (not the pairing): the cache's key."""
     return dataclasses.replace(options, part_files=(), building_files=())
@@ -225,6 +253,7 @@ class Placement:
         self.is_part_file = is_part_file(path, options)
         self._parts: dict | None = None
         self._ids: frozenset | None = None
+        self._inspire: frozenset | None = None
 
     def of(self, props: dict, oid: str) -> tuple[bool, list, str | None]:
         """Where one feature goes.
@@ -232,13 +261,21 @@ class Placement:
         Returns
         -------
         skip : bool
-            A part whose building is in a building file: read with it, not here.
+            A part whose building is in a building file: read with it, not here; an INSPIRE building whose parts
+            are in a part file: read from them.
         parts : list of meshsom.osm._Area
             A building's parts (its ``id`` property, else ``oid``, named by them).
         alone : str or None
             A part of no building: the note that says it is read as a building of its own.
         """
+        if not self.is_part_file and "gml_id" in props:  # INSPIRE: a building whose parts are an input's
+            if self._inspire is None:
+                self._inspire = inspire_buildings(self.options)
+            if str(props["gml_id"]) in self._inspire:
+                return True, [], None
         named = props.get(BUILDING_ID)
+        if named is None and self.is_part_file and "gml_id" in props:
+            return False, [], None  # INSPIRE's parts: grouped by their file's reader (meshsom.gis.part_grouping)
         if named is not None and self.is_part_file and str(named) != str(props.get(OWN_ID, oid)):
             if self._ids is None:
                 self._ids = building_ids(self.options)

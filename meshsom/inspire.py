@@ -1,0 +1,63 @@
+"""INSPIRE Buildings 2D (GML): the footprints Europe's cadastres publish (Spain's Catastro for the whole country).
+
+An INSPIRE building file is GML whose features are ``bu-core2d`` / ``bu-ext2d`` ``Building`` or
+``BuildingPart`` elements (a footprint ``gml:Surface``, ``numberOfFloorsAboveGround``, ...), not
+CityGML. It is read as a GIS file (:mod:`meshsom.gis`, GDAL's GML driver; no ``.gfs`` file is
+written beside it):
+
+- **Heights**: ``numberOfFloorsAboveGround`` times :attr:`meshsom.io.ReaderOptions.storey_height`
+  (it is among the default :attr:`~meshsom.io.ReaderOptions.levels_attributes`); a
+  ``heightAboveGround`` comes through GDAL as ``value`` (``--height-attribute value`` reads it).
+- **Building parts**: Spain's Catastro publishes its buildings' heights on their parts, in a file of
+  their own (``A.ES.SDGC.BU.<municipality>.buildingpart.gml``), each part's ``gml:id`` its
+  building's with ``_part<N>`` after it (:data:`PART_ID`). The parts of one building are read as
+  one building of parts (BuildingParts united in preprocessing, as OpenStreetMap's are), its id its
+  building's ``gml:id``; a building of a building file whose parts are among the inputs
+  (:func:`meshsom.part_files.pair`) is read from them, not again from its footprint.
+"""
+
+from __future__ import annotations
+
+import gzip
+import re
+from pathlib import Path
+
+#: Namespaces of INSPIRE's Buildings application schemas (2D) as files declare them (INSPIRE's
+#: registry, the JRC's older location).
+NAMESPACES = (re.compile(rb"inspire[.a-z]*\.europa\.eu/schemas/bu-(core2d|ext2d|base)/"),)
+#: A CityGML namespace: a file that declares one is CityGML (INSPIRE's 3D profiles extend it).
+CITYGML = re.compile(rb"opengis\.net/citygml/")
+#: A building part's id naming its building: ``<building id>_part<N>`` (Catastro).
+PART_ID = re.compile(r"^(?P<building>.+)_part\d+$")
+#: A building part's element, as INSPIRE names it.
+PART_ELEMENT = re.compile(rb"<[A-Za-z0-9_-]+:BuildingPart[\s>]")
+#: Bytes of a file looked through for its namespaces and first features.
+SNIFF_BYTES = 1 << 16
+
+
+def _head(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(2)
+        with (gzip.open if magic == b"\x1f\x8b" else open)(path, "rb") as fh:
+            return fh.read(SNIFF_BYTES)
+    except (OSError, EOFError):
+        return b""
+
+
+def is_inspire(path: Path) -> bool:
+    """Whether a GML file (plain or gzipped) holds INSPIRE Buildings 2D: it declares their namespace and no
+    CityGML's, in its first :data:`SNIFF_BYTES`."""
+    head = _head(Path(path))
+    return any(ns.search(head) for ns in NAMESPACES) and not CITYGML.search(head)
+
+
+def holds_parts(path: Path) -> bool:
+    """Whether an INSPIRE file's features are ``BuildingPart`` elements."""
+    return is_inspire(path) and bool(PART_ELEMENT.search(_head(Path(path))))
+
+
+def part_building(oid: str) -> str | None:
+    """The id of the building a part's id names (:data:`PART_ID`), else None."""
+    found = PART_ID.match(str(oid))
+    return found.group("building") if found else None

@@ -1,0 +1,166 @@
+"""INSPIRE Buildings 2D (meshsom.inspire), as Spain's Catastro publishes a municipality: ``building.gml`` (footprints),
+``buildingpart.gml`` (each building's parts with their storeys; a part's id its building's with ``_part<N>``) and
+``otherconstruction.gml``, written here as the Catastro writes them (GML 3.2, EPSG:25830, ``gml:Surface`` patches),
+and checked against volumes computed by hand (rectangles times storeys times ``storey_height``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import gzip
+import json
+import subprocess
+import sys
+
+import pytest
+
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, input_kind, read_file
+
+HEADER = ('<?xml version="1.0" encoding="UTF-8"?>\n'
+          '<gml:FeatureCollection xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+          'xmlns:gml="http://www.opengis.net/gml/3.2" xmlns:xlink="http://www.w3.org/1999/xlink" '
+          'xmlns:bu-core2d="http://inspire.jrc.ec.europa.eu/schemas/bu-core2d/2.0" '
+          'xmlns:bu-ext2d="http://inspire.jrc.ec.europa.eu/schemas/bu-ext2d/2.0" '
+          'xmlns:base="urn:x-inspire:specification:gmlas:BaseTypes:3.2" '
+          'xmlns:cp="urn:x-inspire:specification:gmlas:CadastralParcels:3.0" gml:id="ES.SDGC.BU">\n')
+SRS = "http://www.opengis.net/def/crs/EPSG/0/25830"
+X0, Y0 = 440000.0, 4474000.0
+
+#: Buildings: reference, its parts (x0, y0, w, d, storeys above ground); the last has no parts file entry.
+BUILDINGS = {
+    "9872023VH5797S": [(0, 0, 10, 10, 2), (10, 0, 10, 10, 5)],
+    "9872024VH5797S": [(30, 0, 12, 8, 3)],
+    "9872025VH5797S": [(50, 0, 6, 6, 1), (56, 0, 6, 6, 1), (50, 6, 12, 4, 4)],
+    "9872026VH5797S": [],
+}
+ALONE = (70, 0, 9, 7)  # the footprint of the building without parts
+
+
+def _surface(gml_id, x0, y0, w, d) -> str:
+    ring = [(x0, y0), (x0 + w, y0), (x0 + w, y0 + d), (x0, y0 + d), (x0, y0)]
+    pos = " ".join(f"{X0 + x:.2f} {Y0 + y:.2f}" for x, y in ring)
+    return (f'<gml:Surface gml:id="Surface_{gml_id}" srsName="{SRS}"><gml:patches><gml:PolygonPatch><gml:exterior>'
+            f'<gml:LinearRing><gml:posList srsDimension="2" count="5">{pos}</gml:posList></gml:LinearRing>'
+            f'</gml:exterior></gml:PolygonPatch></gml:patches></gml:Surface>')
+
+
+def _feature(element, gml_id, rect, extra="") -> str:
+    x0, y0, w, d = rect
+    local = gml_id.removeprefix("ES.SDGC.BU.")
+    return (f'<gml:featureMember>\n<bu-ext2d:{element} gml:id="{gml_id}">\n'
+            f'<gml:boundedBy><gml:Envelope srsName="{SRS}"><gml:lowerCorner>{X0 + x0} {Y0 + y0}</gml:lowerCorner>'
+            f'<gml:upperCorner>{X0 + x0 + w} {Y0 + y0 + d}</gml:upperCorner></gml:Envelope></gml:boundedBy>\n'
+            f'<bu-core2d:beginLifespanVersion>2011-03-17T00:00:00</bu-core2d:beginLifespanVersion>\n'
+            f'<bu-core2d:conditionOfConstruction xsi:nil="true" nilReason="other:unpopulated"></bu-core2d:conditionOfConstruction>\n'
+            f'<bu-core2d:inspireId><base:Identifier><base:localId>{local}</base:localId>'
+            f'<base:namespace>ES.SDGC.BU</base:namespace></base:Identifier></bu-core2d:inspireId>\n'
+            f'<bu-ext2d:geometry><bu-core2d:BuildingGeometry><bu-core2d:geometry>{_surface(gml_id, *rect)}</bu-core2d:geometry>'
+            f'<bu-core2d:horizontalGeometryEstimatedAccuracy uom="m">0.1</bu-core2d:horizontalGeometryEstimatedAccuracy>'
+            f'<bu-core2d:horizontalGeometryReference>footPrint</bu-core2d:horizontalGeometryReference>'
+            f'<bu-core2d:referenceGeometry>true</bu-core2d:referenceGeometry></bu-core2d:BuildingGeometry></bu-ext2d:geometry>\n'
+            f'{extra}</bu-ext2d:{element}>\n</gml:featureMember>\n')
+
+
+def _outline(parts):
+    x0, y0 = min(p[0] for p in parts), min(p[1] for p in parts)
+    return x0, y0, max(p[0] + p[2] for p in parts) - x0, max(p[1] + p[3] for p in parts) - y0
+
+
+def write_municipality(folder, gzipped=False):
+    """The three files of a Catastro municipality (``A.ES.SDGC.BU.99999.*.gml``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    buildings = "".join(
+        _feature("Building", f"ES.SDGC.BU.{ref}", _outline(parts) if parts else ALONE,
+                 "<bu-core2d:currentUse>1_residential</bu-core2d:currentUse>\n") for ref, parts in BUILDINGS.items())
+    parts = "".join(
+        _feature("BuildingPart", f"ES.SDGC.BU.{ref}_part{k}", (x0, y0, w, d),
+                 f'<bu-ext2d:heightBelowGround uom="m">0</bu-ext2d:heightBelowGround>\n'
+                 f'<bu-ext2d:numberOfFloorsAboveGround>{n}</bu-ext2d:numberOfFloorsAboveGround>\n'
+                 f'<bu-ext2d:numberOfFloorsBelowGround>0</bu-ext2d:numberOfFloorsBelowGround>\n')
+        for ref, members in BUILDINGS.items() for k, (x0, y0, w, d, n) in enumerate(members, 1))
+    others = _feature("OtherConstruction", "ES.SDGC.BU.9872023VH5797S_OC1", (0, 20, 5, 4))
+    paths = []
+    for kind, body in (("building", buildings), ("buildingpart", parts), ("otherconstruction", others)):
+        text = HEADER + body + "</gml:FeatureCollection>\n"
+        path = folder / f"A.ES.SDGC.BU.99999.{kind}.gml{'.gz' if gzipped else ''}"
+        path.write_bytes(gzip.compress(text.encode()) if gzipped else text.encode())
+        paths.append(path)
+    return paths
+
+
+def expected_volumes(storey=3.0) -> dict[str, float]:
+    return {f"ES.SDGC.BU.{ref}": sum(w * d * n * storey for _, _, w, d, n in parts)
+            for ref, parts in BUILDINGS.items() if parts}
+
+
+def _united_volumes(items) -> dict[str, float]:
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    out = {}
+    for item in items:
+        assert isinstance(item, RawMesh), item
+        record, _ = process_one(item, PreprocessParams())
+        assert record["status"] == "accepted", record
+        out[item.id.split("#", 1)[1]] = record["volume"]
+    return out
+
+
+@pytest.mark.parametrize("gzipped", [False, True])
+def test_a_parts_file_alone_gives_each_building_as_its_parts(tmp_path, gzipped):
+    """buildingpart.gml (also gzipped): each building once, its id the building's, its parts united to the sum of
+    their storeys' volumes; GDAL writes no .gfs file beside it; a CityGML file is not taken for INSPIRE."""
+    _, parts, _ = write_municipality(tmp_path / "m", gzipped)
+    before = sorted(p.name for p in (tmp_path / "m").iterdir())
+    assert input_kind(parts) == "gis"
+    items = list(read_file(parts))
+    assert _united_volumes(items) == pytest.approx(expected_volumes(), rel=1e-9)
+    three = next(i for i in items if i.id.endswith("9872025VH5797S"))
+    assert len(three.parts) == 3 and "3 INSPIRE BuildingParts of ES.SDGC.BU.9872025VH5797S, read as its parts" in three.notes
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == before  # no .gfs
+    citygml = tmp_path / "c.gml"
+    citygml.write_text('<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
+                       'xmlns:bldg="http://www.opengis.net/citygml/building/2.0"></core:CityModel>')
+    assert input_kind(citygml) == "citygml"
+
+
+def test_a_building_file_alone_and_other_constructions(tmp_path):
+    """building.gml without storeys: each footprint refused with the options that would read it, or extruded to the
+    default height; otherconstruction.gml: each feature refused as not a building."""
+    building, _, other = write_municipality(tmp_path / "m")
+    got = {i.id.split("#", 1)[1]: i for i in read_file(building)}
+    assert len(got) == 4 and all(isinstance(i, Rejection) and "--default-height M" in i.reason for i in got.values())
+    got = {i.id.split("#", 1)[1]: i for i in read_file(building, dataclasses.replace(ReaderOptions(), default_height=6.0))}
+    alone = got["ES.SDGC.BU.9872026VH5797S"]
+    assert _united_volumes([alone]) == pytest.approx({"ES.SDGC.BU.9872026VH5797S": ALONE[2] * ALONE[3] * 6}, rel=1e-9)
+    (item,) = read_file(other)
+    assert isinstance(item, Rejection) and item.reason == "is an INSPIRE OtherConstruction, not a building (Building or BuildingPart)"
+
+
+def test_parts_read_in_ranges_as_whole(tmp_path):
+    """The parts file read in ranges of one feature: each building once, by the range of its first part."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    _, parts, _ = write_municipality(tmp_path / "m")
+    options = ReaderOptions()
+    ranges = gis_ranges(parts, 1, options)
+    assert ranges is not None and len(ranges) == sum(len(p) for p in BUILDINGS.values())
+    pieces = [i for r in ranges for i in read_gis(parts, options, feature_range=r)]
+    assert _united_volumes(pieces) == pytest.approx(expected_volumes(), rel=1e-9)
+
+
+def test_a_municipality_through_meshsom_ingest(tmp_path):
+    """`meshsom ingest` of the municipality's folder: each building once (from its parts where it has them, else
+    from its footprint at the default height), the other construction refused; nothing read twice."""
+    write_municipality(tmp_path / "m")
+    files, rejected = expand_inputs([tmp_path / "m"])
+    assert len(files) == 3 and not rejected
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(tmp_path / "m"), "--out",
+                          str(tmp_path / "m.zarr"), "--default-height", "6"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    records = json.loads((tmp_path / "m.zarr" / "manifest.json").read_text())["records"]
+    accepted = {r["id"]: r["volume"] for r in records if r["status"] == "accepted"}
+    assert accepted == pytest.approx({
+        **{f"A.ES.SDGC.BU.99999.buildingpart.gml#{k}": v for k, v in expected_volumes().items()},
+        "A.ES.SDGC.BU.99999.building.gml#ES.SDGC.BU.9872026VH5797S": ALONE[2] * ALONE[3] * 6}, rel=1e-9)
+    assert [r["id"] for r in records if r["status"] != "accepted"] == [
+        "A.ES.SDGC.BU.99999.otherconstruction.gml#ES.SDGC.BU.9872023VH5797S_OC1"]
