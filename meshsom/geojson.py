@@ -246,6 +246,9 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height * units.per_metre)
             notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
+        elif levels is not None and levels[1] == 0:  # said to stand nothing above ground (a cellar, a patio, a roof
+            notes.append(f"{levels[0]} = 0: no storey above the ground")  # on posts): not the default height
+            return None, notes
     if height is None and flat and options.default_height is not None:
         height = ("default_height", float(options.default_height) * units.per_metre)
         notes.append(f"no height or storey count: extruded to the default {options.default_height:g} m (corpus.reader.default_height)")

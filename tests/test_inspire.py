@@ -28,7 +28,7 @@ X0, Y0 = 440000.0, 4474000.0
 #: Buildings: reference, its parts (x0, y0, w, d, storeys above ground); the last has no parts file entry.
 BUILDINGS = {
     "9872023VH5797S": [(0, 0, 10, 10, 2), (10, 0, 10, 10, 5)],
-    "9872024VH5797S": [(30, 0, 12, 8, 3)],
+    "9872024VH5797S": [(30, 0, 12, 8, 3), (42, 0, 4, 8, 0)],  # and a patio: no storey above the ground
     "9872025VH5797S": [(50, 0, 6, 6, 1), (56, 0, 6, 6, 1), (50, 6, 12, 4, 4)],
     "9872026VH5797S": [],
 }
@@ -117,6 +117,9 @@ def test_a_parts_file_alone_gives_each_building_as_its_parts(tmp_path, gzipped):
     three = next(i for i in items if i.id.endswith("9872025VH5797S"))
     assert len(three.parts) == 3 and "3 INSPIRE BuildingParts of ES.SDGC.BU.9872025VH5797S, read as its parts" in three.notes
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == before  # no .gfs
+    patio = next(i for i in items if i.id.endswith("9872024VH5797S"))
+    assert any("numberOfFloorsAboveGround = 0: no storey above the ground" in n and n.endswith("left out")
+               for n in patio.notes), patio.notes
     citygml = tmp_path / "c.gml"
     citygml.write_text('<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
                        'xmlns:bldg="http://www.opengis.net/citygml/building/2.0"></core:CityModel>')
@@ -150,7 +153,8 @@ def test_parts_read_in_ranges_as_whole(tmp_path):
 
 def test_a_municipality_through_meshsom_ingest(tmp_path):
     """`meshsom ingest` of the municipality's folder: each building once (from its parts where it has them, else
-    from its footprint at the default height), the other construction refused; nothing read twice."""
+    from its footprint at the default height; a patio of no storeys not raised to it), the other construction
+    refused; nothing read twice."""
     write_municipality(tmp_path / "m")
     files, rejected = expand_inputs([tmp_path / "m"])
     assert len(files) == 3 and not rejected
