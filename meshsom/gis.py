@@ -660,7 +660,8 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             return
     try:
         if geometry is None:
-            raise InputFileError(mesh_id, "has no geometry")
+            raise InputFileError(mesh_id, "has no geometry" + (" (its WKT is empty, or not WKT GDAL can read)"
+                                                               if is_csv(path) else ""))
         polygons, kinds, has_z = (wkb_polygons(geometry, mesh_id) if isinstance(geometry, (bytes, bytearray, memoryview))
                                   else fiona_polygons(geometry, mesh_id))
         obj, vertices, notes = feature_object(polygons, kinds, has_z, props, mesh_id, options, system)
@@ -690,6 +691,8 @@ def _footprint(geometry, where: str) -> dict | None:
 
 
 def _gdal_error(path: Path, err: Exception) -> InputFileError:
+    if isinstance(err, InputFileError):
+        return err  # said already (an InputFileError is a ValueError too)
     text = " ".join(str(err).split())
     return InputFileError(str(path), f"cannot be read through GDAL ({type(err).__name__}: {text[:200]})")
 
@@ -711,20 +714,32 @@ def csv_geometry_column(path: Path) -> str | None:
     """How a CSV file (plain or gzipped) holds its geometry: the name of its WKT column (the first of its header's
     names that is one of :data:`CSV_GEOMETRY_COLUMNS`, any case), or :data:`GEOJSON_LINES` where its lines are GeoJSON
     features (Microsoft's global building footprints, shipped as ``.csv.gz``); None where neither (or the file
-    cannot be read)."""
+    cannot be opened).
+
+    Raises
+    ------
+    InputFileError
+        It is gzip data that is damaged or ends early.
+    """
     import csv
     import gzip
     import io
+    import zlib
 
     try:
         with open(path, "rb") as fh:
             head = fh.read(2)
         with (gzip.open if head == b"\x1f\x8b" else open)(path, "rb") as fh:
             text = fh.read(CSV_HEADER_BYTES).decode("utf-8-sig", errors="replace")
-        if text.lstrip().startswith("{"):
-            return GEOJSON_LINES
+    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
+        raise InputFileError(str(path), f"is not valid gzip data ({'it ends early: a truncated download?' if isinstance(err, EOFError) else err})") from None
+    except OSError:
+        return None
+    if text.lstrip().startswith("{"):
+        return GEOJSON_LINES
+    try:
         header = next(csv.reader(io.StringIO(text.splitlines()[0] if text else "")), [])
-    except (OSError, EOFError, csv.Error, StopIteration):
+    except csv.Error:
         return None
     names = {name.strip().lower(): name.strip() for name in header}
     return next((names[c] for c in CSV_GEOMETRY_COLUMNS if c in names), None)

@@ -394,8 +394,11 @@ def input_kind(path: Path) -> str:
     if name.endswith(GIS_SUFFIXES):
         return "gis"
     if name.endswith(CSV_SUFFIX):  # footprints as WKT (Google's Open Buildings), else not an input (labels.csv)
-        if csv_geometry_column(path) is not None:
-            return "gis"
+        try:
+            if csv_geometry_column(path) is not None:
+                return "gis"
+        except InputFileError:
+            return "gis"  # damaged gzip data: an input that its reader refuses, saying why
         raise InputFileError(str(path), f"is a CSV file without a geometry column (one named "
                                         f"{', '.join(CSV_GEOMETRY_COLUMNS)}, any case, holding footprints as WKT) "
                                         f"or lines of GeoJSON features")

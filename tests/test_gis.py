@@ -567,3 +567,20 @@ def test_height_unit_reads_heights_in_feet_over_degrees(tmp_path):
     assert volumes["nyc.geojson#nyc"] == pytest.approx(base * 40 * ft, rel=1e-5)
     with pytest.raises(ValueError, match="height_unit must be one of m, ft, us-ft"):
         dataclasses.replace(ReaderOptions(), height_unit="yard")
+
+
+def test_damaged_csv_inputs_say_what_is_wrong(tmp_path):
+    """A row whose WKT GDAL cannot read, a row of a point, and a gzipped CSV cut short (a truncated download): each a
+    rejection naming the problem, the truncated file listed as an input that is rejected, not skipped."""
+    (tmp_path / "rows.csv").write_text('geometry,height\n"POLYGON((0 0, 1 0, 1 1",5\n"POINT(1 2)",3\n'
+                                       '"POLYGON((0 0,10 0,10 10,0 10,0 0))",4\n')
+    got = list(read_file(tmp_path / "rows.csv", ReaderOptions(crs="EPSG:2056")))
+    assert [getattr(i, "reason", None) for i in got] == [
+        "has no geometry (its WKT is empty, or not WKT GDAL can read)", "holds a Point, not a building's polygons or solid",
+        None]
+    assert _volume(got[2]) == pytest.approx(400, rel=1e-9)
+    (tmp_path / "cut.csv.gz").write_bytes(gzip.compress(b'WKT\n"POLYGON((0 0,10 0,10 10,0 10,0 0))"\n' * 50)[:40])
+    files, rejected = expand_inputs([tmp_path])
+    assert sorted(f.name for f in files) == ["cut.csv.gz", "rows.csv"] and not rejected
+    (item,) = read_file(tmp_path / "cut.csv.gz")
+    assert isinstance(item, Rejection) and item.reason == "is not valid gzip data (it ends early: a truncated download?)"
