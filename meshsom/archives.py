@@ -97,6 +97,7 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
             if not files:
                 held = ", ".join(sorted(m.filename for m in members)[:8]) or "nothing"
                 raise InputFileError(str(path), f"holds no file that meshsom reads (it holds {held})")
+            options = _paired(options, [f.path for f in files])
             for f in files:
                 member = f.path.relative_to(folder).as_posix()
                 source = f"{path}!/{member}"
@@ -113,6 +114,19 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
                         item, notes=(*item.notes, "KML: no Model of the archive's KML places it: in its own frame"))
         finally:
             shutil.rmtree(folder, ignore_errors=True)
+
+
+def _paired(options, paths: list[Path]):
+    """``options`` with the building parts among an archive's files paired with their buildings
+    (:func:`meshsom.part_files.pair`: Overture's two downloads, an INSPIRE municipality's files, zipped), beside the
+    run's own pairs."""
+    from meshsom.part_files import pair
+
+    inner = pair(paths, dataclasses.replace(options, part_files=(), building_files=()))
+    if not inner.part_files:
+        return options
+    return dataclasses.replace(options, part_files=options.part_files + inner.part_files,
+                               building_files=options.building_files + inner.building_files)
 
 
 def _source(text: str, folder: Path, path: Path, anywhere: bool = False) -> str:

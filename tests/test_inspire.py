@@ -168,3 +168,22 @@ def test_a_municipality_through_meshsom_ingest(tmp_path):
         "A.ES.SDGC.BU.99999.building.gml#ES.SDGC.BU.9872026VH5797S": ALONE[2] * ALONE[3] * 6}, rel=1e-9)
     assert [r["id"] for r in records if r["status"] != "accepted"] == [
         "A.ES.SDGC.BU.99999.otherconstruction.gml#ES.SDGC.BU.9872023VH5797S_OC1"]
+
+
+def test_a_municipality_as_the_catastro_zips_it(tmp_path):
+    """The ATOM download's zip of the three files: its parts paired with its buildings inside the archive, so each
+    building is read once (from its parts, else from its footprint at the default height)."""
+    import zipfile
+
+    paths = write_municipality(tmp_path / "m")
+    with zipfile.ZipFile(tmp_path / "A.ES.SDGC.BU.99999.zip", "w") as archive:
+        for path in paths:
+            archive.write(path, path.name)
+    items = list(read_file(tmp_path / "A.ES.SDGC.BU.99999.zip", dataclasses.replace(ReaderOptions(), default_height=6.0)))
+    meshes = [i for i in items if isinstance(i, RawMesh)]
+    assert _united_volumes(meshes) == pytest.approx(
+        {**expected_volumes(), "ES.SDGC.BU.9872026VH5797S": ALONE[2] * ALONE[3] * 6}, rel=1e-9)
+    assert sorted(i.id.split("#")[0] for i in meshes) == ["A.ES.SDGC.BU.99999.zip/A.ES.SDGC.BU.99999.building.gml"] + [
+        "A.ES.SDGC.BU.99999.zip/A.ES.SDGC.BU.99999.buildingpart.gml"] * 3
+    assert [i.reason for i in items if isinstance(i, Rejection)] == [
+        "is an INSPIRE OtherConstruction, not a building (Building or BuildingPart)"]
