@@ -17,6 +17,14 @@ noted). Buildings stand upright: a tilt or roll is noted and not applied.
 :func:`read_kml` reads a KML file on disk as an input (a KMZ's, once extracted, or one beside its
 models in a folder: an unzipped KMZ): every model its Models link, placed; :func:`linked_models`
 names those models, so that a folder's reader reads them through the KML only.
+
+Buildings drawn as polygons (Google Earth's, ArcGIS' Layer To KML of an extruded layer: a Placemark's
+``<Polygon>`` with ``<extrude>1</extrude>`` and altitudes ``relativeToGround``) are footprints
+extruded from the ground to their altitude (:func:`footprint_features`, read as GeoJSON footprints
+are: :func:`footprint_meshes`; a Placemark of polygons at different heights is a building of parts); a
+polygon not extruded, or clamped to the ground, is a rejection saying it is a flat area, and one
+extruded from ``absolute`` altitudes (the ground beneath is not in KML) is read only where its
+``<ExtendedData>`` gives a height.
 """
 
 from __future__ import annotations
@@ -32,7 +40,7 @@ from urllib.parse import unquote
 
 import numpy as np
 
-__all__ = ["ModelPlacement", "linked_models", "model_placements", "placed", "read_kml"]
+__all__ = ["KmlFootprint", "ModelPlacement", "footprint_features", "footprint_meshes", "linked_models", "model_placements", "placed", "read_kml"]
 
 KML_SUFFIX = ".kml"
 
@@ -207,6 +215,145 @@ def model_placements(text: bytes, kml_path: str) -> tuple[list[ModelPlacement], 
     return placements, problems
 
 
+#: The property a KML footprint's height (its altitude above the ground, ``relativeToGround``) is given in
+#: (:func:`footprint_meshes`).
+KML_HEIGHT = "height"
+
+
+def _altitude_mode(element) -> str:
+    mode = next((c for c in element if _local(c.tag) == "altitudeMode"), None)  # KML's, or Google's gx: one
+    return mode.text.strip() if mode is not None and mode.text and mode.text.strip() in ALTITUDE_MODES else "clampToGround"
+
+
+def _ring(element) -> list[list[float]] | None:
+    """A LinearRing's ``<coordinates>`` (``lon,lat[,alt]`` tuples), else None."""
+    coordinates = next((e for e in element.iter() if _local(e.tag) == "coordinates"), None)
+    if coordinates is None or not coordinates.text:
+        return None
+    return [[float(v) for v in t.split(",")] for t in coordinates.text.split()]
+
+
+def _extended_data(placemark) -> dict[str, str]:
+    """A Placemark's ``<ExtendedData>``: ``<Data name><value>`` and ``<SchemaData><SimpleData name>`` (as ArcGIS'
+    Layer To KML writes a feature's attributes)."""
+    found = {}
+    data = _child(placemark, "ExtendedData")
+    for e in data.iter() if data is not None else ():
+        if _local(e.tag) == "Data" and e.get("name"):
+            value = _child(e, "value")
+            found[e.get("name")] = value.text.strip() if value is not None and value.text else None
+        elif _local(e.tag) == "SimpleData" and e.get("name"):
+            found[e.get("name")] = e.text.strip() if e.text else None
+    return found
+
+
+@dataclass(frozen=True)
+class KmlFootprint:
+    """A building a KML Placemark draws as extruded polygons (:func:`footprint_features`).
+
+    Attributes
+    ----------
+    id : str
+        The placemark's ``id``, else ``PlacemarkN`` (N from 1 in document order).
+    properties : dict
+        Its ``<ExtendedData>`` and ``name``.
+    polygons : list of (list, float or None)
+        Each Polygon's rings (the outer first; WGS 84 longitude, latitude) and its height above the ground (its
+        highest altitude, ``relativeToGround``; None: the properties' height).
+    absolute : bool
+        Its altitudes are ``absolute``: the ground beneath is not in KML, so only its properties can give a height.
+    """
+
+    id: str
+    properties: dict
+    polygons: list
+    absolute: bool
+
+
+def footprint_features(text: bytes, kml_path: str) -> tuple[list[KmlFootprint], list[tuple[str, str]]]:
+    """The buildings a KML document draws as polygons: each Placemark whose Polygons (also inside a MultiGeometry)
+    are extruded (``<extrude>1``) from the ground to their altitude above it (``relativeToGround``), as Google Earth
+    draws a building and ArcGIS' Layer To KML exports an extruded layer.
+
+    Returns
+    -------
+    footprints : list of KmlFootprint
+    problems : list of (str, str)
+        The placemarks with polygons that are not buildings, or cannot be read: (id, why).
+
+    Raises
+    ------
+    ValueError
+        The document is not XML.
+    """
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as err:
+        raise ValueError(f"{kml_path} is not XML ({err})") from None
+    found, problems = [], []
+    for number, placemark in enumerate((e for e in root.iter() if _local(e.tag) == "Placemark"), start=1):
+        polygons = [e for e in placemark.iter() if _local(e.tag) == "Polygon"]
+        if not polygons:
+            continue
+        fid = placemark.get("id") or f"Placemark{number}"
+        name = _child(placemark, "name")
+        try:
+            rings = []
+            for polygon in polygons:
+                outer = next((e for e in polygon if _local(e.tag) == "outerBoundaryIs"), None)
+                shell = _ring(outer) if outer is not None else None
+                if shell is None or len(shell) < 4:
+                    raise ValueError("a Polygon without an outer ring of at least 4 positions")
+                inner = [r for r in (_ring(e) for e in polygon if _local(e.tag) == "innerBoundaryIs") if r is not None]
+                rings.append([shell] + inner)
+        except ValueError as err:
+            problems.append((fid, f"its Polygon cannot be read ({err})"))
+            continue
+        modes = {_altitude_mode(p) for p in polygons}
+        extruded = all((_child(p, "extrude") is not None and (_child(p, "extrude").text or "").strip() in ("1", "true"))
+                       for p in polygons)
+        if not extruded or modes & {"clampToGround", "clampToSeaFloor"}:
+            problems.append((fid, "is a KML polygon that is not extruded from the ground (<extrude>1</extrude>, an "
+                                  "altitude relative to the ground): a flat area, not a building"))
+            continue
+        relative = modes == {"relativeToGround"}
+        props = {**_extended_data(placemark), **({"name": name.text.strip()} if name is not None and name.text else {})}
+        parts = []
+        for polygon in rings:
+            top = max((p[2] for p in polygon[0] if len(p) > 2), default=0.0) if relative else 0.0
+            parts.append(([[[p[0], p[1]] for p in ring] for ring in polygon], top if top > 0 else None))
+        found.append(KmlFootprint(fid, props, parts, not relative))
+    return found, problems
+
+
+def footprint_meshes(footprint: KmlFootprint, options, name: str, source: str) -> Iterator:
+    """A KML footprint's mesh (:func:`meshsom.osm.building_meshes`, as OpenStreetMap's buildings are read): its
+    polygons extruded to their heights, several polygons of different heights the building's parts (united); a
+    Rejection where it has no height."""
+    from meshsom.io import Rejection, file_crs
+    from meshsom.osm import _Area, building_meshes
+
+    system, unknown = file_crs("OGC:CRS84", options)
+    crs = (dataclasses.replace(system, latitude_first=False), unknown)
+    heights = {h for _, h in footprint.polygons}
+    with_height = lambda h: {**footprint.properties, **({KML_HEIGHT: h} if h is not None else {})}  # noqa: E731
+    if len(heights) == 1:
+        area = _Area(footprint.id, with_height(heights.pop()),
+                     {"type": "MultiPolygon", "coordinates": [rings for rings, _ in footprint.polygons]})
+        items = building_meshes(area, [], None, options, name, source, crs)
+    else:
+        parts = [_Area(f"{footprint.id}/{k}", with_height(h), {"type": "Polygon", "coordinates": rings})
+                 for k, (rings, h) in enumerate(footprint.polygons, 1)]
+        items = building_meshes(_Area(footprint.id, footprint.properties, None), parts, None, options, name, source, crs,
+                                how=f"{len(parts)} extruded polygons of one KML Placemark, each at its own height: "
+                                    "read as its parts")
+    for item in items:
+        if isinstance(item, Rejection) and footprint.absolute:
+            item = dataclasses.replace(item, reason=item.reason + "; its altitudes are absolute: the ground beneath "
+                                                                  "is not in KML (export it relative to the ground)")
+        yield item
+
+
 def _model_file(kml: Path, href: str) -> Path | None:
     """The file a Model's ``href`` (relative to the KML's folder) names, or None where it leaves
     the KML's folder (a KML is read with the models beneath it, as a KMZ holds them)."""
@@ -272,14 +419,18 @@ def read_kml(path: Path, options, name: str | None = None) -> Iterator:
         raise InputFileError(str(path), f"cannot be read ({type(err).__name__}: {err})") from None
     try:
         placements, problems = model_placements(text, path.name)
+        footprints, flat = footprint_features(text, path.name)
     except ValueError as err:
         raise InputFileError(str(path), f"KML: {err}; the models it links are read in their own frames") from None
-    if not placements and not problems:
-        raise InputFileError(str(path), "holds no KML <Model> linking a 3D model (KML placemarks, lines and polygons "
-                                        "are not read: convert a KML of extruded footprints with "
-                                        "`ogr2ogr -f GPKG out.gpkg in.kml` and read the GeoPackage)")
+    if not placements and not problems and not footprints and not flat:
+        raise InputFileError(str(path), "holds no KML <Model> linking a 3D model and no Polygon extruded from the "
+                                        "ground (KML points and lines are not buildings)")
     for model, reason in problems:  # ("Model2", why)
         yield Rejection(f"{name}#{model}", str(path), f"KML: {reason}")
+    for fid, reason in flat:
+        yield Rejection(f"{name}#{fid}", str(path), f"KML: {reason}")
+    for footprint in footprints:  # buildings drawn as extruded polygons: footprints with a height, in WGS 84
+        yield from footprint_meshes(footprint, options, name, str(path))
     by_href: dict[str, list[ModelPlacement]] = {}
     for placement in placements:
         by_href.setdefault(placement.href, []).append(placement)

@@ -898,8 +898,8 @@ def test_a_kmz_whose_kml_cannot_place_its_models_lists_why(tmp_path):
 
 def test_a_kml_that_places_nothing_it_may_read_says_why(tmp_path):
     """A KML whose Model links a model outside the KML's folder (not followed, as a link out of a
-    folder is not), or that holds no Model at all (placemarks or extruded polygons: a GIS file for
-    ogr2ogr), is a rejection naming the file and the problem; the model outside is not read."""
+    folder is not), or whose polygon has no ring, is a rejection naming the file and the problem; one of points
+    only says it holds no building; the model outside is not read."""
     v, f = box(10.0, 6.0, 4.0)
     (tmp_path / "elsewhere.dae").write_text(_collada(None, "Z", v, f))
     (tmp_path / "town").mkdir()
@@ -908,9 +908,67 @@ def test_a_kml_that_places_nothing_it_may_read_says_why(tmp_path):
         "<Link><href>../elsewhere.dae</href></Link></Model></Placemark></Document></kml>")
     (tmp_path / "town/outlines.kml").write_text(
         "<kml><Document><Placemark><Polygon><extrude>1</extrude></Polygon></Placemark></Document></kml>")
+    (tmp_path / "town/pins.kml").write_text(
+        "<kml><Document><Placemark><Point><coordinates>4,52,0</coordinates></Point></Placemark></Document></kml>")
     files, rejected = expand_inputs([tmp_path / "town"])
-    assert not rejected and [x.name for x in files] == ["doc.kml", "outlines.kml"]
+    assert not rejected and [x.name for x in files] == ["doc.kml", "outlines.kml", "pins.kml"]
     items = [i for x in files for i in read_file(x.path, ReaderOptions(), x.name)]
-    assert all(isinstance(i, Rejection) for i in items) and [i.id for i in items] == ["doc.kml#../elsewhere.dae", "outlines.kml"]
+    assert all(isinstance(i, Rejection) for i in items) and [i.id for i in items] == [
+        "doc.kml#../elsewhere.dae", "outlines.kml#Placemark1", "pins.kml"]
     assert "links '../elsewhere.dae', outside its folder; not followed" in items[0].reason
-    assert items[1].source == str(tmp_path / "town/outlines.kml") and "ogr2ogr" in items[1].reason, items[1]
+    assert items[1].source == str(tmp_path / "town/outlines.kml") and "its Polygon cannot be read" in items[1].reason
+    assert "holds no KML <Model> linking a 3D model and no Polygon extruded from the ground" in items[2].reason
+
+
+def _kml_polygon(ring_m, altitude, mode="relativeToGround", extrude=1, dx=0.0) -> str:
+    from footprints import closed, lonlat
+
+    coordinates = " ".join(f"{lon:.9f},{lat:.9f},{altitude}" for lon, lat in closed(lonlat([(x + dx, y) for x, y in ring_m])))
+    return (f"<Polygon><extrude>{extrude}</extrude><altitudeMode>{mode}</altitudeMode><outerBoundaryIs><LinearRing>"
+            f"<coordinates>{coordinates}</coordinates></LinearRing></outerBoundaryIs></Polygon>")
+
+
+@pytest.mark.parametrize("form", ["kml", "kmz"])
+def test_buildings_drawn_in_kml_as_extruded_polygons(tmp_path, form):
+    """Google Earth's buildings and ArcGIS' Layer To KML: a Polygon extruded to 12 m above the ground is a 12 m block
+    (volume by hand); a MultiGeometry of blocks at 6 and 15 m one building of two parts; absolute altitudes with an
+    ExtendedData height read by it, without one refused saying why; a polygon not extruded refused as a flat area."""
+    import zipfile
+
+    from footprints import rectangle
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    a, b = rectangle(0, 0, 10, 8), rectangle(10, 0, 6, 8)
+    placemarks = [
+        f'<Placemark id="tower"><name>Tower</name>{_kml_polygon(a, 12)}</Placemark>',
+        f"<Placemark><name>Two</name><MultiGeometry>{_kml_polygon(a, 6, dx=40)}{_kml_polygon(b, 15, dx=40)}"
+        "</MultiGeometry></Placemark>",
+        f'<Placemark id="abs"><ExtendedData><SchemaData schemaUrl="#s"><SimpleData name="height">9</SimpleData>'
+        f'</SchemaData></ExtendedData>{_kml_polygon(a, 430, mode="absolute", dx=80)}</Placemark>',
+        f'<Placemark id="absnone">{_kml_polygon(a, 430, mode="absolute", dx=120)}</Placemark>',
+        f'<Placemark id="lawn">{_kml_polygon(a, 0, mode="clampToGround", extrude=0, dx=160)}</Placemark>',
+    ]
+    text = ('<?xml version="1.0" encoding="UTF-8"?><kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
+            + "".join(placemarks) + "</Document></kml>")
+    if form == "kml":
+        path = tmp_path / "town.kml"
+        path.write_text(text)
+    else:
+        path = tmp_path / "town.kmz"
+        with zipfile.ZipFile(path, "w") as z:
+            z.writestr("doc.kml", text)
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    assert sorted(items) == ["Placemark2", "abs", "absnone", "lawn", "tower"], sorted(items)
+
+    def volume(item):
+        record, _ = process_one(item, PreprocessParams())
+        assert record["status"] == "accepted", record
+        return record["volume"]
+
+    assert volume(items["tower"]) == pytest.approx(80 * 12, rel=1e-5)
+    assert len(items["Placemark2"].parts) == 2 and volume(items["Placemark2"]) == pytest.approx(80 * 6 + 48 * 15, rel=1e-5)
+    assert volume(items["abs"]) == pytest.approx(80 * 9, rel=1e-5)
+    assert isinstance(items["absnone"], Rejection) and items["absnone"].reason.endswith(
+        "its altitudes are absolute: the ground beneath is not in KML (export it relative to the ground)")
+    assert isinstance(items["lawn"], Rejection) and "a flat area, not a building" in items["lawn"].reason
