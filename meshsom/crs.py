@@ -11,6 +11,10 @@ common classes are not:
   CRS's ellipsoid), exact to far below a millimetre over a building's extent.
 - **Projected CRSs in feet** (New York's EPSG:2263 in US survey feet, other US state planes):
   scaled to metres, horizontal and vertical axes each by their own unit.
+- **Projections that distort lengths** (Web Mercator, EPSG:3857, in which web services and ArcGIS
+  Online export: lengths 1 / cos(latitude) too long while heights are metres): where the point scale
+  at a building's centre is off 1 by more than :data:`MAX_SCALE_ERROR`, the building is converted to
+  east-north-up metres through longitude and latitude, as a geographic one is.
 
 The CRS is the one the file declares (CityJSON ``metadata.referenceSystem``, a GML ``srsName``),
 else :attr:`meshsom.io.ReaderOptions.crs`. It is identified with pyproj (EPSG codes, OGC URNs and
@@ -254,10 +258,16 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
     Returns
     -------
     local_m : (V, 3) float64
-        Projected: each axis scaled by its unit. Geographic: east, north, up about ``origin``.
+        Projected: each axis scaled by its unit; where the projection's point scale at ``origin`` is off 1 by more
+        than :data:`MAX_SCALE_ERROR` (Web Mercator), east, north, up about it, as geographic. Geographic: east,
+        north, up about ``origin``.
     note : str or None
         What was done, in words, when anything was (``None`` for a metric projected CRS).
     """
+    if not crs.geographic:
+        distorted = _distorted(local, origin, crs)
+        if distorted is not None:
+            return distorted
     if crs.metric:
         return local, None
     if not crs.geographic:
@@ -277,6 +287,61 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
     enu = east_north_up(geodetic, centre, crs.semi_major, crs.flattening)
     return enu, (f"converted to metres from geographic coordinates ({crs.name}), east-north-up about the "
                  f"building's centre{swapped}")
+
+
+#: A projected CRS whose point scale at a building's centre is off 1 by more than this has the building converted to
+#: east-north-up metres as a geographic CRS's is: Web Mercator (EPSG:3857, ArcGIS Online's 102100), whose lengths
+#: grow as 1 / cos(latitude) (31 % at 40 degrees) while heights stay metres; Lambert-93 at its edges (3e-3). National
+#: grids and UTM within its zone (under 1e-3) are read as they are.
+MAX_SCALE_ERROR = 1e-3
+
+
+@functools.lru_cache(maxsize=64)
+def _projection(declared: str):
+    """(to longitude and latitude, the projection, semi-major axis, flattening) of a projected CRS, or None."""
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_user_input(declared)
+    except pyproj.exceptions.CRSError:
+        return None
+    horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
+    if not horizontal.is_projected:
+        return None
+    geodetic_crs = horizontal.geodetic_crs
+    ellipsoid = geodetic_crs.ellipsoid
+    return (pyproj.Transformer.from_crs(horizontal, geodetic_crs, always_xy=True), pyproj.Proj(horizontal),
+            float(ellipsoid.semi_major_metre), 1.0 / float(ellipsoid.inverse_flattening))
+
+
+def point_scale(crs: CoordinateSystem, x: float, y: float) -> float | None:
+    """The projection's largest point scale (meridional or parallel) at (x, y) of a projected CRS; None where
+    pyproj cannot tell (an unknown or geographic CRS)."""
+    projection = _projection(crs.declared)
+    if projection is None:
+        return None
+    to_lonlat, proj, _, _ = projection
+    lon, lat = to_lonlat.transform(x, y)
+    factors = proj.get_factors(lon, lat)
+    scales = (float(factors.meridional_scale), float(factors.parallel_scale))
+    return max(scales, key=lambda k: abs(k - 1.0)) if all(math.isfinite(k) for k in scales) else None
+
+
+def _distorted(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> tuple[np.ndarray, str] | None:
+    """A building of a projected CRS whose point scale at its centre is off 1 by more than :data:`MAX_SCALE_ERROR`
+    in east-north-up metres about its centre (through longitude and latitude), and the note; else None."""
+    scale = point_scale(crs, float(origin[0]), float(origin[1]))
+    if scale is None or abs(scale - 1.0) <= MAX_SCALE_ERROR:
+        return None
+    to_lonlat, _, semi_major, flattening = _projection(crs.declared)
+    world = local + origin
+    lon, lat = to_lonlat.transform(world[:, 0], world[:, 1])
+    geodetic = np.stack([np.asarray(lat), np.asarray(lon), world[:, 2] * crs.vertical_m], axis=1)
+    centre_lon, centre_lat = to_lonlat.transform(float(origin[0]), float(origin[1]))
+    centre = np.array([centre_lat, centre_lon, float(origin[2]) * crs.vertical_m])
+    enu = east_north_up(geodetic, centre, semi_major, flattening)
+    return enu, (f"converted to metres east-north-up about the building's centre: {crs.name} scales lengths there by "
+                 f"{scale:.4g}")
 
 
 def looks_geographic(local: np.ndarray, origin: np.ndarray) -> str | None:

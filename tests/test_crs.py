@@ -72,7 +72,7 @@ def _signed_volume(v, f) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
 
 
-def assert_rigid_copies(got: dict, expected: dict, tol: float):
+def assert_rigid_copies(got: dict, expected: dict, tol: float, note: str = "geographic coordinates"):
     """Every building read from the geographic file is its metric original moved rigidly."""
     assert set(got) == set(expected)
     compared = 0
@@ -88,7 +88,7 @@ def assert_rigid_copies(got: dict, expected: dict, tol: float):
         # z stays up: the building's own vertical extent is the original's
         span_g, span_e = np.ptp(g.vertices[:, 2]), np.ptp(e.vertices[:, 2])
         assert span_g == pytest.approx(span_e, abs=2e-3), key
-        assert any("geographic coordinates" in n for n in g.notes), g.notes
+        assert any(note in n for n in g.notes), g.notes
         compared += 1
     assert compared > 100
 
@@ -212,12 +212,52 @@ def test_cityjsonseq_and_citygml_in_latitude_longitude(tmp_path):
                ) if (tmp_path / "tokyo.gml").write_text(gml) else False
 
 
+@pytest.mark.parametrize("reference, scale", [("EPSG:3857", 1.231), ("urn:ogc:def:crs:EPSG::3857", 1.231)])
+def test_web_mercator_is_read_in_true_metres(tmp_path, reference, scale):
+    """The Delft district placed at Tokyo in Web Mercator (EPSG:3857, as web services export), whose lengths are
+    1 / cos(latitude) = 1.23 times too long there while its heights are metres: every building is its metric
+    original moved rigidly (read as it was, its footprints were 23 % too wide and its volumes 52 % too large)."""
+    _, geographic = _delft_geographic("latlon")
+    t = geographic["transform"]
+    geo = np.asarray(geographic["vertices"], float) * t["scale"] + t["translate"]  # latitude, longitude, height
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True).transform(geo[:, 1], geo[:, 0])
+    world = np.stack([x, y, geo[:, 2]], axis=1)
+    translate = np.round(world.min(axis=0), 3)
+    doc = copy.deepcopy(geographic)
+    doc["metadata"] = {"referenceSystem": reference}
+    doc["transform"] = {"scale": [1e-4, 1e-4, 1e-4], "translate": translate.tolist()}
+    doc["vertices"] = np.round((world - translate) / 1e-4).astype(np.int64).tolist()
+    (tmp_path / "mercator.city.json").write_text(json.dumps(doc))
+    got = _meshes(read_file(tmp_path / "mercator.city.json"))
+    assert_rigid_copies(got, _meshes(read_file(DELFT)), tol=5e-4, note="scales lengths there by")
+    some = next(m for m in got.values() if isinstance(m, RawMesh))
+    assert any(f"scales lengths there by {scale}" in n for n in some.notes), some.notes
+
+
+def test_national_grids_and_utm_are_read_as_they_are():
+    """Projections within MAX_SCALE_ERROR of true scale (Swiss LV95, RD New, UTM on its central meridian) are read as
+    they are; Lambert-93 near Lille (2.2e-3) and Web Mercator are converted."""
+    from meshsom.crs import MAX_SCALE_ERROR, point_scale, to_metres
+
+    local = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 5.0]])
+    for reference, xy in (("EPSG:2056", (2683000, 1248000)), ("EPSG:28992", (85000, 447000)), ("EPSG:32632", (500000, 5200000))):
+        crs = coordinate_system(reference)
+        assert abs(point_scale(crs, *xy) - 1) <= MAX_SCALE_ERROR
+        same, note = to_metres(local, np.array([*xy, 400.0]), crs)
+        assert same is local and note is None
+    lille = coordinate_system("EPSG:2154")
+    out, note = to_metres(local, np.array([704000.0, 7059000.0, 30.0]), lille)
+    assert "scales lengths there by 1.002" in note
+    assert np.linalg.norm(out[1] - out[0]) == pytest.approx(10 / point_scale(lille, 704000.0, 7059000.0), rel=1e-5)  # 30 m up: 5e-6
+
+
 def test_feet_are_scaled_to_metres(tmp_path):
     original = json.loads(DELFT.read_text())
     feet = 1200 / 3937  # metres per US survey foot
     doc = copy.deepcopy(original)
+    shift = np.array([84000 / feet - 984000, 446000 / feet - 190000, 0.0])  # Delft moved to Manhattan, where k = 1
     doc["transform"] = {"scale": [s / feet for s in original["transform"]["scale"]],
-                        "translate": [s / feet for s in original["transform"]["translate"]]}
+                        "translate": (np.array(original["transform"]["translate"]) / feet - shift).tolist()}
     doc["metadata"] = {"referenceSystem": "EPSG:2263"}  # NAD83 / New York Long Island (ftUS)
     path = tmp_path / "feet.city.json"
     path.write_text(json.dumps(doc))
@@ -228,7 +268,7 @@ def test_feet_are_scaled_to_metres(tmp_path):
             g = got[key]
             np.testing.assert_allclose(g.vertices, e.vertices, atol=1e-9)
             assert np.array_equal(g.faces, e.faces)
-            np.testing.assert_allclose(g.origin, e.origin / feet, rtol=1e-12)  # the file's own coordinates
+            np.testing.assert_allclose(g.origin, e.origin / feet - shift, rtol=1e-12)  # the file's own coordinates
             assert any("US survey foot" in n for n in g.notes)
 
 

@@ -88,7 +88,7 @@ def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
     assert _volume(m) == pytest.approx(area(L_SHAPE) * 6, rel=1e-12)
     feet = 1200 / 3937
     doc["crs"] = {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::2263"}}  # old GeoJSON: a named CRS
-    doc["features"][0]["geometry"]["coordinates"] = [closed([(x / feet, y / feet) for x, y in ring])]
+    doc["features"][0]["geometry"]["coordinates"] = [closed([(984000 + x / feet, 190000 + y / feet) for x, y in L_SHAPE])]
     doc["features"][0]["properties"]["height"] = 6 / feet
     with gzip.open(tmp_path / "ny.geojson.gz", "wt") as fh:
         json.dump(doc, fh)

@@ -573,7 +573,7 @@ def test_damaged_csv_inputs_say_what_is_wrong(tmp_path):
     """A row whose WKT GDAL cannot read, a row of a point, and a gzipped CSV cut short (a truncated download): each a
     rejection naming the problem, the truncated file listed as an input that is rejected, not skipped."""
     (tmp_path / "rows.csv").write_text('geometry,height\n"POLYGON((0 0, 1 0, 1 1",5\n"POINT(1 2)",3\n'
-                                       '"POLYGON((0 0,10 0,10 10,0 10,0 0))",4\n')
+                                       '"POLYGON((2600000 1200000,2600010 1200000,2600010 1200010,2600000 1200010,2600000 1200000))",4\n')
     got = list(read_file(tmp_path / "rows.csv", ReaderOptions(crs="EPSG:2056")))
     assert [getattr(i, "reason", None) for i in got] == [
         "has no geometry (its WKT is empty, or not WKT GDAL can read)", "holds a Point, not a building's polygons or solid",
