@@ -294,7 +294,8 @@ def roof_scale(ring: np.ndarray, crs) -> tuple[float, float]:
     """Height units per unit of x and of y of a footprint ``ring`` ((K, 2) in ``crs``; None:
     metres): what :func:`meshsom.roofs.roof_faces` measures the footprint with, so that a pitch is
     a pitch whatever the units (a CRS in feet; degrees: the ellipsoid's meridian and prime vertical
-    radii of curvature at the ring's mean latitude, so that a 12 m house is measured to 1e-6)."""
+    radii of curvature at the ring's mean latitude, so that a 12 m house is measured to 1e-6; a
+    projection that distorts lengths there, Web Mercator: its point scale)."""
     if crs is None:
         return 1.0, 1.0
     if crs.geographic:
@@ -304,7 +305,11 @@ def roof_scale(ring: np.ndarray, crs) -> tuple[float, float]:
         meridian, prime_vertical = crs.semi_major * (1.0 - e2) / w ** 1.5, crs.semi_major / math.sqrt(w)
         along = (math.radians(meridian), math.radians(prime_vertical) * math.cos(latitude))  # metres per degree
         return tuple(v / crs.vertical_m for v in (along if crs.latitude_first else along[::-1]))
-    return crs.horizontal_m / crs.vertical_m, crs.horizontal_m / crs.vertical_m
+    from meshsom.crs import MAX_SCALE_ERROR, point_scale
+
+    k = point_scale(crs, float(ring[:, 0].mean()), float(ring[:, 1].mean()))  # Web Mercator: read in true metres
+    k = k if k is not None and abs(k - 1.0) > MAX_SCALE_ERROR else 1.0  # (meshsom.crs.to_metres)
+    return crs.horizontal_m / crs.vertical_m / k, crs.horizontal_m / crs.vertical_m / k
 
 
 def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options, where: str, verts: FeatureVertices

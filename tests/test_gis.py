@@ -584,3 +584,22 @@ def test_damaged_csv_inputs_say_what_is_wrong(tmp_path):
     assert sorted(f.name for f in files) == ["cut.csv.gz", "rows.csv"] and not rejected
     (item,) = read_file(tmp_path / "cut.csv.gz")
     assert isinstance(item, Rejection) and item.reason == "is not valid gzip data (it ends early: a truncated download?)"
+
+
+def test_a_gabled_house_in_web_mercator(tmp_path):
+    """A 12 x 8 m house with a gabled roof at the default 30 degree pitch, written in EPSG:3857 (lengths 1.6 times too
+    long at 52 degrees north): its volume is the house's by hand, its roof pitched as tagged, in true metres."""
+    import math
+
+    w, d, e = 12.0, 8.0, 6.0
+    lon, lat = np.array(lonlat(rectangle(0, 0, w, d))).T
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True).transform(lon, lat)
+    ring = [[float(a), float(b)] for a, b in zip(x, y)]
+    rise = math.tan(math.radians(30)) * d / 2
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "height": "float", "roof:shape": "str"}}
+    with fiona.open(tmp_path / "m.gpkg", "w", driver="GPKG", schema=schema, crs="EPSG:3857") as out:
+        out.write({"geometry": {"type": "Polygon", "coordinates": [closed(ring)]},
+                   "properties": {"id": "house", "height": e + rise, "roof:shape": "gabled"}})
+    (house,) = read_file(tmp_path / "m.gpkg")
+    assert any("Pseudo-Mercator scales lengths there by 1.625" in n for n in house.notes), house.notes
+    assert _volume(house) == pytest.approx(HOUSE["gabled"](w, d, e, rise), rel=1e-4)
