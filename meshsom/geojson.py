@@ -72,6 +72,14 @@ CARDINAL = {k: 22.5 * i for i, k in enumerate(("N", "NNE", "NE", "ENE", "E", "ES
                                                  "W", "WNW", "NW", "NNW"))}
 
 
+def is_esri_json(document) -> bool:
+    """Whether a parsed JSON document is an Esri JSON feature set (an ArcGIS REST query's ``f=json``: features of
+    ``attributes`` and ``rings``), read through GDAL's ESRIJSON driver (:func:`meshsom.gis.read_gis`)."""
+    return (isinstance(document, dict) and isinstance(document.get("features"), list)
+            and ("geometryType" in document or "spatialReference" in document or any(
+                isinstance(f, dict) and "attributes" in f for f in document["features"][:1])))
+
+
 def is_geojson(document) -> bool:
     """Whether a parsed JSON document is a GeoJSON / JSON-FG Feature or FeatureCollection."""
     return isinstance(document, dict) and document.get("type") in ("Feature", "FeatureCollection")
@@ -112,12 +120,22 @@ def _number(value) -> float | None:
 
 
 def first_number(props: dict, names) -> tuple[str, float] | None:
-    """The first of ``names`` whose property is a number (:func:`_number`), and its value; None
-    when none is."""
+    """The first of ``names`` whose property is a number (:func:`_number`): the property's own key
+    and its value; None when none is. A name matches a property of its spelling, else one that
+    differs only in case (a Shapefile's or an Esri layer's ``HEIGHT``, ``Num_Floors``)."""
+    folded = None
     for name in names:
-        value = _number(props.get(name))
-        if value is not None:
-            return name, value
+        key = name if name in props else None
+        if key is None:
+            if folded is None:
+                folded = {}
+                for k in props:
+                    folded.setdefault(str(k).lower(), k)
+            key = folded.get(str(name).lower())
+        if key is not None:
+            value = _number(props.get(key))
+            if value is not None:
+                return key, value
     return None
 
 

@@ -509,7 +509,7 @@ def _attributes(path: Path, layer: str) -> Iterator[dict]:
 
 def _chosen_layers(path: Path, options) -> list[Layer]:
     """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
-    if path.is_file() and not is_csv(path) and not _is_gml(path):
+    if path.is_file() and not is_csv(path) and not _is_gml(path) and not _is_json(path):
         with open(path, "rb") as fh:
             if fh.read(2) == b"\x1f\x8b":
                 raise InputFileError(str(path), "is gzip-compressed; GIS files are read uncompressed (gunzip it first)")
@@ -755,6 +755,12 @@ def _source(path: Path) -> str:
     return f"/vsigzip/{Path(path).resolve()}" if _gzipped(path) else str(path)
 
 
+def _is_json(path: Path) -> bool:
+    from meshsom.io import format_name
+
+    return format_name(Path(path)).endswith(".json")
+
+
 def _is_gml(path: Path) -> bool:
     from meshsom.io import format_name
 
@@ -769,6 +775,8 @@ def _open(path: Path, layer: str | None = None, **kwargs):
 
     if _is_gml(path):
         return fiona.open(_source(path), layer=layer, WRITE_GFS="NO", **kwargs)
+    if _is_json(path):  # Esri JSON (meshsom.geojson.is_esri_json), plain or gzipped
+        return fiona.open(_source(path), layer=layer, driver="ESRIJSON", **kwargs)
     if not is_csv(path):
         return fiona.open(path, layer=layer, **kwargs)
     column = csv_geometry_column(path)
@@ -792,7 +800,7 @@ def _ogr_layers_of(path: str, size: int, mtime: int) -> tuple[Layer, ...]:
     path = Path(path)
     try:
         layers = []
-        names = [None] if is_csv(path) else (
+        names = [None] if is_csv(path) or _is_json(path) else (
             fiona.listlayers(_source(path), WRITE_GFS="NO") if _is_gml(path) else fiona.listlayers(path))
         for layer_name in names:
             with _open(path, layer_name) as collection:

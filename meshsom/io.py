@@ -1531,8 +1531,16 @@ def read_cityjson(
 def _document_items(cj, path: Path, options: ReaderOptions, name: str | None) -> Iterator[RawMesh | Rejection]:
     """The items of a parsed JSON document (:func:`read_cityjson`): CityJSON, CityJSONFeatures,
     GeoJSON / JSON-FG or a 3D Tiles tileset."""
-    from meshsom.geojson import is_geojson, read_geojson
+    from meshsom.geojson import is_esri_json, is_geojson, read_geojson
 
+    if is_esri_json(cj):  # an ArcGIS REST query's answer (f=json): through GDAL's ESRIJSON driver
+        from meshsom.gis import read_gis
+
+        yield from read_gis(path, options, name)
+        return
+    if isinstance(cj, dict) and set(cj) == {"error"} and isinstance(cj["error"], dict):
+        raise InputFileError(str(path), f"is an ArcGIS REST error response, not data (code {cj['error'].get('code')}: "
+                                        f"{str(cj['error'].get('message'))[:200]})")
     if _is_feature_collection(cj):
         yield from _feature_collection(cj, path, options, name)
         return

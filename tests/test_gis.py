@@ -603,3 +603,28 @@ def test_a_gabled_house_in_web_mercator(tmp_path):
     (house,) = read_file(tmp_path / "m.gpkg")
     assert any("Pseudo-Mercator scales lengths there by 1.625" in n for n in house.notes), house.notes
     assert _volume(house) == pytest.approx(HOUSE["gabled"](w, d, e, rise), rel=1e-4)
+
+
+def test_an_arcgis_rest_query_answer_in_esri_json(tmp_path):
+    """An ArcGIS REST query saved with f=json (Esri JSON, Web Mercator 102100, upper-case fields as Esri layers name
+    them: HEIGHT, NUM_FLOORS), plain and gzipped: true-metre volumes by hand; an error response says what it is."""
+    lon, lat = np.array(lonlat(L_SHAPE)).T
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:3857", always_xy=True).transform(lon, lat)
+    ring = closed([[float(a), float(b)] for a, b in zip(x, y)])
+    far = [[a + 60.0, b] for a, b in ring]
+    doc = {"displayFieldName": "", "geometryType": "esriGeometryPolygon",
+           "spatialReference": {"wkid": 102100, "latestWkid": 3857},
+           "fields": [{"name": "OBJECTID", "type": "esriFieldTypeOID"}, {"name": "HEIGHT", "type": "esriFieldTypeDouble"},
+                      {"name": "NUM_FLOORS", "type": "esriFieldTypeInteger"}],
+           "features": [{"attributes": {"OBJECTID": 1, "HEIGHT": 12.5, "NUM_FLOORS": None}, "geometry": {"rings": [ring]}},
+                        {"attributes": {"OBJECTID": 2, "HEIGHT": None, "NUM_FLOORS": 4}, "geometry": {"rings": [far]}}]}
+    (tmp_path / "query.json").write_text(json.dumps(doc))
+    (tmp_path / "query.json.gz").write_bytes(gzip.compress(json.dumps(doc).encode()))
+    for name in ("query.json", "query.json.gz"):
+        got = _by_id(read_file(tmp_path / name))
+        assert sorted(got) == ["1", "2"], got
+        assert _volume(got["1"]) == pytest.approx(area(L_SHAPE) * 12.5, rel=1e-5)
+        assert _volume(got["2"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-5)
+    (tmp_path / "error.json").write_text(json.dumps({"error": {"code": 498, "message": "Invalid token.", "details": []}}))
+    (item,) = read_file(tmp_path / "error.json")
+    assert isinstance(item, Rejection) and item.reason == "is an ArcGIS REST error response, not data (code 498: Invalid token.)"
