@@ -1,5 +1,5 @@
 """Reading buildings from GIS files: GeoPackage, Shapefile, FlatGeobuf, Esri File Geodatabase,
-GeoJSONSeq and CSV (footprints as WKT: Google's Open Buildings) through GDAL (fiona), GeoParquet
+GeoJSONSeq, MapInfo (``.tab``, ``.mif``), SpatiaLite (``.sqlite``) and CSV (footprints as WKT: Google's Open Buildings) through GDAL (fiona), GeoParquet
 through pyarrow.
 
 Footprint layers with heights (national cadastres, OpenStreetMap extracts, Overture Maps' and
@@ -66,7 +66,8 @@ from meshsom.errors import InputFileError
 
 #: File name endings read through GDAL (fiona). ``.gdb`` is a folder (Esri File Geodatabase);
 #: ``.shz`` and ``.shp.zip`` are zipped shapefiles.
-OGR_SUFFIXES = (".gpkg", ".shp", ".shz", ".shp.zip", ".fgb", ".gdb", ".geojsonl", ".geojsons", ".geojsonseq")
+OGR_SUFFIXES = (".gpkg", ".shp", ".shz", ".shp.zip", ".fgb", ".gdb", ".geojsonl", ".geojsons", ".geojsonseq",
+                ".tab", ".mif", ".sqlite")
 #: CSV files of footprints written as WKT (Google's Open Buildings, QGIS's "CSV, geometry AS_WKT"), plain or gzipped:
 #: read through GDAL's CSV driver where a column named as one of :data:`CSV_GEOMETRY_COLUMNS` (any case) holds them.
 CSV_SUFFIX = ".csv"
@@ -814,8 +815,11 @@ def _ogr_layers_of(path: str, size: int, mtime: int) -> tuple[Layer, ...]:
                 if not crs and is_csv(path):
                     first = next(iter(collection), None)
                     degrees = first is not None and first.geometry is not None and _within_degrees(first.geometry)
-                layers.append(Layer(str(layer_name or collection.name), crs.to_string() if crs else None, len(collection),
-                                    degrees))
+                try:
+                    count = len(collection)
+                except TypeError:  # a driver that cannot count (MapInfo's MIF): read by one task
+                    count = -1
+                layers.append(Layer(str(layer_name or collection.name), crs.to_string() if crs else None, count, degrees))
         return tuple(layers)
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None

@@ -83,6 +83,8 @@ TILESET_NAME = "tileset.json"
 TILES_CONTENT_SUFFIXES = (".b3dm", ".glb", ".gltf", ".pnts", ".i3dm", ".cmpt", ".subtree", ".bin")
 #: The files that come with a shapefile (``x.shp``), read with it.
 SHAPEFILE_SIDECARS = (".dbf", ".shx", ".prj", ".cpg", ".qix", ".sbn", ".sbx", ".qmd")
+#: The files a MapInfo table (``.tab``) or interchange file (``.mif``) is read with.
+MAPINFO_SIDECARS = {".dat": ".tab", ".map": ".tab", ".id": ".tab", ".ind": ".tab", ".mid": ".mif"}
 #: File name endings read as CityJSON Text Sequences (CityJSONSeq).
 CITYJSONSEQ_SUFFIXES = (".city.jsonl", ".jsonl")
 #: A readable name followed by this is a gzip-compressed input (gzip data is recognised by its
@@ -712,9 +714,12 @@ def expand_inputs(inputs: list[str | os.PathLike],
                         input_kind(q)
                     except InputFileError as err:
                         if skipped is not None:
+                            table = MAPINFO_SIDECARS.get(q.suffix.lower())
                             why = ("mesh labels, read with the meshes" if q.name == "labels.csv" else
                                    f"read with the shapefile {q.with_suffix('.shp').name}" if (
                                        q.suffix.lower() in SHAPEFILE_SIDECARS and q.with_suffix(".shp").is_file())
+                                   else f"read with the MapInfo file {q.with_suffix(table).name}" if (
+                                       table and (q.with_suffix(table).is_file() or q.with_suffix(table.upper()).is_file()))
                                    else err.problem)
                             skipped.append((str(q), why))
                         continue

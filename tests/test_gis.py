@@ -628,3 +628,26 @@ def test_an_arcgis_rest_query_answer_in_esri_json(tmp_path):
     (tmp_path / "error.json").write_text(json.dumps({"error": {"code": 498, "message": "Invalid token.", "details": []}}))
     (item,) = read_file(tmp_path / "error.json")
     assert isinstance(item, Rejection) and item.reason == "is an ArcGIS REST error response, not data (code 498: Invalid token.)"
+
+
+def test_mapinfo_and_spatialite_files(tmp_path):
+    """MapInfo TAB (with its .dat, .map, .id), MIF (with its .mid: a driver that cannot count its features) and
+    SpatiaLite, written by GDAL in LV95 with an upper-case HEIGHT: the footprints' volumes by hand (a TAB stores
+    coordinates on its own integer grid: 1e-3), the sidecars listed as read with their table."""
+    folder = tmp_path / "mi"
+    folder.mkdir()
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "HEIGHT": "float"}}
+    ring = closed([(2600000 + x, 1200000 + y) for x, y in L_SHAPE])
+    for driver, name, options in (("MapInfo File", "b.tab", {}), ("MapInfo File", "c.mif", {"FORMAT": "MIF"}),
+                                  ("SQLite", "d.sqlite", {})):
+        with fiona.open(folder / name, "w", driver=driver, schema=schema, crs="EPSG:2056", **options) as out:
+            out.write({"geometry": {"type": "Polygon", "coordinates": [ring]}, "properties": {"id": "x", "HEIGHT": 7.0}})
+    skipped = []
+    files, rejected = expand_inputs([folder], skipped)
+    assert [f.name for f in files] == ["b.tab", "c.mif", "d.sqlite"] and not rejected
+    assert sorted((Path(p).name, why) for p, why in skipped) == [
+        ("b.dat", "read with the MapInfo file b.tab"), ("b.id", "read with the MapInfo file b.tab"),
+        ("b.map", "read with the MapInfo file b.tab"), ("c.mid", "read with the MapInfo file c.mif")]
+    for f, rel in zip(files, (1e-3, 1e-9, 1e-9)):
+        (item,) = read_file(f.path)
+        assert item.id == f"{f.name}#x" and _volume(item) == pytest.approx(area(L_SHAPE) * 7, rel=rel), f.name
