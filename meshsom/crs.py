@@ -77,6 +77,10 @@ class CoordinateSystem:
         return not self.geographic and self.horizontal_m == 1.0 and self.vertical_m == 1.0
 
 
+class NotDegrees(ValueError):
+    """Coordinates of a geographic CRS beyond +/-90 and +/-180 (:func:`to_metres`; the message says so)."""
+
+
 class UnknownCRS(ValueError):
     """A CRS reference that pyproj does not know (the message says what was received)."""
 
@@ -263,6 +267,11 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
         north, up about ``origin``.
     note : str or None
         What was done, in words, when anything was (``None`` for a metric projected CRS).
+
+    Raises
+    ------
+    NotDegrees
+        A geographic CRS's coordinates beyond +/-90 and +/-180 (after the axis order is settled).
     """
     if not crs.geographic:
         distorted = _distorted(local, origin, crs)
@@ -282,6 +291,11 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
         centre = origin[[order[0], order[1], 2]]
         swapped = "; its axes were read in the other order, as the first is beyond +/-90 degrees"
     geodetic = (local + origin)[:, [order[0], order[1], 2]]
+    finite = geodetic[np.isfinite(geodetic).all(axis=1)]
+    if len(finite) and (np.abs(finite[:, 0]).max() > 90 or np.abs(finite[:, 1]).max() > 180):
+        raise NotDegrees(f"its coordinates reach {np.abs(finite[:, :2]).max(axis=0).max():.6g}, beyond the +/-90 "
+                         f"and +/-180 degrees of the geographic CRS it declares ({crs.name}): the declaration is wrong "
+                         f"(projected coordinates labelled as degrees?)")
     geodetic[:, 2] *= crs.vertical_m
     centre = centre * np.array([1.0, 1.0, crs.vertical_m])
     enu = east_north_up(geodetic, centre, crs.semi_major, crs.flattening)

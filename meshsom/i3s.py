@@ -436,7 +436,7 @@ def _attribute(data: bytes, storage: dict) -> list[str]:
 
 
 def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, source: str, decoded: set) -> Iterator:
-    from meshsom.crs import to_metres
+    from meshsom.crs import NotDegrees, to_metres
     from meshsom.io import RawMesh, Rejection, recentre
 
     for fid in sorted(features):
@@ -449,7 +449,11 @@ def _meshes(features: dict, labels: dict, crs, notes: list[str], name: str, sour
         world, inverse = np.unique(triangles.reshape(-1, 3), axis=0, return_inverse=True)  # one vertex per position
         faces = inverse.reshape(-1, 3).astype(np.int64)
         local, origin = recentre(world)
-        local, note = to_metres(local, origin, crs)
+        try:
+            local, note = to_metres(local, origin, crs)
+        except NotDegrees as err:
+            yield Rejection(mesh_id, source, str(err), len(triangles))
+            continue
         more = ["read from Draco-compressed geometry (positions as the publisher quantised them)"] if fid in decoded else []
         if len(pieces) > 1:  # float32 offsets about two centres (quantised over two extents): a shared corner differs
             from meshsom.preprocess import weld

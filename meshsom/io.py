@@ -1769,7 +1769,7 @@ def _in_metres(mesh_id: str, local: np.ndarray, origin: np.ndarray, crs: tuple) 
     InputFileError
         No CRS is known and the coordinates look like degrees (:func:`meshsom.crs.looks_geographic`).
     """
-    from meshsom.crs import looks_geographic, to_metres
+    from meshsom.crs import NotDegrees, looks_geographic, to_metres
 
     system, unknown = crs
     if system is None:
@@ -1777,7 +1777,10 @@ def _in_metres(mesh_id: str, local: np.ndarray, origin: np.ndarray, crs: tuple) 
         if why is not None:
             raise InputFileError(mesh_id, why)
         return local, [unknown] if unknown else []
-    local, note = to_metres(local, origin, system)
+    try:
+        local, note = to_metres(local, origin, system)
+    except NotDegrees as err:
+        raise InputFileError(mesh_id, str(err)) from None
     return local, [note] if note else []
 
 

@@ -326,3 +326,14 @@ def test_ingest_cli_reads_an_obj_in_degrees_with_crs(tmp_path):
 
     v, f = read_mesh(open_store(tmp_path / "b.zarr"), 0)  # the store holds the house in metres
     assert _signed_volume(v, f) == pytest.approx(18 * 11 * 7, rel=1e-6)
+
+
+def test_projected_coordinates_declared_as_degrees_are_refused(tmp_path):
+    """The Delft district (RD New metres) labelled EPSG:4326: every building refused, saying its coordinates are
+    beyond the degrees its CRS declares (before, each was read as a building thousands of kilometres wide)."""
+    doc = json.loads(DELFT.read_text())
+    doc["metadata"] = {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/4326"}
+    (tmp_path / "wrong.city.json").write_text(json.dumps(doc))
+    items = list(read_file(tmp_path / "wrong.city.json"))
+    assert len(items) > 100 and all(isinstance(i, Rejection) for i in items)
+    assert all("beyond the +/-90 and +/-180 degrees of the geographic CRS it declares (WGS 84)" in i.reason for i in items)
