@@ -1767,7 +1767,8 @@ def _in_metres(mesh_id: str, local: np.ndarray, origin: np.ndarray, crs: tuple) 
     Raises
     ------
     InputFileError
-        No CRS is known and the coordinates look like degrees (:func:`meshsom.crs.looks_geographic`).
+        The coordinates look like degrees (:func:`meshsom.crs.looks_geographic`) where no CRS is known or a
+        projected one is declared; a geographic CRS's lie beyond +/-90 and +/-180.
     """
     from meshsom.crs import NotDegrees, looks_geographic, to_metres
 
@@ -1777,6 +1778,11 @@ def _in_metres(mesh_id: str, local: np.ndarray, origin: np.ndarray, crs: tuple) 
         if why is not None:
             raise InputFileError(mesh_id, why)
         return local, [unknown] if unknown else []
+    if not system.geographic and looks_geographic(local, origin) is not None:
+        span = max(np.ptp(local[:, 0]), np.ptp(local[:, 1]))
+        raise InputFileError(mesh_id, f"its coordinates look like degrees of latitude and longitude (x and y span "
+                                      f"{span:.2g}, z spans {np.ptp(local[:, 2]):.3g}), though the file declares the "
+                                      f"projected CRS {system.name}: the declaration is wrong")
     try:
         local, note = to_metres(local, origin, system)
     except NotDegrees as err:

@@ -337,3 +337,16 @@ def test_projected_coordinates_declared_as_degrees_are_refused(tmp_path):
     items = list(read_file(tmp_path / "wrong.city.json"))
     assert len(items) > 100 and all(isinstance(i, Rejection) for i in items)
     assert all("beyond the +/-90 and +/-180 degrees of the geographic CRS it declares (WGS 84)" in i.reason for i in items)
+
+
+def test_degrees_declared_as_a_projected_crs_are_refused(tmp_path):
+    """The Delft district in latitude and longitude labelled RD New (EPSG:7415): every building, a needle 1e-4 wide
+    and metres tall, refused saying its coordinates look like degrees though the file declares a projected CRS."""
+    _, geographic = _delft_geographic()
+    geographic["metadata"] = {"referenceSystem": "https://www.opengis.net/def/crs/EPSG/0/7415"}
+    (tmp_path / "wrong.city.json").write_text(json.dumps(geographic))
+    items = [i for i in read_file(tmp_path / "wrong.city.json")]
+    refused = [i for i in items if isinstance(i, Rejection) and "look like degrees" in i.reason]
+    assert len(refused) > 100 and "though the file declares the projected CRS Amersfoort / RD New + NAP height" in (
+        refused[0].reason)
+    assert not any(isinstance(i, RawMesh) for i in items)
