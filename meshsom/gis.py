@@ -92,6 +92,8 @@ BATCH_FEATURES = 4096
 FOOTPRINT_TILT_DEG = 45.0
 #: WKB collections nested deeper than this are refused.
 MAX_WKB_DEPTH = 16
+#: GeoParquet 1.1's native geometry encodings (GeoArrow), read besides WKB.
+GEOARROW_ENCODINGS = ("point", "linestring", "polygon", "multipoint", "multilinestring", "multipolygon")
 #: The CRS of GeoParquet geometry whose column metadata has no ``crs`` member.
 GEOPARQUET_DEFAULT_CRS = "OGC:CRS84"
 
@@ -613,6 +615,9 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     from meshsom.osm import STRAY, _Area, area_geometry, building_meshes, osm_row, no_outline, not_a_building
 
     mesh_id = f"{name}#{oid}"
+    if isinstance(geometry, InputFileError):  # a GeoArrow geometry that cannot be read (_parquet_records)
+        yield Rejection(mesh_id, str(path), geometry.problem, 0, None)
+        return
     assumed = layer.crs is None and layer.degrees and options.crs is None  # a CSV file in degrees, declaring no CRS
     system, unknown = file_crs(CSV_DEGREES_CRS if assumed else layer.crs, options)
     file_notes = [CSV_DEGREES_NOTE] if assumed else []
@@ -911,10 +916,46 @@ def _parquet_geo(path: Path) -> tuple[str, dict]:
     except (ValueError, KeyError, TypeError):
         raise InputFileError(str(path), "has GeoParquet metadata without a primary column's entry") from None
     encoding = str(meta.get("encoding", "WKB"))
-    if encoding.upper() != "WKB":
-        raise InputFileError(str(path), f"stores its geometry as {encoding!r}; only WKB GeoParquet is read "
-                                        f"(rewrite it with WKB encoding, e.g. geopandas to_parquet)")
+    if encoding.upper() != "WKB" and encoding.lower() not in GEOARROW_ENCODINGS:
+        raise InputFileError(str(path), f"stores its geometry as {encoding!r}; GeoParquet is read with WKB or a "
+                                        f"native (GeoArrow) encoding: {', '.join(GEOARROW_ENCODINGS)}")
     return column, meta
+
+
+def _geoarrow_wkb(value, encoding: str, where: str) -> bytes | None:
+    """A GeoParquet 1.1 native (GeoArrow) geometry as pyarrow gives a row of it (nested lists of coordinates, each
+    a struct ``{x, y[, z]}`` or an interleaved list ``[x, y[, z]]``) as WKB; None for a null."""
+    import shapely
+
+    if value is None:
+        return None
+
+    def xyz(c):
+        if isinstance(c, dict):
+            return (c["x"], c["y"], c["z"]) if c.get("z") is not None else (c["x"], c["y"])
+        return tuple(c)
+
+    def ring(r):
+        return [xyz(c) for c in r]
+
+    try:
+        kind = encoding.lower()
+        if kind == "point":
+            geometry = shapely.Point(xyz(value))
+        elif kind == "linestring":
+            geometry = shapely.LineString(ring(value))
+        elif kind == "polygon":
+            geometry = shapely.Polygon(ring(value[0]), [ring(r) for r in value[1:]]) if value else shapely.Polygon()
+        elif kind == "multipoint":
+            geometry = shapely.MultiPoint([xyz(c) for c in value])
+        elif kind == "multilinestring":
+            geometry = shapely.MultiLineString([ring(r) for r in value])
+        else:
+            geometry = shapely.MultiPolygon([(ring(p[0]), [ring(r) for r in p[1:]]) for p in value if p])
+    except (KeyError, TypeError, ValueError, shapely.errors.GEOSException) as err:
+        raise InputFileError(where, f"its {encoding} geometry (GeoArrow) cannot be read ({type(err).__name__}: "
+                                    f"{str(err)[:80]})") from None
+    return shapely.to_wkb(geometry)
 
 
 def _parquet_layers(path: Path) -> list[Layer]:
@@ -938,7 +979,9 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
 
     from meshsom.osm import osm_row_id, osm_properties
 
-    column, _ = _parquet_geo(path)
+    column, meta = _parquet_geo(path)
+    encoding = str(meta.get("encoding", "WKB"))
+    native = encoding.lower() in GEOARROW_ENCODINGS
     stem = Path(path.name).stem  # the layer's name
     pf = pq.ParquetFile(path)
     sizes = [pf.metadata.row_group(g).num_rows for g in range(pf.metadata.num_row_groups)]
@@ -958,6 +1001,12 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
         for k, values in enumerate(batch.slice(skip).to_pylist(), first + skip + 1):
             wkb = values.pop(column, None)
             values = osm_properties(values)
-            yield osm_row_id(values, stem) or str(values.get(id_field) if id_field else k), values, wkb
+            oid = osm_row_id(values, stem) or str(values.get(id_field) if id_field else k)
+            if native:
+                try:
+                    wkb = _geoarrow_wkb(wkb, encoding, f"{path.name}#{oid}")
+                except InputFileError as err:
+                    wkb = err  # refused by its reading (_feature_meshes), with the problem
+            yield oid, values, wkb
         if stop is not None and row >= stop:
             return

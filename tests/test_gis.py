@@ -651,3 +651,34 @@ def test_mapinfo_and_spatialite_files(tmp_path):
     for f, rel in zip(files, (1e-3, 1e-9, 1e-9)):
         (item,) = read_file(f.path)
         assert item.id == f"{f.name}#x" and _volume(item) == pytest.approx(area(L_SHAPE) * 7, rel=rel), f.name
+
+
+@pytest.mark.parametrize("layout", ["separated", "interleaved"])
+def test_geoparquet_in_native_geoarrow_encodings(tmp_path, layout):
+    """GeoParquet 1.1's native encodings (GeoArrow, as geopandas writes with geometry_encoding="geoarrow"):
+    ``multipolygon`` (an L with a courtyard-less ring, and a block of two polygons) and ``polygon``, coordinates as
+    x/y structs or interleaved [x, y] lists; volumes by hand; a ring of two points refused naming the problem."""
+    def coord(x, y):
+        return {"x": 2600000.0 + x, "y": 1200000.0 + y} if layout == "separated" else [2600000.0 + x, 1200000.0 + y]
+
+    coordinate = (pa.struct([("x", pa.float64()), ("y", pa.float64())]) if layout == "separated"
+                  else pa.list_(pa.float64(), 2))
+    rings = {"L": [[[coord(x, y) for x, y in closed(L_SHAPE)]]],
+             "two": [[[coord(x + 40, y) for x, y in closed(rectangle(0, 0, 5, 5))]],
+                     [[coord(x + 50, y) for x, y in closed(rectangle(0, 0, 4, 5))]]],
+             "bad": [[[coord(0, 0), coord(1, 1)]]]}
+    for encoding in ("multipolygon", "polygon"):
+        ids = list(rings) if encoding == "multipolygon" else ["L", "bad"]
+        values = [rings[k] if encoding == "multipolygon" else rings[k][0] for k in ids]
+        kind = pa.list_(pa.list_(pa.list_(coordinate))) if encoding == "multipolygon" else pa.list_(pa.list_(coordinate))
+        table = pa.table({"id": ids, "height": [6.0] * len(ids), "geometry": pa.array(values, kind)})
+        meta = {"version": "1.1.0", "primary_column": "geometry",
+                "columns": {"geometry": {"encoding": encoding, "geometry_types": [], "crs": None}}}
+        path = tmp_path / f"{encoding}-{layout}.parquet"
+        pq.write_table(table.replace_schema_metadata({b"geo": json.dumps(meta).encode()}), path)
+        got = _by_id(read_file(path, ReaderOptions(crs="EPSG:2056")))
+        assert _volume(got["L"]) == pytest.approx(area(L_SHAPE) * 6, rel=1e-9)
+        if encoding == "multipolygon":
+            assert _volume(got["two"]) == pytest.approx((25 + 20) * 6, rel=1e-9)
+        assert isinstance(got["bad"], Rejection) and got["bad"].reason.startswith(
+            f"its {encoding} geometry (GeoArrow) cannot be read"), got["bad"]
