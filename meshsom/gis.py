@@ -885,6 +885,9 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
     if _is_parquet(path):
         yield from _parquet_records(path, id_field, start, stop)
         return
+    from meshsom.inspire import inspire_properties
+
+    gml = _is_gml(path)
     try:
         with _open(path, layer) as collection:
             with warnings.catch_warnings():  # a CSV file has no fast feature count: a range is read from its start
@@ -892,6 +895,8 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
                 features = collection.filter(start, stop)
             for feature in features:
                 props = osm_properties(dict(feature.properties))
+                if gml:  # INSPIRE's heightAboveGround
+                    props = inspire_properties(props)
                 yield osm_row_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None

@@ -5,9 +5,10 @@ An INSPIRE building file is GML whose features are ``bu-core2d`` / ``bu-ext2d`` 
 CityGML. It is read as a GIS file (:mod:`meshsom.gis`, GDAL's GML driver; no ``.gfs`` file is
 written beside it):
 
-- **Heights**: ``numberOfFloorsAboveGround`` times :attr:`meshsom.io.ReaderOptions.storey_height`
-  (it is among the default :attr:`~meshsom.io.ReaderOptions.levels_attributes`); a
-  ``heightAboveGround`` comes through GDAL as ``value`` (``--height-attribute value`` reads it).
+- **Heights**: a ``heightAboveGround`` to the building's top (:data:`TOP_REFERENCES`; GDAL gives it as
+  ``heightReference`` and ``value``: :func:`inspire_properties`), else ``numberOfFloorsAboveGround``
+  times :attr:`meshsom.io.ReaderOptions.storey_height` (among the default
+  :attr:`~meshsom.io.ReaderOptions.levels_attributes`).
 - **Building parts**: Spain's Catastro publishes its buildings' heights on their parts, in a file of
   their own (``A.ES.SDGC.BU.<municipality>.buildingpart.gml``), each part's ``gml:id`` its
   building's with ``_part<N>`` after it (:data:`PART_ID`). The parts of one building are read as
@@ -33,6 +34,21 @@ PART_ID = re.compile(r"^(?P<building>.+)_part\d+$")
 PART_ELEMENT = re.compile(rb"<[A-Za-z0-9_-]+:BuildingPart[\s>]")
 #: Bytes of a file looked through for its namespaces and first features.
 SNIFF_BYTES = 1 << 16
+
+
+#: INSPIRE's ElevationReferenceValue codes that mark a building's top: a ``heightAboveGround`` of one of these is its
+#: height (GDAL's GML driver flattens the element to ``heightReference`` and ``value``).
+TOP_REFERENCES = ("top", "topOfConstruction", "highestPoint", "generalRoof", "highestRoofEdge")
+
+
+def inspire_properties(props: dict) -> dict:
+    """A feature's properties with its ``heightAboveGround`` to its top (:data:`TOP_REFERENCES`), as GDAL gives it
+    (``heightReference``, ``value``, ``value_uom`` in metres), as its ``height`` where it has none."""
+    reference = str(props.get("heightReference") or "").strip()
+    if reference in TOP_REFERENCES and props.get("value") is not None and props.get("height") is None and (
+            str(props.get("value_uom") or "m").strip().lower() in ("m", "metre", "meter", "urn:ogc:def:uom:epsg::9001")):
+        return {**props, "height": props["value"]}
+    return props
 
 
 def _head(path: Path) -> bytes:

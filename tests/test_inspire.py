@@ -187,3 +187,20 @@ def test_a_municipality_as_the_catastro_zips_it(tmp_path):
         "A.ES.SDGC.BU.99999.zip/A.ES.SDGC.BU.99999.buildingpart.gml"] * 3
     assert [i.reason for i in items if isinstance(i, Rejection)] == [
         "is an INSPIRE OtherConstruction, not a building (Building or BuildingPart)"]
+
+
+def test_a_height_above_ground_to_the_top(tmp_path):
+    """An INSPIRE Building with ``heightAboveGround`` to its ``top`` (12.5 m) and storeys: the height is read; one to
+    its eaves only (``generalEave``) is not a height, its storeys are."""
+    def height(reference, value):
+        return (f"<bu-core2d:heightAboveGround><bu-core2d:HeightAboveGround><bu-core2d:heightReference>{reference}"
+                f"</bu-core2d:heightReference><bu-core2d:value uom=\"m\">{value}</bu-core2d:value>"
+                f"</bu-core2d:HeightAboveGround></bu-core2d:heightAboveGround>\n")
+
+    floors = "<bu-ext2d:numberOfFloorsAboveGround>2</bu-ext2d:numberOfFloorsAboveGround>\n"
+    body = (_feature("Building", "ES.SDGC.BU.1", (0, 0, 10, 8), height("top", 12.5) + floors)
+            + _feature("Building", "ES.SDGC.BU.2", (30, 0, 10, 8), height("generalEave", 4.5) + floors))
+    path = tmp_path / "b.gml"
+    path.write_text(HEADER + body + "</gml:FeatureCollection>\n")
+    volumes = _united_volumes(read_file(path))
+    assert volumes == pytest.approx({"ES.SDGC.BU.1": 80 * 12.5, "ES.SDGC.BU.2": 80 * 6}, rel=1e-9)
