@@ -184,7 +184,8 @@ class ReaderOptions:
     storey_height : float
         Metres per storey.
     default_height : float or None
-        Footprints (GeoJSON, GIS files, OpenStreetMap) with neither a height nor a storey count:
+        Footprints (GeoJSON, GIS files, OpenStreetMap, KML; CityJSON / CityGML buildings of a LoD 0
+        footprint only) with neither a height nor a storey count (a storey count of 0 is no storey):
         extruded to this many metres above their base, noted (OpenStreetMap maps most buildings
         without either); None (the default) lists them as rejections naming the properties.
     roofs : bool
@@ -2237,7 +2238,12 @@ def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions)
     if levels is not None and levels[1] > 0:
         return (f"extruded from its LoD {lod} footprint by {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m",
                 levels[1] * options.storey_height)
-    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options, hint=False)[2:]}")
+    if levels is not None and levels[1] == 0:  # nothing above the ground: not raised to the default height
+        raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {levels[0]} = 0: no storey above the ground")
+    if options.default_height is not None:
+        return (f"extruded from its LoD {lod} footprint to the default {options.default_height:g} m "
+                f"(corpus.reader.default_height): it has no height or storey count", float(options.default_height))
+    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options)[2:]}")
 
 
 def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions,

@@ -465,7 +465,8 @@ def _lod0(bid, footprint, z, height_xml="", roof_edge=None):
 def test_a_lod0_footprint_alone_is_extruded_by_its_height(tmp_path):
     """Footprint-only CityGML (as the SIG3D LoD0 house): extruded from the footprint (not from the
     roof edge, the eaves' outline with overhangs) by measuredHeight, else by storeys x 3 m; with
-    neither it is a rejection that says so, not a zero volume; CityJSON LoD 0 likewise."""
+    neither it is a rejection that says so, not a zero volume, or extruded to the default height where one is
+    set; CityJSON LoD 0 likewise."""
     from meshsom.preprocess import preprocess
 
     L = [(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10)]
@@ -482,6 +483,9 @@ def test_a_lod0_footprint_alone_is_extruded_by_its_height(tmp_path):
     assert z.min() == pytest.approx(100) and z.max() == pytest.approx(106.5)  # from the ground up
     assert preprocess(got["s"].vertices, got["s"].faces).volume_out == pytest.approx(area * 9.0, rel=1e-9)
     assert isinstance(got["n"], Rejection) and "only a LoD 0 footprint" in got["n"].reason and "measuredHeight" in got["n"].reason
+    with_default = {m.id.split("#")[1]: m for m in read_file(tmp_path / "lod0.gml", ReaderOptions(default_height=7.0))}
+    assert preprocess(with_default["n"].vertices, with_default["n"].faces).volume_out == pytest.approx(area * 7, rel=1e-9)
+    assert "to the default 7 m" in with_default["n"].notes[0]
     (lod0,) = [m for m in read_file(tmp_path / "lod0.gml", ReaderOptions(lod="0")) if m.id.endswith("#h")]
     assert lod0.lod == "0" and np.ptp(lod0.vertices[:, 2]) == 0  # asked for by name: the footprint as it is
     cj = {"type": "CityJSON", "version": "2.0", "transform": {"scale": [0.001] * 3, "translate": [0, 0, 0]},
