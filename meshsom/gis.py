@@ -489,16 +489,18 @@ def _attributes_of(path: Path, column: str) -> Iterator:
             raise _gdal_error(path, err) from None
 
 
-def _attributes(path: Path, layer: str) -> Iterator[dict]:
+def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
     """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
-    that can say a feature is a part, and ``building``, of a GeoParquet file."""
-    from meshsom.osm import osm_properties
+    that can say a feature is a part, and ``building`` (``osm``: and those that name an OpenStreetMap element), of a
+    GeoParquet file."""
+    from meshsom.osm import EXPORT_ID, EXPORT_TYPE, GDAL_ID, osm_properties
 
     if _is_parquet(path):
         import pyarrow.parquet as pq
 
         names = pq.read_schema(path).names
-        wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id", "feature_id") if c in names]
+        ids = (GDAL_ID, EXPORT_ID, EXPORT_TYPE) if osm else ()
+        wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id", "feature_id", *ids) if c in names]
         for values in pq.read_table(path, columns=wanted).to_pylist():
             yield osm_properties(values)
         return
@@ -893,13 +895,42 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
             with warnings.catch_warnings():  # a CSV file has no fast feature count: a range is read from its start
                 warnings.filterwarnings("ignore", "Layer does not support OLC_FASTFEATURECOUNT", RuntimeWarning)
                 features = collection.filter(start, stop)
-            for feature in features:
+            repeats = None
+            for index, feature in enumerate(features, start):
                 props = osm_properties(dict(feature.properties))
                 if gml:  # INSPIRE's heightAboveGround
                     props = inspire_properties(props)
-                yield osm_row_id(props, layer) or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
+                oid = osm_row_id(props, layer)
+                if oid is not None:
+                    repeats = _osm_repeats(path, layer) if repeats is None else repeats
+                    oid = f"{oid}@{repeats[index]}" if index in repeats else oid
+                yield oid or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
+
+
+def _osm_repeats(path: Path, layer: str) -> dict[int, int]:
+    """The rows of a converted OpenStreetMap layer whose element id an earlier row has (``ogr2ogr
+    -explodecollections`` writes each polygon of a multipolygon as a row of its own): row (from 0) -> k, the
+    row's id then ``<id>@k``. Found once per process and file (a pass over the attributes), so that every read
+    task of the layer names the same rows alike."""
+    st = Path(path).stat()
+    return _osm_repeats_of(str(path), st.st_size, st.st_mtime_ns, layer)
+
+
+@functools.lru_cache(maxsize=8)
+def _osm_repeats_of(path: str, size: int, mtime: int, layer: str) -> dict[int, int]:
+    from meshsom.osm import osm_row_id
+
+    counts: dict[str, int] = {}
+    repeats = {}
+    for index, props in enumerate(_attributes(Path(path), layer, osm=True)):
+        oid = osm_row_id(props, layer)
+        if oid is not None:
+            counts[oid] = counts.get(oid, 0) + 1
+            if counts[oid] > 1:
+                repeats[index] = counts[oid]
+    return repeats
 
 
 def _parquet_geo(path: Path) -> tuple[str, dict]:
@@ -995,6 +1026,7 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
     if group >= len(sizes):
         return
     row = int(firsts[group])  # rows counted from 0; ids from 1
+    repeats = None
     for batch in pf.iter_batches(batch_size=BATCH_FEATURES, row_groups=range(group, len(sizes))):
         first = row
         row += batch.num_rows
@@ -1006,7 +1038,11 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
         for k, values in enumerate(batch.slice(skip).to_pylist(), first + skip + 1):
             wkb = values.pop(column, None)
             values = osm_properties(values)
-            oid = osm_row_id(values, stem) or str(values.get(id_field) if id_field else k)
+            oid = osm_row_id(values, stem)
+            if oid is not None:
+                repeats = _osm_repeats(path, stem) if repeats is None else repeats
+                oid = f"{oid}@{repeats[k - 1]}" if k - 1 in repeats else oid
+            oid = oid or str(values.get(id_field) if id_field else k)
             if native:
                 try:
                     wkb = _geoarrow_wkb(wkb, encoding, f"{path.name}#{oid}")

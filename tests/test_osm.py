@@ -536,3 +536,30 @@ def test_meshsom_ingest_of_a_converted_extract_stores_the_extract(tmp_path):
             for k, v in theirs.items() if k not in ("id", "source")}, key
     rejected = {k: r["reason"] for k, r in converted.items() if r["status"] != "accepted"}
     assert set(rejected) == {"way/60", "lines/way/70", "lines/way/91", "points/node/9000", "points/node/9001"}, rejected
+
+
+def test_an_exploded_conversion_names_each_piece_once_whole_or_in_ranges(tmp_path):
+    """``ogr2ogr -explodecollections``: a building relation of two outer rings becomes two rows of one id. Each piece
+    is read, the later as ``relation/14@2``, alike whole and in ranges of one row (before, the later was refused as
+    a repeat within a task, and across tasks the ingest stopped: ids must be unique)."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    schema = {"geometry": "Polygon", "properties": {"osm_id": "str", "osm_way_id": "str", "building": "str",
+                                                     "other_tags": "str"}}
+    rows = [("14", None, (0, 0, 10, 10)), ("14", None, (20, 0, 30, 10)), (None, "10", (40, 0, 50, 10)),
+            ("14", None, (60, 0, 70, 10))]
+    import fiona
+
+    with fiona.open(tmp_path / "x.gpkg", "w", driver="GPKG", schema=schema, crs="EPSG:4326",
+                    layer="multipolygons") as out:
+        for osm_id, way_id, rect in rows:
+            ring = _lonlat([(rect[0], rect[1]), (rect[2], rect[1]), (rect[2], rect[3]), (rect[0], rect[3])])
+            out.write({"geometry": {"type": "Polygon", "coordinates": [ring + ring[:1]]},
+                       "properties": {"osm_id": osm_id, "osm_way_id": way_id, "building": "yes",
+                                      "other_tags": '"height"=>"6"'}})
+    options = ReaderOptions()
+    whole = [i.id.split("#")[1] for i in read_gis(tmp_path / "x.gpkg", options)]
+    assert whole == ["relation/14", "relation/14@2", "way/10", "relation/14@3"]
+    ranges = gis_ranges(tmp_path / "x.gpkg", 1, options)
+    assert ranges is not None and len(ranges) == 4
+    assert [i.id.split("#")[1] for r in ranges for i in read_gis(tmp_path / "x.gpkg", options, feature_range=r)] == whole
