@@ -988,7 +988,7 @@ def _geoarrow_wkb(value, encoding: str, where: str) -> bytes | None:
             geometry = shapely.MultiLineString([ring(r) for r in value])
         else:
             geometry = shapely.MultiPolygon([(ring(p[0]), [ring(r) for r in p[1:]]) for p in value if p])
-    except (KeyError, TypeError, ValueError, shapely.errors.GEOSException) as err:
+    except (KeyError, IndexError, TypeError, ValueError, shapely.errors.GEOSException) as err:
         raise InputFileError(where, f"its {encoding} geometry (GeoArrow) cannot be read ({type(err).__name__}: "
                                     f"{str(err)[:80]})") from None
     return shapely.to_wkb(geometry)

@@ -226,11 +226,15 @@ def _altitude_mode(element) -> str:
 
 
 def _ring(element) -> list[list[float]] | None:
-    """A LinearRing's ``<coordinates>`` (``lon,lat[,alt]`` tuples), else None."""
+    """A LinearRing's ``<coordinates>`` (``lon,lat[,alt]`` tuples), else None; ValueError where a position is
+    not 2 or 3 finite numbers."""
     coordinates = next((e for e in element.iter() if _local(e.tag) == "coordinates"), None)
     if coordinates is None or not coordinates.text:
         return None
-    return [[float(v) for v in t.split(",")] for t in coordinates.text.split()]
+    ring = [[float(v) for v in t.split(",")] for t in coordinates.text.split()]
+    if any(len(p) not in (2, 3) or not all(math.isfinite(v) for v in p) for p in ring):
+        raise ValueError("a position that is not 2 or 3 finite numbers (lon,lat[,alt])")
+    return ring
 
 
 def _extended_data(placemark) -> dict[str, str]:

@@ -948,6 +948,9 @@ def test_buildings_drawn_in_kml_as_extruded_polygons(tmp_path, form):
         f'</SchemaData></ExtendedData>{_kml_polygon(a, 430, mode="absolute", dx=80)}</Placemark>',
         f'<Placemark id="absnone">{_kml_polygon(a, 430, mode="absolute", dx=120)}</Placemark>',
         f'<Placemark id="lawn">{_kml_polygon(a, 0, mode="clampToGround", extrude=0, dx=160)}</Placemark>',
+        '<Placemark id="cut"><Polygon><extrude>1</extrude><altitudeMode>relativeToGround</altitudeMode><outerBoundaryIs>'
+        '<LinearRing><coordinates>4.3,52.0,10 4.4 4.3,52.1,10 4.3,52.0,10</coordinates></LinearRing></outerBoundaryIs>'
+        '</Polygon></Placemark>',
     ]
     text = ('<?xml version="1.0" encoding="UTF-8"?><kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
             + "".join(placemarks) + "</Document></kml>")
@@ -959,7 +962,9 @@ def test_buildings_drawn_in_kml_as_extruded_polygons(tmp_path, form):
         with zipfile.ZipFile(path, "w") as z:
             z.writestr("doc.kml", text)
     items = {i.id.split("#")[1]: i for i in read_file(path)}
-    assert sorted(items) == ["Placemark2", "abs", "absnone", "lawn", "tower"], sorted(items)
+    assert sorted(items) == ["Placemark2", "abs", "absnone", "cut", "lawn", "tower"], sorted(items)
+    assert items["cut"].reason == ("KML: its Polygon cannot be read (a position that is not 2 or 3 finite numbers "
+                                   "(lon,lat[,alt]))")
 
     def volume(item):
         record, _ = process_one(item, PreprocessParams())
