@@ -517,9 +517,9 @@ def _feature_id(feature: dict, index: int) -> str:
 def _is_part_feature(props: dict) -> bool:
     """OpenStreetMap's tagging of a building part (``building:part``, any value but ``no``, on an area not itself
     tagged ``building``)."""
-    def said(key):
-        return str(props.get(key) or "no").strip().lower() != "no"
-    return said("building:part") and not said("building")
+    from meshsom.osm import _said
+
+    return _said(props, "building:part") and not _said(props, "building")
 
 
 def building_parts(features: list) -> tuple[set[int], dict[int, list[int]]]:

@@ -478,17 +478,6 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
     return PartGrouping(frozenset(owned), parts_of, frozenset(), {parts[0].oid: b for b, parts in groups.items()})
 
 
-def _attributes_of(path: Path, column: str) -> Iterator:
-    """One column's values over every layer of a GDAL file, no geometry decoded (None where a feature has none)."""
-    for layer in _ogr_layers(path):
-        try:
-            with _open(path, layer.name, ignore_geometry=True) as collection:
-                for feature in collection:
-                    yield feature.properties.get(column)
-        except _gdal_errors() as err:
-            raise _gdal_error(path, err) from None
-
-
 def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
     """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
     that can say a feature is a part, and ``building`` (``osm``: and those that name an OpenStreetMap element), of a
@@ -650,12 +639,13 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     if geometry is not None and (osm or grouping is not None and oid in grouping):
         if grouping is not None and oid in grouping.owned:
             return  # read with its building
+        shape = area_geometry(geometry)  # a closed way of GDAL's lines layer: an area
         try:
-            area = _footprint(area_geometry(geometry), mesh_id)
+            area = _footprint(shape, mesh_id)
         except InputFileError as err:
             yield Rejection(mesh_id, str(path), err.problem, 0, None)
             return
-        if area is None and osm and (reason := no_outline(props, area_geometry(geometry))) is not None:
+        if area is None and osm and (reason := no_outline(props, shape)) is not None:
             yield Rejection(mesh_id, str(path), reason, 0, None)
             return
         if area is not None:  # else not a footprint: said below
@@ -727,20 +717,16 @@ def csv_geometry_column(path: Path) -> str | None:
     Raises
     ------
     InputFileError
-        It is gzip data that is damaged or ends early.
+        It is empty, or gzip data that is damaged or ends early (:func:`meshsom.io.open_input`).
     """
     import csv
-    import gzip
     import io
-    import zlib
+
+    from meshsom.io import open_input
 
     try:
-        with open(path, "rb") as fh:
-            head = fh.read(2)
-        with (gzip.open if head == b"\x1f\x8b" else open)(path, "rb") as fh:
-            text = fh.read(CSV_HEADER_BYTES).decode("utf-8-sig", errors="replace")
-    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
-        raise InputFileError(str(path), f"is not valid gzip data ({'it ends early: a truncated download?' if isinstance(err, EOFError) else err})") from None
+        with open_input(Path(path)) as stream:
+            text = stream.read(CSV_HEADER_BYTES).decode("utf-8-sig", errors="replace")
     except OSError:
         return None
     if text.lstrip().startswith("{"):

@@ -19,7 +19,6 @@ written beside it):
 
 from __future__ import annotations
 
-import gzip
 import re
 from pathlib import Path
 
@@ -52,12 +51,15 @@ def inspire_properties(props: dict) -> dict:
 
 
 def _head(path: Path) -> bytes:
+    """The first :data:`SNIFF_BYTES` of a file (gzip data decompressed); nothing where it cannot be read (its reader
+    says why)."""
+    from meshsom.errors import InputFileError
+    from meshsom.io import open_input
+
     try:
-        with open(path, "rb") as fh:
-            magic = fh.read(2)
-        with (gzip.open if magic == b"\x1f\x8b" else open)(path, "rb") as fh:
-            return fh.read(SNIFF_BYTES)
-    except (OSError, EOFError):
+        with open_input(Path(path)) as stream:
+            return stream.read(SNIFF_BYTES)
+    except (OSError, InputFileError):
         return b""
 
 

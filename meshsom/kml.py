@@ -139,13 +139,23 @@ def _number(element, name: str, default: float) -> float:
     return value
 
 
-def model_placements(text: bytes, kml_path: str) -> tuple[list[ModelPlacement], list[tuple[str, str]]]:
+def _root(text, kml_path: str):
+    """A KML document's root element: ``text`` parsed, or as it is where it is parsed already."""
+    if isinstance(text, ET.Element):
+        return text
+    try:
+        return ET.fromstring(text)
+    except ET.ParseError as err:
+        raise ValueError(f"{kml_path} is not XML ({err})") from None
+
+
+def model_placements(text: "bytes | ET.Element", kml_path: str) -> tuple[list[ModelPlacement], list[tuple[str, str]]]:
     """Every ``<Model>`` of a KML document.
 
     Parameters
     ----------
-    text : bytes
-        The KML document.
+    text : bytes or xml.etree.ElementTree.Element
+        The KML document (or its parsed root).
     kml_path : str
         Its path inside the archive (``/``-separated): hrefs are resolved against its folder.
 
@@ -161,10 +171,7 @@ def model_placements(text: bytes, kml_path: str) -> tuple[list[ModelPlacement], 
     ValueError
         The document is not XML.
     """
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as err:
-        raise ValueError(f"{kml_path} is not XML ({err})") from None
+    root = _root(text, kml_path)
     placements, problems = [], []
     folder = posixpath.dirname(kml_path)
     names = {}  # each Model's placemark name
@@ -274,7 +281,7 @@ class KmlFootprint:
     absolute: bool
 
 
-def footprint_features(text: bytes, kml_path: str) -> tuple[list[KmlFootprint], list[tuple[str, str]]]:
+def footprint_features(text: "bytes | ET.Element", kml_path: str) -> tuple[list[KmlFootprint], list[tuple[str, str]]]:
     """The buildings a KML document draws as polygons: each Placemark whose Polygons (also inside a MultiGeometry)
     are extruded (``<extrude>1``) from the ground to their altitude above it (``relativeToGround``), as Google Earth
     draws a building and ArcGIS' Layer To KML exports an extruded layer.
@@ -290,10 +297,7 @@ def footprint_features(text: bytes, kml_path: str) -> tuple[list[KmlFootprint], 
     ValueError
         The document is not XML.
     """
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError as err:
-        raise ValueError(f"{kml_path} is not XML ({err})") from None
+    root = _root(text, kml_path)
     found, problems = [], []
     for number, placemark in enumerate((e for e in root.iter() if _local(e.tag) == "Placemark"), start=1):
         polygons = [e for e in placemark.iter() if _local(e.tag) == "Polygon"]
@@ -422,8 +426,9 @@ def read_kml(path: Path, options, name: str | None = None) -> Iterator:
     except OSError as err:
         raise InputFileError(str(path), f"cannot be read ({type(err).__name__}: {err})") from None
     try:
-        placements, problems = model_placements(text, path.name)
-        footprints, flat = footprint_features(text, path.name)
+        root = _root(text, path.name)  # parsed once, for its Models and its polygons
+        placements, problems = model_placements(root, path.name)
+        footprints, flat = footprint_features(root, path.name)
     except ValueError as err:
         raise InputFileError(str(path), f"KML: {err}; the models it links are read in their own frames") from None
     if not placements and not problems and not footprints and not flat:

@@ -222,6 +222,7 @@ def area_geometry(geometry):
 
 
 def _said(props: dict, key: str) -> bool:
+    """Whether a tag is given, with any value but ``no``."""
     return str(props.get(key) or NO).strip().lower() != NO
 
 
@@ -472,4 +473,4 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
 
 def _is_part(found: dict) -> bool:
     """Whether tags say ``building:part`` (any value but ``no``)."""
-    return str(found.get("building:part") or NO).strip().lower() != NO
+    return _said(found, "building:part")

@@ -179,14 +179,14 @@ def inspire_buildings(options) -> frozenset[str]:
 
 @functools.lru_cache(maxsize=4)
 def _inspire_buildings(stamped: tuple, options) -> frozenset[str]:
-    from meshsom.gis import _attributes_of
+    from meshsom.gis import _attributes, _ogr_layers
     from meshsom.inspire import part_building
 
     ids = set()
     for path, _, _ in stamped:
         if _kind(Path(path)) == "inspire":
-            ids.update(b for gml_id in _attributes_of(Path(path), "gml_id")
-                       if (b := part_building(gml_id or "")) is not None)
+            ids.update(b for layer in _ogr_layers(Path(path)) for props in _attributes(Path(path), layer.name)
+                       if (b := part_building(props.get("gml_id") or "")) is not None)
     return frozenset(ids)
 
 
