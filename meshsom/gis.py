@@ -20,6 +20,9 @@ choice, triangulation, CRS handling and rejections apply:
 - **Building parts in the same file** (:func:`part_grouping`), tagged as OpenStreetMap tags them (a
   ``building:part`` column, or in ``other_tags``): a building with parts is its parts, a part in no
   building's outline a building of its own, noted; closed lines (GDAL's ``lines`` layer) are areas.
+- **Rows of one OpenStreetMap id** (``ogr2ogr -explodecollections`` writes each polygon of a multipolygon as a
+  row, :func:`osm_pieces`): read as one building, by the first row, noted; where they are not all polygons,
+  each row is read as a feature of its own (``<id>@2`` and on).
 - **Building parts in files of their own** (Overture's ``building_part`` downloads, paired with
   the buildings' file by :func:`meshsom.part_files.pair`): a building with parts is its parts, a
   part of no building a building of its own, noted.
@@ -653,8 +656,10 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             stray = STRAY if grouping is not None and oid in grouping.strays else None
             building = grouping.named.get(oid) if grouping is not None else None  # INSPIRE: the building its parts name
             how = f"{len(own)} INSPIRE BuildingParts of {building}, read as its parts" if building else None
+            united = osm_pieces(path, layer.name).note(oid.removeprefix(f"{layer.name}/")) if osm else None
             yield from building_meshes(_Area(building or oid, props if building is None else {}, area), own, stray,
-                                       options, name, str(path), (system, unknown), file_notes, how=how)
+                                       options, name, str(path), (system, unknown),
+                                       file_notes + ([united] if united else []), how=how)
             return
     try:
         if geometry is None:
@@ -881,42 +886,131 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
             with warnings.catch_warnings():  # a CSV file has no fast feature count: a range is read from its start
                 warnings.filterwarnings("ignore", "Layer does not support OLC_FASTFEATURECOUNT", RuntimeWarning)
                 features = collection.filter(start, stop)
-            repeats = None
+            pieces = None
             for index, feature in enumerate(features, start):
                 props = osm_properties(dict(feature.properties))
                 if gml:  # INSPIRE's heightAboveGround
                     props = inspire_properties(props)
                 oid = osm_row_id(props, layer)
-                if oid is not None:
-                    repeats = _osm_repeats(path, layer) if repeats is None else repeats
-                    oid = f"{oid}@{repeats[index]}" if index in repeats else oid
-                yield oid or str(props.get(id_field) if id_field else feature.id), props, feature.geometry
+                geometry = feature.geometry
+                if oid is not None:  # an exploded multipolygon's rows: read as one building, by its first row
+                    pieces = osm_pieces(path, layer) if pieces is None else pieces
+                    if index in pieces.later:
+                        continue
+                    geometry = pieces.united.get(index, geometry)
+                    oid = f"{oid}@{pieces.named[index]}" if index in pieces.named else oid
+                yield oid or str(props.get(id_field) if id_field else feature.id), props, geometry
     except _gdal_errors() as err:
         raise _gdal_error(path, err) from None
 
 
-def _osm_repeats(path: Path, layer: str) -> dict[int, int]:
-    """The rows of a converted OpenStreetMap layer whose element id an earlier row has (``ogr2ogr
-    -explodecollections`` writes each polygon of a multipolygon as a row of its own): row (from 0) -> k, the
-    row's id then ``<id>@k``. Found once per process and file (a pass over the attributes), so that every read
-    task of the layer names the same rows alike."""
+@dataclasses.dataclass(frozen=True)
+class OsmPieces:
+    """The rows of a converted OpenStreetMap layer that share an element id (``ogr2ogr -explodecollections`` writes
+    each polygon of a multipolygon as a row of its own, with the element's tags): found once per process and file
+    (:func:`osm_pieces`), so that every read task of the layer reads them alike.
+
+    Attributes
+    ----------
+    later : frozenset of int
+        Rows (from 0) read with the first row of their id: not read again.
+    united : dict of int to object
+        The first row of such an id -> the polygons of all its rows as one MultiPolygon (GeoJSON-like for a GDAL
+        layer, WKB for GeoParquet): read as one building.
+    rows : dict of str to int
+        Such an id -> its number of rows (said in its building's notes).
+    named : dict of int to int
+        Rows of an id whose rows are not all polygons (so not one area): row -> k, the row read as ``<id>@k``.
+    """
+
+    later: frozenset = frozenset()
+    united: dict = dataclasses.field(default_factory=dict)
+    rows: dict = dataclasses.field(default_factory=dict)
+    named: dict = dataclasses.field(default_factory=dict)
+
+    def note(self, oid: str) -> str | None:
+        """The note of a building read from several rows of one id (None for a row of its own)."""
+        n = self.rows.get(oid)
+        return None if n is None else (f"{n} rows of one OpenStreetMap id (a multipolygon split into its polygons, as "
+                                       f"ogr2ogr -explodecollections writes it), read as one building")
+
+
+def osm_pieces(path: Path, layer: str) -> OsmPieces:
+    """The rows of a converted OpenStreetMap layer that share an element id (:class:`OsmPieces`)."""
     st = Path(path).stat()
-    return _osm_repeats_of(str(path), st.st_size, st.st_mtime_ns, layer)
+    return _osm_pieces_of(str(path), st.st_size, st.st_mtime_ns, layer)
 
 
 @functools.lru_cache(maxsize=8)
-def _osm_repeats_of(path: str, size: int, mtime: int, layer: str) -> dict[int, int]:
+def _osm_pieces_of(path: str, size: int, mtime: int, layer: str) -> OsmPieces:
     from meshsom.osm import osm_row_id
 
-    counts: dict[str, int] = {}
-    repeats = {}
+    rows_of: dict[str, list[int]] = {}
     for index, props in enumerate(_attributes(Path(path), layer, osm=True)):
         oid = osm_row_id(props, layer)
         if oid is not None:
-            counts[oid] = counts.get(oid, 0) + 1
-            if counts[oid] > 1:
-                repeats[index] = counts[oid]
-    return repeats
+            rows_of.setdefault(oid, []).append(index)
+    repeated = {oid: rows for oid, rows in rows_of.items() if len(rows) > 1}
+    if not repeated:
+        return OsmPieces()
+    parquet = _is_parquet(Path(path))
+    shapes = _row_shapes(Path(path), layer, {i for rows in repeated.values() for i in rows})
+    later, united, counts, named = set(), {}, {}, {}
+    for oid, rows in repeated.items():
+        polygons = _polygons_of([shapes.get(i) for i in rows])
+        if polygons is None:  # not all areas: each row read as a feature of its own
+            named.update({i: k for k, i in enumerate(rows[1:], 2)})
+            continue
+        import shapely
+        from shapely.geometry import mapping
+
+        whole = shapely.MultiPolygon(polygons)
+        united[rows[0]] = shapely.to_wkb(whole) if parquet else mapping(whole)
+        later.update(rows[1:])
+        counts[oid] = len(rows)
+    return OsmPieces(frozenset(later), united, counts, named)
+
+
+def _row_shapes(path: Path, layer: str, wanted: set[int]) -> dict[int, object]:
+    """Shapely geometries of some rows (from 0) of a layer; a row whose geometry cannot be read is left out."""
+    import shapely
+    from shapely.geometry import shape
+
+    found = {}
+    if _is_parquet(path):
+        import pyarrow.parquet as pq
+
+        column, meta = _parquet_geo(path)
+        encoding = str(meta.get("encoding", "WKB"))
+        values = pq.read_table(path, columns=[column]).column(0).to_pylist()
+        for i in sorted(wanted):
+            try:
+                wkb = values[i] if encoding.upper() == "WKB" else _geoarrow_wkb(values[i], encoding, str(path))
+                found[i] = shapely.from_wkb(wkb) if wkb is not None else None
+            except (InputFileError, shapely.errors.GEOSException):
+                continue
+        return found
+    try:
+        with _open(path, layer) as collection:
+            for index, feature in enumerate(collection):
+                if index in wanted:
+                    try:
+                        found[index] = shape(feature.geometry) if feature.geometry is not None else None
+                    except Exception:  # damaged: the piece's own reading says so
+                        continue
+    except _gdal_errors() as err:
+        raise _gdal_error(path, err) from None
+    return found
+
+
+def _polygons_of(shapes: list) -> list | None:
+    """The polygons of some geometries, where each is a non-empty (Multi)Polygon; else None."""
+    polygons = []
+    for g in shapes:
+        if g is None or g.is_empty or g.geom_type not in ("Polygon", "MultiPolygon"):
+            return None
+        polygons.extend([g] if g.geom_type == "Polygon" else list(g.geoms))
+    return polygons
 
 
 def _parquet_geo(path: Path) -> tuple[str, dict]:
@@ -1012,7 +1106,7 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
     if group >= len(sizes):
         return
     row = int(firsts[group])  # rows counted from 0; ids from 1
-    repeats = None
+    pieces = None
     for batch in pf.iter_batches(batch_size=BATCH_FEATURES, row_groups=range(group, len(sizes))):
         first = row
         row += batch.num_rows
@@ -1025,11 +1119,16 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
             wkb = values.pop(column, None)
             values = osm_properties(values)
             oid = osm_row_id(values, stem)
-            if oid is not None:
-                repeats = _osm_repeats(path, stem) if repeats is None else repeats
-                oid = f"{oid}@{repeats[k - 1]}" if k - 1 in repeats else oid
+            native_row = native  # a row's own GeoArrow value (a united one is WKB)
+            if oid is not None:  # an exploded multipolygon's rows: read as one building, by its first row
+                pieces = osm_pieces(path, stem) if pieces is None else pieces
+                if k - 1 in pieces.later:
+                    continue
+                if k - 1 in pieces.united:
+                    wkb, native_row = pieces.united[k - 1], False
+                oid = f"{oid}@{pieces.named[k - 1]}" if k - 1 in pieces.named else oid
             oid = oid or str(values.get(id_field) if id_field else k)
-            if native:
+            if native_row:
                 try:
                     wkb = _geoarrow_wkb(wkb, encoding, f"{path.name}#{oid}")
                 except InputFileError as err:

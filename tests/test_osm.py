@@ -538,28 +538,79 @@ def test_meshsom_ingest_of_a_converted_extract_stores_the_extract(tmp_path):
     assert set(rejected) == {"way/60", "lines/way/70", "lines/way/91", "points/node/9000", "points/node/9001"}, rejected
 
 
-def test_an_exploded_conversion_names_each_piece_once_whole_or_in_ranges(tmp_path):
-    """``ogr2ogr -explodecollections``: a building relation of two outer rings becomes two rows of one id. Each piece
-    is read, the later as ``relation/14@2``, alike whole and in ranges of one row (before, the later was refused as
-    a repeat within a task, and across tasks the ingest stopped: ids must be unique)."""
+def _exploded(path, rows, geometry="Polygon"):
+    """A converted extract as ``ogr2ogr -explodecollections`` writes it: a row per polygon of a multipolygon, each
+    with the element's id and tags. ``rows``: (osm_id, osm_way_id, shapely geometry in metres about ORIGIN); a
+    GeoPackage, or GeoParquet (WKB) for a ``.parquet`` path."""
+    import json
+
+    import fiona
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import shapely
+    from shapely.geometry import mapping
+
+    def placed(g):
+        return shapely.transform(g, lambda xy: np.asarray(_lonlat(xy)))
+
+    props = [{"osm_id": osm_id, "osm_way_id": way_id, "building": "yes", "other_tags": '"height"=>"6"'}
+             for osm_id, way_id, _ in rows]
+    if path.suffix == ".parquet":
+        columns = {k: [p[k] for p in props] for k in props[0]}
+        columns["geometry"] = [shapely.to_wkb(placed(g)) for _, _, g in rows]
+        meta = {"version": "1.1.0", "primary_column": "geometry", "columns": {"geometry": {"encoding": "WKB"}}}
+        pq.write_table(pa.table(columns).replace_schema_metadata({b"geo": json.dumps(meta).encode()}), path)
+        return path
+    schema = {"geometry": geometry, "properties": {k: "str" for k in props[0]}}
+    with fiona.open(path, "w", driver="GPKG", schema=schema, crs="EPSG:4326", layer="multipolygons") as out:
+        for p, (_, _, g) in zip(props, rows):
+            out.write({"geometry": mapping(placed(g)), "properties": p})
+    return path
+
+
+@pytest.mark.parametrize("suffix", [".gpkg", ".parquet"])
+def test_an_exploded_conversion_reads_one_building_of_its_pieces_whole_or_in_ranges(tmp_path, suffix):
+    """``ogr2ogr -explodecollections``: a building relation of three outer rings becomes three rows of one id,
+    apart in the layer. They are read as one building of their three footprints (6 m high), by its first row,
+    alike whole and in ranges of one row (before, each piece was a building: ``relation/14@2``)."""
+    from shapely.geometry import box
+
     from meshsom.gis import gis_ranges, read_gis
 
-    schema = {"geometry": "Polygon", "properties": {"osm_id": "str", "osm_way_id": "str", "building": "str",
-                                                     "other_tags": "str"}}
-    rows = [("14", None, (0, 0, 10, 10)), ("14", None, (20, 0, 30, 10)), (None, "10", (40, 0, 50, 10)),
-            ("14", None, (60, 0, 70, 10))]
-    import fiona
-
-    with fiona.open(tmp_path / "x.gpkg", "w", driver="GPKG", schema=schema, crs="EPSG:4326",
-                    layer="multipolygons") as out:
-        for osm_id, way_id, rect in rows:
-            ring = _lonlat([(rect[0], rect[1]), (rect[2], rect[1]), (rect[2], rect[3]), (rect[0], rect[3])])
-            out.write({"geometry": {"type": "Polygon", "coordinates": [ring + ring[:1]]},
-                       "properties": {"osm_id": osm_id, "osm_way_id": way_id, "building": "yes",
-                                      "other_tags": '"height"=>"6"'}})
+    rows = [("14", None, box(0, 0, 10, 10)), ("14", None, box(20, 0, 30, 8)), (None, "10", box(40, 0, 50, 10)),
+            ("14", None, box(60, 0, 65, 10))]
+    path = _exploded(tmp_path / f"x{suffix}", rows)
     options = ReaderOptions()
-    whole = [i.id.split("#")[1] for i in read_gis(tmp_path / "x.gpkg", options)]
-    assert whole == ["relation/14", "relation/14@2", "way/10", "relation/14@3"]
-    ranges = gis_ranges(tmp_path / "x.gpkg", 1, options)
+    whole = list(read_gis(path, options))
+    assert [i.id.split("#")[1] for i in whole] == ["relation/14", "way/10"]
+    assert all(isinstance(i, RawMesh) for i in whole)
+    area = {i: _enu_area(_lonlat(g.exterior.coords)) for i, (_, _, g) in enumerate(rows)}  # 100, 80, 100, 50 m^2
+    assert _volume(whole[0]) == pytest.approx((area[0] + area[1] + area[3]) * 6, rel=1e-6)
+    assert _volume(whole[1]) == pytest.approx(area[2] * 6, rel=1e-6)
+    assert any(n.startswith("3 rows of one OpenStreetMap id") for n in whole[0].notes), whole[0].notes
+    assert not any("rows of one OpenStreetMap id" in n for n in whole[1].notes)
+    ranges = gis_ranges(path, 1, options)
     assert ranges is not None and len(ranges) == 4
-    assert [i.id.split("#")[1] for r in ranges for i in read_gis(tmp_path / "x.gpkg", options, feature_range=r)] == whole
+    ranged = [i for r in ranges for i in read_gis(path, options, feature_range=r)]
+    assert [i.id for i in ranged] == [i.id for i in whole]
+    assert [_volume(i) for i in ranged] == pytest.approx([_volume(i) for i in whole], rel=1e-12)
+
+
+def test_rows_of_one_id_that_are_not_all_areas_are_read_each_as_its_own(tmp_path):
+    """Rows of one id of which one is a line (not one area): each is read as a feature of its own, the later
+    named ``<id>@2`` (the line refused for having no outline), alike in every read task."""
+    from shapely.geometry import LineString, box
+
+    from meshsom.gis import gis_ranges, read_gis
+
+    rows = [("15", None, box(0, 0, 10, 10)), ("15", None, LineString([(20, 0), (30, 0), (30, 10)])),
+            (None, "10", box(40, 0, 50, 10))]
+    path = _exploded(tmp_path / "x.gpkg", rows, geometry="Unknown")
+    options = ReaderOptions()
+    whole = list(read_gis(path, options))
+    assert [i.id.split("#")[1] for i in whole] == ["relation/15", "relation/15@2", "way/10"]
+    area = _enu_area(_lonlat(rows[0][2].exterior.coords))
+    assert isinstance(whole[0], RawMesh) and _volume(whole[0]) == pytest.approx(area * 6, rel=1e-6)
+    assert isinstance(whole[1], Rejection)
+    assert [i.id for r in gis_ranges(path, 1, options) for i in read_gis(path, options, feature_range=r)] == [
+        i.id for i in whole]
