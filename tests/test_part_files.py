@@ -12,6 +12,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from meshsom.io import RawMesh, ReaderOptions, read_file
@@ -123,3 +124,101 @@ def test_buildings_and_their_parts_in_one_geojson_file(tmp_path):
     assert sorted(got) == ["b1", "b2", "p3"]
     assert sorted(got["b1"].parts) == ["p1", "p2"]
     assert united_volume(got["b1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+
+
+# OpenStreetMap's building parts saved as a file of their own: an Overpass query for building=* and one for
+# building:part=*, each exported by Overpass turbo (GeoJSON, "@id", tags as properties) or saved by QGIS.
+OSM_BUILDINGS = [("way/1", rectangle(0, 0, 20, 10), {"building": "church", "height": "12"}),
+                 ("way/2", rectangle(30, 0, 10, 10), {"building": "house", "height": "6"})]
+OSM_PARTS = [("way/11", rectangle(0, 0, 10, 10), {"building:part": "yes"}),  # no height: the church's 12 m
+             ("way/12", rectangle(10, 0, 10, 10), {"building:part": "yes", "height": "8", "min_height": "4"}),
+             ("way/13", rectangle(60, 0, 5, 5), {"building:part": "yes", "height": "3"})]  # inside no outline
+
+
+def _overpass(path, rows):
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [
+        {"type": "Feature", "id": oid, "geometry": {"type": "Polygon", "coordinates": [closed(lonlat(ring))]},
+         "properties": {"@id": oid, **tags}} for oid, ring, tags in rows]}))
+    return path
+
+
+def test_osm_parts_in_a_file_of_their_own_are_read_with_their_buildings(tmp_path):
+    """Overpass turbo's two exports: the church is its two parts (the nave at the church's 12 m, a part from 4 to
+    8 m: 1,200 + 400 m^3), not its 12 m block; the house has none; the part inside no outline is a building of its
+    own, noted; the parts file yields nothing else. Read apart, each part would be a building beside the block."""
+    from meshsom.osm import STRAY
+    from meshsom.part_files import holds_osm_parts
+
+    buildings = _overpass(tmp_path / "buildings.geojson", OSM_BUILDINGS)
+    parts = _overpass(tmp_path / "parts.geojson", OSM_PARTS)
+    mixed = _overpass(tmp_path / "mixed.geojson", OSM_BUILDINGS + OSM_PARTS)
+    assert holds_osm_parts(parts, ReaderOptions()) and holds_parts(parts, ReaderOptions())
+    assert not holds_osm_parts(buildings, ReaderOptions()) and not holds_osm_parts(mixed, ReaderOptions())
+    options = pair([buildings, parts], ReaderOptions())
+    assert options.part_files == (str(parts),)
+    got = {m.id.split("#", 1)[1]: m for m in read_file(buildings, options)}
+    assert sorted(got) == ["way/1", "way/2"] and all(isinstance(m, RawMesh) for m in got.values()), got
+    assert sorted(got["way/1"].parts) == ["way/11", "way/12"]
+    assert united_volume(got["way/1"]) == pytest.approx(10 * 10 * 12 + 10 * 10 * 4, rel=1e-5)
+    assert any("2 building:part areas" in n for n in got["way/1"].notes), got["way/1"].notes
+    assert united_volume(got["way/2"]) == pytest.approx(10 * 10 * 6, rel=1e-5) and not got["way/2"].parts
+    (alone,) = list(read_file(parts, options))
+    assert alone.id.endswith("#way/13") and STRAY in alone.notes
+    assert united_volume(alone) == pytest.approx(5 * 5 * 3, rel=1e-5)
+    apart = sorted(m.id.split("#", 1)[1] for f in (buildings, parts) for m in read_file(f))
+    assert apart == ["way/1", "way/11", "way/12", "way/13", "way/2"]
+
+
+def test_osm_parts_in_degrees_with_buildings_in_a_national_grid(tmp_path):
+    """Parts from Overpass (WGS 84) with buildings from a cadastre's GeoPackage in the Dutch grid (EPSG:28992, a
+    QGIS layer of plain columns, ids from its ``id`` column): each part is moved into the buildings' grid and read
+    there. The church's volume is its parts' areas in that grid (PROJ's, by hand) times their heights."""
+    import fiona
+    import pyproj
+    import shapely
+    from shapely.geometry import Polygon
+
+    from footprints import area
+
+    to_rd = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:28992", always_xy=True)
+
+    def rd(ring):
+        x, y = to_rd.transform(*np.asarray(lonlat(ring)).T)
+        return list(zip(x.tolist(), y.tolist()))
+
+    gpkg = tmp_path / "cadastre.gpkg"
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "building": "str", "height": "float"}}
+    with fiona.open(gpkg, "w", driver="GPKG", schema=schema, crs="EPSG:28992") as out:
+        for oid, ring, tags in OSM_BUILDINGS:
+            out.write({"geometry": {"type": "Polygon", "coordinates": [closed(rd(ring))]},
+                       "properties": {"id": oid.replace("way/", "B"), "building": tags["building"],
+                                      "height": float(tags["height"])}})
+    parts = _overpass(tmp_path / "parts.geojson", OSM_PARTS)
+    options = pair([gpkg, parts], ReaderOptions())
+    got = {m.id.split("#", 1)[1]: m for m in read_file(gpkg, options)}
+    assert sorted(got) == ["B1", "B2"], sorted(got)
+    assert sorted(got["B1"].parts) == ["way/11", "way/12"]
+    nave, aisle = (area(rd(ring)) for _, ring, _ in OSM_PARTS[:2])
+    assert nave == pytest.approx(100, rel=1e-3)  # the grid's scale at Delft: not 1
+    assert united_volume(got["B1"]) == pytest.approx(nave * 12 + aisle * 4, rel=1e-6)
+    assert shapely.area(Polygon(rd(OSM_BUILDINGS[1][1]))) * 6 == pytest.approx(united_volume(got["B2"]), rel=1e-6)
+    assert [m.id.split("#", 1)[1] for m in read_file(parts, options)] == ["way/13"]
+
+
+def test_osm_parts_files_through_meshsom_ingest(tmp_path):
+    """``meshsom ingest`` of a folder of the two exports (a Dask client, a zarr store): three buildings, the church
+    of its parts; no part read twice."""
+    folder = tmp_path / "osm"
+    folder.mkdir()
+    _overpass(folder / "buildings.geojson", OSM_BUILDINGS)
+    _overpass(folder / "parts.geojson", OSM_PARTS)
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(tmp_path / "o.zarr"),
+                          "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    assert (summary["inputs"], summary["accepted"], summary["rejected"]) == (3, 3, 0), summary
+    manifest = json.loads((tmp_path / "o.zarr" / "manifest.json").read_text())
+    ids = sorted(r["id"] for r in manifest["records"])
+    assert ids == ["buildings.geojson#way/1", "buildings.geojson#way/2", "parts.geojson#way/13"], ids
+    church = next(r for r in manifest["records"] if r["id"].endswith("#way/1"))
+    assert church["volume"] == pytest.approx(1600, rel=1e-5)
