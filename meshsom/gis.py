@@ -363,12 +363,20 @@ class PartGrouping:
     named : dict of str to str
         Where a building is no feature of the file (INSPIRE's parts, :mod:`meshsom.inspire`): its first part's id
         (a key of ``parts_of``) to the building's id, which the mesh takes.
+    linked : frozenset of str
+        INSPIRE buildings of the file whose parts (``parts_of``) are theirs by the building's links or the parts' ids,
+        not by their outline.
+    tags : dict of str to dict
+        Where a building of ``named`` is a feature of another file that links its parts: its properties (what its
+        parts inherit), by its first part's id.
     """
 
     owned: frozenset
     parts_of: dict
     strays: frozenset
     named: dict = dataclasses.field(default_factory=dict)
+    linked: frozenset = frozenset()
+    tags: dict = dataclasses.field(default_factory=dict)
 
     def __contains__(self, oid: str) -> bool:
         return oid in self.owned or oid in self.parts_of or oid in self.strays
@@ -386,8 +394,11 @@ def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | No
     except OSError:
         return None
     keyed = tuple(layer.name for layer in layers)
-    if _is_gml(path) and INSPIRE_PARTS in keyed:  # INSPIRE's building parts: grouped by the building their ids name
-        return _inspire_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
+    if _is_gml(path) and INSPIRE_PARTS in keyed:  # INSPIRE's building parts: grouped by the building that links them
+        from meshsom.part_files import _stamp  # or that their ids name
+
+        linking = _stamp(list(dict.fromkeys(str(p) for p in (path, *options.building_files) if _is_gml(Path(p)))))
+        return _inspire_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes), linking)
     if not any(_has_part_columns(path, name) for name in keyed):
         return None
     return _part_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
@@ -456,29 +467,53 @@ def _part_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribute
 
 
 @functools.lru_cache(maxsize=4)
-def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attributes: tuple) -> PartGrouping:
-    """INSPIRE's building parts (:data:`INSPIRE_PARTS` layer) grouped by the building their ``gml_id`` names
-    (:func:`meshsom.inspire.part_building`); a part that names none, or whose footprint cannot be read, is read as
-    a feature of its own."""
-    from meshsom.inspire import part_building
+def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attributes: tuple,
+                      linking: tuple = ()) -> PartGrouping:
+    """INSPIRE's building parts (:data:`INSPIRE_PARTS` layer) grouped by their building
+    (:func:`meshsom.inspire.building_of`): one that links them (``bu-core2d:parts``) in any of the GML files of
+    ``linking`` (this one, and a run's other building files: :func:`meshsom.part_files._stamp`), else the one their
+    ``gml_id`` names. A building of this file is read as its parts (``linked``); one elsewhere takes its first part's
+    place (``named``). A part of no building, or whose footprint cannot be read, is read as a feature of its own."""
+    from meshsom.inspire import building_of, linking_buildings, part_links
     from meshsom.osm import _Area
 
+    links: dict[str, str] = {}
+    for other, _, _ in linking:
+        links.update(part_links(Path(other)))
     groups: dict[str, list] = {}
     for name in layers:
         if name != INSPIRE_PARTS:
             continue
         prefix = f"{name}/" if len(layers) > 1 else ""
         for oid, props, geometry in _records(Path(path), name, _id_field_of(Path(path), name, id_attributes), 0, None):
-            building = part_building(props.get("gml_id") or oid)
+            building = building_of({**props, "gml_id": props.get("gml_id") or oid}, links)
             try:
                 footprint = _footprint(geometry, f"{path}#{prefix}{oid}") if geometry is not None else None
             except InputFileError:  # damaged: its own reading says so
                 footprint = None
             if building is not None and footprint is not None:
                 groups.setdefault(building, []).append(_Area(f"{prefix}{oid}", props, footprint))
-    parts_of = {parts[0].oid: parts for parts in groups.values()}
-    owned = {part.oid for parts in groups.values() for part in parts[1:]}
-    return PartGrouping(frozenset(owned), parts_of, frozenset(), {parts[0].oid: b for b, parts in groups.items()})
+    here = {}  # the buildings of this file its parts belong to: gml_id -> id as read
+    if groups and INSPIRE_BUILDINGS[0] in layers:
+        prefix = f"{INSPIRE_BUILDINGS[0]}/" if len(layers) > 1 else ""
+        for oid, props, _ in _records(Path(path), INSPIRE_BUILDINGS[0], _id_field_of(
+                Path(path), INSPIRE_BUILDINGS[0], id_attributes), 0, None):
+            if str(props.get("gml_id") or oid) in groups:
+                here[str(props.get("gml_id") or oid)] = f"{prefix}{oid}"
+    parts_of, named, owned, linked, tags = {}, {}, set(), set(), {}
+    for building, parts in groups.items():
+        if building in here:  # read from its own feature, as its parts
+            parts_of[here[building]] = parts
+            owned.update(part.oid for part in parts)
+            linked.add(here[building])
+        else:  # its first part read as it, named by it, with its attributes where another file links it
+            parts_of[parts[0].oid] = parts
+            owned.update(part.oid for part in parts[1:])
+            named[parts[0].oid] = building
+            for other, _, _ in linking:
+                if building in (found := linking_buildings(Path(other))):
+                    tags[parts[0].oid] = found[building]
+    return PartGrouping(frozenset(owned), parts_of, frozenset(), named, frozenset(linked), tags)
 
 
 def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
@@ -655,9 +690,12 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             own = grouping.parts_of.get(oid, []) if grouping is not None else []
             stray = STRAY if grouping is not None and oid in grouping.strays else None
             building = grouping.named.get(oid) if grouping is not None else None  # INSPIRE: the building its parts name
-            how = f"{len(own)} INSPIRE BuildingParts of {building}, read as its parts" if building else None
+            how = (f"{len(own)} INSPIRE BuildingParts of {building}, read as its parts" if building else
+                   f"{len(own)} INSPIRE BuildingParts of it, read as its parts"
+                   if grouping is not None and oid in grouping.linked else None)
             united = osm_pieces(path, layer.name).note(oid.removeprefix(f"{layer.name}/")) if osm else None
-            yield from building_meshes(_Area(building or oid, props if building is None else {}, area), own, stray,
+            tags = props if building is None else grouping.tags.get(oid, {})  # INSPIRE: the linking building's
+            yield from building_meshes(_Area(building or oid, tags, area), own, stray,
                                        options, name, str(path), (system, unknown),
                                        file_notes + ([united] if united else []), how=how)
             return

@@ -221,21 +221,26 @@ def building_ids(options) -> frozenset[str]:
 
 
 def inspire_buildings(options) -> frozenset[str]:
-    """The ids of the buildings INSPIRE's building parts among :attr:`~meshsom.io.ReaderOptions.part_files` name
-    (:func:`meshsom.inspire.part_building`): read from their parts."""
-    return _inspire_buildings(_stamp(options.part_files), _reading(options))
+    """The ids of the buildings INSPIRE's building parts among :attr:`~meshsom.io.ReaderOptions.part_files` belong
+    to (:func:`meshsom.inspire.building_of`: linked from a building of
+    :attr:`~meshsom.io.ReaderOptions.building_files`, or named by the part's id): read from their parts."""
+    return _inspire_buildings(_stamp(options.part_files), _stamp(options.building_files), _reading(options))
 
 
 @functools.lru_cache(maxsize=4)
-def _inspire_buildings(stamped: tuple, options) -> frozenset[str]:
+def _inspire_buildings(stamped: tuple, building_stamps: tuple, options) -> frozenset[str]:
     from meshsom.gis import _attributes, _ogr_layers
-    from meshsom.inspire import part_building
+    from meshsom.inspire import building_of, part_links
 
+    links: dict[str, str] = {}
+    for path, _, _ in building_stamps:
+        if _kind(Path(path)) == "inspire":
+            links.update(part_links(Path(path)))
     ids = set()
     for path, _, _ in stamped:
         if _kind(Path(path)) == "inspire":
-            ids.update(b for layer in _ogr_layers(Path(path)) for props in _attributes(Path(path), layer.name)
-                       if (b := part_building(props.get("gml_id") or "")) is not None)
+            ids.update(b for layer in _ogr_layers(Path(path)) if layer.name == "BuildingPart"
+                       for props in _attributes(Path(path), layer.name) if (b := building_of(props, links)) is not None)
     return frozenset(ids)
 
 

@@ -204,3 +204,77 @@ def test_a_height_above_ground_to_the_top(tmp_path):
     path.write_text(HEADER + body + "</gml:FeatureCollection>\n")
     volumes = _united_volumes(read_file(path))
     assert volumes == pytest.approx({"ES.SDGC.BU.1": 80 * 12.5, "ES.SDGC.BU.2": 80 * 6}, rel=1e-9)
+
+
+# Other producers link a Building to its parts (bu-core2d:parts xlink:href), the parts' ids their own: a Building
+# (gml:id, x0, y0, w, d, storeys or None) with its linked parts (href as written, part gml:id, rect, storeys).
+LINKED = {
+    ("DE.B1", (0, 0, 20, 10), 5): [("#DE.P1", "DE.P1", (0, 0, 10, 10), 2),
+                                   ("urn:adv:oid:DE.P2", "DE.P2", (10, 0, 10, 10), None)],  # the building's 5
+    ("DE.B2", (30, 0, 10, 10), None): [("https://example.org/inspire/BuildingPart/DE.P3", "DE.P3", (30, 0, 10, 10), 1)],
+    ("DE.B3", (50, 0, 9, 7), 4): [],
+}
+UNLINKED = ("DE.P9", (70, 0, 6, 5), 2)  # a part no building links: read as a feature of its own
+
+
+def _floors(n):
+    return "" if n is None else f"<bu-ext2d:numberOfFloorsAboveGround>{n}</bu-ext2d:numberOfFloorsAboveGround>\n"
+
+
+def _linked_features():
+    buildings = "".join(_feature("Building", gid, rect, _floors(n) + "".join(
+        f'<bu-core2d:parts xlink:href="{href}"/>\n' for href, *_ in parts)) for (gid, rect, n), parts in LINKED.items())
+    parts = "".join(_feature("BuildingPart", pid, rect, _floors(n))
+                    for members in LINKED.values() for _, pid, rect, n in members)
+    return buildings, parts + _feature("BuildingPart", UNLINKED[0], UNLINKED[1], _floors(UNLINKED[2]))
+
+
+def _linked_volumes(storey=3.0):
+    out = {}
+    for (gid, (_, _, w, d), n), parts in LINKED.items():
+        out[gid] = sum(pw * pd * (pn if pn is not None else n) * storey for _, _, (_, _, pw, pd), pn in parts) if parts \
+            else w * d * n * storey
+    return out
+
+
+def test_parts_linked_from_their_buildings_in_one_file_whole_or_in_ranges(tmp_path):
+    """A file of Buildings and BuildingParts whose Buildings link their parts (by ``#id``, a URN, a URL): each linked
+    building is read as its parts, with its own id and attributes (a part without storeys takes its building's),
+    each part once; a building without parts is its footprint; a part no building links is a feature of its own.
+    The same read in ranges of one feature."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    buildings, parts = _linked_features()
+    path = tmp_path / "bu.gml"
+    path.write_text(HEADER + buildings + parts + "</gml:FeatureCollection>\n")
+    options = ReaderOptions()
+    items = list(read_gis(path, options))
+    got = _united_volumes(items)
+    expected = {f"Building/{k}": v for k, v in _linked_volumes().items()}
+    expected[f"BuildingPart/{UNLINKED[0]}"] = UNLINKED[1][2] * UNLINKED[1][3] * UNLINKED[2] * 3.0
+    assert got == pytest.approx(expected, rel=1e-9)
+    b1 = next(i for i in items if i.id.endswith("#Building/DE.B1"))
+    assert sorted(b1.parts) == ["BuildingPart/DE.P1", "BuildingPart/DE.P2"]
+    assert "2 INSPIRE BuildingParts of it, read as its parts" in b1.notes
+    ranges = gis_ranges(path, 1, options)
+    assert ranges is not None and len(ranges) == 3 + 4
+    pieces = [i for r in ranges for i in read_gis(path, options, feature_range=r)]
+    assert _united_volumes(pieces) == pytest.approx(got, rel=1e-12)
+
+
+def test_parts_linked_from_buildings_in_another_file(tmp_path):
+    """Buildings (with their links) and parts in two files, paired among a run's inputs: each linked building is
+    read once, from its parts (its id the building's), not again from its footprint; a building without parts from
+    its footprint; the unlinked part on its own."""
+    from meshsom.part_files import pair
+
+    buildings, parts = _linked_features()
+    (tmp_path / "buildings.gml").write_text(HEADER + buildings + "</gml:FeatureCollection>\n")
+    (tmp_path / "parts.gml").write_text(HEADER + parts + "</gml:FeatureCollection>\n")
+    files = [tmp_path / "buildings.gml", tmp_path / "parts.gml"]
+    options = pair(files, ReaderOptions())
+    assert options.part_files == (str(tmp_path / "parts.gml"),)
+    got = _united_volumes(i for f in files for i in read_file(f, options))
+    expected = dict(_linked_volumes())
+    expected[UNLINKED[0]] = UNLINKED[1][2] * UNLINKED[1][3] * UNLINKED[2] * 3.0
+    assert got == pytest.approx(expected, rel=1e-9)
