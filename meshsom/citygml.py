@@ -27,8 +27,10 @@ Details of the encoding:
 - Rings are ``gml:posList`` (``srsDimension`` 3), a sequence of ``gml:pos``, or GML 2
   ``gml:coordinates``; the closing point is dropped; equal coordinates of one building are one
   vertex.
-- A label comes from a generic attribute (``gen:stringAttribute`` and the like) named
-  :attr:`meshsom.io.ReaderOptions.label_attribute`.
+- A label comes from a generic attribute (``gen:stringAttribute`` and the like; 3.0's
+  ``core:genericAttribute``) named :attr:`meshsom.io.ReaderOptions.label_attribute`.
+- Heights: ``measuredHeight`` and ``storeysAboveGround``; 3.0's ``con:height`` from the ground to
+  the top as a ``measuredHeight`` (:func:`_heights`).
 - Parsing streams (``xml.etree.ElementTree.iterparse`` on :func:`meshsom.io.open_input`: gzip
   decompressed as it is read), each building cleared once read; no DTD or external entity is
   fetched.
@@ -199,23 +201,58 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
 
 
 def _label(obj, attribute: str) -> str | None:
+    """The value of the object's own generic attribute named ``attribute``: CityGML 1.0 / 2.0's
+    ``gen:stringAttribute name="..."`` (and its kin, in a ``gen:genericAttributeSet`` too), 3.0's
+    ``core:genericAttribute`` holding a ``gen:StringAttribute`` of ``gen:name`` and ``gen:value`` (a
+    ``gen:GenericAttributeSet`` too)."""
     for child in obj:
-        if _local(child.tag).endswith("Attribute") and child.attrib.get("name") == attribute:
-            for value in child.iter():
-                if _local(value.tag) == "value" and value.text is not None:
-                    return value.text.strip()
+        if not _local(child.tag).endswith(("Attribute", "AttributeSet")):
+            continue
+        for found in child.iter():
+            kind = _local(found.tag)
+            if not kind.endswith("Attribute") or kind == "genericAttribute":
+                continue
+            name = found.attrib.get("name")
+            if name is None:  # 3.0: a gen:name element
+                name = next((e.text.strip() for e in found if _local(e.tag) == "name" and e.text), None)
+            if name == attribute:
+                for value in found:
+                    if _local(value.tag) == "value" and value.text is not None and value.text.strip():
+                        return value.text.strip()
     return None
 
 
 #: Attributes of a building or part kept (its height and storeys: a footprint of LoD 0 alone is
 #: extruded by them, as :func:`meshsom.io._building_mesh` says).
 HEIGHT_ELEMENTS = ("measuredHeight", "storeysAboveGround")
+#: CityGML 3.0's ``con:Height`` references (its HeightReferenceValue codes) that measure a building from the ground
+#: to its top: such a height is read as its ``measuredHeight``.
+TOP_REFERENCES = ("highestPoint", "highestRoofEdge", "topOfConstruction", "generalRoof")
+GROUND_REFERENCES = ("lowestGroundPoint", "highestGroundPoint", "generalGround", "bottomOfConstruction")
+#: Units of a height read as metres.
+METRES = ("m", "metre", "meter", "urn:ogc:def:uom:EPSG::9001")
 
 
 def _heights(obj) -> dict:
-    """The object's own ``measuredHeight`` and ``storeysAboveGround`` (direct children), as text."""
-    return {_local(child.tag): child.text.strip() for child in obj
-            if _local(child.tag) in HEIGHT_ELEMENTS and child.text and child.text.strip()}
+    """The object's own ``measuredHeight`` and ``storeysAboveGround`` (direct children), as text; CityGML 3.0's
+    ``con:height`` from the ground to the top (:data:`TOP_REFERENCES`, :data:`GROUND_REFERENCES`, in metres) as
+    its ``measuredHeight`` where it has none."""
+    found = {_local(child.tag): child.text.strip() for child in obj
+             if _local(child.tag) in HEIGHT_ELEMENTS and child.text and child.text.strip()}
+    if "measuredHeight" not in found:
+        for child in obj:
+            if _local(child.tag) != "height":
+                continue
+            for height in child:
+                fields = {_local(e.tag): e for e in height}
+                high, low, value = (fields.get(k) for k in ("highReference", "lowReference", "value"))
+                if (high is not None and (high.text or "").strip() in TOP_REFERENCES and value is not None
+                        and (value.text or "").strip()
+                        and (low is None or (low.text or "").strip() in GROUND_REFERENCES)
+                        and value.attrib.get("uom", "m").strip() in METRES):
+                    found["measuredHeight"] = value.text.strip()
+                    return found
+    return found
 
 
 def building_objects(building, where: str, label_attribute: str) -> tuple[dict, np.ndarray, list[str], str | None]:

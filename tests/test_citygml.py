@@ -48,8 +48,14 @@ def _polygon(rings, world, style, pid=None) -> str:
 def to_citygml(document: dict, version: str = "2.0", style: str = "posList", href: bool = False) -> str:
     """A CityJSON document's Buildings (and BuildingParts) as CityGML, each geometry at its integer
     LoD: a Solid as ``lod{N}Solid`` (with ``href``: boundary surfaces holding the polygons and a
-    Solid referring to them), a MultiSurface as ``lod{N}MultiSurface``."""
+    Solid referring to them), a MultiSurface as ``lod{N}MultiSurface``. CityGML 3.0 as 3.0 writes
+    it: GML 3.2, the LoD properties and ``boundary`` in the core module, the thematic surfaces in
+    the construction module (``con:WallSurface``), a Solid's ``gml:Shell``, ``bldg:buildingPart``,
+    ``core:genericAttribute`` holding a ``gen:StringAttribute`` of ``gen:name`` and ``gen:value``."""
     core, bldg, gen = NAMESPACES[version]
+    three = version == "3.0"
+    lodp = "core" if three else "bldg"  # the prefix of the lod{N}... properties
+    shell = "Shell" if three else "CompositeSurface"
     t = document.get("transform")
     world = np.asarray(document["vertices"], float)
     if t:
@@ -63,7 +69,7 @@ def to_citygml(document: dict, version: str = "2.0", style: str = "posList", hre
         for g in geoms:
             lod = int(float(g["lod"]))
             if g["type"] == "Solid":
-                polys = [p for shell in g["boundaries"][:1] for p in shell]
+                polys = [p for shell_ in g["boundaries"][:1] for p in shell_]
             elif g["type"] == "MultiSurface":
                 polys = g["boundaries"]
             else:
@@ -75,34 +81,46 @@ def to_citygml(document: dict, version: str = "2.0", style: str = "posList", hre
                     counter[0] += 1
                     ids.append(f"poly{counter[0]}")
                     members.append(f"<gml:surfaceMember>{_polygon(p, world, style, ids[-1])}</gml:surfaceMember>")
-                out.append(f"<bldg:boundedBy><bldg:WallSurface><bldg:lod{lod}MultiSurface><gml:MultiSurface>{''.join(members)}"
-                           f"</gml:MultiSurface></bldg:lod{lod}MultiSurface></bldg:WallSurface></bldg:boundedBy>")
+                wall = "con:WallSurface" if three else "bldg:WallSurface"
+                bounded = "core:boundary" if three else "bldg:boundedBy"
+                out.append(f"<{bounded}><{wall}><{lodp}:lod{lod}MultiSurface><gml:MultiSurface>{''.join(members)}"
+                           f"</gml:MultiSurface></{lodp}:lod{lod}MultiSurface></{wall}></{bounded}>")
                 refs = "".join(f'<gml:surfaceMember xlink:href="#{i}"/>' for i in ids)
-                out.append(f"<bldg:lod{lod}Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{refs}"
-                           f"</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod{lod}Solid>")
+                out.append(f"<{lodp}:lod{lod}Solid><gml:Solid><gml:exterior><gml:{shell}>{refs}"
+                           f"</gml:{shell}></gml:exterior></gml:Solid></{lodp}:lod{lod}Solid>")
             elif g["type"] == "Solid":
                 members = "".join(f"<gml:surfaceMember>{_polygon(p, world, style)}</gml:surfaceMember>" for p in polys)
-                out.append(f"<bldg:lod{lod}Solid><gml:Solid><gml:exterior><gml:CompositeSurface>{members}"
-                           f"</gml:CompositeSurface></gml:exterior></gml:Solid></bldg:lod{lod}Solid>")
+                out.append(f"<{lodp}:lod{lod}Solid><gml:Solid><gml:exterior><gml:{shell}>{members}"
+                           f"</gml:{shell}></gml:exterior></gml:Solid></{lodp}:lod{lod}Solid>")
             else:
                 members = "".join(f"<gml:surfaceMember>{_polygon(p, world, style)}</gml:surfaceMember>" for p in polys)
-                out.append(f"<bldg:lod{lod}MultiSurface><gml:MultiSurface>{members}</gml:MultiSurface></bldg:lod{lod}MultiSurface>")
+                out.append(f"<{lodp}:lod{lod}MultiSurface><gml:MultiSurface>{members}</gml:MultiSurface>"
+                           f"</{lodp}:lod{lod}MultiSurface>")
         return "".join(out)
 
+    def attribute_xml(label) -> str:
+        if label is None:
+            return ""
+        if three:
+            return (f"<core:genericAttribute><gen:StringAttribute><gen:name>family</gen:name><gen:value>{label}"
+                    f"</gen:value></gen:StringAttribute></core:genericAttribute>")
+        return f'<gen:stringAttribute name="family"><gen:value>{label}</gen:value></gen:stringAttribute>'
+
+    part_property = "bldg:buildingPart" if three else "bldg:consistsOfBuildingPart"
     members = []
     for oid, obj in objects.items():
         if obj.get("type") != "Building":
             continue
-        label = (obj.get("attributes") or {}).get("family")
-        attr = (f'<gen:stringAttribute name="family"><gen:value>{label}</gen:value></gen:stringAttribute>'
-                if label is not None else "")
+        attr = attribute_xml((obj.get("attributes") or {}).get("family"))
         parts = "".join(
-            f'<bldg:consistsOfBuildingPart><bldg:BuildingPart gml:id="{c}">{geometry_xml(objects[c].get("geometry", []))}'
-            f"</bldg:BuildingPart></bldg:consistsOfBuildingPart>" for c in obj.get("children", []) if c in objects)
+            f'<{part_property}><bldg:BuildingPart gml:id="{c}">{geometry_xml(objects[c].get("geometry", []))}'
+            f"</bldg:BuildingPart></{part_property}>" for c in obj.get("children", []) if c in objects)
         members.append(f'<core:cityObjectMember><bldg:Building gml:id="{oid}">{attr}{geometry_xml(obj.get("geometry", []))}'
                        f"{parts}</bldg:Building></core:cityObjectMember>")
-    return (f'<?xml version="1.0" encoding="UTF-8"?>\n<core:CityModel xmlns:core="{core}" xmlns:bldg="{bldg}" '
-            f'xmlns:gen="{gen}" xmlns:gml="http://www.opengis.net/gml" xmlns:xlink="http://www.w3.org/1999/xlink">\n'
+    gml = "http://www.opengis.net/gml/3.2" if three else "http://www.opengis.net/gml"
+    con = ' xmlns:con="http://www.opengis.net/citygml/construction/3.0"' if three else ""
+    return (f'<?xml version="1.0" encoding="UTF-8"?>\n<core:CityModel xmlns:core="{core}" xmlns:bldg="{bldg}"{con} '
+            f'xmlns:gen="{gen}" xmlns:gml="{gml}" xmlns:xlink="http://www.w3.org/1999/xlink">\n'
             + "\n".join(members) + "\n</core:CityModel>\n")
 
 
@@ -135,7 +153,8 @@ REAL = [("delft-lod1-3dfier", "delft.city.json"), ("zurich-lod2-subset", "zurich
 
 
 @pytest.mark.parametrize("version,style,href", [("2.0", "posList", False), ("2.0", "posList", True),
-                                                ("1.0", "pos", True), ("3.0", "coordinates", False)])
+                                                ("1.0", "pos", True), ("1.0", "coordinates", False),
+                                                ("3.0", "posList", True), ("3.0", "pos", False)])
 @pytest.mark.parametrize("folder,name", REAL)
 def test_citygml_reads_as_the_same_cityjson(tmp_path, folder, name, version, style, href):
     original = DATA / folder / name
@@ -177,9 +196,10 @@ def test_citygml_labels_from_generic_attributes(tmp_path):
 
     blocks = generate_corpus(GeneratorParams(n_blocks=3, seed=1))
     write_cityjson(tmp_path / "s.city.json", blocks)
-    (tmp_path / "s.gml").write_text(to_citygml(json.loads((tmp_path / "s.city.json").read_text())))
-    got = list(read_file(tmp_path / "s.gml"))
-    assert [m.label for m in got] == [b.label for b in blocks] and all(m.label for m in got)
+    for version in ("2.0", "3.0"):  # gen:stringAttribute name=...; core:genericAttribute of gen:name, gen:value
+        (tmp_path / "s.gml").write_text(to_citygml(json.loads((tmp_path / "s.city.json").read_text()), version))
+        got = list(read_file(tmp_path / "s.gml"))
+        assert [m.label for m in got] == [b.label for b in blocks] and all(m.label for m in got), version
 
 
 @pytest.mark.parametrize("text,reason", [
@@ -495,3 +515,37 @@ def test_a_lod0_footprint_alone_is_extruded_by_its_height(tmp_path):
     (tmp_path / "lod0.city.json").write_text(json.dumps(cj))
     (m,) = read_file(tmp_path / "lod0.city.json")
     assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(area * 6.5, rel=1e-9)
+
+
+def test_a_citygml3_lod0_footprint_is_extruded_by_its_con_height(tmp_path):
+    """CityGML 3.0 has no measuredHeight: a building's heights are ``con:height`` elements, each from a reference to
+    another. One from the ground to the highest roof edge, in metres, extrudes a LoD 0 footprint; one to the eaves
+    does not (nor one in feet), and storeys do where no such height is given."""
+    from meshsom.preprocess import preprocess
+
+    L = [(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10)]
+    area = 12 * 4 + 4 * 6
+
+    def height(high, value, uom="m", low="lowestGroundPoint"):
+        return (f"<con:height><con:Height><con:highReference>{high}</con:highReference><con:lowReference>{low}"
+                f"</con:lowReference><con:status>measured</con:status><con:value uom=\"{uom}\">{value}</con:value>"
+                f"</con:Height></con:height>")
+
+    def building(bid, inside):
+        ring = _ring_xml([(x, y, 50.0) for x, y in L])
+        return (f'<core:cityObjectMember><bldg:Building gml:id="{bid}">{inside}<core:lod0MultiSurface><gml:MultiSurface>'
+                f"<gml:surfaceMember><gml:Polygon><gml:exterior>{ring}</gml:exterior></gml:Polygon></gml:surfaceMember>"
+                f"</gml:MultiSurface></core:lod0MultiSurface></bldg:Building></core:cityObjectMember>")
+
+    core, bldg, _ = NAMESPACES["3.0"]
+    xml = (f'<core:CityModel xmlns:core="{core}" xmlns:bldg="{bldg}" xmlns:gml="http://www.opengis.net/gml/3.2" '
+           f'xmlns:con="http://www.opengis.net/citygml/construction/3.0">'
+           + building("top", height("generalEave", "5.0") + height("highestRoofEdge", "8.5"))
+           + building("eaves", height("generalEave", "5.0") + "<bldg:storeysAboveGround>2</bldg:storeysAboveGround>")
+           + building("feet", height("highestRoofEdge", "30", uom="ft"))
+           + "</core:CityModel>")
+    (tmp_path / "lod0.gml").write_text(xml)
+    got = {m.id.split("#")[1]: m for m in read_file(tmp_path / "lod0.gml")}
+    assert preprocess(got["top"].vertices, got["top"].faces).volume_out == pytest.approx(area * 8.5, rel=1e-9)
+    assert preprocess(got["eaves"].vertices, got["eaves"].faces).volume_out == pytest.approx(area * 6.0, rel=1e-9)
+    assert isinstance(got["feet"], Rejection) and "only a LoD 0 footprint" in got["feet"].reason
