@@ -122,7 +122,9 @@ def _number(value) -> float | None:
 def first_number(props: dict, names) -> tuple[str, float] | None:
     """The first of ``names`` whose property is a number (:func:`_number`): the property's own key
     and its value; None when none is. A name matches a property of its spelling, else one that
-    differs only in case (a Shapefile's or an Esri layer's ``HEIGHT``, ``Num_Floors``)."""
+    differs only in case and punctuation (:func:`folded_key`: a Shapefile's or an Esri layer's
+    ``HEIGHT``, ``Num_Floors``; ``minHeight`` for ``min_height``; ``building_levels`` for
+    ``building:levels``, as tools that allow no colon in a column's name write it)."""
     folded = None
     for name in names:
         key = name if name in props else None
@@ -130,13 +132,18 @@ def first_number(props: dict, names) -> tuple[str, float] | None:
             if folded is None:
                 folded = {}
                 for k in props:
-                    folded.setdefault(str(k).lower(), k)
-            key = folded.get(str(name).lower())
+                    folded.setdefault(folded_key(k), k)
+            key = folded.get(folded_key(name))
         if key is not None:
             value = _number(props.get(key))
             if value is not None:
                 return key, value
     return None
+
+
+def folded_key(name) -> str:
+    """An attribute's name as :func:`first_number` compares it: lower case, letters and digits alone."""
+    return re.sub(r"[^0-9a-z]", "", str(name).lower())
 
 
 class FeatureVertices:

@@ -128,12 +128,23 @@ CHECK_REL = 1e-6
 
 def roof_tags(props: dict) -> dict:
     """A feature's roof attributes under their S3DB keys (``roof:shape``, ``roof:height``, ...):
-    OpenStreetMap's own, else Overture's (:data:`OVERTURE`); values as given, None-valued ones
-    (a GeoParquet column's nulls) left out."""
+    OpenStreetMap's own, else Overture's (:data:`OVERTURE`), else one spelled otherwise in case and
+    punctuation alone (``ROOF_SHAPE``, ``roofShape``: :func:`meshsom.geojson.folded_key`); values as
+    given, None-valued ones (a GeoParquet column's nulls) left out."""
+    from meshsom.geojson import folded_key
+
     found = {key: props[key] for key in OVERTURE.values() if props.get(key) is not None}
     for column, key in OVERTURE.items():
         if key not in found and props.get(column) is not None:
             found[key] = props[column]
+    if len(found) < len(OVERTURE):
+        folded = {}
+        for k, v in props.items():
+            if v is not None:
+                folded.setdefault(folded_key(k), v)
+        for key in OVERTURE.values():
+            if key not in found and folded_key(key) in folded:
+                found[key] = folded[folded_key(key)]
     return found
 
 

@@ -194,6 +194,28 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert _volume(flat["way/7"]) == pytest.approx(10 * 6 * 8, rel=1e-5)
 
 
+def test_attributes_spelled_otherwise_in_case_and_punctuation(tmp_path):
+    """Heights, bases, storeys and roofs under the names other tools give them: OSM Buildings' camel case (minHeight,
+    roofShape, roofHeight), a layer's upper case with underscores (ROOF_SHAPE), OpenStreetMap's keys with the colon a
+    column's name may not hold (building_levels, roof_shape): each read as the key it spells, volumes by hand."""
+    features = [
+        _house("camel", 0, 12, 8, height=15, minHeight=6, roofShape="gabled", roofHeight=3),
+        _house("upper", 20, 12, 8, HEIGHT=9, ROOF_SHAPE="hipped", ROOF_HEIGHT=3),
+        _house("levels", 40, 10, 10, building_levels=4),
+        _house("colonless", 60, 12, 8, height=9, roof_shape="gabled", roof_height=3, building_min_level=None),
+    ]
+    path = tmp_path / "spellings.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    got = _by_id(read_file(path))
+    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    assert _volume(got["camel"]) == pytest.approx(HOUSE["gabled"](12, 8, 6, 3), rel=1e-5)  # 6 m to 15 m
+    z = got["camel"].vertices[:, 2] + got["camel"].origin[2]
+    assert z.min() - (got["levels"].vertices[:, 2] + got["levels"].origin[2]).min() == pytest.approx(6, abs=1e-6)
+    assert _volume(got["upper"]) == pytest.approx(HOUSE["hipped"](12, 8, 6, 3), rel=1e-5)
+    assert _volume(got["levels"]) == pytest.approx(10 * 10 * 12, rel=1e-5)
+    assert _volume(got["colonless"]) == pytest.approx(HOUSE["gabled"](12, 8, 6, 3), rel=1e-5)
+
+
 def test_buildings_made_of_parts_in_one_collection(tmp_path):
     """Buildings and their parts in one collection, as an Overpass turbo export of building and building:part
     ways gives them (OSM tags as properties; osmtogeojson nests them under tags), and as Overture Maps' building
