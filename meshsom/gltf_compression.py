@@ -15,6 +15,12 @@ neither, so :func:`decompress_glb` rewrites a GLB into the plain glTF it stands 
   the plain bytes its fallback buffer stands for, filters (octahedral, quaternion, exponential,
   colour) undone.
 
+- **Quantized positions** (``KHR_mesh_quantization``): positions stored as normalized integers (a
+  component ``c`` of ``n`` bits standing for ``c / (2^n - 1)``, signed ``max(c / (2^(n-1) - 1), -1)``,
+  the node's transform scaling them back to metres) become float32 accessors of those values; trimesh
+  reads the integers as they are (a 10 m house 650,000 m wide). Positions quantized without
+  ``normalized`` are read right by trimesh and kept.
+
 The plain data is appended to the GLB's binary chunk, every buffer view then lies in it, and the
 extensions are no longer declared. A GLB with no compression comes back as it is. A glTF JSON
 file (``.gltf``) is first packed with its buffers into the GLB it stands for (:func:`pack_gltf`);
@@ -35,6 +41,11 @@ DRACO = "KHR_draco_mesh_compression"
 MESHOPT = ("EXT_meshopt_compression", "KHR_meshopt_compression")
 #: Every compression extension :func:`decompress_glb` undoes.
 EXTENSIONS = (DRACO, *MESHOPT)
+#: Quantized vertex attributes: its normalized positions are made float (:func:`decompress_glb`); the extension stays
+#: declared (its other attributes, and positions quantized without ``normalized``, are left as they are).
+QUANTIZATION = "KHR_mesh_quantization"
+#: Integer component types of a normalized accessor: (NumPy dtype, the largest value, which stands for 1).
+_NORMALIZED = {5120: ("<i1", 127), 5121: ("<u1", 255), 5122: ("<i2", 32767), 5123: ("<u2", 65535)}
 #: Vertex attributes of a Draco primitive that are kept: positions and the feature (building) ids.
 KEPT_ATTRIBUTES = ("POSITION", "_BATCHID", "_batchid")
 KEPT_PREFIXES = ("_FEATURE_ID_",)
@@ -50,8 +61,30 @@ _TRIANGLES = 4
 
 def compression_used(gltf: dict) -> list[str]:
     """The compression extensions a glTF document declares (used or required), sorted."""
-    used = set(gltf.get("extensionsUsed", []) or []) | set(gltf.get("extensionsRequired", []) or [])
-    return sorted(used.intersection(EXTENSIONS))
+    return sorted(_declared(gltf).intersection(EXTENSIONS))
+
+
+def _declared(gltf: dict) -> set:
+    return set(gltf.get("extensionsUsed", []) or []) | set(gltf.get("extensionsRequired", []) or [])
+
+
+def needs_rewriting(gltf: dict) -> bool:
+    """Whether :func:`decompress_glb` changes a glTF document: it declares compression, or quantization with
+    normalized positions."""
+    declared = _declared(gltf)
+    return bool(declared.intersection(EXTENSIONS)) or QUANTIZATION in declared and bool(_normalized_positions(gltf))
+
+
+def _normalized_positions(gltf: dict) -> list[int]:
+    """The normalized integer POSITION accessors of a glTF document's primitives, each once."""
+    accessors, found = gltf.get("accessors", []) or [], []
+    for mesh in gltf.get("meshes", []) or []:
+        for primitive in (mesh.get("primitives", []) if isinstance(mesh, dict) else []) or []:
+            k = (primitive.get("attributes") or {}).get("POSITION") if isinstance(primitive, dict) else None
+            if isinstance(k, int) and 0 <= k < len(accessors) and k not in found and isinstance(accessors[k], dict) \
+                    and accessors[k].get("normalized") and accessors[k].get("componentType") in _NORMALIZED:
+                found.append(k)
+    return found
 
 
 def split_glb(glb: bytes, where: str) -> tuple[dict, bytes]:
@@ -251,6 +284,31 @@ def _meshopt(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
             del view["extensions"]
 
 
+def _dequantized(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
+    """Every normalized integer POSITION accessor (:data:`QUANTIZATION`) made a float32 one in ``out`` of the values
+    it stands for."""
+    accessors, views = gltf.get("accessors", []), gltf.get("bufferViews", [])
+    for k in _normalized_positions(gltf):
+        accessor = accessors[k]
+        what = f"quantized positions (accessor {k})"
+        dtype, top = _NORMALIZED[accessor["componentType"]]
+        count, size = accessor.get("count"), np.dtype(dtype).itemsize
+        if not isinstance(count, int) or count < 0 or accessor.get("type") != "VEC3" or "sparse" in accessor:
+            raise InputFileError(where, f"holds {what} of count {count!r}, type {accessor.get('type')!r}"
+                                        f"{' and sparse values' if 'sparse' in accessor else ''}: expected dense VEC3")
+        view = views[accessor["bufferView"]]
+        stride = view.get("byteStride") or 3 * size
+        data = _buffer_bytes(gltf, binary, view.get("buffer", 0), where, what)
+        start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        raw = _slice(data, start, (count - 1) * stride + 3 * size if count else 0, where, what)
+        values = np.ndarray((count, 3), dtype, raw, 0, (stride, size)) if count else np.zeros((0, 3), dtype)
+        plain = np.maximum(values.astype(np.float64) / top, -1.0).astype("<f4")  # signed: -2^(n-1) is -1 too
+        views.append({"buffer": 0, "byteOffset": out.append(plain.tobytes()), "byteLength": plain.nbytes})
+        accessor.update(bufferView=len(views) - 1, byteOffset=0, componentType=_FLOAT, normalized=False)
+        if count:
+            accessor.update(min=plain.min(axis=0).tolist(), max=plain.max(axis=0).tolist())
+
+
 def _kept(semantic: str) -> bool:
     return semantic in KEPT_ATTRIBUTES or semantic.startswith(KEPT_PREFIXES)
 
@@ -335,12 +393,13 @@ def decompress_glb(glb: bytes, where: str) -> bytes:
         Compressed data that is corrupt, out of its buffer, in an external buffer, or not triangles.
     """
     gltf, binary = split_glb(glb, where)
-    if not compression_used(gltf):
+    if not needs_rewriting(gltf):
         return glb
     out = _Binary(binary)
     try:
         _meshopt(gltf, binary, out, where)
         _draco(gltf, binary, out, where)
+        _dequantized(gltf, bytes(out.data), out, where)
     except InputFileError:
         raise
     except (AttributeError, KeyError, IndexError, TypeError, ValueError) as err:  # JSON of other shapes than the spec's

@@ -49,7 +49,7 @@ from urllib.parse import urlparse
 import numpy as np
 
 from meshsom.errors import InputFileError
-from meshsom.gltf_compression import compression_used, decompress_glb
+from meshsom.gltf_compression import decompress_glb, needs_rewriting
 from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
 
 if TYPE_CHECKING:
@@ -897,7 +897,7 @@ def _compressed_gltf(content: bytes) -> bool:
         document = json.loads(content.decode("utf-8-sig"))
     except (ValueError, UnicodeDecodeError):
         return False
-    return bool(compression_used(document)) if isinstance(document, dict) else False
+    return needs_rewriting(document) if isinstance(document, dict) else False
 
 
 def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = ReaderOptions()) -> Iterator[RawMesh]:

@@ -314,3 +314,49 @@ def test_malformed_compressed_json_is_an_input_error(buildings, damage):
         doc["bufferViews"] = [None]
     with pytest.raises(InputFileError, match="bad.glb"):
         decompress_glb(join_glb(doc, binary), "bad.glb")
+
+
+def quantized_glb(buildings, component, normalized):
+    """A GLB as gltfpack writes one with its positions quantized (KHR_mesh_quantization): 16-bit integers over the
+    mesh's box, interleaved with padding (stride 8), the node's translation and scale taking them back to the
+    positions; ``normalized`` (gltfpack -vpn) stores c standing for c / 65535 (unsigned) or c / 32767 (signed),
+    else (-vpi) the integers themselves. Returns the GLB and the positions it stands for, float64."""
+    v, f, ids = _plain(buildings)
+    lo, hi = v.min(0).astype(np.float64), v.max(0).astype(np.float64)
+    signed = component == "short"
+    top = 32767 if signed else 65535
+    unit = (np.arange(3) * 0 + 1) * (hi - lo).max() / (2 * top if signed else top)  # one step, the same on every axis
+    origin = (lo + hi) / 2 if signed else lo
+    q = np.round((v - origin) / unit).astype(np.int16 if signed else np.uint16)
+    rows = np.zeros((len(q), 4), q.dtype)
+    rows[:, :3] = q
+    scale = unit * (top if normalized else 1)
+    binary = rows.tobytes() + f.tobytes()
+    views = [{"buffer": 0, "byteOffset": 0, "byteLength": rows.nbytes, "byteStride": 8, "target": 34962},
+             {"buffer": 0, "byteOffset": rows.nbytes, "byteLength": f.nbytes, "target": 34963}]
+    stored = q.astype(np.float64) / (top if normalized else 1)
+    accessors = [{"bufferView": 0, "componentType": 5122 if signed else USHORT, "normalized": normalized,
+                  "count": len(q), "type": "VEC3", "min": stored.min(0).tolist(), "max": stored.max(0).tolist()},
+                 {"bufferView": 1, "componentType": UINT, "count": f.size, "type": "SCALAR"}]
+    doc = _document(["KHR_mesh_quantization"], accessors, views, [{"byteLength": len(binary)}], {"POSITION": 0}, 1)
+    doc["nodes"][0].update(translation=origin.tolist(), scale=scale.tolist())
+    return join_glb(doc, binary), q.astype(np.float64) * unit + origin
+
+
+@pytest.mark.parametrize("component,normalized", [("ushort", True), ("short", True), ("ushort", False)])
+def test_quantized_positions_read_as_the_positions_they_stand_for(tmp_path, buildings, component, normalized):
+    """KHR_mesh_quantization (gltfpack's output for the web): positions as 16-bit integers, normalized or not, the
+    node's scale and translation taking them back. Read as a .glb, and as a .gltf with its .bin beside it, the
+    vertices are the positions the integers stand for (within float32's rounding) and the buildings keep their
+    volume. Before, normalized integers were read as they are: a tile 65,535 times too large."""
+    from meshsom.preprocess import preprocess
+
+    glb, expected = quantized_glb(buildings[:3], component, normalized)
+    (tmp_path / "q.glb").write_bytes(glb)
+    _as_gltf(glb, tmp_path, "q", embed=False)
+    plain = trimesh.Trimesh(expected, _plain(buildings[:3])[1], process=False)
+    for path in (tmp_path / "q.glb", tmp_path / "q.gltf"):
+        (m,) = read_file(path)
+        assert isinstance(m, RawMesh), m
+        assert np.allclose(_world(m), expected, atol=1e-3 + 1e-6 * np.abs(expected).max()), path.name
+        assert preprocess(m.vertices, m.faces).volume_out == pytest.approx(abs(plain.volume), rel=1e-4), path.name
