@@ -84,6 +84,8 @@ CSV_HEADER_BYTES = 1 << 16
 CSV_DEGREES_CRS = "OGC:CRS84"
 CSV_DEGREES_NOTE = ("the CSV file declares no CRS (no .prj beside it): its coordinates, within +/-180 and +/-90, are "
                     "read as WGS 84 longitude, latitude (--crs names another)")
+PARQUET_DEGREES_NOTE = ("the Parquet file declares no CRS (a WKB column without GeoParquet metadata): its coordinates, "
+                        "within +/-180 and +/-90, are read as WGS 84 longitude, latitude (--crs names another)")
 #: File name endings read as GeoParquet (through pyarrow).
 PARQUET_SUFFIXES = (".parquet", ".geoparquet")
 GIS_SUFFIXES = OGR_SUFFIXES + PARQUET_SUFFIXES
@@ -649,7 +651,7 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         return
     assumed = layer.crs is None and layer.degrees and options.crs is None  # a CSV file in degrees, declaring no CRS
     system, unknown = file_crs(CSV_DEGREES_CRS if assumed else layer.crs, options)
-    file_notes = [CSV_DEGREES_NOTE] if assumed else []
+    file_notes = [(PARQUET_DEGREES_NOTE if _is_parquet(path) else CSV_DEGREES_NOTE)] if assumed else []
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     if placement is not None and geometry is not None:  # Overture's building parts, in files of their own
@@ -1060,9 +1062,13 @@ def _parquet_geo(path: Path) -> tuple[str, dict]:
     except (OSError, ValueError) as err:
         raise InputFileError(str(path), f"cannot be read as Parquet ({type(err).__name__}: {str(err)[:200]})") from None
     raw = (schema.metadata or {}).get(b"geo")
-    if raw is None:
-        raise InputFileError(str(path), "is Parquet without GeoParquet metadata (no \"geo\" key); expected GeoParquet "
-                                        "with a WKB geometry column")
+    if raw is None:  # Parquet's own geometry type, or a query's WKB column
+        found = _parquet_native_geometry(path) or _parquet_wkb_column(path, schema)
+        if found is None:
+            raise InputFileError(str(path), "is Parquet without geometry: no GeoParquet metadata (a \"geo\" key), no "
+                                            "column of Parquet's GEOMETRY or GEOGRAPHY type, and no binary column named "
+                                            f"{', '.join(WKB_COLUMNS)} holding WKB")
+        return found
     try:
         geo = json.loads(raw)
         column = geo["primary_column"]
@@ -1074,6 +1080,67 @@ def _parquet_geo(path: Path) -> tuple[str, dict]:
         raise InputFileError(str(path), f"stores its geometry as {encoding!r}; GeoParquet is read with WKB or a "
                                         f"native (GeoArrow) encoding: {', '.join(GEOARROW_ENCODINGS)}")
     return column, meta
+
+
+#: Names of a WKB column in Parquet that declares no geometry (a query's output: DuckDB's ``ST_AsWKB(geometry)``),
+#: looked for in this order.
+WKB_COLUMNS = ("geometry", "geom", "wkb_geometry", "the_geom", "wkb", "geometry_wkb")
+
+
+@functools.lru_cache(maxsize=16)
+def _native_geometry_of(path: str, size: int, mtime: int) -> tuple | None:
+    import pyarrow.parquet as pq
+
+    pf = pq.ParquetFile(path)
+    for i in range(len(pf.schema)):
+        column = pf.schema.column(i)
+        text = str(column.logical_type)
+        if column.max_repetition_level or "." in column.path or not text.startswith(("Geometry(", "Geography(")):
+            continue
+        crs = text[text.index("(crs=") + 5:-1]
+        if text.startswith("Geography("):
+            crs = crs.rsplit(", algorithm=", 1)[0]
+        if crs.startswith("srid:"):
+            crs = f"EPSG:{crs[5:]}"
+        elif crs.startswith("projjson:"):  # a key of the file's metadata holds it
+            crs = ((pf.metadata.metadata or {}).get(crs[9:].encode()) or b"").decode() or None
+        meta = {"encoding": "WKB"}
+        if crs:
+            meta["crs"] = crs  # else OGC:CRS84, as Parquet's specification says
+        return column.path, meta
+    return None
+
+
+def _parquet_native_geometry(path: Path) -> tuple[str, dict] | None:
+    """The first top-level column of Parquet's own GEOMETRY or GEOGRAPHY logical type (Parquet 2.11, GeoParquet 2.0:
+    WKB with the CRS in the type, ``srid:<code>``, PROJJSON, ``projjson:<key>`` of the file's metadata, or none:
+    OGC:CRS84), as :func:`_parquet_geo` gives it; None where there is none."""
+    st = Path(path).stat()
+    return _native_geometry_of(str(path), st.st_size, st.st_mtime_ns)
+
+
+def _parquet_wkb_column(path: Path, schema) -> tuple[str, dict] | None:
+    """A binary column of :data:`WKB_COLUMNS` whose first value is WKB (shapely reads it), as :func:`_parquet_geo`
+    gives it, its CRS unknown (read as WGS 84 where its first footprint lies within +/-180 and +/-90, noted:
+    :func:`_parquet_layers`); None where there is none."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import shapely
+
+    by_name = {name.lower(): name for name in schema.names}
+    for wanted in WKB_COLUMNS:
+        name = by_name.get(wanted)
+        if name is None or not (pa.types.is_binary(schema.field(name).type)
+                                or pa.types.is_large_binary(schema.field(name).type)):
+            continue
+        first = next((v for batch in pq.ParquetFile(path).iter_batches(batch_size=256, columns=[name])
+                      for v in batch.column(0).to_pylist() if v is not None), None)
+        try:
+            if first is not None and shapely.from_wkb(first) is not None:
+                return name, {"encoding": "WKB", "crs": None, "undeclared": True}
+        except shapely.errors.GEOSException:
+            continue
+    return None
 
 
 def _geoarrow_wkb(value, encoding: str, where: str) -> bytes | None:
@@ -1122,7 +1189,15 @@ def _parquet_layers(path: Path) -> list[Layer]:
         crs = None
     else:
         crs = meta["crs"] if isinstance(meta["crs"], str) else json.dumps(meta["crs"])
-    return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows))]
+    degrees = False
+    if meta.get("undeclared"):  # a WKB column of no declared CRS: WGS 84 where its first footprint is in degrees
+        import shapely
+        from shapely.geometry import mapping
+
+        first = next((v for batch in pq.ParquetFile(path).iter_batches(batch_size=256, columns=[column])
+                      for v in batch.column(0).to_pylist() if v is not None), None)
+        degrees = first is not None and _within_degrees(mapping(shapely.from_wkb(first)))
+    return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows), degrees)]
 
 
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None

@@ -361,7 +361,7 @@ def test_layers_ids_and_folders(tmp_path):
     (tmp_path / "zipped.gpkg").write_bytes(gzip.compress(gpkg.read_bytes()))
     pq.write_table(pa.table({"x": [1, 2]}), tmp_path / "plain.parquet")
     for name, problem in [("junk.gpkg", "cannot be read through GDAL"), ("zipped.gpkg", "gzip-compressed"),
-                          ("plain.parquet", "without GeoParquet metadata")]:
+                          ("plain.parquet", "Parquet without geometry: no GeoParquet metadata")]:
         (item,) = read_file(tmp_path / name)
         assert isinstance(item, Rejection) and problem in item.reason, (name, item)
 
@@ -682,3 +682,67 @@ def test_geoparquet_in_native_geoarrow_encodings(tmp_path, layout):
             assert _volume(got["two"]) == pytest.approx((25 + 20) * 6, rel=1e-9)
         assert isinstance(got["bad"], Rejection) and got["bad"].reason.startswith(
             f"its {encoding} geometry (GeoArrow) cannot be read"), got["bad"]
+
+
+class _WkbType(pa.ExtensionType):
+    """The GeoArrow WKB extension type, as geoarrow-pyarrow registers it: pyarrow writes a column of it as Parquet's
+    own GEOMETRY (or GEOGRAPHY) logical type, the CRS in the type."""
+
+    def __init__(self, meta: bytes = b"{}"):
+        self._meta = meta
+        super().__init__(pa.binary(), "geoarrow.wkb")
+
+    def __arrow_ext_serialize__(self):
+        return self._meta
+
+    @classmethod
+    def __arrow_ext_deserialize__(cls, storage_type, serialized):
+        return cls(serialized)
+
+
+def _native_parquet(path, rings, heights, meta):
+    """Parquet 2.11 / GeoParquet 2.0: a GEOMETRY column (``meta``: GeoArrow's crs and edges), no "geo" key."""
+    wkb = [shapely.to_wkb(shapely.Polygon(r)) for r in rings]
+    pa.register_extension_type(_WkbType())
+    try:
+        column = pa.ExtensionArray.from_storage(_WkbType(json.dumps(meta).encode()), pa.array(wkb, pa.binary()))
+        pq.write_table(pa.table({"id": [f"b{k}" for k in range(len(rings))], "height": heights, "geometry": column}),
+                       path, store_schema=False)
+    finally:
+        pa.unregister_extension_type("geoarrow.wkb")
+    assert b"geo" not in (pq.read_schema(path).metadata or {})
+    return path
+
+
+def test_parquet_of_its_own_geometry_type_and_plain_wkb(tmp_path):
+    """Parquet that carries no GeoParquet metadata: a column of Parquet's GEOMETRY type with its CRS (an EPSG code,
+    an SRID, PROJJSON) or none (OGC:CRS84, as the specification says), a GEOGRAPHY column in degrees, and a query's
+    output (DuckDB's ST_AsWKB: a binary "geometry" column, no CRS) in degrees (read as WGS 84, noted) or in metres
+    (--crs names its CRS). Volumes by hand: RD metres as they are, degrees placed by PROJ (tests/footprints.py)."""
+    rd = [closed([(84600 + x + 30 * k, 447400 + y) for x, y in L_SHAPE]) for k in range(2)]
+    degrees = [closed(lonlat([(x + 30 * k, y) for x, y in L_SHAPE])) for k in range(2)]
+    heights = [7.5, 9.0]
+    by_rd = [area(L_SHAPE) * h for h in heights]
+    cases = {
+        "epsg": (_native_parquet(tmp_path / "epsg.parquet", rd, heights, {"crs": "EPSG:28992"}), ReaderOptions()),
+        "srid": (_native_parquet(tmp_path / "srid.parquet", rd, heights, {"crs": "srid:28992", "crs_type": "srid"}),
+                 ReaderOptions()),
+        "projjson": (_native_parquet(tmp_path / "projjson.parquet", rd, heights,
+                                     {"crs": pyproj.CRS("EPSG:28992").to_json_dict()}), ReaderOptions()),
+        "crs84": (_native_parquet(tmp_path / "crs84.parquet", degrees, heights, {}), ReaderOptions()),
+        "geography": (_native_parquet(tmp_path / "geography.parquet", degrees, heights, {"edges": "spherical"}),
+                      ReaderOptions()),
+    }
+    for name, rings in (("duckdb", degrees), ("metres", rd)):
+        pq.write_table(pa.table({"id": ["b0", "b1"], "height": heights,
+                                 "geometry": [shapely.to_wkb(shapely.Polygon(r)) for r in rings]}), tmp_path / f"{name}.parquet")
+    cases["duckdb"] = (tmp_path / "duckdb.parquet", ReaderOptions())
+    cases["metres"] = (tmp_path / "metres.parquet", ReaderOptions(crs="EPSG:28992"))
+    for name, (path, options) in cases.items():
+        got = _by_id(read_file(path, options))
+        assert sorted(got) == ["b0", "b1"] and all(isinstance(m, RawMesh) for m in got.values()), (name, got)
+        volumes = [_volume(got[f"b{k}"]) for k in range(2)]
+        # degrees: drawn in metres about Delft at height 0 (tests/footprints.py), read back east-north-up
+        assert volumes == pytest.approx(by_rd, rel=1e-9 if name in ("epsg", "srid", "projjson", "metres") else 1e-5), name
+        assumed = [n for n in got["b0"].notes if "declares no CRS" in n]
+        assert bool(assumed) == (name == "duckdb"), (name, got["b0"].notes)
