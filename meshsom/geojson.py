@@ -596,9 +596,11 @@ def building(geometry: dict, props: dict, options) -> dict:
     return {"type": "Building", "geometry": [geometry], "attributes": {} if label is None else {options.label_attribute: label}}
 
 
-def read_geojson(document: dict, path: Path, options, name: str | None = None) -> Iterator:
+def read_geojson(document: dict, path: Path, options, name: str | None = None, first: int = 0) -> Iterator:
     """The buildings of a parsed GeoJSON / JSON-FG document: RawMesh or Rejection items, as
-    :func:`meshsom.io.read_cityjson` gives them (a Rejection per feature that cannot be read)."""
+    :func:`meshsom.io.read_cityjson` gives them (a Rejection per feature that cannot be read).
+    ``first``: the place in its file of the document's first feature (a range of a large file:
+    :func:`geojson_ranges`), for the ids of features that have none."""
     import dataclasses
 
     from meshsom.io import Rejection, _object_meshes, file_crs
@@ -618,11 +620,11 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
     placement = Placement(path, options) if options.part_files else None  # Overture's parts, in files of their own
     for k, feature in enumerate(features, 1):
         if not isinstance(feature, dict) or feature.get("type") != "Feature":
-            yield Rejection(f"{name}#feature-{k}", str(path), "is not a GeoJSON Feature")
+            yield Rejection(f"{name}#feature-{first + k}", str(path), "is not a GeoJSON Feature")
             continue
         if k - 1 in owned:
             continue  # read with its building
-        oid = _feature_id(feature, k - 1)
+        oid = _feature_id(feature, first + k - 1)
         mesh_id = f"{name}#{oid}"
         crs = file_crs(declared_crs(feature, collection_crs, old_crs, options), options)
         props = properties(feature)
@@ -661,3 +663,135 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None) -
             if notes and not isinstance(item, Rejection):
                 item = dataclasses.replace(item, notes=tuple(notes) + item.notes)
             yield item
+
+
+#: Bytes of a large GeoJSON file looked at at a time when its features are found (:func:`geojson_ranges`).
+SCAN_BYTES = 8 << 20
+#: Fewest bytes a feature takes (a small footprint and its properties): a file smaller than twice a range's features
+#: this size is read whole, unscanned.
+MIN_FEATURE_BYTES = 200
+#: What a file that groups parts mentions (OpenStreetMap's and Overture's keys, CityGML's type): it is read whole, so
+#: that each building finds its parts.
+PART_MARKS = (b'"building:part"', b'"building_id"', b'"BuildingPart"')
+_FEATURES_KEY = re.compile(rb'"features"\s*:\s*$')
+
+
+def geojson_ranges(path: Path, target_features: int, options) -> list[list[int]] | None:
+    """Split a large GeoJSON FeatureCollection into ranges of whole features, each for one read task
+    (:func:`read_geojson_range`): one pass over its bytes (NumPy, :data:`SCAN_BYTES` at a time) finds where each
+    feature of its top-level ``features`` array starts and ends, outside strings.
+
+    Parameters
+    ----------
+    path : Path
+        A GeoJSON file (plain: a gzipped one is not split).
+    target_features : int
+        Features per read task (``dask.read_features``).
+    options : ReaderOptions
+        Its ``max_bytes`` bounds the file scanned.
+
+    Returns
+    -------
+    list of [start, stop, first, open, close] or None
+        Byte ranges of whole features (``first``: the place of the range's first feature), and the places of the
+        array's ``[`` and ``]``, covering every feature once, in order; None where the file has fewer than twice
+        ``target_features`` features, is gzip (not seekable), is not a FeatureCollection of a ``features`` array, or
+        mentions building parts (:data:`PART_MARKS`: read whole, so that each building finds its parts).
+    """
+    from meshsom.io import GZIP_MAGIC, _parse_json
+
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if target_features < 1 or size < 2 * target_features * MIN_FEATURE_BYTES or size > options.max_bytes:
+            return None
+        with open(path, "rb") as fh:
+            if fh.read(2) == GZIP_MAGIC:
+                return None
+        found = _feature_spans(path)
+    except OSError:
+        return None
+    if found is None:
+        return None
+    opened, closed, starts, ends = found
+    if len(starts) != len(ends) or len(starts) < 2 * target_features:
+        return None
+    with open(path, "rb") as fh:
+        head = fh.read(opened + 1)
+        fh.seek(closed)
+        tail = fh.read()
+    try:
+        document = _parse_json(head + tail, str(path))
+    except InputFileError:
+        return None
+    if not (isinstance(document, dict) and document.get("type") == "FeatureCollection" and document.get("features") == []):
+        return None
+    return [[int(starts[a]), int(ends[min(a + target_features, len(ends)) - 1]) + 1, a, opened, closed]
+            for a in range(0, len(starts), target_features)]
+
+
+def _feature_spans(path: Path) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+    """The places of a JSON document's top-level ``"features": [`` and its ``]``, and of each member object's ``{``
+    and ``}``; None where there is none, the document does not close it, or it mentions :data:`PART_MARKS`."""
+    in_string, depth, carried, offset = 0, 0, 0, 0  # carried: a run of backslashes at the end of the last chunk
+    opened = closed = None
+    starts, ends, tail = [], [], b""
+    with open(path, "rb") as fh:
+        while chunk := fh.read(SCAN_BYTES):
+            seen = tail + chunk
+            if any(mark in seen for mark in PART_MARKS):
+                return None
+            b = np.frombuffer(chunk, np.uint8)
+            n = len(b)
+            backslash = b == 92
+            index = np.arange(n, dtype=np.int32)
+            last_other = np.maximum.accumulate(np.where(backslash, np.int32(-1), index))  # the last non-backslash to i
+            run = np.empty(n, np.int32)  # backslashes just before i
+            run[0] = carried
+            run[1:] = index[:-1] - last_other[:-1] + np.where(last_other[:-1] < 0, carried, 0)
+            quote = (b == 34) & (run % 2 == 0)
+            strings = (np.cumsum(quote, dtype=np.int32) + in_string) % 2  # 1: inside a string after i
+            outside = strings == 0
+            opener = ((b == 123) | (b == 91)) & outside
+            closer = ((b == 125) | (b == 93)) & outside
+            after = depth + np.cumsum(opener.astype(np.int32) - closer, dtype=np.int32)
+            if opened is None:
+                for i in np.flatnonzero((b == 91) & opener & (after == 2)).tolist():
+                    if _FEATURES_KEY.search((tail + chunk[:i])[-64:]):
+                        opened = offset + i
+                        break
+            if opened is not None and closed is None:
+                within = index > opened - offset
+                ends_here = np.flatnonzero((b == 93) & closer & (after == 1) & within)
+                if len(ends_here):
+                    closed = offset + int(ends_here[0])
+                    within &= index < closed - offset
+                starts.append(offset + np.flatnonzero((b == 123) & opener & (after == 3) & within).astype(np.int64))
+                ends.append(offset + np.flatnonzero((b == 125) & closer & (after == 2) & within).astype(np.int64))
+            in_string = int(strings[-1])
+            depth = int(after[-1])
+            carried = int(n - 1 - last_other[-1]) + (carried if last_other[-1] < 0 else 0)
+            tail = seen[-64:]  # the last bytes read, for a mark or a key across chunks
+            offset += n
+    if opened is None or closed is None or depth != 0 or in_string:
+        return None
+    return opened, closed, np.concatenate(starts or [np.zeros(0, np.int64)]), np.concatenate(ends or [np.zeros(0, np.int64)])
+
+
+def read_geojson_range(path: Path, options, name: str | None, feature_range) -> Iterator:
+    """The buildings of one range of a large GeoJSON FeatureCollection (:func:`geojson_ranges`): the file's members
+    other than its features, with those of the range, read as :func:`read_geojson` reads a document."""
+    from meshsom.io import _parse_json
+
+    start, stop, first, opened, closed = (int(v) for v in feature_range)
+    with open(path, "rb") as fh:
+        head = fh.read(opened + 1)
+        fh.seek(start)
+        body = fh.read(stop - start)
+        fh.seek(closed)
+        tail = fh.read()
+    document = _parse_json(head + body + tail, str(path))
+    if not isinstance(document, dict) or not isinstance(document.get("features"), list):
+        raise InputFileError(str(path), f"bytes {start}..{stop} are not features of its \"features\" list (the file "
+                                        "changed since it was planned?)")
+    yield from read_geojson(document, Path(path), options, name, first)

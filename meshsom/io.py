@@ -793,6 +793,8 @@ def read_file(
     byte_range : (start, stop, first_line), optional
         A CityJSONSeq file only: read the features on the lines of this range
         (:func:`cityjsonseq_ranges`), ids unique within it; a range without buildings yields nothing.
+        For a GeoJSON FeatureCollection, ``(start, stop, first, open, close)`` of
+        :func:`meshsom.geojson.geojson_ranges`: the features of that range.
     feature_range : list, optional
         A GIS file only: read the features of this range (:func:`meshsom.gis.gis_ranges`).
     """
@@ -823,7 +825,11 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
                ) -> Iterator[RawMesh | Rejection]:
     try:
         kind = input_kind(path)
-        if kind == "cityjson":
+        if kind == "cityjson" and byte_range is not None:  # a range of a large GeoJSON FeatureCollection
+            from meshsom.geojson import read_geojson_range
+
+            yield from read_geojson_range(path, options, name, byte_range)
+        elif kind == "cityjson":
             yield from read_cityjson(path, options, name)
         elif kind == "cityjsonseq":
             yield from read_cityjsonseq(path, options, name, byte_range)

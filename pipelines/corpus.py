@@ -83,7 +83,7 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
     name : str, optional
         The start of the mesh ids (``meshsom.io.InputFile.name``).
     byte_range : (start, stop, first_line), optional
-        :func:`meshsom.io.cityjsonseq_ranges`.
+        :func:`meshsom.io.cityjsonseq_ranges`; or :func:`meshsom.geojson.geojson_ranges`' five.
     feature_range : list, optional
         :func:`meshsom.gis.gis_ranges` or :func:`meshsom.osm.osm_ranges`.
 
@@ -485,6 +485,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from distributed import as_completed
 
     from meshsom.errors import StoreError
+    from meshsom.geojson import geojson_ranges
     from meshsom.gis import gis_ranges
     from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
@@ -526,7 +527,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         sources = []
         for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
             kind = input_kind(f.path)
-            ranges = cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "cityjsonseq" else None
+            ranges = (cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "cityjsonseq" else
+                      geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
             if ranges:

@@ -334,6 +334,29 @@ def test_a_large_gis_file_is_read_by_several_tasks(cluster_client, tmp_path):
         assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(ranged)[name][:])), name
 
 
+def test_a_large_feature_collection_is_read_by_several_tasks(cluster_client, tmp_path):
+    """A city's footprints in one GeoJSON FeatureCollection: read by one task, or by a task per range of features
+    (dask.read_features; meshsom.geojson.geojson_ranges), so that no worker holds the whole city; the stores are
+    the same."""
+    from test_geojson import _big_collection
+
+    path = tmp_path / "city.geojson"
+    path.write_text(_big_collection(120))
+    stores, reads = {}, {}
+    for read_features in (10**6, 25):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(path)]}, "encoding": {"levels": [1]},
+                                "dask": {"shard_meshes": 16, "read_features": read_features}, "store": {"chunk_rows": CHUNK}})
+        stores[read_features] = store = tmp_path / f"f{read_features}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_features] = {total for stage, _, total in calls if stage == "read"}
+    assert reads[10**6] == {1} and reads[25] == {5}
+    a, b = read_manifest(stores[10**6])["records"], read_manifest(stores[25])["records"]
+    assert a == b and len(a) == 120 and sum(r["status"] == "accepted" for r in a) == 119
+    for name, array in arrays(stores[10**6]).items():
+        assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(stores[25])[name][:])), name
+
+
 def test_a_large_osm_extract_is_read_by_several_tasks(cluster_client, tmp_path):
     """An OpenStreetMap extract planned as several read tasks (each parses the file and builds
     the meshes of its range of buildings, parts with their building): the store is the one a

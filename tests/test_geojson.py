@@ -299,3 +299,58 @@ def test_geojson_files_through_meshsom_ingest(tmp_path):
     # what the reader did, counted by kind (the CRS named whole, its numbers kept)
     assert "read with notes" in out.stdout
     assert "3 x converted to metres from geographic coordinates (WGS 84 longitude-latitude-height)" in out.stdout, out.stdout
+
+
+def _big_collection(n, pretty=False):
+    """A FeatureCollection of ``n`` L-shaped footprints in degrees, with what trips a scanner that does not know
+    JSON's strings: braces, brackets, escaped quotes and backslashes in property values, the text
+    ``"features": [`` inside a string, a crs member of nested objects and a bbox array before the features; some
+    features without an id (named by their place in the file), one that is not a Feature."""
+    from footprints import L_SHAPE
+
+    features = []
+    for k in range(n):
+        ring = closed(lonlat([(x + 30 * (k % 25), y + 30 * (k // 25)) for x, y in L_SHAPE]))
+        props = {"height": 3.0 + k % 7, "note": ['{"a": [1, 2]}', 'say \\"hi\\" \\\\', '"features": [{', "]}]"][k % 4]}
+        feature = {"type": "Feature", "geometry": {"type": "Polygon", "coordinates": [ring]}, "properties": props}
+        if k % 3:
+            feature["id"] = f"b{k}"
+        features.append(feature)
+    features[17] = {"type": "NotAFeature", "x": [{"y": "}"}]}
+    document = {"type": "FeatureCollection", "name": 'odd "features": [ name',
+                "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}},
+                "bbox": [4.0, 52.0, 4.5, 52.1], "features": features}
+    if pretty:
+        return json.dumps(document, indent=2).replace("\n", "\r\n")
+    return "{" + ",\n".join(f"{json.dumps(k)}: {json.dumps(v)}" for k, v in document.items() if k != "features") + \
+        ',\n"features": [\n' + ",\n".join(json.dumps(f) for f in features) + "\n]}\n"
+
+
+@pytest.mark.parametrize("pretty,scan_bytes", [(False, 8 << 20), (False, 13), (True, 64), (True, 4097)])
+def test_a_large_feature_collection_is_read_in_ranges_as_whole(tmp_path, monkeypatch, pretty, scan_bytes):
+    """geojson_ranges finds each feature of the top-level "features" array, outside strings, whatever the chunks
+    the file is looked at in (13 bytes: escapes and strings across them): the ranges read (read_geojson_range)
+    give the items a whole reading gives, ids, reasons and vertices; a file that names building parts, a gzipped
+    one and one of too few features are read whole."""
+    import meshsom.geojson as geojson
+
+    monkeypatch.setattr(geojson, "SCAN_BYTES", scan_bytes)
+    path = tmp_path / "city.geojson"
+    path.write_text(_big_collection(120, pretty))
+    whole = list(read_file(path))
+    assert len(whole) == 120 and sum(isinstance(i, Rejection) for i in whole) == 1
+    ranges = geojson.geojson_ranges(path, 25, ReaderOptions())
+    assert ranges is not None and [r[2] for r in ranges] == [0, 25, 50, 75, 100]
+    ranged = [i for r in ranges for i in read_file(path, ReaderOptions(), None, tuple(r))]
+    assert [i.id for i in ranged] == [i.id for i in whole]
+    for a, b in zip(whole, ranged):
+        if isinstance(a, Rejection):
+            assert a.reason == b.reason
+        else:
+            assert np.array_equal(a.vertices + a.origin, b.vertices + b.origin) and np.array_equal(a.faces, b.faces)
+    assert geojson.geojson_ranges(path, 61, ReaderOptions()) is None  # fewer than twice 61 features
+    parts = tmp_path / "parts.geojson"
+    parts.write_text(_big_collection(120, pretty).replace('"note"', '"building:part"', 1))
+    assert geojson.geojson_ranges(parts, 25, ReaderOptions()) is None
+    (tmp_path / "city.geojson.gz").write_bytes(gzip.compress(path.read_bytes()))
+    assert geojson.geojson_ranges(tmp_path / "city.geojson.gz", 25, ReaderOptions()) is None
