@@ -19,7 +19,6 @@ import json
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -58,13 +57,11 @@ def write_city(path: Path, n: int) -> None:
 
 
 def best(fn, repeat: int) -> float:
+    """The best of ``repeat`` calls after a warm-up call."""
+    from bench.common import best_time
+
     fn()
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+    return best_time(fn, repeat)
 
 
 def fresh_read(path: Path, feature_range) -> dict:

@@ -36,6 +36,7 @@ import logging
 import time
 import uuid
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
@@ -72,7 +73,7 @@ class Shard:
 
 
 def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None,
-                feature_range: Sequence | None = None) -> list:
+                feature_range: Sequence | None = None, source: str | None = None) -> list:
     """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file, or of a
     feature range of a GIS file), in the reader's order.
 
@@ -86,6 +87,9 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
         :func:`meshsom.io.cityjsonseq_ranges`; or :func:`meshsom.geojson.geojson_ranges`' five.
     feature_range : list, optional
         :func:`meshsom.gis.gis_ranges` or :func:`meshsom.osm.osm_ranges`.
+    source : str, optional
+        The input the items name as their source where ``path`` was written from it (a CityJSON file split into a
+        CityJSONSeq: :func:`_split_cityjson`).
 
     Returns
     -------
@@ -95,10 +99,15 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
     from meshsom.io import Rejection, read_file
 
     try:
-        return list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range),
-                              None if feature_range is None else list(feature_range)))
+        items = list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range),
+                               None if feature_range is None else list(feature_range)))
     except OSError as err:
-        return [Rejection(name or str(path), str(path), f"cannot be read ({err.strerror or err})")]
+        return [Rejection(name or str(path), source or str(path), f"cannot be read ({err.strerror or err})")]
+    if source is not None:
+        import dataclasses
+
+        items = [dataclasses.replace(item, source=source) for item in items]
+    return items
 
 
 def generate_items(generator, start: int, stop: int) -> list:
@@ -384,6 +393,37 @@ def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
     return read_manifest(path)["summary"]
 
 
+#: Where in a local store the CityJSONSeq of a large CityJSON input is written (:func:`_split_cityjson`): in its
+#: staging group, deleted with it when the run is done.
+SPLIT_FOLDER = "inputs"
+#: Bytes of a JSON input looked at for ``"CityJSON"`` (its type, which writers put first) before it is split.
+CITYJSON_SNIFF_BYTES = 1 << 16
+
+
+def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
+    """A CityJSON input of twice ``dask.read_bytes`` or more written as a CityJSONSeq in the store's staging group
+    (:func:`meshsom.cityjson_split.split_cityjson`), so that tasks read it in ranges; the path, or None where it is
+    smaller, not CityJSON, or the store is remote (workers may not share this machine's disk: read whole)."""
+    from meshsom.cityjson_split import split_cityjson
+    from meshsom.io import open_input
+    from meshsom.store import is_remote
+
+    try:
+        if is_remote(store) or Path(f.path).stat().st_size < 2 * int(cfg.dask.read_bytes):
+            return None
+        with open_input(Path(f.path), cfg.corpus.reader) as stream:
+            if b'"CityJSON"' not in stream.read(CITYJSON_SNIFF_BYTES):
+                return None
+    except Exception:  # unreadable: its reader says why
+        return None
+    out = Path(store) / STAGING / SPLIT_FOLDER / f"{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
+    count = split_cityjson(Path(f.path), out, cfg.corpus.reader)
+    if not count:
+        return None
+    log.info("%s: a CityJSON file of %d first-level objects, split into %s to be read in ranges", f.path, count, out)
+    return str(out)
+
+
 def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
     """A Rejection for each file read in ranges that gave nothing at all (no range holds a
     building): read whole, such a file is a rejection that says what it holds instead."""
@@ -392,7 +432,7 @@ def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
     by_file: dict[str, list] = {}
     for i, src in enumerate(sources):
         if "range" in src:
-            by_file.setdefault(src["path"], [src["name"], 0])[1] += counts[i]
+            by_file.setdefault(src.get("source", src["path"]), [src["name"], 0])[1] += counts[i]
     return [Rejection(name, path, f"holds no object of the types {', '.join(reader.object_types)}")
             for path, (name, n) in by_file.items() if n == 0]
 
@@ -525,13 +565,18 @@ def run_corpus(client, cfg, store, resume: bool = False,
             log.info("building parts in %s: each read with its building, where an input holds it",
                      ", ".join(reader.part_files))
         sources = []
-        for f in files:  # a large CityJSONSeq or GIS file: a source per range, read in parallel
+        for k, f in enumerate(files):  # a large CityJSON(Seq), GeoJSON or GIS file: a source per range, in parallel
             kind = input_kind(f.path)
-            ranges = (cityjsonseq_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "cityjsonseq" else
+            split = _split_cityjson(f, k, path, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
+            ranges = (cityjsonseq_ranges(Path(split or f.path), int(cfg.dask.read_bytes), cfg.corpus.reader)
+                      if kind == "cityjsonseq" or split else
                       geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
-            if ranges:
+            if ranges and split:  # the sequence's ranges, its items named as the file's (source: the file)
+                sources += [{"kind": "file", "path": split, "name": f.name, "range": list(r), "source": str(f.path)}
+                            for r in ranges]
+            elif ranges:
                 sources += [{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
             elif features:
                 sources += [{"kind": "file", "path": str(f.path), "name": f.name, "features": r} for r in features]
@@ -539,7 +584,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
                 sources.append({"kind": "file", "path": str(f.path), "name": f.name})
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
-                                            src.get("features"), pure=False, key=f"corpus-read-{run_id}-{i}")
+                                            src.get("features"), src.get("source"), pure=False,
+                                            key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
         for k, future in enumerate(as_completed(id_futures), 1):
@@ -582,8 +628,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         else:
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], reader, src.get("name"),
-                                                        src.get("range"), src.get("features"), pure=False,
-                                                        key=f"corpus-read-{run_id}-{sh.source}")
+                                                        src.get("range"), src.get("features"), src.get("source"),
+                                                        pure=False, key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
         return client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,
@@ -591,7 +637,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
 
     metas, failed = _run_shards(client, path, shards, submit, report)
     read_futures.clear()
-    _shards_failed(path, shards, failed, lambda sh: sources[sh.source].get("path", "generator"))
+    _shards_failed(path, shards, failed,
+                   lambda sh: sources[sh.source].get("source", sources[sh.source].get("path", "generator")))
 
     _assemble(client, root, path, shards, metas, plan, cfg, levels, chunk, run_id, report)
     remove_staging(path)

@@ -274,6 +274,63 @@ def test_a_large_cityjsonseq_file_is_read_by_several_tasks(cluster_client, tmp_p
         assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(ranged)[name][:])), name
 
 
+def test_a_large_cityjson_file_is_split_and_read_by_several_tasks(cluster_client, tmp_path):
+    """A city in one CityJSON file (its objects sharing one vertex list: it cannot be read in pieces) of twice
+    dask.read_bytes or more: split into a CityJSONSeq in the store's staging group (meshsom.cityjson_split), read in
+    byte ranges by tasks of their own; the store is the one a single reader of the file gives, records naming the
+    file as their source, and the sequence is gone with the staging group once the run is done."""
+    import shutil
+
+    city = tmp_path / "zurich.city.json"
+    shutil.copy(ZURICH, city)
+    stores, reads = {}, {}
+    for read_bytes in (1 << 30, 8_000):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(city)]}, "encoding": {"levels": [1, 2]},
+                                "dask": {"shard_meshes": 7, "read_bytes": read_bytes}, "store": {"chunk_rows": CHUNK}})
+        stores[read_bytes] = store = tmp_path / f"r{read_bytes}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_bytes] = {total for stage, _, total in calls if stage == "read"}
+        assert not (store / corpus.STAGING).exists()
+    whole, split = stores[1 << 30], stores[8_000]
+    assert reads[1 << 30] == {1} and min(reads[8_000]) >= 5  # read tasks: one, or one per range
+    a, b = read_manifest(whole)["records"], read_manifest(split)["records"]
+    assert len(a) == N_ZURICH and a == b
+    assert {r["source"] for r in b} == {str(city)}
+    for name, array in arrays(whole).items():
+        assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(split)[name][:])), name
+
+
+def test_split_cityjson_writes_what_the_document_reads_as(tmp_path):
+    """meshsom.cityjson_split.split_cityjson: the sequence it writes reads as the document (ids, labels, parts,
+    LoDs, coordinates, faces), for the bundled Delft (1.0, 3dfier) and Zürich (1.1, parts) files; a document whose
+    boundaries name a vertex it lacks, and a GeoJSON file, are not split (read whole, their reader says why)."""
+    from meshsom.cityjson_split import split_cityjson
+
+    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    for original in (real / "delft-lod1-3dfier" / "delft.city.json", real / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"):
+        out = tmp_path / f"{original.stem}.city.jsonl"
+        count = split_cityjson(original, out, ReaderOptions())
+        assert count and len(out.read_text().splitlines()) == count + 1
+        want = list(read_file(original))
+        got = list(read_file(out, ReaderOptions(), original.name))
+        assert [m.id for m in got] == [m.id for m in want] and len(want) > 40
+        for a, b in zip(want, got):
+            assert type(a) is type(b) and (getattr(a, "label", None), getattr(a, "lod", None)) == (
+                getattr(b, "label", None), getattr(b, "lod", None)), a.id
+            if hasattr(a, "faces"):
+                assert a.parts == b.parts and np.array_equal(a.faces, b.faces), a.id
+                assert np.allclose(a.vertices + a.origin, b.vertices + b.origin, rtol=0, atol=1e-9), a.id
+    broken = json.loads(ZURICH.read_text())
+    first = next(iter(broken["CityObjects"].values()))
+    first["geometry"][0]["boundaries"] = [[[len(broken["vertices"]) + 5, 0, 1]]]
+    (tmp_path / "broken.city.json").write_text(json.dumps(broken))
+    assert split_cityjson(tmp_path / "broken.city.json", tmp_path / "b.city.jsonl", ReaderOptions()) is None
+    (tmp_path / "f.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": []}))
+    assert split_cityjson(tmp_path / "f.geojson", tmp_path / "f.city.jsonl", ReaderOptions()) is None
+    assert not (tmp_path / "b.city.jsonl").exists() and not (tmp_path / "f.city.jsonl").exists()
+
+
 def test_repeated_ids_across_ranges_get_the_next_free_number():
     sources = [{"path": "a", "range": [0, 1, 2]}, {"path": "a", "range": [1, 2, 3]}, {"path": "b"}]
     ids = [["x", "x (2)", "y"], ["x", "z", "y"], ["x"]]
