@@ -20,16 +20,18 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from bench.common import PEAK_MB  # noqa: E402
 ZURICH = ROOT / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"
 
 SPLIT = """
-import resource, sys
-sys.path.insert(0, {root!r})
+import sys
+{peak}sys.path.insert(0, {root!r})
 from pathlib import Path
 from meshsom.cityjson_split import split_cityjson
 from meshsom.io import ReaderOptions
 n = split_cityjson(Path({path!r}), Path({out!r}), ReaderOptions())
-print(n, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+print(n, peak_mb())
 """
 
 
@@ -81,7 +83,7 @@ def main(argv=None) -> int:
         parse = best(lambda: json.loads(path.read_bytes()), args.repeat)
         split = best(lambda: split_cityjson(path, out, ReaderOptions()), args.repeat)
         features = len(out.read_text().splitlines()) - 1
-        done = subprocess.run([sys.executable, "-c", SPLIT.format(root=str(ROOT), path=str(path), out=str(out))],
+        done = subprocess.run([sys.executable, "-c", SPLIT.format(root=str(ROOT), path=str(path), out=str(out), peak=PEAK_MB)],
                               capture_output=True, text=True, check=True).stdout.split()
         print(f"{n:,} objects ({features:,} features), {mb:.1f} MB")
         print("| step | seconds | MB/s | ratio to json.loads |")

@@ -38,6 +38,16 @@ def data(N: int, D: int, M: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]
     return rng.normal(size=(N, D)).astype(np.float32), rng.normal(size=(M, D)).astype(np.float32)
 
 
+#: Code that defines ``peak_mb()``: the peak resident memory (MB) of the process's own memory (VmHWM, reset by exec;
+#: getrusage's maxrss keeps a forking parent's), pasted into the fresh processes a benchmark measures.
+PEAK_MB = """
+def peak_mb():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+"""
+
+
 def best_time(fn, repeat: int = 3, min_total: float = 0.0) -> float:
     """Best wall time of ``repeat`` calls (at least one)."""
     best = float("inf")

@@ -26,21 +26,23 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.common import PEAK_MB  # noqa: E402
+
 #: Metres per degree of longitude and latitude about Delft, near enough for a synthetic city.
 METRES_PER_DEGREE = np.array([68_600.0, 111_250.0])
 ORIGIN = np.array([4.3571, 52.0116])
 L_SHAPE = np.array([(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10), (0, 0)], float)
 
 READ = """
-import resource, sys, time, json
-sys.path.insert(0, {root!r})
+import sys, time, json
+{peak}sys.path.insert(0, {root!r})
 from meshsom.io import ReaderOptions
 from pipelines.corpus import read_source
 rng = json.loads({range!r})
 t = time.perf_counter()
 n = len(read_source({path!r}, ReaderOptions(), None, rng))
 print(json.dumps({{"items": n, "seconds": time.perf_counter() - t,
-                  "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}}))
+                  "peak_mb": peak_mb()}}))
 """
 
 
@@ -65,7 +67,7 @@ def best(fn, repeat: int) -> float:
 
 
 def fresh_read(path: Path, feature_range) -> dict:
-    code = READ.format(root=str(ROOT), path=str(path), range=json.dumps(feature_range))
+    code = READ.format(root=str(ROOT), path=str(path), range=json.dumps(feature_range), peak=PEAK_MB)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
