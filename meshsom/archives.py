@@ -71,6 +71,58 @@ def open_zip(path: Path, what: str = "a zip archive") -> zipfile.ZipFile:
         raise InputFileError(str(path), f"cannot be read as {what} ({type(err).__name__}: {err})") from None
 
 
+def extract_archive(path: Path, folder: Path, options) -> list:
+    """Extract a zip archive beneath ``folder`` (as the module says: sizes checked first, names made relative) and
+    list what it holds as a folder is listed (:func:`meshsom.io.expand_inputs`).
+
+    Returns
+    -------
+    list of meshsom.io.InputFile
+        The files to read, beneath ``folder``.
+
+    Raises
+    ------
+    InputFileError
+        Not a zip, too large, a zip bomb, cannot be extracted, or nothing in it that meshsom reads.
+    """
+    from meshsom.io import expand_inputs
+
+    with open_zip(path) as archive:
+        members = [m for m in archive.infolist() if not m.is_dir() and not m.filename.startswith("__MACOSX/")]
+        _check_sizes(path, members, options)
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            for member in members:
+                _extract(archive, member, folder)
+        except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError, RuntimeError) as err:
+            raise InputFileError(str(path), f"cannot be extracted ({type(err).__name__}: {err})") from None
+    skipped: list[tuple[str, str]] = []
+    files, _ = expand_inputs([folder], skipped)
+    if not files:
+        held = ", ".join(sorted(m.filename for m in members)[:8]) or "nothing"
+        raise InputFileError(str(path), f"holds no file that meshsom reads (it holds {held})")
+    return files
+
+
+def is_nested_archive(member: Path) -> bool:
+    """Whether a file found in an archive is an archive itself (listed, not opened)."""
+    return member.name.lower().endswith((ZIP_SUFFIX, ".kmz"))
+
+
+#: The reason a zip inside a zip is not read.
+NESTED = "is a zip inside a zip; not opened (unzip the outer one)"
+
+
+def as_member(item, folder: Path, path: Path):
+    """An item read from an extracted file, its source (and, for a Rejection, its reason) naming the archive's member
+    (``archive.zip!/<member path>``) where it named the extracted file."""
+    from meshsom.io import Rejection
+
+    if isinstance(item, Rejection):
+        item = dataclasses.replace(item, reason=_source(item.reason, folder, path, anywhere=True))
+    return dataclasses.replace(item, source=_source(item.source, folder, path))
+
+
 def read_zip(path: Path, options, name: str | None = None) -> Iterator:
     """Read every readable file of a zip archive (as the module says): RawMesh or Rejection items.
 
@@ -79,41 +131,24 @@ def read_zip(path: Path, options, name: str | None = None) -> Iterator:
     InputFileError
         Not a zip, too large, a zip bomb, or nothing in it that meshsom reads.
     """
-    from meshsom.io import Rejection, expand_inputs, read_file
+    from meshsom.io import Rejection, read_file
 
     name = name or path.name
-    with open_zip(path) as archive:
-        members = [m for m in archive.infolist() if not m.is_dir() and not m.filename.startswith("__MACOSX/")]
-        _check_sizes(path, members, options)
-        folder = Path(tempfile.mkdtemp(prefix="meshsom-zip-"))
-        try:
-            try:
-                for member in members:
-                    _extract(archive, member, folder)
-            except (zipfile.BadZipFile, OSError, ValueError, NotImplementedError, RuntimeError) as err:
-                raise InputFileError(str(path), f"cannot be extracted ({type(err).__name__}: {err})") from None
-            skipped: list[tuple[str, str]] = []
-            files, _ = expand_inputs([folder], skipped)
-            if not files:
-                held = ", ".join(sorted(m.filename for m in members)[:8]) or "nothing"
-                raise InputFileError(str(path), f"holds no file that meshsom reads (it holds {held})")
-            options = _paired(options, [f.path for f in files])
-            for f in files:
-                member = f.path.relative_to(folder).as_posix()
-                source = f"{path}!/{member}"
-                if f.path.name.lower().endswith((ZIP_SUFFIX, ".kmz")):
-                    yield Rejection(f"{name}/{member}", source, "is a zip inside a zip; not opened (unzip the outer one)")
-                    continue
-                for item in read_file(f.path, options, f"{name}/{f.name}"):
-                    if isinstance(item, Rejection):
-                        item = dataclasses.replace(item, reason=_source(item.reason, folder, path, anywhere=True))
-                        yield dataclasses.replace(item, source=_source(item.source, folder, path))
-                        continue
-                    item = dataclasses.replace(item, source=_source(item.source, folder, path))
-                    yield item if not _unplaced(item, f) else dataclasses.replace(
-                        item, notes=(*item.notes, "KML: no Model of the archive's KML places it: in its own frame"))
-        finally:
-            shutil.rmtree(folder, ignore_errors=True)
+    folder = Path(tempfile.mkdtemp(prefix="meshsom-zip-"))
+    try:
+        files = extract_archive(path, folder, options)
+        options = _paired(options, [f.path for f in files])
+        for f in files:
+            member = f.path.relative_to(folder).as_posix()
+            if is_nested_archive(f.path):
+                yield Rejection(f"{name}/{member}", f"{path}!/{member}", NESTED)
+                continue
+            for item in read_file(f.path, options, f"{name}/{f.name}"):
+                item = as_member(item, folder, path)
+                yield item if isinstance(item, Rejection) or not _unplaced(item, f) else dataclasses.replace(
+                    item, notes=(*item.notes, "KML: no Model of the archive's KML places it: in its own frame"))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _paired(options, paths: list[Path]):

@@ -73,7 +73,7 @@ class Shard:
 
 
 def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None,
-                feature_range: Sequence | None = None, source: str | None = None) -> list:
+                feature_range: Sequence | None = None, rename: Sequence[str] | None = None) -> list:
     """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file, or of a
     feature range of a GIS file), in the reader's order.
 
@@ -87,9 +87,10 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
         :func:`meshsom.io.cityjsonseq_ranges`; or :func:`meshsom.geojson.geojson_ranges`' five.
     feature_range : list, optional
         :func:`meshsom.gis.gis_ranges` or :func:`meshsom.osm.osm_ranges`.
-    source : str, optional
-        The input the items name as their source where ``path`` was written from it (a CityJSON file split into a
-        CityJSONSeq: :func:`_split_cityjson`).
+    rename : (written, original), optional
+        Where ``path`` was written by the planner from an input (a member of a zip archive extracted:
+        :func:`_unzipped`; a CityJSON file split into a CityJSONSeq: :func:`_split_cityjson`): the items' sources,
+        and the reasons of rejections, name the original where they named the written path (a prefix of it).
 
     Returns
     -------
@@ -102,12 +103,22 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
         items = list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range),
                                None if feature_range is None else list(feature_range)))
     except OSError as err:
-        return [Rejection(name or str(path), source or str(path), f"cannot be read ({err.strerror or err})")]
-    if source is not None:
+        items = [Rejection(name or str(path), str(path), f"cannot be read ({err.strerror or err})")]
+    if rename is not None:
         import dataclasses
 
-        items = [dataclasses.replace(item, source=source) for item in items]
+        written, original = rename
+        items = [dataclasses.replace(item, source=_renamed(item.source, rename), **(
+            {"reason": item.reason.replace(written, original)} if isinstance(item, Rejection) else {}))
+            for item in items]
     return items
+
+
+def _renamed(text: str, rename: Sequence[str] | None) -> str:
+    """A path as the input names it: ``rename``'s original where it starts with its written path."""
+    if not rename or not text.startswith(rename[0]):
+        return text
+    return rename[1] + text[len(rename[0]):]
 
 
 def generate_items(generator, start: int, stop: int) -> list:
@@ -393,8 +404,9 @@ def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
     return read_manifest(path)["summary"]
 
 
-#: Where in a local store the CityJSONSeq of a large CityJSON input is written (:func:`_split_cityjson`): in its
-#: staging group, deleted with it when the run is done.
+#: Where in a local store the planner writes what it makes of inputs (a large CityJSON file's CityJSONSeq:
+#: :func:`_split_cityjson`; a zip archive's files: :func:`_unzipped`): in its staging group, deleted with it when
+#: the run is done.
 SPLIT_FOLDER = "inputs"
 #: Bytes of a JSON input looked at for ``"CityJSON"`` (its type, which writers put first) before it is split.
 CITYJSON_SNIFF_BYTES = 1 << 16
@@ -416,12 +428,33 @@ def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
                 return None
     except Exception:  # unreadable: its reader says why
         return None
-    out = Path(store) / STAGING / SPLIT_FOLDER / f"{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
+    out = Path(store) / STAGING / SPLIT_FOLDER / f"split-{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
     count = split_cityjson(Path(f.path), out, cfg.corpus.reader)
     if not count:
         return None
     log.info("%s: a CityJSON file of %d first-level objects, split into %s to be read in ranges", f.path, count, out)
     return str(out)
+
+
+def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
+    """A zip input extracted into the store's staging group (:func:`meshsom.archives.extract_archive`), so that its
+    files are read by tasks of their own (a state's LoD 2 tiles, a city's footprints zipped): the files and the
+    folder; None where the store is remote (workers may not share this machine's disk) or the archive cannot be
+    extracted (read whole, by one task, whose reader says why)."""
+    import shutil
+
+    from meshsom.archives import extract_archive
+    from meshsom.errors import InputFileError
+    from meshsom.store import is_remote
+
+    if is_remote(store):
+        return None
+    folder = Path(store) / STAGING / SPLIT_FOLDER / f"zip-{k:05d}-{Path(f.path).name}"
+    try:
+        return extract_archive(Path(f.path), folder, cfg.corpus.reader), folder
+    except (InputFileError, OSError):
+        shutil.rmtree(folder, ignore_errors=True)
+        return None
 
 
 def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
@@ -432,7 +465,7 @@ def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
     by_file: dict[str, list] = {}
     for i, src in enumerate(sources):
         if "range" in src:
-            by_file.setdefault(src.get("source", src["path"]), [src["name"], 0])[1] += counts[i]
+            by_file.setdefault(_renamed(src["path"], src.get("rename")), [src["name"], 0])[1] += counts[i]
     return [Rejection(name, path, f"holds no object of the types {', '.join(reader.object_types)}")
             for path, (name, n) in by_file.items() if n == 0]
 
@@ -525,9 +558,10 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from distributed import as_completed
 
     from meshsom.errors import StoreError
+    from meshsom.archives import NESTED, is_nested_archive
     from meshsom.geojson import geojson_ranges
     from meshsom.gis import gis_ranges
-    from meshsom.io import cityjsonseq_ranges, expand_inputs, input_kind
+    from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
     from meshsom.part_files import pair
     from meshsom.store import (
@@ -560,31 +594,44 @@ def run_corpus(client, cfg, store, resume: bool = False,
     if plan is None:
         files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
         root = root or create_store(path, overwrite=True)
-        reader = pair([f.path for f in files], cfg.corpus.reader)  # Overture's parts, in files of their own
+        inputs = []  # (file to read, the start of its ids, (written, original) where the planner wrote it)
+        for k, f in enumerate(files):  # a zip archive: its files read by tasks of their own
+            unzipped = _unzipped(f, k, path, cfg) if input_kind(f.path) == "zip" else None
+            if unzipped is None:
+                inputs.append((f, f.name, None))
+                continue
+            members, folder = unzipped
+            for m in members:
+                member = m.path.relative_to(folder).as_posix()
+                if is_nested_archive(m.path):
+                    missing.append(Rejection(f"{f.name}/{member}", f"{f.path}!/{member}", NESTED))
+                else:
+                    inputs.append((m, f"{f.name}/{m.name}", (str(folder), f"{f.path}!")))
+        reader = pair([f.path for f, _, _ in inputs], cfg.corpus.reader)  # Overture's parts, in files of their own
         if reader.part_files:
             log.info("building parts in %s: each read with its building, where an input holds it",
                      ", ".join(reader.part_files))
         sources = []
-        for k, f in enumerate(files):  # a large CityJSON(Seq), GeoJSON or GIS file: a source per range, in parallel
+        for k, (f, name, rename) in enumerate(inputs):  # a large file: a source per range, read in parallel
             kind = input_kind(f.path)
             split = _split_cityjson(f, k, path, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
+            if split:  # the sequence's items named as the file's
+                rename = (split, _renamed(str(f.path), rename))
             ranges = (cityjsonseq_ranges(Path(split or f.path), int(cfg.dask.read_bytes), cfg.corpus.reader)
                       if kind == "cityjsonseq" or split else
                       geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
-            if ranges and split:  # the sequence's ranges, its items named as the file's (source: the file)
-                sources += [{"kind": "file", "path": split, "name": f.name, "range": list(r), "source": str(f.path)}
-                            for r in ranges]
-            elif ranges:
-                sources += [{"kind": "file", "path": str(f.path), "name": f.name, "range": list(r)} for r in ranges]
+            base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {})}
+            if ranges:
+                sources += [{**base, "range": list(r)} for r in ranges]
             elif features:
-                sources += [{"kind": "file", "path": str(f.path), "name": f.name, "features": r} for r in features]
+                sources += [{**base, "features": r} for r in features]
             else:
-                sources.append({"kind": "file", "path": str(f.path), "name": f.name})
+                sources.append(base)
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
-                                            src.get("features"), src.get("source"), pure=False,
+                                            src.get("features"), src.get("rename"), pure=False,
                                             key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
@@ -628,7 +675,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
         else:
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], reader, src.get("name"),
-                                                        src.get("range"), src.get("features"), src.get("source"),
+                                                        src.get("range"), src.get("features"), src.get("rename"),
                                                         pure=False, key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
@@ -638,7 +685,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     metas, failed = _run_shards(client, path, shards, submit, report)
     read_futures.clear()
     _shards_failed(path, shards, failed,
-                   lambda sh: sources[sh.source].get("source", sources[sh.source].get("path", "generator")))
+                   lambda sh: _renamed(sources[sh.source].get("path", "generator"), sources[sh.source].get("rename")))
 
     _assemble(client, root, path, shards, metas, plan, cfg, levels, chunk, run_id, report)
     remove_staging(path)

@@ -301,6 +301,62 @@ def test_a_large_cityjson_file_is_split_and_read_by_several_tasks(cluster_client
         assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(split)[name][:])), name
 
 
+def test_a_zip_archive_is_read_by_a_task_per_file_and_range(cluster_client, tmp_path):
+    """A download zipped (a CityJSON city, a GeoPackage layer, a CityGML tile, a zip inside it, a damaged file): the
+    planner extracts it into the store's staging group and its files are read by tasks of their own (the CityJSON
+    split, the layer in ranges); the records (ids, sources naming the archive's members, reasons) are those the
+    archive read whole by one task gives (meshsom.archives.read_zip), and the staging group is gone afterwards."""
+    import shutil
+    import zipfile
+
+    import fiona
+
+    from footprints import L_SHAPE, closed
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+    from test_citygml import to_citygml
+
+    folder = tmp_path / "download"
+    (folder / "tiles").mkdir(parents=True)
+    shutil.copy(ZURICH, folder / "tiles" / "zurich.city.json")
+    (folder / "tiles" / "tile.gml").write_text(to_citygml(json.loads(ZURICH.read_text())))
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "height": "float"}}
+    with fiona.open(folder / "footprints.gpkg", "w", driver="GPKG", layer="pand", schema=schema, crs="EPSG:28992") as out:
+        out.writerecords({"geometry": {"type": "Polygon", "coordinates": [closed(
+            [(84600 + x + 30 * (k % 10), 447400 + y + 30 * (k // 10)) for x, y in L_SHAPE])]},
+            "properties": {"id": f"p{k}", "height": 3.0 + k % 4 if k % 9 else None}} for k in range(60))
+    (folder / "broken.city.json").write_text('{"type": "CityJSON", "version": "2.0", "CityObjects": {')
+    with zipfile.ZipFile(folder / "inner.zip", "w") as inner:
+        inner.writestr("x.obj", "v 0 0 0\n")
+    archive = tmp_path / "in" / "download.zip"
+    archive.parent.mkdir()
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as z:
+        for f in sorted(folder.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(folder).as_posix())
+    cfg = build(RunConfig, {"corpus": {"paths": [str(archive.parent)]}, "encoding": {"levels": [1]},
+                            "dask": {"shard_meshes": 16, "read_features": 20, "read_bytes": 8_000},
+                            "store": {"chunk_rows": CHUNK}})
+    store = tmp_path / "z.zarr"
+    calls = []
+    corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+    assert max(total for stage, _, total in calls if stage == "read") >= 3 + 5 + 1  # the layer's, the city's, ...
+    assert not (store / corpus.STAGING).exists()
+    got = {r["id"]: r for r in read_manifest(store)["records"]}
+    whole = {}
+    for item in read_file(archive, cfg.corpus.reader):
+        record, _ = process_one(item, PreprocessParams())
+        whole[record["id"]] = record
+    assert sorted(got) == sorted(whole) and len(got) == N_ZURICH * 2 + 60 + 2
+    for key, record in whole.items():
+        mine = got[key]
+        assert (mine["status"], mine["source"], mine.get("reason")) == (
+            record["status"], record["source"], record.get("reason")), key
+        assert mine["source"].startswith(f"{archive}!/"), mine["source"]
+        if record["status"] == "accepted":
+            assert mine["faces_out"] == record["faces_out"] and mine["volume"] == pytest.approx(record["volume"]), key
+
+
 def test_split_cityjson_writes_what_the_document_reads_as(tmp_path):
     """meshsom.cityjson_split.split_cityjson: the sequence it writes reads as the document (ids, labels, parts,
     LoDs, coordinates, faces), for the bundled Delft (1.0, 3dfier) and Zürich (1.1, parts) files; a document whose
