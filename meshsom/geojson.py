@@ -354,7 +354,8 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     crs : CoordinateSystem or None
         As :func:`footprint_solid` takes it.
     """
-    from meshsom.roofs import ALIASES, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces, roof_height, roof_tags
+    from meshsom.roofs import (ALIASES, RIDGED_ROUND_COURTYARDS, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces,
+                               roof_height, roof_tags)
 
     found = roof_tags(props)
     tagged = str(found.get("roof:shape", "flat")).strip().lower()
@@ -391,6 +392,9 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
             faces = roof_faces(ring, z0, z1 - rise, z1, FALLBACK[shape], scale, degrees, across=across, holes=holes)
             if faces is not None:
                 fell_back.append(f"roof:shape={shape} built as {FALLBACK[shape]} ({UNBUILT[shape]})")
+        if faces is not None and holes and shape in RIDGED_ROUND_COURTYARDS:
+            fell_back.append(f"roof:shape={shape} built round its courtyards: the ridges of a hipped roof with the "
+                             "shape's profile (a perimeter block has no end for a gable)")
         if faces is None:
             which = f" (its polygon {len(built) + 1} of {len(polygons)})" if len(polygons) > 1 else ""
             return None, f"roof:shape={shape} not modelled on this footprint{which} ({UNBUILT[shape]}): flat"

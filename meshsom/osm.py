@@ -27,7 +27,8 @@ own configuration reads as lines; every tag is kept):
   every wall) from
   ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
   its width), eaves at the height less the roof's, ``roof:direction`` and ``roof:orientation``
-  followed; other shapes (sawtooth, ...), footprints with courtyards (but for hipped and mansard), and footprints a shape cannot
+  followed; other shapes (sawtooth, ...), footprints with courtyards (but for hipped, mansard, and gabled, gambrel, round and half-hipped: the
+  skeleton's ridges round them), and footprints a shape cannot
   be built on, are flat at the height, noted with the reason.
 - **Coordinates**: WGS 84 longitude and latitude, converted to east-north-up metres about each
   building (:mod:`meshsom.crs`).

@@ -18,6 +18,9 @@ sees a gabled house and a flat block as different shapes, so the commonest shape
   straight skeleton's roof (every face rising from its wall at one pitch; py-straight-skeleton),
   checked (each face holds its wall's edge, lies in the plane through it at the pitch, and the faces
   tile the footprint) and modelled flat where the skeleton fails that;
+- ``gabled``, ``gambrel``, ``round`` and ``half-hipped`` on a footprint with courtyards (a perimeter
+  block: no wing end to hold a gable): the skeleton's ridges round the courtyards with the shape's
+  profile (gabled and half-hipped: the hipped roof);
 - ``mansard`` on any simple footprint, courtyards included: the hipped roof with the gambrel's
   bend (:data:`MANSARD`: steep from the walls to three quarters of the height half way in, shallow
   above), each skeleton face cut where its height's profile bends;
@@ -55,8 +58,12 @@ SHAPES = ("pyramidal", "skillion", "gabled", "hipped", "half-hipped", "gambrel",
 #: on footprints of at most this many corners.
 SKELETON_TRIES = 8
 SKELETON_RETRY_CORNERS = 200
-#: The shapes built on a footprint with courtyards (their straight skeleton's; the others need a simple polygon).
-ROUND_COURTYARDS = ("hipped", "mansard")
+#: The shapes built on a footprint with courtyards (their straight skeleton's; the others need a simple polygon). A
+#: perimeter block has no wing end to hold a gable: gabled, gambrel, round and half-hipped are the skeleton's ridges
+#: round the courtyards with the shape's profile (:data:`RIDGED_ROUND_COURTYARDS`; gabled and half-hipped: hipped).
+ROUND_COURTYARDS = ("hipped", "mansard", "gabled", "gambrel", "round", "half-hipped")
+#: Of those, the shapes whose gables a courtyard block has no place for (said in the building's notes).
+RIDGED_ROUND_COURTYARDS = ("gabled", "gambrel", "round", "half-hipped")
 #: The most corners (courtyards' included) a hipped roof's straight skeleton is computed for: it takes about
 #: n^2 time in Python (256 corners 0.4 s, 1,000 corners 6 s); beyond, the roof is modelled flat.
 MAX_SKELETON_CORNERS = 400
@@ -215,8 +222,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
         Gabled, hipped, half-hipped, gambrel, saltbox, round: the ridge across the longer sides (four convex corners;
         on wings, gabled, gambrel and round are then cut in strips across one ridge: the wings decide the ridges).
     holes : sequence of (H, 2) float64
-        Courtyards, each a ring (not closed, either orientation): a hipped roof is built round them (the
-        skeleton of the footprint with its holes); the other shapes are not (None).
+        Courtyards, each a ring (not closed, either orientation): the shapes of :data:`ROUND_COURTYARDS` are built
+        round them (the skeleton of the footprint with its holes); the other shapes are not (None).
     """
     import shapely
 
@@ -242,7 +249,8 @@ def roof_faces(ring: np.ndarray, z0: float, z_eaves: float, z_top: float, shape:
             inner.append(hole if clockwise else hole[::-1].copy())
         if shape not in ROUND_COURTYARDS:
             return None
-        return _skeleton_hipped([ring] + inner, scale, z0, z_eaves, z_top, MANSARD if shape == "mansard" else None)
+        profile = MANSARD if shape == "mansard" else _half_profile(shape) if shape in ("gambrel", "round") else None
+        return _skeleton_hipped([ring] + inner, scale, z0, z_eaves, z_top, profile)
     if shape == "skillion":
         return _skillion(ring, metric, z0, z_eaves, z_top, direction_deg)
     if shape == "pyramidal":

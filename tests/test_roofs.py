@@ -465,8 +465,9 @@ def test_a_hipped_roof_goes_round_courtyards():
     """A perimeter block (30 x 20 m about a 20 x 10 m courtyard: a frame 5 m wide) hipped: a face per wall, inner
     ones included, each at the roof's pitch above its wall's line; the height at a point the time the walls' fronts
     reach it, the outer wall's moving in (the distance to its nearest side), the courtyard's moving out with mitred
-    corners (the larger of the distances beyond its x and y ranges): the volume that integrated on a grid. The other
-    shapes are not built round courtyards."""
+    corners (the larger of the distances beyond its x and y ranges): the volume that integrated on a grid. Gabled and
+    half-hipped are that roof, gambrel and round that roof bent by their profiles; the pointed and one-plane shapes,
+    and saltbox, are not built round courtyards."""
     outer = np.array([[0, 0], [30, 0], [30, 20], [0, 20]], float)
     court = np.array([[5, 5], [25, 5], [25, 15], [5, 15]], float)  # either orientation: turned clockwise inside
     faces = roof_faces(outer, 0.0, 6.0, 9.0, "hipped", (1.0, 1.0), holes=[court])
@@ -488,7 +489,21 @@ def test_a_hipped_roof_goes_round_courtyards():
     grid = _grid_volume(outer, lambda p: np.where((np.abs(p[:, 0] - 15) < 10) & (np.abs(p[:, 1] - 10) < 5), 0.0,
                                                    height(p)))
     assert volume == pytest.approx(grid, rel=2e-3)
-    for shape in ("gabled", "pyramidal", "dome", "half-hipped"):
+    # no wing end to hold a gable: gabled and half-hipped are the hipped roof; gambrel and round bend its slopes by
+    # their profile of the way in (here the distance to the nearer wall over the frame's half width, 2.5 m)
+    for shape in ("gabled", "half-hipped"):
+        assert _volume_closed(roof_faces(outer, 0.0, 6.0, 9.0, shape, (1.0, 1.0), holes=[court])) == pytest.approx(volume)
+    from meshsom.roofs import _half_profile
+
+    for shape in ("gambrel", "round"):
+        knots = _half_profile(shape)
+        bent = _grid_volume(outer, lambda p: np.where(
+            (np.abs(p[:, 0] - 15) < 10) & (np.abs(p[:, 1] - 10) < 5), 0.0,
+            6.0 + 3.0 * np.interp((height(p) - 6.0) / 3.0, knots[:, 0], knots[:, 1])))
+        faces = roof_faces(outer, 0.0, 6.0, 9.0, shape, (1.0, 1.0), holes=[court])
+        assert _volume_closed(faces) == pytest.approx(bent, rel=3e-3), shape
+        assert _volume_closed(faces) > volume
+    for shape in ("saltbox", "pyramidal", "dome", "skillion"):
         assert roof_faces(outer, 0.0, 6.0, 9.0, shape, (1.0, 1.0), holes=[court]) is None
 
 
