@@ -71,6 +71,12 @@ def open_zip(path: Path, what: str = "a zip archive") -> zipfile.ZipFile:
         raise InputFileError(str(path), f"cannot be read as {what} ({type(err).__name__}: {err})") from None
 
 
+def expanded_size(path: Path) -> int:
+    """The bytes a zip archive's members take extracted (their declared sizes); InputFileError where it is no zip."""
+    with open_zip(path) as archive:
+        return sum(m.file_size for m in archive.infolist() if not m.is_dir())
+
+
 def extract_archive(path: Path, folder: Path, options) -> list:
     """Extract a zip archive beneath ``folder`` (as the module says: sizes checked first, names made relative) and
     list what it holds as a folder is listed (:func:`meshsom.io.expand_inputs`).

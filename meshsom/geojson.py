@@ -761,7 +761,7 @@ def _feature_spans(path: Path) -> tuple[int, int, np.ndarray, np.ndarray] | None
             after = depth + np.cumsum(opener.astype(np.int32) - closer, dtype=np.int32)
             if opened is None:
                 for i in np.flatnonzero((b == 91) & opener & (after == 2)).tolist():
-                    if _FEATURES_KEY.search((tail + chunk[:i])[-64:]):
+                    if _FEATURES_KEY.search((tail + chunk[max(i - 64, 0):i])[-64:]):
                         opened = offset + i
                         break
             if opened is not None and closed is None:

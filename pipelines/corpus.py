@@ -408,6 +408,9 @@ def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
 #: :func:`_split_cityjson`; a zip archive's files: :func:`_unzipped`): in its staging group, deleted with it when
 #: the run is done.
 SPLIT_FOLDER = "inputs"
+#: The most of the store's free disk a zip archive's extracted files may take (:func:`_unzipped`); a larger one is
+#: read by one task, which extracts it to its temporary folder.
+UNZIP_DISK_SHARE = 0.5
 #: Bytes of a JSON input looked at for ``"CityJSON"`` (its type, which writers put first) before it is split.
 CITYJSON_SNIFF_BYTES = 1 << 16
 
@@ -443,7 +446,7 @@ def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
     extracted (read whole, by one task, whose reader says why)."""
     import shutil
 
-    from meshsom.archives import extract_archive
+    from meshsom.archives import expanded_size, extract_archive
     from meshsom.errors import InputFileError
     from meshsom.store import is_remote
 
@@ -451,6 +454,11 @@ def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
         return None
     folder = Path(store) / STAGING / SPLIT_FOLDER / f"zip-{k:05d}-{Path(f.path).name}"
     try:
+        size, free = expanded_size(Path(f.path)), shutil.disk_usage(Path(store)).free
+        if size > UNZIP_DISK_SHARE * free:  # the store's disk would fill: a task extracts and reads it whole
+            log.warning("%s: expands to %d bytes, more than %.0f%% of the %d free beside the store: read by one task",
+                        f.path, size, 100 * UNZIP_DISK_SHARE, free)
+            return None
         return extract_archive(Path(f.path), folder, cfg.corpus.reader), folder
     except (InputFileError, OSError):
         shutil.rmtree(folder, ignore_errors=True)

@@ -301,11 +301,12 @@ def test_a_large_cityjson_file_is_split_and_read_by_several_tasks(cluster_client
         assert np.array_equal(np.asarray(array[:]), np.asarray(arrays(split)[name][:])), name
 
 
-def test_a_zip_archive_is_read_by_a_task_per_file_and_range(cluster_client, tmp_path):
+def test_a_zip_archive_is_read_by_a_task_per_file_and_range(cluster_client, tmp_path, monkeypatch):
     """A download zipped (a CityJSON city, a GeoPackage layer, a CityGML tile, a zip inside it, a damaged file): the
     planner extracts it into the store's staging group and its files are read by tasks of their own (the CityJSON
     split, the layer in ranges); the records (ids, sources naming the archive's members, reasons) are those the
-    archive read whole by one task gives (meshsom.archives.read_zip), and the staging group is gone afterwards."""
+    archive read whole by one task gives (meshsom.archives.read_zip), and the staging group is gone afterwards; where
+    the store's disk has no room for the files extracted, one task reads the archive, as before."""
     import shutil
     import zipfile
 
@@ -355,6 +356,12 @@ def test_a_zip_archive_is_read_by_a_task_per_file_and_range(cluster_client, tmp_
         assert mine["source"].startswith(f"{archive}!/"), mine["source"]
         if record["status"] == "accepted":
             assert mine["faces_out"] == record["faces_out"] and mine["volume"] == pytest.approx(record["volume"]), key
+    monkeypatch.setattr(corpus, "UNZIP_DISK_SHARE", 0.0)  # no room to extract beside the store: one task reads it
+    calls = []
+    corpus.run_corpus(cluster_client, cfg, tmp_path / "one.zarr", progress=lambda *a: calls.append(a))
+    assert {total for stage, _, total in calls if stage == "read"} == {1}
+    assert {r["id"]: (r["status"], r["source"]) for r in read_manifest(tmp_path / "one.zarr")["records"]} == {
+        k: (r["status"], r["source"]) for k, r in got.items()}
 
 
 def test_split_cityjson_writes_what_the_document_reads_as(tmp_path):
