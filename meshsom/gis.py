@@ -522,13 +522,13 @@ def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
     """The properties of a layer's features (no geometry decoded), with GDAL's OSM tags read in; only the columns
     that can say a feature is a part, and ``building`` (``osm``: and those that name an OpenStreetMap element), of a
     GeoParquet file."""
-    from meshsom.osm import EXPORT_ID, EXPORT_TYPE, GDAL_ID, osm_properties
+    from meshsom.osm import EXPORT_ID, EXPORT_TYPE, GDAL_ID, QUICKOSM_TYPE, osm_properties
 
     if _is_parquet(path):
         import pyarrow.parquet as pq
 
         names = pq.read_schema(path).names
-        ids = (GDAL_ID, EXPORT_ID, EXPORT_TYPE) if osm else ()
+        ids = (GDAL_ID, EXPORT_ID, EXPORT_TYPE, QUICKOSM_TYPE) if osm else ()
         wanted = [c for c in (*PART_COLUMNS, "building", "osm_way_id", "feature_id", *ids) if c in names]
         for values in pq.read_table(path, columns=wanted).to_pylist():
             yield osm_properties(values)

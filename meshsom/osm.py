@@ -89,10 +89,13 @@ QUACKOSM_ID, QUACKOSM_TAGS = "feature_id", "tags"
 #: The properties osmtogeojson (Overpass turbo: ``@id`` = ``way/<id>``) and ``osmium export`` (``@type``, ``@id``)
 #: name an element by.
 EXPORT_ID, EXPORT_TYPE = "@id", "@type"
+#: QuickOSM's columns (QGIS: an Overpass query saved as a layer): the element's type (``way``) and its ``w<id>``; its
+#: number is in ``osm_id`` (:data:`GDAL_ID`).
+QUICKOSM_TYPE, QUICKOSM_FULL_ID = "osm_type", "full_id"
 #: An OpenStreetMap element's id as :func:`read_osm` and QuackOSM write it.
 ELEMENT_ID = re.compile(r"^(node|way|relation)/\d+$")
 #: Columns of GDAL's OSM driver that are not tags (passed over when a note names an area's first tag).
-GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order", QUACKOSM_ID)
+GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order", QUACKOSM_ID, QUICKOSM_TYPE, QUICKOSM_FULL_ID)
 
 
 def tags(text: str | None) -> dict[str, str]:
@@ -114,12 +117,14 @@ def osm_row(props: dict) -> bool:
 def element_id(props: dict) -> str | None:
     """The OpenStreetMap element (``way/<id>``, ...) a feature's properties name as the tools that export it write
     it: QuackOSM's :data:`QUACKOSM_ID`, Overpass turbo's (osmtogeojson's) ``@id``; osmium export's ``@type`` and
-    ``@id``; osmtogeojson's nested form's ``type`` and ``id`` beside its ``tags``; else None."""
+    ``@id``; QuickOSM's ``osm_type`` and ``osm_id``; osmtogeojson's nested form's ``type`` and ``id`` beside its
+    ``tags``; else None."""
     for key in (QUACKOSM_ID, EXPORT_ID):
         value = props.get(key)
         if value is not None and ELEMENT_ID.match(str(value)):
             return str(value)
-    pairs = [(EXPORT_TYPE, EXPORT_ID)] + ([("type", "id")] if isinstance(props.get(QUACKOSM_TAGS), dict) else [])
+    pairs = [(EXPORT_TYPE, EXPORT_ID), (QUICKOSM_TYPE, GDAL_ID)] + (
+        [("type", "id")] if isinstance(props.get(QUACKOSM_TAGS), dict) else [])
     for kind, number in pairs:
         if props.get(kind) in ("node", "way", "relation") and re.fullmatch(r"\d+", str(props.get(number))):
             return f"{props[kind]}/{props[number]}"
