@@ -439,6 +439,51 @@ def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
     return str(out)
 
 
+def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
+    """A large gzipped CityJSONSeq, CityJSON or GeoJSON input (gzip cannot be entered mid-stream) decompressed into
+    the store's staging group, so that tasks read it in ranges: the path, or None where it is not gzip, the store is
+    remote, its content is too small to be split (:func:`_content_bytes` under twice ``dask.read_bytes``; a GeoJSON
+    collection: under twice ``dask.read_features`` features of
+    :data:`meshsom.geojson.MIN_FEATURE_BYTES`), or would take more than :data:`UNZIP_DISK_SHARE` of the free disk."""
+    import shutil
+
+    from meshsom.geojson import MIN_FEATURE_BYTES
+    from meshsom.io import GZIP_MAGIC, open_input
+    from meshsom.store import is_remote
+
+    try:
+        with open(f.path, "rb") as fh:
+            if fh.read(2) != GZIP_MAGIC or is_remote(store):
+                return None
+        size = _content_bytes(Path(f.path))
+        with open_input(Path(f.path), cfg.corpus.reader) as stream:
+            cityjson = b'"CityJSON"' in stream.read(CITYJSON_SNIFF_BYTES)
+        least = 2 * int(cfg.dask.read_bytes) if kind == "cityjsonseq" or cityjson else \
+            2 * int(cfg.dask.read_features) * MIN_FEATURE_BYTES
+        if size < least or size > UNZIP_DISK_SHARE * shutil.disk_usage(Path(store)).free:
+            return None
+    except Exception:  # unreadable: read whole by one task, whose reader says why
+        return None
+    out = Path(store) / STAGING / SPLIT_FOLDER / f"gunzip-{k:05d}-{Path(f.path).name.removesuffix('.gz')}"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with open_input(Path(f.path), cfg.corpus.reader) as stream, open(out, "wb") as dst:
+            shutil.copyfileobj(stream, dst, 1 << 20)
+    except Exception:  # truncated, a gzip bomb: read whole by one task, whose reader says why
+        out.unlink(missing_ok=True)
+        return None
+    log.info("%s: gzipped, %d bytes decompressed into %s to be read in ranges", f.path, size, out)
+    return str(out)
+
+
+def _content_bytes(path: Path) -> int:
+    """A gzip file's content size as its trailer says it (modulo 4 GiB: the larger of that and the file's size)."""
+    with open(path, "rb") as fh:
+        fh.seek(-4, 2)
+        trailer = int.from_bytes(fh.read(4), "little")
+    return max(trailer, path.stat().st_size)
+
+
 def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
     """A zip input extracted into the store's staging group (:func:`meshsom.archives.extract_archive`), so that its
     files are read by tasks of their own (a state's LoD 2 tiles, a city's footprints zipped): the files and the
@@ -622,6 +667,9 @@ def run_corpus(client, cfg, store, resume: bool = False,
         sources = []
         for k, (f, name, rename) in enumerate(inputs):  # a large file: a source per range, read in parallel
             kind = input_kind(f.path)
+            plain = _gunzipped(f, k, path, cfg, kind) if kind in ("cityjson", "cityjsonseq") else None
+            if plain:  # a large gzipped sequence or collection: ranges of its plain form
+                rename, f = (plain, _renamed(str(f.path), rename)), replace(f, path=Path(plain))
             split = _split_cityjson(f, k, path, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
             if split:  # the sequence's items named as the file's
                 rename = (split, _renamed(str(f.path), rename))

@@ -394,6 +394,42 @@ def test_split_cityjson_writes_what_the_document_reads_as(tmp_path):
     assert not (tmp_path / "b.city.jsonl").exists() and not (tmp_path / "f.city.jsonl").exists()
 
 
+def test_large_gzipped_sequences_and_collections_are_read_in_ranges(cluster_client, tmp_path):
+    """A gzipped CityJSONSeq and a gzipped GeoJSON FeatureCollection (gzip cannot be entered mid-stream): the planner
+    decompresses each into the store's staging group and tasks read them in ranges; the stores are the ones one
+    task per file gives, the records naming the gzipped files as their sources; a truncated one is read whole, its
+    reader saying what is wrong."""
+    import gzip
+
+    from cityjson_samples import to_cityjsonseq, write_lines
+    from test_geojson import _big_collection
+
+    seq = tmp_path / "in" / "city.city.jsonl"
+    seq.parent.mkdir()
+    write_lines(seq, to_cityjsonseq(json.loads(ZURICH.read_text())))
+    (tmp_path / "in" / "city.city.jsonl.gz").write_bytes(gzip.compress(seq.read_bytes()))
+    seq.unlink()
+    (tmp_path / "in" / "footprints.geojson.gz").write_bytes(gzip.compress(_big_collection(120).encode()))
+    (tmp_path / "in" / "cut.geojson.gz").write_bytes(gzip.compress(_big_collection(120).encode())[:-2000])
+    stores, reads = {}, {}
+    for read_bytes, read_features in ((1 << 30, 10**6), (8_000, 25)):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(tmp_path / "in")]}, "encoding": {"levels": [1]},
+                                "dask": {"shard_meshes": 16, "read_bytes": read_bytes, "read_features": read_features},
+                                "store": {"chunk_rows": CHUNK}})
+        stores[read_bytes] = store = tmp_path / f"g{read_bytes}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_bytes] = max(total for stage, _, total in calls if stage == "read")
+        assert not (store / corpus.STAGING).exists()
+    assert reads[1 << 30] == 3 and reads[8_000] >= 1 + 5 + 3
+    a, b = read_manifest(stores[1 << 30])["records"], read_manifest(stores[8_000])["records"]
+    assert sorted(a, key=lambda r: r["id"]) == sorted(b, key=lambda r: r["id"])
+    assert {r["source"] for r in b} == {str(tmp_path / "in" / n) for n in ("city.city.jsonl.gz", "footprints.geojson.gz",
+                                                                         "cut.geojson.gz")}
+    (cut,) = [r for r in b if r["source"].endswith("cut.geojson.gz")]
+    assert cut["status"] == "rejected" and "ends early" in cut["reason"], cut
+
+
 def test_repeated_ids_across_ranges_get_the_next_free_number():
     sources = [{"path": "a", "range": [0, 1, 2]}, {"path": "a", "range": [1, 2, 3]}, {"path": "b"}]
     ids = [["x", "x (2)", "y"], ["x", "z", "y"], ["x"]]
