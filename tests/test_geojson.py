@@ -14,6 +14,7 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
 from meshsom.preprocess import preprocess
@@ -354,3 +355,40 @@ def test_a_large_feature_collection_is_read_in_ranges_as_whole(tmp_path, monkeyp
     assert geojson.geojson_ranges(parts, 25, ReaderOptions()) is None
     (tmp_path / "city.geojson.gz").write_bytes(gzip.compress(path.read_bytes()))
     assert geojson.geojson_ranges(tmp_path / "city.geojson.gz", 25, ReaderOptions()) is None
+
+
+_JSON_TEXT = st.text(alphabet=st.sampled_from(list('{}[]",:\\ab \n\t/') + ["\u00e9", "\u2028", "\U0001f3e0"]),
+                     max_size=12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(values=st.lists(st.one_of(_JSON_TEXT, st.lists(_JSON_TEXT, max_size=3), st.integers()), min_size=1, max_size=30),
+       indent=st.sampled_from([None, 0, 2]), ascii_only=st.booleans(), chunk=st.sampled_from([1, 2, 3, 7, 64, 4096]))
+def test_the_feature_scanner_finds_every_feature_whatever_its_strings(values, indent, ascii_only, chunk):
+    """meshsom.geojson._feature_spans against json's own parse: for documents whose property names and values hold
+    braces, brackets, quotes, backslashes, colons and non-ASCII text (escaped or not), written compact or indented,
+    and looked at in chunks of 1 byte up: each span found is one feature of the "features" array, in order, all
+    of them, and nothing else."""
+    import tempfile
+    from pathlib import Path
+
+    import meshsom.geojson as geojson
+
+    features = [{"type": "Feature", "properties": {str(v): v, "k": [v, {"n": v}]},
+                 "geometry": {"type": "Point", "coordinates": [k, 0]}} for k, v in enumerate(values)]
+    document = {"name": str(values[0]), "type": "FeatureCollection", "crs": {"p": {"q": values[-1]}},
+                "features": features, "after": [str(values[-1])]}
+    data = json.dumps(document, indent=indent, ensure_ascii=ascii_only).encode()
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "c.geojson"
+        path.write_bytes(data)
+        saved = geojson.SCAN_BYTES
+        geojson.SCAN_BYTES = chunk
+        try:
+            found = geojson._feature_spans(path)
+        finally:
+            geojson.SCAN_BYTES = saved
+    assert found is not None
+    opened, closed, starts, ends = found
+    assert data[opened:opened + 1] == b"[" and data[closed:closed + 1] == b"]"
+    assert [json.loads(data[a:b + 1]) for a, b in zip(starts.tolist(), ends.tolist())] == features
