@@ -541,8 +541,104 @@ def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
         raise _gdal_error(path, err) from None
 
 
+#: The 3D BAG's GeoPackage (docs.3dbag.nl, Data Layers): a building's attributes in ``pand`` (its ``fid`` the key),
+#: its 3D models by LoD in these layers (a row per part above the terrain, ``fid`` naming its building), and their 2D
+#: projections beside them (``lod22_2d``, ...: a row per roof plane).
+BAG3D_LAYERS = {"1.2": "lod12_3d", "1.3": "lod13_3d", "2.2": "lod22_3d"}
+BAG3D_PAND, BAG3D_KEY, BAG3D_ID = "pand", "fid", "identificatie"
+
+
+@dataclasses.dataclass(frozen=True)
+class Bag3D:
+    """A 3D BAG GeoPackage as it is read (:func:`bag3d`): one of its 3D layers, the others being other forms of the
+    same buildings.
+
+    Attributes
+    ----------
+    layer : str
+        The 3D layer read (by :attr:`meshsom.io.ReaderOptions.lod`: the highest, the lowest or the one named).
+    lod : str
+        Its LoD (``"2.2"``), the meshes'.
+    others : tuple of str
+        The file's other layers, not read.
+    pand : dict of str to dict
+        A building's ``pand`` attributes by its ``fid``; a mesh's id is its ``identificatie``.
+    """
+
+    layer: str
+    lod: str
+    others: tuple
+    pand: dict
+
+    def note(self, parts: int) -> str:
+        return (f"a 3D BAG GeoPackage: its LoD {self.lod} layer read ({self.layer}; {', '.join(self.others)} are other "
+                f"forms of the same buildings: --layer reads one)"
+                + (f"; {parts} parts above the terrain (rows of one fid), read as one building" if parts > 1 else ""))
+
+
+def bag3d(path: Path, options) -> Bag3D | None:
+    """The 3D BAG layout of a GeoPackage (:data:`BAG3D_LAYERS`), read as :class:`Bag3D` says: the layer
+    :attr:`meshsom.io.ReaderOptions.layer` names where it is a 3D one, else that of the LoD asked for
+    (:attr:`~meshsom.io.ReaderOptions.lod`); None for any other file, or another layer named.
+
+    Raises
+    ------
+    InputFileError
+        No layer named, and no 3D layer of the LoD asked for.
+    """
+    names = _bag3d_layers(path)
+    if names is None:
+        return None
+    present = [lod for lod, name in BAG3D_LAYERS.items() if name in names]
+    wanted = str(options.lod)
+    if options.layer is not None:
+        lod = next((lod for lod in present if BAG3D_LAYERS[lod] == options.layer), None)
+    else:
+        lod = present[-1] if wanted == "highest" else present[0] if wanted == "lowest" else (
+            wanted if wanted in present else None)
+    if lod is None:
+        if options.layer is None:
+            raise InputFileError(str(path), f"is a 3D BAG GeoPackage of LoD {', '.join(present)} (layers "
+                                            f"{', '.join(BAG3D_LAYERS[p] for p in present)}); LoD {wanted} is none of "
+                                            "them (--lod, or --layer to read one layer as it is)")
+        return None
+    st = Path(path).stat()
+    return Bag3D(BAG3D_LAYERS[lod], lod, tuple(n for n in names if n != BAG3D_LAYERS[lod]),
+                 _pand_of(str(path), st.st_size, st.st_mtime_ns))
+
+
+@dataclasses.dataclass(frozen=True)
+class _Named:
+    """Options that name a layer (and ask for no LoD): :func:`bag3d` of a layer being read."""
+
+    layer: str
+    lod: str = "highest"
+
+
+def _bag3d_layers(path: Path) -> list[str] | None:
+    """A GeoPackage's layer names where they are the 3D BAG's (``pand`` and a 3D layer), else None."""
+    if not str(path).lower().endswith(".gpkg"):
+        return None
+    try:
+        names = [layer.name for layer in _ogr_layers(Path(path))]
+    except (InputFileError, OSError):
+        return None
+    return names if BAG3D_PAND in names and any(name in names for name in BAG3D_LAYERS.values()) else None
+
+
+@functools.lru_cache(maxsize=4)
+def _pand_of(path: str, size: int, mtime: int) -> dict:
+    """The ``pand`` layer's attributes by its feature id (the GeoPackage's ``fid``)."""
+    try:
+        with _open(Path(path), BAG3D_PAND, ignore_geometry=True) as collection:
+            return {str(feature.id): dict(feature.properties) for feature in collection}
+    except _gdal_errors() as err:
+        raise _gdal_error(Path(path), err) from None
+
+
 def _chosen_layers(path: Path, options) -> list[Layer]:
-    """The layers a read takes: every layer with geometry, or the one ``options.layer`` names."""
+    """The layers a read takes: every layer with geometry, or the one ``options.layer`` names; of a 3D BAG
+    GeoPackage, the 3D layer of the LoD asked for (:func:`bag3d`)."""
     if path.is_file() and not is_csv(path) and not _is_gml(path) and not _is_json(path):
         with open(path, "rb") as fh:
             if fh.read(2) == b"\x1f\x8b":
@@ -550,6 +646,9 @@ def _chosen_layers(path: Path, options) -> list[Layer]:
     layers = _parquet_layers(path) if _is_parquet(path) else _ogr_layers(path)
     if not layers:
         raise InputFileError(str(path), "holds no layer with geometry")
+    found = bag3d(path, options) if options.layer is None else None
+    if found is not None:
+        return [layer for layer in layers if layer.name == found.layer]
     if options.layer is not None:
         chosen = [layer for layer in layers if layer.name == options.layer]
         if not chosen:
@@ -708,6 +807,11 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
         polygons, kinds, has_z = (wkb_polygons(geometry, mesh_id) if isinstance(geometry, (bytes, bytearray, memoryview))
                                   else fiona_polygons(geometry, mesh_id))
         obj, vertices, notes = feature_object(polygons, kinds, has_z, props, mesh_id, options, system)
+        bag = bag3d(path, _Named(layer.name)) if layer.name in BAG3D_LAYERS.values() else None
+        if bag is not None:  # a 3D BAG building: of its layer's LoD, its parts (rows of its fid) one building
+            for geometry in obj["geometry"]:
+                geometry["lod"] = bag.lod
+            notes = [bag.note(osm_pieces(path, layer.name, BAG3D_KEY).rows.get(str(props.get(BAG3D_KEY)), 1))] + notes
     except InputFileError as err:
         label = props.get(options.label_attribute)
         yield Rejection(mesh_id, str(path), err.problem, 0, None if label is None else str(label))
@@ -921,6 +1025,7 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
     from meshsom.inspire import inspire_properties
 
     gml = _is_gml(path)
+    bag = bag3d(path, _Named(layer)) if layer in BAG3D_LAYERS.values() else None  # a 3D BAG layer: its buildings
     try:
         with _open(path, layer) as collection:
             with warnings.catch_warnings():  # a CSV file has no fast feature count: a range is read from its start
@@ -933,6 +1038,14 @@ def _records(path: Path, layer: str, id_field: str | None, start: int, stop: int
                     props = inspire_properties(props)
                 oid = osm_row_id(props, layer)
                 geometry = feature.geometry
+                if bag is not None and props.get(BAG3D_KEY) is not None:  # a 3D BAG building's parts: one building
+                    pieces = osm_pieces(path, layer, BAG3D_KEY) if pieces is None else pieces
+                    if index in pieces.later:
+                        continue
+                    key = str(props[BAG3D_KEY])
+                    oid = str(bag.pand.get(key, {}).get(BAG3D_ID) or props.get(BAG3D_ID) or key)
+                    yield oid, {**bag.pand.get(key, {}), **props}, pieces.united.get(index, geometry)
+                    continue
                 if oid is not None:  # an exploded multipolygon's rows: read as one building, by its first row
                     pieces = osm_pieces(path, layer) if pieces is None else pieces
                     if index in pieces.later:
@@ -975,19 +1088,21 @@ class OsmPieces:
                                        f"ogr2ogr -explodecollections writes it), read as one building")
 
 
-def osm_pieces(path: Path, layer: str) -> OsmPieces:
-    """The rows of a converted OpenStreetMap layer that share an element id (:class:`OsmPieces`)."""
+def osm_pieces(path: Path, layer: str, column: str | None = None) -> OsmPieces:
+    """The rows of a converted OpenStreetMap layer that share an element id (:class:`OsmPieces`); with ``column``,
+    those of any layer that share its value (the parts of a 3D BAG building: :class:`Bag3D`)."""
     st = Path(path).stat()
-    return _osm_pieces_of(str(path), st.st_size, st.st_mtime_ns, layer)
+    return _osm_pieces_of(str(path), st.st_size, st.st_mtime_ns, layer, column)
 
 
 @functools.lru_cache(maxsize=8)
-def _osm_pieces_of(path: str, size: int, mtime: int, layer: str) -> OsmPieces:
+def _osm_pieces_of(path: str, size: int, mtime: int, layer: str, column: str | None) -> OsmPieces:
     from meshsom.osm import osm_row_id
 
     rows_of: dict[str, list[int]] = {}
-    for index, props in enumerate(_attributes(Path(path), layer, osm=True)):
-        oid = osm_row_id(props, layer)
+    for index, props in enumerate(_attributes(Path(path), layer, osm=column is None)):
+        oid = osm_row_id(props, layer) if column is None else (None if props.get(column) is None else
+                                                                  str(props[column]))
         if oid is not None:
             rows_of.setdefault(oid, []).append(index)
     repeated = {oid: rows for oid, rows in rows_of.items() if len(rows) > 1}

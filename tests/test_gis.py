@@ -328,27 +328,29 @@ def test_3d_layers_read_as_the_cityjson_reader_reads_the_same_polygons(tmp_path)
 
 
 def test_layers_ids_and_folders(tmp_path):
+    """Every layer with geometry read (ids <layer>/<id>), or the one named; ids from a unique id column, else the
+    feature ids (a 3D BAG GeoPackage's layout is read its own way: test_a_3d_bag_geopackage_...)."""
     parts = _zurich_parts()[:3]
     gpkg = tmp_path / "city" / "bag.gpkg"
     gpkg.parent.mkdir()
     solid = {"geometry": "3D MultiPolygon", "properties": {"identificatie": "str"}}
     flat = {"geometry": "Polygon", "properties": {"identificatie": "str", "hoogte": "float"}}
-    with fiona.open(gpkg, "w", driver="GPKG", layer="lod22_3d", schema=solid, crs="EPSG:2056") as out:
+    with fiona.open(gpkg, "w", driver="GPKG", layer="solids", schema=solid, crs="EPSG:2056") as out:
         for oid, polygons in parts:
             out.write({"geometry": {"type": "MultiPolygon", "coordinates": [[closed(r) for r in p] for p in polygons]},
                        "properties": {"identificatie": oid}})
-    with fiona.open(gpkg, "w", driver="GPKG", layer="pand", schema=flat, crs="EPSG:2056") as out:
+    with fiona.open(gpkg, "w", driver="GPKG", layer="footprints", schema=flat, crs="EPSG:2056") as out:
         for k in range(3):  # repeated ids: the feature ids are used
             out.write({"geometry": {"type": "Polygon", "coordinates": [closed([(2677000 + x + 40 * k, 1241800 + y) for x, y in L_SHAPE])]},
                        "properties": {"identificatie": "same", "hoogte": 7.5}})
     got = _by_id(read_file(gpkg))
-    assert sorted(got) == sorted([f"lod22_3d/{oid}" for oid, _ in parts] + ["pand/1", "pand/2", "pand/3"])
-    assert all(isinstance(got[f"pand/{k}"], Rejection) for k in (1, 2, 3))  # "hoogte" is not a default height
-    heights = ReaderOptions(layer="pand", height_attributes=("hoogte",))
+    assert sorted(got) == sorted([f"solids/{oid}" for oid, _ in parts] + ["footprints/1", "footprints/2", "footprints/3"])
+    assert all(isinstance(got[f"footprints/{k}"], Rejection) for k in (1, 2, 3))  # "hoogte" is not a default height
+    heights = ReaderOptions(layer="footprints", height_attributes=("hoogte",))
     got = _by_id(read_file(gpkg, heights))
     assert sorted(got) == ["1", "2", "3"] and _volume(got["2"]) == pytest.approx(area(L_SHAPE) * 7.5, rel=1e-9)
     (bad,) = read_file(gpkg, ReaderOptions(layer="lod13_3d"))
-    assert isinstance(bad, Rejection) and "has no layer 'lod13_3d'" in bad.reason and "'pand'" in bad.reason
+    assert isinstance(bad, Rejection) and "has no layer 'lod13_3d'" in bad.reason and "'footprints'" in bad.reason
     # a folder: the FileGDB folder is one input, a shapefile's sidecars are read with it
     _write_fiona(tmp_path / "city" / "fp.shp", "ESRI Shapefile", _footprints(lonlat), "EPSG:4326")
     _write_fiona(tmp_path / "city" / "fp.gdb", "OpenFileGDB", _footprints(lonlat), "EPSG:4326")
@@ -746,3 +748,73 @@ def test_parquet_of_its_own_geometry_type_and_plain_wkb(tmp_path):
         assert volumes == pytest.approx(by_rd, rel=1e-9 if name in ("epsg", "srid", "projjson", "metres") else 1e-5), name
         assumed = [n for n in got["b0"].notes if "declares no CRS" in n]
         assert bool(assumed) == (name == "duckdb"), (name, got["b0"].notes)
+
+
+def _box(x0, y0, w, d, h):
+    """A w x d x h box's six faces, outward, as a 3D MultiPolygon's polygons (the 3D BAG's lod*_3d rows)."""
+    a, b, c, e = (x0, y0), (x0 + w, y0), (x0 + w, y0 + d), (x0, y0 + d)
+    lo = [(*p, 0.0) for p in (a, b, c, e)]
+    hi = [(*p, float(h)) for p in (a, b, c, e)]
+    faces = [[lo[0], lo[3], lo[2], lo[1]], [hi[0], hi[1], hi[2], hi[3]]]
+    faces += [[lo[k], lo[(k + 1) % 4], hi[(k + 1) % 4], hi[k]] for k in range(4)]
+    return [[f + f[:1]] for f in faces]
+
+
+def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
+    """A 3D BAG tile as the GeoPackage it downloads as (docs.3dbag.nl): pand (a row per building, its fid the key,
+    identificatie), lod12_3d / lod13_3d / lod22_3d (a row per part above the terrain, fid naming its building) and
+    2D layers of roof planes. Read, each building is one mesh, id its identificatie, at the LoD asked for (the
+    highest by default), its parts (two disjoint boxes of one fid) one building, its pand attributes its own (a
+    label); the other layers are other forms of the same buildings, not read again; whole or in ranges of one row.
+    Before, every layer was read: each building three times, and a rejection per roof plane and per pand row."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    from footprints import united_volume
+
+    path = tmp_path / "7-368-544.gpkg"
+    x0, y0 = 84600.0, 447400.0
+    pand = {"geometry": "MultiPolygon", "properties": {"fid": "int", "identificatie": "str", "b3_dak_type": "str"}}
+    with fiona.open(path, "w", driver="GPKG", layer="pand", schema=pand, crs="EPSG:7415") as out:
+        for fid, roof in ((11, "slanted"), (12, "multiple horizontal")):
+            out.write({"geometry": {"type": "MultiPolygon", "coordinates": [[[(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0, y0)]]]},
+                       "properties": {"fid": fid, "identificatie": f"NL.IMBAG.Pand.05031000000000{fid}", "b3_dak_type": roof}})
+    heights = {"1.2": 6.0, "1.3": 7.0, "2.2": 8.0}
+    parts = {11: [(0, 0, 10, 8)], 12: [(30, 0, 6, 6), (46, 0, 4, 4)]}  # 12: two parts above the terrain
+    three = {"geometry": "3D MultiPolygon", "properties": {"fid": "int", "pand_deel_id": "int"}}
+    for lod, h in heights.items():
+        with fiona.open(path, "w", driver="GPKG", layer=f"lod{lod.replace('.', '')}_3d", schema=three, crs="EPSG:7415",
+                        FID="gid") as out:
+            for fid, boxes in parts.items():
+                for k, (x, y, w, d) in enumerate(boxes):
+                    out.write({"geometry": {"type": "MultiPolygon", "coordinates": _box(x0 + x, y0 + y, w, d, h)},
+                               "properties": {"fid": fid, "pand_deel_id": k}})
+    flat = {"geometry": "Polygon", "properties": {"fid": "int", "b3_h_dak_50p": "float"}}
+    with fiona.open(path, "w", driver="GPKG", layer="lod22_2d", schema=flat, crs="EPSG:7415", FID="gid") as out:
+        for fid, boxes in parts.items():
+            for x, y, w, d in boxes:
+                for half in (0, w / 2):  # two roof planes each
+                    ring = [(x0 + x + half, y0 + y), (x0 + x + half + w / 2, y0 + y), (x0 + x + half + w / 2, y0 + y + d),
+                            (x0 + x + half, y0 + y + d)]
+                    out.write({"geometry": {"type": "Polygon", "coordinates": [ring + ring[:1]]},
+                               "properties": {"fid": fid, "b3_h_dak_50p": 8.0}})
+    ids = ["NL.IMBAG.Pand.0503100000000011", "NL.IMBAG.Pand.0503100000000012"]
+    for options, lod in ((ReaderOptions(), "2.2"), (ReaderOptions(lod="lowest"), "1.2"), (ReaderOptions(lod="1.3"), "1.3"),
+                         (ReaderOptions(layer="lod13_3d"), "1.3")):
+        got = list(read_file(path, options))
+        assert [m.id.split("#")[1] for m in got] == ids and all(m.lod == lod for m in got), (options.lod, got)
+        assert united_volume(got[0]) == pytest.approx(10 * 8 * heights[lod], rel=1e-9)
+        assert united_volume(got[1]) == pytest.approx((36 + 16) * heights[lod], rel=1e-9)
+        assert any(f"a 3D BAG GeoPackage: its LoD {lod} layer read" in n for n in got[0].notes), got[0].notes
+        assert any("2 parts above the terrain" in n for n in got[1].notes), got[1].notes
+    labelled = list(read_file(path, ReaderOptions(label_attribute="b3_dak_type")))
+    assert [m.label for m in labelled] == ["slanted", "multiple horizontal"]
+    ranges = gis_ranges(path, 1, ReaderOptions())
+    assert ranges is not None and len(ranges) == 3  # the rows of lod22_3d alone
+    ranged = [m for r in ranges for m in read_gis(path, ReaderOptions(), feature_range=r)]
+    assert [m.id for m in ranged] == [m.id for m in read_file(path)]
+    assert [united_volume(m) for m in ranged] == pytest.approx([10 * 8 * 8, 52 * 8], rel=1e-9)
+    (none,) = read_file(path, ReaderOptions(lod="2"))  # a LoD the file has not: the file says which it has
+    assert isinstance(none, Rejection) and "is a 3D BAG GeoPackage of LoD 1.2, 1.3, 2.2" in none.reason, none
+    # a layer named that is not a 3D one: read as any layer (pand: footprints without a height)
+    (first, _) = read_file(path, ReaderOptions(layer="pand"))
+    assert isinstance(first, Rejection) and "without a height" in first.reason
