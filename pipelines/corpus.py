@@ -648,8 +648,11 @@ def run_corpus(client, cfg, store, resume: bool = False,
         files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
         root = root or create_store(path, overwrite=True)
         inputs = []  # (file to read, the start of its ids, (written, original) where the planner wrote it)
+        archives = [k for k, f in enumerate(files) if input_kind(f.path) == "zip"]
         for k, f in enumerate(files):  # a zip archive: its files read by tasks of their own
-            unzipped = _unzipped(f, k, path, cfg) if input_kind(f.path) == "zip" else None
+            unzipped = _unzipped(f, k, path, cfg) if k in archives else None
+            if k in archives:
+                report("unpack", archives.index(k) + 1, len(archives))
             if unzipped is None:
                 inputs.append((f, f.name, None))
                 continue
@@ -685,6 +688,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
                 sources += [{**base, "features": r} for r in features]
             else:
                 sources.append(base)
+            report("plan", k + 1, len(inputs))  # large files split, decompressed or scanned for their ranges
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
                                             src.get("features"), src.get("rename"), pure=False,

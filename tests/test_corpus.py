@@ -342,6 +342,7 @@ def test_a_zip_archive_is_read_by_a_task_per_file_and_range(cluster_client, tmp_
     calls = []
     corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
     assert max(total for stage, _, total in calls if stage == "read") >= 3 + 5 + 1  # the layer's, the city's, ...
+    assert ("unpack", 1, 1) in calls and ("plan", 4, 4) in calls  # progress: the archive, then its four files to read
     assert not (store / corpus.STAGING).exists()
     got = {r["id"]: r for r in read_manifest(store)["records"]}
     whole = {}
