@@ -371,6 +371,8 @@ class PartGrouping:
     tags : dict of str to dict
         Where a building of ``named`` is a feature of another file that links its parts: its properties (what its
         parts inherit), by its first part's id.
+    what : str
+        What its parts are, in the notes of the buildings of ``named``.
     """
 
     owned: frozenset
@@ -379,6 +381,7 @@ class PartGrouping:
     named: dict = dataclasses.field(default_factory=dict)
     linked: frozenset = frozenset()
     tags: dict = dataclasses.field(default_factory=dict)
+    what: str = "INSPIRE BuildingParts"
 
     def __contains__(self, oid: str) -> bool:
         return oid in self.owned or oid in self.parts_of or oid in self.strays
@@ -401,9 +404,70 @@ def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | No
 
         linking = _stamp(list(dict.fromkeys(str(p) for p in (path, *options.building_files) if _is_gml(Path(p)))))
         return _inspire_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes), linking)
+    if any(_bag2d_columns(path, name) for name in keyed):  # the 3D BAG's 2D layers: roof planes by building
+        return _bag2d_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
     if not any(_has_part_columns(path, name) for name in keyed):
         return None
     return _part_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes))
+
+
+#: The 3D BAG's 2D layers (``lod12_2d``, ``lod13_2d``, ``lod22_2d``; its WFS): a row per roof plane, the ground's
+#: elevation and the roof's (percentiles of its points, NAP metres) in these columns (new names, then the 2021 ones).
+BAG2D_GROUND = ("b3_h_maaiveld", "h_maaiveld")
+BAG2D_ROOF = ("b3_h_dak_70p", "h_dak_70p", "b3_h_dak_50p", "h_dak_50p")
+
+
+def _bag2d_columns(path: Path, layer: str) -> tuple[str, str] | None:
+    """The ground and roof elevation columns of a 3D BAG 2D layer (:data:`BAG2D_GROUND`, :data:`BAG2D_ROOF`), else
+    None."""
+    try:
+        if _is_parquet(path):
+            import pyarrow.parquet as pq
+
+            names = set(pq.read_schema(path).names)
+        else:
+            with _open(path, layer) as collection:
+                names = set(collection.schema["properties"])
+    except Exception:  # unreadable: its reading says why
+        return None
+    ground = next((c for c in BAG2D_GROUND if c in names), None)
+    roof = next((c for c in BAG2D_ROOF if c in names), None)
+    return (ground, roof) if ground and roof else None
+
+
+@functools.lru_cache(maxsize=4)
+def _bag2d_grouping(path: str, size: int, mtime: int, layers: tuple, id_attributes: tuple) -> PartGrouping:
+    """The roof planes of a 3D BAG 2D layer grouped by their building (``fid``, else ``identificatie``), each a part
+    extruded from the ground to its roof (as docs.3dbag.nl says LoD 1.2 and 1.3 are rebuilt from them: the roof's
+    elevation less the ground's, :data:`BAG2D_ROOF`, :data:`BAG2D_GROUND`); the building takes its
+    ``identificatie``. A plane without them is read as a feature of its own."""
+    from meshsom.osm import _Area
+
+    groups: dict[tuple, list] = {}
+    for name in layers:
+        columns = _bag2d_columns(Path(path), name)
+        if columns is None:
+            continue
+        ground, roof = columns
+        prefix = f"{name}/" if len(layers) > 1 else ""
+        for oid, props, geometry in _records(Path(path), name, _id_field_of(Path(path), name, id_attributes), 0, None):
+            key = props.get(BAG3D_KEY) if props.get(BAG3D_KEY) is not None else props.get(BAG3D_ID)
+            try:
+                footprint = _footprint(geometry, f"{path}#{prefix}{oid}") if geometry is not None else None
+                rise = float(props[roof]) - float(props[ground])
+            except (InputFileError, KeyError, TypeError, ValueError):
+                continue
+            if key is None or footprint is None or not rise > 0:
+                continue
+            groups.setdefault((name, str(key)), []).append(_Area(f"{prefix}{oid}", {**props, "height": rise}, footprint))
+    pand = _pand_of(path, size, mtime) if _bag3d_layers(Path(path)) else {}  # a 3D BAG GeoPackage's buildings
+    parts_of = {parts[0].oid: parts for parts in groups.values()}
+    owned = {part.oid for parts in groups.values() for part in parts[1:]}
+    named = {parts[0].oid: str(pand.get(key, {}).get(BAG3D_ID) or parts[0].tags.get(BAG3D_ID) or key)
+             for (_, key), parts in groups.items()}
+    return PartGrouping(frozenset(owned), parts_of, frozenset(), named, frozenset(),
+                        {parts[0].oid: parts[0].tags for parts in groups.values()},
+                        "3D BAG roof planes, each from the ground to its roof")
 
 
 #: The layer GDAL's GML driver gives INSPIRE's building parts (:mod:`meshsom.inspire`), and the layers of buildings
@@ -791,7 +855,7 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             own = grouping.parts_of.get(oid, []) if grouping is not None else []
             stray = STRAY if grouping is not None and oid in grouping.strays else None
             building = grouping.named.get(oid) if grouping is not None else None  # INSPIRE: the building its parts name
-            how = (f"{len(own)} INSPIRE BuildingParts of {building}, read as its parts" if building else
+            how = (f"{len(own)} {grouping.what} of {building}, read as its parts" if building else
                    f"{len(own)} INSPIRE BuildingParts of it, read as its parts"
                    if grouping is not None and oid in grouping.linked else None)
             united = osm_pieces(path, layer.name).note(oid.removeprefix(f"{layer.name}/")) if osm else None

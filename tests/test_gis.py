@@ -788,15 +788,15 @@ def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
                 for k, (x, y, w, d) in enumerate(boxes):
                     out.write({"geometry": {"type": "MultiPolygon", "coordinates": _box(x0 + x, y0 + y, w, d, h)},
                                "properties": {"fid": fid, "pand_deel_id": k}})
-    flat = {"geometry": "Polygon", "properties": {"fid": "int", "b3_h_dak_50p": "float"}}
-    with fiona.open(path, "w", driver="GPKG", layer="lod22_2d", schema=flat, crs="EPSG:7415", FID="gid") as out:
+    flat = {"geometry": "Polygon", "properties": {"fid": "int", "b3_h_maaiveld": "float", "b3_h_dak_70p": "float"}}
+    with fiona.open(path, "w", driver="GPKG", layer="lod13_2d", schema=flat, crs="EPSG:7415", FID="gid") as out:
         for fid, boxes in parts.items():
             for x, y, w, d in boxes:
-                for half in (0, w / 2):  # two roof planes each
+                for half, rise in ((0, 8.0), (w / 2, 5.0)):  # two roof planes each: 8 and 5 m above the ground
                     ring = [(x0 + x + half, y0 + y), (x0 + x + half + w / 2, y0 + y), (x0 + x + half + w / 2, y0 + y + d),
                             (x0 + x + half, y0 + y + d)]
                     out.write({"geometry": {"type": "Polygon", "coordinates": [ring + ring[:1]]},
-                               "properties": {"fid": fid, "b3_h_dak_50p": 8.0}})
+                               "properties": {"fid": fid, "b3_h_maaiveld": 1.5, "b3_h_dak_70p": 1.5 + rise}})
     ids = ["NL.IMBAG.Pand.0503100000000011", "NL.IMBAG.Pand.0503100000000012"]
     for options, lod in ((ReaderOptions(), "2.2"), (ReaderOptions(lod="lowest"), "1.2"), (ReaderOptions(lod="1.3"), "1.3"),
                          (ReaderOptions(layer="lod13_3d"), "1.3")):
@@ -813,6 +813,12 @@ def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
     ranged = [m for r in ranges for m in read_gis(path, ReaderOptions(), feature_range=r)]
     assert [m.id for m in ranged] == [m.id for m in read_file(path)]
     assert [united_volume(m) for m in ranged] == pytest.approx([10 * 8 * 8, 52 * 8], rel=1e-9)
+    # its 2D layer named: each roof plane a part, from the ground to its roof (b3_h_dak_70p - b3_h_maaiveld)
+    flat_got = list(read_file(path, ReaderOptions(layer="lod13_2d")))
+    assert [m.id.split("#")[1] for m in flat_got] == ids, flat_got
+    assert united_volume(flat_got[0]) == pytest.approx(40 * 8 + 40 * 5, rel=1e-9)
+    assert united_volume(flat_got[1]) == pytest.approx(26 * 8 + 26 * 5, rel=1e-9)
+    assert any("4 3D BAG roof planes, each from the ground to its roof" in n for n in flat_got[1].notes), flat_got[1].notes
     (none,) = read_file(path, ReaderOptions(lod="2"))  # a LoD the file has not: the file says which it has
     assert isinstance(none, Rejection) and "is a 3D BAG GeoPackage of LoD 1.2, 1.3, 2.2" in none.reason, none
     # a layer named that is not a 3D one: read as any layer (pand: footprints without a height)
