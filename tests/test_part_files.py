@@ -87,22 +87,19 @@ def test_overture_downloads_through_meshsom_ingest(tmp_path):
     folder = tmp_path / "overture"
     folder.mkdir()
     _geoparquet_pair(folder)
-    _ingests_a_church(folder, tmp_path / "o.zarr", ["buildings.parquet#b1", "buildings.parquet#b2", "parts.parquet#p3"])
+    summary, records = _ingested(folder, tmp_path / "o.zarr")
+    assert (summary["inputs"], summary["accepted"], summary["rejected"]) == (3, 3, 0), summary
+    assert sorted(records) == ["buildings.parquet#b1", "buildings.parquet#b2", "parts.parquet#p3"]
+    assert records["buildings.parquet#b1"]["volume"] == pytest.approx(1600, rel=1e-5)  # the church, of its parts
 
 
-def _ingests_a_church(folder, store, expected_ids):
-    """``meshsom ingest`` of a folder: three buildings accepted, with ``expected_ids`` (the church first, its
-    volume 1,600 m^3 from its parts)."""
+def _ingested(folder, store) -> tuple[dict, dict]:
+    """``meshsom ingest --json`` of a folder: its summary, and its records by id (the command must succeed)."""
     out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(folder), "--out", str(store), "--json"],
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    summary = json.loads(out.stdout.strip().splitlines()[-1])
-    assert (summary["inputs"], summary["accepted"], summary["rejected"]) == (3, 3, 0), summary
     manifest = json.loads((store / "manifest.json").read_text())
-    ids = sorted(r["id"] for r in manifest["records"])
-    assert ids == expected_ids, ids
-    church = next(r for r in manifest["records"] if r["id"] == expected_ids[0])
-    assert church["volume"] == pytest.approx(1600, rel=1e-5)
+    return json.loads(out.stdout.strip().splitlines()[-1]), {r["id"]: r for r in manifest["records"]}
 
 
 def test_buildings_and_their_parts_in_one_geoparquet_file(tmp_path):
@@ -218,5 +215,7 @@ def test_osm_parts_files_through_meshsom_ingest(tmp_path):
     folder.mkdir()
     _overpass(folder / "buildings.geojson", OSM_BUILDINGS)
     _overpass(folder / "parts.geojson", OSM_PARTS)
-    _ingests_a_church(folder, tmp_path / "o.zarr",
-                      ["buildings.geojson#way/1", "buildings.geojson#way/2", "parts.geojson#way/13"])
+    summary, records = _ingested(folder, tmp_path / "o.zarr")
+    assert (summary["inputs"], summary["accepted"], summary["rejected"]) == (3, 3, 0), summary
+    assert sorted(records) == ["buildings.geojson#way/1", "buildings.geojson#way/2", "parts.geojson#way/13"]
+    assert records["buildings.geojson#way/1"]["volume"] == pytest.approx(1600, rel=1e-5)  # the church, of its parts
