@@ -1300,25 +1300,35 @@ def _parquet_native_geometry(path: Path) -> tuple[str, dict] | None:
 
 def _parquet_wkb_column(path: Path, schema) -> tuple[str, dict] | None:
     """A binary column of :data:`WKB_COLUMNS` whose first value is WKB (shapely reads it), as :func:`_parquet_geo`
-    gives it, its CRS unknown (read as WGS 84 where its first footprint lies within +/-180 and +/-90, noted:
-    :func:`_parquet_layers`); None where there is none."""
+    gives it, its CRS unknown (``degrees``: its first footprint lies within +/-180 and +/-90, so it is read as
+    WGS 84, noted: :func:`_parquet_layers`); None where there is none. Looked for once per process and file."""
     import pyarrow as pa
+
+    binary = tuple(name for name in schema.names
+                   if pa.types.is_binary(schema.field(name).type) or pa.types.is_large_binary(schema.field(name).type))
+    st = Path(path).stat()
+    return _wkb_column_of(str(path), st.st_size, st.st_mtime_ns, binary)
+
+
+@functools.lru_cache(maxsize=16)
+def _wkb_column_of(path: str, size: int, mtime: int, binary: tuple) -> tuple[str, dict] | None:
     import pyarrow.parquet as pq
     import shapely
+    from shapely.geometry import mapping
 
-    by_name = {name.lower(): name for name in schema.names}
+    by_name = {name.lower(): name for name in binary}
     for wanted in WKB_COLUMNS:
         name = by_name.get(wanted)
-        if name is None or not (pa.types.is_binary(schema.field(name).type)
-                                or pa.types.is_large_binary(schema.field(name).type)):
+        if name is None:
             continue
         first = next((v for batch in pq.ParquetFile(path).iter_batches(batch_size=256, columns=[name])
                       for v in batch.column(0).to_pylist() if v is not None), None)
         try:
-            if first is not None and shapely.from_wkb(first) is not None:
-                return name, {"encoding": "WKB", "crs": None, "undeclared": True}
+            shape = shapely.from_wkb(first) if first is not None else None
         except shapely.errors.GEOSException:
             continue
+        if shape is not None:
+            return name, {"encoding": "WKB", "crs": None, "degrees": _within_degrees(mapping(shape))}
     return None
 
 
@@ -1368,15 +1378,8 @@ def _parquet_layers(path: Path) -> list[Layer]:
         crs = None
     else:
         crs = meta["crs"] if isinstance(meta["crs"], str) else json.dumps(meta["crs"])
-    degrees = False
-    if meta.get("undeclared"):  # a WKB column of no declared CRS: WGS 84 where its first footprint is in degrees
-        import shapely
-        from shapely.geometry import mapping
-
-        first = next((v for batch in pq.ParquetFile(path).iter_batches(batch_size=256, columns=[column])
-                      for v in batch.column(0).to_pylist() if v is not None), None)
-        degrees = first is not None and _within_degrees(mapping(shapely.from_wkb(first)))
-    return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows), degrees)]
+    # a WKB column of no declared CRS (_parquet_wkb_column): WGS 84 where its first footprint is in degrees
+    return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows), bool(meta.get("degrees")))]
 
 
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None

@@ -314,6 +314,8 @@ def _key(path) -> str:
 
 @functools.lru_cache(maxsize=4)
 def _osm_parts(part_stamps: tuple, building_stamps: tuple, options) -> OsmParts:
+    from shapely.geometry import mapping
+
     from meshsom.geojson import _is_part_feature
     from meshsom.osm import _Area, _said, osm_row, owners
 
@@ -339,8 +341,6 @@ def _osm_parts(part_stamps: tuple, building_stamps: tuple, options) -> OsmParts:
             strays.add((path, oid))
             continue
         building_path, building, _, _, building_crs = outlines[b]
-        from shapely.geometry import mapping
-
         parts_of.setdefault((building_path, building), []).append(
             _Area(oid, props, mapping(_in_crs(geometry, crs, building_crs))))
         owned.add((path, oid))
