@@ -408,8 +408,8 @@ def _finished_summary(path: str, levels: Sequence[int]) -> dict | None:
 #: :func:`_split_cityjson`; a zip archive's files: :func:`_unzipped`): in its staging group, deleted with it when
 #: the run is done.
 SPLIT_FOLDER = "inputs"
-#: The most of the store's free disk a zip archive's extracted files may take (:func:`_unzipped`); a larger one is
-#: read by one task, which extracts it to its temporary folder.
+#: The most of the store's free disk what the planner writes of one input may take (:func:`_room_for`: a zip archive's
+#: files, a decompressed or split file); a larger input is read by one task, as it is.
 UNZIP_DISK_SHARE = 0.5
 #: Bytes of a JSON input looked at for ``"CityJSON"`` (its type, which writers put first) before it is split.
 CITYJSON_SNIFF_BYTES = 1 << 16
@@ -420,15 +420,13 @@ def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
     (:func:`meshsom.cityjson_split.split_cityjson`), so that tasks read it in ranges; the path, or None where it is
     smaller, not CityJSON, or the store is remote (workers may not share this machine's disk: read whole)."""
     from meshsom.cityjson_split import split_cityjson
-    from meshsom.io import open_input
     from meshsom.store import is_remote
 
     try:
-        if is_remote(store) or Path(f.path).stat().st_size < 2 * int(cfg.dask.read_bytes):
+        size = Path(f.path).stat().st_size
+        if is_remote(store) or size < 2 * int(cfg.dask.read_bytes) or not _is_cityjson(Path(f.path), cfg) \
+                or not _room_for(size, store):
             return None
-        with open_input(Path(f.path), cfg.corpus.reader) as stream:
-            if b'"CityJSON"' not in stream.read(CITYJSON_SNIFF_BYTES):
-                return None
     except Exception:  # unreadable: its reader says why
         return None
     out = Path(store) / STAGING / SPLIT_FOLDER / f"split-{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
@@ -456,11 +454,9 @@ def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
             if fh.read(2) != GZIP_MAGIC or is_remote(store):
                 return None
         size = _content_bytes(Path(f.path))
-        with open_input(Path(f.path), cfg.corpus.reader) as stream:
-            cityjson = b'"CityJSON"' in stream.read(CITYJSON_SNIFF_BYTES)
-        least = 2 * int(cfg.dask.read_bytes) if kind == "cityjsonseq" or cityjson else \
+        least = 2 * int(cfg.dask.read_bytes) if kind == "cityjsonseq" or _is_cityjson(Path(f.path), cfg) else \
             2 * int(cfg.dask.read_features) * MIN_FEATURE_BYTES
-        if size < least or size > UNZIP_DISK_SHARE * shutil.disk_usage(Path(store)).free:
+        if size < least or not _room_for(size, store):
             return None
     except Exception:  # unreadable: read whole by one task, whose reader says why
         return None
@@ -474,6 +470,28 @@ def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
         return None
     log.info("%s: gzipped, %d bytes decompressed into %s to be read in ranges", f.path, size, out)
     return str(out)
+
+
+def _is_cityjson(path: Path, cfg) -> bool:
+    """Whether a JSON input (plain or gzipped) is CityJSON: its first :data:`CITYJSON_SNIFF_BYTES` name the type."""
+    from meshsom.io import open_input
+
+    with open_input(path, cfg.corpus.reader) as stream:
+        return b'"CityJSON"' in stream.read(CITYJSON_SNIFF_BYTES)
+
+
+def _room_for(size: int, store: str, what=None) -> bool:
+    """Whether ``size`` bytes the planner would write take at most :data:`UNZIP_DISK_SHARE` of the disk free beside
+    the store (``what``: the input, logged where they do not)."""
+    import shutil
+
+    free = shutil.disk_usage(Path(store)).free
+    if size <= UNZIP_DISK_SHARE * free:
+        return True
+    if what is not None:
+        log.warning("%s: expands to %d bytes, more than %.0f%% of the %d free beside the store: read by one task",
+                    what, size, 100 * UNZIP_DISK_SHARE, free)
+    return False
 
 
 def _content_bytes(path: Path) -> int:
@@ -499,10 +517,7 @@ def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
         return None
     folder = Path(store) / STAGING / SPLIT_FOLDER / f"zip-{k:05d}-{Path(f.path).name}"
     try:
-        size, free = expanded_size(Path(f.path)), shutil.disk_usage(Path(store)).free
-        if size > UNZIP_DISK_SHARE * free:  # the store's disk would fill: a task extracts and reads it whole
-            log.warning("%s: expands to %d bytes, more than %.0f%% of the %d free beside the store: read by one task",
-                        f.path, size, 100 * UNZIP_DISK_SHARE, free)
+        if not _room_for(expanded_size(Path(f.path)), store, f.path):  # a task extracts and reads it whole
             return None
         return extract_archive(Path(f.path), folder, cfg.corpus.reader), folder
     except (InputFileError, OSError):
