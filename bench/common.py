@@ -38,13 +38,19 @@ def data(N: int, D: int, M: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]
     return rng.normal(size=(N, D)).astype(np.float32), rng.normal(size=(M, D)).astype(np.float32)
 
 
-#: Code that defines ``peak_mb()``: the peak resident memory (MB) of the process's own memory (VmHWM, reset by exec;
-#: getrusage's maxrss keeps a forking parent's), pasted into the fresh processes a benchmark measures.
+#: Code that defines ``peak_mb()``: the peak resident memory (MB) of the process's own memory (Linux's VmHWM, reset by
+#: exec; elsewhere getrusage's maxrss, which keeps a forking parent's), pasted into the fresh processes a benchmark
+#: measures.
 PEAK_MB = """
 def peak_mb():
-    for line in open("/proc/self/status"):
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:  # no /proc (macOS): getrusage's, which may count the forking parent's
+        pass
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 """
 
 
