@@ -21,7 +21,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.common import PEAK_MB  # noqa: E402
+from bench.common import PEAK_MB, best_warm  # noqa: E402
 ZURICH = ROOT / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod2.city.json"
 
 SPLIT = """
@@ -60,14 +60,6 @@ def write_city(path: Path, copies: int) -> int:
     return len(objects)
 
 
-def best(fn, repeat: int) -> float:
-    """The best of ``repeat`` calls after a warm-up call."""
-    from bench.common import best_time
-
-    fn()
-    return best_time(fn, repeat)
-
-
 def main(argv=None) -> int:
     from meshsom.cityjson_split import split_cityjson
     from meshsom.io import ReaderOptions
@@ -80,8 +72,8 @@ def main(argv=None) -> int:
         path, out = Path(folder) / "city.city.json", Path(folder) / "city.city.jsonl"
         n = write_city(path, args.copies)
         mb = path.stat().st_size / 1e6
-        parse = best(lambda: json.loads(path.read_bytes()), args.repeat)
-        split = best(lambda: split_cityjson(path, out, ReaderOptions()), args.repeat)
+        parse = best_warm(lambda: json.loads(path.read_bytes()), args.repeat)
+        split = best_warm(lambda: split_cityjson(path, out, ReaderOptions()), args.repeat)
         features = len(out.read_text().splitlines()) - 1
         done = subprocess.run([sys.executable, "-c", SPLIT.format(root=str(ROOT), path=str(path), out=str(out), peak=PEAK_MB)],
                               capture_output=True, text=True, check=True).stdout.split()

@@ -64,6 +64,49 @@ def best_time(fn, repeat: int = 3, min_total: float = 0.0) -> float:
     return best
 
 
+def best_warm(fn, repeat: int) -> float:
+    """The best of ``repeat`` calls after a warm-up call."""
+    fn()
+    return best_time(fn, repeat)
+
+
+#: A fresh process reading one source as a read task of ``meshsom ingest`` does: its items held.
+READ_SOURCE = """
+import sys, time, json
+{peak}sys.path.insert(0, {root!r})
+from meshsom.io import ReaderOptions
+from pipelines.corpus import read_source
+rng = json.loads({range!r})
+t = time.perf_counter()
+n = len(read_source({path!r}, ReaderOptions(), None, rng))
+print(json.dumps({{"items": n, "seconds": time.perf_counter() - t, "peak_mb": peak_mb()}}))
+"""
+
+
+def fresh_read(path, byte_range) -> dict:
+    """``{"items", "seconds", "peak_mb"}`` of a fresh process reading ``path`` (its ``byte_range``: None for the
+    whole file) with :func:`pipelines.corpus.read_source`, its items held, as a read task of a plan does."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    code = READ_SOURCE.format(root=str(root), path=str(path), range=json.dumps(byte_range), peak=PEAK_MB)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def print_reads(path, byte_range) -> None:
+    """A table of a fresh process's read of the whole file and of one of its ranges (:func:`fresh_read`)."""
+    whole, one = fresh_read(path, None), fresh_read(path, byte_range)
+    print()
+    print("| read, fresh process | items | seconds | peak RSS MB |")
+    print("|---|---|---|---|")
+    print(f"| whole file | {whole['items']:,} | {whole['seconds']:.1f} | {whole['peak_mb']:.0f} |")
+    print(f"| one range | {one['items']:,} | {one['seconds']:.1f} | {one['peak_mb']:.0f} |")
+
+
 def sgemm_gflops(size: int = 4096, repeat: int = 3) -> float:
     """numpy float32 size^3 matmul rate."""
     rng = np.random.default_rng(0)

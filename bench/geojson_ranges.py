@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -26,25 +25,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.common import PEAK_MB  # noqa: E402
+from bench.common import best_warm, print_reads  # noqa: E402
 
 #: Metres per degree of longitude and latitude about Delft, near enough for a synthetic city.
 METRES_PER_DEGREE = np.array([68_600.0, 111_250.0])
 ORIGIN = np.array([4.3571, 52.0116])
 L_SHAPE = np.array([(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10), (0, 0)], float)
-
-READ = """
-import sys, time, json
-{peak}sys.path.insert(0, {root!r})
-from meshsom.io import ReaderOptions
-from pipelines.corpus import read_source
-rng = json.loads({range!r})
-t = time.perf_counter()
-n = len(read_source({path!r}, ReaderOptions(), None, rng))
-print(json.dumps({{"items": n, "seconds": time.perf_counter() - t,
-                  "peak_mb": peak_mb()}}))
-"""
-
 
 def write_city(path: Path, n: int) -> None:
     side = int(np.ceil(np.sqrt(n)))
@@ -56,20 +42,6 @@ def write_city(path: Path, n: int) -> None:
                        "geometry": {"type": "Polygon", "coordinates": [np.round(ring, 7).tolist()]}}
             out.write(json.dumps(feature) + (",\n" if k < n - 1 else "\n"))
         out.write("]}\n")
-
-
-def best(fn, repeat: int) -> float:
-    """The best of ``repeat`` calls after a warm-up call."""
-    from bench.common import best_time
-
-    fn()
-    return best_time(fn, repeat)
-
-
-def fresh_read(path: Path, feature_range) -> dict:
-    code = READ.format(root=str(ROOT), path=str(path), range=json.dumps(feature_range), peak=PEAK_MB)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main(argv=None) -> int:
@@ -87,19 +59,14 @@ def main(argv=None) -> int:
         mb = path.stat().st_size / 1e6
         ranges = geojson_ranges(path, args.range, ReaderOptions())
         assert ranges is not None and len(ranges) == -(-args.buildings // args.range)
-        scan = best(lambda: geojson_ranges(path, args.range, ReaderOptions()), args.repeat)
-        parse = best(lambda: json.loads(path.read_bytes()), args.repeat)
+        scan = best_warm(lambda: geojson_ranges(path, args.range, ReaderOptions()), args.repeat)
+        parse = best_warm(lambda: json.loads(path.read_bytes()), args.repeat)
         print(f"{args.buildings:,} footprints, {mb:.1f} MB, {len(ranges)} ranges of {args.range:,}")
         print("| step | seconds | MB/s | ratio to json.loads |")
         print("|---|---|---|---|")
         print(f"| json.loads of the whole file (reference) | {parse:.2f} | {mb / parse:.0f} | 1.00 |")
         print(f"| geojson_ranges (the scan) | {scan:.2f} | {mb / scan:.0f} | {scan / parse:.2f} |")
-        whole, one = fresh_read(path, None), fresh_read(path, ranges[len(ranges) // 2])
-        print()
-        print("| read, fresh process | items | seconds | peak RSS MB |")
-        print("|---|---|---|---|")
-        print(f"| whole file | {whole['items']:,} | {whole['seconds']:.1f} | {whole['peak_mb']:.0f} |")
-        print(f"| one range | {one['items']:,} | {one['seconds']:.1f} | {one['peak_mb']:.0f} |")
+        print_reads(path, ranges[len(ranges) // 2])
     return 0
 
 

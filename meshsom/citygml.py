@@ -34,6 +34,11 @@ Details of the encoding:
 - Parsing streams (``xml.etree.ElementTree.iterparse`` on :func:`meshsom.io.open_input`: gzip
   decompressed as it is read), each building cleared once read; no DTD or external entity is
   fetched.
+- A large file (a city's, a WFS answer) is read in ranges of whole members by tasks of their own
+  (:func:`citygml_ranges`: one pass over its bytes finds each ``cityObjectMember``, ``gml:featureMember``
+  or ``wfs:member``; each range is parsed as the file's head, its members and the file's tail), each
+  Building where a whole read puts it: its id (by ordinal where it has no ``gml:id``), source and
+  errors' line numbers.
 - A prefix used without a namespace declaration (an ADE's ``energy:`` or ``uro:`` element, an
   ``xlink:href`` in a file that forgot ``xmlns:xlink``: not well-formed XML, which a parser refuses
   at the first use) is declared on the root element and the file read again from the start, the
@@ -43,7 +48,9 @@ Details of the encoding:
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -82,6 +89,20 @@ UNDECLARED_PREFIXES = 16
 #: How far into a file its root element's start tag is looked for, to declare prefixes on it.
 ROOT_TAG_SEARCH_BYTES = 1 << 20
 _PREFIXED_NAME = re.compile(r"(?:<|\s)/?([A-Za-z_][\w.\-]*):[A-Za-z_][\w.\-]*")
+#: Bytes of a CityGML file looked at per step of :func:`citygml_ranges`' scan.
+SCAN_BYTES = 8 << 20
+#: Bytes at the end of a step looked at again in the next (a member's or a Building's tag cut by the step's end).
+TAG_MARGIN = 4096
+#: The longest comment or CDATA section the scan carries from one step to the next; a file with a longer one is read
+#: whole, by one task.
+CARRY_LIMIT = 64 << 20
+#: Local names of the elements that hold a model's features, a feature each (CityGML's ``cityObjectMember``; a WFS
+#: FeatureCollection's ``gml:featureMember`` or ``wfs:member``): a file is split between them.
+MEMBER_NAMES = (b"cityObjectMember", b"featureMember", b"member")
+#: What the scan looks at: comments and CDATA sections (passed over), and the start and end tags of members and of
+#: Buildings (groups: the end tag's slash, the qualified name, its local name, a self-closing tag's slash).
+_SCAN_TOKEN = re.compile(rb"<!--.*?-->|<!\[CDATA\[.*?\]\]>|<(/?)((?:[A-Za-z_][\w.\-]*:)?("
+                         + b"|".join(MEMBER_NAMES) + rb"|Building))(?=[\s/>])[^<>]*?(/?)>", re.S)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -318,11 +339,20 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     return objects, vertices, notes, srs_name
 
 
-def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
+def read_citygml(path: Path, options, name: str | None = None, byte_range=None) -> Iterator:
     """Read the buildings of a CityGML file: RawMesh or Rejection items, as :func:`meshsom.io.read_cityjson`.
 
     The file is parsed as a stream (:func:`meshsom.io.open_input`): only the building being read
     is held.
+
+    Parameters
+    ----------
+    path : Path
+    options : ReaderOptions
+    name : str, optional
+    byte_range : list of int, optional
+        A range of :func:`citygml_ranges`: the Buildings of its members (ids, ordinals and errors' lines as in the
+        whole file); a range without Buildings yields nothing.
 
     Raises
     ------
@@ -334,6 +364,7 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
 
     from meshsom.io import Rejection, open_input
 
+    opener = (lambda: open_input(path, options)) if byte_range is None else (lambda: _range_input(path, byte_range))
     added: dict[str, str] = {}  # prefixes the file uses undeclared -> the namespace given them
     read = 0  # items yielded so far: passed over when the file is read again
     first = None  # the first parse error, in the file as it is
@@ -341,9 +372,10 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
         declared: set[str] = set()
         seen = 0
         try:
-            with open_input(path, options) as stream:
+            with opener() as stream:
                 source = _DeclaringStream(stream, added) if added else stream
-                for item in _buildings(source, path, name or path.name, options, declared):
+                for item in _buildings(source, path, name or path.name, options, declared,
+                                       0 if byte_range is None else int(byte_range[2]), byte_range is not None):
                     seen += 1
                     if seen <= read:
                         continue
@@ -356,13 +388,13 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
             raise
         except ET.ParseError as err:
             line, column = err.position
-            problem = f"invalid XML at line {line}, column {column}: {str(err).split(':')[0]}"
-            prefix = _unbound_prefix(path, options, line, column, declared, added) \
+            problem = f"invalid XML at line {_file_line(path, line, byte_range)}, column {column}: {str(err).split(':')[0]}"
+            prefix = _unbound_prefix(opener, line, column, declared, added) \
                 if str(err).startswith("unbound prefix") and len(added) < UNDECLARED_PREFIXES else None
             if prefix is None:
                 if added:  # the first error (its position in the file as it is), and what declaring led to
                     then = (f"more than {UNDECLARED_PREFIXES} prefixes used undeclared" if len(added) >= UNDECLARED_PREFIXES
-                            else f"at line {line}: {str(err).split(':')[0]}")
+                            else f"at line {_file_line(path, line, byte_range)}: {str(err).split(':')[0]}")
                     problem = f"{first}; with {', '.join(f'{p}:' for p in added)} declared, then {then}"
                 raise InputFileError(str(path), problem) from None
             first = first or problem
@@ -371,20 +403,27 @@ def read_citygml(path: Path, options, name: str | None = None) -> Iterator:
             raise InputFileError(str(path), f"cannot be parsed as XML ({type(err).__name__}: {err})") from None
 
 
+def _file_line(path: Path, line: int, byte_range) -> int:
+    """The line of the file that a parser's ``line`` of a range's stream (:func:`_range_input`) is on: lines past the
+    head's are counted from the range's first."""
+    if byte_range is None:
+        return line
+    head = _head_lines(path, int(byte_range[3]))
+    return line if line <= head else line - head - 1 + int(byte_range[5])
+
+
 def _undeclared_note(added: dict[str, str]) -> str:
     names = ", ".join(f"{p}:" for p in added)
     return (f"the file uses the XML prefix(es) {names} without declaring a namespace for them (not well-formed XML); "
             f"read as if the root element declared them")
 
 
-def _unbound_prefix(path: Path, options, line: int, column: int, declared: set[str], added: dict[str, str]) -> str | None:
+def _unbound_prefix(opener, line: int, column: int, declared: set[str], added: dict[str, str]) -> str | None:
     """The prefix of the start tag at ``line``, ``column`` (a parser's error position, its column in
     characters, in the file as parsed: with ``added`` declared) that no declaration binds: of its element's and its
     attributes' prefixes not in ``added``, the first that the file declares nowhere before
     (``declared``), else the first (declared only in another element's scope); None if none."""
-    from meshsom.io import open_input
-
-    with open_input(path, options) as stream:
+    with opener() as stream:
         text = _text_at(_DeclaringStream(stream, added) if added else stream, line, column)
     tag = text.split(">", 1)[0]
     found = [m.group(1) for m in _PREFIXED_NAME.finditer(" " + tag)]
@@ -483,17 +522,18 @@ def _root_name_end(head: bytes) -> int | None:
         return match.end()
 
 
-def _buildings(stream, path: Path, name: str, options, declared: set[str]) -> Iterator:
+def _buildings(stream, path: Path, name: str, options, declared: set[str], ordinal: int = 0, part: bool = False
+               ) -> Iterator:
     """The meshes and rejections of the Buildings parsed from ``stream``, as :func:`read_citygml`;
-    the prefixes the file declares are added to ``declared`` as they are met."""
+    the prefixes the file declares are added to ``declared`` as they are met. ``ordinal``: the Buildings before the
+    stream's (of a range: ``part``, which may hold none)."""
     import dataclasses
 
     from meshsom.io import Rejection, _object_meshes
 
     from meshsom.io import file_crs
 
-    found = False
-    ordinal = 0
+    found = part
     root = None
     file_srs = None  # the srsName of the model's own envelope: the CRS of geometry that names none
     stack: list[str] = []  # local names of the open elements
@@ -533,6 +573,161 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str]) -> It
     if not found:
         what = "CityGML" if root == "CityModel" else f"XML with root element {root!r}"
         raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}")
+
+
+def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | None:
+    """Split a large CityGML file into ranges of whole members (``cityObjectMember``, a WFS collection's
+    ``featureMember`` or ``member``), each for one read task (:func:`read_citygml`'s ``byte_range``).
+
+    One pass over the file's bytes (:data:`SCAN_BYTES` at a time, comments and CDATA sections passed over) finds the
+    start and end tag of each member, named as its first member is, and each Building's start tag (the ordinal of a
+    Building without ``gml:id`` is its place in the file). A range is read as the file's head (everything before its
+    first member: the root's namespaces, the model's envelope and CRS), the range's members and the file's tail.
+
+    Parameters
+    ----------
+    path : Path
+        A CityGML file (plain: a gzipped one is not split).
+    target_bytes : int
+        About the size of a range (``dask.read_bytes``): a range ends at the first member start past it.
+    options : ReaderOptions
+        Its ``max_bytes`` bounds the file scanned.
+
+    Returns
+    -------
+    list of [start, stop, first_building, head_end, tail_start, first_line] or None
+        Byte ranges of whole members covering every member once, in order (what lies between two members goes with
+        the first); ``first_building``: the Buildings before the range; ``head_end`` and ``tail_start``: where the
+        file's first member starts and its last ends; ``first_line``: the line the range starts on (from 1). None
+        where the file is under twice ``target_bytes``, gzip (not seekable), over ``options.max_bytes``, or not made
+        of members that can be read apart (a Building outside every member, members inside members, fewer than two
+        ranges, a comment longer than :data:`CARRY_LIMIT`).
+    """
+    from meshsom.io import GZIP_MAGIC, line_numbers
+
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if target_bytes < 1 or size < 2 * target_bytes or size > options.max_bytes:
+            return None
+        with open(path, "rb") as fh:
+            if fh.read(2) == GZIP_MAGIC:
+                return None
+        found = _member_spans(path)
+    except OSError:
+        return None
+    if found is None:
+        return None
+    starts, ends, buildings = found
+    if not len(starts) or len(starts) != len(ends) or np.any(ends < starts) or np.any(starts[1:] < ends[:-1]):
+        return None  # unclosed, or members inside members
+    if not len(buildings) or buildings[0] < starts[0] or buildings[-1] > ends[-1]:
+        return None  # a Building in the head or the tail would be read by every range
+    within = np.searchsorted(starts, buildings, side="right") - 1  # the member each Building starts in
+    if np.any(buildings >= ends[within]):
+        return None  # a Building between members
+    firsts = [0]
+    while True:
+        at = int(np.searchsorted(starts, starts[firsts[-1]] + target_bytes))
+        if at >= len(starts):
+            break
+        firsts.append(at)
+    if len(firsts) < 2:
+        return None
+    offsets = [int(starts[a]) for a in firsts]
+    lines = line_numbers(path, offsets)  # for the reader's errors
+    stops = offsets[1:] + [int(ends[-1])]
+    before = np.searchsorted(buildings, offsets)
+    return [[a, b, int(n), int(starts[0]), int(ends[-1]), line] for a, b, n, line in zip(offsets, stops, before, lines)]
+
+
+def _member_spans(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Where each member of a CityGML file starts and ends (its tags' ``<`` and past its end tag's ``>``; a
+    self-closing member's both), named as the first member is, and where each Building's start tag is; None where a
+    comment or CDATA section is longer than :data:`CARRY_LIMIT`."""
+    member = None
+    starts, ends, buildings = [], [], []
+    carry, offset = b"", 0  # carry: the unread end of the last step; offset: where it is in the file
+    with open(path, "rb") as fh:
+        while True:
+            chunk = fh.read(SCAN_BYTES)
+            last = not chunk
+            buf = carry + chunk
+            limit = len(buf) if last else max(0, len(buf) - TAG_MARGIN)
+            for opener, closer in ((b"<!--", b"-->"), (b"<![CDATA[", b"]]>")):  # not yet closed: looked at next step
+                at = buf.rfind(opener)
+                if not last and at >= 0 and buf.find(closer, at + len(opener)) < 0:
+                    limit = min(limit, at)
+            done = 0
+            for m in _SCAN_TOKEN.finditer(buf, 0, len(buf)):
+                if m.start() >= limit:
+                    break
+                done = m.end()
+                qname = m.group(2)
+                if qname is None:
+                    continue  # a comment or CDATA section
+                if m.group(3) == b"Building":
+                    if not m.group(1):
+                        buildings.append(offset + m.start())
+                    continue
+                member = member or (None if m.group(1) else qname)
+                if qname != member:
+                    continue
+                if m.group(1):
+                    ends.append(offset + m.end())
+                else:
+                    starts.append(offset + m.start())
+                    if m.group(4):
+                        ends.append(offset + m.end())
+            if last:
+                break
+            keep = max(done, limit)
+            if len(buf) - keep > CARRY_LIMIT:
+                return None
+            carry, offset = buf[keep:], offset + keep
+    return np.asarray(starts, np.int64), np.asarray(ends, np.int64), np.asarray(buildings, np.int64)
+
+
+class _PiecesStream(io.RawIOBase):
+    """The bytes of a file's ``pieces`` (``(start, stop)`` spans, in order) as one binary stream."""
+
+    def __init__(self, fh, pieces: list[tuple[int, int]]):
+        self._fh, self._pieces, self._at = fh, [p for p in pieces if p[1] > p[0]], 0
+        if self._pieces:
+            fh.seek(self._pieces[0][0])
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        while self._pieces:
+            start, stop = self._pieces[0]
+            left = stop - start - self._at
+            if left > 0:
+                n = self._fh.readinto(memoryview(buffer)[:min(len(buffer), left)])
+                if not n:
+                    return 0
+                self._at += n
+                return n
+            self._pieces.pop(0)
+            self._at = 0
+            if self._pieces:
+                self._fh.seek(self._pieces[0][0])
+        return 0
+
+
+@contextlib.contextmanager
+def _range_input(path: Path, byte_range) -> Iterator[io.BufferedIOBase]:
+    """A stream of a CityGML file's head, the members of ``byte_range`` (:func:`citygml_ranges`) and its tail."""
+    start, stop, _, head_end, tail_start, _ = byte_range
+    with open(path, "rb") as fh:
+        yield io.BufferedReader(_PiecesStream(fh, [(0, head_end), (start, stop), (tail_start, path.stat().st_size)]))
+
+
+def _head_lines(path: Path, head_end: int) -> int:
+    """The line ends in a file's first ``head_end`` bytes (a CityGML file's head: :func:`citygml_ranges`)."""
+    with open(path, "rb") as fh:
+        return fh.read(head_end).count(b"\n")
 
 
 def write_citygml(path, meshes, label_attribute: str = "family") -> None:

@@ -629,17 +629,24 @@ def cityjsonseq_ranges(path: Path, target_bytes: int, options: ReaderOptions = R
             if fh.tell() >= size:
                 break
             starts.append(fh.tell())
-        # line numbers: one pass counting line ends
-        fh.seek(0)
-        numbers, counted, offset = [], 0, 0
-        for start in starts:
+    numbers = line_numbers(path, starts)
+    stops = starts[1:] + [size]
+    return [(a, b, n) for a, b, n in zip(starts, stops, numbers)]
+
+
+def line_numbers(path: Path, offsets: list[int]) -> list[int]:
+    """The line (from 1) each of a file's byte ``offsets`` (ascending) is on: one pass counting line ends."""
+    numbers, counted, offset = [], 0, 0
+    with open(path, "rb") as fh:
+        for start in offsets:
             while offset < start:
                 chunk = fh.read(min(COUNT_CHUNK_BYTES, start - offset))
+                if not chunk:
+                    break
                 counted += chunk.count(b"\n")
                 offset += len(chunk)
             numbers.append(counted + 1)
-    stops = starts[1:] + [size]
-    return [(a, b, n) for a, b, n in zip(starts, stops, numbers)]
+    return numbers
 
 
 @dataclass(frozen=True)
@@ -794,7 +801,8 @@ def read_file(
         A CityJSONSeq file only: read the features on the lines of this range
         (:func:`cityjsonseq_ranges`), ids unique within it; a range without buildings yields nothing.
         For a GeoJSON FeatureCollection, ``(start, stop, first, open, close)`` of
-        :func:`meshsom.geojson.geojson_ranges`: the features of that range.
+        :func:`meshsom.geojson.geojson_ranges`: the features of that range. For a CityGML file, the six of
+        :func:`meshsom.citygml.citygml_ranges`: the Buildings of that range's members.
     feature_range : list, optional
         A GIS file only: read the features of this range (:func:`meshsom.gis.gis_ranges`).
     """
@@ -836,7 +844,7 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
         elif kind == "citygml":
             from meshsom.citygml import read_citygml
 
-            yield from read_citygml(path, options, name)
+            yield from read_citygml(path, options, name, byte_range)
         elif kind == "gis":
             from meshsom.gis import read_gis
 

@@ -84,7 +84,8 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
     name : str, optional
         The start of the mesh ids (``meshsom.io.InputFile.name``).
     byte_range : (start, stop, first_line), optional
-        :func:`meshsom.io.cityjsonseq_ranges`; or :func:`meshsom.geojson.geojson_ranges`' five.
+        :func:`meshsom.io.cityjsonseq_ranges`; or :func:`meshsom.geojson.geojson_ranges`' five; or
+        :func:`meshsom.citygml.citygml_ranges`' six.
     feature_range : list, optional
         :func:`meshsom.gis.gis_ranges` or :func:`meshsom.osm.osm_ranges`.
     rename : (written, original), optional
@@ -438,7 +439,7 @@ def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
 
 
 def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
-    """A large gzipped CityJSONSeq, CityJSON or GeoJSON input (gzip cannot be entered mid-stream) decompressed into
+    """A large gzipped CityJSONSeq, CityJSON, GeoJSON or CityGML input (gzip cannot be entered mid-stream) decompressed into
     the store's staging group, so that tasks read it in ranges: the path, or None where it is not gzip, the store is
     remote, its content is too small to be split (:func:`_content_bytes` under twice ``dask.read_bytes``; a GeoJSON
     collection: under twice ``dask.read_features`` features of
@@ -454,7 +455,7 @@ def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
             if fh.read(2) != GZIP_MAGIC or is_remote(store):
                 return None
         size = _content_bytes(Path(f.path))
-        least = 2 * int(cfg.dask.read_bytes) if kind == "cityjsonseq" or _is_cityjson(Path(f.path), cfg) else \
+        least = 2 * int(cfg.dask.read_bytes) if kind in ("cityjsonseq", "citygml") or _is_cityjson(Path(f.path), cfg) else \
             2 * int(cfg.dask.read_features) * MIN_FEATURE_BYTES
         if size < least or not _room_for(size, store):
             return None
@@ -627,6 +628,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
 
     from meshsom.errors import StoreError
     from meshsom.archives import NESTED, is_nested_archive
+    from meshsom.citygml import citygml_ranges
     from meshsom.geojson import geojson_ranges
     from meshsom.gis import gis_ranges
     from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
@@ -685,7 +687,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
         sources = []
         for k, (f, name, rename) in enumerate(inputs):  # a large file: a source per range, read in parallel
             kind = input_kind(f.path)
-            plain = _gunzipped(f, k, path, cfg, kind) if kind in ("cityjson", "cityjsonseq") else None
+            plain = _gunzipped(f, k, path, cfg, kind) if kind in ("cityjson", "cityjsonseq", "citygml") else None
             if plain:  # a large gzipped sequence or collection: ranges of its plain form
                 rename, f = (plain, _renamed(str(f.path), rename)), replace(f, path=Path(plain))
             split = _split_cityjson(f, k, path, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
@@ -693,7 +695,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
                 rename = (split, _renamed(str(f.path), rename))
             ranges = (cityjsonseq_ranges(Path(split or f.path), int(cfg.dask.read_bytes), cfg.corpus.reader)
                       if kind == "cityjsonseq" or split else
-                      geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else None)
+                      geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else
+                      citygml_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "citygml" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
             base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {})}

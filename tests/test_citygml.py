@@ -12,11 +12,14 @@ from __future__ import annotations
 import dataclasses
 import gzip
 import json
+import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from meshsom.citygml import citygml_ranges
 from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "real"
@@ -549,3 +552,125 @@ def test_a_citygml3_lod0_footprint_is_extruded_by_its_con_height(tmp_path):
     assert preprocess(got["top"].vertices, got["top"].faces).volume_out == pytest.approx(area * 8.5, rel=1e-9)
     assert preprocess(got["eaves"].vertices, got["eaves"].faces).volume_out == pytest.approx(area * 6.0, rel=1e-9)
     assert isinstance(got["feet"], Rejection) and "only a LoD 0 footprint" in got["feet"].reason
+
+
+# ----------------------------------------------------------------------------- large files read in ranges
+
+GHOST = '<!-- removed: <core:cityObjectMember><bldg:Building gml:id="ghost"></bldg:Building></core:cityObjectMember> -->'
+APPEARANCE = ('<app:appearanceMember xmlns:app="http://www.opengis.net/citygml/appearance/2.0"><app:Appearance>'
+              '<app:theme>rgb</app:theme></app:Appearance></app:appearanceMember>')
+
+
+def _as_collection(xml: str, member: str) -> str:
+    """:func:`to_citygml`'s text as a WFS answer holds it: a ``wfs:FeatureCollection`` of ``member``s (``wfs:member``
+    of WFS 2.0, ``gml:featureMember`` of WFS 1.1), as German LoD 2 downloads come."""
+    return (xml.replace("<core:CityModel ", '<wfs:FeatureCollection xmlns:wfs="http://www.opengis.net/wfs/2.0" ', 1)
+            .replace("</core:CityModel>", "</wfs:FeatureCollection>")
+            .replace("core:cityObjectMember", member))
+
+
+def _large_citygml(version: str, member: str, every: int = 7) -> str:
+    """Delft's buildings as a CityGML text of the kinds a city's large files hold between and in their members: every
+    ``every``-th Building without ``gml:id`` (read by its ordinal), appearance members and a comment holding a
+    member's and a Building's tags between members, members written on one line or across lines."""
+    text = to_citygml(json.loads((DATA / REAL[0][0] / REAL[0][1]).read_text()), version, href=True)
+    if member != "core:cityObjectMember":
+        text = _as_collection(text, member)
+    head, *members = text.split(f"<{member}>")
+    out = []
+    for k, m in enumerate(members):
+        if k % every == 3:
+            m = re.sub(r'<bldg:Building gml:id="[^"]*">', "<bldg:Building>", m, count=1)
+        between = (APPEARANCE if k % 5 == 1 else "") + (GHOST if k % 9 == 2 else "")
+        out.append(between + "\n  " + (m.replace("><", ">\n    <") if k % 2 else m))
+    return head + "".join(f"<{member}>" + m for m in out)
+
+
+@pytest.mark.parametrize("scan_bytes,margin", [(None, None), (1999, 64)])
+@pytest.mark.parametrize("version,member", [("2.0", "core:cityObjectMember"), ("3.0", "core:cityObjectMember"),
+                                            ("2.0", "wfs:member"), ("1.0", "gml:featureMember")])
+def test_a_large_citygml_file_is_read_in_ranges_as_whole(tmp_path, monkeypatch, version, member, scan_bytes, margin):
+    """A CityGML file cut into ranges of whole members (scanned in steps down to under 2 kB, comments holding members'
+    tags passed over) reads, range by range, as the whole file does: the same ids (a Building without gml:id by its
+    place in the file), sources, triangles, parts, labels and notes, each Building once; each range starts at a
+    member's start tag and every member lies in one range, as an XML parser finds them."""
+    import meshsom.citygml as citygml
+
+    if scan_bytes:
+        monkeypatch.setattr(citygml, "SCAN_BYTES", scan_bytes)
+        monkeypatch.setattr(citygml, "TAG_MARGIN", margin)
+    path = tmp_path / "city.gml"
+    path.write_text(_large_citygml(version, member))
+    data = path.read_bytes()
+    whole = list(read_file(path))
+    assert len(whole) > 100 and any("#building-" in m.id for m in whole) and not any("ghost" in m.id for m in whole)
+    for target in (1, 30_000, len(data) // 3):
+        ranges = citygml.citygml_ranges(path, target, ReaderOptions())
+        assert ranges is not None and len(ranges) >= 2
+        assert all(data[a:].startswith(f"<{member}>".encode()) for a, *_ in ranges)
+        assert [r[1] for r in ranges[:-1]] == [r[0] for r in ranges[1:]]
+        local = member.split(":")[1]  # every member of the root, as an XML parser finds them, in one range
+        members = [len([c for c in ET.fromstring(text) if c.tag.endswith("}" + local)]) for text in
+                   [data] + [data[:r[3]] + data[r[0]:r[1]] + data[r[4]:] for r in ranges]]
+        assert sum(members[1:]) == members[0] and all(members[1:])
+        assert all(data.count(b"\n", 0, r[0]) + 1 == r[5] for r in ranges)
+        got = [item for r in ranges for item in read_file(path, byte_range=r)]
+        assert [g.id for g in got] == [w.id for w in whole]
+        for g, w in zip(got, whole):
+            assert type(g) is type(w) and g.source == w.source and g.notes == w.notes, g.id
+            if isinstance(w, RawMesh):
+                assert (g.label, g.lod, g.parts) == (w.label, w.lod, w.parts), g.id
+                assert np.array_equal(g.faces, w.faces) and np.array_equal(g.vertices + g.origin, w.vertices + w.origin)
+
+
+def test_citygml_files_that_cannot_be_cut_between_members_are_read_whole(tmp_path):
+    """A small file, a gzipped one (gzip cannot be entered mid-stream), one whose Buildings stand in two kinds of
+    member (one would be read by every range, or by none), and one holding members inside members, are not split."""
+    text = _large_citygml("2.0", "core:cityObjectMember")
+    options = ReaderOptions()
+    path = tmp_path / "city.gml"
+    path.write_text(text)
+    assert citygml_ranges(path, 1000, options) is not None
+    assert citygml_ranges(path, len(text), options) is None  # under twice the target
+    (tmp_path / "city.gml.gz").write_bytes(gzip.compress(text.encode()))
+    assert citygml_ranges(tmp_path / "city.gml.gz", 1000, options) is None
+    head, rest = text.split("<core:cityObjectMember>", 1)
+    mixed = head + "<gml:featureMember>" + rest.split("</core:cityObjectMember>", 1)[0] + "</gml:featureMember>" + \
+        "<core:cityObjectMember>" + rest.split("<core:cityObjectMember>", 1)[1]
+    (tmp_path / "mixed.gml").write_text(mixed)
+    assert len(list(read_file(tmp_path / "mixed.gml"))) == len(list(read_file(path)))
+    assert citygml_ranges(tmp_path / "mixed.gml", 1000, options) is None
+    nested = text.replace("<bldg:Building gml:id=", "<core:cityObjectMember/><bldg:Building gml:id=", 1).replace(
+        "</core:cityObjectMember>", "<core:cityObjectMember>", 1)
+    (tmp_path / "nested.gml").write_text(nested)
+    assert citygml_ranges(tmp_path / "nested.gml", 1000, options) is None
+
+
+def test_ranges_of_a_citygml_file_with_undeclared_prefixes_and_an_error_lose_nothing(tmp_path):
+    """A range that meets a prefix used without a declaration reads again with it declared, its Buildings from there
+    on noted (read whole, every Building after the first use is); ranges without one read as they are. A member that
+    is not well-formed rejects its range, naming the line of the file that the whole file's rejection names, and the
+    other ranges are read."""
+    original = DATA / REAL[0][0] / REAL[0][1]
+    declared = to_citygml(json.loads(original.read_text()), href=True).replace("><core:cityObjectMember>",
+                                                                              ">\n<core:cityObjectMember>")
+    text = _with_undeclared_prefixes(declared, 30, False, False)
+    path = tmp_path / "city.gml"
+    path.write_text(text)
+    whole = list(read_file(path))
+    ranges = citygml_ranges(path, 20_000, ReaderOptions())
+    assert ranges is not None and len(ranges) > 5
+    got = [item for r in ranges for item in read_file(path, byte_range=r)]
+    assert [g.id for g in got] == [w.id for w in whole]
+    noted = [any("XML prefix" in n for n in g.notes) for g in got]
+    assert noted[:29] == [False] * 29 and noted[29] and noted[32] and not noted[-1], noted  # those of its ranges
+    lines = declared.split("\n")
+    k = next(i for i, line in enumerate(lines) if i > len(lines) // 2 and line.startswith("<core:cityObjectMember>"))
+    lines[k] = lines[k].replace("</gml:posList>", "</gml:pos>", 1)
+    path.write_text("\n".join(lines))
+    *before, rejection = list(read_file(path))  # read whole: the Buildings before the error, and the error
+    assert isinstance(rejection, Rejection) and rejection.reason.startswith(f"invalid XML at line {k + 1}, column ")
+    items = [item for r in citygml_ranges(path, 20_000, ReaderOptions()) for item in read_file(path, byte_range=r)]
+    rejected = [i for i in items if isinstance(i, Rejection)]
+    assert len(rejected) == 1 and rejected[0].reason.split(", column")[0] == rejection.reason.split(", column")[0]
+    assert rejected[0].id == rejection.id and len(before) < len(items) - 1 < len(whole)  # the ranges after it read

@@ -576,3 +576,32 @@ def test_overture_parts_files_on_a_cluster_read_in_ranges(cluster_client, tmp_pa
     assert sum(r["id"].endswith("#p3") for r in a) == 1 and not any(r["id"].endswith(("#p1", "#p2")) for r in a)
     church = next(r for r in a if r["id"].endswith("#b1"))
     assert church["volume"] == pytest.approx(1600, rel=1e-5)
+
+
+def test_a_large_citygml_file_plain_or_gzipped_is_read_in_ranges(cluster_client, tmp_path):
+    """A city's CityGML file (members of every kind, Buildings without gml:id) plain, and as a gzipped WFS answer
+    (decompressed by the planner): tasks read each in ranges of whole members, and the store is the one a task per
+    file gives, its records naming the files as their sources."""
+    import gzip
+
+    from test_citygml import _large_citygml
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "city.gml").write_text(_large_citygml("2.0", "core:cityObjectMember"))
+    (tmp_path / "in" / "wfs.gml.gz").write_bytes(gzip.compress(_large_citygml("2.0", "wfs:member", 5).encode()))
+    stores, reads = {}, {}
+    for read_bytes in (1 << 30, 300_000):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(tmp_path / "in")]}, "encoding": {"levels": [1]},
+                                "dask": {"shard_meshes": 64, "read_bytes": read_bytes}, "store": {"chunk_rows": CHUNK}})
+        stores[read_bytes] = store = tmp_path / f"c{read_bytes}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_bytes] = max(total for stage, _, total in calls if stage == "read")
+        assert not (store / corpus.STAGING).exists()
+    assert reads[1 << 30] == 2 and reads[300_000] >= 2 * 6
+    a, b = read_manifest(stores[1 << 30])["records"], read_manifest(stores[300_000])["records"]
+    assert len(a) > 300 and [r["id"] for r in a] == [r["id"] for r in b] and a == b
+    assert {r["source"] for r in b} == {str(tmp_path / "in" / n) for n in ("city.gml", "wfs.gml.gz")}
+    assert sum(r["id"].split("#")[1].startswith("building-") for r in b) > 50
+    for name in ("faces", "vertices", "rings/level1"):
+        assert np.array_equal(open_store(stores[1 << 30])[name][:], open_store(stores[300_000])[name][:]), name
