@@ -42,15 +42,22 @@ class CorpusConfig:
     Attributes
     ----------
     paths : tuple of str
-        Files or folders; ``meshsom run`` resolves relative ones against the config file's folder.
+        Files or folders; ``meshsom run`` resolves relative ones against the config file's folder. A URL
+        (``s3://bucket/city/``, a file's, or a glob: ``s3://bucket/tiles/*.gml``) is copied to ``mirror`` to be
+        read (:mod:`meshsom.mirror`).
     generator : GeneratorParams or None
         A synthetic corpus added to (or instead of) ``paths``.
     reader : ReaderOptions
+    mirror : str or None
+        The local folder, the same path on every machine, where inputs named by URLs are copied (and, with a store on
+        object storage, what the planner makes of large inputs: a CityJSON file's split, a gzipped file's content,
+        a zip's files); removed when the run is done. Default: ``meshsom-mirror`` in the temporary folder.
     """
 
     paths: tuple[str, ...] = ()
     generator: GeneratorParams | None = None
     reader: ReaderOptions = ReaderOptions()
+    mirror: str | None = None
 
     def __post_init__(self):
         if not self.paths and self.generator is None:

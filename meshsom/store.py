@@ -142,8 +142,8 @@ def store_url(path: str | os.PathLike) -> str:
     return loc if is_remote(loc) else str(Path(loc).resolve())
 
 
-def _fs(path: str | os.PathLike):
-    """``(filesystem, path inside it)`` of a remote store."""
+def filesystem(path: str | os.PathLike):
+    """``(filesystem, path inside it)`` of a remote store (or of an input on object storage: :mod:`meshsom.mirror`)."""
     from fsspec.core import url_to_fs
 
     loc = location(path)
@@ -173,7 +173,7 @@ def store_exists(path: str | os.PathLike) -> bool:
     """Whether anything (a store, a file, any object under the prefix) is at ``path``."""
     if not is_remote(path):
         return Path(location(path)).exists()
-    fs, root = _fs(path)
+    fs, root = filesystem(path)
     return bool(fs.exists(root))
 
 
@@ -182,7 +182,7 @@ def remove_store(path: str | os.PathLike) -> None:
     if not is_remote(path):
         shutil.rmtree(location(path), ignore_errors=True)
         return
-    fs, root = _fs(path)
+    fs, root = filesystem(path)
     if fs.exists(root):
         fs.rm(root, recursive=True)
 
@@ -202,7 +202,7 @@ def probe_writable(path: str | os.PathLike, needed_bytes: int = 0) -> None:
     """
     loc = location(path)
     if is_remote(loc):
-        fs, root = _fs(loc)
+        fs, root = filesystem(loc)
         probe = f"{root}/.meshsom-probe-{uuid.uuid4().hex[:8]}"
         try:
             fs.pipe_file(probe, b"meshsom")
@@ -481,7 +481,7 @@ def write_manifest(path: str | os.PathLike, records: list[dict], extra: dict | N
         "records": records,
     }
     if is_remote(path):  # one object PUT: atomic on object storage
-        fs, root = _fs(path)
+        fs, root = filesystem(path)
         fs.pipe_file(f"{root}/{MANIFEST}", json.dumps(doc, indent=1).encode())
         return doc
     target = Path(location(path)) / MANIFEST
@@ -495,7 +495,7 @@ def write_manifest(path: str | os.PathLike, records: list[dict], extra: dict | N
 def has_manifest(path: str | os.PathLike) -> bool:
     """Whether a store has its ``manifest.json`` (written last by ingest: the corpus is finished)."""
     if is_remote(path):
-        fs, root = _fs(path)
+        fs, root = filesystem(path)
         return bool(fs.isfile(f"{root}/{MANIFEST}"))
     return (Path(location(path)) / MANIFEST).is_file()
 
@@ -505,7 +505,7 @@ def read_manifest(path: str | os.PathLike) -> dict:
     if not has_manifest(path):
         raise StoreError(f"{location(path)}: has no {MANIFEST}")
     if is_remote(path):
-        fs, root = _fs(path)
+        fs, root = filesystem(path)
         return json.loads(fs.cat_file(f"{root}/{MANIFEST}"))
     with open(Path(location(path)) / MANIFEST) as fh:
         return json.load(fh)
@@ -521,7 +521,7 @@ def local_copy(path: str | os.PathLike, name: str, folder: str | os.PathLike) ->
     """
     if not is_remote(path):
         return Path(location(path)) / name
-    fs, root = _fs(path)
+    fs, root = filesystem(path)
     target = Path(folder) / name
     target.write_bytes(fs.cat_file(f"{root}/{name}"))
     return target

@@ -73,7 +73,8 @@ class Shard:
 
 
 def read_source(path: str, reader, name: str | None = None, byte_range: Sequence[int] | None = None,
-                feature_range: Sequence | None = None, rename: Sequence[str] | None = None) -> list:
+                feature_range: Sequence | None = None, rename: Sequence[str] | None = None,
+                fetch: Sequence | None = None) -> list:
     """Every RawMesh / Rejection of one file (or of a byte range of a CityJSONSeq file, or of a
     feature range of a GIS file), in the reader's order.
 
@@ -92,14 +93,25 @@ def read_source(path: str, reader, name: str | None = None, byte_range: Sequence
         Where ``path`` was written by the planner from an input (a member of a zip archive extracted:
         :func:`_unzipped`; a CityJSON file split into a CityJSONSeq: :func:`_split_cityjson`): the items' sources,
         and the reasons of rejections, name the original where they named the written path (a prefix of it).
+    fetch : list of dict, optional
+        The files on object storage that reading ``path`` needs (:class:`meshsom.mirror.Copy` fields: an input named
+        by a URL, or what the planner wrote, with a store on object storage), copied to this machine first where it
+        lacks them (:func:`meshsom.mirror.fetch`).
 
     Returns
     -------
     items : list of RawMesh or Rejection
         A file that cannot be opened at all is one Rejection.
     """
+    from meshsom.errors import InputFileError
     from meshsom.io import Rejection, read_file
+    from meshsom.mirror import fetch as fetch_copies
 
+    try:
+        fetch_copies(fetch or [])
+    except InputFileError as err:
+        return [Rejection(name or _renamed(str(path), rename), _renamed(str(path), rename),
+                          f"needs {err.source}, which {err.problem}")]
     try:
         items = list(read_file(path, reader, name, None if byte_range is None else tuple(byte_range),
                                None if feature_range is None else list(feature_range)))
@@ -416,21 +428,19 @@ UNZIP_DISK_SHARE = 0.5
 CITYJSON_SNIFF_BYTES = 1 << 16
 
 
-def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
-    """A CityJSON input of twice ``dask.read_bytes`` or more written as a CityJSONSeq in the store's staging group
-    (:func:`meshsom.cityjson_split.split_cityjson`), so that tasks read it in ranges; the path, or None where it is
-    smaller, not CityJSON, or the store is remote (workers may not share this machine's disk: read whole)."""
+def _split_cityjson(f, k: int, staging: Path, cfg) -> str | None:
+    """A CityJSON input of twice ``dask.read_bytes`` or more written as a CityJSONSeq in the ``staging`` folder
+    (:func:`_staging_folder`; :func:`meshsom.cityjson_split.split_cityjson`), so that tasks read it in ranges; the
+    path, or None where it is smaller or not CityJSON (read whole)."""
     from meshsom.cityjson_split import split_cityjson
-    from meshsom.store import is_remote
 
     try:
         size = Path(f.path).stat().st_size
-        if is_remote(store) or size < 2 * int(cfg.dask.read_bytes) or not _is_cityjson(Path(f.path), cfg) \
-                or not _room_for(size, store):
+        if size < 2 * int(cfg.dask.read_bytes) or not _is_cityjson(Path(f.path), cfg) or not _room_for(size, staging):
             return None
     except Exception:  # unreadable: its reader says why
         return None
-    out = Path(store) / STAGING / SPLIT_FOLDER / f"split-{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
+    out = staging / f"split-{k:05d}-{Path(f.path).name.removesuffix('.gz')}l"
     count = split_cityjson(Path(f.path), out, cfg.corpus.reader)
     if not count:
         return None
@@ -438,30 +448,29 @@ def _split_cityjson(f, k: int, store: str, cfg) -> str | None:
     return str(out)
 
 
-def _gunzipped(f, k: int, store: str, cfg, kind: str) -> str | None:
+def _gunzipped(f, k: int, staging: Path, cfg, kind: str) -> str | None:
     """A large gzipped CityJSONSeq, CityJSON, GeoJSON or CityGML input (gzip cannot be entered mid-stream) decompressed into
-    the store's staging group, so that tasks read it in ranges: the path, or None where it is not gzip, the store is
-    remote, its content is too small to be split (:func:`_content_bytes` under twice ``dask.read_bytes``; a GeoJSON
+    the ``staging`` folder (:func:`_staging_folder`), so that tasks read it in ranges: the path, or None where it is
+    not gzip, its content is too small to be split (:func:`_content_bytes` under twice ``dask.read_bytes``; a GeoJSON
     collection: under twice ``dask.read_features`` features of
     :data:`meshsom.geojson.MIN_FEATURE_BYTES`), or would take more than :data:`UNZIP_DISK_SHARE` of the free disk."""
     import shutil
 
     from meshsom.geojson import MIN_FEATURE_BYTES
     from meshsom.io import GZIP_MAGIC, open_input
-    from meshsom.store import is_remote
 
     try:
         with open(f.path, "rb") as fh:
-            if fh.read(2) != GZIP_MAGIC or is_remote(store):
+            if fh.read(2) != GZIP_MAGIC:
                 return None
         size = _content_bytes(Path(f.path))
         least = 2 * int(cfg.dask.read_bytes) if kind in ("cityjsonseq", "citygml") or _is_cityjson(Path(f.path), cfg) else \
             2 * int(cfg.dask.read_features) * MIN_FEATURE_BYTES
-        if size < least or not _room_for(size, store):
+        if size < least or not _room_for(size, staging):
             return None
     except Exception:  # unreadable: read whole by one task, whose reader says why
         return None
-    out = Path(store) / STAGING / SPLIT_FOLDER / f"gunzip-{k:05d}-{Path(f.path).name.removesuffix('.gz')}"
+    out = staging / f"gunzip-{k:05d}-{Path(f.path).name.removesuffix('.gz')}"
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         with open_input(Path(f.path), cfg.corpus.reader) as stream, open(out, "wb") as dst:
@@ -481,16 +490,19 @@ def _is_cityjson(path: Path, cfg) -> bool:
         return b'"CityJSON"' in stream.read(CITYJSON_SNIFF_BYTES)
 
 
-def _room_for(size: int, store: str, what=None) -> bool:
-    """Whether ``size`` bytes the planner would write take at most :data:`UNZIP_DISK_SHARE` of the disk free beside
-    the store (``what``: the input, logged where they do not)."""
+def _room_for(size: int, staging: Path, what=None) -> bool:
+    """Whether ``size`` bytes the planner would write into ``staging`` take at most :data:`UNZIP_DISK_SHARE` of the
+    disk free there (``what``: the input, logged where they do not)."""
     import shutil
 
-    free = shutil.disk_usage(Path(store)).free
+    folder = Path(staging)
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
     if size <= UNZIP_DISK_SHARE * free:
         return True
     if what is not None:
-        log.warning("%s: expands to %d bytes, more than %.0f%% of the %d free beside the store: read by one task",
+        log.warning("%s: expands to %d bytes, more than %.0f%% of the %d free beside the staging folder: read by one task",
                     what, size, 100 * UNZIP_DISK_SHARE, free)
     return False
 
@@ -503,27 +515,64 @@ def _content_bytes(path: Path) -> int:
     return max(trailer, path.stat().st_size)
 
 
-def _unzipped(f, k: int, store: str, cfg) -> tuple[list, Path] | None:
-    """A zip input extracted into the store's staging group (:func:`meshsom.archives.extract_archive`), so that its
-    files are read by tasks of their own (a state's LoD 2 tiles, a city's footprints zipped): the files and the
-    folder; None where the store is remote (workers may not share this machine's disk) or the archive cannot be
-    extracted (read whole, by one task, whose reader says why)."""
+def _unzipped(f, k: int, staging: Path, cfg) -> tuple[list, Path] | None:
+    """A zip input extracted into the ``staging`` folder (:func:`_staging_folder`;
+    :func:`meshsom.archives.extract_archive`), so that its files are read by tasks of their own (a state's LoD 2
+    tiles, a city's footprints zipped): the files and the folder; None where the archive cannot be extracted, or its
+    files would take too much of the disk (read whole, by one task, whose reader says why)."""
     import shutil
 
     from meshsom.archives import expanded_size, extract_archive
     from meshsom.errors import InputFileError
-    from meshsom.store import is_remote
 
-    if is_remote(store):
-        return None
-    folder = Path(store) / STAGING / SPLIT_FOLDER / f"zip-{k:05d}-{Path(f.path).name}"
+    folder = staging / f"zip-{k:05d}-{Path(f.path).name}"
     try:
-        if not _room_for(expanded_size(Path(f.path)), store, f.path):  # a task extracts and reads it whole
+        if not _room_for(expanded_size(Path(f.path)), staging, f.path):  # a task extracts and reads it whole
             return None
         return extract_archive(Path(f.path), folder, cfg.corpus.reader), folder
     except (InputFileError, OSError):
         shutil.rmtree(folder, ignore_errors=True)
         return None
+
+
+def mirror_folder(cfg, store: str) -> Path:
+    """The run's mirror folder (:mod:`meshsom.mirror`): ``corpus.mirror`` (default: ``meshsom-mirror`` in the temporary
+    folder), in it a folder named after the store (runs into two stores do not share one; a resumed run finds its)."""
+    import hashlib
+    import tempfile
+
+    from meshsom.store import store_url
+
+    base = Path(cfg.corpus.mirror) if cfg.corpus.mirror else Path(tempfile.gettempdir()) / "meshsom-mirror"
+    return base / hashlib.sha1(store_url(store).encode()).hexdigest()[:12]
+
+
+def _staging_folder(store: str, mirror: Path) -> Path:
+    """Where the planner writes what it makes of large inputs (a CityJSON file's split, a gzipped file's content, a
+    zip's files): the staging group of a local store; with a store on object storage, the mirror folder, from which
+    they are copied into the store's staging group for the workers (:func:`_uploaded`)."""
+    from meshsom.store import is_remote
+
+    return mirror / STAGING / SPLIT_FOLDER if is_remote(store) else Path(store) / STAGING / SPLIT_FOLDER
+
+
+def _uploaded(files: list[Path], store: str, mirror: Path) -> dict:
+    """With a store on object storage, the files the planner wrote into :func:`_staging_folder` copied into the
+    store's staging group, for the workers to copy back (:func:`meshsom.mirror.fetch`): ``{local path: Copy}``;
+    nothing with a local store (the workers share its disk)."""
+    from meshsom.mirror import Copy
+    from meshsom.store import filesystem, is_remote, location
+
+    if not is_remote(store):
+        return {}
+    fs, _ = filesystem(store)
+    out = {}
+    for file in files:
+        url = "/".join([location(store), STAGING, SPLIT_FOLDER,
+                        Path(file).relative_to(_staging_folder(store, mirror)).as_posix()])
+        fs.put_file(str(file), filesystem(url)[1])
+        out[str(file)] = Copy(url, str(file), Path(file).stat().st_size)
+    return out
 
 
 def _files_of_no_buildings(sources: list[dict], counts: dict, reader) -> list:
@@ -633,6 +682,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.gis import gis_ranges
     from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
+    from meshsom.mirror import as_url, companions, mirror_inputs, remove_mirror, url_rename
     from meshsom.part_files import pair
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
@@ -642,6 +692,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     levels = sorted({int(lv) for lv in (cfg.encoding.levels if levels is None else levels)})
     chunk = int(cfg.store.chunk_rows)
     fingerprint = _fingerprint(cfg, levels)
+    mirror = mirror_folder(cfg, path)
     run_id = uuid.uuid4().hex[:8]
     report = progress or (lambda stage, done, total: None)
 
@@ -662,44 +713,58 @@ def run_corpus(client, cfg, store, resume: bool = False,
     # ---- plan: sources and their shards, kept in the store for a resumed run
     read_futures = {}
     if plan is None:
-        files, missing = expand_inputs(list(cfg.corpus.paths))  # before the store: a name clash writes nothing
+        mirrored = mirror_inputs(list(cfg.corpus.paths), mirror)  # inputs named by URLs, copied
+        files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
+        missing = [replace(r, id=as_url(r.id, mirrored.urls), source=as_url(r.source, mirrored.urls)) for r in missing] + [
+            Rejection(url, url, why) for url, why in mirrored.missing]
         root = root or create_store(path, overwrite=True)
-        inputs = []  # (file to read, the start of its ids, (written, original) where the planner wrote it)
+        staging = _staging_folder(path, mirror)
+        staged = {}  # with a store on object storage: what the planner wrote, copied into the store's staging group
+        inputs = []  # (file to read, the start of its ids, (written, original) where the planner wrote it or copied it)
         archives = [k for k, f in enumerate(files) if input_kind(f.path) == "zip"]
         for k, f in enumerate(files):  # a zip archive: its files read by tasks of their own
-            unzipped = _unzipped(f, k, path, cfg) if k in archives else None
+            unzipped = _unzipped(f, k, staging, cfg) if k in archives else None
             if k in archives:
                 report("unpack", archives.index(k) + 1, len(archives))
             if unzipped is None:
-                inputs.append((f, f.name, None))
+                inputs.append((f, f.name, url_rename(f.path, mirrored.urls)))
                 continue
             members, folder = unzipped
+            staged.update(_uploaded([m.path for m in members], path, mirror))
             for m in members:
                 member = m.path.relative_to(folder).as_posix()
                 if is_nested_archive(m.path):
-                    missing.append(Rejection(f"{f.name}/{member}", f"{f.path}!/{member}", NESTED))
+                    missing.append(Rejection(f"{f.name}/{member}", f"{as_url(str(f.path), mirrored.urls)}!/{member}", NESTED))
                 else:
-                    inputs.append((m, f"{f.name}/{m.name}", (str(folder), f"{f.path}!")))
+                    inputs.append((m, f"{f.name}/{m.name}", (str(folder), f"{as_url(str(f.path), mirrored.urls)}!")))
         reader = pair([f.path for f, _, _ in inputs], cfg.corpus.reader)  # Overture's parts, in files of their own
         if reader.part_files:
             log.info("building parts in %s: each read with its building, where an input holds it",
-                     ", ".join(reader.part_files))
+                     ", ".join(as_url(p, mirrored.urls) for p in reader.part_files))
+        shared = [asdict(c) for p in {*reader.part_files, *reader.building_files}  # every read task opens these
+                  for c in companions(Path(p), mirrored.copies)]
         sources = []
         for k, (f, name, rename) in enumerate(inputs):  # a large file: a source per range, read in parallel
             kind = input_kind(f.path)
-            plain = _gunzipped(f, k, path, cfg, kind) if kind in ("cityjson", "cityjsonseq", "citygml") else None
+            copies = [asdict(c) for c in companions(f.path, mirrored.copies)] if rename is not None else []
+            plain = _gunzipped(f, k, staging, cfg, kind) if kind in ("cityjson", "cityjsonseq", "citygml") else None
             if plain:  # a large gzipped sequence or collection: ranges of its plain form
                 rename, f = (plain, _renamed(str(f.path), rename)), replace(f, path=Path(plain))
-            split = _split_cityjson(f, k, path, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
+            split = _split_cityjson(f, k, staging, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
             if split:  # the sequence's items named as the file's
                 rename = (split, _renamed(str(f.path), rename))
+            if plain or split:  # written by the planner: with a remote store, copied from the store's staging group
+                staged.update(_uploaded([Path(split or f.path)], path, mirror))
+            if Path(split or f.path).is_relative_to(staging):
+                copies = [asdict(c) for c in companions(Path(split or f.path), staged)]
             ranges = (cityjsonseq_ranges(Path(split or f.path), int(cfg.dask.read_bytes), cfg.corpus.reader)
                       if kind == "cityjsonseq" or split else
                       geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else
                       citygml_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "citygml" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
-            base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {})}
+            base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {}),
+                    **({"fetch": copies + [c for c in shared if c not in copies]} if copies or shared else {})}
             if ranges:
                 sources += [{**base, "range": list(r)} for r in ranges]
             elif features:
@@ -709,7 +774,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             report("plan", k + 1, len(inputs))  # large files split, decompressed or scanned for their ranges
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
-                                            src.get("features"), src.get("rename"), pure=False,
+                                            src.get("features"), src.get("rename"), src.get("fetch"), pure=False,
                                             key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
@@ -754,7 +819,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], reader, src.get("name"),
                                                         src.get("range"), src.get("features"), src.get("rename"),
-                                                        pure=False, key=f"corpus-read-{run_id}-{sh.source}")
+                                                        src.get("fetch"), pure=False,
+                                                        key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
         return client.submit(process_shard, str(path), sh, items, cfg.preprocess, levels, chunk, pure=False,
@@ -767,6 +833,9 @@ def run_corpus(client, cfg, store, resume: bool = False,
 
     _assemble(client, root, path, shards, metas, plan, cfg, levels, chunk, run_id, report)
     remove_staging(path)
+    if any("fetch" in src for src in sources):  # the copies of inputs named by URLs, here and on every worker
+        client.run(remove_mirror, str(mirror))
+        remove_mirror(mirror)
     return read_manifest(path)["summary"]
 
 

@@ -259,11 +259,21 @@ BYTES_PER_TRIANGLE = 3 * 8 + 4 + 36
 
 
 def estimate_store_bytes(paths: Iterable[str], generator=None, levels: Iterable[int] = ()) -> int:
-    """Upper-end estimate of a store's size from its inputs (file sizes, generated blocks, ring levels)."""
+    """Upper-end estimate of a store's size from its inputs (file sizes, generated blocks, ring levels); an input on
+    object storage by its listing (:func:`meshsom.mirror.remote_files`; one that cannot be listed counts nothing here,
+    and is a rejection of the run)."""
+    from meshsom.errors import InputFileError
+    from meshsom.mirror import is_url, remote_files
     from meshsom.rings import dims
 
     size = 0
     for p in paths:
+        if is_url(p):
+            try:
+                size += sum(c.size for c in remote_files(str(p))[1])
+            except InputFileError:
+                pass
+            continue
         p = Path(p)
         if p.is_file():
             size += p.stat().st_size

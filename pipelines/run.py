@@ -271,13 +271,20 @@ def check_inputs(given, cfg, config_path: Path | None) -> list[tuple[str, str]]:
         Naming the config file, each input that does not exist or holds nothing readable (a folder
         without a mesh or CityJSON file, a file of an unknown type), and where it was looked for.
     """
-    from meshsom.errors import ConfigError
+    from meshsom.errors import ConfigError, InputFileError
     from meshsom.io import expand_inputs
+    from meshsom.mirror import is_url, remote_files
 
     skipped: list[tuple[str, str]] = []
-    _, rejected = expand_inputs(list(cfg.corpus.paths), skipped)
+    _, rejected = expand_inputs([p for p in cfg.corpus.paths if not is_url(p)], skipped)
     roots = dict(zip(cfg.corpus.paths, given.corpus.paths))
     bad = [f"{roots[r.source]!r} ({r.source}): {r.reason}" for r in rejected if r.source in roots]
+    for url in (p for p in cfg.corpus.paths if is_url(p)):  # on object storage: listed (copied when the run plans)
+        try:
+            if not remote_files(url.rstrip("/"))[0]:
+                bad.append(f"{url!r}: no such file or folder (nothing under this URL)")
+        except InputFileError as err:
+            bad.append(f"{url!r}: {err.problem}")
     if bad:
         where = config_path or "the config"
         raise ConfigError(f"{where}: corpus.paths (relative to the config file's folder): "

@@ -11,15 +11,17 @@ the ``store`` tag of its MLflow run.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pipelines.settings import load_config
-from meshsom.errors import StoreError
+from meshsom.errors import ConfigError, StoreError
 from meshsom.store import (
     BMU_ARRAYS, create_store, figures_dir, list_runs, open_store, probe_writable, read_domain, read_manifest,
     remove_store, store_exists,
@@ -256,3 +258,167 @@ def test_single_process_commands_on_s3(s3, tmp_path, capsys):
     capsys.readouterr()
     assert main(["ingest", "--generate", "4", "--out", stores["remote"]]) == 2
     assert f"meshsom ingest: error: s3://{BUCKET}/cli.zarr: already exists" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- inputs on object storage
+
+ZURICH_LOD1 = ROOT / "data" / "real" / "zurich-lod2-subset" / "zurich_subset_lod1_derived.city.json"
+
+
+@pytest.fixture(scope="module")
+def s3_cluster(s3):
+    """A LocalCluster of 2 worker processes started with the S3 environment (as a cloud cluster's workers are)."""
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def _city_folder(folder: Path) -> Path:
+    """A city's inputs of the kinds that need more than their own file, or that the planner cuts: a CityJSON file,
+    a shapefile with its sidecars, OBJ files with ``labels.csv`` beside them, a zip of a CityJSON file, and a large
+    gzipped CityGML file (decompressed by the planner and read in ranges)."""
+    import gzip
+    import sys
+    import zipfile
+
+    import fiona
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from footprints import closed
+    from test_citygml import _large_citygml
+
+    from meshsom.generate import GeneratorParams, generate_corpus
+    from meshsom.io import write_mesh_folder
+
+    folder.mkdir(parents=True)
+    (folder / "zurich.city.json").write_bytes(ZURICH_LOD1.read_bytes())
+    schema = {"geometry": "Polygon", "properties": {"id": "str", "height": "float"}}
+    with fiona.open(folder / "footprints.shp", "w", driver="ESRI Shapefile", schema=schema, crs="EPSG:28992") as out:
+        for k in range(6):
+            x, y = 84600 + 30 * k, 447400
+            out.write({"geometry": {"type": "Polygon", "coordinates": [closed([(x, y), (x + 12, y), (x + 12, y + 9), (x, y + 9)])]},
+                       "properties": {"id": f"f{k}", "height": 6.0 + k}})
+    write_mesh_folder(folder / "objs", [b for b in generate_corpus(GeneratorParams(n_blocks=3, seed=1))])
+    with zipfile.ZipFile(folder / "tiles.zip", "w") as z:
+        z.write(ZURICH_LOD1, "tile/zurich.city.json")
+    (folder / "big.gml.gz").write_bytes(gzip.compress(_large_citygml("2.0", "core:cityObjectMember").encode()))
+    return folder
+
+
+def _upload(folder: Path, url: str) -> None:
+    from meshsom.store import filesystem
+
+    fs, path = filesystem(url)
+    for file in sorted(p for p in folder.rglob("*") if p.is_file()):
+        fs.put_file(str(file), f"{path}/{file.relative_to(folder).as_posix()}")
+
+
+def _corpus_config(paths, store, mirror):
+    from meshsom.config import build
+    from pipelines.settings import RunConfig
+
+    return build(RunConfig, {"corpus": {"paths": [str(p) for p in paths], "mirror": str(mirror)}, "encoding": {"levels": [1]},
+                             "dask": {"shard_meshes": 64, "read_bytes": 300_000}, "store": {"path": store, "chunk_rows": 500}})
+
+
+def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster, tmp_path, monkeypatch):
+    """A city's folder on S3 (``s3://bucket/city``), one of its files by URL, and a glob, read by ``run_corpus`` on a
+    cluster into a local store and into a store on S3: the same records (sources and reasons naming the URLs) and
+    arrays as the folder read from disk; every kind of input read (the shapefile with its sidecars, the OBJ files'
+    labels, the zip's tile, the CityGML file in ranges); nothing left in the mirror folder or the store's staging."""
+    from pipelines import corpus
+
+    local = _city_folder(tmp_path / "city")
+    url = f"s3://{BUCKET}/inputs/city"
+    _upload(local, url)
+    mirror = tmp_path / "mirror"
+    uploaded = []  # what the planner wrote, copied into the store's staging group for the workers
+    upload = corpus._uploaded
+    monkeypatch.setattr(corpus, "_uploaded", lambda *a: uploaded.append(upload(*a)) or uploaded[-1])
+    runs = {}
+    for key, paths, store in (
+            ("disk", [local], str(tmp_path / "disk.zarr")),
+            ("s3", [url], str(tmp_path / "s3.zarr")),
+            ("s3-store", [url], f"s3://{BUCKET}/inputs-store.zarr"),
+            ("one", [f"{url}/footprints.shp", f"{url}/objs/*.obj", f"s3://{BUCKET}/inputs/nothing-here"],
+             str(tmp_path / "one.zarr"))):
+        calls = []
+        corpus.run_corpus(s3_cluster, _corpus_config(paths, store, mirror), store, progress=lambda *a: calls.append(a))
+        runs[key] = (read_manifest(store)["records"], open_store(store),
+                     max(total for stage, _, total in calls if stage == "read"))
+        assert not mirror.exists() or not any(mirror.rglob("*.*")), list(mirror.rglob("*"))
+    disk, on_s3, s3_store, one = (runs[k][0] for k in ("disk", "s3", "s3-store", "one"))
+    assert runs["disk"][2] == runs["s3"][2] > 5 + 4  # a task per file, the CityGML file in ranges
+    assert {r["source"].split("!")[0].split(".gml.gz")[0].rsplit("/", 1)[0] for r in on_s3} >= {url, f"{url}/objs"}
+    as_url = [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
+              for r in disk]
+    assert [{**r, "reason": r.get("reason", "")} for r in on_s3] == as_url
+    assert on_s3 == s3_store
+    accepted = {r["source"].rsplit("/", 1)[-1] for r in on_s3 if r["status"] == "accepted"}
+    assert {"zurich.city.json", "footprints.shp", "big.gml.gz", "zurich.city.json"} <= accepted
+    assert any(r["source"].endswith("tiles.zip!/tile/zurich.city.json") for r in on_s3 if r["status"] == "accepted")
+    assert {r["label"] for r in on_s3 if r["source"].endswith(".obj")} - {None, ""}, "labels.csv beside the OBJ files"
+    for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
+        np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
+        np.testing.assert_array_equal(runs["s3"][1][name][:], runs["s3-store"][1][name][:], err_msg=name)
+    staged = sorted(c.url.split("/staging/inputs/")[1] for found in uploaded for c in found.values())
+    assert len(staged) == 2 and staged[0].startswith("gunzip-") and staged[0].endswith("-big.gml"), staged
+    assert staged[1].startswith("zip-") and staged[1].endswith("-tiles.zip/tile/zurich.city.json"), staged
+    assert not _objects(s3["endpoint"], "inputs-store.zarr/staging/")
+    by_source = {}
+    for r in one:
+        by_source.setdefault(r["source"].rsplit("/", 1)[-1], []).append(r)
+    assert [r["status"] for r in by_source["footprints.shp"]] == ["accepted"] * 6  # its sidecars copied beside it
+    assert len(by_source) == 1 + 3 + 1 and by_source["nothing-here"][0]["status"] == "rejected"
+    assert "nothing under this URL" in by_source["nothing-here"][0]["reason"]
+
+
+def test_a_worker_without_the_copies_fetches_them(s3, tmp_path):
+    """What a read task of another machine does: the planner's copies are not there, so the task copies its files
+    (the shapefile and its sidecars) from their URLs to the same paths, once, and reads them as the planner would;
+    a file that is gone is a rejection naming its URL."""
+    from meshsom.io import ReaderOptions
+    from meshsom.mirror import companions, mirror_inputs
+    from pipelines.corpus import read_source
+
+    local = _city_folder(tmp_path / "city")
+    url = f"s3://{BUCKET}/fetch/city"
+    _upload(local, url)
+    mirrored = mirror_inputs([f"{url}/footprints.shp"], tmp_path / "mirror")
+    (shp,) = mirrored.paths
+    fetch = [dataclasses.asdict(c) for c in companions(Path(shp), mirrored.copies)]
+    assert sorted(Path(c["local"]).suffix for c in fetch) == [".cpg", ".dbf", ".prj", ".shp", ".shx"]
+    want = read_source(shp, ReaderOptions(), "footprints.shp", rename=(shp, mirrored.urls[shp]))
+    shutil.rmtree(tmp_path / "mirror")
+    got = read_source(shp, ReaderOptions(), "footprints.shp", rename=(shp, mirrored.urls[shp]), fetch=fetch)
+    assert len(got) == 6 and [g.id for g in got] == [w.id for w in want]
+    assert all(np.array_equal(g.vertices, w.vertices) and g.source == f"{url}/footprints.shp" for g, w in zip(got, want))
+    shutil.rmtree(tmp_path / "mirror")
+    from meshsom.store import filesystem
+
+    fs, path = filesystem(f"{url}/footprints.dbf")
+    fs.rm(path)
+    (gone,) = read_source(shp, ReaderOptions(), "footprints.shp", rename=(shp, mirrored.urls[shp]), fetch=fetch)
+    assert gone.source == f"{url}/footprints.shp" and f"{url}/footprints.dbf" in gone.reason + gone.id, gone
+
+
+def test_commands_take_inputs_on_object_storage(s3, tmp_path, capsys):
+    """`meshsom ingest URL` reads a file on S3 as the same file on disk (sources naming the URL); `meshsom run`
+    checks its URL inputs before anything is created, naming one under which there is nothing."""
+    from pipelines.cli import main
+    from pipelines.run import check_inputs
+
+    url = f"s3://{BUCKET}/cmd/{ZURICH_LOD1.name}"
+    _upload(ZURICH_LOD1.parent, f"s3://{BUCKET}/cmd")
+    assert main(["ingest", url, "--out", str(tmp_path / "url.zarr"), "--json"]) == 0
+    assert main(["ingest", str(ZURICH_LOD1), "--out", str(tmp_path / "disk.zarr"), "--json"]) == 0
+    a, b = read_manifest(tmp_path / "url.zarr")["records"], read_manifest(tmp_path / "disk.zarr")["records"]
+    assert len(a) == 49 and {r["source"] for r in a} == {url}
+    assert a == [{**r, "source": url} for r in b]
+    cfg = quick(tmp_path, str(tmp_path / "q.zarr"), "check", corpus={"paths": [url, f"s3://{BUCKET}/cmd/none/"]})
+    with pytest.raises(ConfigError, match=f"'s3://{BUCKET}/cmd/none/': no such file or folder"):
+        check_inputs(cfg, cfg, None)
+    cfg = quick(tmp_path, str(tmp_path / "q.zarr"), "check", corpus={"paths": [url]})
+    assert check_inputs(cfg, cfg, None) == []

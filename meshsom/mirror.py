@@ -1,0 +1,250 @@
+"""Inputs on object storage (``s3://bucket/city/``, any fsspec URL): copied to local disk to be read.
+
+meshsom's readers read local files (GDAL, trimesh, openNURBS, pymeshlab and IfcOpenShell take paths; the range
+readers seek), so an input named by a URL is copied ("mirrored") before it is read:
+
+- the planner copies every file under the URL (a folder: every object under its prefix; a file, with the files
+  beside it that share its stem, a shapefile's sidecars, and ``labels.csv``; a glob) to its mirror folder, at
+  ``<mirror>/<protocol>/<bucket>/<key>`` (:func:`mirror_inputs`), and plans from those copies as from local files
+  (ids, kinds, ranges, splits);
+- each read task is given the files it needs with their URLs (:func:`companions`: the file, the files sharing its
+  stem, ``labels.csv`` beside it, and the whole folder of a glTF, KML, 3D Tiles tileset or File Geodatabase);
+  a worker on another machine copies them to the same path of its own disk first (:func:`fetch`), once per
+  machine: a lock file keeps two tasks from copying one file twice, and a file is copied whole, to a temporary
+  name, then renamed;
+- the records' sources and the rejections' reasons name the URL, never the copy.
+
+Nothing here imports Dask: the pipeline (:mod:`pipelines.corpus`) decides where the mirror is and removes it
+when a run is done.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import glob as globbing
+import os
+import shutil
+import uuid
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+from meshsom.errors import InputFileError
+
+#: Folder names under which every file is needed to read any file of the folder: a File Geodatabase is one input.
+WHOLE_FOLDER_SUFFIXES = (".gdb",)
+#: Files whose folder (and its sub-folders) is needed to read them: a glTF's buffers and images, a KML's models, a
+#: tileset's content.
+WHOLE_FOLDER_NAMES = (".gltf", ".kml", "tileset.json")
+#: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
+LABELS_NAME = "labels.csv"
+
+
+@dataclass(frozen=True)
+class Copy:
+    """A file of an input on object storage and where it is copied to.
+
+    Attributes
+    ----------
+    url : str
+    local : str
+        Its path in the mirror folder.
+    size : int
+        Its size in bytes, as listed (a copy of another size is copied again).
+    """
+
+    url: str
+    local: str
+    size: int
+
+
+def is_url(path) -> bool:
+    """Whether an input is named by a URL (``s3://...``); ``file://`` is a local path."""
+    s = os.fspath(path)
+    return "://" in s and not s.startswith("file://")
+
+
+def filesystem(url: str):
+    """``(fsspec filesystem, path inside it)`` of a URL, with the backend missing named (:func:`meshsom.store.filesystem`)."""
+    from meshsom.errors import StoreError
+    from meshsom.store import filesystem as store_filesystem
+
+    try:
+        return store_filesystem(url)
+    except StoreError as err:
+        raise InputFileError(url, str(err).split(": ", 1)[-1]) from None
+
+
+def mirror_path(url: str, root: Path) -> Path:
+    """Where a URL's file is copied to in the mirror folder ``root``: ``<root>/<protocol>/<path>``."""
+    protocol, rest = url.split("://", 1)
+    parts = [p for p in PurePosixPath(rest).parts if p not in ("", "/", ".", "..")]
+    return Path(root, protocol, *parts)
+
+
+def remote_files(url: str) -> tuple[list[str], list[Copy]]:
+    """The files of an input URL, not yet copied: every file under a folder's prefix; or a file, or the files a glob
+    matches, each with the files beside it that share its stem (a shapefile's sidecars) and ``labels.csv``.
+
+    Returns
+    -------
+    inputs : list of str
+        What is read: the folder's URL, the file's, or each file the glob matches. Empty where nothing is there.
+    copies : list of Copy
+        Every file to copy, ``local`` relative (:func:`mirror_path` gives it a root).
+
+    Raises
+    ------
+    InputFileError
+        The URL's protocol has no backend installed, or the storage cannot be listed (credentials, endpoint).
+    """
+    fs, path = filesystem(url)
+    protocol = url.split("://", 1)[0]
+    try:
+        if globbing.has_magic(path):
+            matched = [p for p in fs.glob(path) if fs.isfile(p)]
+        elif fs.isdir(path):
+            found = fs.find(path, detail=True)
+            return [url], [_copy(protocol, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"]
+        elif fs.isfile(path):
+            matched = [path]
+        else:
+            return [], []
+        found = {}
+        for parent in sorted({p.rsplit("/", 1)[0] for p in matched}):  # each folder listed once
+            stems = {p.rsplit("/", 1)[-1].split(".", 1)[0] for p in matched if p.rsplit("/", 1)[0] == parent}
+            for p, info in fs.find(parent, maxdepth=1, detail=True).items():
+                name = p.rsplit("/", 1)[-1]
+                if name.split(".", 1)[0] in stems or name == LABELS_NAME:
+                    found[p] = info
+    except (OSError, PermissionError) as err:
+        raise InputFileError(url, f"cannot be listed ({type(err).__name__}: {err})") from None
+    return ([f"{protocol}://{p}" for p in sorted(matched)],
+            [_copy(protocol, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"])
+
+
+def _copy(protocol: str, path: str, info: dict) -> Copy:
+    url = f"{protocol}://{path}"
+    return Copy(url, str(mirror_path(url, Path("."))), int(info.get("size") or 0))
+
+
+def fetch(copies) -> None:
+    """Copy the files of ``copies`` (:class:`Copy`, or their fields as a dict) that are not on this machine at their
+    size; the others are left as they are. A lock file beside each keeps two processes of one machine from copying
+    it at once; a copy is written under a temporary name and renamed, so a file at its path is whole.
+
+    Raises
+    ------
+    InputFileError
+        A file cannot be copied (gone, no permission), naming its URL.
+    """
+    for c in copies:
+        c = Copy(**c) if isinstance(c, dict) else c
+        target = Path(c.local)
+        if _whole(target, c.size):
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with open(f"{target}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if _whole(target, c.size):
+                continue
+            part = target.with_name(f"{target.name}.part-{uuid.uuid4().hex[:8]}")
+            fs, path = filesystem(c.url)
+            try:
+                fs.get_file(path, str(part))
+                os.replace(part, target)
+            except (OSError, PermissionError) as err:
+                raise InputFileError(c.url, f"cannot be copied to {target} ({type(err).__name__}: {err})") from None
+            finally:
+                part.unlink(missing_ok=True)
+
+
+def _whole(path: Path, size: int) -> bool:
+    try:
+        return path.stat().st_size == size
+    except OSError:
+        return False
+
+
+@dataclass
+class Mirrored:
+    """Inputs with those named by URLs copied (:func:`mirror_inputs`).
+
+    Attributes
+    ----------
+    paths : list of str
+        The inputs, each URL replaced by its copy (a folder, a file, or each file a glob matches).
+    urls : dict
+        ``{copy: URL}`` of each input URL (of a glob's, each file): a prefix of its copies' paths and that of their
+        URLs (:func:`as_url`).
+    copies : dict
+        Every file copied, by its local path.
+    missing : list of (URL, reason)
+        URLs under which there is nothing, or that cannot be listed.
+    """
+
+    paths: list
+    urls: dict
+    copies: dict
+    missing: list
+
+
+def mirror_inputs(inputs, root: Path) -> Mirrored:
+    """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`fetch`: what is there at its size
+    already is kept); local inputs stay as they are."""
+    paths, urls, copies, missing = [], {}, {}, []
+    for item in inputs:
+        if not is_url(item):
+            paths.append(os.fspath(item))
+            continue
+        url = os.fspath(item).rstrip("/")
+        try:
+            matched, found = remote_files(url)
+        except InputFileError as err:
+            missing.append((url, err.problem))
+            continue
+        if not matched:
+            missing.append((url, "no such file or folder (nothing under this URL)"))
+            continue
+        placed = [Copy(c.url, str(Path(root, c.local)), c.size) for c in found]
+        fetch(placed)
+        copies.update({c.local: c for c in placed})
+        for m in matched:
+            paths.append(str(mirror_path(m, root)))
+            urls[paths[-1]] = m
+    return Mirrored(paths, urls, copies, missing)
+
+
+def url_rename(path, urls: dict) -> tuple[str, str] | None:
+    """``(copy, URL)`` of the input URL whose copy ``path`` is or lies in (:class:`Mirrored`), else None."""
+    text = os.fspath(path)
+    for local in sorted(urls, key=len, reverse=True):
+        if text == local or text.startswith(local.rstrip("/") + "/"):
+            return local, urls[local]
+    return None
+
+
+def as_url(text: str, urls: dict) -> str:
+    """``text`` (a path, a reason) with a copy's path at its start named by its URL."""
+    found = url_rename(text.split(" ", 1)[0], urls) if text else None
+    return text if found is None else found[1] + text[len(found[0]):]
+
+
+def companions(path: Path, copies: dict[str, Copy]) -> list[Copy]:
+    """The copied files needed to read the mirrored input ``path`` (a file or a File Geodatabase folder): itself,
+    the files beside it that share its stem (a shapefile's sidecars, an OBJ's material library), ``labels.csv``
+    beside it, and every file of its folder and sub-folders for a glTF, KML, tileset or File Geodatabase."""
+    path = Path(path)
+    name = path.name.lower()
+    if path.is_dir() or name.endswith(WHOLE_FOLDER_SUFFIXES):
+        return [c for k, c in copies.items() if Path(k).is_relative_to(path)]
+    folder = path.parent
+    if name.endswith(WHOLE_FOLDER_NAMES) or name.removesuffix(".gz").endswith(WHOLE_FOLDER_NAMES):
+        return [c for k, c in copies.items() if Path(k).is_relative_to(folder)]
+    stem = path.name.split(".", 1)[0]
+    return [c for k, c in copies.items() if Path(k).parent == folder and (
+        k == str(path) or Path(k).name.startswith(stem + ".") or Path(k).name == LABELS_NAME)]
+
+
+def remove_mirror(root: Path) -> None:
+    """Delete a mirror folder (nothing there is fine)."""
+    shutil.rmtree(root, ignore_errors=True)
