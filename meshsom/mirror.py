@@ -35,6 +35,8 @@ WHOLE_FOLDER_SUFFIXES = (".gdb",)
 #: Files whose folder (and its sub-folders) is needed to read them: a glTF's buffers and images, a KML's models, a
 #: tileset's content.
 WHOLE_FOLDER_NAMES = (".gltf", ".kml", "tileset.json")
+#: Files the planner copies per call of the filesystem (:func:`copy_all`).
+COPY_BATCH = 64
 #: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
 LABELS_NAME = "labels.csv"
 
@@ -158,6 +160,37 @@ def fetch(copies) -> None:
                 part.unlink(missing_ok=True)
 
 
+def copy_all(copies: list[Copy], progress=None) -> None:
+    """Copy the files of ``copies`` not on this machine at their size, :data:`COPY_BATCH` at a time, each batch in one
+    call of the filesystem (s3fs copies a batch's files concurrently): the planner's copy of a whole city, with
+    nothing else copying into the mirror folder yet. ``progress(done, total)`` after each batch.
+
+    Raises
+    ------
+    InputFileError
+        A file cannot be copied, naming its URL (what was copied before stays).
+    """
+    missing = [c for c in copies if not _whole(Path(c.local), c.size)]
+    for start in range(0, len(missing), COPY_BATCH):
+        batch = missing[start:start + COPY_BATCH]
+        fs, _ = filesystem(batch[0].url)
+        parts = [Path(c.local).with_name(f"{Path(c.local).name}.part-{uuid.uuid4().hex[:8]}") for c in batch]
+        for part in parts:
+            part.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            fs.get([filesystem(c.url)[1] for c in batch], [str(part) for part in parts])
+            for c, part in zip(batch, parts):
+                os.replace(part, c.local)
+        except (OSError, PermissionError) as err:
+            fetch(batch)  # one at a time: the error names the file
+            raise InputFileError(batch[0].url, f"cannot be copied ({type(err).__name__}: {err})") from None
+        finally:
+            for part in parts:
+                part.unlink(missing_ok=True)
+        if progress is not None:
+            progress(start + len(batch), len(missing))
+
+
 def _whole(path: Path, size: int) -> bool:
     try:
         return path.stat().st_size == size
@@ -188,9 +221,9 @@ class Mirrored:
     missing: list
 
 
-def mirror_inputs(inputs, root: Path) -> Mirrored:
-    """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`fetch`: what is there at its size
-    already is kept); local inputs stay as they are."""
+def mirror_inputs(inputs, root: Path, progress=None) -> Mirrored:
+    """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`copy_all`: what is there at its size
+    already is kept; ``progress(done, total)`` as it goes); local inputs stay as they are."""
     paths, urls, copies, missing = [], {}, {}, []
     for item in inputs:
         if not is_url(item):
@@ -206,7 +239,11 @@ def mirror_inputs(inputs, root: Path) -> Mirrored:
             missing.append((url, "no such file or folder (nothing under this URL)"))
             continue
         placed = [Copy(c.url, str(Path(root, c.local)), c.size) for c in found]
-        fetch(placed)
+        try:
+            copy_all(placed, progress)
+        except InputFileError as err:
+            missing.append((url, f"{err.source}: {err.problem}"))
+            continue
         copies.update({c.local: c for c in placed})
         for m in matched:
             paths.append(str(mirror_path(m, root)))

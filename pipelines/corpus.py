@@ -652,8 +652,9 @@ def run_corpus(client, cfg, store, resume: bool = False,
         a finished store is returned as it is. The config must be the one of
         the interrupted run.
     progress : callable, optional
-        Called as ``progress(stage, done, total)`` with stage ``"read"``,
-        ``"encode"`` (shards) or ``"assemble"`` (chunk copies).
+        Called as ``progress(stage, done, total)`` with stage ``"copy"`` (inputs on object storage copied),
+        ``"unpack"`` (zip archives), ``"plan"`` (inputs), ``"read"``, ``"encode"`` (shards) or ``"assemble"``
+        (chunk copies).
     levels : sequence of int, optional
         Ring levels to encode (default ``cfg.encoding.levels``); empty: ingest only (``meshsom ingest``).
 
@@ -713,7 +714,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     # ---- plan: sources and their shards, kept in the store for a resumed run
     read_futures = {}
     if plan is None:
-        mirrored = mirror_inputs(list(cfg.corpus.paths), mirror)  # inputs named by URLs, copied
+        mirrored = mirror_inputs(list(cfg.corpus.paths), mirror, lambda done, total: report("copy", done, total))
         files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
         missing = [replace(r, id=as_url(r.id, mirrored.urls), source=as_url(r.source, mirrored.urls)) for r in missing] + [
             Rejection(url, url, why) for url, why in mirrored.missing]

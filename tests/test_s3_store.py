@@ -347,10 +347,13 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
         calls = []
         corpus.run_corpus(s3_cluster, _corpus_config(paths, store, mirror), store, progress=lambda *a: calls.append(a))
         runs[key] = (read_manifest(store)["records"], open_store(store),
-                     max(total for stage, _, total in calls if stage == "read"))
+                     max(total for stage, _, total in calls if stage == "read"),
+                     [(done, total) for stage, done, total in calls if stage == "copy"])
         assert not mirror.exists() or not any(mirror.rglob("*.*")), list(mirror.rglob("*"))
     disk, on_s3, s3_store, one = (runs[k][0] for k in ("disk", "s3", "s3-store", "one"))
     assert runs["disk"][2] == runs["s3"][2] > 5 + 4  # a task per file, the CityGML file in ranges
+    files = sum(1 for f in local.rglob("*") if f.is_file())
+    assert runs["disk"][3] == [] and runs["s3"][3][-1] == (files, files) and runs["s3-store"][3][-1] == (files, files)
     assert {r["source"].split("!")[0].split(".gml.gz")[0].rsplit("/", 1)[0] for r in on_s3} >= {url, f"{url}/objs"}
     as_url = [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
               for r in disk]
