@@ -93,6 +93,9 @@ GZIP_SUFFIX = ".gz"
 #: Rhino models (:mod:`meshsom.rhino`) and DXF drawings (:mod:`meshsom.dxf`).
 RHINO_SUFFIX = ".3dm"
 DXF_SUFFIX = ".dxf"
+#: FBX scenes (:mod:`meshsom.fbx`) and 3D Studio files (:mod:`meshsom.three_ds`).
+FBX_SUFFIX = ".fbx"
+THREE_DS_SUFFIX = ".3ds"
 #: OpenStreetMap extracts (:mod:`meshsom.osm`).
 OSM_SUFFIXES = (".osm", ".osm.pbf")
 GZIP_MAGIC = b"\x1f\x8b"
@@ -388,7 +391,7 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc' or 'trimesh' by file name (a
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds' or 'trimesh' by file name (a
     final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import CSV_GEOMETRY_COLUMNS, CSV_SUFFIX, GIS_SUFFIXES, csv_geometry_column
     from meshsom.tiles3d import B3DM_SUFFIXES
@@ -425,6 +428,10 @@ def input_kind(path: Path) -> str:
         return "cityjson"
     if name.endswith(TRIMESH_SUFFIXES):
         return "trimesh"
+    if name.endswith(FBX_SUFFIX):
+        return "fbx"
+    if name.endswith(THREE_DS_SUFFIX):
+        return "3ds"
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
@@ -443,7 +450,7 @@ def readable_types() -> str:
     from meshsom.tiles3d import B3DM_SUFFIXES
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
-        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
     return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
             f".csv (footprints as WKT, also gzipped)")
 
@@ -881,6 +888,14 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.osm import read_osm
 
             yield from read_osm(path, options, name, feature_range)
+        elif kind == "fbx":
+            from meshsom.fbx import read_fbx
+
+            yield from read_fbx(path, options, name)
+        elif kind == "3ds":
+            from meshsom.three_ds import read_3ds
+
+            yield from read_3ds(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1006,13 +1021,20 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             continue
         if options.up_axis == "y" and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
-        local, origin = recentre(v)
-        try:
-            local, notes = _in_metres(mesh_id, local, origin, crs)
-        except InputFileError as err:
-            yield Rejection(mesh_id, str(path), err.problem, 0, item_label)
-            continue
-        yield RawMesh(mesh_id, str(path), local, f.reshape(-1, 3), origin, item_label, None, notes=tuple(notes))
+        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs)
+
+
+def placed_mesh(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes=()
+                ) -> "RawMesh | Rejection":
+    """A mesh of a file in world coordinates (``vertices (V, 3)``, ``faces (F, 3)``) recentred and in metres in the
+    file's CRS (:func:`file_crs`; :func:`_in_metres`), with ``notes``; a Rejection where its coordinates cannot be
+    placed."""
+    local, origin = recentre(vertices)
+    try:
+        local, crs_notes = _in_metres(mesh_id, local, origin, crs)
+    except InputFileError as err:
+        return Rejection(mesh_id, source, err.problem, 0, label)
+    return RawMesh(mesh_id, source, local, faces, origin, label, None, notes=tuple(notes) + tuple(crs_notes))
 
 
 #: COLLADA's up axes, as the rotation that turns each to z up (proper rotations: faces keep their side).
@@ -1228,7 +1250,6 @@ _OBJ_POLYGON = re.compile(rb"^[ \t]*f(?:[ \t]+\S+){4,}", re.M)
 #: The way into meshsom for the building formats it does not read, named in their rejection.
 CONVERSIONS = {
     ".skp": "SketchUp: export it as OBJ (one object per building, two-sided faces are fine)",
-    ".fbx": "FBX: convert it to glTF (FBX2glTF, Blender)",
     ".dwg": "DWG: save it as DXF (SAVEAS or DXFOUT in AutoCAD, or the ODA File Converter), which is read",
     ".las": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".laz": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,24 @@ os.environ.setdefault("POCL_MAX_PTHREAD_COUNT", "1")
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "data" / "real"
+
+
+@pytest.fixture(autouse=True)
+def _mlflow_tracking_uri_left_as_found():
+    """A test that sets MLflow's process-wide tracking URI (``mlflow.set_tracking_uri``, which sets
+    ``MLFLOW_TRACKING_URI`` too) leaves both as it found them: otherwise a later test's run in the same worker
+    process logs into that test's store (a ``meshsom run`` without ``tracking.uri`` takes MLflow's URI)."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    yield
+    utils = sys.modules.get("mlflow.tracking._tracking_service.utils")
+    if utils is not None and getattr(utils, "_tracking_uri", None) is not None:
+        import mlflow
+
+        mlflow.set_tracking_uri(None)  # MLflow's own way back to no URI set (it unsets the variable too)
+    if before is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = before
 
 
 @pytest.fixture

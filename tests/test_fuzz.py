@@ -45,7 +45,8 @@ MEGABYTES_PER_INPUT = 64
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
-            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm", ".osm")
+            ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm", ".osm", ".fbx",
+            ".3ds")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -193,7 +194,8 @@ def folder(tmp_path_factory) -> Path:
         for raw in read_file(write_house(inputs / "warm.ifc", garage=False)):
             process_one(raw, PreprocessParams())
         (inputs / "warm.ifc").unlink()
-    for suffix, seed in ((".dxf", _dxf_seed), (".3dm", _rhino_seed)):  # ezdxf reads its settings and fonts on import
+    for suffix, seed in ((".dxf", _dxf_seed), (".3dm", _rhino_seed), (".fbx", _scene_seed("fbx"))):  # ezdxf reads
+        # its settings and fonts on import; the readers' modules are loaded
         (inputs / f"warm{suffix}").write_bytes(seed())
         for raw in read_file(inputs / f"warm{suffix}"):
             process_one(raw, PreprocessParams())
@@ -287,6 +289,10 @@ MAGIC = {
     ".osm": [b"", b'<?xml version="1.0"?><osm version="0.6"><node id="1" lat="47" lon="8"/><way id="2"><nd ref="1"/>',
              b'<osm><relation id="1"><member type="way" ref="1" role="outer"/><tag k="type" v="multipolygon"/>'],
     ".3dm": [b"", b"3D Geometry File Format        ", b"3D Geometry File Format        \x01\x00\x00\x00 3dm file"],
+    ".fbx": [b"", b"Kaydara FBX Binary  \x00\x1a\x00" + struct.pack("<I", 7400),
+             b"; FBX 7.4.0 project file\nObjects:  {\n\tGeometry: 1, \"Geometry::a\", \"Mesh\" {\n\t\tVertices: *9 {\n"],
+    ".3ds": [b"", struct.pack("<HI", 0x4D4D, 10**9) + struct.pack("<HI", 0x3D3D, 2000),
+             struct.pack("<HI", 0x4D4D, 64) + struct.pack("<HI", 0x3D3D, 58) + struct.pack("<HI", 0x4000, 52) + b"a\0"],
     ".ifc": [b"", b"ISO-10303-21;\nHEADER;\n", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n"
              b"#1=IFCBUILDING('0p49tVvDnBOh5$bRyf1JGA',$,'b',$,$,$,$,$,$,$,$,$);\n"],
     ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
@@ -374,11 +380,34 @@ def test_mutated_ifc_is_read_or_rejected(folder, tmp_path_factory):
     check()
 
 
-@pytest.mark.parametrize("suffix,seeder", [(".dxf", _dxf_seed), (".dxf", _dxf_solid_seed), (".3dm", _rhino_seed)],
-                         ids=["dxf", "dxf of an ACIS solid", "3dm"])
+def _scene_seed(kind: str):
+    """An FBX scene (binary: deflated arrays; or ASCII) of two blocks, one turned, or a 3DS file of them."""
+    def seed() -> bytes:
+        import tempfile
+
+        from scene_files import fbx_document, write_3ds, write_fbx_ascii, write_fbx_binary
+
+        a, b = _blocks(2)
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "seed"
+            if kind == "3ds":
+                write_3ds(path, [("a", a.vertices, a.faces), ("b", b.vertices + [30.0, 0, 0], b.faces)])
+            else:
+                nodes = fbx_document([("a", a.vertices, a.faces.tolist(), (0, 0, 0), (0, 0, 0), (1, 1, 1)),
+                                      ("b", b.vertices, b.faces.tolist(), (30, 0, 0), (0, 0, 30), (1, 1, 1))])
+                (write_fbx_binary if kind == "fbx" else write_fbx_ascii)(path, nodes)
+            return path.read_bytes()
+    return seed
+
+
+@pytest.mark.parametrize("suffix,seeder", [(".dxf", _dxf_seed), (".dxf", _dxf_solid_seed), (".3dm", _rhino_seed),
+                                           (".fbx", _scene_seed("fbx")), (".fbx", _scene_seed("fbx-ascii")),
+                                           (".3ds", _scene_seed("3ds"))],
+                         ids=["dxf", "dxf of an ACIS solid", "3dm", "fbx", "fbx ascii", "3ds"])
 def test_mutated_cad_files_are_read_or_rejected(folder, suffix, seeder):
-    """Mutations of a DXF drawing (its group codes and numbers, as text; and of an ACIS solid's SAT records) and of a
-    Rhino model (openNURBS's binary chunks) are read or rejected; neither library takes the process down."""
+    """Mutations of a DXF drawing (its group codes and numbers, as text; and of an ACIS solid's SAT records), of a
+    Rhino model (openNURBS's binary chunks), of an FBX scene (assimp's parsers, binary and ASCII) and of a 3DS file
+    (its chunks) are read or rejected; no library takes the process down."""
     seed = seeder()
     items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
     assert records and all(r["status"] == "accepted" for r in records)  # the unmutated seed is read

@@ -375,10 +375,10 @@ def test_a_byte_order_mark_before_json_or_mesh_text_is_read(tmp_path):
             np.testing.assert_array_equal(a.faces, b.faces)
 
 
-@pytest.mark.parametrize("name,way", [("model.fbx", "FBX2glTF"), ("plan.dwg", "DWG"), ("city.skp", "export it as OBJ"),
+@pytest.mark.parametrize("name,way", [("plan.dwg", "DWG"), ("city.skp", "export it as OBJ"),
                                       ("scan.laz", "point cloud"), ("notes.txt", None)])
 def test_a_building_format_meshsom_does_not_read_says_the_way_in(tmp_path, name, way):
-    """FBX, DWG, SketchUp, point clouds...: the rejection names the conversion that leads into
+    """DWG, SketchUp, point clouds...: the rejection names the conversion that leads into
     meshsom (and still lists what is read); other unknown types just the list."""
     (tmp_path / name).write_text("x")
     (item,) = read_file(tmp_path / name)

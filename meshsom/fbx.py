@@ -1,0 +1,182 @@
+"""Reading FBX scenes (``.fbx``, binary or ASCII): city models exported for games and visualisation (Japan's PLATEAU
+offers every city as FBX; Esri CityEngine, 3ds Max, Revit, Blender and SketchUp export it).
+
+The scene is parsed by assimp (the Open Asset Import Library, through ``assimp-py``), its polygons triangulated and
+equal vertices joined. Then:
+
+- **Objects**: each node of the scene that holds meshes is one building, its meshes united, id
+  ``<file>#<node name>`` (a name met again: ``<name> (2)``, ...; a node without a name: ``node-<k>``).
+- **Placement**: each node's transform is composed from the root down (``Lcl Translation``, ``Rotation``,
+  ``Scaling``, pivots), so that instances of one geometry stand where the scene puts them; a mirroring transform
+  keeps the faces' sides (their order is turned).
+- **Axes**: assimp turns the file's axis system (``GlobalSettings``: ``UpAxis``, ``FrontAxis``, ``CoordAxis`` and
+  their signs) into its own, y up; meshsom turns that to z up (:data:`Y_UP_TO_Z_UP`, a proper rotation).
+- **Units**: FBX counts in centimetres times ``UnitScaleFactor`` (:func:`unit_scale`: 100 for a scene in metres);
+  assimp leaves coordinates in the file's unit, so meshsom scales them to metres. A file that names no unit is in
+  centimetres, as the format says, noted.
+- **Labels**: ``labels.csv`` beside the file (``file`` ``<name>`` or ``<name>#<node>``, ``label``), as for OBJ.
+- **Georeferencing**: FBX has none; ``corpus.reader.crs`` names the CRS of the coordinates where they are in one.
+- Lines and points are not surfaces: a node of only those is a rejection saying so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import struct
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from meshsom.errors import InputFileError
+
+#: Centimetres per unit where a file names none (FBX's own unit).
+DEFAULT_UNIT_SCALE = 1.0
+#: Bytes at the start of a file looked at for its ``UnitScaleFactor`` (``GlobalSettings`` comes before the objects).
+SETTINGS_SEARCH_BYTES = 1 << 22
+#: assimp's frame (y up, right-handed) turned to meshsom's (z up): a quarter turn about x.
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: The start of a binary FBX file.
+BINARY_MAGIC = b"Kaydara FBX Binary"
+#: The unit's property in an ASCII file: ``P: "UnitScaleFactor", "double", "Number", "",100``.
+_ASCII_UNIT = re.compile(rb'"UnitScaleFactor"\s*,\s*"[^"]*"\s*,\s*"[^"]*"\s*,\s*"[^"]*"\s*,\s*([-+0-9.eE]+)')
+
+
+def unit_scale(head: bytes) -> float | None:
+    """A file's ``UnitScaleFactor`` (centimetres per unit) from its first bytes, binary or ASCII; None where it names
+    none (or a value that is not a positive number)."""
+    if head.startswith(BINARY_MAGIC):
+        at = head.find(b"UnitScaleFactor")
+        # a P record's properties: S"UnitScaleFactor", S"double", S"Number", S"", then D (a double)
+        while at >= 0:
+            pos = at + len(b"UnitScaleFactor")
+            for _ in range(4):
+                if pos >= len(head):
+                    break
+                kind = head[pos:pos + 1]
+                if kind == b"S" and pos + 5 <= len(head):
+                    pos += 5 + struct.unpack_from("<I", head, pos + 1)[0]
+                elif kind in (b"D", b"F") and pos + (9 if kind == b"D" else 5) <= len(head):
+                    value = struct.unpack_from("<d" if kind == b"D" else "<f", head, pos + 1)[0]
+                    return float(value) if np.isfinite(value) and value > 0 else None
+                else:
+                    break
+            at = head.find(b"UnitScaleFactor", at + 1)
+        return None
+    match = _ASCII_UNIT.search(head)
+    if match is None:
+        return None
+    try:
+        value = float(match.group(1))
+    except ValueError:
+        return None
+    return value if np.isfinite(value) and value > 0 else None
+
+
+def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
+    """The buildings of an FBX scene: a RawMesh per node holding meshes (or a Rejection), as the module says.
+
+    Raises
+    ------
+    InputFileError
+        assimp is not installed, the file is larger than ``options.max_bytes``, assimp cannot parse it, or it holds
+        no mesh.
+    """
+    from meshsom.io import (
+        GZIP_MAGIC, Rejection, _connected_pieces, _labels_beside, file_crs, placed_mesh, read_input_bytes,
+    )
+
+    try:
+        import assimp_py
+    except ImportError:
+        raise InputFileError(str(path), "reading FBX needs assimp-py (pip install assimp-py), which is not installed") \
+            from None
+    size = path.stat().st_size
+    if size > options.max_bytes:
+        raise InputFileError(str(path), f"is {size} bytes, more than max_bytes ({options.max_bytes})")
+    with open(path, "rb") as fh:
+        head = fh.read(SETTINGS_SEARCH_BYTES)
+    if head.startswith(GZIP_MAGIC):  # assimp reads files: the content, decompressed, in a temporary one
+        with tempfile.TemporaryDirectory() as folder:
+            plain = Path(folder) / path.name.removesuffix(".gz").removesuffix(".GZ")
+            plain.write_bytes(read_input_bytes(path, options))
+            for item in read_fbx(plain, options, name or path.name):
+                yield dataclasses.replace(item, source=str(path), **(
+                    {"reason": item.reason.replace(str(plain), str(path))} if isinstance(item, Rejection) else {}))
+        return
+    unit = unit_scale(head)
+    notes = () if unit is not None else (
+        "the file names no UnitScaleFactor: read in centimetres, FBX's own unit",)
+    metres = (DEFAULT_UNIT_SCALE if unit is None else unit) / 100.0
+    try:
+        scene = assimp_py.import_file(str(path), assimp_py.Process_Triangulate | assimp_py.Process_JoinIdenticalVertices)
+    except Exception as err:  # assimp says what it could not parse (RuntimeError)
+        raise InputFileError(str(path), f"cannot be read as FBX ({str(err).split(': ', 1)[-1]})") from None
+    meshes = [_triangles(m) for m in scene.meshes]
+    labels = _labels_beside(path)
+    label = labels.get(path.name)
+    name = name or path.name
+    crs = file_crs(None, options)
+    items, taken = [], set()
+    for k, (node, world) in enumerate(_placed_nodes(scene.root_node)):
+        if not node.mesh_indices:
+            continue
+        node_name = node.name or f"node-{k}"
+        key, n = node_name, 2
+        while key in taken:
+            key, n = f"{node_name} ({n})", n + 1
+        taken.add(key)
+        parts = [meshes[i] for i in node.mesh_indices if meshes[i] is not None]
+        mesh_id = f"{name}#{key}"
+        item_label = labels.get(f"{path.name}#{key}", label)
+        if not parts:
+            items.append(Rejection(mesh_id, str(path), "holds no faces (only lines or points)", 0, item_label))
+            continue
+        vertices, faces = _united(parts)
+        turn = Y_UP_TO_Z_UP @ world[:3, :3]
+        placed = (vertices @ turn.T + Y_UP_TO_Z_UP @ world[:3, 3]) * metres
+        if np.linalg.det(world[:3, :3]) < 0:  # mirrored: the faces' order turned so that they keep their side
+            faces = np.ascontiguousarray(faces[:, ::-1])
+        items.append((mesh_id, placed, faces, item_label))
+    if not items:
+        raise InputFileError(str(path), "holds no mesh (an FBX scene of only cameras, lights or empty nodes)")
+    pieces = []
+    for item in items:
+        if isinstance(item, Rejection) or not options.split_components:
+            pieces.append(item)
+        else:
+            pieces.extend(_connected_pieces(*item))
+    for item in pieces:
+        if isinstance(item, Rejection):
+            yield item
+            continue
+        mesh_id, v, f, item_label = item
+        yield placed_mesh(mesh_id, str(path), v, f, item_label, crs, notes)
+
+
+def _triangles(mesh) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(vertices (V, 3) float64, faces (F, 3) int64)`` of an assimp mesh, or None where its faces are not
+    triangles (lines, points)."""
+    if mesh.num_faces == 0 or mesh.num_indices != 3 * mesh.num_faces:
+        return None
+    vertices = np.asarray(mesh.vertices, np.float64).reshape(-1, 3)
+    faces = np.asarray(mesh.indices, np.int64).reshape(-1, 3)
+    return vertices, faces
+
+
+def _united(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts])
+    return np.concatenate([v for v, _ in parts]), np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+
+
+def _placed_nodes(root) -> list:
+    """Every node of a scene with its transform from the root (4 x 4, the root's own included), depth first."""
+    out, stack = [], [(root, np.eye(4))]
+    while stack:
+        node, parent = stack.pop()
+        world = parent @ np.asarray(node.transformation, np.float64).reshape(4, 4)
+        out.append((node, world))
+        stack.extend((child, world) for child in reversed(list(node.children)))
+    return out
