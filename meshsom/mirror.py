@@ -20,6 +20,7 @@ when a run is done.
 
 from __future__ import annotations
 
+import bisect
 import fcntl
 import glob as globbing
 import os
@@ -209,7 +210,7 @@ class Mirrored:
     urls : dict
         ``{copy: URL}`` of each input URL (of a glob's, each file): a prefix of its copies' paths and that of their
         URLs (:func:`as_url`).
-    copies : dict
+    copies : Copies
         Every file copied, by its local path.
     missing : list of (URL, reason)
         URLs under which there is nothing, or that cannot be listed.
@@ -224,7 +225,7 @@ class Mirrored:
 def mirror_inputs(inputs, root: Path, progress=None) -> Mirrored:
     """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`copy_all`: what is there at its size
     already is kept; ``progress(done, total)`` as it goes); local inputs stay as they are."""
-    paths, urls, copies, missing = [], {}, {}, []
+    paths, urls, copies, missing = [], {}, Copies(), []
     for item in inputs:
         if not is_url(item):
             paths.append(os.fspath(item))
@@ -266,20 +267,45 @@ def as_url(text: str, urls: dict) -> str:
     return text if found is None else found[1] + text[len(found[0]):]
 
 
-def companions(path: Path, copies: dict[str, Copy]) -> list[Copy]:
+class Copies(dict):
+    """Copied files by their local path (``{local: Copy}``), indexed by folder once, so that the files of each of a
+    city's thousands of inputs are found without a pass over all of them (:func:`companions`)."""
+
+    def _index(self):
+        if getattr(self, "_size", None) != len(self):
+            self._folders: dict[str, list[Copy]] = {}
+            for local, c in self.items():
+                self._folders.setdefault(os.path.dirname(local), []).append(c)
+            self._sorted = sorted(self)
+            self._size = len(self)
+
+    def in_folder(self, folder) -> list[Copy]:
+        """The copies directly in ``folder``."""
+        self._index()
+        return self._folders.get(os.fspath(folder), [])
+
+    def under(self, folder) -> list[Copy]:
+        """The copies in ``folder`` and its sub-folders."""
+        self._index()
+        prefix = os.fspath(folder).rstrip("/") + "/"
+        start = bisect.bisect_left(self._sorted, prefix)
+        stop = bisect.bisect_left(self._sorted, prefix[:-1] + chr(ord("/") + 1))
+        return [self[k] for k in self._sorted[start:stop]]
+
+
+def companions(path: Path, copies: Copies) -> list[Copy]:
     """The copied files needed to read the mirrored input ``path`` (a file or a File Geodatabase folder): itself,
     the files beside it that share its stem (a shapefile's sidecars, an OBJ's material library), ``labels.csv``
     beside it, and every file of its folder and sub-folders for a glTF, KML, tileset or File Geodatabase."""
     path = Path(path)
     name = path.name.lower()
     if path.is_dir() or name.endswith(WHOLE_FOLDER_SUFFIXES):
-        return [c for k, c in copies.items() if Path(k).is_relative_to(path)]
-    folder = path.parent
+        return copies.under(path)
     if name.endswith(WHOLE_FOLDER_NAMES) or name.removesuffix(".gz").endswith(WHOLE_FOLDER_NAMES):
-        return [c for k, c in copies.items() if Path(k).is_relative_to(folder)]
+        return copies.under(path.parent)
     stem = path.name.split(".", 1)[0]
-    return [c for k, c in copies.items() if Path(k).parent == folder and (
-        k == str(path) or Path(k).name.startswith(stem + ".") or Path(k).name == LABELS_NAME)]
+    return [c for c in copies.in_folder(path.parent) if c.local == str(path) or
+            os.path.basename(c.local).startswith(stem + ".") or os.path.basename(c.local) == LABELS_NAME]
 
 
 def remove_mirror(root: Path) -> None:

@@ -683,7 +683,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.gis import gis_ranges
     from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
-    from meshsom.mirror import as_url, companions, mirror_inputs, remove_mirror, url_rename
+    from meshsom.mirror import Copies, as_url, companions, mirror_inputs, remove_mirror, url_rename
     from meshsom.part_files import pair
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
@@ -720,7 +720,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             Rejection(url, url, why) for url, why in mirrored.missing]
         root = root or create_store(path, overwrite=True)
         staging = _staging_folder(path, mirror)
-        staged = {}  # with a store on object storage: what the planner wrote, copied into the store's staging group
+        staged = Copies()  # with a store on object storage: what the planner wrote, copied into its staging group
         inputs = []  # (file to read, the start of its ids, (written, original) where the planner wrote it or copied it)
         archives = [k for k, f in enumerate(files) if input_kind(f.path) == "zip"]
         for k, f in enumerate(files):  # a zip archive: its files read by tasks of their own
@@ -742,8 +742,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
         if reader.part_files:
             log.info("building parts in %s: each read with its building, where an input holds it",
                      ", ".join(as_url(p, mirrored.urls) for p in reader.part_files))
-        shared = [asdict(c) for p in {*reader.part_files, *reader.building_files}  # every read task opens these
-                  for c in companions(Path(p), mirrored.copies)]
+        shared = [asdict(c) for p in sorted({*reader.part_files, *reader.building_files})  # every read task opens
+                  for c in companions(Path(p), mirrored.copies)]  # these: kept once in the plan
         sources = []
         for k, (f, name, rename) in enumerate(inputs):  # a large file: a source per range, read in parallel
             kind = input_kind(f.path)
@@ -765,7 +765,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
             base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {}),
-                    **({"fetch": copies + [c for c in shared if c not in copies]} if copies or shared else {})}
+                    **({"fetch": copies} if copies else {})}
             if ranges:
                 sources += [{**base, "range": list(r)} for r in ranges]
             elif features:
@@ -775,7 +775,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
             report("plan", k + 1, len(inputs))  # large files split, decompressed or scanned for their ranges
         for i, src in enumerate(sources):
             read_futures[i] = client.submit(read_source, src["path"], reader, src["name"], src.get("range"),
-                                            src.get("features"), src.get("rename"), src.get("fetch"), pure=False,
+                                            src.get("features"), src.get("rename"), src.get("fetch", []) + shared,
+                                            pure=False,
                                             key=f"corpus-read-{run_id}-{i}")
         ids = [None] * len(sources)
         id_futures = {client.submit(item_ids, f, pure=False): i for i, f in read_futures.items()}
@@ -798,7 +799,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
             shards += [Shard(f"s{g:04d}-{a:08d}", g, a, min(n, a + size)) for a in range(0, n, size)]
         plan = {
             "fingerprint": fingerprint,
-            "parts": {"part_files": list(reader.part_files), "building_files": list(reader.building_files)},
+            "parts": {"part_files": list(reader.part_files), "building_files": list(reader.building_files),
+                      **({"fetch": shared} if shared else {})},
             "sources": sources,
             "shards": [asdict(s) for s in shards],
             "missing": [_rejection_record(r, cfg.preprocess) for r in missing],
@@ -809,6 +811,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     parts = plan.get("parts", {})
     reader = replace(cfg.corpus.reader, part_files=tuple(parts.get("part_files", ())),
                      building_files=tuple(parts.get("building_files", ())))
+    shared = parts.get("fetch", [])  # files on object storage every read task opens (building parts' files)
 
     # ---- shards: preprocess + encode + staging write, done ones skipped
     def submit(sh):
@@ -820,7 +823,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
             if sh.source not in read_futures:
                 read_futures[sh.source] = client.submit(read_source, src["path"], reader, src.get("name"),
                                                         src.get("range"), src.get("features"), src.get("rename"),
-                                                        src.get("fetch"), pure=False,
+                                                        src.get("fetch", []) + shared, pure=False,
                                                         key=f"corpus-read-{run_id}-{sh.source}")
             items = client.submit(slice_items, read_futures[sh.source], sh.start, sh.stop, src.get("repeats"), pure=False,
                                   key=f"corpus-slice-{run_id}-{sh.name}")
@@ -834,7 +837,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
 
     _assemble(client, root, path, shards, metas, plan, cfg, levels, chunk, run_id, report)
     remove_staging(path)
-    if any("fetch" in src for src in sources):  # the copies of inputs named by URLs, here and on every worker
+    if shared or any("fetch" in src for src in sources):  # the copies of inputs named by URLs, here and on workers
         client.run(remove_mirror, str(mirror))
         remove_mirror(mirror)
     return read_manifest(path)["summary"]

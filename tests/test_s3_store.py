@@ -277,8 +277,9 @@ def s3_cluster(s3):
 
 def _city_folder(folder: Path) -> Path:
     """A city's inputs of the kinds that need more than their own file, or that the planner cuts: a CityJSON file,
-    a shapefile with its sidecars, OBJ files with ``labels.csv`` beside them, a zip of a CityJSON file, and a large
-    gzipped CityGML file (decompressed by the planner and read in ranges)."""
+    a shapefile with its sidecars, OBJ files with ``labels.csv`` beside them, a zip of a CityJSON file, a large
+    gzipped CityGML file (decompressed by the planner and read in ranges), and Overture's buildings with their parts
+    in a file of their own (each read task opens both)."""
     import gzip
     import sys
     import zipfile
@@ -288,6 +289,7 @@ def _city_folder(folder: Path) -> Path:
     sys.path.insert(0, str(ROOT / "tests"))
     from footprints import closed
     from test_citygml import _large_citygml
+    from test_part_files import _geoparquet_pair
 
     from meshsom.generate import GeneratorParams, generate_corpus
     from meshsom.io import write_mesh_folder
@@ -304,6 +306,8 @@ def _city_folder(folder: Path) -> Path:
     with zipfile.ZipFile(folder / "tiles.zip", "w") as z:
         z.write(ZURICH_LOD1, "tile/zurich.city.json")
     (folder / "big.gml.gz").write_bytes(gzip.compress(_large_citygml("2.0", "core:cityObjectMember").encode()))
+    (folder / "overture").mkdir()
+    _geoparquet_pair(folder / "overture")  # Overture's buildings and their parts, in two files: read paired
     return folder
 
 
@@ -363,6 +367,8 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
     assert {"zurich.city.json", "footprints.shp", "big.gml.gz", "zurich.city.json"} <= accepted
     assert any(r["source"].endswith("tiles.zip!/tile/zurich.city.json") for r in on_s3 if r["status"] == "accepted")
     assert {r["label"] for r in on_s3 if r["source"].endswith(".obj")} - {None, ""}, "labels.csv beside the OBJ files"
+    overture = sorted(r["id"].split("#")[1] for r in on_s3 if "/overture/" in r["source"])
+    assert overture == ["b1", "b2", "p3"], overture  # b1 is its parts, p1 and p2
     for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
         np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
         np.testing.assert_array_equal(runs["s3"][1][name][:], runs["s3-store"][1][name][:], err_msg=name)
