@@ -6,8 +6,9 @@ Writes one synthetic city (``meshsom generate`` blocks with LoD2 roofs, on Swiss
 CityJSON, CityJSONSeq, CityGML, gzipped CityJSON / CityJSONSeq, as 3D GIS layers (each building
 a MultiPolygon Z of its triangles, as the 3D BAG's GeoPackage layers hold them: GeoPackage written
 by GDAL, GeoParquet by pyarrow), as DXF (a POLYFACE per building, by ezdxf; and an ACIS 3DSOLID per
-building, its triangles the faces of the solid, placed by a block reference) and as a Rhino model
-(a mesh object per building, by openNURBS), then reads every building of
+building, its triangles the faces of the solid, placed by a block reference), as a Rhino model
+(a mesh object per building, by openNURBS), as an FBX scene (a node per building, binary) and as a 3DS file (an
+object per building), then reads every building of
 each file with :func:`meshsom.io.read_file`, as ``meshsom ingest`` does, in a child process of its
 own, and prints per container: file size, wall seconds (best of ``--repeat``), buildings per
 second, and the peak memory the read allocates (``tracemalloc``: Python objects and NumPy arrays,
@@ -39,7 +40,8 @@ FORMATS = [("CityJSON", "city.city.json", "cityjson"), ("CityJSON, gzip", "city.
            ("CityJSONSeq", "city.city.jsonl", "cityjsonseq"), ("CityJSONSeq, gzip", "city.city.jsonl.gz", "cityjsonseq"),
            ("CityGML 2.0", "city.gml", "citygml"), ("GeoPackage, 3D", "city.gpkg", "gpkg"),
            ("GeoParquet, 3D", "city.parquet", "parquet"), ("DXF (a POLYFACE each)", "city.dxf", "dxf"),
-           ("DXF R2018 (an ACIS 3DSOLID each)", "city_solids.dxf", "dxf-solids"), ("Rhino 8 (a mesh object each)", "city.3dm", "3dm")]
+           ("DXF R2018 (an ACIS 3DSOLID each)", "city_solids.dxf", "dxf-solids"), ("Rhino 8 (a mesh object each)", "city.3dm", "3dm"),
+           ("FBX 7.4 binary (a node each)", "city.fbx", "fbx"), ("3DS (an object each)", "city.3ds", "3ds")]
 
 
 def _multipolygon(mesh) -> dict:
@@ -125,6 +127,28 @@ def write_3dm(path, meshes) -> None:
     assert model.Write(str(path), 8)
 
 
+def write_fbx(path, meshes) -> None:
+    """Each mesh an FBX node named by its id, about its own origin and placed by its translation, in metres
+    (``UnitScaleFactor`` 100), z up, binary with deflated arrays, as tests/scene_files.py writes exporters' files."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from scene_files import fbx_document, write_fbx_binary
+
+    objects = []
+    for m in meshes:
+        origin = m.vertices.min(axis=0)
+        objects.append((str(m.id), m.vertices - origin, m.faces.tolist(), tuple(origin), (0, 0, 0), (1, 1, 1)))
+    write_fbx_binary(path, fbx_document(objects, "z-up", 100.0))
+
+
+def write_3ds(path, meshes) -> None:
+    """Each mesh a 3DS object named by its id (float32 world coordinates, as 3DS stores them: on LV95 offsets about
+    0.1 m apart, so the timing, not the geometry, is what this row is for)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from scene_files import write_3ds as write
+
+    write(path, [(str(m.id)[:60], m.vertices, m.faces) for m in meshes])
+
+
 def child(path: str, repeat: int) -> None:
     """Read every building of ``path``: ``repeat`` timed passes, then one under tracemalloc; print
     JSON with the best seconds and the peak traced allocation (Python objects and NumPy arrays)."""
@@ -174,6 +198,8 @@ def main() -> None:
     ap.add_argument("--blocks", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--only", help="the containers to write and read, by kind, comma-separated (default: all): "
+                    + ", ".join(dict.fromkeys(kind for _, _, kind in FORMATS)))
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--ranges-child", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -195,11 +221,14 @@ def main() -> None:
     print(f"{len(blocks)} buildings, {sum(len(b.faces) for b in blocks):,} triangles, generated in "
           f"{time.perf_counter() - t0:.1f} s; their vertex and face arrays: {arrays_mb:.1f} MB")
     writers = {"cityjson": write_cityjson, "cityjsonseq": write_cityjsonseq, "citygml": write_citygml, "gpkg": write_gpkg,
-               "parquet": write_geoparquet, "dxf": write_dxf, "dxf-solids": write_dxf_solids, "3dm": write_3dm}
+               "parquet": write_geoparquet, "dxf": write_dxf, "dxf-solids": write_dxf_solids, "3dm": write_3dm,
+               "fbx": write_fbx, "3ds": write_3ds}
     with tempfile.TemporaryDirectory(prefix="meshsom-read-") as tmp:
         print("\n| container | file MB | read s | buildings/s | peak alloc MB | peak / arrays |")
         print("|---|---:|---:|---:|---:|---:|")
         for label, name, kind in FORMATS:
+            if args.only and kind not in args.only.split(","):
+                continue
             path = Path(tmp) / name
             writers[kind](path, blocks)
             out = subprocess.run([sys.executable, __file__, "--child", str(path), "--repeat", str(args.repeat)],
@@ -208,6 +237,8 @@ def main() -> None:
             assert r["meshes"] == len(blocks), (label, r)
             print(f"| {label} | {path.stat().st_size / 2**20:.1f} | {r['seconds']:.2f} | {r['meshes'] / r['seconds']:,.0f} | "
                   f"{r['peak_mb']:.0f} | {r['peak_mb'] / arrays_mb:.1f}x |")
+        if args.only and "cityjsonseq" not in args.only.split(","):
+            return
         # the pipeline's read tasks keep their meshes: one task for the whole file, or one per range
         path = Path(tmp) / "city.city.jsonl"
         size = path.stat().st_size
