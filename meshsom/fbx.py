@@ -38,6 +38,8 @@ DEFAULT_UNIT_SCALE = 1.0
 SETTINGS_SEARCH_BYTES = 1 << 22
 #: assimp's frame (y up, right-handed) turned to meshsom's (z up): a quarter turn about x.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: What assimp puts in the names of the nodes it adds for a model's pivots and offsets (``house_$AssimpFbx$_Rotation``).
+PIVOT_MARK = "_$AssimpFbx$_"
 #: The start of a binary FBX file.
 BINARY_MAGIC = b"Kaydara FBX Binary"
 #: The unit's property in an ASCII file: ``P: "UnitScaleFactor", "double", "Number", "",100``.
@@ -123,7 +125,7 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
     for k, (node, world) in enumerate(_placed_nodes(scene.root_node)):
         if not node.mesh_indices:
             continue
-        node_name = node.name or f"node-{k}"
+        node_name = node.name.split(PIVOT_MARK)[0] or f"node-{k}"  # a pivot's helper node: its model's name
         key, n = node_name, 2
         while key in taken:
             key, n = f"{node_name} ({n})", n + 1

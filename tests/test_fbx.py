@@ -165,3 +165,24 @@ def test_damaged_3ds_files_are_rejections_naming_the_problem(tmp_path):
     assert isinstance(r, Rejection) and "is not a 3DS file" in r.reason
     with pytest.raises(InputFileError, match="expected one of"):
         input_kind(tmp_path / "x.max")
+
+
+def test_fbx_pivots_and_offsets_place_a_model_as_fbx_composes_them(tmp_path):
+    """3ds Max writes pivots and offsets beside a model's transform: FBX places it at T Rp Rpre R Rp^-1 Tg (rotation
+    pivot, pre-rotation, geometric translation), worked out here for the box's centre; assimp's helper nodes for
+    them leave the building its model's name."""
+    import trimesh
+
+    box = trimesh.creation.box([10.0, 6.0, 4.0])
+    nodes = fbx_document([("house", box.vertices, box.faces.tolist(), (100.0, 200.0, 2.0), (0, 0, 30.0), (1, 1, 1))])
+    model = dict((n[0], n) for n in nodes)["Objects"][2][1]
+    properties = dict((c[0], c) for c in model[2])["Properties70"][2]
+    properties += [("P", ["GeometricTranslation", "Vector3D", "Vector", "", 5.0, 0.0, 0.0], []),
+                   ("P", ["RotationPivot", "Vector3D", "Vector", "", 1.0, 1.0, 0.0], []),
+                   ("P", ["PreRotation", "Vector3D", "Vector", "", 0.0, 0.0, 10.0], [])]
+    write_fbx_binary(tmp_path / "pivots.fbx", nodes)
+    (m,) = read_file(tmp_path / "pivots.fbx")
+    pivot, offset = np.array([1.0, 1.0, 0.0]), np.array([5.0, 0.0, 0.0])
+    centre = np.array([100.0, 200.0, 2.0]) + pivot + rotation_xyz((0, 0, 40.0)) @ (offset - pivot)
+    assert m.id == "pivots.fbx#house"
+    assert np.allclose((m.vertices + m.origin).mean(axis=0), centre, atol=1e-5)
