@@ -56,7 +56,12 @@ if TYPE_CHECKING:
     from meshsom.crs import CoordinateSystem
 
 #: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
-UP_AXES = ("z", "y")
+UP_AXES = ("auto", "z", "y")
+#: A glTF document's ``"generator": "..."`` (:func:`gltf_generator`).
+_GLTF_GENERATOR = re.compile(rb'"generator"\s*:\s*"((?:[^"\\]|\\.)*)"')
+#: The note on a glTF file turned to z up by its specification's axes (``up_axis: auto``).
+GLTF_Y_UP_NOTE = ("glTF is y up by its specification: turned to z up (corpus.reader.up_axis: z, or --up z, reads it "
+                  "as it is)")
 #: Units a footprint's height attributes may be given in (:attr:`ReaderOptions.height_unit`): metres per unit
 #: (the international foot; the US survey foot).
 HEIGHT_UNITS = {"m": 1.0, "ft": 0.3048, "us-ft": 1200 / 3937}
@@ -214,7 +219,9 @@ class ReaderOptions:
         The up axis of mesh files (OBJ, PLY, STL, OFF, glTF), which do not say it: "z" (as city
         models are), or "y" (glTF by its specification, and many OBJ exports from Blender, SketchUp
         or game tools): their coordinates are then turned a quarter about x, (x, y, z) -> (x, -z, y),
-        so that z is up.
+        so that z is up. "auto" (the default): glTF files y (their specification's axes, as Blender,
+        CityEngine, FME and Sketchfab write them), noted, but for those trimesh wrote (its
+        ``asset.generator``: trimesh writes the coordinates it is given, z up); other mesh files z.
     split_components : bool
         Mesh files (OBJ, PLY, STL, OFF, glTF), Rhino objects and DXF meshes and blocks (not a
         Rhino group, which is one building by its maker's choice): each mesh (object, node) is split into its connected
@@ -256,7 +263,7 @@ class ReaderOptions:
     building_files: tuple[str, ...] = ()
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
-    up_axis: str = "z"
+    up_axis: str = "auto"
     split_components: bool = False
     ifc_classes: tuple[str, ...] = IFC_ENVELOPE_CLASSES
     ifc_gap: float = 0.01
@@ -951,6 +958,9 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     content = read_input_bytes(path, options)
     if file_type != "glb" and content.startswith(UTF8_BOM):  # Windows tools start text with one: not a vertex line
         content = content[len(UTF8_BOM):]
+    turn_up = options.up_axis == "y" or (options.up_axis == "auto" and file_type in ("glb", "gltf")
+                                         and "trimesh" not in (gltf_generator(bytes(content[:1 << 20])) or "").lower())
+    up_notes = (GLTF_Y_UP_NOTE,) if turn_up and options.up_axis == "auto" else ()
     if file_type == "obj":
         if _OBJ_ZERO_INDEX.search(content):  # trimesh would take vertex 0 for the last one
             said = _bad_vertex_reference(bytes(content), "obj") or "a face refers to vertex 0 (OBJ counts from 1)"
@@ -1019,9 +1029,17 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 raise InputFileError(str(path), "holds no faces")
             yield Rejection(mesh_id, str(path), "holds no faces", 0, item_label)
             continue
-        if options.up_axis == "y" and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
+        if turn_up and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
-        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs)
+        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, up_notes)
+
+
+def gltf_generator(head: bytes) -> str | None:
+    """The ``asset.generator`` of a glTF file (GLB, or glTF JSON) from its first bytes (writers put ``asset`` first;
+    a text search, so that a file cut short, or one of megabytes of embedded buffers, still says it); None where it
+    names none."""
+    found = _GLTF_GENERATOR.search(head)
+    return found.group(1).decode("utf-8", "replace") if found else None
 
 
 def placed_mesh(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes=()

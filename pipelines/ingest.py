@@ -405,7 +405,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--parts", choices=("merge", "separate"), help="BuildingParts merged into their Building, or kept apart")
     p.add_argument("--extrude-lod1", action="store_true", default=None, help="replace each building by its extruded footprint (LoD1 block)")
     p.add_argument("--crs", help="CRS of inputs that declare none, e.g. EPSG:4979 (degrees are converted to metres)")
-    p.add_argument("--up", choices=("z", "y"), help="up axis of mesh files (glTF and many OBJ exports: y); default z")
+    p.add_argument("--up", choices=("auto", "z", "y"),
+                   help="up axis of mesh files (many OBJ exports: y); default auto: glTF y, as its specification says "
+                        "(z where trimesh wrote it), other mesh files z")
     p.add_argument("--layer", help="GIS files (GeoPackage, FileGDB, ...): the layer to read; default every layer")
     p.add_argument("--split-components", action="store_true", default=None,
                    help="mesh files, Rhino objects, DXF meshes: each connected piece is a building (a city exported as "

@@ -209,8 +209,31 @@ def test_y_up_mesh_files_are_turned_z_up(tmp_path, ext):
     assert np.ptp(turned.vertices, axis=0) == pytest.approx([4, 6, 9])
     assert _volume(turned) == pytest.approx(_volume(as_given)) == pytest.approx(4 * 9 * 6)
     np.testing.assert_allclose(turned.origin, [2, -3, 4.5])  # (x, -z, y) of the centre (2, 4.5, 3)
-    with pytest.raises(ValueError, match="up_axis must be one of z, y"):
+    with pytest.raises(ValueError, match="up_axis must be one of auto, z, y"):
         ReaderOptions(up_axis="x")
+
+
+@pytest.mark.parametrize("ext", ["glb", "gltf"])
+def test_a_gltf_file_is_y_up_as_its_specification_says_unless_trimesh_wrote_it(tmp_path, ext):
+    """glTF's axes are y up: a house (4 m wide, 9 m tall, 6 m deep) that Blender's exporter wrote stands 9 m tall in
+    z by default, noted, and as given with up_axis "z"; one trimesh wrote (trimesh writes the coordinates it is
+    given, as the tests' files are) is read as given; an OBJ file is read as given."""
+    box = trimesh.creation.box(bounds=[[0, 0, 0], [4, 9, 6]])
+    if ext == "glb":
+        data = box.export(file_type="glb")
+    else:  # one file, its buffer embedded
+        data = trimesh.exchange.gltf.export_gltf(trimesh.Scene(box), embed_buffers=True)["model.gltf"]
+    trimesh_name, blender = b"https://github.com/mikedh/trimesh", b"Khronos glTF Blender I/O v4.2.69"
+    assert trimesh_name in data
+    (tmp_path / f"trimesh.{ext}").write_bytes(data)
+    (tmp_path / f"blender.{ext}").write_bytes(data.replace(trimesh_name, blender.ljust(len(trimesh_name))))
+    (default,) = read_file(tmp_path / f"blender.{ext}")
+    (as_given,) = read_file(tmp_path / f"blender.{ext}", ReaderOptions(up_axis="z"))
+    (by_trimesh,) = read_file(tmp_path / f"trimesh.{ext}")
+    assert np.ptp(default.vertices, axis=0) == pytest.approx([4, 6, 9]) and "y up by its specification" in default.notes[0]
+    assert np.ptp(as_given.vertices, axis=0) == pytest.approx([4, 9, 6]) and as_given.notes == ()
+    assert np.ptp(by_trimesh.vertices, axis=0) == pytest.approx([4, 9, 6]) and by_trimesh.notes == ()
+    assert _volume(default) == pytest.approx(4 * 9 * 6)
 
 
 # ---------------------------------------------------------------------------- --extrude-lod1 footprints
