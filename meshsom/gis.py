@@ -440,7 +440,7 @@ def _bag2d_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribut
     """The roof planes of a 3D BAG 2D layer grouped by their building (``fid``, else ``identificatie``), each a part
     extruded from the ground to its roof (as docs.3dbag.nl says LoD 1.2 and 1.3 are rebuilt from them: the roof's
     elevation less the ground's, :data:`BAG2D_ROOF`, :data:`BAG2D_GROUND`); the building takes its
-    ``identificatie``. A plane without them is read as a feature of its own."""
+    ``identificatie`` and its ``pand`` attributes (its labels), as from the 3D layers. A plane without them is read as a feature of its own."""
     from meshsom.osm import _Area
 
     groups: dict[tuple, list] = {}
@@ -466,7 +466,7 @@ def _bag2d_grouping(path: str, size: int, mtime: int, layers: tuple, id_attribut
     named = {parts[0].oid: str(pand.get(key, {}).get(BAG3D_ID) or parts[0].tags.get(BAG3D_ID) or key)
              for (_, key), parts in groups.items()}
     return PartGrouping(frozenset(owned), parts_of, frozenset(), named, frozenset(),
-                        {parts[0].oid: parts[0].tags for parts in groups.values()},
+                        {parts[0].oid: {**pand.get(key, {}), **parts[0].tags} for (_, key), parts in groups.items()},
                         "3D BAG roof planes, each from the ground to its roof")
 
 

@@ -819,6 +819,8 @@ def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
     assert united_volume(flat_got[0]) == pytest.approx(40 * 8 + 40 * 5, rel=1e-9)
     assert united_volume(flat_got[1]) == pytest.approx(26 * 8 + 26 * 5, rel=1e-9)
     assert any("4 3D BAG roof planes, each from the ground to its roof" in n for n in flat_got[1].notes), flat_got[1].notes
+    flat_labelled = list(read_file(path, ReaderOptions(layer="lod13_2d", label_attribute="b3_dak_type")))
+    assert [m.label for m in flat_labelled] == ["slanted", "multiple horizontal"]  # pand's, as the 3D layers have
     (none,) = read_file(path, ReaderOptions(lod="2"))  # a LoD the file has not: the file says which it has
     assert isinstance(none, Rejection) and "is a 3D BAG GeoPackage of LoD 1.2, 1.3, 2.2" in none.reason, none
     # a layer named that is not a 3D one: read as any layer (pand: footprints without a height)
