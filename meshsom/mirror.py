@@ -23,6 +23,7 @@ from __future__ import annotations
 import bisect
 import fcntl
 import glob as globbing
+import json
 import os
 import shutil
 import uuid
@@ -36,6 +37,8 @@ WHOLE_FOLDER_SUFFIXES = (".gdb",)
 #: Files whose folder (and its sub-folders) is needed to read them: a glTF's buffers and images, a KML's models, a
 #: tileset's content.
 WHOLE_FOLDER_NAMES = (".gltf", ".kml", "tileset.json")
+#: Beside a file copied in part (:attr:`Copy.spans`): the byte spans copied so far (JSON). A file with one is not whole.
+SPANS_SUFFIX = ".spans"
 #: Files the planner copies per call of the filesystem (:func:`copy_all`).
 COPY_BATCH = 64
 #: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
@@ -53,11 +56,16 @@ class Copy:
         Its path in the mirror folder.
     size : int
         Its size in bytes, as listed (a copy of another size is copied again).
+    spans : list of [start, stop] or None
+        The only bytes needed (a read task of a range of a large file: the file's head and tail and its range's
+        bytes): copied into a sparse file of the file's size, the spans copied so far listed beside it
+        (:data:`SPANS_SUFFIX`); None: the whole file.
     """
 
     url: str
     local: str
     size: int
+    spans: list | None = None
 
 
 def is_url(path) -> bool:
@@ -133,7 +141,9 @@ def _copy(protocol: str, path: str, info: dict) -> Copy:
 def fetch(copies) -> None:
     """Copy the files of ``copies`` (:class:`Copy`, or their fields as a dict) that are not on this machine at their
     size; the others are left as they are. A lock file beside each keeps two processes of one machine from copying
-    it at once; a copy is written under a temporary name and renamed, so a file at its path is whole.
+    it at once; a whole copy is written under a temporary name and renamed, so a file at its path is whole unless a
+    spans file lies beside it: a copy of :attr:`Copy.spans` only writes those bytes into a sparse file, and lists
+    them beside it, so that ranges of one large file read on one machine each copy theirs.
 
     Raises
     ------
@@ -150,15 +160,41 @@ def fetch(copies) -> None:
             fcntl.flock(lock, fcntl.LOCK_EX)
             if _whole(target, c.size):
                 continue
-            part = target.with_name(f"{target.name}.part-{uuid.uuid4().hex[:8]}")
             fs, path = filesystem(c.url)
             try:
-                fs.get_file(path, str(part))
-                os.replace(part, target)
+                if c.spans is not None:
+                    _copy_spans(fs, path, target, c)
+                    continue
+                part = target.with_name(f"{target.name}.part-{uuid.uuid4().hex[:8]}")
+                try:
+                    fs.get_file(path, str(part))
+                    os.replace(part, target)
+                    Path(f"{target}{SPANS_SUFFIX}").unlink(missing_ok=True)
+                finally:
+                    part.unlink(missing_ok=True)
             except (OSError, PermissionError) as err:
                 raise InputFileError(c.url, f"cannot be copied to {target} ({type(err).__name__}: {err})") from None
-            finally:
-                part.unlink(missing_ok=True)
+
+
+def _copy_spans(fs, path: str, target: Path, c: Copy) -> None:
+    """The bytes of ``c.spans`` not yet in ``target`` copied into it (a sparse file of ``c.size`` bytes, made where
+    there is none), and listed in its spans file (written after the bytes, so that it lists only what is there)."""
+    listed = Path(f"{target}{SPANS_SUFFIX}")
+    have = [tuple(s) for s in json.loads(listed.read_text())] if listed.exists() and target.exists() else []
+    if not have:
+        with open(target, "wb") as out:  # holes read as zeros and take no disk
+            out.truncate(c.size)
+        listed.write_text("[]")
+    wanted = [(max(0, int(a)), min(c.size, int(b))) for a, b in c.spans if min(c.size, int(b)) > max(0, int(a))]
+    missing = [(a, b) for a, b in wanted if not any(x <= a and b <= y for x, y in have)]
+    with open(target, "r+b") as out:
+        for a, b in missing:
+            out.seek(a)
+            out.write(fs.cat_file(path, start=a, end=b))
+    if missing:
+        temporary = listed.with_name(f"{listed.name}.{uuid.uuid4().hex[:8]}")
+        temporary.write_text(json.dumps(sorted(have + missing)))
+        os.replace(temporary, listed)
 
 
 def copy_all(copies: list[Copy], progress=None) -> None:
@@ -182,6 +218,7 @@ def copy_all(copies: list[Copy], progress=None) -> None:
             fs.get([filesystem(c.url)[1] for c in batch], [str(part) for part in parts])
             for c, part in zip(batch, parts):
                 os.replace(part, c.local)
+                Path(f"{c.local}{SPANS_SUFFIX}").unlink(missing_ok=True)
         except (OSError, PermissionError) as err:
             fetch(batch)  # one at a time: the error names the file
             raise InputFileError(batch[0].url, f"cannot be copied ({type(err).__name__}: {err})") from None
@@ -193,8 +230,9 @@ def copy_all(copies: list[Copy], progress=None) -> None:
 
 
 def _whole(path: Path, size: int) -> bool:
+    """Whether ``path`` is a whole copy: of its size, without a spans file beside it."""
     try:
-        return path.stat().st_size == size
+        return path.stat().st_size == size and not Path(f"{path}{SPANS_SUFFIX}").exists()
     except OSError:
         return False
 

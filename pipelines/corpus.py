@@ -547,6 +547,22 @@ def mirror_folder(cfg, store: str) -> Path:
     return base / hashlib.sha1(store_url(store).encode()).hexdigest()[:12]
 
 
+def _range_fetch(source: dict, kind: str, byte_range, ranges: list) -> list:
+    """A range's files to copy (``source["fetch"]``) with only the bytes its reader reads of the file it reads
+    (:attr:`meshsom.mirror.Copy.spans`): a CityJSONSeq's header line and the range's lines; a GeoJSON collection's
+    members before and after its features and the range's features; a CityGML file's head and tail and the range's
+    members. The others whole."""
+    size = next(c["size"] for c in source["fetch"] if c["local"] == source["path"])
+    r = [int(v) for v in byte_range]
+    if kind == "citygml":
+        spans = [[0, r[3]], [r[0], r[1]], [r[4], size]]
+    elif kind == "cityjson" and len(r) == 5:  # a GeoJSON FeatureCollection's range
+        spans = [[0, r[3] + 1], [r[0], r[1]], [r[4], size]]
+    else:  # a CityJSONSeq's: its header line (before the first range) and the range's lines
+        spans = [[0, int(ranges[0][0])], [r[0], r[1]]]
+    return [{**c, "spans": spans} if c["local"] == source["path"] else c for c in source["fetch"]]
+
+
 def _staging_folder(store: str, mirror: Path) -> Path:
     """Where the planner writes what it makes of large inputs (a CityJSON file's split, a gzipped file's content, a
     zip's files): the staging group of a local store; with a store on object storage, the mirror folder, from which
@@ -767,7 +783,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
             base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {}),
                     **({"fetch": copies} if copies else {})}
             if ranges:
-                sources += [{**base, "range": list(r)} for r in ranges]
+                sources += [{**base, "range": list(r), **({"fetch": _range_fetch(base, kind, r, ranges)} if copies else {})}
+                            for r in ranges]
             elif features:
                 sources += [{**base, "features": r} for r in features]
             else:

@@ -431,3 +431,62 @@ def test_commands_take_inputs_on_object_storage(s3, tmp_path, capsys):
         check_inputs(cfg, cfg, None)
     cfg = quick(tmp_path, str(tmp_path / "q.zarr"), "check", corpus={"paths": [url]})
     assert check_inputs(cfg, cfg, None) == []
+
+
+@pytest.mark.parametrize("kind", ["cityjsonseq", "geojson", "citygml"])
+def test_a_worker_copies_only_the_bytes_of_its_range(s3, tmp_path, kind):
+    """A large file on S3 read in ranges by workers without the planner's copies: each range's task copies only its
+    reader's bytes (the file's head, tail and the range) into a sparse file, listed beside it, and reads the range's
+    items as from the whole file; a later task of another range adds its bytes; a task wanting the whole file copies
+    it whole. Bytes no task asked for stay zeros (a sparse file: holes)."""
+    import json as jsonlib
+
+    from meshsom.citygml import citygml_ranges
+    from meshsom.generate import GeneratorParams, generate_corpus
+    from meshsom.geojson import geojson_ranges
+    from meshsom.io import ReaderOptions, cityjsonseq_ranges, read_file, write_cityjsonseq
+    from meshsom.mirror import SPANS_SUFFIX, mirror_inputs
+    from pipelines.corpus import _range_fetch, read_source
+    from test_citygml import _large_citygml
+    from test_geojson import _big_collection
+
+    name = {"cityjsonseq": "city.city.jsonl", "geojson": "city.geojson", "citygml": "city.gml"}[kind]
+    local = tmp_path / "in" / name
+    local.parent.mkdir()
+    if kind == "cityjsonseq":
+        write_cityjsonseq(local, generate_corpus(GeneratorParams(n_blocks=60, seed=3)))
+    elif kind == "geojson":
+        local.write_text(_big_collection(120))
+    else:
+        local.write_text(_large_citygml("2.0", "core:cityObjectMember"))
+    url = f"s3://{BUCKET}/ranges/{kind}/{name}"
+    _upload(local.parent, f"s3://{BUCKET}/ranges/{kind}")
+    mirrored = mirror_inputs([url], tmp_path / "mirror")
+    (path,) = mirrored.paths
+    ranges = (cityjsonseq_ranges(Path(path), local.stat().st_size // 5) if kind == "cityjsonseq" else
+              geojson_ranges(Path(path), 25, ReaderOptions()) if kind == "geojson" else
+              citygml_ranges(Path(path), local.stat().st_size // 5, ReaderOptions()))
+    assert ranges is not None and len(ranges) >= 4
+    whole = [i for r in ranges for i in read_file(path, byte_range=r)]
+    source = {"path": path, "fetch": [dataclasses.asdict(c) for c in mirrored.copies.values()]}
+    shutil.rmtree(tmp_path / "mirror")
+    got, copied = [], Path(f"{path}{SPANS_SUFFIX}")
+    for k in (1, 3, 0):
+        fetch = _range_fetch(source, "cityjson" if kind == "geojson" else kind, ranges[k], ranges)
+        items = read_source(path, ReaderOptions(), name, ranges[k], None, (path, url), fetch)
+        got.append(items)
+        assert copied.exists() and Path(path).stat().st_size == local.stat().st_size
+    listed = jsonlib.loads(copied.read_text())
+    data, original = Path(path).read_bytes(), local.read_bytes()
+    for a, b in listed:
+        assert data[a:b] == original[a:b]
+    untouched = ranges[2][0], ranges[2][1]  # no task asked for range 2: zeros where the file holds text
+    assert data[untouched[0]:untouched[1]].strip(b"\0") == b"" and original[untouched[0]:untouched[1]].strip()
+    assert Path(path).stat().st_blocks * 512 < len(original)  # holes take no disk
+    want = {k: [i for i in read_file(local, ReaderOptions(), name, tuple(ranges[k]))] for k in (1, 3, 0)}
+    for items, k in zip(got, (1, 3, 0)):
+        assert [i.id for i in items] == [w.id for w in want[k]] and len(items) > 0
+        assert all(i.source == url for i in items)
+    assert len(whole) >= sum(len(v) for v in want.values())
+    read_source(path, ReaderOptions(), name, None, None, (path, url), source["fetch"])  # the whole file: copied whole
+    assert Path(path).read_bytes() == original and not copied.exists()
