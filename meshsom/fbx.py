@@ -40,6 +40,11 @@ SETTINGS_SEARCH_BYTES = 1 << 22
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 #: What assimp puts in the names of the nodes it adds for a model's pivots and offsets (``house_$AssimpFbx$_Rotation``).
 PIVOT_MARK = "_$AssimpFbx$_"
+#: Names of nodes that hold one surface of a building (a scene written per surface: CityGML's thematic surfaces by
+#: class, as converters name them, or by ids that start with the surface's kind, as PLATEAU's do: ``wall_...``,
+#: ``roof_...``): such a node is part of the model above it, where there is one below the root.
+SURFACE_NAME = re.compile(r"^(?:(?:Wall|Roof|Ground|Closure|OuterCeiling|OuterFloor|Floor|Ceiling)Surface|wall|roof|"
+                          r"ground|closure)(?:$|[_\-\s.:#0-9])", re.IGNORECASE)
 #: The start of a binary FBX file.
 BINARY_MAGIC = b"Kaydara FBX Binary"
 #: The unit's property in an ASCII file: ``P: "UnitScaleFactor", "double", "Number", "",100``.
@@ -121,27 +126,33 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
     label = labels.get(path.name)
     name = name or path.name
     crs = file_crs(None, options)
-    items, taken = [], set()
-    for k, (node, world) in enumerate(_placed_nodes(scene.root_node)):
+    owners: dict[int, list] = {}  # a building's node -> [its name, its pieces (placed vertices, faces)]
+    for k, (node, world, owner) in enumerate(_placed_nodes(scene.root_node)):
         if not node.mesh_indices:
             continue
-        node_name = node.name.split(PIVOT_MARK)[0] or f"node-{k}"  # a pivot's helper node: its model's name
+        entry = owners.setdefault(id(owner[1]), [owner[0] or f"node-{k}", []])
+        for i in node.mesh_indices:
+            if meshes[i] is None:
+                continue
+            vertices, faces = meshes[i]
+            turn = Y_UP_TO_Z_UP @ world[:3, :3]
+            placed = (vertices @ turn.T + Y_UP_TO_Z_UP @ world[:3, 3]) * metres
+            if np.linalg.det(world[:3, :3]) < 0:  # mirrored: the faces' order turned so that they keep their side
+                faces = faces[:, ::-1]
+            entry[1].append((placed, np.ascontiguousarray(faces)))
+    items, taken = [], set()
+    for node_name, parts in owners.values():
         key, n = node_name, 2
         while key in taken:
             key, n = f"{node_name} ({n})", n + 1
         taken.add(key)
-        parts = [meshes[i] for i in node.mesh_indices if meshes[i] is not None]
         mesh_id = f"{name}#{key}"
         item_label = labels.get(f"{path.name}#{key}", label)
         if not parts:
             items.append(Rejection(mesh_id, str(path), "holds no faces (only lines or points)", 0, item_label))
             continue
         vertices, faces = _united(parts)
-        turn = Y_UP_TO_Z_UP @ world[:3, :3]
-        placed = (vertices @ turn.T + Y_UP_TO_Z_UP @ world[:3, 3]) * metres
-        if np.linalg.det(world[:3, :3]) < 0:  # mirrored: the faces' order turned so that they keep their side
-            faces = np.ascontiguousarray(faces[:, ::-1])
-        items.append((mesh_id, placed, faces, item_label))
+        items.append((mesh_id, vertices, faces, item_label))
     if not items:
         raise InputFileError(str(path), "holds no mesh (an FBX scene of only cameras, lights or empty nodes)")
     pieces = []
@@ -169,16 +180,29 @@ def _triangles(mesh) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def _united(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh of a building's pieces (its meshes, its surfaces' nodes), vertices at the same place one vertex (the
+    surfaces of a scene written per surface meet at their edges)."""
+    if len(parts) == 1:
+        return parts[0]
     offsets = np.cumsum([0] + [len(v) for v, _ in parts])
-    return np.concatenate([v for v, _ in parts]), np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+    vertices = np.concatenate([v for v, _ in parts])
+    faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    return unique, inverse.reshape(-1)[faces]
 
 
 def _placed_nodes(root) -> list:
-    """Every node of a scene with its transform from the root (4 x 4, the root's own included), depth first."""
-    out, stack = [], [(root, np.eye(4))]
+    """Every node of a scene with its transform from the root (4 x 4, the root's own included) and the building it
+    belongs to (``(name, node)``: its own, a pivot helper's being its model's; for a node named as a surface,
+    :data:`SURFACE_NAME`, the nearest other model above it, where there is one below the root), depth first."""
+    out, stack = [], [(root, np.eye(4), None, None)]
     while stack:
-        node, parent = stack.pop()
+        node, parent, model, above = stack.pop()  # model: (name, node) of the model this node is or helps
         world = parent @ np.asarray(node.transformation, np.float64).reshape(4, 4)
-        out.append((node, world))
-        stack.extend((child, world) for child in reversed(list(node.children)))
+        own = node.name.split(PIVOT_MARK)[0]
+        if model is None or own != model[0]:  # a model of its own (else a helper's chain goes on)
+            above, model = (model if model is not None and model[1] is not root else None), (own, node)
+        owner = above if above is not None and SURFACE_NAME.match(model[0]) else model
+        out.append((node, world, owner))
+        stack.extend((child, world, model, above) for child in reversed(list(node.children)))
     return out

@@ -37,7 +37,8 @@ def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
     Parameters
     ----------
     objects : list of (name, vertices (V, 3), polygons (list of index lists), translation, rotation (degrees, XYZ),
-        scaling)
+        scaling[, parent name])
+        An object of no vertices (None) is an empty node ("Null" model, a group); one with a parent is its child.
     axes : str
         A key of :data:`AXES`.
     unit : float
@@ -56,17 +57,22 @@ def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
         ("OriginalUnitScaleFactor", "double", "Number", "", float(unit)),
     ])
     objs, links = [], []
-    for k, (name, vertices, polygons, t, r, s) in enumerate(objects):
+    model_ids = {}
+    for k, (name, vertices, polygons, t, r, s, *parent) in enumerate(objects):
         gid, mid = np.int64(1_000_000 + 2 * k), np.int64(1_000_001 + 2 * k)  # ids: int64 ('L')
-        index = []
-        for poly in polygons:
-            index += [int(i) for i in poly[:-1]] + [-int(poly[-1]) - 1]
-        objs.append(("Geometry", [gid, f"{name}\x00\x01Geometry", "Mesh"], [
-            ("Vertices", [np.asarray(vertices, np.float64).ravel()], []),
-            ("PolygonVertexIndex", [np.asarray(index, np.int32)], []),
-            ("GeometryVersion", [124], []),
-        ]))
-        objs.append(("Model", [mid, f"{name}\x00\x01Model", "Mesh"], [
+        model_ids[name] = mid
+        if vertices is not None:
+            index = []
+            for poly in polygons:
+                index += [int(i) for i in poly[:-1]] + [-int(poly[-1]) - 1]
+            objs.append(("Geometry", [gid, f"{name}\x00\x01Geometry", "Mesh"], [
+                ("Vertices", [np.asarray(vertices, np.float64).ravel()], []),
+                ("PolygonVertexIndex", [np.asarray(index, np.int32)], []),
+                ("GeometryVersion", [124], []),
+            ]))
+            links.append(("C", ["OO", gid, mid], []))
+        links.append(("C", ["OO", mid, model_ids[parent[0]] if parent else np.int64(0)], []))
+        objs.append(("Model", [mid, f"{name}\x00\x01Model", "Mesh" if vertices is not None else "Null"], [
             ("Version", [232], []),
             ("Properties70", [], _properties70([
                 ("Lcl Translation", "Lcl Translation", "", "A", *map(float, t)),
@@ -74,7 +80,6 @@ def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
                 ("Lcl Scaling", "Lcl Scaling", "", "A", *map(float, s)),
             ])),
         ]))
-        links += [("C", ["OO", gid, mid], []), ("C", ["OO", mid, np.int64(0)], [])]
     return [
         ("FBXHeaderExtension", [], [("FBXHeaderVersion", [1003], []), ("FBXVersion", [7400], [])]),
         ("GlobalSettings", [], [("Version", [1000], []), ("Properties70", [], settings)]),
