@@ -42,7 +42,8 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 PIVOT_MARK = "_$AssimpFbx$_"
 #: Names of nodes that hold one surface of a building (a scene written per surface: CityGML's thematic surfaces by
 #: class, as converters name them, or by ids that start with the surface's kind, as PLATEAU's do: ``wall_...``,
-#: ``roof_...``): such a node is part of the model above it, where there is one below the root.
+#: ``roof_...``): such a node is part of the model above it, where there is one below the root and every model under
+#: it holding meshes is so named (else it is a group of buildings).
 SURFACE_NAME = re.compile(r"^(?:(?:Wall|Roof|Ground|Closure|OuterCeiling|OuterFloor|Floor|Ceiling)Surface|wall|roof|"
                           r"ground|closure)(?:$|[_\-\s.:#0-9])", re.IGNORECASE)
 #: The start of a binary FBX file.
@@ -126,10 +127,13 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
     label = labels.get(path.name)
     name = name or path.name
     crs = file_crs(None, options)
+    placed_nodes = [(k, *n) for k, n in enumerate(_placed_nodes(scene.root_node)) if n[0].mesh_indices]
+    mixed = {id(above[1]) for _, _, _, model, above in placed_nodes  # a group of buildings, not of one's surfaces
+             if above is not None and not SURFACE_NAME.match(model[0])}
     owners: dict[int, list] = {}  # a building's node -> [its name, its pieces (placed vertices, faces)]
-    for k, (node, world, owner) in enumerate(_placed_nodes(scene.root_node)):
-        if not node.mesh_indices:
-            continue
+    for k, node, world, model, above in placed_nodes:
+        surface = above is not None and id(above[1]) not in mixed and SURFACE_NAME.match(model[0])
+        owner = above if surface else model
         entry = owners.setdefault(id(owner[1]), [owner[0] or f"node-{k}", []])
         for i in node.mesh_indices:
             if meshes[i] is None:
@@ -192,17 +196,16 @@ def _united(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.
 
 
 def _placed_nodes(root) -> list:
-    """Every node of a scene with its transform from the root (4 x 4, the root's own included) and the building it
-    belongs to (``(name, node)``: its own, a pivot helper's being its model's; for a node named as a surface,
-    :data:`SURFACE_NAME`, the nearest other model above it, where there is one below the root), depth first."""
+    """Every node of a scene with its transform from the root (4 x 4, the root's own included), the model it is or
+    helps (``(name, node)``: a pivot helper's is its model's) and the nearest other model above that one, below the
+    root (or None), depth first."""
     out, stack = [], [(root, np.eye(4), None, None)]
     while stack:
-        node, parent, model, above = stack.pop()  # model: (name, node) of the model this node is or helps
+        node, parent, model, above = stack.pop()
         world = parent @ np.asarray(node.transformation, np.float64).reshape(4, 4)
         own = node.name.split(PIVOT_MARK)[0]
         if model is None or own != model[0]:  # a model of its own (else a helper's chain goes on)
             above, model = (model if model is not None and model[1] is not root else None), (own, node)
-        owner = above if above is not None and SURFACE_NAME.match(model[0]) else model
-        out.append((node, world, owner))
+        out.append((node, world, model, above))
         stack.extend((child, world, model, above) for child in reversed(list(node.children)))
     return out

@@ -191,8 +191,9 @@ def test_fbx_pivots_and_offsets_place_a_model_as_fbx_composes_them(tmp_path):
 def test_an_fbx_scene_written_per_surface_is_read_per_building(tmp_path):
     """A scene written per surface (a node per wall, roof and floor under the building's node, named by the surface's
     class or by ids that start with its kind, as PLATEAU's are) is read as one building per building node, its
-    surfaces united (the L's volume); buildings grouped under a city node stay buildings of their own, and a
-    surface-named node with no model above it is one alone."""
+    surfaces united (the L's volume); buildings grouped under a city node stay buildings of their own, a
+    surface-named one among them too (the city node groups buildings, not one's surfaces), and a surface-named node
+    with no model above it is one alone."""
     vertices, polygons = l_prism("z-up")
     floor, roof, walls = polygons[:1], polygons[1:2], polygons[2:]
     still = ((0, 0, 0), (0, 0, 0), (1, 1, 1))
@@ -202,10 +203,11 @@ def test_an_fbx_scene_written_per_surface_is_read_per_building(tmp_path):
                ("RoofSurface_2", vertices, roof, *still, "bldg_1"),
                ("ground_bldg_1", vertices, floor, *still, "bldg_1"),
                ("house-b", vertices, polygons, (0, 50.0, 0), (0, 0, 0), (1, 1, 1), "City"),
+               ("roof_terrace_3", vertices, polygons, (0, 75.0, 0), (0, 0, 0), (1, 1, 1), "City"),
                ("roof_alone", vertices, polygons, (0, 100.0, 0), (0, 0, 0), (1, 1, 1))]
     write_fbx_binary(tmp_path / "atomic.fbx", fbx_document(objects))
     got = list(read_file(tmp_path / "atomic.fbx"))
-    assert [m.id.split("#")[1] for m in got] == ["bldg_1", "house-b", "roof_alone"], got
+    assert [m.id.split("#")[1] for m in got] == ["bldg_1", "house-b", "roof_terrace_3", "roof_alone"], got
     for m in got:
         assert signed_volume(m) == pytest.approx(L_AREA * HEIGHT, rel=1e-6), m.id
     assert (got[0].vertices + got[0].origin)[:, 0].min() == pytest.approx(100.0)
