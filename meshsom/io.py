@@ -57,6 +57,10 @@ if TYPE_CHECKING:
 
 #: Up axes of mesh files (:attr:`ReaderOptions.up_axis`).
 UP_AXES = ("auto", "z", "y")
+#: The header comments of the OBJ exporters that write y up by default (Blender's: Forward -Z, Up Y; SketchUp's:
+#: "Swap YZ coordinates"), in the file's first :data:`OBJ_HEADER_BYTES` (:func:`up_axis_note`).
+_OBJ_Y_UP_WRITERS = re.compile(rb"^#[ \t]*(?:Exported from )?(Blender|SketchUp)\b", re.MULTILINE)
+OBJ_HEADER_BYTES = 1024
 #: A glTF document's ``"generator": "..."`` (:func:`gltf_generator`).
 _GLTF_GENERATOR = re.compile(rb'"generator"\s*:\s*"((?:[^"\\]|\\.)*)"')
 #: The note on a glTF file turned to z up by its specification's axes (``up_axis: auto``).
@@ -221,7 +225,9 @@ class ReaderOptions:
         or game tools): their coordinates are then turned a quarter about x, (x, y, z) -> (x, -z, y),
         so that z is up. "auto" (the default): glTF files y (their specification's axes, as Blender,
         CityEngine, FME and Sketchfab write them), noted, but for those trimesh wrote (its
-        ``asset.generator``: trimesh writes the coordinates it is given, z up); other mesh files z.
+        ``asset.generator``: trimesh writes the coordinates it is given, z up); OBJ files Blender or
+        SketchUp wrote (their header comment) y, noted, as their exporters write by default; other
+        mesh files z (:func:`up_axis_note`).
     split_components : bool
         Mesh files (OBJ, PLY, STL, OFF, glTF), Rhino objects and DXF meshes and blocks (not a
         Rhino group, which is one building by its maker's choice): each mesh (object, node) is split into its connected
@@ -958,9 +964,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     content = read_input_bytes(path, options)
     if file_type != "glb" and content.startswith(UTF8_BOM):  # Windows tools start text with one: not a vertex line
         content = content[len(UTF8_BOM):]
-    turn_up = options.up_axis == "y" or (options.up_axis == "auto" and file_type in ("glb", "gltf")
-                                         and "trimesh" not in (gltf_generator(bytes(content[:1 << 20])) or "").lower())
-    up_notes = (GLTF_Y_UP_NOTE,) if turn_up and options.up_axis == "auto" else ()
+    up_notes = () if options.up_axis != "auto" else up_axis_note(file_type, bytes(content[:1 << 20]))
+    turn_up = options.up_axis == "y" or bool(up_notes)  # y up, said or seen (auto)
     if file_type == "obj":
         if _OBJ_ZERO_INDEX.search(content):  # trimesh would take vertex 0 for the last one
             said = _bad_vertex_reference(bytes(content), "obj") or "a face refers to vertex 0 (OBJ counts from 1)"
@@ -1032,6 +1037,21 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         if turn_up and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
         yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, up_notes)
+
+
+def up_axis_note(file_type: str, head: bytes) -> tuple[str, ...]:
+    """Under ``up_axis: auto``, the note on a mesh file that is y up by what wrote it (its first bytes say), else
+    nothing (z up): glTF by its specification, but for trimesh's (:func:`gltf_generator`); an OBJ file Blender or
+    SketchUp wrote (their header comment), whose exporters write y up by default."""
+    if file_type in ("glb", "gltf"):
+        return () if "trimesh" in (gltf_generator(head) or "").lower() else (GLTF_Y_UP_NOTE,)
+    if file_type == "obj":
+        found = _OBJ_Y_UP_WRITERS.search(head[:OBJ_HEADER_BYTES])
+        if found:
+            writer = found.group(1).decode("ascii", "replace").strip()
+            return (f"an OBJ file {writer} wrote: y up, as its exporter writes by default: turned to z up "
+                    f"(corpus.reader.up_axis: z, or --up z, reads it as it is)",)
+    return ()
 
 
 def gltf_generator(head: bytes) -> str | None:

@@ -408,3 +408,23 @@ def test_a_building_format_meshsom_does_not_read_says_the_way_in(tmp_path, name,
     assert isinstance(item, Rejection) and item.reason.startswith(f"unknown file type '{name[name.index('.'):]}'")
     assert "expected one of .obj" in item.reason
     assert (way in item.reason) if way else ("(" not in item.reason.split(";")[0]), item.reason
+
+
+@pytest.mark.parametrize("header,turned", [(b"# Blender 4.1.1\n# www.blender.org\n", True),
+                                           (b"# Blender v2.93.1 OBJ File: ''\n# www.blender.org\n", True),
+                                           (b"# Alias OBJ Model File\n# Exported from SketchUp, (c) 2000-2012 Trimble\n", True),
+                                           (b"# https://github.com/mikedh/trimesh\n", False), (b"", False)])
+def test_an_obj_file_blender_or_sketchup_wrote_is_y_up_by_default(tmp_path, header, turned):
+    """Blender's and SketchUp's OBJ exporters write y up by default (Forward -Z, Up Y; "Swap YZ"): such a file (its
+    header comment says who wrote it) is turned to z up by default, noted, and read as given with up_axis "z"; an
+    OBJ file of another writer is read as given."""
+    box = trimesh.creation.box(bounds=[[0, 0, 0], [4, 9, 6]])  # y up: 9 m tall
+    text = box.export(file_type="obj")
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("#")) + "\n"
+    (tmp_path / "house.obj").write_bytes(header + body.encode())
+    (default,) = read_file(tmp_path / "house.obj")
+    (as_given,) = read_file(tmp_path / "house.obj", ReaderOptions(up_axis="z"))
+    assert np.ptp(default.vertices, axis=0) == pytest.approx([4, 6, 9] if turned else [4, 9, 6])
+    assert any("y up, as its exporter writes by default" in n for n in default.notes) == turned
+    assert np.ptp(as_given.vertices, axis=0) == pytest.approx([4, 9, 6]) and as_given.notes == ()
+    assert _volume(default) == pytest.approx(4 * 9 * 6)
