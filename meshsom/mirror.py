@@ -39,6 +39,13 @@ WHOLE_FOLDER_SUFFIXES = (".gdb",)
 WHOLE_FOLDER_NAMES = (".gltf", ".kml", "tileset.json")
 #: Beside a file copied in part (:attr:`Copy.spans`): the byte spans copied so far (JSON). A file with one is not whole.
 SPANS_SUFFIX = ".spans"
+#: Files the planner never opens (their kind is their name's; only a read task reads them: meshes, CAD models, a
+#: glTF's buffers and textures): it copies them as placeholders (a sparse file of their size, no bytes copied, listed
+#: as such), and each read task copies its own (:func:`copy_all`). Every other file is copied: footprint files and
+#: CityJSON, CityGML, OSM, zip and gzip files, which the planner reads to plan ranges, splits and parts.
+UNOPENED_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae", ".b3dm", ".i3dm", ".cmpt", ".pnts",
+                     ".3dm", ".dxf", ".ifc", ".ifczip", ".fbx", ".3ds", ".slpk", ".bin", ".mtl", ".png", ".jpg",
+                     ".jpeg", ".webp", ".ktx2", ".tif", ".tiff")
 #: Files the planner copies per call of the filesystem (:func:`copy_all`).
 COPY_BATCH = 64
 #: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
@@ -200,7 +207,8 @@ def _copy_spans(fs, path: str, target: Path, c: Copy) -> None:
 def copy_all(copies: list[Copy], progress=None) -> None:
     """Copy the files of ``copies`` not on this machine at their size, :data:`COPY_BATCH` at a time, each batch in one
     call of the filesystem (s3fs copies a batch's files concurrently): the planner's copy of a whole city, with
-    nothing else copying into the mirror folder yet. ``progress(done, total)`` after each batch.
+    nothing else copying into the mirror folder yet; a file the planner never opens (:data:`UNOPENED_SUFFIXES`) is
+    a placeholder, copied by the read task that reads it. ``progress(done, total)`` after each batch.
 
     Raises
     ------
@@ -208,6 +216,13 @@ def copy_all(copies: list[Copy], progress=None) -> None:
         A file cannot be copied, naming its URL (what was copied before stays).
     """
     missing = [c for c in copies if not _whole(Path(c.local), c.size)]
+    for c in [c for c in missing if _unopened(c.local)]:  # the workers copy these: a placeholder here
+        if not Path(f"{c.local}{SPANS_SUFFIX}").exists():
+            Path(c.local).parent.mkdir(parents=True, exist_ok=True)
+            with open(c.local, "wb") as out:
+                out.truncate(c.size)
+            Path(f"{c.local}{SPANS_SUFFIX}").write_text("[]")
+    missing = [c for c in missing if not _unopened(c.local)]
     for start in range(0, len(missing), COPY_BATCH):
         batch = missing[start:start + COPY_BATCH]
         fs, _ = filesystem(batch[0].url)
@@ -227,6 +242,11 @@ def copy_all(copies: list[Copy], progress=None) -> None:
                 part.unlink(missing_ok=True)
         if progress is not None:
             progress(start + len(batch), len(missing))
+
+
+def _unopened(local: str) -> bool:
+    """Whether the planner never opens a file of this name (:data:`UNOPENED_SUFFIXES`)."""
+    return local.lower().endswith(UNOPENED_SUFFIXES)
 
 
 def _whole(path: Path, size: int) -> bool:
