@@ -397,8 +397,8 @@ def corpus_fold_statistics(meshes) -> dict | None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="*", metavar="INPUT",
                    help="CityJSON(Seq), CityGML, GeoJSON, GIS (GeoPackage, Shapefile, FileGDB, GeoParquet, ...), "
-                        "OpenStreetMap (.osm, .osm.pbf), 3D Tiles, scene layer packages, IFC, Rhino (.3dm), DXF, "
-                        "mesh or zip files, or folders of them")
+                        "OpenStreetMap (.osm, .osm.pbf), 3D Tiles, scene layer packages, IFC, Rhino (.3dm), DXF, FBX, "
+                        "3DS, mesh or zip files, or folders of them; or URLs of them (s3://bucket/city/, a glob)")
     p.add_argument("--out", required=True, help="zarr store to create (e.g. out/city.zarr)")
     p.add_argument("--config", help="experiment YAML: its corpus.reader and preprocess sections are used")
     p.add_argument("--lod", help="CityJSON LoD: highest, lowest or a value such as 2.2")
