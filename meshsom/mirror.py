@@ -6,12 +6,14 @@ readers seek), so an input named by a URL is copied ("mirrored") before it is re
 - the planner copies every file under the URL (a folder: every object under its prefix; a file, with the files
   beside it that share its stem, a shapefile's sidecars, and ``labels.csv``; a glob) to its mirror folder, at
   ``<mirror>/<protocol>/<bucket>/<key>`` (:func:`mirror_inputs`), and plans from those copies as from local files
-  (ids, kinds, ranges, splits);
+  (ids, kinds, ranges, splits); a file it never opens (a mesh, a CAD model: :data:`UNOPENED_SUFFIXES`) is a
+  placeholder there, its size and no bytes;
 - each read task is given the files it needs with their URLs (:func:`companions`: the file, the files sharing its
   stem, ``labels.csv`` beside it, and the whole folder of a glTF, KML, 3D Tiles tileset or File Geodatabase);
-  a worker on another machine copies them to the same path of its own disk first (:func:`fetch`), once per
-  machine: a lock file keeps two tasks from copying one file twice, and a file is copied whole, to a temporary
-  name, then renamed;
+  a worker that lacks them (another machine; a placeholder) copies them to the same path of its own disk first
+  (:func:`fetch`), once per machine: a lock file keeps two tasks from copying one file twice, and a file is copied
+  whole, to a temporary name, then renamed; a task reading a range of a large file copies only its reader's bytes
+  (:attr:`Copy.spans`) into a sparse file;
 - the records' sources and the rejections' reasons name the URL, never the copy.
 
 Nothing here imports Dask: the pipeline (:mod:`pipelines.corpus`) decides where the mirror is and removes it
