@@ -118,13 +118,12 @@ def remote_files(url: str) -> tuple[list[str], list[Copy]]:
         The URL's protocol has no backend installed, or the storage cannot be listed (credentials, endpoint).
     """
     fs, path = filesystem(url)
-    protocol = url.split("://", 1)[0]
     try:
         if globbing.has_magic(path):
             matched = [p for p in fs.glob(path) if fs.isfile(p)]
         elif fs.isdir(path):
             found = fs.find(path, detail=True)
-            return [url], [_copy(protocol, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"]
+            return [url], [_copy(fs, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"]
         elif fs.isfile(path):
             matched = [path]
         else:
@@ -138,13 +137,17 @@ def remote_files(url: str) -> tuple[list[str], list[Copy]]:
                     found[p] = info
     except (OSError, PermissionError) as err:
         raise InputFileError(url, f"cannot be listed ({type(err).__name__}: {err})") from None
-    return ([f"{protocol}://{p}" for p in sorted(matched)],
-            [_copy(protocol, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"])
+    return ([fs.unstrip_protocol(p) for p in sorted(matched)],
+            [_copy(fs, p, i) for p, i in sorted(found.items()) if i.get("type", "file") != "directory"])
 
 
-def _copy(protocol: str, path: str, info: dict) -> Copy:
-    url = f"{protocol}://{path}"
-    return Copy(url, str(mirror_path(url, Path("."))), int(info.get("size") or 0))
+def _copy(fs, path: str, info: dict) -> Copy:
+    """The :class:`Copy` of a file of a listing (its size asked for where the listing has none: a web server's)."""
+    url = fs.unstrip_protocol(path)
+    size = info.get("size")
+    if size is None:
+        size = fs.info(path).get("size")
+    return Copy(url, str(mirror_path(url, Path("."))), int(size or 0))
 
 
 def fetch(copies) -> None:

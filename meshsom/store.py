@@ -120,7 +120,7 @@ class CleanMesh:
 REMOTE_OPTIONS = {"use_listings_cache": False}
 #: What to install for the usual protocols (a missing fsspec backend is named in the error).
 BACKEND_PACKAGES = {"s3": "s3fs (pip install 'meshsom[s3]')", "gs": "gcsfs", "gcs": "gcsfs", "az": "adlfs",
-                    "abfs": "adlfs"}
+                    "abfs": "adlfs", "http": "aiohttp (pip install 'meshsom[s3]' brings it)", "https": "aiohttp"}
 
 
 def location(path: str | os.PathLike) -> str:
