@@ -48,6 +48,9 @@ SPANS_SUFFIX = ".spans"
 UNOPENED_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae", ".b3dm", ".i3dm", ".cmpt", ".pnts",
                      ".3dm", ".dxf", ".ifc", ".ifczip", ".fbx", ".3ds", ".slpk", ".bin", ".mtl", ".png", ".jpg",
                      ".jpeg", ".webp", ".ktx2", ".tif", ".tiff")
+#: CityJSON and CityJSONSeq files by name (never footprints, which the planner reads to pair parts): placeholders
+#: too where they are too small to split or cut into ranges (:func:`unopened_below`); a 3D BAG's or a state's tiles.
+SMALL_CITYJSON_SUFFIXES = (".city.json", ".cityjson", ".city.jsonl")
 #: Files the planner copies per call of the filesystem (:func:`copy_all`).
 COPY_BATCH = 64
 #: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
@@ -209,25 +212,27 @@ def _copy_spans(fs, path: str, target: Path, c: Copy) -> None:
         os.replace(temporary, listed)
 
 
-def copy_all(copies: list[Copy], progress=None) -> None:
+def copy_all(copies: list[Copy], progress=None, unopened=None) -> None:
     """Copy the files of ``copies`` not on this machine at their size, :data:`COPY_BATCH` at a time, each batch in one
     call of the filesystem (s3fs copies a batch's files concurrently): the planner's copy of a whole city, with
-    nothing else copying into the mirror folder yet; a file the planner never opens (:data:`UNOPENED_SUFFIXES`) is
-    a placeholder, copied by the read task that reads it. ``progress(done, total)`` after each batch.
+    nothing else copying into the mirror folder yet; a file the planner never opens (``unopened(copy)``; default: by
+    its name, :data:`UNOPENED_SUFFIXES`) is a placeholder, copied by the read task that reads it.
+    ``progress(done, total)`` after each batch.
 
     Raises
     ------
     InputFileError
         A file cannot be copied, naming its URL (what was copied before stays).
     """
+    unopened = unopened or (lambda c: _unopened(c.local))
     missing = [c for c in copies if not _whole(Path(c.local), c.size)]
-    for c in [c for c in missing if _unopened(c.local)]:  # the workers copy these: a placeholder here
+    for c in [c for c in missing if unopened(c)]:  # the workers copy these: a placeholder here
         if not Path(f"{c.local}{SPANS_SUFFIX}").exists():
             Path(c.local).parent.mkdir(parents=True, exist_ok=True)
             with open(c.local, "wb") as out:
                 out.truncate(c.size)
             Path(f"{c.local}{SPANS_SUFFIX}").write_text("[]")
-    missing = [c for c in missing if not _unopened(c.local)]
+    missing = [c for c in missing if not unopened(c)]
     for start in range(0, len(missing), COPY_BATCH):
         batch = missing[start:start + COPY_BATCH]
         fs, _ = filesystem(batch[0].url)
@@ -252,6 +257,15 @@ def copy_all(copies: list[Copy], progress=None) -> None:
 def _unopened(local: str) -> bool:
     """Whether the planner never opens a file of this name (:data:`UNOPENED_SUFFIXES`)."""
     return local.lower().endswith(UNOPENED_SUFFIXES)
+
+
+def unopened_below(limit: int):
+    """The planner's test of a file it never opens (:func:`copy_all`): by its name (:data:`UNOPENED_SUFFIXES`), or a
+    CityJSON or CityJSONSeq file by name (:data:`SMALL_CITYJSON_SUFFIXES`, never a footprint file) under ``limit``
+    bytes, which the planner neither splits nor cuts into ranges (twice ``dask.read_bytes``)."""
+    def test(c: Copy) -> bool:
+        return _unopened(c.local) or (c.local.lower().endswith(SMALL_CITYJSON_SUFFIXES) and c.size < limit)
+    return test
 
 
 def _whole(path: Path, size: int) -> bool:
@@ -285,9 +299,10 @@ class Mirrored:
     missing: list
 
 
-def mirror_inputs(inputs, root: Path, progress=None) -> Mirrored:
+def mirror_inputs(inputs, root: Path, progress=None, unopened=None) -> Mirrored:
     """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`copy_all`: what is there at its size
-    already is kept; ``progress(done, total)`` as it goes); local inputs stay as they are."""
+    already is kept, ``unopened`` files are placeholders; ``progress(done, total)`` as it goes); local inputs stay as
+    they are."""
     paths, urls, copies, missing = [], {}, Copies(), []
     for item in inputs:
         if not is_url(item):
@@ -304,7 +319,7 @@ def mirror_inputs(inputs, root: Path, progress=None) -> Mirrored:
             continue
         placed = [Copy(c.url, str(Path(root, c.local)), c.size) for c in found]
         try:
-            copy_all(placed, progress)
+            copy_all(placed, progress, unopened)
         except InputFileError as err:
             missing.append((url, f"{err.source}: {err.problem}"))
             continue

@@ -699,7 +699,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.gis import gis_ranges
     from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
-    from meshsom.mirror import Copies, as_url, companions, mirror_inputs, remove_mirror, url_rename
+    from meshsom.mirror import Copies, as_url, companions, mirror_inputs, remove_mirror, unopened_below, url_rename
     from meshsom.part_files import pair
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
@@ -730,7 +730,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
     # ---- plan: sources and their shards, kept in the store for a resumed run
     read_futures = {}
     if plan is None:
-        mirrored = mirror_inputs(list(cfg.corpus.paths), mirror, lambda done, total: report("copy", done, total))
+        mirrored = mirror_inputs(list(cfg.corpus.paths), mirror, lambda done, total: report("copy", done, total),
+                                 unopened_below(2 * int(cfg.dask.read_bytes)))  # tiles too small to cut: placeholders
         files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
         missing = [replace(r, id=as_url(r.id, mirrored.urls), source=as_url(r.source, mirrored.urls)) for r in missing] + [
             Rejection(url, url, why) for url, why in mirrored.missing]

@@ -332,7 +332,7 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
     cluster into a local store and into a store on S3: the same records (sources and reasons naming the URLs) and
     arrays as the folder read from disk; every kind of input read (the shapefile with its sidecars, the OBJ files'
     labels, the zip's tile, the CityGML file in ranges); nothing left in the mirror folder or the store's staging."""
-    from meshsom.mirror import _unopened
+    from meshsom.mirror import Copy, unopened_below
     from pipelines import corpus
 
     local = _city_folder(tmp_path / "city")
@@ -357,8 +357,9 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
         assert not mirror.exists() or not any(mirror.rglob("*.*")), list(mirror.rglob("*"))
     disk, on_s3, s3_store, one = (runs[k][0] for k in ("disk", "s3", "s3-store", "one"))
     assert runs["disk"][2] == runs["s3"][2] > 5 + 4  # a task per file, the CityGML file in ranges
-    files = sum(1 for f in local.rglob("*") if f.is_file() and not _unopened(str(f)))  # the OBJ files: placeholders
-    assert 0 < files < sum(1 for f in local.rglob("*") if f.is_file())
+    placeholder = unopened_below(2 * 300_000)  # the OBJ files, the small CityJSON file: placeholders
+    files = sum(1 for f in local.rglob("*") if f.is_file() and not placeholder(Copy("", str(f), f.stat().st_size)))
+    assert 0 < files < sum(1 for f in local.rglob("*") if f.is_file()) - 3
     assert runs["disk"][3] == [] and runs["s3"][3][-1] == (files, files) and runs["s3-store"][3][-1] == (files, files)
     assert {r["source"].split("!")[0].split(".gml.gz")[0].rsplit("/", 1)[0] for r in on_s3} >= {url, f"{url}/objs"}
     as_url = [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
@@ -496,10 +497,10 @@ def test_a_worker_copies_only_the_bytes_of_its_range(s3, tmp_path, kind):
 
 def test_the_planner_copies_placeholders_of_the_files_it_never_opens(s3, tmp_path):
     """Meshes (OBJ, glTF, CAD models) are opened by their read tasks only: the planner's copy of such a file is a
-    placeholder of its size, no bytes copied, listed as such, and the read task copies it whole; a footprint or
-    CityJSON file, which the planner reads to plan, is copied."""
+    placeholder of its size, no bytes copied, listed as such, and the read task copies it whole; a footprint file,
+    which the planner reads to plan, is copied; a CityJSON file is a placeholder where it is too small to split."""
     from meshsom.io import ReaderOptions, read_file
-    from meshsom.mirror import SPANS_SUFFIX, companions, mirror_inputs
+    from meshsom.mirror import SPANS_SUFFIX, companions, mirror_inputs, unopened_below
     from pipelines.corpus import read_source
 
     local = _city_folder(tmp_path / "city")
@@ -518,3 +519,9 @@ def test_the_planner_copies_placeholders_of_the_files_it_never_opens(s3, tmp_pat
     want = list(read_file(original, ReaderOptions(), f"objs/{obj.name}"))
     assert obj.read_bytes() == original.read_bytes() and not Path(f"{obj}{SPANS_SUFFIX}").exists()
     assert [g.id for g in got] == [w.id for w in want] and got[0].label == want[0].label is not None
+    # the pipeline's test: a CityJSON tile too small to split or cut is a placeholder too; a larger one is copied
+    for limit, placeholder in ((100_000, True), (1_000, False)):
+        shutil.rmtree(tmp_path / "mirror")
+        root = mirror_inputs([f"{url}/zurich.city.json"], tmp_path / "mirror", unopened=unopened_below(limit)).paths[0]
+        assert Path(f"{root}{SPANS_SUFFIX}").exists() == placeholder
+        assert (Path(root).read_bytes() == (local / "zurich.city.json").read_bytes()) != placeholder
