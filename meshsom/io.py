@@ -86,6 +86,8 @@ TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae")
 CITYJSON_SUFFIXES = (".city.json", ".json", ".cityjson", ".geojson")
 #: File name endings read as CityGML (:mod:`meshsom.citygml`).
 CITYGML_SUFFIXES = (".gml", ".citygml")
+#: XML files read as CityGML where they declare its namespace (some states save their CityGML tiles as ``.xml``).
+XML_SUFFIX = ".xml"
 #: A 3D Tiles tileset's file name: in a folder, the content under its folder (and nested
 #: tilesets) is read through it, not on its own.
 TILESET_NAME = "tileset.json"
@@ -451,6 +453,13 @@ def input_kind(path: Path) -> str:
         from meshsom.inspire import is_inspire
 
         return "gis" if name.endswith(".gml") and is_inspire(path) else "citygml"  # INSPIRE: footprints, through GDAL
+    if name.endswith(XML_SUFFIX):  # CityGML saved as .xml (Hamburg's LoD 2 tiles), by its namespace
+        from meshsom.inspire import CITYGML, SNIFF_BYTES, _head
+
+        if CITYGML.search(_head(path)):
+            return "citygml"
+        raise InputFileError(str(path), f"is an XML file that is not CityGML (no CityGML namespace in its first "
+                                        f"{SNIFF_BYTES // 1024} kB: metadata, or another format); expected CityGML")
     suffix = Path(name).suffix + (GZIP_SUFFIX if name != path.name.lower() else "")
     way = CONVERSIONS.get(Path(name).suffix)
     raise InputFileError(str(path), f"unknown file type {suffix or '(no extension)'!r}{f' ({way})' if way else ''}; "
@@ -462,7 +471,8 @@ def readable_types() -> str:
     from meshsom.gis import GIS_SUFFIXES
     from meshsom.tiles3d import B3DM_SUFFIXES
 
-    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + B3DM_SUFFIXES + (
+    readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + (
+        ".xml (CityGML)",) + B3DM_SUFFIXES + (
         ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
     return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
             f".csv (footprints as WKT, also gzipped)")

@@ -674,3 +674,29 @@ def test_ranges_of_a_citygml_file_with_undeclared_prefixes_and_an_error_lose_not
     rejected = [i for i in items if isinstance(i, Rejection)]
     assert len(rejected) == 1 and rejected[0].reason.split(", column")[0] == rejection.reason.split(", column")[0]
     assert rejected[0].id == rejection.id and len(before) < len(items) - 1 < len(whole)  # the ranges after it read
+
+
+def test_citygml_saved_as_xml_is_read_and_other_xml_is_not(tmp_path):
+    """Some states save their CityGML tiles as ``.xml`` (Hamburg's LoD 2): read by its namespace as the same file
+    named ``.gml`` (gzipped too); an XML file that is not CityGML (a tile's ISO metadata beside it) is refused saying
+    so, and listed as skipped where a folder is read."""
+    from meshsom.io import expand_inputs, input_kind
+
+    text = to_citygml(json.loads((DATA / REAL[0][0] / REAL[0][1]).read_text()))
+    (tmp_path / "tiles").mkdir()
+    (tmp_path / "tiles" / "LoD2_32_565_5933_1_HH.xml").write_text(text)
+    (tmp_path / "tiles" / "LoD2_32_565_5933_1_HH.xml.gz").write_bytes(gzip.compress(text.encode()))
+    (tmp_path / "tiles" / "metadata.xml").write_text('<?xml version="1.0"?><gmd:MD_Metadata '
+                                                     'xmlns:gmd="http://www.isotc211.org/2005/gmd"/>')
+    (tmp_path / "tile.gml").write_text(text)
+    want = list(read_file(tmp_path / "tile.gml"))
+    for name in ("LoD2_32_565_5933_1_HH.xml", "LoD2_32_565_5933_1_HH.xml.gz"):
+        assert input_kind(tmp_path / "tiles" / name) == "citygml"
+        got = list(read_file(tmp_path / "tiles" / name))
+        assert_same_buildings(got, [dataclasses.replace(w, id=w.id.replace("tile.gml", name)) for w in want], name)
+    (refused,) = read_file(tmp_path / "tiles" / "metadata.xml")
+    assert isinstance(refused, Rejection) and "is an XML file that is not CityGML" in refused.reason
+    skipped = []
+    files, _ = expand_inputs([tmp_path / "tiles"], skipped)
+    assert sorted(f.name for f in files) == ["LoD2_32_565_5933_1_HH.xml", "LoD2_32_565_5933_1_HH.xml.gz"]
+    assert [(Path(p).name, "not CityGML" in why) for p, why in skipped] == [("metadata.xml", True)]
