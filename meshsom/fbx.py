@@ -93,7 +93,7 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
         no mesh.
     """
     from meshsom.io import (
-        GZIP_MAGIC, Rejection, _connected_pieces, _labels_beside, file_crs, placed_mesh, read_input_bytes,
+        GZIP_MAGIC, Rejection, _connected_pieces, _labels_beside, file_crs, free_id, placed_mesh, read_input_bytes,
     )
 
     try:
@@ -146,9 +146,7 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
             entry[1].append((placed, np.ascontiguousarray(faces)))
     items, taken = [], set()
     for node_name, parts in owners.values():
-        key, n = node_name, 2
-        while key in taken:
-            key, n = f"{node_name} ({n})", n + 1
+        key = free_id(node_name, taken) if node_name in taken else node_name  # a name met again: "<name> (2)"
         taken.add(key)
         mesh_id = f"{name}#{key}"
         item_label = labels.get(f"{path.name}#{key}", label)

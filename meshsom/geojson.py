@@ -671,6 +671,9 @@ def read_geojson(document: dict, path: Path, options, name: str | None = None, f
 
 #: Bytes of a large GeoJSON file looked at at a time when its features are found (:func:`geojson_ranges`).
 SCAN_BYTES = 8 << 20
+#: Bytes at a JSON file's start looked at before it is scanned (:func:`geojson_ranges`): a CityJSON file says its type
+#: there, and is not scanned for features.
+HEAD_BYTES = 1 << 16
 #: Fewest bytes a feature takes (a small footprint and its properties): a file smaller than twice a range's features
 #: this size is read whole, unscanned.
 MIN_FEATURE_BYTES = 200
@@ -699,8 +702,9 @@ def geojson_ranges(path: Path, target_features: int, options) -> list[list[int]]
     list of [start, stop, first, open, close] or None
         Byte ranges of whole features (``first``: the place of the range's first feature), and the places of the
         array's ``[`` and ``]``, covering every feature once, in order; None where the file has fewer than twice
-        ``target_features`` features, is gzip (not seekable), is not a FeatureCollection of a ``features`` array, or
-        mentions building parts (:data:`PART_MARKS`: read whole, so that each building finds its parts).
+        ``target_features`` features, is gzip (not seekable), is CityJSON (by its first :data:`HEAD_BYTES`, not
+        scanned), is not a FeatureCollection of a ``features`` array, or mentions building parts (:data:`PART_MARKS`:
+        read whole, so that each building finds its parts).
     """
     from meshsom.io import GZIP_MAGIC, _parse_json
 
@@ -710,8 +714,10 @@ def geojson_ranges(path: Path, target_features: int, options) -> list[list[int]]
         if target_features < 1 or size < 2 * target_features * MIN_FEATURE_BYTES or size > options.max_bytes:
             return None
         with open(path, "rb") as fh:
-            if fh.read(2) == GZIP_MAGIC:
-                return None
+            head = fh.read(HEAD_BYTES)
+        if head[:2] == GZIP_MAGIC or not head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"{") \
+                or b'"CityJSON"' in head:
+            return None  # gzip, not a JSON object, or CityJSON (its type comes first): no pass over its bytes
         found = _feature_spans(path)
     except OSError:
         return None

@@ -89,7 +89,9 @@ def read_3ds(path: Path, options, name: str | None = None) -> Iterator:
         The file is larger than ``options.max_bytes``, is not 3DS, is damaged before its first object, or holds no
         triangle mesh.
     """
-    from meshsom.io import Rejection, _connected_pieces, _labels_beside, file_crs, placed_mesh, read_input_bytes
+    from meshsom.io import (
+        Rejection, _connected_pieces, _labels_beside, file_crs, free_id, placed_mesh, read_input_bytes,
+    )
 
     data = bytes(read_input_bytes(path, options))
     labels = _labels_beside(path)
@@ -100,9 +102,8 @@ def read_3ds(path: Path, options, name: str | None = None) -> Iterator:
     found = 0
     for object_name, vertices, faces in _objects(data, str(path)):  # damage: the objects before it, then the error
         found += 1
-        key, n = object_name or f"object-{found}", 2
-        while key in taken:
-            key, n = f"{object_name} ({n})", n + 1
+        key = object_name or f"object-{found}"
+        key = free_id(key, taken) if key in taken else key  # a name met again: "<name> (2)"
         taken.add(key)
         mesh_id = f"{name}#{key}"
         item_label = labels.get(f"{path.name}#{key}", label)

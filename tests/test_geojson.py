@@ -392,3 +392,24 @@ def test_the_feature_scanner_finds_every_feature_whatever_its_strings(values, in
     opened, closed, starts, ends = found
     assert data[opened:opened + 1] == b"[" and data[closed:closed + 1] == b"]"
     assert [json.loads(data[a:b + 1]) for a, b in zip(starts.tolist(), ends.tolist())] == features
+
+
+def test_a_cityjson_file_is_not_scanned_for_features(tmp_path, monkeypatch):
+    """The planner asks every large .json input for its feature ranges: a CityJSON file says its type in its first
+    bytes and is not scanned (a pass over a city's bytes that would find nothing), nor is a file that is not a JSON
+    object (a placeholder of zeros); a GeoJSON collection still is."""
+    import meshsom.geojson as geojson
+    from meshsom.io import ReaderOptions
+
+    scanned = []
+    scan = geojson._feature_spans
+    monkeypatch.setattr(geojson, "_feature_spans", lambda path: scanned.append(path.name) or scan(path))
+    city = {"type": "CityJSON", "version": "2.0", "CityObjects": {f"b{k}": {"type": "Building"} for k in range(3000)},
+            "vertices": []}
+    (tmp_path / "city.json").write_text(json.dumps(city))
+    (tmp_path / "zeros.json").write_bytes(b"\0" * 100_000)
+    (tmp_path / "footprints.geojson").write_text(_big_collection(120))
+    assert geojson.geojson_ranges(tmp_path / "city.json", 10, ReaderOptions()) is None
+    assert geojson.geojson_ranges(tmp_path / "zeros.json", 10, ReaderOptions()) is None
+    assert geojson.geojson_ranges(tmp_path / "footprints.geojson", 10, ReaderOptions()) is not None
+    assert scanned == ["footprints.geojson"]
