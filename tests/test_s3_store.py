@@ -485,7 +485,11 @@ def test_a_worker_copies_only_the_bytes_of_its_range(s3, tmp_path, kind):
         assert data[a:b] == original[a:b]
     untouched = ranges[2][0], ranges[2][1]  # no task asked for range 2: zeros where the file holds text
     assert data[untouched[0]:untouched[1]].strip(b"\0") == b"" and original[untouched[0]:untouched[1]].strip()
-    assert Path(path).stat().st_blocks * 512 < len(original)  # holes take no disk
+    probe = tmp_path / "probe"  # holes take no disk, where the filesystem has holes (most local ones do)
+    with open(probe, "wb") as out:
+        out.truncate(1 << 20)
+    if probe.stat().st_blocks * 512 < 1 << 20:
+        assert Path(path).stat().st_blocks * 512 < len(original)
     want = {k: [i for i in read_file(local, ReaderOptions(), name, tuple(ranges[k]))] for k in (1, 3, 0)}
     for items, k in zip(got, (1, 3, 0)):
         assert [i.id for i in items] == [w.id for w in want[k]] and len(items) > 0
