@@ -15,6 +15,12 @@ own configuration reads as lines; every tag is kept):
   of its own takes its building's; an outline itself tagged ``building:part`` is one of its parts;
   a part that cannot be extruded (no height, ``min_height`` above ``height``) is left out, noted;
   a part inside no outline is a building of its own, noted.
+- **Building relations** (``type=building``, S3DB's way for parts that overhang or stand apart from their outline):
+  the parts a relation names (role ``part``) are its outline's (role ``outline``), wherever they lie; the relation's
+  tags stand in for those its outline lacks (its ``height``, ``name``, ...). A relation whose outline is not in the
+  extract (clipped at its edge, or never mapped) is a building of its parts, id ``name#relation/<id>``; one none of
+  whose members are in the extract is a rejection naming them; parts it names that are missing are noted. Relations
+  are read by pyosmium (libosmium), which reads them with their members' roles where GDAL does not.
 - **Heights** (:func:`meshsom.geojson.footprint_solid`, as for GeoJSON footprints): ``height``
   (roof included, metres, or text such as ``"12 m"``) above the ground, from ``min_height``;
   else ``building:levels`` times ``storey_height`` (from ``building:min_level`` times it); else
@@ -72,6 +78,10 @@ HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
 INHERITED = ("height", "min_height", "building:levels", "building:min_level")
 #: The note on a building part inside no building outline.
 STRAY = "a building:part inside no building outline, read as a building of its own"
+#: The ``type`` tag of S3DB's building relation, and its members' roles: the building's outline and its parts.
+BUILDING_RELATION, OUTLINE_ROLE, PART_ROLE = "building", "outline", "part"
+#: Members named in a note or a rejection, at most.
+MEMBERS_SHOWN = 5
 #: Kinds of other areas named in the note, at most.
 OTHERS_SHOWN = 5
 #: Buildings per kilobyte of an extract, to plan its read tasks before reading it (Geofabrik's
@@ -236,7 +246,7 @@ def _said(props: dict, key: str) -> bool:
 class _Area:
     oid: str
     tags: dict
-    geometry: dict
+    geometry: dict | None
 
 
 def osm_ranges(path: Path, target_features: int, options) -> list[list] | None:
@@ -275,23 +285,146 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     if size > int(options.max_bytes):
         raise InputFileError(str(path), f"has {size:,} bytes, more than {int(options.max_bytes):,} (ReaderOptions.max_bytes)")
     buildings, parts, others, strays = _areas(path)
+    notes = []
+    try:
+        relations = building_relations(path)
+    except InputFileError as err:  # GDAL read its areas: those are read, parts by the outline that holds them
+        relations = []
+        notes.append(f"its building relations are not read: the file {err.problem}; each building:part goes to the "
+                     "outline holding it")
+    owner, how, unbuilt = _related(buildings, parts, relations, _owners(buildings, parts))
     part_of = (0, 1) if feature_range is None else (int(feature_range[1]), int(feature_range[2]))
     if not buildings and not parts and not strays:
         if part_of[0]:
             return  # the first range says it
         kinds = ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) or "none"
         raise InputFileError(str(path), f"holds no building (an area tagged building or building:part) among its areas: {kinds}")
-    notes = []
     if others:
         notes.append(f"{sum(others.values()):,} areas that are not buildings, not read ("
                      + ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) + ")")
-    owner = _owners(buildings, parts)
-    yield from _meshes(buildings, parts, owner, notes, options, name, str(path), part_of)
+    yield from _meshes(buildings, parts, owner, notes, options, name, str(path), part_of, how)
     if part_of[0] == part_of[1] - 1:  # the last range lists the buildings that have no outline: the order of one task
         from meshsom.io import Rejection
 
         for oid, kind, problem in strays:
             yield Rejection(f"{name}#{oid}", str(path), f"a {kind} {problem}: it has no outline to build", 0, None)
+        for relation, problem in unbuilt:
+            yield Rejection(f"{name}#{relation.oid}", str(path), problem, 0, relation.tags.get(options.label_attribute))
+
+
+@dataclasses.dataclass
+class BuildingRelation:
+    """An S3DB building relation (``type=building``): its id (``relation/<id>``), its tags, and the ids
+    (``way/<id>``, ``relation/<id>``) of its members in the roles :data:`OUTLINE_ROLE` and :data:`PART_ROLE`."""
+
+    oid: str
+    tags: dict
+    outlines: list[str]
+    parts: list[str]
+
+
+def osmium_file(path: Path):
+    """An extract as pyosmium opens it, its format said by its name (``.pbf``; else XML, gzipped where its name
+    ends ``.gz``) rather than left to libosmium's guess from the suffix."""
+    import osmium
+
+    lower = path.name.lower()
+    return osmium.io.File(str(path), "pbf" if lower.endswith(".pbf") else "osm.gz" if lower.endswith(".gz") else "osm")
+
+
+def building_relations(path: Path) -> list[BuildingRelation]:
+    """The S3DB building relations of an extract, in file order (pyosmium: relations only, nodes and ways passed
+    over by libosmium).
+
+    Raises
+    ------
+    InputFileError
+        Where libosmium cannot read the file.
+    """
+    import osmium
+
+    kinds = {"w": "way", "r": "relation", "n": "node"}
+    found = []
+    try:
+        for relation in osmium.FileProcessor(osmium_file(path), osmium.osm.RELATION).with_filter(
+                osmium.filter.TagFilter(("type", BUILDING_RELATION))):
+            members = [(m.role, f"{kinds.get(m.type, m.type)}/{m.ref}") for m in relation.members]
+            found.append(BuildingRelation(f"relation/{relation.id}", dict(relation.tags),
+                                          [oid for role, oid in members if role == OUTLINE_ROLE],
+                                          [oid for role, oid in members if role == PART_ROLE]))
+    except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged XML or PBF, an XML head without a version
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its relations: {err})") from None
+    return found
+
+
+def _related(buildings: list[_Area], parts: list[_Area], relations: list[BuildingRelation], owner: np.ndarray
+             ) -> tuple[np.ndarray, dict[int, str], list[tuple[BuildingRelation, str]]]:
+    """The parts' owners with S3DB's building relations followed (as the module says); buildings are added (to
+    ``buildings``) for relations whose outline is not in the file.
+
+    Parameters
+    ----------
+    buildings, parts : list of _Area
+        The file's outlines and parts; a building is appended for each relation built of its parts alone.
+    relations : list of BuildingRelation
+    owner : (P,) int64
+        Each part's building by containment (:func:`owners`), -1 for none.
+
+    Returns
+    -------
+    owner : (P,) int64
+        Each part's building, a relation's outline for the parts it names.
+    how : dict of int to str
+        For each building whose parts a relation names, the note that says so.
+    unbuilt : list of (BuildingRelation, str)
+        The relations none of whose members are in the file, and why they are not read.
+    """
+    if not relations:
+        return owner, {}, []
+    owner = owner.copy()
+    building_at = {area.oid: k for k, area in enumerate(buildings)}
+    part_at = {area.oid: k for k, area in enumerate(parts)}
+    claimed: dict[int, str] = {}
+    how, unbuilt = {}, []
+    own_tags = lambda tags: {k: v for k, v in tags.items() if k != "type"}  # noqa: E731
+    shown = lambda oids: ", ".join(oids[:MEMBERS_SHOWN]) + (f" and {len(oids) - MEMBERS_SHOWN} more" if len(oids) > MEMBERS_SHOWN else "")  # noqa: E731
+    for relation in relations:
+        named = [part_at[p] for p in dict.fromkeys(relation.parts) if p in part_at and part_at[p] not in claimed]
+        named += [part_at[o] for o in relation.outlines if o in part_at and part_at[o] not in claimed and o not in relation.parts]
+        missing = [p for p in dict.fromkeys(relation.parts + relation.outlines) if p not in part_at and p not in building_at]
+        twice = [parts[part_at[p]].oid for p in dict.fromkeys(relation.parts) if part_at.get(p) in claimed]
+        outline = next((building_at[o] for o in relation.outlines if o in building_at), None)
+        if outline is None and not named:
+            members = relation.outlines + relation.parts
+            unbuilt.append((relation, "is a building relation (type=building) "
+                            + (f"none of whose members ({shown(members)}) is a building or building:part area of the file"
+                               if members else "without members in the roles outline and part") + ": nothing to build"))
+            continue
+        if outline is None:
+            buildings.append(_Area(relation.oid, own_tags(relation.tags), None))
+            outline = len(buildings) - 1
+            said = ("a building relation without an outline in the file"
+                    + (f" ({shown(relation.outlines)} not in it)" if relation.outlines else " (no member in the role outline)")
+                    + f": the building is its {len(named)} building:part areas (S3DB)")
+        else:
+            area = buildings[outline]
+            area.tags = {**own_tags(relation.tags), **area.tags}  # its outline's tags first, as S3DB says
+            inside = int((owner == outline).sum() - sum(owner[k] == outline for k in named))
+            whence = ([f"{len(named)} named by its building relation {relation.oid}"] if named else []) + (
+                [f"{inside} inside its outline"] if inside else [])
+            said = (f"{len(named) + inside} building:part areas read as its parts (S3DB): {', '.join(whence)}"
+                    if whence else f"its outline, of building relation {relation.oid}")
+            if _is_part(area.tags) and whence:
+                said += "; with the outline, itself tagged building:part"
+        if missing:
+            said += f"; its relation names members not in the file ({shown(missing)}): left out"
+        if twice:
+            said += f"; parts named by an earlier building relation too ({shown(twice)}), left to it"
+        how[outline] = said
+        for k in named:
+            owner[k] = outline
+            claimed[k] = relation.oid
+    return owner, how, unbuilt
 
 
 def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[str, str, str]]]:
@@ -387,9 +520,10 @@ def _props(found: dict, options) -> dict:
 
 
 def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes: list[str], options, name: str,
-            source: str, part_of: tuple[int, int] = (0, 1)) -> Iterator:
+            source: str, part_of: tuple[int, int] = (0, 1), how: dict[int, str] | None = None) -> Iterator:
     """The meshes of the buildings (and of the parts inside no outline), those of range
-    ``part_of`` = (k, n): the k-th of n equal ranges, in file order."""
+    ``part_of`` = (k, n): the k-th of n equal ranges, in file order; ``how`` the note on where a building's parts come
+    from, by its index, where it is not the S3DB containment's (:func:`_related`)."""
     from meshsom.io import file_crs
 
     system, unknown = file_crs(CRS, options)
@@ -402,7 +536,7 @@ def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes
     for index, own_parts in items[k * len(items) // n:(k + 1) * len(items) // n]:
         area = buildings[index] if index >= 0 else parts[-1 - index]
         yield from building_meshes(area, [parts[k] for k in own_parts], STRAY if index < 0 else None, options, name,
-                                   source, (system, unknown), notes)
+                                   source, (system, unknown), notes, (how or {}).get(index))
 
 
 def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, options, name: str, source: str,
@@ -442,7 +576,7 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         pieces = [(part, _props({**part.tags, **{t: area.tags[t] for t in inherited  # a null column is no value
                                                   if area.tags.get(t) is not None and part.tags.get(t) is None}},
                                 options)) for part in own_parts]
-        if _is_part(area.tags):
+        if _is_part(area.tags) and area.geometry is not None:  # a building relation's outline is not in the file
             pieces.insert(0, (area, _props(area.tags, options)))
     solids, failed = [], []
     for piece, props in pieces:
@@ -470,6 +604,8 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         objects = {area.oid: obj, **{oid: {"type": "BuildingPart", "parents": [area.oid], "geometry": [solid]}
                                      for oid, solid in solids}}
     else:
+        if how:  # a building relation's outline without parts in the file
+            more.insert(0, how)
         objects = {area.oid: building(solids[0][1], area.tags, options)}
     for item in _object_meshes(objects, verts.array(), None, None, options, name, source, crs=crs):
         if not isinstance(item, Rejection):

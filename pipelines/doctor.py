@@ -12,7 +12,7 @@ from dataclasses import replace
 PACKAGES = (
     "meshsom", "numpy", "scipy", "trimesh", "shapely", "pyproj", "fiona", "pyarrow", "pymeshlab", "zarr", "dask",
     "distributed", "pyopencl", "pocl-binary-distribution", "mlflow", "matplotlib", "pyyaml", "tqdm", "plyfile",
-    "pycollada", "ifcopenshell", "DracoPy", "rhino3dm", "ezdxf", "assimp-py", "s3fs",
+    "pycollada", "ifcopenshell", "DracoPy", "rhino3dm", "ezdxf", "assimp-py", "osmium", "s3fs",
 )
 ENV_VARS = (
     "PYOPENCL_CTX", "MESHSOM_OPENCL_DEVICE", "POCL_MAX_PTHREAD_COUNT", "POCL_LLVM_CPU_NAME", "OCL_ICD_VENDORS",

@@ -50,6 +50,7 @@ class OsmWriter:
 
     def __init__(self):
         self.nodes, self.ways, self.relations, self.next, self.area = [], [], [], 1, {}
+        self.buildings = []
 
     def ring(self, x0, y0, x1, y1) -> tuple[list[int], float]:
         return self.polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
@@ -74,12 +75,19 @@ class OsmWriter:
     def relation(self, relation_id: int, outer_id: int, inner_id: int, **tags):
         self.relations.append((relation_id, outer_id, inner_id, tags))
 
+    def building_relation(self, relation_id: int, members, **tags):
+        """An S3DB building relation (``type=building``) of ``members``: (role, ``way/<id>`` or ``relation/<id>``)."""
+        self.buildings.append((relation_id, members, tags))
+
     def text(self) -> str:
         tag = lambda tags: "".join(f'<tag k="{k}" v="{v}"/>' for k, v in tags.items())  # noqa: E731
         ways = [f'  <way id="{i}" version="1">{refs}{tag(tags)}</way>' for i, refs, tags in self.ways]
         relations = [f'  <relation id="{i}" version="1"><member type="way" ref="{o}" role="outer"/>'
                      f'<member type="way" ref="{n}" role="inner"/>{tag({"type": "multipolygon", **t})}</relation>'
                      for i, o, n, t in self.relations]
+        relations += [f'  <relation id="{i}" version="1">' + "".join(
+            f'<member type="{m.split("/")[0]}" ref="{m.split("/")[1]}" role="{role}"/>' for role, m in members)
+            + f'{tag({"type": "building", **t})}</relation>' for i, members, t in self.buildings]
         return "\n".join(['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="meshsom tests">',
                           *self.nodes, *ways, *relations, "</osm>"]) + "\n"
 
@@ -261,6 +269,95 @@ def test_a_building_of_parts_is_its_parts_united(tmp_path):
     t = clean.vertices[clean.faces]
     assert float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(
         area[80] * 10 + area[81] * 30, rel=1e-4)  # the tower stands 30 m above the nave
+
+
+def _related_district(path):
+    """S3DB building relations: a tower whose upper part overhangs its outline over a lower neighbour (by containment
+    that part would be the neighbour's), its height on the relation, a part it names missing from the extract; a
+    relation whose outline was clipped off (its parts are the building); one none of whose members are in the extract;
+    and one whose outline is itself tagged building:part."""
+    osm = OsmWriter()
+    osm.way(100, (0, 0, 20, 20), building="office")  # its height only on the relation
+    osm.way(101, (0, 0, 20, 20), **{PART: "yes"})
+    osm.way(102, (10, 10, 36, 36), min_height="12", height="20", **{PART: "yes"})  # overhangs onto way/110
+    osm.way(110, (21, 21, 40, 40), building="yes", height="6")
+    osm.building_relation(150, [("outline", "way/100"), ("part", "way/101"), ("part", "way/102"),
+                                ("part", "way/997")], height="10", name="Tower")
+    osm.way(161, (60, 0, 70, 10), height="9", **{PART: "yes"})
+    osm.way(162, (70, 0, 80, 10), **{PART: "yes"})
+    osm.building_relation(160, [("outline", "way/999"), ("part", "way/161"), ("part", "way/162")], building="school",
+                          height="4")
+    osm.building_relation(170, [("outline", "way/998"), ("part", "way/996")], building="yes")
+    osm.way(180, (100, 0, 120, 10), building="church", height="10", **{PART: "yes"})
+    osm.way(181, (120, 2, 126, 8), height="30", **{PART: "yes"})  # the tower stands outside the nave's outline
+    osm.building_relation(180, [("outline", "way/180"), ("part", "way/181")])
+    path.write_text(osm.text())
+    return path, osm.area
+
+
+def _union_volume(item) -> float:
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    record, clean = process_one(item, PreprocessParams())
+    assert record["status"] == "accepted", record
+    return _volume(clean)
+
+
+@pytest.mark.parametrize("suffix", [".osm", ".osm.gz", ".osm.pbf"])
+def test_building_relations_give_parts_to_their_outline(tmp_path, suffix):
+    """The parts a building relation names are its outline's wherever they lie, the relation's tags stand in for the
+    outline's, and every relation is read or rejected: as XML, gzipped XML and PBF (written by osmium); and in ranges."""
+    from meshsom.osm import read_osm
+
+    xml, area = _related_district(tmp_path / "r.osm")
+    path = xml
+    if suffix == ".osm.gz":
+        path = tmp_path / "r.osm.gz"
+        path.write_bytes(gzip.compress(xml.read_bytes()))
+    elif suffix == ".osm.pbf":
+        osmium = pytest.importorskip("osmium")
+        path = tmp_path / "r.osm.pbf"
+        with osmium.SimpleWriter(str(path)) as writer:
+            for obj in osmium.FileProcessor(str(xml)):
+                writer.add(obj)
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    assert set(items) == {"way/100", "way/110", "relation/160", "relation/170", "way/180"}, sorted(items)
+    tower = items["way/100"]
+    assert sorted(tower.parts) == ["way/101", "way/102"], tower.parts
+    assert any("2 building:part areas read as its parts (S3DB): 2 named by its building relation relation/150" in n
+               and "names members not in the file (way/997): left out" in n for n in tower.notes), tower.notes
+    # the base (10 m, the relation's height) and the overhanging top (12 to 20 m) do not meet: the union is their sum
+    assert _union_volume(tower) == pytest.approx(area[101] * 10 + area[102] * 8, rel=1e-4)
+    assert _volume(items["way/110"]) == pytest.approx(area[110] * 6, rel=1e-5)  # not given the overhang
+    school = items["relation/160"]
+    assert sorted(school.parts) == ["way/161", "way/162"] and school.label is None
+    assert any("a building relation without an outline in the file (way/999 not in it): the building is its 2 "
+               "building:part areas" in n for n in school.notes), school.notes
+    assert _union_volume(school) == pytest.approx(area[161] * 9 + area[162] * 4, rel=1e-4)  # way/162: the relation's 4 m
+    assert isinstance(items["relation/170"], Rejection)
+    assert items["relation/170"].reason == ("is a building relation (type=building) none of whose members (way/998, "
+                                            "way/996) is a building or building:part area of the file: nothing to build")
+    church = items["way/180"]
+    assert any("with the outline, itself tagged building:part" in n for n in church.notes), church.notes
+    assert _union_volume(church) == pytest.approx(area[180] * 10 + area[181] * 30, rel=1e-4)
+    ranged = [i for k in range(3) for i in read_osm(path, ReaderOptions(), feature_range=["osm", k, 3])]
+    assert sorted(i.id for i in ranged) == sorted(i.id for i in items.values())
+    assert all(_volume(i) == pytest.approx(_volume(items[i.id.split("#")[1]]), rel=1e-12)
+               for i in ranged if isinstance(i, RawMesh))
+
+
+def test_relations_libosmium_cannot_read_leave_parts_to_their_outlines(tmp_path):
+    """An OSM XML file without a version on its root (hand-written, or cut from a larger one), which GDAL reads and
+    libosmium refuses: its areas are read, each part by the outline holding it, noted."""
+    xml, area = _related_district(tmp_path / "r.osm")
+    path = tmp_path / "bare.osm"
+    path.write_text(xml.read_text().replace('<osm version="0.6"', "<osm", 1))
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    assert set(items) == {"way/100", "way/110", "way/161", "way/162", "way/180", "way/181"}, sorted(items)
+    assert any("its building relations are not read: the file cannot be read as OpenStreetMap data by libosmium" in n
+               and "each building:part goes to the outline holding it" in n for n in items["way/110"].notes)
+    assert isinstance(items["way/100"], Rejection)  # its height was on the relation
 
 
 def test_default_height_and_labels(tmp_path):
