@@ -399,8 +399,11 @@ def part_grouping(path: Path, layers: list[Layer], options) -> PartGrouping | No
     except OSError:
         return None
     keyed = tuple(layer.name for layer in layers)
-    if _is_gml(path) and INSPIRE_PARTS in keyed:  # INSPIRE's building parts: grouped by the building that links them
-        from meshsom.part_files import _stamp  # or that their ids name
+    from meshsom.inspire import inline_parts
+
+    if _is_gml(path) and (INSPIRE_PARTS in keyed or INSPIRE_BUILDINGS[0] in keyed and inline_parts(path)):
+        from meshsom.part_files import _stamp  # INSPIRE's building parts: grouped by the building that links them, or
+        # that their ids name, or that holds them
 
         linking = _stamp(list(dict.fromkeys(str(p) for p in (path, *options.building_files) if _is_gml(Path(p)))))
         return _inspire_grouping(str(path), st.st_size, st.st_mtime_ns, keyed, tuple(options.id_attributes), linking)
@@ -539,8 +542,9 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
     (:func:`meshsom.inspire.building_of`): one that links them (``bu-core2d:parts``) in any of the GML files of
     ``linking`` (this one, and a run's other building files: :func:`meshsom.part_files._stamp`), else the one their
     ``gml_id`` names. A building of this file is read as its parts (``linked``); one elsewhere takes its first part's
-    place (``named``). A part of no building, or whose footprint cannot be read, is read as a feature of its own."""
-    from meshsom.inspire import building_of, linking_buildings, part_links
+    place (``named``). A part of no building, or whose footprint cannot be read, is read as a feature of its own.
+    Parts written inside their building (:func:`meshsom.inspire.inline_parts`) are that building's."""
+    from meshsom.inspire import building_of, inline_parts, linking_buildings, part_links
     from meshsom.osm import _Area
 
     links: dict[str, str] = {}
@@ -559,6 +563,14 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
                 footprint = None
             if building is not None and footprint is not None:
                 groups.setdefault(building, []).append(_Area(f"{prefix}{oid}", props, footprint))
+    if INSPIRE_BUILDINGS[0] in layers:
+        for building, oid, props, geometry in inline_parts(Path(path)):  # a part without a footprint: noted as left
+            try:  # out by its building's reading
+                footprint = _footprint(geometry, f"{path}#{oid}") if geometry is not None else None
+            except InputFileError:
+                footprint = None
+            if building is not None:
+                groups.setdefault(building, []).append(_Area(f"{INSPIRE_PARTS}/{oid}", props, footprint or geometry))
     here = {}  # the buildings of this file its parts belong to: gml_id -> id as read
     if groups and INSPIRE_BUILDINGS[0] in layers:
         prefix = f"{INSPIRE_BUILDINGS[0]}/" if len(layers) > 1 else ""

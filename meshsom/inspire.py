@@ -18,7 +18,11 @@ written beside it):
   a ``Building`` to its parts by ``bu-core2d:parts`` ``xlink:href`` (:func:`part_links`; the link's id
   after its last ``#``, ``/`` or ``:`` naming a part's ``gml:id`` or ``localId``), the parts in the
   building's file or in another: such a building is read as its parts, with its id and its
-  attributes (a part without a height takes its building's).
+  attributes (a part without a height takes its building's). Others again write the parts inside
+  their ``Building`` (``bu-core2d:parts`` holding a ``BuildingPart``), which GDAL's GML driver
+  flattens into list columns of the building, their footprints lost: those are taken out of the
+  file (:func:`inline_parts`: one pass of ElementTree's parser), read by GDAL as a file of parts of
+  their own, and the building is read as them, as a linking one is.
 """
 
 from __future__ import annotations
@@ -121,24 +125,31 @@ def _linking(path: Path) -> tuple[tuple, dict]:
     return _part_links(str(path), st.st_size, st.st_mtime_ns)
 
 
+def _holds(path: Path, pattern: re.Pattern) -> bool:
+    """Whether a file's bytes (gzip data decompressed) hold a match of ``pattern`` (one pass, :data:`SCAN_BYTES` at a
+    time, matches across their joins found); False where it cannot be read (its reader says why)."""
+    from meshsom.errors import InputFileError
+    from meshsom.io import open_input
+
+    try:
+        tail = b""
+        with open_input(path) as stream:
+            while chunk := stream.read(SCAN_BYTES):
+                if pattern.search(tail + chunk):
+                    return True
+                tail = chunk[-256:]
+    except (OSError, InputFileError):
+        pass
+    return False
+
+
 @functools.lru_cache(maxsize=8)
 def _part_links(path: str, size: int, mtime: int) -> tuple[tuple, dict]:
     import fiona
 
-    from meshsom.errors import InputFileError
     from meshsom.gis import _gdal_errors, _source
-    from meshsom.io import open_input
 
-    try:  # a pass over the bytes: most files link no parts, and are not read again for it
-        tail = b""
-        with open_input(Path(path)) as stream:
-            while chunk := stream.read(SCAN_BYTES):
-                if PARTS_LINK.search(tail + chunk):
-                    break
-                tail = chunk[-256:]
-            else:
-                return (), {}
-    except (OSError, InputFileError):
+    if not _holds(Path(path), PARTS_LINK):  # most files link no parts, and are not read again for it
         return (), {}
     links, buildings = [], {}
     try:
@@ -165,3 +176,99 @@ def building_of(props: dict, links: dict[str, str]) -> str | None:
         if key is not None and str(key) in links:
             return links[str(key)]
     return part_building(str(props.get("gml_id") or ""))
+
+
+#: A ``BuildingPart`` written inside its building's ``parts`` element (a byte pattern: whitespace between the two).
+PARTS_INLINE = re.compile(rb"<[A-Za-z0-9_.-]+:parts\s*>\s*<[A-Za-z0-9_.-]+:BuildingPart[\s>]")
+#: GML's geometry elements that a part's footprint can be (given its building's ``srsName`` where it has none).
+GEOMETRIES = ("Surface", "Polygon", "MultiSurface", "CompositeSurface", "MultiPolygon")
+
+
+def inline_parts(path: Path) -> list[tuple[str, str, dict, dict | None]]:
+    """The ``BuildingPart`` features an INSPIRE file writes inside its ``Building`` features: (the building's
+    ``gml:id``, the part's ``gml:id``, its properties as GDAL reads them (:func:`inspire_properties`), its geometry
+    (GeoJSON-like; None where GDAL reads none)), in file order; empty where it writes none. Read once per process and
+    file (its size and time of change in the key).
+
+    Each part is written to a GML file of its own in a temporary folder (its namespaces declared, the ``srsName`` of
+    the geometry before it given to its geometry where it names none) and read by GDAL's GML driver, as a file of
+    parts is.
+
+    Raises
+    ------
+    InputFileError
+        Where the file is not well-formed XML (naming its line).
+    """
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return []
+    return list(_inline_parts(str(path), st.st_size, st.st_mtime_ns))
+
+
+@functools.lru_cache(maxsize=8)
+def _inline_parts(path: str, size: int, mtime: int) -> tuple:
+    import tempfile
+    import xml.etree.ElementTree as ET
+
+    import fiona
+
+    from meshsom.errors import InputFileError
+    from meshsom.io import open_input
+
+    if not _holds(Path(path), PARTS_INLINE):  # most files write no parts inside their buildings, and are not parsed
+        return ()
+    local = lambda tag: tag.rsplit("}", 1)[-1]  # noqa: E731
+    written, stack, srs = [], [], None
+    try:
+        with open_input(Path(path)) as stream:
+            for event, element in ET.iterparse(stream, events=("start-ns", "start", "end")):
+                if event == "start-ns":  # the file's prefixes (gml:, xlink:) kept where a part is written out: GDAL
+                    try:  # knows gml:id by its prefix
+                        ET.register_namespace(*element)
+                    except ValueError:  # a prefix ElementTree keeps for itself (ns0)
+                        pass
+                    continue
+                name = local(element.tag)
+                if event == "start":
+                    stack.append((name, element))
+                    srs = element.get("srsName") or srs
+                    continue
+                stack.pop()
+                if name == "BuildingPart" and len(stack) >= 2 and stack[-1][0] == "parts":
+                    building = next((e for n, e in reversed(stack) if n == "Building"), None)
+                    ids = [v for k, v in element.attrib.items() if local(k) == "id"]
+                    if building is not None and ids:
+                        gml = next(k for k in element.attrib if local(k) == "id").split("}")[0].lstrip("{")
+                        shapes = [e for e in element.iter() if local(e.tag) in GEOMETRIES]
+                        if shapes and srs and not any(e.get("srsName") for e in shapes):
+                            shapes[0].set("srsName", srs)
+                        building_id = next((v for k, v in building.attrib.items() if local(k) == "id"), None)
+                        written.append((building_id, ids[0], gml, ET.tostring(element)))
+                    stack[-1][1].remove(element)  # parsed: not held
+                elif name == "Building":
+                    element.clear()
+                if len(stack) == 1:  # a member of the collection, read: not held
+                    stack[0][1].remove(element)
+    except ET.ParseError as err:
+        raise InputFileError(path, f"is not well-formed XML at line {err.position[0]} ({err})") from None
+    if not written:
+        return ()
+    found = []
+    with tempfile.TemporaryDirectory(prefix="meshsom-inspire-") as folder:
+        parts_file = Path(folder) / "parts.gml"
+        with open(parts_file, "wb") as out:
+            for k, (_, _, gml, text) in enumerate(written):
+                if k == 0:
+                    out.write(f'<?xml version="1.0" encoding="UTF-8"?>\n<gml:FeatureCollection xmlns:gml="{gml}">\n'.encode())
+                out.write(b"<gml:featureMember>" + text + b"</gml:featureMember>\n")
+            out.write(b"</gml:FeatureCollection>\n")
+        by_id = {part: building for building, part, _, _ in written}
+        with fiona.open(str(parts_file), layer="BuildingPart", WRITE_GFS="NO") as collection:
+            for feature in collection:
+                props = inspire_properties(dict(feature.properties))
+                part = str(props.get("gml_id"))
+                geometry = None if feature.geometry is None else {
+                    "type": feature.geometry["type"], "coordinates": feature.geometry["coordinates"]}
+                found.append((by_id.get(part), part, props, geometry))
+    return tuple(found)

@@ -581,8 +581,12 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
     solids, failed = [], []
     for piece, props in pieces:
         try:
-            polygons, _, _ = fiona_polygons(piece.geometry, mesh_id)
+            if piece.geometry is None:
+                raise InputFileError(mesh_id, "has no geometry")
+            polygons, kinds, _ = fiona_polygons(piece.geometry, mesh_id)
             flat = [[ring.tolist() for ring in poly] for poly in polygons]
+            if not flat:
+                raise InputFileError(mesh_id, f"has no polygon to extrude (its geometry: {', '.join(sorted(kinds)) or 'empty'})")
             solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
             if solid is None:
                 raise InputFileError(mesh_id, no_height(options, said))

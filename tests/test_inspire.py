@@ -278,3 +278,45 @@ def test_parts_linked_from_buildings_in_another_file(tmp_path):
     expected = dict(_linked_volumes())
     expected[UNLINKED[0]] = UNLINKED[1][2] * UNLINKED[1][3] * UNLINKED[2] * 3.0
     assert got == pytest.approx(expected, rel=1e-9)
+
+
+def _inline(gid, rect, n, parts) -> str:
+    """A Building with its parts written inside it (``bu-core2d:parts`` holding each ``BuildingPart``)."""
+    inside = "".join(
+        "<bu-core2d:parts>\n" + _feature("BuildingPart", pid, prect, _floors(pn)).split("<gml:featureMember>\n", 1)[1]
+        .rsplit("</gml:featureMember>", 1)[0] + "</bu-core2d:parts>\n" for pid, prect, pn in parts)
+    return _feature("Building", gid, rect, _floors(n) + inside)
+
+
+def test_parts_written_inside_their_buildings_whole_or_in_ranges(tmp_path):
+    """Buildings whose BuildingParts are written inside them (GDAL flattens those into list columns, their
+    footprints lost): each such building is read as its parts (a part without storeys takes its building's), not as
+    its own footprint; one without parts as its footprint; a part without a geometry is left out, noted. Plain and
+    gzipped; whole and in ranges of one feature."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    body = (_inline("DE.B1", (0, 0, 20, 10), 5, [("DE.P1", (0, 0, 10, 10), 2), ("DE.P2", (10, 0, 10, 10), None)])
+            + _inline("DE.B2", (30, 0, 12, 10), 1, [("DE.P3", (30, 0, 6, 10), 3), ("DE.P4", (36, 0, 6, 10), 4)])
+            + _feature("Building", "DE.B3", (50, 0, 9, 7), _floors(4)))
+    broken = _inline("DE.B4", (70, 0, 10, 10), 2, [("DE.P5", (70, 0, 5, 10), 6), ("DE.P6", (75, 0, 5, 10), 1)])
+    start, end = broken.index('<bu-ext2d:geometry>', broken.index("DE.P6")), broken.index("</bu-ext2d:geometry>", broken.index("DE.P6"))
+    body += broken[:start] + broken[end + len("</bu-ext2d:geometry>"):]  # DE.P6 without its geometry
+    text = HEADER + body + "</gml:FeatureCollection>\n"
+    expected = {"DE.B1": (100 * 2 + 100 * 5) * 3.0, "DE.B2": (60 * 3 + 60 * 4) * 3.0, "DE.B3": 63 * 4 * 3.0,
+                "DE.B4": 50 * 6 * 3.0}
+    for name, data in (("bu.gml", text.encode()), ("bu.gml.gz", gzip.compress(text.encode()))):
+        path = tmp_path / name
+        path.write_bytes(data)
+        items = list(read_file(path))
+        assert _united_volumes(items) == pytest.approx(expected, rel=1e-9), name
+        b1 = next(i for i in items if i.id.endswith("#DE.B1"))
+        assert sorted(b1.parts) == ["BuildingPart/DE.P1", "BuildingPart/DE.P2"], b1.parts
+        assert "2 INSPIRE BuildingParts of it, read as its parts" in b1.notes
+        b4 = next(i for i in items if i.id.endswith("#DE.B4"))
+        assert any("its part BuildingPart/DE.P6" in n and "left out" in n for n in b4.notes), b4.notes
+        options = ReaderOptions()
+        ranges = gis_ranges(path, 1, options)
+        if ranges is not None:
+            pieces = [i for r in ranges for i in read_gis(path, options, feature_range=r)]
+            assert _united_volumes(pieces) == pytest.approx(expected, rel=1e-12)
+    assert not list(tmp_path.glob("*.gfs"))
