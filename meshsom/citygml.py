@@ -575,7 +575,7 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
         raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}")
 
 
-def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | None:
+def citygml_ranges(path: Path, target_bytes: int, options, url: str | None = None) -> list[list[int]] | None:
     """Split a large CityGML file into ranges of whole members (``cityObjectMember``, a WFS collection's
     ``featureMember`` or ``member``), each for one read task (:func:`read_citygml`'s ``byte_range``).
 
@@ -592,6 +592,9 @@ def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | 
         About the size of a range (``dask.read_bytes``): a range ends at the first member start past it.
     options : ReaderOptions
         Its ``max_bytes`` bounds the file scanned.
+    url : str, optional
+        Where the file's bytes are read from where ``path`` is a copy of its head only (an input on object storage,
+        :mod:`meshsom.mirror`): streamed from there, never copied whole.
 
     Returns
     -------
@@ -603,7 +606,7 @@ def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | 
         of members that can be read apart (a Building outside every member, members inside members, fewer than two
         ranges, a comment longer than :data:`CARRY_LIMIT`).
     """
-    from meshsom.io import GZIP_MAGIC, line_numbers
+    from meshsom.io import GZIP_MAGIC
 
     path = Path(path)
     try:
@@ -613,12 +616,12 @@ def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | 
         with open(path, "rb") as fh:
             if fh.read(2) == GZIP_MAGIC:
                 return None
-        found = _member_spans(path)
+        found = _member_spans(url or path)
     except OSError:
         return None
     if found is None:
         return None
-    starts, ends, buildings = found
+    starts, ends, buildings, start_lines = found
     if not len(starts) or len(starts) != len(ends) or np.any(ends < starts) or np.any(starts[1:] < ends[:-1]):
         return None  # unclosed, or members inside members
     if not len(buildings) or buildings[0] < starts[0] or buildings[-1] > ends[-1]:
@@ -635,20 +638,24 @@ def citygml_ranges(path: Path, target_bytes: int, options) -> list[list[int]] | 
     if len(firsts) < 2:
         return None
     offsets = [int(starts[a]) for a in firsts]
-    lines = line_numbers(path, offsets)  # for the reader's errors
+    lines = start_lines[firsts].tolist()  # for the reader's errors
     stops = offsets[1:] + [int(ends[-1])]
     before = np.searchsorted(buildings, offsets)
     return [[a, b, int(n), int(starts[0]), int(ends[-1]), line] for a, b, n, line in zip(offsets, stops, before, lines)]
 
 
-def _member_spans(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Where each member of a CityGML file starts and ends (its tags' ``<`` and past its end tag's ``>``; a
-    self-closing member's both), named as the first member is, and where each Building's start tag is; None where a
-    comment or CDATA section is longer than :data:`CARRY_LIMIT`."""
+def _member_spans(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Where each member of a CityGML file (a path, or a URL: :func:`meshsom.mirror.open_bytes`) starts and ends (its
+    tags' ``<`` and past its end tag's ``>``; a self-closing member's both), named as the first member is, where each
+    Building's start tag is, and the line (from 1) each member starts on; None where a comment or CDATA section is
+    longer than :data:`CARRY_LIMIT`."""
+    from meshsom.mirror import open_bytes
+
     member = None
-    starts, ends, buildings = [], [], []
+    starts, ends, buildings, lines = [], [], [], []
     carry, offset = b"", 0  # carry: the unread end of the last step; offset: where it is in the file
-    with open(path, "rb") as fh:
+    newlines, counted = 0, 0  # the line ends before ``counted`` (a place in the file)
+    with open_bytes(path) as fh:
         while True:
             chunk = fh.read(SCAN_BYTES)
             last = not chunk
@@ -676,7 +683,10 @@ def _member_spans(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Non
                 if m.group(1):
                     ends.append(offset + m.end())
                 else:
-                    starts.append(offset + m.start())
+                    newlines += buf.count(b"\n", counted - offset, m.start())
+                    counted = offset + m.start()
+                    starts.append(counted)
+                    lines.append(newlines + 1)
                     if m.group(4):
                         ends.append(offset + m.end())
             if last:
@@ -684,8 +694,11 @@ def _member_spans(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | Non
             keep = max(done, limit)
             if len(buf) - keep > CARRY_LIMIT:
                 return None
+            newlines += buf.count(b"\n", counted - offset, keep)
             carry, offset = buf[keep:], offset + keep
-    return np.asarray(starts, np.int64), np.asarray(ends, np.int64), np.asarray(buildings, np.int64)
+            counted = offset
+    return (np.asarray(starts, np.int64), np.asarray(ends, np.int64), np.asarray(buildings, np.int64),
+            np.asarray(lines, np.int64))
 
 
 class _PiecesStream(io.RawIOBase):

@@ -7,7 +7,8 @@ readers seek), so an input named by a URL is copied ("mirrored") before it is re
   beside it that share its stem, a shapefile's sidecars, and ``labels.csv``; a glob) to its mirror folder, at
   ``<mirror>/<protocol>/<bucket>/<key>`` (:func:`mirror_inputs`), and plans from those copies as from local files
   (ids, kinds, ranges, splits); a file it never opens (a mesh, a CAD model: :data:`UNOPENED_SUFFIXES`) is a
-  placeholder there, its size and no bytes;
+  placeholder there, its size and no bytes; of a large plain CityGML file (:func:`heads_from`) it copies the head
+  only, which says its kind, and finds its ranges by streaming it from its URL (:func:`open_bytes`);
 - each read task is given the files it needs with their URLs (:func:`companions`: the file, the files sharing its
   stem, ``labels.csv`` beside it, and the whole folder of a glTF, KML, 3D Tiles tileset or File Geodatabase);
   a worker that lacks them (another machine; a placeholder) copies them to the same path of its own disk first
@@ -29,7 +30,7 @@ import json
 import os
 import shutil
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
 
 from meshsom.errors import InputFileError
@@ -51,6 +52,12 @@ UNOPENED_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae", ".
 #: CityJSON and CityJSONSeq files by name (never footprints, which the planner reads to pair parts): placeholders
 #: too where they are too small to split or cut into ranges (:func:`unopened_below`); a 3D BAG's or a state's tiles.
 SMALL_CITYJSON_SUFFIXES = (".city.json", ".cityjson", ".city.jsonl")
+#: Files the planner reads the head of only, where they are large (:func:`heads_from`): CityGML, whose kind its head's
+#: namespaces say and whose ranges the planner finds by streaming it from its URL (:func:`open_bytes`). Another file of
+#: these names (INSPIRE's GML footprints, which GDAL reads whole) is copied whole once its kind is known.
+HEAD_SUFFIXES = (".gml", ".xml")
+#: The bytes of such a file's head copied by the planner (at least what :func:`meshsom.io.input_kind` looks at).
+HEAD_BYTES = 1 << 16
 #: Files the planner copies per call of the filesystem (:func:`copy_all`).
 COPY_BATCH = 64
 #: A file beside the meshes of its folder that names their labels (:func:`meshsom.io._labels_beside`).
@@ -95,6 +102,19 @@ def filesystem(url: str):
         return store_filesystem(url)
     except StoreError as err:
         raise InputFileError(url, str(err).split(": ", 1)[-1]) from None
+
+
+#: Bytes asked of object storage at a time where a file is streamed (:func:`open_bytes`).
+STREAM_BLOCK_BYTES = 1 << 24
+
+
+def open_bytes(source):
+    """A binary file object of a local file, or of a file named by a URL streamed from where it lies (fsspec, in
+    blocks of :data:`STREAM_BLOCK_BYTES`: a scan over a large file on object storage that copies nothing)."""
+    if is_url(source):
+        fs, path = filesystem(os.fspath(source))
+        return fs.open(path, "rb", block_size=STREAM_BLOCK_BYTES, cache_type="readahead")
+    return open(source, "rb")
 
 
 def mirror_path(url: str, root: Path) -> Path:
@@ -212,12 +232,13 @@ def _copy_spans(fs, path: str, target: Path, c: Copy) -> None:
         os.replace(temporary, listed)
 
 
-def copy_all(copies: list[Copy], progress=None, unopened=None) -> None:
+def copy_all(copies: list[Copy], progress=None, unopened=None, heads=None) -> None:
     """Copy the files of ``copies`` not on this machine at their size, :data:`COPY_BATCH` at a time, each batch in one
     call of the filesystem (s3fs copies a batch's files concurrently): the planner's copy of a whole city, with
     nothing else copying into the mirror folder yet; a file the planner never opens (``unopened(copy)``; default: by
-    its name, :data:`UNOPENED_SUFFIXES`) is a placeholder, copied by the read task that reads it.
-    ``progress(done, total)`` after each batch.
+    its name, :data:`UNOPENED_SUFFIXES`) is a placeholder, copied by the read task that reads it; of a file whose head
+    only the planner reads (``heads(copy)``, :func:`heads_from`) only its first :data:`HEAD_BYTES` are copied, into a
+    placeholder. ``progress(done, total)`` after each batch.
 
     Raises
     ------
@@ -233,6 +254,14 @@ def copy_all(copies: list[Copy], progress=None, unopened=None) -> None:
                 out.truncate(c.size)
             Path(f"{c.local}{SPANS_SUFFIX}").write_text("[]")
     missing = [c for c in missing if not unopened(c)]
+    for c in [c for c in missing if heads is not None and heads(c)]:  # its head: its kind; its ranges are streamed
+        Path(c.local).parent.mkdir(parents=True, exist_ok=True)
+        fs, path = filesystem(c.url)
+        try:
+            _copy_spans(fs, path, Path(c.local), replace(c, spans=[[0, min(HEAD_BYTES, c.size)]]))
+        except (OSError, PermissionError) as err:
+            raise InputFileError(c.url, f"cannot be copied ({type(err).__name__}: {err})") from None
+    missing = [c for c in missing if heads is None or not heads(c)]
     for start in range(0, len(missing), COPY_BATCH):
         batch = missing[start:start + COPY_BATCH]
         fs, _ = filesystem(batch[0].url)
@@ -268,6 +297,20 @@ def unopened_below(limit: int):
     return test
 
 
+def heads_from(limit: int):
+    """The planner's test of a file whose head only it reads (:func:`copy_all`): one named as CityGML can be
+    (:data:`HEAD_SUFFIXES`, not gzipped) of ``limit`` bytes or more (twice ``dask.read_bytes``: cut into ranges found
+    by streaming it, :func:`open_bytes`); smaller ones are copied whole, many at a time."""
+    def test(c: Copy) -> bool:
+        return c.local.lower().endswith(HEAD_SUFFIXES) and c.size >= limit
+    return test
+
+
+def is_partial(path) -> bool:
+    """Whether a file of the mirror holds only some of its bytes (a placeholder, a head, a range's spans)."""
+    return Path(f"{os.fspath(path)}{SPANS_SUFFIX}").exists()
+
+
 def _whole(path: Path, size: int) -> bool:
     """Whether ``path`` is a whole copy: of its size, without a spans file beside it."""
     try:
@@ -299,10 +342,10 @@ class Mirrored:
     missing: list
 
 
-def mirror_inputs(inputs, root: Path, progress=None, unopened=None) -> Mirrored:
+def mirror_inputs(inputs, root: Path, progress=None, unopened=None, heads=None) -> Mirrored:
     """Copy the inputs named by URLs into the mirror folder ``root`` (:func:`copy_all`: what is there at its size
-    already is kept, ``unopened`` files are placeholders; ``progress(done, total)`` as it goes); local inputs stay as
-    they are."""
+    already is kept, ``unopened`` files are placeholders, of ``heads`` files only their heads are copied;
+    ``progress(done, total)`` as it goes); local inputs stay as they are."""
     paths, urls, copies, missing = [], {}, Copies(), []
     for item in inputs:
         if not is_url(item):
@@ -319,7 +362,7 @@ def mirror_inputs(inputs, root: Path, progress=None, unopened=None) -> Mirrored:
             continue
         placed = [Copy(c.url, str(Path(root, c.local)), c.size) for c in found]
         try:
-            copy_all(placed, progress, unopened)
+            copy_all(placed, progress, unopened, heads)
         except InputFileError as err:
             missing.append((url, f"{err.source}: {err.problem}"))
             continue

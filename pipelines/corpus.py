@@ -697,9 +697,11 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.citygml import citygml_ranges
     from meshsom.geojson import geojson_ranges
     from meshsom.gis import gis_ranges
-    from meshsom.io import Rejection, cityjsonseq_ranges, expand_inputs, input_kind
+    from meshsom.io import GZIP_MAGIC, Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import osm_ranges
-    from meshsom.mirror import Copies, as_url, companions, mirror_inputs, remove_mirror, unopened_below, url_rename
+    from meshsom.mirror import (
+        HEAD_SUFFIXES, Copies, as_url, companions, fetch, heads_from, is_partial, mirror_inputs, remove_mirror, unopened_below, url_rename,
+    )
     from meshsom.part_files import pair
     from meshsom.store import (
         create_store, location, open_store, read_manifest, read_plan, remove_staging, store_exists, write_plan,
@@ -731,8 +733,20 @@ def run_corpus(client, cfg, store, resume: bool = False,
     read_futures = {}
     if plan is None:
         mirrored = mirror_inputs(list(cfg.corpus.paths), mirror, lambda done, total: report("copy", done, total),
-                                 unopened_below(2 * int(cfg.dask.read_bytes)))  # tiles too small to cut: placeholders
+                                 unopened_below(2 * int(cfg.dask.read_bytes)),  # tiles too small to cut: placeholders
+                                 heads_from(2 * int(cfg.dask.read_bytes)))  # large CityGML: its head; its ranges streamed
         files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
+        streamed = {}  # a large CityGML file on object storage: its URL, its ranges found by streaming it from there
+        for f in files:
+            c = mirrored.copies.get(str(f.path))
+            if c is None or not is_partial(f.path) or not f.path.name.lower().endswith(HEAD_SUFFIXES):
+                continue
+            with open(f.path, "rb") as head:
+                gzipped = head.read(2) == GZIP_MAGIC
+            if input_kind(f.path) == "citygml" and not gzipped:
+                streamed[str(f.path)] = c.url
+            else:  # INSPIRE's GML footprints (GDAL reads them whole), gzip data: copied whole for the planner to read
+                fetch([c])
         missing = [replace(r, id=as_url(r.id, mirrored.urls), source=as_url(r.source, mirrored.urls)) for r in missing] + [
             Rejection(url, url, why) for url, why in mirrored.missing]
         root = root or create_store(path, overwrite=True)
@@ -778,7 +792,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
             ranges = (cityjsonseq_ranges(Path(split or f.path), int(cfg.dask.read_bytes), cfg.corpus.reader)
                       if kind == "cityjsonseq" or split else
                       geojson_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "cityjson" else
-                      citygml_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader) if kind == "citygml" else None)
+                      citygml_ranges(f.path, int(cfg.dask.read_bytes), cfg.corpus.reader, streamed.get(str(f.path)))
+                      if kind == "citygml" else None)
             features = (gis_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "gis" else
                         osm_ranges(f.path, int(cfg.dask.read_features), cfg.corpus.reader) if kind == "osm" else None)
             base = {"kind": "file", "path": split or str(f.path), "name": name, **({"rename": list(rename)} if rename else {}),

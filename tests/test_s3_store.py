@@ -387,6 +387,58 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
     assert "nothing under this URL" in by_source["nothing-here"][0]["reason"]
 
 
+def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s3_cluster, tmp_path, monkeypatch):
+    """A large plain CityGML file on S3 is cut into ranges by streaming it from its URL: the planner copies its head
+    only (its kind), never the whole file, and each range's task copies its own bytes; a large INSPIRE GML file
+    (GDAL reads it whole) is copied whole once its head says what it is. The records and arrays equal those of the
+    folder read from disk, the CityGML file in the same ranges."""
+    import json as jsonlib
+
+    from meshsom import citygml, mirror as mirroring
+    from meshsom.io import ReaderOptions
+    from pipelines import corpus
+    from test_citygml import _large_citygml
+    from test_inspire import HEADER, _feature, _floors
+
+    local = tmp_path / "city"
+    local.mkdir()
+    (local / "big.gml").write_text(_large_citygml("2.0", "core:cityObjectMember"))
+    (local / "bu.gml").write_text(HEADER + "".join(_feature("Building", f"ES.B{k}", (20 * k, 0, 10, 8), _floors(1 + k % 4))
+                                                   for k in range(420)) + "</gml:FeatureCollection>\n")
+    limit = 2 * 300_000  # twice the config's read_bytes
+    assert (local / "bu.gml").stat().st_size > limit and (local / "big.gml").stat().st_size > limit
+    url = f"s3://{BUCKET}/streamed/city"
+    _upload(local, url)
+    mirrored = mirroring.mirror_inputs([url], tmp_path / "heads", heads=mirroring.heads_from(limit))
+    big = Path(mirrored.paths[0]) / "big.gml"
+    assert jsonlib.loads(Path(f"{big}{mirroring.SPANS_SUFFIX}").read_text()) == [[0, mirroring.HEAD_BYTES]]
+    data = big.read_bytes()
+    assert data[:mirroring.HEAD_BYTES] == (local / "big.gml").read_bytes()[:mirroring.HEAD_BYTES]
+    assert data[mirroring.HEAD_BYTES:].strip(b"\0") == b""
+    assert citygml.citygml_ranges(big, 300_000, ReaderOptions(), f"{url}/big.gml") == citygml.citygml_ranges(
+        local / "big.gml", 300_000, ReaderOptions())
+    fetched, scanned = [], []
+    fetch, spans = mirroring.fetch, citygml._member_spans
+    monkeypatch.setattr(mirroring, "fetch", lambda copies: fetched.extend(c.url for c in copies) or fetch(copies))
+    monkeypatch.setattr(citygml, "_member_spans", lambda source: scanned.append(str(source)) or spans(source))
+    runs = {}
+    for key, paths, store in (("disk", [local], str(tmp_path / "disk.zarr")), ("s3", [url], str(tmp_path / "s3.zarr"))):
+        calls = []
+        corpus.run_corpus(s3_cluster, _corpus_config(paths, store, tmp_path / "mirror"), store,
+                          progress=lambda *a: calls.append(a))
+        runs[key] = (read_manifest(store)["records"], open_store(store),
+                     max(total for stage, _, total in calls if stage == "read"))
+    assert fetched == [f"{url}/bu.gml"]  # the planner's whole copies: the INSPIRE file only
+    assert scanned == [str(local / "big.gml"), f"{url}/big.gml"]
+    assert runs["disk"][2] == runs["s3"][2] > 1 + 4  # the CityGML file in ranges
+    disk, on_s3 = runs["disk"][0], runs["s3"][0]
+    assert [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
+            for r in disk] == [{**r, "reason": r.get("reason", "")} for r in on_s3]
+    assert sum(r["status"] == "accepted" and r["source"].endswith("bu.gml") for r in on_s3) == 420
+    for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
+        np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
+
+
 def test_a_worker_without_the_copies_fetches_them(s3, tmp_path):
     """What a read task of another machine does: the planner's copies are not there, so the task copies its files
     (the shapefile and its sidecars) from their URLs to the same paths, once, and reads them as the planner would;
