@@ -291,6 +291,11 @@ def _related_district(path):
     osm.way(180, (100, 0, 120, 10), building="church", height="10", **{PART: "yes"})
     osm.way(181, (120, 2, 126, 8), height="30", **{PART: "yes"})  # the tower stands outside the nave's outline
     osm.building_relation(180, [("outline", "way/180"), ("part", "way/181")])
+    osm.way(191, (200, 0, 230, 30))  # a courtyard block (a multipolygon) and a pavilion standing in its courtyard
+    osm.way(192, (205, 5, 225, 25))
+    osm.relation(190, 191, 192, building="yes", height="8", **{PART: "yes"})
+    osm.way(196, (210, 10, 220, 20), height="4", **{PART: "yes"})
+    osm.building_relation(195, [("outline", "relation/190"), ("part", "way/196")])
     path.write_text(osm.text())
     return path, osm.area
 
@@ -322,7 +327,7 @@ def test_building_relations_give_parts_to_their_outline(tmp_path, suffix):
             for obj in osmium.FileProcessor(str(xml)):
                 writer.add(obj)
     items = {i.id.split("#")[1]: i for i in read_file(path)}
-    assert set(items) == {"way/100", "way/110", "relation/160", "relation/170", "way/180"}, sorted(items)
+    assert set(items) == {"way/100", "way/110", "relation/160", "relation/170", "way/180", "relation/190"}, sorted(items)
     tower = items["way/100"]
     assert sorted(tower.parts) == ["way/101", "way/102"], tower.parts
     assert any("2 building:part areas read as its parts (S3DB): 2 named by its building relation relation/150" in n
@@ -341,6 +346,11 @@ def test_building_relations_give_parts_to_their_outline(tmp_path, suffix):
     church = items["way/180"]
     assert any("with the outline, itself tagged building:part" in n for n in church.notes), church.notes
     assert _union_volume(church) == pytest.approx(area[180] * 10 + area[181] * 30, rel=1e-4)
+    block = items["relation/190"]  # its outline a multipolygon, its part in the courtyard (inside no outline)
+    assert sorted(block.parts) == ["relation/190/part", "way/196"] and any(
+        "1 named by its building relation relation/195; with the outline, itself tagged building:part" in n
+        for n in block.notes), block.notes
+    assert _union_volume(block) == pytest.approx((area[191] - area[192]) * 8 + area[196] * 4, rel=1e-4)
     ranged = [i for k in range(3) for i in read_osm(path, ReaderOptions(), feature_range=["osm", k, 3])]
     assert sorted(i.id for i in ranged) == sorted(i.id for i in items.values())
     assert all(_volume(i) == pytest.approx(_volume(items[i.id.split("#")[1]]), rel=1e-12)
@@ -354,7 +364,7 @@ def test_relations_libosmium_cannot_read_leave_parts_to_their_outlines(tmp_path)
     path = tmp_path / "bare.osm"
     path.write_text(xml.read_text().replace('<osm version="0.6"', "<osm", 1))
     items = {i.id.split("#")[1]: i for i in read_file(path)}
-    assert set(items) == {"way/100", "way/110", "way/161", "way/162", "way/180", "way/181"}, sorted(items)
+    assert set(items) == {"way/100", "way/110", "way/161", "way/162", "way/180", "way/181", "relation/190", "way/196"}, sorted(items)
     assert any("its building relations are not read: the file cannot be read as OpenStreetMap data by libosmium" in n
                and "each building:part goes to the outline holding it" in n for n in items["way/110"].notes)
     assert isinstance(items["way/100"], Rejection)  # its height was on the relation
