@@ -125,31 +125,15 @@ def _linking(path: Path) -> tuple[tuple, dict]:
     return _part_links(str(path), st.st_size, st.st_mtime_ns)
 
 
-def _holds(path: Path, pattern: re.Pattern) -> bool:
-    """Whether a file's bytes (gzip data decompressed) hold a match of ``pattern`` (one pass, :data:`SCAN_BYTES` at a
-    time, matches across their joins found); False where it cannot be read (its reader says why)."""
-    from meshsom.errors import InputFileError
-    from meshsom.io import open_input
-
-    try:
-        tail = b""
-        with open_input(path) as stream:
-            while chunk := stream.read(SCAN_BYTES):
-                if pattern.search(tail + chunk):
-                    return True
-                tail = chunk[-256:]
-    except (OSError, InputFileError):
-        pass
-    return False
-
-
 @functools.lru_cache(maxsize=8)
 def _part_links(path: str, size: int, mtime: int) -> tuple[tuple, dict]:
     import fiona
 
+    from meshsom.io import holds_match
+
     from meshsom.gis import _gdal_errors, _source
 
-    if not _holds(Path(path), PARTS_LINK):  # most files link no parts, and are not read again for it
+    if not holds_match(Path(path), PARTS_LINK, SCAN_BYTES):  # most files link no parts, and are not read again for it
         return (), {}
     links, buildings = [], {}
     try:
@@ -214,9 +198,9 @@ def _inline_parts(path: str, size: int, mtime: int) -> tuple:
     import fiona
 
     from meshsom.errors import InputFileError
-    from meshsom.io import open_input
+    from meshsom.io import holds_match, open_input
 
-    if not _holds(Path(path), PARTS_INLINE):  # most files write no parts inside their buildings, and are not parsed
+    if not holds_match(Path(path), PARTS_INLINE, SCAN_BYTES):  # most files write no parts inside their buildings, and are not parsed
         return ()
     local = lambda tag: tag.rsplit("}", 1)[-1]  # noqa: E731
     written, stack, srs = [], [], None

@@ -664,6 +664,22 @@ def cityjsonseq_ranges(path: Path, target_bytes: int, options: ReaderOptions = R
     return [(a, b, n) for a, b, n in zip(starts, stops, numbers)]
 
 
+def holds_match(path: Path, pattern: re.Pattern, step: int) -> bool:
+    """Whether a file's bytes (gzip data decompressed: :func:`open_input`) hold a match of ``pattern`` (of at most 256
+    bytes): one pass, ``step`` bytes at a time, matches across their joins found; False where it cannot be read (its
+    reader says why)."""
+    try:
+        tail = b""
+        with open_input(Path(path)) as stream:
+            while chunk := stream.read(step):
+                if pattern.search(tail + chunk):
+                    return True
+                tail = chunk[-256:]
+    except (OSError, InputFileError):
+        pass
+    return False
+
+
 def line_numbers(path: Path, offsets: list[int]) -> list[int]:
     """The line (from 1) each of a file's byte ``offsets`` (ascending) is on: one pass counting line ends."""
     numbers, counted, offset = [], 0, 0
@@ -1632,6 +1648,11 @@ def _document_items(cj, path: Path, options: ReaderOptions, name: str | None) ->
                                         f"{str(cj['error'].get('message'))[:200]})")
     if _is_feature_collection(cj):
         yield from _feature_collection(cj, path, options, name)
+        return
+    from meshsom.overpass import is_overpass_json, read_overpass
+
+    if is_overpass_json(cj):  # an Overpass API answer: the OpenStreetMap extract it stands for
+        yield from read_overpass(cj, path, options, name)
         return
     if is_geojson(cj):
         found = False

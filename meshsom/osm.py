@@ -436,8 +436,11 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[st
     supported_drivers.setdefault("OSM", "r")  # fiona lists GDAL's read-only OSM driver as unsupported
     source = f"/vsigzip/{path}" if path.name.lower().endswith(".gz") else str(path)
     buildings, parts, others = [], [], Counter()
+    env = {"OSM_CONFIG_FILE": str(CONFIG)}
+    if _negative_ids(path):  # JOSM's new objects: GDAL's fast index takes none
+        env["OSM_USE_CUSTOM_INDEXING"] = "NO"
     try:
-        with fiona.Env(OSM_CONFIG_FILE=str(CONFIG)), fiona.open(source, layer=LAYER) as layer:
+        with fiona.Env(**env), fiona.open(source, layer=LAYER) as layer:
             for feature in layer:
                 props = feature["properties"]
                 found = tags(props.get("other_tags"))
@@ -455,7 +458,7 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[st
         strays = []
         for layer_name, element, problem in (("points", "node", "mapped as a point (a node)"),
                                               ("lines", "way", "mapped as a way that does not close")):
-            with fiona.Env(OSM_CONFIG_FILE=str(CONFIG)), fiona.open(source, layer=layer_name) as layer:
+            with fiona.Env(**env), fiona.open(source, layer=layer_name) as layer:
                 for feature in layer:
                     props = feature["properties"]
                     kind = next((k for k in ("building", "building:part") if (props.get(k) or NO) != NO), None)
@@ -466,6 +469,19 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[st
             raise
         raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by GDAL ({type(err).__name__}: {err})") from None
     return buildings, parts, others, strays
+
+
+#: A negative id or reference in OSM XML (JOSM writes new objects so).
+NEGATIVE_ID = re.compile(rb"(?:id|ref)=[\"']-\d")
+#: Bytes of OSM XML read at a time when looking for one.
+SCAN_BYTES = 1 << 22
+
+
+def _negative_ids(path: Path) -> bool:
+    """Whether an OSM XML file (gzipped or not; not PBF) holds a negative id or reference: one pass over its bytes."""
+    from meshsom.io import holds_match
+
+    return not path.name.lower().endswith(".pbf") and holds_match(path, NEGATIVE_ID, SCAN_BYTES)
 
 
 def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:

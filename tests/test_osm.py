@@ -727,3 +727,102 @@ def test_rows_of_one_id_that_are_not_all_areas_are_read_each_as_its_own(tmp_path
     assert isinstance(whole[1], Rejection)
     assert [i.id for r in gis_ranges(path, 1, options) for i in read_gis(path, options, feature_range=r)] == [
         i.id for i in whole]
+
+
+def _overpass_answer(xml_path, geom: bool) -> dict:
+    """An extract as the Overpass API answers it in JSON: ``out body; >; out skel qt;`` (ways and relations first, then
+    their nodes), or ``out geom;`` (each way's corners in a ``geometry`` list beside its node ids, each relation
+    member's too; no nodes but tagged ones)."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(xml_path).getroot()
+    tags = lambda e: {t.get("k"): t.get("v") for t in e.findall("tag")}  # noqa: E731
+    nodes = {int(n.get("id")): n for n in root.findall("node")}
+    corners = lambda refs: [{"lat": float(nodes[r].get("lat")), "lon": float(nodes[r].get("lon"))} for r in refs]  # noqa: E731
+    ways, elements = {}, []
+    for w in root.findall("way"):
+        refs = [int(nd.get("ref")) for nd in w.findall("nd")]
+        ways[int(w.get("id"))] = refs
+        element = {"type": "way", "id": int(w.get("id")), "nodes": refs, "tags": tags(w)}
+        if geom:
+            element["geometry"] = corners(refs)
+        elements.append(element)
+    for r in root.findall("relation"):
+        members = []
+        for m in r.findall("member"):
+            member = {"type": m.get("type"), "ref": int(m.get("ref")), "role": m.get("role")}
+            if geom and m.get("type") == "way" and int(m.get("ref")) in ways:
+                member["geometry"] = corners(ways[int(m.get("ref"))])
+            members.append(member)
+        elements.append({"type": "relation", "id": int(r.get("id")), "members": members, "tags": tags(r)})
+    for number, n in nodes.items():
+        if not geom or n.findall("tag"):
+            element = {"type": "node", "id": number, "lat": float(n.get("lat")), "lon": float(n.get("lon"))}
+            elements.append({**element, **({"tags": tags(n)} if n.findall("tag") else {})})
+    return {"version": 0.6, "generator": "Overpass API 0.7.62.1 084b4234",
+            "osm3s": {"timestamp_osm_base": "2026-11-01T00:00:00Z", "copyright": "ODbL"}, "elements": elements}
+
+
+@pytest.mark.parametrize("geom", [False, True])
+def test_an_overpass_json_answer_reads_as_the_extract(tmp_path, geom):
+    """The district and the building relations as Overpass answers them in JSON (``out body`` with its nodes after its
+    ways, or ``out geom``): the same buildings, volumes and rejections as the XML extract, each naming the JSON file;
+    a building way whose nodes the answer lacks (``out body`` without ``>``) is a rejection saying which query gives
+    them; elements that are not OpenStreetMap's are refused, naming the file."""
+    import json
+
+    for writer in (_district, _related_district):
+        xml, _ = writer(tmp_path / f"{writer.__name__}.osm")
+        answer = tmp_path / f"{writer.__name__}.json"
+        answer.write_text(json.dumps(_overpass_answer(xml, geom)))
+        want = {i.id.split("#")[1]: i for i in read_file(xml)}
+        got = {i.id.split("#")[1]: i for i in read_file(answer)}
+        assert set(got) == set(want)
+        for key, item in got.items():
+            assert item.source == str(answer) and type(item) is type(want[key]), key
+            if isinstance(item, RawMesh):
+                assert _volume(item) == pytest.approx(_volume(want[key]), rel=1e-9) and item.parts == want[key].parts
+                assert "read from an Overpass API JSON answer" in item.notes[0]
+            else:
+                assert item.reason == want[key].reason.replace(str(xml), str(answer)), key
+    document = _overpass_answer(tmp_path / "_district.osm", False)
+    document["elements"] = [e for e in document["elements"] if not (e["type"] == "node" and e["id"] in
+                                                                  next(w for w in document["elements"] if w["id"] == 50)["nodes"])]
+    (tmp_path / "lacking.json").write_text(json.dumps(document))
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "lacking.json")}
+    assert isinstance(items["way/50"], Rejection) and items["way/50"].reason == (
+        "a building way without corners: the Overpass answer holds neither its nodes nor its geometry: query with "
+        "`out geom;`, or `(._;>;); out body;`")
+    assert isinstance(items["way/10"], RawMesh)
+    courtyard = _overpass_answer(tmp_path / "_district.osm", True)  # rel[building]; out geom;: its member ways'
+    courtyard["elements"] = [e for e in courtyard["elements"] if not (e["type"] == "way" and e["id"] in (12, 13))]
+    (tmp_path / "members.json").write_text(json.dumps(courtyard))  # corners in the relation only (nodes made: < 0)
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "members.json")}
+    assert _volume(items["relation/14"]) == pytest.approx(_volume(read_file_one(tmp_path / "_district.osm", "relation/14")),
+                                                          rel=1e-9)
+    (tmp_path / "odd.json").write_text(json.dumps({"version": 0.6, "elements": [{"type": "area", "id": 3}]}))
+    (item,) = read_file(tmp_path / "odd.json")
+    assert isinstance(item, Rejection) and item.source == str(tmp_path / "odd.json") and item.reason.startswith(
+        "is an Overpass answer whose element 0 is not an OpenStreetMap node, way or relation")
+
+
+def read_file_one(path, oid):
+    """The item of a file whose id ends ``#<oid>``."""
+    return next(i for i in read_file(path) if i.id.endswith(f"#{oid}"))
+
+
+def test_josm_negative_ids_read_as_positive_ones(tmp_path):
+    """An extract saved by JOSM with new objects (negative node ids and references), which GDAL's fast node index
+    refuses: read as the same extract with positive ids (GDAL's other index, chosen for such files)."""
+    import re
+
+    xml, _ = _district(tmp_path / "d.osm")
+    text = re.sub(r'(<node id=")(\d+)', r"\1-\2", xml.read_text())
+    (tmp_path / "josm.osm").write_text(re.sub(r'(<nd ref=")(\d+)', r"\1-\2", text))
+    want = {i.id.split("#")[1]: i for i in read_file(xml)}
+    got = {i.id.split("#")[1].replace("node/-", "node/"): i for i in read_file(tmp_path / "josm.osm")}
+    assert set(got) == set(want)
+    for key, item in got.items():
+        assert type(item) is type(want[key]), key
+        if isinstance(item, RawMesh):
+            assert _volume(item) == pytest.approx(_volume(want[key]), rel=1e-9), key
