@@ -102,10 +102,14 @@ EXPORT_ID, EXPORT_TYPE = "@id", "@type"
 #: QuickOSM's columns (QGIS: an Overpass query saved as a layer): the element's type (``way``) and its ``w<id>``; its
 #: number is in ``osm_id`` (:data:`GDAL_ID`).
 QUICKOSM_TYPE, QUICKOSM_FULL_ID = "osm_type", "full_id"
+#: OSMnx's columns (its GeoDataFrame's index, written as columns by GeoPandas' ``to_file``): the element's type and
+#: number, as OSMnx 2 names them, then OSMnx 1.
+OSMNX_COLUMNS = (("element", "id"), ("element_type", "osmid"))
 #: An OpenStreetMap element's id as :func:`read_osm` and QuackOSM write it.
 ELEMENT_ID = re.compile(r"^(node|way|relation)/\d+$")
 #: Columns of GDAL's OSM driver that are not tags (passed over when a note names an area's first tag).
-GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order", QUACKOSM_ID, QUICKOSM_TYPE, QUICKOSM_FULL_ID)
+GDAL_COLUMNS = (GDAL_TAGS, GDAL_WAY_ID, GDAL_ID, "name", "type", "z_order", QUACKOSM_ID, QUICKOSM_TYPE, QUICKOSM_FULL_ID,
+                "element", "element_type", "osmid")
 
 
 def tags(text: str | None) -> dict[str, str]:
@@ -127,13 +131,13 @@ def osm_row(props: dict) -> bool:
 def element_id(props: dict) -> str | None:
     """The OpenStreetMap element (``way/<id>``, ...) a feature's properties name as the tools that export it write
     it: QuackOSM's :data:`QUACKOSM_ID`, Overpass turbo's (osmtogeojson's) ``@id``; osmium export's ``@type`` and
-    ``@id``; QuickOSM's ``osm_type`` and ``osm_id``; osmtogeojson's nested form's ``type`` and ``id`` beside its
-    ``tags``; else None."""
+    ``@id``; QuickOSM's ``osm_type`` and ``osm_id``; OSMnx's ``element`` and ``id`` (``element_type`` and ``osmid``:
+    :data:`OSMNX_COLUMNS`); osmtogeojson's nested form's ``type`` and ``id`` beside its ``tags``; else None."""
     for key in (QUACKOSM_ID, EXPORT_ID):
         value = props.get(key)
         if value is not None and ELEMENT_ID.match(str(value)):
             return str(value)
-    pairs = [(EXPORT_TYPE, EXPORT_ID), (QUICKOSM_TYPE, GDAL_ID)] + (
+    pairs = [(EXPORT_TYPE, EXPORT_ID), (QUICKOSM_TYPE, GDAL_ID), *OSMNX_COLUMNS] + (
         [("type", "id")] if isinstance(props.get(QUACKOSM_TAGS), dict) else [])
     for kind, number in pairs:
         if props.get(kind) in ("node", "way", "relation") and re.fullmatch(r"\d+", str(props.get(number))):
@@ -204,7 +208,8 @@ def not_a_building(props: dict) -> str | None:
     reason it is not read (its first tag named); else None."""
     if not osm_row(props) or _said(props, "building") or _said(props, "building:part"):
         return None
-    first = next(((k, v) for k, v in props.items() if k not in GDAL_COLUMNS and not str(k).startswith("@")
+    skip = set(GDAL_COLUMNS) | {number for kind, number in OSMNX_COLUMNS if kind in props}  # OSMnx's id columns
+    first = next(((k, v) for k, v in props.items() if k not in skip and not str(k).startswith("@")
                   and not isinstance(v, (dict, list)) and v is not None and str(v).strip()), None)
     return ("is not a building: an OpenStreetMap feature tagged " + (f"{first[0]}={first[1]}" if first else "with nothing")
             + " (neither building nor building:part)")

@@ -459,6 +459,9 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
         if driver.startswith("QuackOSM"):  # its GeoParquet: feature_id "way/<id>", tags a map (or a column each)
             _quackosm(features, out, exploded=driver.endswith("exploded"))
             continue
+        if driver.startswith("OSMnx"):  # its GeoDataFrame saved: a column per tag, its index (element, id) written
+            _osmnx(features, out, version=driver.removeprefix("OSMnx-"))
+            continue
         if driver in ("Overpass turbo", "osmium"):  # GeoJSON of the tags, the element named by "@id" (and "@type")
             _exported_geojson(features, out, osmium=driver == "osmium")
             continue
@@ -479,6 +482,30 @@ def _gdal_conversion(osm_path, out, driver, layers, config=None):
                         **({"layer": layer} if driver == "GPKG" else {})) as dst:
             dst.writerecords(features)
     return out
+
+
+def _osmnx(features, out, version):
+    """OSMnx's buildings (``features_from_place(..., tags={"building": True, "building:part": True})``) saved by
+    GeoPandas' ``to_file`` as a GeoPackage: a column per tag key, nulls where a feature has none, and the index
+    written as columns, ``element`` and ``id`` (OSMnx 2), ``element_type`` and ``osmid`` (OSMnx 1)."""
+    import fiona
+    from shapely.geometry import mapping, shape
+
+    from meshsom.osm import tags
+
+    kind, number = ("element", "id") if version == "2" else ("element_type", "osmid")
+    rows = []
+    for f in features:
+        element = ("way", f.properties["osm_way_id"]) if f.properties["osm_way_id"] else ("relation", f.properties["osm_id"])
+        rows.append(({kind: element[0], number: int(element[1])}, tags(f.properties["other_tags"]), f.geometry))
+    keys = sorted({k for _, found, _ in rows for k in found})
+    schema = {"geometry": "MultiPolygon", "properties": {kind: "str", number: "int", **{k: "str" for k in keys}}}
+    with fiona.open(str(out), "w", driver="GPKG", schema=schema, crs="EPSG:4326", layer="buildings") as dst:
+        for named, found, geometry in rows:
+            polygon = shape(geometry)
+            multi = mapping(polygon if polygon.geom_type == "MultiPolygon" else shape(
+                {"type": "MultiPolygon", "coordinates": [mapping(polygon)["coordinates"]]}))
+            dst.write({"geometry": multi, "properties": {**named, **{k: found.get(k) for k in keys}}})
 
 
 def _exported_geojson(features, out, osmium):
@@ -530,6 +557,8 @@ def _quackosm(features, out, exploded):
 @pytest.mark.parametrize("driver, suffix, layers, own_config", [
     ("Overpass turbo", "geojson", ("multipolygons",), True),
     ("osmium", "geojsons", ("multipolygons",), True),
+    ("OSMnx-2", "gpkg", ("multipolygons",), True),  # GeoPandas' to_file: index (element, id) as columns
+    ("OSMnx-1", "gpkg", ("multipolygons",), True),  # (element_type, osmid)
     ("QuackOSM", "parquet", ("multipolygons",), True),  # tags in a map column
     ("QuackOSM-exploded", "parquet", ("multipolygons",), True),  # a column per tag
     ("GPKG", "gpkg", ("points", "lines", "multipolygons"), False),  # `ogr2ogr city.gpkg city.osm.pbf`: parts are lines
