@@ -108,7 +108,7 @@ DXF_SUFFIX = ".dxf"
 FBX_SUFFIX = ".fbx"
 THREE_DS_SUFFIX = ".3ds"
 #: OpenStreetMap extracts (:mod:`meshsom.osm`).
-OSM_SUFFIXES = (".osm", ".osm.pbf")
+OSM_SUFFIXES = (".osm", ".osm.pbf", ".osm.bz2")
 GZIP_MAGIC = b"\x1f\x8b"
 #: Bytes decompressed per read of a gzip input (the size guards are checked between reads).
 GZIP_CHUNK_BYTES = 1 << 20

@@ -1,5 +1,5 @@
-"""Reading OpenStreetMap extracts (``.osm``, ``.osm.pbf``; ``.osm`` also gzipped): buildings as the
-Simple 3D Buildings scheme (S3DB) tags them.
+"""Reading OpenStreetMap extracts (``.osm``, ``.osm.pbf``; ``.osm`` also gzipped, or bzip2-compressed as Geofabrik
+offers them): buildings as the Simple 3D Buildings scheme (S3DB) tags them.
 
 OpenStreetMap is the footprint data every urban researcher has (a city's extract from Geofabrik or
 the Overpass API). Its areas are read by GDAL's OSM driver (through fiona) with meshsom's
@@ -41,6 +41,9 @@ own configuration reads as lines; every tag is kept):
 - **Labels**: the tag :attr:`meshsom.io.ReaderOptions.label_attribute` names (``building`` gives
   ``residential``, ``church``, ...).
 
+A ``.osm.bz2`` extract (which GDAL cannot open) is written as PBF into a temporary folder by libosmium first and
+read from there, its items naming the ``.bz2`` file.
+
 Other areas (land use, parks, parking) are not buildings: counted by their first tag in a note on
 the file's meshes. A building (or building part) mapped as a node, or as a way that does not
 close, has no outline to build: each is a rejection saying so (id ``name#node/<id>``,
@@ -78,6 +81,8 @@ HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
 INHERITED = ("height", "min_height", "building:levels", "building:min_level")
 #: The note on a building part inside no building outline.
 STRAY = "a building:part inside no building outline, read as a building of its own"
+#: The name ending of a bzip2-compressed extract (Geofabrik's ``.osm.bz2``).
+BZIP2_SUFFIX = ".bz2"
 #: The ``type`` tag of S3DB's building relation, and its members' roles: the building's outline and its parts.
 BUILDING_RELATION, OUTLINE_ROLE, PART_ROLE = "building", "outline", "part"
 #: Members named in a note or a rejection, at most.
@@ -268,6 +273,8 @@ def osm_ranges(path: Path, target_features: int, options) -> list[list] | None:
     density = BUILDINGS_PER_KB["pbf" if path.name.lower().endswith(".pbf") else "xml"]
     if path.name.lower().endswith(".gz"):
         density *= 5  # gzip: about a fifth of the bytes
+    elif path.name.lower().endswith(BZIP2_SUFFIX):
+        density *= 8  # bzip2: about an eighth
     estimate = size / 1024 * density
     if target_features < 1 or estimate <= 2 * target_features:
         return None
@@ -289,6 +296,9 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     size = path.stat().st_size
     if size > int(options.max_bytes):
         raise InputFileError(str(path), f"has {size:,} bytes, more than {int(options.max_bytes):,} (ReaderOptions.max_bytes)")
+    if path.name.lower().endswith(BZIP2_SUFFIX):
+        yield from _read_bzip2(path, options, name, feature_range)
+        return
     buildings, parts, others, strays = _areas(path)
     notes = []
     try:
@@ -315,6 +325,29 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
             yield Rejection(f"{name}#{oid}", str(path), f"a {kind} {problem}: it has no outline to build", 0, None)
         for relation, problem in unbuilt:
             yield Rejection(f"{name}#{relation.oid}", str(path), problem, 0, relation.tags.get(options.label_attribute))
+
+
+def _read_bzip2(path: Path, options, name: str, feature_range) -> Iterator:
+    """:func:`read_osm` of a bzip2-compressed OSM XML extract: written as PBF by libosmium (pyosmium) into a temporary
+    folder, read from there, the items naming ``path``."""
+    import tempfile
+
+    import osmium
+
+    with tempfile.TemporaryDirectory(prefix="meshsom-osm-") as folder:
+        pbf = Path(folder) / f"{path.name.removesuffix(BZIP2_SUFFIX)}.pbf"
+        try:
+            with osmium.SimpleWriter(str(pbf)) as writer:
+                for element in osmium.FileProcessor(osmium.io.File(str(path), "osm.bz2")):
+                    writer.add(element)
+        except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged bzip2 data or XML
+            raise InputFileError(str(path), f"cannot be read as bzip2-compressed OpenStreetMap XML by libosmium ({err})") from None
+        try:
+            items = list(read_osm(pbf, options, name, feature_range))
+        except InputFileError as err:
+            raise InputFileError(str(path), err.problem) from None
+    for item in items:
+        yield dataclasses.replace(item, source=str(path))
 
 
 @dataclasses.dataclass

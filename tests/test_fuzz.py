@@ -10,6 +10,7 @@ Example budgets are fixed and ``derandomize=True``: the same examples run in CI 
 
 from __future__ import annotations
 
+import bz2
 import contextlib
 import importlib.util
 import json
@@ -47,7 +48,7 @@ FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
             ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm", ".osm", ".fbx",
-            ".3ds")
+            ".3ds", ".osm.bz2")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -298,6 +299,7 @@ MAGIC = {
     ".osm": [b"", b'<?xml version="1.0"?><osm version="0.6"><node id="1" lat="47" lon="8"/><way id="2"><nd ref="1"/>',
              b'<osm><relation id="1"><member type="way" ref="1" role="outer"/><tag k="type" v="multipolygon"/>'],
     ".3dm": [b"", b"3D Geometry File Format        ", b"3D Geometry File Format        \x01\x00\x00\x00 3dm file"],
+    ".osm.bz2": [b"", b"BZh9", bz2.compress(b'<?xml version="1.0"?><osm version="0.6"><node id="1" lat="47" lon="8"/>')],
     ".fbx": [b"", b"Kaydara FBX Binary  \x00\x1a\x00" + struct.pack("<I", 7400),
              b"; FBX 7.4.0 project file\nObjects:  {\n\tGeometry: 1, \"Geometry::a\", \"Mesh\" {\n\t\tVertices: *9 {\n"],
     ".3ds": [b"", struct.pack("<HI", 0x4D4D, 10**9) + struct.pack("<HI", 0x3D3D, 2000),

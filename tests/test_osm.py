@@ -4,6 +4,7 @@ PROJ, and checked against the volumes computed in the tests."""
 
 from __future__ import annotations
 
+import bz2
 import dataclasses
 import gzip
 
@@ -385,20 +386,28 @@ def test_default_height_and_labels(tmp_path):
 
 
 def test_pbf_and_gzip_read_as_the_xml(tmp_path):
-    """The same district as PBF (written by osmium) and as gzipped XML gives the same buildings."""
+    """The same district as PBF (written by osmium), as gzipped XML and as bzip2-compressed XML gives the same
+    buildings; a damaged bzip2 file is a rejection naming it."""
     osmium = pytest.importorskip("osmium")
     xml, _ = _district(tmp_path / "d.osm")
     with osmium.SimpleWriter(str(tmp_path / "d.osm.pbf")) as writer:
         for obj in osmium.FileProcessor(str(xml)):
             writer.add(obj)
     (tmp_path / "g.osm.gz").write_bytes(gzip.compress(xml.read_bytes()))
+    (tmp_path / "b.osm.bz2").write_bytes(bz2.compress(xml.read_bytes()))  # Geofabrik's other download
     plain = {i.id.split("#")[1]: i for i in read_file(xml)}
-    for other in ("d.osm.pbf", "g.osm.gz"):
+    files, rejected = expand_inputs([tmp_path])
+    assert {f.name for f in files} == {"d.osm", "d.osm.pbf", "g.osm.gz", "b.osm.bz2"} and not rejected
+    for other in ("d.osm.pbf", "g.osm.gz", "b.osm.bz2"):
         items = {i.id.split("#")[1]: i for i in read_file(tmp_path / other)}
         assert set(items) == set(plain), other
+        assert all(i.source == str(tmp_path / other) for i in items.values()), other
         for key, item in items.items():
             if isinstance(item, RawMesh):
                 assert _volume(item) == pytest.approx(_volume(plain[key]), rel=1e-9), (other, key)
+    (tmp_path / "bad.osm.bz2").write_bytes(bz2.compress(xml.read_bytes())[:300])
+    (item,) = read_file(tmp_path / "bad.osm.bz2")
+    assert isinstance(item, Rejection) and item.source == str(tmp_path / "bad.osm.bz2") and "bzip2" in item.reason
 
 
 def test_files_without_buildings_say_why(tmp_path):
