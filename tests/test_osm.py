@@ -44,6 +44,12 @@ def _enu_area(lonlat) -> float:
     return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2)
 
 
+#: The elements the Overpass API writes before the data (its licence note, its database's time, the query's bounds).
+OVERPASS_HEAD = ('<note>The data included in this document is from www.openstreetmap.org. The data is made available '
+                 'under ODbL.</note>', '<meta osm_base="2026-11-01T00:00:00Z"/>',
+                 '<bounds minlat="47.0" minlon="8.0" maxlat="48.0" maxlon="9.0"/>')
+
+
 class OsmWriter:
     """An OSM XML document of closed ways and multipolygon relations over rectangles in metres,
     at OpenStreetMap's precision (1e-7 degrees: about a centimetre); ``area[way id]`` is each
@@ -90,7 +96,7 @@ class OsmWriter:
             f'<member type="{m.split("/")[0]}" ref="{m.split("/")[1]}" role="{role}"/>' for role, m in members)
             + f'{tag({"type": "building", **t})}</relation>' for i, members, t in self.buildings]
         return "\n".join(['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="meshsom tests">',
-                          *self.nodes, *ways, *relations, "</osm>"]) + "\n"
+                          *OVERPASS_HEAD, *self.nodes, *ways, *relations, "</osm>"]) + "\n"
 
 
 def _volume(mesh) -> float:
