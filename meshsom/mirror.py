@@ -45,10 +45,11 @@ SPANS_SUFFIX = ".spans"
 #: Files the planner never opens (their kind is their name's; only a read task reads them: meshes, CAD models, a
 #: glTF's buffers and textures): it copies them as placeholders (a sparse file of their size, no bytes copied, listed
 #: as such), and each read task copies its own (:func:`copy_all`). Every other file is copied: footprint files and
-#: CityJSON, CityGML, OSM, zip and gzip files, which the planner reads to plan ranges, splits and parts.
+#: CityJSON, CityGML, zip and gzip files, which the planner reads to plan ranges, splits and parts.
 UNOPENED_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".dae", ".b3dm", ".i3dm", ".cmpt", ".pnts",
                      ".3dm", ".dxf", ".ifc", ".ifczip", ".fbx", ".3ds", ".slpk", ".bin", ".mtl", ".png", ".jpg",
-                     ".jpeg", ".webp", ".ktx2", ".tif", ".tiff")
+                     ".jpeg", ".webp", ".ktx2", ".tif", ".tiff",
+                     ".osm", ".osm.pbf", ".osm.bz2", ".osm.gz")  # OpenStreetMap: its ranges planned by its size alone
 #: CityJSON and CityJSONSeq files by name (never footprints, which the planner reads to pair parts): placeholders
 #: too where they are too small to split or cut into ranges (:func:`unopened_below`); a 3D BAG's or a state's tiles.
 SMALL_CITYJSON_SUFFIXES = (".city.json", ".cityjson", ".city.jsonl")

@@ -390,8 +390,9 @@ def test_inputs_on_object_storage_read_as_the_same_files_on_disk(s3, s3_cluster,
 def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s3_cluster, tmp_path, monkeypatch):
     """A large plain CityGML file on S3 is cut into ranges by streaming it from its URL: the planner copies its head
     only (its kind), never the whole file, and each range's task copies its own bytes; a large INSPIRE GML file
-    (GDAL reads it whole) is copied whole once its head says what it is. The records and arrays equal those of the
-    folder read from disk, the CityGML file in the same ranges."""
+    (GDAL reads it whole) is copied whole once its head says what it is; an OpenStreetMap extract is a placeholder
+    (its ranges planned by its size), copied by its read task. The records and arrays equal those of the folder
+    read from disk, the CityGML file in the same ranges."""
     import json as jsonlib
 
     from meshsom import citygml, mirror as mirroring
@@ -405,12 +406,17 @@ def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s
     (local / "big.gml").write_text(_large_citygml("2.0", "core:cityObjectMember"))
     (local / "bu.gml").write_text(HEADER + "".join(_feature("Building", f"ES.B{k}", (20 * k, 0, 10, 8), _floors(1 + k % 4))
                                                    for k in range(420)) + "</gml:FeatureCollection>\n")
+    from test_osm import _district
+
+    _district(local / "district.osm")  # OpenStreetMap: planned by its size alone, a placeholder for the planner
     limit = 2 * 300_000  # twice the config's read_bytes
     assert (local / "bu.gml").stat().st_size > limit and (local / "big.gml").stat().st_size > limit
     url = f"s3://{BUCKET}/streamed/city"
     _upload(local, url)
     mirrored = mirroring.mirror_inputs([url], tmp_path / "heads", heads=mirroring.heads_from(limit))
     big = Path(mirrored.paths[0]) / "big.gml"
+    extract = Path(mirrored.paths[0]) / "district.osm"
+    assert extract.read_bytes().strip(b"\0") == b"" and extract.stat().st_size == (local / "district.osm").stat().st_size
     assert jsonlib.loads(Path(f"{big}{mirroring.SPANS_SUFFIX}").read_text()) == [[0, mirroring.HEAD_BYTES]]
     data = big.read_bytes()
     assert data[:mirroring.HEAD_BYTES] == (local / "big.gml").read_bytes()[:mirroring.HEAD_BYTES]
@@ -435,6 +441,7 @@ def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s
     assert [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
             for r in disk] == [{**r, "reason": r.get("reason", "")} for r in on_s3]
     assert sum(r["status"] == "accepted" and r["source"].endswith("bu.gml") for r in on_s3) == 420
+    assert sum(r["status"] == "accepted" and r["source"].endswith("district.osm") for r in on_s3) == 7
     for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
         np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
 
