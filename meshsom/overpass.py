@@ -54,10 +54,10 @@ def read_overpass(document: dict, path: Path, options, name: str | None = None) 
     from meshsom.osm import read_osm
 
     name = name or Path(path).name
-    xml, unbuilt = overpass_xml(document, str(path))
     with tempfile.TemporaryDirectory(prefix="meshsom-overpass-") as folder:
         extract = Path(folder) / "answer.osm"
-        extract.write_text(xml, encoding="utf-8")
+        with open(extract, "w", encoding="utf-8") as out:
+            unbuilt = overpass_xml(document, str(path), out)
         try:
             items = list(read_osm(extract, options, name))
         except InputFileError as err:
@@ -83,9 +83,10 @@ def _degrees(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def overpass_xml(document: dict, where: str) -> tuple[str, list[tuple[str, str, str | None]]]:
-    """The OSM XML an Overpass answer stands for, and its building ways (and multipolygons) without corners:
-    (``way/<id>`` or ``relation/<id>``, ``building`` or ``building:part``, its ``building`` tag's value).
+def overpass_xml(document: dict, where: str, out) -> list[tuple[str, str, str | None]]:
+    """Write the OSM XML an Overpass answer stands for to ``out`` (a text file), line by line; return its building
+    ways (and multipolygons) without corners: (``way/<id>`` or ``relation/<id>``, ``building`` or ``building:part``,
+    its ``building`` tag's value).
 
     A node without a latitude and longitude, a way corner that is not one (outside the query's bounding box, Overpass
     writes null) or a node id that is not a whole number leaves its way without corners.
@@ -154,19 +155,21 @@ def overpass_xml(document: dict, where: str) -> tuple[str, list[tuple[str, str, 
                 if refs:
                     ways[ref] = (refs, {})
     unbuilt = []
-    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="meshsom (an Overpass answer)">']
+    write = lambda line: out.write(line + "\n")  # noqa: E731
+    write('<?xml version="1.0" encoding="UTF-8"?>')
+    write('<osm version="0.6" generator="meshsom (an Overpass answer)">')
     tag = lambda tags: "".join(f"<tag k={quoteattr(k)} v={quoteattr(v)}/>" for k, v in tags.items())  # noqa: E731
     built = lambda tags: next((k for k in ("building", "building:part")  # noqa: E731
                                if str(tags.get(k, "no")).strip().lower() != "no"), None)
     for number, (lat, lon, tags) in sorted(nodes.items()):
-        lines.append(f'<node id="{number}" version="1" lat="{lat:.7f}" lon="{lon:.7f}">{tag(tags)}</node>')
+        write(f'<node id="{number}" version="1" lat="{lat:.7f}" lon="{lon:.7f}">{tag(tags)}</node>')
     written_ways = set()
     for number, (refs, tags) in sorted(ways.items()):
         if not refs or any(r not in nodes for r in refs):
             if built(tags) is not None:
                 unbuilt.append((f"way/{number}", built(tags), tags.get("building")))
             continue
-        lines.append(f'<way id="{number}" version="1">' + "".join(f'<nd ref="{r}"/>' for r in refs) + f"{tag(tags)}</way>")
+        write(f'<way id="{number}" version="1">' + "".join(f'<nd ref="{r}"/>' for r in refs) + f"{tag(tags)}</way>")
         written_ways.add(number)
     for number, members, tags in sorted(relations, key=lambda r: r[0]):
         members = [m for m in members if m.get("type") in ("node", "way", "relation") and _whole(m.get("ref"))]
@@ -176,6 +179,6 @@ def overpass_xml(document: dict, where: str) -> tuple[str, list[tuple[str, str, 
             continue
         written = "".join(f"<member type={quoteattr(m['type'])} ref=\"{m['ref']}\" "
                           f"role={quoteattr(str(m.get('role') or ''))}/>" for m in members)
-        lines.append(f'<relation id="{number}" version="1">{written}{tag(tags)}</relation>')
-    lines.append("</osm>")
-    return "\n".join(lines) + "\n", unbuilt
+        write(f'<relation id="{number}" version="1">{written}{tag(tags)}</relation>')
+    write("</osm>")
+    return unbuilt
