@@ -266,10 +266,12 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         height = others
     if height is not None:
         height = (height[0], units.of(props[height[0]]))
+    storeys = None  # where the height is a storey count's: the walls' (S3DB: building:levels exclude the roof's)
     if height is None:
         levels = first_number(props, options.levels_attributes)
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height * units.per_metre)
+            storeys = len(notes)
             notes.append(f"height from {levels[0]} = {levels[1]:g} storeys x {options.storey_height:g} m")
         elif levels is not None and levels[1] == 0:  # said to stand nothing above ground (a cellar, a patio, a roof
             notes.append(f"{levels[0]} = 0: no storey above the ground")  # on posts): not the default height
@@ -285,10 +287,13 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     ground = min(zs) if zs else 0.0
     z0, z1 = ground + (units.of(props[bottom[0]]) if bottom else 0.0), ground + height[1]
     if flat and options.roofs and z1 > z0:
-        solid, said = roofed_solid(polygons, props, z0, z1, crs, options, where, verts)
+        solid, said = roofed_solid(polygons, props, z0, z1, crs, options, where, verts, on_walls=storeys is not None)
         if said:
             notes.append(said)
         if solid is not None:
+            if storeys is not None:
+                notes[storeys] = notes[storeys].replace("height from", "walls from", 1) + (
+                    ", the roof above them (S3DB: storey counts leave out the roof's)")
             return solid, notes
     return _extruded(polygons, z0, z1, where, verts), notes
 
@@ -337,8 +342,8 @@ def roof_scale(ring: np.ndarray, crs) -> tuple[float, float]:
     return crs.horizontal_m / crs.vertical_m / k, crs.horizontal_m / crs.vertical_m / k
 
 
-def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options, where: str, verts: FeatureVertices
-                 ) -> tuple[dict | None, str | None]:
+def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options, where: str, verts: FeatureVertices,
+                 on_walls: bool = False) -> tuple[dict | None, str | None]:
     """A footprint's block from ``z0`` to ``z1`` with the roof its attributes describe
     (:func:`meshsom.roofs.roof_tags`: OpenStreetMap's S3DB tags or Overture's columns;
     :mod:`meshsom.roofs`) as a Solid over ``verts``, and a note; (None, note or None) where it is
@@ -350,9 +355,13 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     polygons : list
         The footprint's polygons (GeoJSON nesting), in ``crs``.
     z0, z1 : float
-        Its base and top (the roof's top).
+        Its base and top (the roof's top; with ``on_walls``, the walls' top, the eaves).
     crs : CoordinateSystem or None
         As :func:`footprint_solid` takes it.
+    on_walls : bool
+        Whether ``z1`` is the walls' top, the roof standing on them (a height from a storey count: S3DB's
+        ``building:levels`` leave out the roof's levels); else the roof's top, the eaves below it by the roof's height
+        (S3DB's ``height`` holds the roof).
     """
     from meshsom.roofs import (ALIASES, RIDGED_ROUND_COURTYARDS, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces,
                                roof_height, roof_tags)
@@ -372,7 +381,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     if direction is not None and degrees is None:
         degrees = _number(direction)
     across = str(found.get("roof:orientation", "")).strip().lower() == "across"
-    built, eaves, fell_back = [], [], []
+    built, eaves, tops, fell_back = [], [], [], []
     for polygon in polygons:  # several (a building in pieces): each its own roof, of the same tags
         for ring in polygon:
             FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
@@ -382,14 +391,14 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         holes = [np.asarray(hole, np.float64)[:, :2] for hole in polygon[1:]]
         scale = roof_scale(ring, crs)
         units = HeightUnits(crs, options)
-        rise = min(roof_height(shape, ring, scale, found, options.storey_height * units.per_metre, _number,
-                               units.of),
-                   MAX_ROOF_SHARE * (z1 - z0))
+        rise = roof_height(shape, ring, scale, found, options.storey_height * units.per_metre, _number, units.of)
+        rise = rise if on_walls else min(rise, MAX_ROOF_SHARE * (z1 - z0))
         if not rise > 0:
             return None, None
-        faces = roof_faces(ring, z0, z1 - rise, z1, shape, scale, degrees, across=across, holes=holes)
+        low, top = (z1, z1 + rise) if on_walls else (z1 - rise, z1)
+        faces = roof_faces(ring, z0, low, top, shape, scale, degrees, across=across, holes=holes)
         if faces is None and shape in FALLBACK:  # a half-hipped roof without a wing end to hip: its hipped kin
-            faces = roof_faces(ring, z0, z1 - rise, z1, FALLBACK[shape], scale, degrees, across=across, holes=holes)
+            faces = roof_faces(ring, z0, low, top, FALLBACK[shape], scale, degrees, across=across, holes=holes)
             if faces is not None:
                 fell_back.append(f"roof:shape={shape} built as {FALLBACK[shape]} ({UNBUILT[shape]})")
         if faces is not None and holes and shape in RIDGED_ROUND_COURTYARDS:
@@ -399,7 +408,8 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
             which = f" (its polygon {len(built) + 1} of {len(polygons)})" if len(polygons) > 1 else ""
             return None, f"roof:shape={shape} not modelled on this footprint{which} ({UNBUILT[shape]}): flat"
         built += faces
-        eaves.append(z1 - rise - z0)
+        eaves.append(low - z0)
+        tops.append(top - z0)
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in built]]}
     read_as = f" (roof:shape={tagged} read as {shape})" if tagged != shape else ""
     low, high = min(eaves), max(eaves)
@@ -407,7 +417,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         read_as += f" ({fell_back[0]}" + (f", on {len(fell_back)} of its polygons" if len(polygons) > 1 else "") + ")"
     return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {low:.3g}"
                    + (f" to {high:.3g}" if high - low > 1e-9 * max(abs(high), 1.0) else "")
-                   + f" m, top {z1 - z0:.3g} m above its base" + (f", on {len(polygons)} polygons" if len(polygons) > 1 else ""))
+                   + f" m, top {max(tops):.3g} m above its base" + (f", on {len(polygons)} polygons" if len(polygons) > 1 else ""))
 
 
 def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:

@@ -32,7 +32,8 @@ own configuration reads as lines; every tag is kept):
   half-hipped with a gable at each wing's end of it, else across one ridge; the pointed ones where their apex sees
   every wall) from
   ``roof:height`` (else ``roof:levels``, else ``roof:angle`` or a 30 degree pitch; a dome half
-  its width), eaves at the height less the roof's, ``roof:direction`` and ``roof:orientation``
+  its width), eaves at the height less the roof's (a height from ``building:levels``, which leave out the roof's
+  levels, is the walls', the roof above them), ``roof:direction`` and ``roof:orientation``
   followed; other shapes (sawtooth, ...), footprints with courtyards (but for hipped, mansard, and gabled, gambrel, round and half-hipped: the
   skeleton's ridges round them), and footprints a shape cannot
   be built on, are flat at the height, noted with the reason.

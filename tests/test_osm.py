@@ -870,3 +870,30 @@ def test_josm_negative_ids_read_as_positive_ones(tmp_path):
         assert type(item) is type(want[key]), key
         if isinstance(item, RawMesh):
             assert _volume(item) == pytest.approx(_volume(want[key]), rel=1e-9), key
+
+
+def test_a_roof_stands_on_walls_of_its_storeys(tmp_path):
+    """S3DB's ``building:levels`` leave out the roof's levels: a gabled house of 2 levels and 1 roof level has walls to
+    6 m and its ridge at 9 m, as the same house tagged ``height=9`` and ``roof:height=3`` (both read; the volumes
+    alike); with no roof height, the 30 degree pitch stands on the 6 m walls; ``height`` holds the roof (the eaves
+    below it by the roof's height)."""
+    import math
+
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 10, 8), building="house", **{LEVELS: "2", "roof:levels": "1", ROOF: "gabled"})
+    osm.way(2, (0, 20, 10, 28), building="house", height="9", **{"roof:height": "3", ROOF: "gabled"})
+    osm.way(3, (0, 40, 10, 48), building="house", **{LEVELS: "2", ROOF: "gabled"})
+    osm.way(4, (0, 60, 10, 68), building="house", height="9", **{LEVELS: "2", "roof:levels": "1", ROOF: "gabled"})
+    path = tmp_path / "houses.osm"
+    path.write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    levels, tagged, pitched, both = (items[f"way/{k}"] for k in (1, 2, 3, 4))
+    assert np.ptp(levels.vertices[:, 2]) == pytest.approx(9.0, abs=1e-3)
+    assert _volume(levels) / osm.area[1] == pytest.approx(_volume(tagged) / osm.area[2], rel=1e-4)  # each at OSM's cm
+    assert _volume(levels) == pytest.approx(osm.area[1] * (6 + 3 / 2), rel=2e-3)
+    assert any("walls from building:levels = 2 storeys x 3 m, the roof above them" in n for n in levels.notes), levels.notes
+    assert any("eaves 6 m, top 9 m" in n for n in levels.notes) and any("eaves 6 m, top 9 m" in n for n in tagged.notes)
+    rise = 4 * math.tan(math.radians(30))  # across the 8 m width, at the default pitch
+    assert np.ptp(pitched.vertices[:, 2]) == pytest.approx(6 + rise, abs=2e-2)
+    assert _volume(pitched) == pytest.approx(osm.area[3] * (6 + rise / 2), rel=5e-3)
+    assert _volume(both) / osm.area[4] == pytest.approx(_volume(levels) / osm.area[1], rel=1e-4)  # the same house
