@@ -19,7 +19,8 @@ triangulation, CRS handling and rejections behave as for CityJSON:
 - **GeoJSON footprints**: a ``Polygon`` or ``MultiPolygon`` (``place``, else ``geometry``) with a
   height property (:attr:`meshsom.io.ReaderOptions.height_attributes`: ``height``,
   ``measuredHeight``, ``building:height``; numbers or text such as ``"12.5 m"``) is extruded, as
-  OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (0 when absent) to
+  OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (else storeys below it,
+  ``building:min_level`` or ``min_floor``, times ``storey_height``; 0 when absent) to
   ground + height, the ground being the footprint's lowest z (0 for a 2D footprint) (LoD ``"1"``);
   without a height, a storey count (``building:levels``, ``num_floors``) times ``storey_height``
   (3 m) is used, with a note; without either, :attr:`meshsom.io.ReaderOptions.default_height`
@@ -284,8 +285,13 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
           for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
     bottom = first_number(props, options.base_attributes)
+    base = units.of(props[bottom[0]]) if bottom else 0.0
+    below = first_number(props, options.min_levels_attributes) if bottom is None else None
+    if below is not None and below[1] > 0:  # storeys below its bottom: a bridge's deck, an overhang
+        base = below[1] * options.storey_height * units.per_metre
+        notes.append(f"base from {below[0]} = {below[1]:g} storeys x {options.storey_height:g} m")
     ground = min(zs) if zs else 0.0
-    z0, z1 = ground + (units.of(props[bottom[0]]) if bottom else 0.0), ground + height[1]
+    z0, z1 = ground + base, ground + height[1]
     if flat and options.roofs and z1 > z0:
         solid, said = roofed_solid(polygons, props, z0, z1, crs, options, where, verts, on_walls=storeys is not None)
         if said:

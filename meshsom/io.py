@@ -189,6 +189,10 @@ class ReaderOptions:
     levels_attributes : tuple of str
         The properties that may hold a storey count, used (times ``storey_height``) where no
         height is given.
+    min_levels_attributes : tuple of str
+        The properties that may hold the storeys below its bottom (OpenStreetMap's
+        ``building:min_level``, Overture's ``min_floor``: a bridge's deck, an overhang), used
+        (times ``storey_height``) where no base height is given.
     height_unit : str or None
         The unit of the height attributes (height, base, ``roof:height``) of footprints: one of
         :data:`HEIGHT_UNITS` (``"ft"`` for New York's building footprints as GeoJSON, whose
@@ -263,6 +267,7 @@ class ReaderOptions:
     height_attributes: tuple[str, ...] = ("height", "measuredHeight", "building:height")
     base_attributes: tuple[str, ...] = ("min_height", "building:min_height")
     levels_attributes: tuple[str, ...] = ("building:levels", "num_floors", "storeysAboveGround", "numberOfFloorsAboveGround")
+    min_levels_attributes: tuple[str, ...] = ("building:min_level", "min_floor")
     height_unit: str | None = None
     storey_height: float = 3.0
     default_height: float | None = None

@@ -562,18 +562,6 @@ def owners(outlines: np.ndarray, parts: np.ndarray) -> np.ndarray:
     return owner
 
 
-def _props(found: dict, options) -> dict:
-    """A feature's tags as footprint properties: ``building:min_level`` as a ``min_height``."""
-    props = dict(found)
-    if "building:min_level" in props and not any(b in props for b in options.base_attributes):
-        from meshsom.geojson import _number
-
-        level = _number(props["building:min_level"])
-        if level is not None:
-            props[options.base_attributes[0] if options.base_attributes else "min_height"] = level * options.storey_height
-    return props
-
-
 def _meshes(buildings: list[_Area], parts: list[_Area], owner: np.ndarray, notes: list[str], options, name: str,
             source: str, part_of: tuple[int, int] = (0, 1), how: dict[int, str] | None = None) -> Iterator:
     """The meshes of the buildings (and of the parts inside no outline), those of range
@@ -624,15 +612,16 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
     label = area.tags.get(options.label_attribute)
     verts = FeatureVertices()
     more = [alone] if alone else []
-    inherited = tuple(dict.fromkeys(INHERITED + tuple(options.height_attributes) + tuple(options.levels_attributes)))
+    inherited = tuple(dict.fromkeys(INHERITED + tuple(options.height_attributes) + tuple(options.levels_attributes)
+                                    + tuple(options.min_levels_attributes)))
     if not own_parts:
-        pieces = [(area, _props(area.tags, options))]
+        pieces = [(area, dict(area.tags))]
     else:  # the parts, each with its building's height where it has none; the outline too where it is a part
-        pieces = [(part, _props({**part.tags, **{t: area.tags[t] for t in inherited  # a null column is no value
-                                                  if area.tags.get(t) is not None and part.tags.get(t) is None}},
-                                options)) for part in own_parts]
+        pieces = [(part, {**part.tags, **{t: area.tags[t] for t in inherited  # a null column is no value
+                                          if area.tags.get(t) is not None and part.tags.get(t) is None}})
+                  for part in own_parts]
         if _is_part(area.tags) and area.geometry is not None:  # a building relation's outline is not in the file
-            pieces.insert(0, (area, _props(area.tags, options)))
+            pieces.insert(0, (area, dict(area.tags)))
     solids, failed = [], []
     for piece, props in pieces:
         try:

@@ -80,6 +80,26 @@ def test_heights_as_openstreetmap_writes_them(tmp_path, height, metres):
     assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5), block
 
 
+def test_storeys_below_the_bottom_raise_it(tmp_path):
+    """Overture's ``min_floor`` and OpenStreetMap's ``building:min_level`` (a skybridge, an overhang) raise the base by
+    their storeys where no ``min_height`` is given: 5 floors from floor 2 stand from 6 m to 15 m; ``min_height``
+    wins where both are given."""
+    ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]
+    polygon = {"type": "Polygon", "coordinates": [closed(ring)]}
+    doc = {"type": "FeatureCollection", "features": [
+        _feature("overture", polygon, num_floors=5, min_floor=2),
+        _feature("osm", polygon, **{"building:levels": 5, "building:min_level": 2}),
+        _feature("both", polygon, num_floors=5, min_floor=2, min_height=3)]}
+    (tmp_path / "floors.geojson").write_text(json.dumps(doc))
+    items = _by_id(read_file(tmp_path / "floors.geojson"))
+    for key in ("overture", "osm"):
+        z = items[key].vertices[:, 2] + items[key].origin[2]
+        assert (z.min(), z.max()) == pytest.approx((6.0, 15.0), abs=1e-9), key
+        assert _volume(items[key]) == pytest.approx(area(L_SHAPE) * 9, rel=1e-9), key
+    assert any("base from min_floor = 2 storeys x 3 m" in n for n in items["overture"].notes), items["overture"].notes
+    assert _volume(items["both"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-9)
+
+
 def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
     ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]  # RD New metres: beyond +/-180, read as metres
     doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}
