@@ -63,6 +63,9 @@ _FEET = re.compile(r"""^\s*(\d+(?:\.\d+)?)\s*(?:'|ft\b|feet\b|foot\b)\s*(?:(\d+(
 _DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
 #: Metres per foot and per inch.
 FOOT, INCH = 0.3048, 0.0254
+#: Properties that say a footprint lies underground (OpenStreetMap's ``location``, Overture's ``is_underground``), and
+#: their values that say so (lower case).
+UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
 #: Shapes built as another where they cannot be built on a footprint (a half-hipped roof on one without a square wing
@@ -256,7 +259,17 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         The CityJSON-like Solid; None when ``props`` give no height (nothing is added to ``verts``).
     notes : list of str
         Says so where the height came from a storey count, and what became of a roof.
+
+    Raises
+    ------
+    InputFileError
+        Where its properties say it lies underground (:data:`UNDERGROUND`): a footprint of a garage under a square
+        is no block above it, whatever height stands in.
     """
+    for key, values in UNDERGROUND.items():
+        if str(props.get(key)).strip().lower() in values:
+            raise InputFileError(where, f"lies underground ({key}={props[key]}): not a building above the ground, "
+                                        "not read")
     notes: list[str] = []
     units = HeightUnits(crs, options)
     height = first_number(props, options.height_attributes)

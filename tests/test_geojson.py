@@ -100,6 +100,25 @@ def test_storeys_below_the_bottom_raise_it(tmp_path):
     assert _volume(items["both"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-9)
 
 
+def test_underground_footprints_are_refused_saying_so(tmp_path):
+    """A garage under a square (OpenStreetMap's ``location=underground``, Overture's ``is_underground``) is no block
+    above it, whatever height stands in: a rejection saying so, with ``default_height`` set too; a building above
+    ground beside it is read; a building's underground part is left out, noted."""
+    import dataclasses
+
+    ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]
+    polygon = {"type": "Polygon", "coordinates": [closed(ring)]}
+    doc = {"type": "FeatureCollection", "features": [
+        _feature("garage", polygon, building="parking", location="underground"),
+        _feature("overture", polygon, is_underground=True),
+        _feature("house", polygon, building="house", is_underground=False)]}
+    (tmp_path / "under.geojson").write_text(json.dumps(doc))
+    items = _by_id(read_file(tmp_path / "under.geojson", dataclasses.replace(ReaderOptions(), default_height=9.0)))
+    assert items["garage"].reason == "lies underground (location=underground): not a building above the ground, not read"
+    assert items["overture"].reason == "lies underground (is_underground=True): not a building above the ground, not read"
+    assert _volume(items["house"]) == pytest.approx(area(L_SHAPE) * 9, rel=1e-9)
+
+
 def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
     ring = [(84600 + x, 447400 + y) for x, y in L_SHAPE]  # RD New metres: beyond +/-180, read as metres
     doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}

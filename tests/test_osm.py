@@ -897,3 +897,17 @@ def test_a_roof_stands_on_walls_of_its_storeys(tmp_path):
     assert np.ptp(pitched.vertices[:, 2]) == pytest.approx(6 + rise, abs=2e-2)
     assert _volume(pitched) == pytest.approx(osm.area[3] * (6 + rise / 2), rel=5e-3)
     assert _volume(both) / osm.area[4] == pytest.approx(_volume(levels) / osm.area[1], rel=1e-4)  # the same house
+
+
+def test_an_underground_part_is_left_out(tmp_path):
+    """A station building with its concourse part mapped ``location=underground``: the building is its part above the
+    ground, the underground one left out, noted."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), building="train_station", height="8")
+    osm.way(2, (0, 0, 20, 10), height="8", **{PART: "yes"})
+    osm.way(3, (2, 2, 18, 8), height="6", location="underground", **{PART: "yes"})
+    (tmp_path / "station.osm").write_text(osm.text())
+    (station,) = read_file(tmp_path / "station.osm")
+    assert _volume(station) == pytest.approx(osm.area[2] * 8, rel=1e-5)  # (way 2 at OSM's centimetre)
+    assert any("its part way/3 lies underground (location=underground): not a building above the ground, not read: "
+               "left out" in n for n in station.notes), station.notes
