@@ -10,6 +10,9 @@ roofs), the items naming the JSON file. The answers of ``out geom`` (each way's 
 each relation member's) are read too: a way's nodes are made from its corners (with its node ids, else ids past
 every id of the answer).
 
+An answer whose query stopped early says so in its ``remark`` (``runtime error: Query timed out ...``), its elements
+then incomplete: every item's notes give the remark.
+
 A building way whose corners the answer does not hold (``out tags``, ``out center``, ``out ids``, or ``out body``
 without ``>``, the recursion to its nodes) has no outline to build: each is a rejection saying which query gives
 them, so that every building of the answer is either read or listed.
@@ -29,6 +32,8 @@ from meshsom.errors import InputFileError
 #: What a rejection of a building way without corners says to do.
 ASK_FOR_GEOMETRY = ("the Overpass answer holds neither its nodes nor its geometry: query with `out geom;`, or "
                     "`(._;>;); out body;`")
+#: Characters of an Overpass answer's ``remark`` (a runtime error: the query timed out) given in the items' notes.
+REMARK_SHOWN = 300
 #: A note on every item read from an Overpass answer.
 NOTE = "read from an Overpass API JSON answer, as the OpenStreetMap extract it stands for"
 
@@ -64,8 +69,12 @@ def read_overpass(document: dict, path: Path, options, name: str | None = None) 
             if not unbuilt:
                 raise InputFileError(str(path), err.problem) from None
             items = []
+    said = (NOTE,)
+    remark = document.get("remark")
+    if remark:  # Overpass's word that the query stopped (a timeout, memory): the answer may lack buildings
+        said += (f"the Overpass answer's remark: {str(remark)[:REMARK_SHOWN]} (its elements may be incomplete)",)
     for item in items:
-        notes = {"notes": (NOTE,) + item.notes} if hasattr(item, "notes") else {}
+        notes = {"notes": said + item.notes} if hasattr(item, "notes") else {}
         yield dataclasses.replace(item, source=str(path), **notes)
     for oid, kind, label in unbuilt:
         what = "way" if oid.startswith("way/") else "multipolygon with ways"

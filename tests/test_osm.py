@@ -844,6 +844,11 @@ def test_an_overpass_json_answer_reads_as_the_extract(tmp_path, geom):
     items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "members.json")}
     assert _volume(items["relation/14"]) == pytest.approx(_volume(read_file_one(tmp_path / "_district.osm", "relation/14")),
                                                           rel=1e-9)
+    stopped = {**_overpass_answer(tmp_path / "_district.osm", True),  # a query that timed out: said on every item
+               "remark": "runtime error: Query timed out in \"query\" at line 3 after 26 seconds."}
+    (tmp_path / "stopped.json").write_text(json.dumps(stopped))
+    assert all(any("the Overpass answer's remark: runtime error: Query timed out" in n for n in i.notes)
+               for i in read_file(tmp_path / "stopped.json") if isinstance(i, RawMesh))
     (tmp_path / "odd.json").write_text(json.dumps({"version": 0.6, "elements": [{"type": "area", "id": 3}]}))
     (item,) = read_file(tmp_path / "odd.json")
     assert isinstance(item, Rejection) and item.source == str(tmp_path / "odd.json") and item.reason.startswith(
