@@ -174,14 +174,14 @@ def inline_parts(path: Path) -> list[tuple[str, str, dict, dict | None]]:
     (GeoJSON-like; None where GDAL reads none)), in file order; empty where it writes none. Read once per process and
     file (its size and time of change in the key).
 
-    Each part is written to a GML file of its own in a temporary folder (its namespaces declared, the ``srsName`` of
-    the geometry before it given to its geometry where it names none) and read by GDAL's GML driver, as a file of
-    parts is.
+    The parts are written out, as the members of one GML collection, into a temporary folder (their namespaces
+    declared, the ``srsName`` of the geometry before each given to its geometry where it names none) and read by GDAL's
+    GML driver, as a file of parts is.
 
     Raises
     ------
     InputFileError
-        Where the file is not well-formed XML (naming its line).
+        Where the file is not well-formed XML (naming its line), or GDAL cannot read the parts written out.
     """
     try:
         st = Path(path).stat()
@@ -200,8 +200,8 @@ def _inline_parts(path: str, size: int, mtime: int) -> tuple:
     from meshsom.errors import InputFileError
     from meshsom.io import holds_match, open_input
 
-    if not holds_match(Path(path), PARTS_INLINE, SCAN_BYTES):  # most files write no parts inside their buildings, and are not parsed
-        return ()
+    if not holds_match(Path(path), PARTS_INLINE, SCAN_BYTES):  # most files write no parts inside their buildings:
+        return ()  # not parsed for them
     local = lambda tag: tag.rsplit("}", 1)[-1]  # noqa: E731
     written, stack, srs = [], [], None
     try:
@@ -248,11 +248,15 @@ def _inline_parts(path: str, size: int, mtime: int) -> tuple:
                 out.write(b"<gml:featureMember>" + text + b"</gml:featureMember>\n")
             out.write(b"</gml:FeatureCollection>\n")
         by_id = {part: building for building, part, _, _ in written}
-        with fiona.open(str(parts_file), layer="BuildingPart", WRITE_GFS="NO") as collection:
-            for feature in collection:
-                props = inspire_properties(dict(feature.properties))
-                part = str(props.get("gml_id"))
-                geometry = None if feature.geometry is None else {
-                    "type": feature.geometry["type"], "coordinates": feature.geometry["coordinates"]}
-                found.append((by_id.get(part), part, props, geometry))
+        try:
+            with fiona.open(str(parts_file), layer="BuildingPart", WRITE_GFS="NO") as collection:
+                for feature in collection:
+                    props = inspire_properties(dict(feature.properties))
+                    part = str(props.get("gml_id"))
+                    geometry = None if feature.geometry is None else {
+                        "type": feature.geometry["type"], "coordinates": feature.geometry["coordinates"]}
+                    found.append((by_id.get(part), part, props, geometry))
+        except Exception as err:  # fiona's and GDAL's own errors
+            raise InputFileError(path, f"its BuildingParts written inside their buildings cannot be read by GDAL "
+                                       f"({type(err).__name__}: {err})") from None
     return tuple(found)

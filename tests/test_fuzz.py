@@ -560,6 +560,18 @@ def mutants_are_accounted_for(path: Path, seed: bytes, max_examples: int = 100) 
     check()
 
 
+def test_mutated_inspire_inline_parts(folder):
+    """An INSPIRE file whose Buildings hold their BuildingParts (taken out, read by GDAL as a file of parts), its bytes
+    mutated: read or rejected, never an exception."""
+    from test_inspire import HEADER, _inline
+
+    seed = (HEADER + _inline("DE.B1", (0, 0, 20, 10), 5, [("DE.P1", (0, 0, 10, 10), 2), ("DE.P2", (10, 0, 10, 10), None)])
+            + "</gml:FeatureCollection>\n").encode()
+    items, records, _ = read_all(_write(folder / "valid.gml", seed))
+    assert [r["status"] for r in records] == ["accepted"] and items[0].parts
+    mutants_are_accounted_for(folder / "mutant.gml", seed, max_examples=50)
+
+
 def test_mutated_cityjson_bytes(folder, city_bytes):
     items, records, _ = read_all(_write(folder / "valid.city.json", city_bytes))
     assert len(records) == 2 and records[0]["status"] == "accepted"  # the unmutated seed is read
