@@ -1394,6 +1394,49 @@ def _parquet_layers(path: Path) -> list[Layer]:
     return [Layer(Path(path.name).stem, crs, int(pq.ParquetFile(path).metadata.num_rows), bool(meta.get("degrees")))]
 
 
+#: Columns whose rows are read across a whole file, not by range (OpenStreetMap's element ids, whose rows a
+#: multipolygon's pieces share; building parts; the 3D BAG's roof planes): a GeoParquet file with one is copied whole.
+WHOLE_FILE_COLUMNS = PART_COLUMNS + BAG2D_GROUND + ("osm_way_id", "osm_id", "feature_id", "@id", "@type", "element",
+                                                     "element_type", "osm_type", "full_id")
+
+
+def parquet_spans(path: Path, start: int, stop: int) -> list[list[int]] | None:
+    """The byte spans of a GeoParquet file that a task reading rows ``start`` to ``stop`` reads: the column chunks of
+    its first row group (where a file without GeoParquet metadata says its CRS) and of the row groups that hold those
+    rows, and everything after the last row group (page indexes, the footer); None where a range task reads more of
+    it (not Parquet, or a file with a column of :data:`WHOLE_FILE_COLUMNS`) or it cannot be read.
+
+    Returns
+    -------
+    list of [int, int] or None
+        Byte spans ``[from, to)``, ascending.
+    """
+    import pyarrow.parquet as pq
+
+    if not _is_parquet(Path(path)):
+        return None
+    try:
+        pf = pq.ParquetFile(path)
+        if set(pf.schema_arrow.names) & set(WHOLE_FILE_COLUMNS):
+            return None
+        meta, size = pf.metadata, Path(path).stat().st_size
+    except Exception:  # unreadable: its reader says why
+        return None
+    spans, firsts, last = [], 0, 0
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        chunks = [group.column(c) for c in range(group.num_columns)]
+        begin = min((c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else
+                     c.data_page_offset) for c in chunks)
+        end = max(begin, *((c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else
+                            c.data_page_offset) + c.total_compressed_size for c in chunks))
+        last = max(last, end)
+        if g == 0 or firsts < stop and firsts + group.num_rows > start:
+            spans.append([int(begin), int(end)])
+        firsts += group.num_rows
+    return spans + [[int(last), int(size)]]
+
+
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None
                      ) -> Iterator[tuple[str, dict, bytes | None]]:
     """Rows ``start`` to ``stop`` (from 0) of a GeoParquet file, read from the row group that holds
@@ -1414,7 +1457,8 @@ def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | N
         return
     row = int(firsts[group])  # rows counted from 0; ids from 1
     pieces = None
-    for batch in pf.iter_batches(batch_size=BATCH_FEATURES, row_groups=range(group, len(sizes))):
+    end = len(sizes) if stop is None else max(int(np.searchsorted(firsts, stop, side="left")), group + 1)
+    for batch in pf.iter_batches(batch_size=BATCH_FEATURES, row_groups=range(group, min(end, len(sizes)))):
         first = row
         row += batch.num_rows
         if row <= start:

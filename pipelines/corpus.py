@@ -563,6 +563,18 @@ def _range_fetch(source: dict, kind: str, byte_range, ranges: list) -> list:
     return [{**c, "spans": spans} if c["local"] == source["path"] else c for c in source["fetch"]]
 
 
+def _feature_fetch(source: dict, feature_range) -> list:
+    """A GIS range's files to copy (``source["fetch"]``): of a GeoParquet file, only the bytes its rows' task reads
+    (:func:`meshsom.gis.parquet_spans`: its first row group's, its rows' and the footer); other files whole (GDAL
+    reads them at random)."""
+    from meshsom.gis import parquet_spans
+
+    spans = parquet_spans(Path(source["path"]), int(feature_range[4]), int(feature_range[5]))
+    if spans is None:
+        return source["fetch"]
+    return [{**c, "spans": spans} if c["local"] == source["path"] else c for c in source["fetch"]]
+
+
 def _staging_folder(store: str, mirror: Path) -> Path:
     """Where the planner writes what it makes of large inputs (a CityJSON file's split, a gzipped file's content, a
     zip's files): the staging group of a local store; with a store on object storage, the mirror folder, from which
@@ -802,7 +814,10 @@ def run_corpus(client, cfg, store, resume: bool = False,
                 sources += [{**base, "range": list(r), **({"fetch": _range_fetch(base, kind, r, ranges)} if copies else {})}
                             for r in ranges]
             elif features:
-                sources += [{**base, "features": r} for r in features]
+                whole = {*reader.part_files, *reader.building_files}  # every read task opens those whole
+                sources += [{**base, "features": r, **({"fetch": _feature_fetch(base, r)}
+                                                       if copies and str(f.path) not in whole else {})}
+                            for r in features]
             else:
                 sources.append(base)
             report("plan", k + 1, len(inputs))  # large files split, decompressed or scanned for their ranges

@@ -409,6 +409,13 @@ def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s
     from test_osm import _district
 
     _district(local / "district.osm")  # OpenStreetMap: planned by its size alone, a placeholder for the planner
+    import pyarrow.parquet as pq
+    import shapely
+    from footprints import write_geoparquet
+
+    write_geoparquet(tmp_path / "plain.parquet", [(f"r{k}", shapely.geometry.mapping(shapely.box(3 * k, 0, 3 * k + 2, 2)),
+                                                   {"height": 3.0 + k % 5}) for k in range(400)], crs="EPSG:28992")
+    pq.write_table(pq.read_table(tmp_path / "plain.parquet"), local / "blocks.parquet", row_group_size=50)  # in ranges
     limit = 2 * 300_000  # twice the config's read_bytes
     assert (local / "bu.gml").stat().st_size > limit and (local / "big.gml").stat().st_size > limit
     url = f"s3://{BUCKET}/streamed/city"
@@ -430,18 +437,20 @@ def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s
     runs = {}
     for key, paths, store in (("disk", [local], str(tmp_path / "disk.zarr")), ("s3", [url], str(tmp_path / "s3.zarr"))):
         calls = []
-        corpus.run_corpus(s3_cluster, _corpus_config(paths, store, tmp_path / "mirror"), store,
-                          progress=lambda *a: calls.append(a))
+        cfg = _corpus_config(paths, store, tmp_path / "mirror")
+        cfg = dataclasses.replace(cfg, dask=dataclasses.replace(cfg.dask, read_features=150))  # the GeoParquet: 3 ranges
+        corpus.run_corpus(s3_cluster, cfg, store, progress=lambda *a: calls.append(a))
         runs[key] = (read_manifest(store)["records"], open_store(store),
                      max(total for stage, _, total in calls if stage == "read"))
     assert fetched == [f"{url}/bu.gml"]  # the planner's whole copies: the INSPIRE file only
     assert scanned == [str(local / "big.gml"), f"{url}/big.gml"]
-    assert runs["disk"][2] == runs["s3"][2] > 1 + 4  # the CityGML file in ranges
+    assert runs["disk"][2] == runs["s3"][2] > 1 + 4 + 3  # the CityGML file and the GeoParquet file in ranges
     disk, on_s3 = runs["disk"][0], runs["s3"][0]
     assert [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
             for r in disk] == [{**r, "reason": r.get("reason", "")} for r in on_s3]
     assert sum(r["status"] == "accepted" and r["source"].endswith("bu.gml") for r in on_s3) == 420
     assert sum(r["status"] == "accepted" and r["source"].endswith("district.osm") for r in on_s3) == 7
+    assert sum(r["status"] == "accepted" and r["source"].endswith("blocks.parquet") for r in on_s3) == 400
     for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
         np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
 
@@ -556,6 +565,56 @@ def test_a_worker_copies_only_the_bytes_of_its_range(s3, tmp_path, kind):
     assert len(whole) >= sum(len(v) for v in want.values())
     read_source(path, ReaderOptions(), name, None, None, (path, url), source["fetch"])  # the whole file: copied whole
     assert Path(path).read_bytes() == original and not copied.exists()
+
+
+def test_a_worker_copies_only_the_row_groups_of_its_geoparquet_range(s3, tmp_path):
+    """A GeoParquet file on S3 read in feature ranges by workers without the planner's copy: each task copies only
+    its first row group, its rows' row groups and the footer into a sparse file, and reads its rows as from the
+    whole file; row groups no task asked for stay zeros. A file whose rows are grouped across it (OpenStreetMap ids)
+    is copied whole."""
+    import json as jsonlib
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    import shapely
+
+    from meshsom.gis import gis_ranges, parquet_spans
+    from meshsom.io import ReaderOptions, read_file
+    from meshsom.mirror import SPANS_SUFFIX, mirror_inputs
+    from pipelines.corpus import _feature_fetch, read_source
+    from footprints import write_geoparquet
+
+    local = tmp_path / "in" / "city.parquet"
+    local.parent.mkdir()
+    rows = [(f"r{k}", shapely.geometry.mapping(shapely.box(3 * k, 0, 3 * k + 2, 2)), {"height": 3.0 + k % 5})
+            for k in range(1000)]
+    write_geoparquet(tmp_path / "plain.parquet", rows, crs="EPSG:28992")
+    pq.write_table(pq.read_table(tmp_path / "plain.parquet"), local, row_group_size=97)
+    url = f"s3://{BUCKET}/parquet/city"
+    _upload(local.parent, url)
+    mirrored = mirror_inputs([url], tmp_path / "mirror")
+    path = str(Path(mirrored.paths[0]) / "city.parquet")
+    ranges = gis_ranges(Path(path), 300, ReaderOptions())
+    assert [r[4:] for r in ranges] == [[0, 300], [300, 600], [600, 900], [900, 1000]]
+    source = {"path": path, "fetch": [dataclasses.asdict(c) for c in mirrored.copies.values()]}
+    fetches = {k: _feature_fetch(source, ranges[k]) for k in (2, 3)}  # the planner's, from its copy
+    shutil.rmtree(tmp_path / "mirror")
+    for k, fetch in fetches.items():
+        got = read_source(path, ReaderOptions(), "city.parquet", None, ranges[k], (path, f"{url}/city.parquet"), fetch)
+        want = list(read_file(local, ReaderOptions(), "city.parquet", feature_range=ranges[k]))
+        assert [g.id for g in got] == [w.id for w in want] and len(got) == ranges[k][5] - ranges[k][4]
+        assert all(np.array_equal(g.vertices, w.vertices) for g, w in zip(got, want))
+    data, original = Path(path).read_bytes(), local.read_bytes()
+    for a, b in jsonlib.loads(Path(f"{path}{SPANS_SUFFIX}").read_text()):
+        assert data[a:b] == original[a:b]
+    meta = pq.ParquetFile(local).metadata
+    untouched = meta.row_group(3).column(0)  # rows 291-387: range 1's alone, which no task read
+    a = untouched.dictionary_page_offset or untouched.data_page_offset
+    assert data[a:a + untouched.total_compressed_size].strip(b"\0") == b""
+    assert sum(b - a for a, b in parquet_spans(local, 600, 900)) < 0.6 * len(original)
+    table = pq.read_table(local)  # OpenStreetMap ids in a column: read across the file, so copied whole
+    pq.write_table(table.append_column("osm_way_id", pa.array([str(k) for k in range(1000)])), tmp_path / "osm.parquet")
+    assert parquet_spans(tmp_path / "osm.parquet", 0, 300) is None
 
 
 def test_the_planner_copies_placeholders_of_the_files_it_never_opens(s3, tmp_path):
