@@ -373,6 +373,9 @@ class PartGrouping:
         parts inherit), by its first part's id.
     what : str
         What its parts are, in the notes of the buildings of ``named``.
+    contained : frozenset of str
+        Buildings of ``linked`` some of whose parts are theirs by their outline alone (INSPIRE parts neither linked
+        nor named), said in their notes.
     """
 
     owned: frozenset
@@ -382,6 +385,7 @@ class PartGrouping:
     linked: frozenset = frozenset()
     tags: dict = dataclasses.field(default_factory=dict)
     what: str = "INSPIRE BuildingParts"
+    contained: frozenset = frozenset()
 
     def __contains__(self, oid: str) -> bool:
         return oid in self.owned or oid in self.parts_of or oid in self.strays
@@ -542,15 +546,20 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
     (:func:`meshsom.inspire.building_of`): one that links them (``bu-core2d:parts``) in any of the GML files of
     ``linking`` (this one, and a run's other building files: :func:`meshsom.part_files._stamp`), else the one their
     ``gml_id`` names. A building of this file is read as its parts (``linked``); one elsewhere takes its first part's
-    place (``named``). A part of no building, or whose footprint cannot be read, is read as a feature of its own.
-    Parts written inside their building (:func:`meshsom.inspire.inline_parts`) are that building's."""
+    place (``named``). A part neither linked nor named goes to the smallest Building of this file whose outline holds a
+    point inside it (``contained``), as OpenStreetMap's parts do; a part of no building, or whose footprint cannot be
+    read, is read as a feature of its own. Parts written inside their building (:func:`meshsom.inspire.inline_parts`)
+    are that building's."""
+    from shapely.geometry import shape
+
     from meshsom.inspire import building_of, inline_parts, linking_buildings, part_links
-    from meshsom.osm import _Area
+    from meshsom.osm import _Area, owners
 
     links: dict[str, str] = {}
     for other, _, _ in linking:
         links.update(part_links(Path(other)))
     groups: dict[str, list] = {}
+    loose = []  # parts neither linked nor named: to the outline that holds them
     for name in layers:
         if name != INSPIRE_PARTS:
             continue
@@ -563,6 +572,25 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
                 footprint = None
             if building is not None and footprint is not None:
                 groups.setdefault(building, []).append(_Area(f"{prefix}{oid}", props, footprint))
+            elif footprint is not None:
+                loose.append(_Area(f"{prefix}{oid}", props, footprint))
+    contained = set()
+    if loose and INSPIRE_BUILDINGS[0] in layers:
+        outlines = []
+        for oid, props, geometry in _records(Path(path), INSPIRE_BUILDINGS[0], None, 0, None):
+            try:
+                footprint = _footprint(geometry, f"{path}#{oid}") if geometry is not None else None
+                outline = shape(footprint) if footprint is not None else None
+            except Exception:  # damaged: its own reading says so
+                outline = None
+            if outline is not None and outline.is_valid and outline.area > 0:
+                outlines.append((str(props.get("gml_id") or oid), outline))
+        found = owners(np.array([o for _, o in outlines], dtype=object),
+                       np.array([shape(part.geometry) for part in loose], dtype=object))
+        for part, b in zip(loose, found.tolist()):
+            if b >= 0:
+                groups.setdefault(outlines[b][0], []).append(part)
+                contained.add(outlines[b][0])
     if INSPIRE_BUILDINGS[0] in layers:
         for building, oid, props, geometry in inline_parts(Path(path)):  # a part without a footprint: noted as left
             try:  # out by its building's reading
@@ -578,12 +606,14 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
                 Path(path), INSPIRE_BUILDINGS[0], id_attributes), 0, None):
             if str(props.get("gml_id") or oid) in groups:
                 here[str(props.get("gml_id") or oid)] = f"{prefix}{oid}"
-    parts_of, named, owned, linked, tags = {}, {}, set(), set(), {}
+    parts_of, named, owned, linked, tags, within = {}, {}, set(), set(), {}, set()
     for building, parts in groups.items():
         if building in here:  # read from its own feature, as its parts
             parts_of[here[building]] = parts
             owned.update(part.oid for part in parts)
             linked.add(here[building])
+            if building in contained:
+                within.add(here[building])
         else:  # its first part read as it, named by it, with its attributes where another file links it
             parts_of[parts[0].oid] = parts
             owned.update(part.oid for part in parts[1:])
@@ -591,7 +621,8 @@ def _inspire_grouping(path: str, size: int, mtime: int, layers: tuple, id_attrib
             for other, _, _ in linking:
                 if building in (found := linking_buildings(Path(other))):
                     tags[parts[0].oid] = found[building]
-    return PartGrouping(frozenset(owned), parts_of, frozenset(), named, frozenset(linked), tags)
+    return PartGrouping(frozenset(owned), parts_of, frozenset(), named, frozenset(linked), tags,
+                        contained=frozenset(within))
 
 
 def _attributes(path: Path, layer: str, osm: bool = False) -> Iterator[dict]:
@@ -869,6 +900,8 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
             building = grouping.named.get(oid) if grouping is not None else None  # INSPIRE: the building its parts name
             how = (f"{len(own)} {grouping.what} of {building}, read as its parts" if building else
                    f"{len(own)} INSPIRE BuildingParts of it, read as its parts"
+                   + (" (parts neither linked nor naming a building go to the outline holding them)"
+                      if oid in grouping.contained else "")
                    if grouping is not None and oid in grouping.linked else None)
             united = osm_pieces(path, layer.name).note(oid.removeprefix(f"{layer.name}/")) if osm else None
             tags = props if building is None else grouping.tags.get(oid, {})  # INSPIRE: the linking building's

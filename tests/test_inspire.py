@@ -320,3 +320,30 @@ def test_parts_written_inside_their_buildings_whole_or_in_ranges(tmp_path):
             pieces = [i for r in ranges for i in read_gis(path, options, feature_range=r)]
             assert _united_volumes(pieces) == pytest.approx(expected, rel=1e-12)
     assert not list(tmp_path.glob("*.gfs"))
+
+
+def test_parts_neither_linked_nor_named_go_to_the_outline_holding_them(tmp_path):
+    """A file of Buildings and BuildingParts whose parts neither are linked from a building nor name one in their
+    ids: each part goes to the Building whose outline holds it (read as its parts, not as three buildings where one
+    stands), as OpenStreetMap's parts do, noted; a part inside no outline is a building of its own. Whole and in
+    ranges of one feature."""
+    from meshsom.gis import gis_ranges, read_gis
+
+    body = (_feature("Building", "NL.B1", (0, 0, 20, 10), _floors(5))
+            + _feature("Building", "NL.B2", (40, 0, 10, 10), _floors(2))
+            + _feature("BuildingPart", "NL.X7", (0, 0, 10, 10), _floors(2))
+            + _feature("BuildingPart", "NL.X8", (10, 0, 10, 10), _floors(6))
+            + _feature("BuildingPart", "NL.X9", (70, 0, 5, 4), _floors(1)))
+    path = tmp_path / "bu.gml"
+    path.write_text(HEADER + body + "</gml:FeatureCollection>\n")
+    options = ReaderOptions()
+    items = list(read_gis(path, options))
+    expected = {"Building/NL.B1": (100 * 2 + 100 * 6) * 3.0, "Building/NL.B2": 100 * 2 * 3.0,
+                "BuildingPart/NL.X9": 20 * 1 * 3.0}
+    assert _united_volumes(items) == pytest.approx(expected, rel=1e-9)
+    b1 = next(i for i in items if i.id.endswith("#Building/NL.B1"))
+    assert sorted(b1.parts) == ["BuildingPart/NL.X7", "BuildingPart/NL.X8"]
+    assert ("2 INSPIRE BuildingParts of it, read as its parts (parts neither linked nor naming a building go to the "
+            "outline holding them)") in b1.notes
+    pieces = [i for r in gis_ranges(path, 1, options) for i in read_gis(path, options, feature_range=r)]
+    assert _united_volumes(pieces) == pytest.approx(expected, rel=1e-12)
