@@ -18,7 +18,7 @@ written beside it):
   a ``Building`` to its parts by ``bu-core2d:parts`` ``xlink:href`` (:func:`part_links`; the link's id
   after its last ``#``, ``/`` or ``:`` naming a part's ``gml:id`` or ``localId``), the parts in the
   building's file or in another: such a building is read as its parts, with its id and its
-  attributes (a part without a height takes its building's). Parts neither linked nor naming a building go, in a
+  attributes (a part with neither a height nor storeys takes its building's). Parts neither linked nor naming a building go, in a
   file of both, to the Building whose outline holds them (:func:`meshsom.gis.part_grouping`). Others again write the
   parts inside their ``Building`` (``bu-core2d:parts`` holding a ``BuildingPart``), which GDAL's GML driver flattens
   into list columns of the building, their footprints lost: those are taken out of the file (:func:`inline_parts`:

@@ -12,7 +12,8 @@ own configuration reads as lines; every tag is kept):
   shown by its parts: each part goes to the smallest outline holding a point inside it (shapely's
   STRtree), and the building is its parts, united in preprocessing (BuildingParts of one Building,
   as CityJSON's are; ``corpus.reader.parts: separate`` keeps them apart). A part without a height
-  of its own takes its building's; an outline itself tagged ``building:part`` is one of its parts;
+  of its own (nor storeys: :func:`inherit`) takes its building's; an outline itself tagged ``building:part`` is one
+  of its parts;
   a part that cannot be extruded (no height, ``min_height`` above ``height``) is left out, noted;
   a part inside no outline is a building of its own, noted.
 - **Building relations** (``type=building``, S3DB's way for parts that overhang or stand apart from their outline):
@@ -78,8 +79,9 @@ CRS = "EPSG:4326"
 NO = "no"
 #: ``other_tags`` as GDAL writes them: ``"key"=>"value"`` pairs, quotes and backslashes escaped.
 HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
-#: Tags a part takes from its building where it has none of them.
-INHERITED = ("height", "min_height", "building:levels", "building:min_level")
+#: Tags a part takes from its building where it has none of its group (:func:`inherit`): its top, its bottom.
+INHERITED_TOP = ("height", "building:levels")
+INHERITED_BOTTOM = ("min_height", "building:min_level")
 #: The note on a building part inside no building outline.
 STRAY = "a building:part inside no building outline, read as a building of its own"
 #: The name ending of a bzip2-compressed extract (Geofabrik's ``.osm.bz2``).
@@ -612,14 +614,10 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
     label = area.tags.get(options.label_attribute)
     verts = FeatureVertices()
     more = [alone] if alone else []
-    inherited = tuple(dict.fromkeys(INHERITED + tuple(options.height_attributes) + tuple(options.levels_attributes)
-                                    + tuple(options.min_levels_attributes)))
     if not own_parts:
         pieces = [(area, dict(area.tags))]
     else:  # the parts, each with its building's height where it has none; the outline too where it is a part
-        pieces = [(part, {**part.tags, **{t: area.tags[t] for t in inherited  # a null column is no value
-                                          if area.tags.get(t) is not None and part.tags.get(t) is None}})
-                  for part in own_parts]
+        pieces = [(part, inherit(part.tags, area.tags, options)) for part in own_parts]
         if _is_part(area.tags) and area.geometry is not None:  # a building relation's outline is not in the file
             pieces.insert(0, (area, dict(area.tags)))
     solids, failed = [], []
@@ -659,6 +657,20 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         if not isinstance(item, Rejection):
             item = dataclasses.replace(item, notes=tuple(more + list(notes)) + item.notes)
         yield item
+
+
+def inherit(part: dict, building: dict, options) -> dict:
+    """A part's tags with its building's height where it has none: of each group, its top (a height, else a storey
+    count: :data:`INHERITED_TOP` and the options' ``height_attributes`` and ``levels_attributes``) and its bottom
+    (:data:`INHERITED_BOTTOM`, ``base_attributes`` and ``min_levels_attributes``), the building's tags are taken only
+    where the part gives none of the group: a wing of 2 storeys does not take its tower's ``height``. A null value (an
+    empty column) is no value."""
+    out = dict(part)
+    for group in (INHERITED_TOP + tuple(options.height_attributes) + tuple(options.levels_attributes),
+                  INHERITED_BOTTOM + tuple(options.base_attributes) + tuple(options.min_levels_attributes)):
+        if not any(part.get(t) is not None for t in group):
+            out.update({t: building[t] for t in dict.fromkeys(group) if building.get(t) is not None})
+    return out
 
 
 def _is_part(found: dict) -> bool:

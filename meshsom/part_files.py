@@ -10,7 +10,7 @@ footprint files, and the reader (:attr:`meshsom.io.ReaderOptions.part_files`,
 
 - a building of a building file whose id a part names is read as its parts, as OpenStreetMap's
   building parts are (:func:`meshsom.osm.building_meshes`: BuildingParts of one Building, united
-  in preprocessing; a part without a height takes its building's; a part that cannot be built is
+  in preprocessing; a part with neither a height nor storeys takes its building's; a part that cannot be built is
   left out, noted);
 - a part file yields only the parts whose building is in no building file, each a building of its
   own, noted: every part is read once, with its building or alone.

@@ -916,3 +916,19 @@ def test_an_underground_part_is_left_out(tmp_path):
     assert _volume(station) == pytest.approx(osm.area[2] * 8, rel=1e-5)  # (way 2 at OSM's centimetre)
     assert any("its part way/3 lies underground (location=underground): not a building above the ground, not read: "
                "left out" in n for n in station.notes), station.notes
+
+
+def test_a_part_with_storeys_keeps_them_under_its_buildings_height(tmp_path):
+    """A building tagged with its tower's height (30 m) and storeys: its wing part of 2 storeys is 6 m (its own
+    storeys, not the building's height), the tower part of no height of its own 30 m (the building's); a part with a
+    min_height keeps it, one without takes the building's bottom (0 here)."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 30, 10), building="office", height="30", **{LEVELS: "10"})
+    osm.way(2, (0, 0, 10, 10), **{PART: "yes"})  # the tower: the building's 30 m
+    osm.way(3, (10, 0, 30, 10), **{PART: "yes", LEVELS: "2"})  # the wing: 6 m
+    osm.way(4, (40, 0, 50, 10), building="house", height="9")
+    osm.way(5, (40, 0, 50, 10), min_height="3", **{PART: "yes"})  # its own bottom, the building's top
+    (tmp_path / "o.osm").write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "o.osm")}
+    assert _union_volume(items["way/1"]) == pytest.approx(osm.area[2] * 30 + osm.area[3] * 6, rel=1e-4)
+    assert _volume(items["way/4"]) == pytest.approx(osm.area[5] * 6, rel=1e-5)
