@@ -59,6 +59,7 @@ def read_overpass(document: dict, path: Path, options, name: str | None = None) 
     from meshsom.osm import read_osm
 
     name = name or Path(path).name
+    remark = document.get("remark")
     with tempfile.TemporaryDirectory(prefix="meshsom-overpass-") as folder:
         extract = Path(folder) / "answer.osm"
         with open(extract, "w", encoding="utf-8") as out:
@@ -67,10 +68,10 @@ def read_overpass(document: dict, path: Path, options, name: str | None = None) 
             items = list(read_osm(extract, options, name))
         except InputFileError as err:
             if not unbuilt:
-                raise InputFileError(str(path), err.problem) from None
+                raise InputFileError(str(path), err.problem + (f"; the Overpass answer's remark: {str(remark)[:REMARK_SHOWN]}"
+                                                               if remark else "")) from None
             items = []
     said = (NOTE,)
-    remark = document.get("remark")
     if remark:  # Overpass's word that the query stopped (a timeout, memory): the answer may lack buildings
         said += (f"the Overpass answer's remark: {str(remark)[:REMARK_SHOWN]} (its elements may be incomplete)",)
     for item in items:
