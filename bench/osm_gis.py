@@ -21,6 +21,7 @@ The grouping's own pass (a fresh process's first read builds it) is timed apart.
 from __future__ import annotations
 
 import argparse
+import bz2
 import sys
 import tempfile
 import time
@@ -86,6 +87,22 @@ def write_converted(osm: Path, out: Path) -> None:
         dst.writerecords(features)
 
 
+def write_overpass(osm: Path, out: Path) -> None:
+    """The extract as the Overpass API answers ``[out:json]; ...; out geom;``: each way's node ids and corners, no
+    untagged nodes."""
+    import json
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(osm).getroot()
+    nodes = {n.get("id"): {"lat": float(n.get("lat")), "lon": float(n.get("lon"))} for n in root.findall("node")}
+    elements = []
+    for w in root.findall("way"):
+        refs = [nd.get("ref") for nd in w.findall("nd")]
+        elements.append({"type": "way", "id": int(w.get("id")), "nodes": [int(r) for r in refs],
+                         "geometry": [nodes[r] for r in refs], "tags": {t.get("k"): t.get("v") for t in w.findall("tag")}})
+    out.write_text(json.dumps({"version": 0.6, "generator": "Overpass API 0.7.62.1", "elements": elements}))
+
+
 def write_plain(out: Path, areas) -> None:
     import fiona
 
@@ -127,12 +144,16 @@ def main(argv=None) -> int:
         write_osm(tmp / "d.osm", areas)
         write_converted(tmp / "d.osm", tmp / "d.gpkg")
         write_plain(tmp / "plain.gpkg", areas)
+        write_overpass(tmp / "d.osm", tmp / "answer.json")
+        (tmp / "d.osm.bz2").write_bytes(bz2.compress((tmp / "d.osm").read_bytes()))
         _part_grouping.cache_clear()
         start = time.perf_counter()
         grouping = part_grouping(tmp / "d.gpkg", _chosen_layers(tmp / "d.gpkg", ReaderOptions()), ReaderOptions())
         grouped = time.perf_counter() - start
         rows = [("GeoPackage, plain columns (reference)", tmp / "plain.gpkg"), ("the extract (.osm, GDAL's OSM driver)", tmp / "d.osm"),
-                ("ogr2ogr GeoPackage (other_tags, parts grouped)", tmp / "d.gpkg")]
+                ("ogr2ogr GeoPackage (other_tags, parts grouped)", tmp / "d.gpkg"),
+                ("Overpass API JSON (out geom), written out as OSM XML", tmp / "answer.json"),
+                ("the extract bzip2-compressed (.osm.bz2, written as PBF by libosmium)", tmp / "d.osm.bz2")]
         results = [(label, *timed(path, args.repeat)) for label, path in rows]
     owners = len(grouping.parts_of) if grouping else 0
     print(f"{args.buildings:,} buildings, {owners:,} of them of two parts, {len(areas) - args.buildings - 2 * owners:,} "
