@@ -330,21 +330,33 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
             yield Rejection(f"{name}#{relation.oid}", str(path), problem, 0, relation.tags.get(options.label_attribute))
 
 
+def bzip2_as_pbf(path: Path, out: Path) -> None:
+    """Write a bzip2-compressed OSM XML extract as PBF (libosmium, through pyosmium), which GDAL reads.
+
+    Raises
+    ------
+    InputFileError
+        Damaged bzip2 data or XML (``out`` is then removed).
+    """
+    import osmium
+
+    try:
+        with osmium.SimpleWriter(str(out)) as writer:
+            for element in osmium.FileProcessor(osmium.io.File(str(path), "osm.bz2")):
+                writer.add(element)
+    except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged bzip2 data or XML
+        Path(out).unlink(missing_ok=True)
+        raise InputFileError(str(path), f"cannot be read as bzip2-compressed OpenStreetMap XML by libosmium ({err})") from None
+
+
 def _read_bzip2(path: Path, options, name: str, feature_range) -> Iterator:
-    """:func:`read_osm` of a bzip2-compressed OSM XML extract: written as PBF by libosmium (pyosmium) into a temporary
+    """:func:`read_osm` of a bzip2-compressed OSM XML extract: written as PBF (:func:`bzip2_as_pbf`) into a temporary
     folder, read from there, the items naming ``path``."""
     import tempfile
 
-    import osmium
-
     with tempfile.TemporaryDirectory(prefix="meshsom-osm-") as folder:
         pbf = Path(folder) / f"{path.name.removesuffix(BZIP2_SUFFIX)}.pbf"
-        try:
-            with osmium.SimpleWriter(str(pbf)) as writer:
-                for element in osmium.FileProcessor(osmium.io.File(str(path), "osm.bz2")):
-                    writer.add(element)
-        except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged bzip2 data or XML
-            raise InputFileError(str(path), f"cannot be read as bzip2-compressed OpenStreetMap XML by libosmium ({err})") from None
+        bzip2_as_pbf(path, pbf)
         try:
             items = list(read_osm(pbf, options, name, feature_range))
         except InputFileError as err:

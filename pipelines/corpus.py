@@ -482,6 +482,26 @@ def _gunzipped(f, k: int, staging: Path, cfg, kind: str) -> str | None:
     return str(out)
 
 
+def _bzip2_pbf(f, k: int, staging: Path) -> str | None:
+    """A large ``.osm.bz2`` input written as PBF into the ``staging`` folder by libosmium
+    (:func:`meshsom.osm.bzip2_as_pbf`), once, so that its read tasks each read the PBF rather than convert it again:
+    the path, or None where it cannot be converted (read by its tasks, whose reader says why) or the disk lacks room
+    for about its size (a PBF extract is smaller than its bzip2 XML)."""
+    from meshsom.errors import InputFileError
+    from meshsom.osm import bzip2_as_pbf
+
+    try:
+        if not _room_for(Path(f.path).stat().st_size, staging, f.path):
+            return None
+        out = staging / f"pbf-{k:05d}-{Path(f.path).name.removesuffix('.bz2')}.pbf"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        bzip2_as_pbf(Path(f.path), out)
+    except (InputFileError, OSError):
+        return None
+    log.info("%s: bzip2-compressed OpenStreetMap XML written as %s to be read in ranges", f.path, out)
+    return str(out)
+
+
 def _is_cityjson(path: Path, cfg) -> bool:
     """Whether a JSON input (plain or gzipped) is CityJSON: its first :data:`CITYJSON_SNIFF_BYTES` name the type."""
     from meshsom.io import open_input
@@ -710,7 +730,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.geojson import geojson_ranges
     from meshsom.gis import gis_ranges
     from meshsom.io import GZIP_MAGIC, Rejection, cityjsonseq_ranges, expand_inputs, input_kind
-    from meshsom.osm import osm_ranges
+    from meshsom.osm import BZIP2_SUFFIX, osm_ranges
     from meshsom.mirror import (
         HEAD_SUFFIXES, Copies, as_url, companions, fetch, heads_from, is_partial, mirror_inputs, remove_mirror, unopened_below, url_rename,
     )
@@ -792,7 +812,12 @@ def run_corpus(client, cfg, store, resume: bool = False,
             kind = input_kind(f.path)
             copies = [asdict(c) for c in companions(f.path, mirrored.copies)] if rename is not None else []
             plain = _gunzipped(f, k, staging, cfg, kind) if kind in ("cityjson", "cityjsonseq", "citygml") else None
-            if plain:  # a large gzipped sequence or collection: ranges of its plain form
+            if kind == "osm" and f.path.name.lower().endswith(BZIP2_SUFFIX) and osm_ranges(
+                    f.path, int(cfg.dask.read_features), cfg.corpus.reader):  # read in ranges: made PBF once, here
+                if is_partial(f.path) and str(f.path) in mirrored.copies:  # on object storage: a placeholder so far
+                    fetch([mirrored.copies[str(f.path)]])
+                plain = _bzip2_pbf(f, k, staging)
+            if plain:  # a large gzipped sequence or collection, a large .osm.bz2: ranges of its plain form
                 rename, f = (plain, _renamed(str(f.path), rename)), replace(f, path=Path(plain))
             split = _split_cityjson(f, k, staging, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
             if split:  # the sequence's items named as the file's

@@ -431,6 +431,40 @@ def test_large_gzipped_sequences_and_collections_are_read_in_ranges(cluster_clie
     assert cut["status"] == "rejected" and "ends early" in cut["reason"], cut
 
 
+def test_a_large_osm_bz2_is_made_pbf_once_and_read_in_ranges(cluster_client, tmp_path, monkeypatch):
+    """A bzip2-compressed OpenStreetMap extract read in ranges: the planner writes it as PBF into the store's staging
+    group once (each range's task would convert it again), the tasks read the PBF; the records equal those of one task
+    reading the .bz2, naming it as their source."""
+    import bz2
+    import sys
+
+    from meshsom import osm
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_osm import _district
+
+    xml, _ = _district(tmp_path / "d.osm")
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "d.osm.bz2").write_bytes(bz2.compress(xml.read_bytes()))
+    converted = []
+    convert = osm.bzip2_as_pbf
+    monkeypatch.setattr(osm, "bzip2_as_pbf", lambda *a: converted.append(a[0]) or convert(*a))
+    records, reads = {}, {}
+    for read_features in (10**6, 2):
+        cfg = build(RunConfig, {"corpus": {"paths": [str(tmp_path / "in")], "reader": {"default_height": 9.0}},
+                                "encoding": {"levels": [1]}, "store": {"chunk_rows": CHUNK},
+                                "dask": {"shard_meshes": 16, "read_features": read_features}})
+        store = tmp_path / f"o{read_features}.zarr"
+        calls = []
+        corpus.run_corpus(cluster_client, cfg, store, progress=lambda *a: calls.append(a))
+        reads[read_features] = max(total for stage, _, total in calls if stage == "read")
+        records[read_features] = sorted(read_manifest(store)["records"], key=lambda r: r["id"])
+        assert not (store / corpus.STAGING).exists()
+    assert reads[10**6] == 1 and reads[2] > 2 and converted == [tmp_path / "in" / "d.osm.bz2"]
+    assert records[2] == records[10**6] and len(records[2]) == 10
+    assert {r["source"] for r in records[2]} == {str(tmp_path / "in" / "d.osm.bz2")}
+
+
 def test_repeated_ids_across_ranges_get_the_next_free_number():
     sources = [{"path": "a", "range": [0, 1, 2]}, {"path": "a", "range": [1, 2, 3]}, {"path": "b"}]
     ids = [["x", "x (2)", "y"], ["x", "z", "y"], ["x"]]
