@@ -560,6 +560,24 @@ def mutants_are_accounted_for(path: Path, seed: bytes, max_examples: int = 100) 
     check()
 
 
+def test_mutated_osm_building_relations(folder):
+    """An OpenStreetMap extract of a building relation (an outline, its overhanging part, a missing member) and its
+    neighbour, its bytes mutated (ids, roles, member types, numbers): read or rejected, never an exception."""
+    from test_osm import OsmWriter
+
+    osm = OsmWriter()
+    osm.way(100, (0, 0, 20, 20), building="office")
+    osm.way(101, (0, 0, 20, 20), **{"building:part": "yes"})
+    osm.way(102, (10, 10, 36, 36), min_height="12", height="20", **{"building:part": "yes"})
+    osm.way(110, (21, 21, 40, 40), building="yes", height="6")
+    osm.building_relation(150, [("outline", "way/100"), ("part", "way/101"), ("part", "way/102"), ("part", "way/9")],
+                          height="10")
+    seed = osm.text().encode()
+    items, records, _ = read_all(_write(folder / "valid.osm", seed))
+    assert [r["status"] for r in records] == ["accepted", "accepted"]
+    mutants_are_accounted_for(folder / "mutant.osm", seed, max_examples=40)
+
+
 def test_mutated_inspire_inline_parts(folder):
     """An INSPIRE file whose Buildings hold their BuildingParts (taken out, read by GDAL as a file of parts), its bytes
     mutated: read or rejected, never an exception."""
