@@ -724,7 +724,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
     """
     from distributed import as_completed
 
-    from meshsom.errors import StoreError
+    from meshsom.errors import InputFileError, StoreError
     from meshsom.archives import NESTED, is_nested_archive
     from meshsom.citygml import citygml_ranges
     from meshsom.geojson import geojson_ranges
@@ -732,7 +732,8 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.io import GZIP_MAGIC, Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import BZIP2_SUFFIX, osm_ranges
     from meshsom.mirror import (
-        HEAD_SUFFIXES, Copies, as_url, companions, fetch, heads_from, is_partial, mirror_inputs, remove_mirror, unopened_below, url_rename,
+        HEAD_SUFFIXES, Copies, as_url, companions, fetch, heads_from, is_partial, mirror_inputs, remove_mirror,
+        unopened_below, url_rename,
     )
     from meshsom.part_files import pair
     from meshsom.store import (
@@ -768,7 +769,7 @@ def run_corpus(client, cfg, store, resume: bool = False,
                                  unopened_below(2 * int(cfg.dask.read_bytes)),  # tiles too small to cut: placeholders
                                  heads_from(2 * int(cfg.dask.read_bytes)))  # large CityGML: its head; its ranges streamed
         files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
-        streamed = {}  # a large CityGML file on object storage: its URL, its ranges found by streaming it from there
+        streamed, lost = {}, set()  # a large CityGML file on object storage: its URL, its ranges found by streaming it
         for f in files:
             c = mirrored.copies.get(str(f.path))
             if c is None or not is_partial(f.path) or not f.path.name.lower().endswith(HEAD_SUFFIXES):
@@ -777,8 +778,13 @@ def run_corpus(client, cfg, store, resume: bool = False,
                 gzipped = head.read(2) == GZIP_MAGIC
             if input_kind(f.path) == "citygml" and not gzipped:
                 streamed[str(f.path)] = c.url
-            else:  # INSPIRE's GML footprints (GDAL reads them whole), gzip data: copied whole for the planner to read
+                continue
+            try:  # INSPIRE's GML footprints (GDAL reads them whole), gzip data: copied whole for the planner to read
                 fetch([c])
+            except InputFileError as err:
+                missing.append(Rejection(c.url, c.url, err.problem))
+                lost.add(str(f.path))
+        files = [f for f in files if str(f.path) not in lost]
         missing = [replace(r, id=as_url(r.id, mirrored.urls), source=as_url(r.source, mirrored.urls)) for r in missing] + [
             Rejection(url, url, why) for url, why in mirrored.missing]
         root = root or create_store(path, overwrite=True)
@@ -814,9 +820,12 @@ def run_corpus(client, cfg, store, resume: bool = False,
             plain = _gunzipped(f, k, staging, cfg, kind) if kind in ("cityjson", "cityjsonseq", "citygml") else None
             if kind == "osm" and f.path.name.lower().endswith(BZIP2_SUFFIX) and osm_ranges(
                     f.path, int(cfg.dask.read_features), cfg.corpus.reader):  # read in ranges: made PBF once, here
-                if is_partial(f.path) and str(f.path) in mirrored.copies:  # on object storage: a placeholder so far
-                    fetch([mirrored.copies[str(f.path)]])
-                plain = _bzip2_pbf(f, k, staging)
+                try:
+                    if is_partial(f.path) and str(f.path) in mirrored.copies:  # on object storage: a placeholder so far
+                        fetch([mirrored.copies[str(f.path)]])
+                    plain = _bzip2_pbf(f, k, staging)
+                except InputFileError:  # not copied: its tasks copy it, or say why they cannot
+                    plain = None
             if plain:  # a large gzipped sequence or collection, a large .osm.bz2: ranges of its plain form
                 rename, f = (plain, _renamed(str(f.path), rename)), replace(f, path=Path(plain))
             split = _split_cityjson(f, k, staging, cfg) if kind == "cityjson" else None  # a city in one CityJSON file
