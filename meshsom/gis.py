@@ -1444,30 +1444,40 @@ def parquet_spans(path: Path, start: int, stop: int) -> list[list[int]] | None:
     list of [int, int] or None
         Byte spans ``[from, to)``, ascending.
     """
-    import pyarrow.parquet as pq
-
     if not _is_parquet(Path(path)):
         return None
     try:
-        pf = pq.ParquetFile(path)
-        if set(pf.schema_arrow.names) & set(WHOLE_FILE_COLUMNS):
-            return None
-        meta, size = pf.metadata, Path(path).stat().st_size
+        st = Path(path).stat()
+        groups, size = _parquet_groups(str(path), st.st_size, st.st_mtime_ns)
     except Exception:  # unreadable: its reader says why
         return None
-    spans, firsts, last = [], 0, 0
+    if groups is None:
+        return None
+    spans, firsts = [], 0
+    for g, (begin, end, rows) in enumerate(groups):
+        if g == 0 or firsts < stop and firsts + rows > start:
+            spans.append([begin, end])
+        firsts += rows
+    return spans + [[max([end for _, end, _ in groups] + [0]), size]]
+
+
+@functools.lru_cache(maxsize=8)
+def _parquet_groups(path: str, size: int, mtime: int) -> tuple[tuple | None, int]:
+    """A Parquet file's row groups as (first byte, end, rows), read once per process and file (the planner asks once
+    per range); None where it has a column of :data:`WHOLE_FILE_COLUMNS`."""
+    import pyarrow.parquet as pq
+
+    pf = pq.ParquetFile(path)
+    if set(pf.schema_arrow.names) & set(WHOLE_FILE_COLUMNS):
+        return None, size
+    meta, groups = pf.metadata, []
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
-        chunks = [group.column(c) for c in range(group.num_columns)]
-        begin = min((c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else
-                     c.data_page_offset) for c in chunks)
-        end = max(begin, *((c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else
-                            c.data_page_offset) + c.total_compressed_size for c in chunks))
-        last = max(last, end)
-        if g == 0 or firsts < stop and firsts + group.num_rows > start:
-            spans.append([int(begin), int(end)])
-        firsts += group.num_rows
-    return spans + [[int(last), int(size)]]
+        starts = [(c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else c.data_page_offset,
+                   c.total_compressed_size) for c in (group.column(k) for k in range(group.num_columns))]
+        begin = min(a for a, _ in starts)
+        groups.append((int(begin), int(max([begin] + [a + n for a, n in starts])), int(group.num_rows)))
+    return tuple(groups), size
 
 
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None
