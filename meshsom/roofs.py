@@ -158,7 +158,8 @@ def roof_tags(props: dict) -> dict:
 def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: dict, storey_height: float,
                 number, length=None) -> float:
     """The roof's height (metres from eaves to top): ``roof:height``, else ``roof:levels`` x
-    ``storey_height``, else the height of a roof pitched at ``roof:angle`` (else
+    ``storey_height`` (where above 0: no storey in the roof is no flat roof), else the height of a roof pitched at
+    ``roof:angle`` (else
     :data:`DEFAULT_PITCH_DEG`) over half the footprint's width (its whole width for a skillion; a
     dome and a round roof: half the width, a half circle; an onion: the width).
 
@@ -177,8 +178,8 @@ def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: 
     if height is not None:
         return max(float(height), 0.0)
     levels = number(tags.get("roof:levels"))
-    if levels is not None:
-        return max(float(levels), 0.0) * storey_height
+    if levels is not None and levels > 0:  # roof:levels=0 (no storey in the roof, common) says nothing of its height
+        return float(levels) * storey_height
     metric = ring * np.asarray(scale, np.float64)
     width = _width(metric)
     if shape in ("dome", "round"):  # a half circle across it

@@ -889,6 +889,7 @@ def test_a_roof_stands_on_walls_of_its_storeys(tmp_path):
     osm.way(2, (0, 20, 10, 28), building="house", height="9", **{"roof:height": "3", ROOF: "gabled"})
     osm.way(3, (0, 40, 10, 48), building="house", **{LEVELS: "2", ROOF: "gabled"})
     osm.way(4, (0, 60, 10, 68), building="house", height="9", **{LEVELS: "2", "roof:levels": "1", ROOF: "gabled"})
+    osm.way(5, (0, 80, 10, 88), building="house", **{LEVELS: "2", "roof:levels": "0", ROOF: "gabled"})  # no attic
     path = tmp_path / "houses.osm"
     path.write_text(osm.text())
     items = {i.id.split("#")[1]: i for i in read_file(path)}
@@ -902,6 +903,8 @@ def test_a_roof_stands_on_walls_of_its_storeys(tmp_path):
     assert np.ptp(pitched.vertices[:, 2]) == pytest.approx(6 + rise, abs=2e-2)
     assert _volume(pitched) == pytest.approx(osm.area[3] * (6 + rise / 2), rel=5e-3)
     assert _volume(both) / osm.area[4] == pytest.approx(_volume(levels) / osm.area[1], rel=1e-4)  # the same house
+    attic = items["way/5"]  # roof:levels=0: no storey in the roof, the pitched roof all the same
+    assert _volume(attic) / osm.area[5] == pytest.approx(_volume(pitched) / osm.area[3], rel=1e-3)
 
 
 def test_an_underground_part_is_left_out(tmp_path):
