@@ -315,7 +315,7 @@ def is_partial(path) -> bool:
 def _whole(path: Path, size: int) -> bool:
     """Whether ``path`` is a whole copy: of its size, without a spans file beside it."""
     try:
-        return path.stat().st_size == size and not Path(f"{path}{SPANS_SUFFIX}").exists()
+        return path.stat().st_size == size and not is_partial(path)
     except OSError:
         return False
 

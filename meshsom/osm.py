@@ -342,7 +342,7 @@ def bzip2_as_pbf(path: Path, out: Path) -> None:
 
     try:
         with osmium.SimpleWriter(str(out)) as writer:
-            for element in osmium.FileProcessor(osmium.io.File(str(path), "osm.bz2")):
+            for element in osmium.FileProcessor(osmium_file(Path(path))):
                 writer.add(element)
     except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged bzip2 data or XML
         Path(out).unlink(missing_ok=True)
@@ -377,12 +377,13 @@ class BuildingRelation:
 
 
 def osmium_file(path: Path):
-    """An extract as pyosmium opens it, its format said by its name (``.pbf``; else XML, gzipped where its name
-    ends ``.gz``) rather than left to libosmium's guess from the suffix."""
+    """An extract as pyosmium opens it, its format said by its name (``.pbf``; else XML, gzipped or bzip2-compressed
+    where its name ends ``.gz`` or ``.bz2``) rather than left to libosmium's guess from the suffix."""
     import osmium
 
     lower = path.name.lower()
-    return osmium.io.File(str(path), "pbf" if lower.endswith(".pbf") else "osm.gz" if lower.endswith(".gz") else "osm")
+    compressed = next((f".{c}" for c in ("gz", "bz2") if lower.endswith(f".{c}")), "")
+    return osmium.io.File(str(path), "pbf" if lower.endswith(".pbf") else f"osm{compressed}")
 
 
 def building_relations(path: Path) -> list[BuildingRelation]:

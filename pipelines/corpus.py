@@ -580,7 +580,7 @@ def _range_fetch(source: dict, kind: str, byte_range, ranges: list) -> list:
         spans = [[0, r[3] + 1], [r[0], r[1]], [r[4], size]]
     else:  # a CityJSONSeq's: its header line (before the first range) and the range's lines
         spans = [[0, int(ranges[0][0])], [r[0], r[1]]]
-    return [{**c, "spans": spans} if c["local"] == source["path"] else c for c in source["fetch"]]
+    return _with_spans(source, spans)
 
 
 def _feature_fetch(source: dict, feature_range) -> list:
@@ -590,8 +590,11 @@ def _feature_fetch(source: dict, feature_range) -> list:
     from meshsom.gis import parquet_spans
 
     spans = parquet_spans(Path(source["path"]), int(feature_range[4]), int(feature_range[5]))
-    if spans is None:
-        return source["fetch"]
+    return source["fetch"] if spans is None else _with_spans(source, spans)
+
+
+def _with_spans(source: dict, spans: list) -> list:
+    """``source["fetch"]`` with ``spans`` (:attr:`meshsom.mirror.Copy.spans`) on the copy of the file it reads."""
     return [{**c, "spans": spans} if c["local"] == source["path"] else c for c in source["fetch"]]
 
 
