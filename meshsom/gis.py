@@ -1344,9 +1344,10 @@ def _parquet_native_geometry(path: Path) -> tuple[str, dict] | None:
 
 
 def _parquet_wkb_column(path: Path, schema) -> tuple[str, dict] | None:
-    """A binary column of :data:`WKB_COLUMNS` whose first value is WKB (shapely reads it), as :func:`_parquet_geo`
-    gives it, its CRS unknown (``degrees``: its first footprint lies within +/-180 and +/-90, so it is read as
-    WGS 84, noted: :func:`_parquet_layers`); None where there is none. Looked for once per process and file."""
+    """A binary column of :data:`WKB_COLUMNS` whose first value (among the first :data:`PLANNER_ROWS`) is WKB (shapely
+    reads it), as :func:`_parquet_geo` gives it, its CRS unknown (``degrees``: its first footprint lies within +/-180
+    and +/-90, so it is read as WGS 84, noted: :func:`_parquet_layers`); None where there is none. Looked for once
+    per process and file."""
     import pyarrow as pa
 
     binary = tuple(name for name in schema.names
@@ -1366,8 +1367,12 @@ def _wkb_column_of(path: str, size: int, mtime: int, binary: tuple) -> tuple[str
         name = by_name.get(wanted)
         if name is None:
             continue
-        first = next((v for batch in pq.ParquetFile(path).iter_batches(batch_size=256, columns=[name])
-                      for v in batch.column(0).to_pylist() if v is not None), None)
+        first, rows = None, 0  # within the first rows, which a copy of a file on object storage holds
+        for batch in pq.ParquetFile(path).iter_batches(batch_size=PLANNER_ROWS, columns=[name]):
+            first = next((v for v in batch.column(0).to_pylist()[:PLANNER_ROWS - rows] if v is not None), None)
+            rows += batch.num_rows
+            if first is not None or rows >= PLANNER_ROWS:
+                break
         try:
             shape = shapely.from_wkb(first) if first is not None else None
         except shapely.errors.GEOSException:
@@ -1435,8 +1440,8 @@ WHOLE_FILE_COLUMNS = PART_COLUMNS + BAG2D_GROUND + ("osm_way_id", "osm_id", "fea
 
 def parquet_spans(path: Path, start: int, stop: int) -> list[list[int]] | None:
     """The byte spans of a GeoParquet file that a task reading rows ``start`` to ``stop`` reads: the column chunks of
-    its first row group (where a file without GeoParquet metadata says its CRS) and of the row groups that hold those
-    rows, and everything after the last row group (page indexes, the footer); None where a range task reads more of
+    its first row groups (of :data:`PLANNER_ROWS` rows, where a file that does not declare its geometry says it by its
+    first footprint, :func:`_declares_geometry`) and of the row groups that hold those rows, and everything after the last row group (page indexes, the footer); None where a range task reads more of
     it (not Parquet, or a file with a column of :data:`WHOLE_FILE_COLUMNS`) or it cannot be read.
 
     Returns
@@ -1453,9 +1458,10 @@ def parquet_spans(path: Path, start: int, stop: int) -> list[list[int]] | None:
         return None
     if groups is None:
         return None
+    groups, declared = groups
     spans, firsts = [], 0
     for g, (begin, end, rows) in enumerate(groups):
-        if g == 0 or firsts < stop and firsts + rows > start:
+        if firsts < PLANNER_ROWS and not declared or firsts < stop and firsts + rows > start:
             spans.append([begin, end])
         firsts += rows
     return spans + [[max([end for _, end, _ in groups] + [0]), size]]
@@ -1463,21 +1469,111 @@ def parquet_spans(path: Path, start: int, stop: int) -> list[list[int]] | None:
 
 @functools.lru_cache(maxsize=8)
 def _parquet_groups(path: str, size: int, mtime: int) -> tuple[tuple | None, int]:
-    """A Parquet file's row groups as (first byte, end, rows), read once per process and file (the planner asks once
-    per range); None where it has a column of :data:`WHOLE_FILE_COLUMNS`."""
+    """A Parquet file's row groups as (first byte, end, rows), and whether it declares its geometry
+    (:func:`_declares_geometry`), read once per process and file (the planner asks once per range); None where it has
+    a column of :data:`WHOLE_FILE_COLUMNS`."""
     import pyarrow.parquet as pq
 
     pf = pq.ParquetFile(path)
     if set(pf.schema_arrow.names) & set(WHOLE_FILE_COLUMNS):
         return None, size
-    meta, groups = pf.metadata, []
+    return (_row_group_spans(pf.metadata), _declares_geometry(pf)), size
+
+
+def _declares_geometry(pf) -> bool:
+    """Whether a Parquet file's metadata says which its geometry column is and its CRS (GeoParquet metadata, a
+    column of Parquet's GEOMETRY or GEOGRAPHY type): else its first footprint is read to find them
+    (:func:`_parquet_wkb_column`)."""
+    return b"geo" in (pf.metadata.metadata or {}) or any(
+        str(pf.schema.column(k).logical_type).startswith(("Geometry(", "Geography(")) for k in range(len(pf.schema)))
+
+
+def _chunk_span(chunk) -> tuple[int, int]:
+    """A column chunk's bytes ``[from, to)``: from its dictionary page where it has one."""
+    begin = chunk.dictionary_page_offset if chunk.has_dictionary_page and chunk.dictionary_page_offset else \
+        chunk.data_page_offset
+    return int(begin), int(begin + chunk.total_compressed_size)
+
+
+def _row_group_spans(meta) -> tuple:
+    """(first byte, end, rows) of each row group of a Parquet file's metadata."""
+    groups = []
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
-        starts = [(c.dictionary_page_offset if c.has_dictionary_page and c.dictionary_page_offset else c.data_page_offset,
-                   c.total_compressed_size) for c in (group.column(k) for k in range(group.num_columns))]
-        begin = min(a for a, _ in starts)
-        groups.append((int(begin), int(max([begin] + [a + n for a, n in starts])), int(group.num_rows)))
-    return tuple(groups), size
+        spans = [_chunk_span(group.column(k)) for k in range(group.num_columns)]
+        begin = min([a for a, _ in spans] or [0])
+        groups.append((begin, max([begin] + [b for _, b in spans]), int(group.num_rows)))
+    return tuple(groups)
+
+
+#: Rows of a GeoParquet file without GeoParquet metadata whose WKB column (:data:`WKB_COLUMNS`) the planner may read,
+#: to find its first footprint (:func:`_parquet_wkb_column`): its first row groups'.
+PLANNER_ROWS = 1024
+
+
+def planner_columns(options) -> tuple[str, ...]:
+    """The columns of a GeoParquet file the planner reads in every row: the candidate ids
+    (:attr:`meshsom.io.ReaderOptions.id_attributes`: which is unique, :func:`gis_ranges`), and those that say a
+    file holds building parts (:func:`meshsom.part_files.pair`: Overture's ``id`` and ``building_id``, OpenStreetMap's
+    part tags)."""
+    from meshsom.part_files import BUILDING_ID, OWN_ID
+
+    return tuple(dict.fromkeys((*options.id_attributes, OWN_ID, BUILDING_ID, *PART_COLUMNS, "building", "osm_way_id",
+                                "feature_id")))
+
+
+def parquet_planned_spans(source, size: int, columns: Sequence[str]) -> list[list[int]] | None:
+    """The byte spans of a GeoParquet file that the planner reads, found from its footer alone (a file on object
+    storage: a range request or two, :func:`meshsom.mirror.open_bytes`): its magic number, the column chunks of
+    ``columns`` in every row group, those of a WKB column (:data:`WKB_COLUMNS`) in its first row groups (at least
+    :data:`PLANNER_ROWS` rows) where no metadata says which its geometry is, and everything after the last row
+    group (page indexes, the footer). A column is named by its top-level name (its nested columns follow it).
+
+    Parameters
+    ----------
+    source : str or Path
+        The file, or its URL.
+    size : int
+        Its size in bytes.
+    columns : sequence of str
+        :func:`planner_columns`.
+
+    Returns
+    -------
+    list of [int, int] or None
+        Byte spans ``[from, to)``, ascending and merged; None where it cannot be read as Parquet (copied whole: its
+        reader says why).
+    """
+    import pyarrow.parquet as pq
+
+    from meshsom.mirror import HEAD_BYTES, open_bytes
+
+    try:
+        with open_bytes(source, HEAD_BYTES) as fh:
+            pf = pq.ParquetFile(fh)
+            meta, declared = pf.metadata, _declares_geometry(pf)
+    except Exception:  # not Parquet, damaged, gone: copied whole, and read or refused as any input
+        return None
+    groups = _row_group_spans(meta)
+    spans, rows = [[0, 4]], 0  # the magic number, which says its kind
+
+    def named(path: str, names) -> bool:
+        return any(path.lower() == w.lower() or path.lower().startswith(f"{w.lower()}.") for w in names)
+
+    for g in range(len(groups)):
+        wanted = tuple(columns) + (WKB_COLUMNS if rows < PLANNER_ROWS and not declared else ())
+        group = meta.row_group(g)
+        spans += [list(_chunk_span(c)) for c in (group.column(k) for k in range(group.num_columns))
+                  if named(c.path_in_schema, wanted)]
+        rows += group.num_rows
+    spans.append([max([end for _, end, _ in groups] + [4]), size])
+    merged = []
+    for a, b in sorted(spans):
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    return merged
 
 
 def _parquet_records(path: Path, id_field: str | None, start: int, stop: int | None

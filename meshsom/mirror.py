@@ -8,7 +8,8 @@ readers seek), so an input named by a URL is copied ("mirrored") before it is re
   ``<mirror>/<protocol>/<bucket>/<key>`` (:func:`mirror_inputs`), and plans from those copies as from local files
   (ids, kinds, ranges, splits); a file it never opens (a mesh, a CAD model: :data:`UNOPENED_SUFFIXES`) is a
   placeholder there, its size and no bytes; of a large plain CityGML file (:func:`heads_from`) it copies the head
-  only, which says its kind, and finds its ranges by streaming it from its URL (:func:`open_bytes`);
+  only, which says its kind, and finds its ranges by streaming it from its URL (:func:`open_bytes`); of a large
+  GeoParquet file (:func:`columns_from`) the footer, the first row groups and the id columns;
 - each read task is given the files it needs with their URLs (:func:`companions`: the file, the files sharing its
   stem, ``labels.csv`` beside it, and the whole folder of a glTF, KML, 3D Tiles tileset or File Geodatabase);
   a worker that lacks them (another machine; a placeholder) copies them to the same path of its own disk first
@@ -109,12 +110,13 @@ def filesystem(url: str):
 STREAM_BLOCK_BYTES = 1 << 24
 
 
-def open_bytes(source):
+def open_bytes(source, block_size: int = STREAM_BLOCK_BYTES):
     """A binary file object of a local file, or of a file named by a URL streamed from where it lies (fsspec, in
-    blocks of :data:`STREAM_BLOCK_BYTES`: a scan over a large file on object storage that copies nothing)."""
+    blocks of ``block_size`` bytes at least: a scan over a large file on object storage that copies nothing; a
+    smaller block for a file read at a few places, such as a Parquet file's footer)."""
     if is_url(source):
         fs, path = filesystem(os.fspath(source))
-        return fs.open(path, "rb", block_size=STREAM_BLOCK_BYTES, cache_type="readahead")
+        return fs.open(path, "rb", block_size=block_size, cache_type="readahead")
     return open(source, "rb")
 
 
@@ -304,6 +306,20 @@ def heads_from(limit: int):
     by streaming it, :func:`open_bytes`); smaller ones are copied whole, many at a time."""
     def test(c: Copy) -> bool:
         return c.local.lower().endswith(HEAD_SUFFIXES) and c.size >= limit
+    return test
+
+
+def columns_from(limit: int):
+    """The planner's test of a file of which it reads some columns only, where it is large: a GeoParquet file
+    (:data:`meshsom.gis.PARQUET_SUFFIXES`) of ``limit`` bytes or more (twice ``dask.read_bytes``). It is a placeholder
+    at first (give it to :func:`copy_all` as ``unopened``); the planner then copies the spans it reads
+    (:func:`meshsom.gis.parquet_planned_spans`: the footer, the first row groups, the id columns), and each read task
+    its own (its rows' row groups, :func:`meshsom.gis.parquet_spans`). Smaller ones are copied whole, many at a
+    time."""
+    from meshsom.gis import PARQUET_SUFFIXES
+
+    def test(c: Copy) -> bool:
+        return c.local.lower().endswith(PARQUET_SUFFIXES) and c.size >= limit
     return test
 
 

@@ -734,9 +734,10 @@ def run_corpus(client, cfg, store, resume: bool = False,
     from meshsom.gis import gis_ranges
     from meshsom.io import GZIP_MAGIC, Rejection, cityjsonseq_ranges, expand_inputs, input_kind
     from meshsom.osm import BZIP2_SUFFIX, osm_ranges
+    from meshsom.gis import parquet_planned_spans, planner_columns
     from meshsom.mirror import (
-        HEAD_SUFFIXES, Copies, as_url, companions, fetch, heads_from, is_partial, mirror_inputs, remove_mirror,
-        unopened_below, url_rename,
+        HEAD_SUFFIXES, Copies, as_url, columns_from, companions, fetch, heads_from, is_partial, mirror_inputs,
+        remove_mirror, unopened_below, url_rename,
     )
     from meshsom.part_files import pair
     from meshsom.store import (
@@ -768,13 +769,22 @@ def run_corpus(client, cfg, store, resume: bool = False,
     # ---- plan: sources and their shards, kept in the store for a resumed run
     read_futures = {}
     if plan is None:
+        unopened = unopened_below(2 * int(cfg.dask.read_bytes))  # tiles too small to cut: placeholders
+        columnar = columns_from(2 * int(cfg.dask.read_bytes))  # large GeoParquet: placeholders, then the planner's spans
         mirrored = mirror_inputs(list(cfg.corpus.paths), mirror, lambda done, total: report("copy", done, total),
-                                 unopened_below(2 * int(cfg.dask.read_bytes)),  # tiles too small to cut: placeholders
+                                 lambda c: unopened(c) or columnar(c),
                                  heads_from(2 * int(cfg.dask.read_bytes)))  # large CityGML: its head; its ranges streamed
         files, missing = expand_inputs(mirrored.paths)  # before the store: a name clash writes nothing
         streamed, lost = {}, set()  # a large CityGML file on object storage: its URL, its ranges found by streaming it
         for f in files:
             c = mirrored.copies.get(str(f.path))
+            if c is not None and is_partial(f.path) and columnar(c):  # only the bytes the planner reads (its footer
+                try:  # says which), or the whole file where it cannot be read as Parquet (its reader says why)
+                    fetch([replace(c, spans=parquet_planned_spans(c.url, c.size, planner_columns(cfg.corpus.reader)))])
+                except InputFileError as err:
+                    missing.append(Rejection(c.url, c.url, err.problem))
+                    lost.add(str(f.path))
+                continue
             if c is None or not is_partial(f.path) or not f.path.name.lower().endswith(HEAD_SUFFIXES):
                 continue
             with open(f.path, "rb") as head:

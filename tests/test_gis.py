@@ -407,6 +407,86 @@ def test_geoparquet_ranges_start_at_their_row_group(tmp_path):
     assert [m.id for r in ranges for m in read_file(path, feature_range=r)] == whole
 
 
+def _overture_like(path, n, row_group_size, start=0, extra=None, null_geometries=0, geo=True):
+    """A GeoParquet file laid out as Overture's buildings are: an ``id``, the geometry, and a wide ``sources`` column
+    (random text, which does not compress) that the planner never reads; ``extra`` more columns by name."""
+    rng = np.random.default_rng(5)
+    geometries = [None if k < null_geometries else shapely.to_wkb(shapely.box(84600 + 3 * k, 447400, 84602 + 3 * k, 447402))
+                  for k in range(start, start + n)]  # Delft, in the Dutch CRS (EPSG:28992)
+    columns = {"id": [f"b{k}" for k in range(start, start + n)], "height": [3.0 + k % 5 for k in range(start, start + n)],
+               "sources": [rng.bytes(200).hex() for _ in range(n)], **(extra or {}), "geometry": geometries}
+    table = pa.table(columns)
+    if geo:
+        table = table.replace_schema_metadata({b"geo": json.dumps({"version": "1.1.0", "primary_column": "geometry",
+                                                                    "columns": {"geometry": {"encoding": "WKB",
+                                                                                             "crs": "EPSG:28992"}}})})
+    pq.write_table(table, path, row_group_size=row_group_size)
+    return path
+
+
+def _sparse_copy(path, spans, target):
+    """``path`` with only the bytes of ``spans`` copied (zeros elsewhere), as the mirror's partial copies are."""
+    data = Path(path).read_bytes()
+    with open(target, "wb") as out:
+        out.truncate(len(data))
+        for a, b in spans:
+            out.seek(a)
+            out.write(data[a:b])
+    return target
+
+
+def test_the_planner_reads_a_geoparquet_file_from_its_footer_first_row_groups_and_id_columns(tmp_path):
+    """What the planner reads of a large GeoParquet file on object storage is copied, found from its footer: a copy
+    holding only those bytes plans as the whole file does (its layer, its ranges and their id column, whether it
+    holds Overture's or OpenStreetMap's parts), and is a small share of an Overture-like file; a WKB column without
+    metadata whose first footprints are empty is found in the first row groups; a file that is not Parquet gives
+    None (copied whole; its reader says why). A range's task copies the first row group only where the file does not
+    declare its geometry."""
+    from meshsom.gis import (PLANNER_ROWS, _parquet_layers, gis_ranges, parquet_planned_spans, parquet_spans,
+                             planner_columns)
+    from meshsom.part_files import holds_osm_parts, pair
+
+    columns = planner_columns(ReaderOptions())
+    assert {"id", "building_id", "building:part"} <= set(columns)
+    whole, sparse = tmp_path / "whole", tmp_path / "sparse"
+    whole.mkdir()
+    sparse.mkdir()
+    files = {
+        "buildings.parquet": _overture_like(whole / "buildings.parquet", 3000, 100),
+        "parts.parquet": _overture_like(whole / "parts.parquet", 2000, 100, start=5000,
+                                        extra={"building_id": [f"b{k % 3000}" for k in range(2000)]}),
+        "osm_parts.parquet": _overture_like(whole / "osm_parts.parquet", 1500, 100, extra={"building:part": ["yes"] * 1500}),
+        "wkb.parquet": _overture_like(whole / "wkb.parquet", 2000, 100, null_geometries=300, geo=False),
+    }
+    for name, path in files.items():
+        spans = parquet_planned_spans(path, path.stat().st_size, columns)
+        assert spans == sorted(spans) and all(a < b <= c for (a, b), (c, _) in zip(spans, spans[1:] + [[10**12, 0]]))
+        copy = _sparse_copy(path, spans, sparse / name)
+        assert _parquet_layers(copy) == _parquet_layers(path), name
+        assert gis_ranges(copy, 400, ReaderOptions()) == gis_ranges(path, 400, ReaderOptions()), name
+        assert holds_osm_parts(copy, ReaderOptions()) == holds_osm_parts(path, ReaderOptions()) == (name == "osm_parts.parquet")
+        meta = pq.ParquetFile(path).metadata
+        firsts = next(g for g in range(meta.num_row_groups) if sum(meta.row_group(h).num_rows for h in range(g + 1))
+                      >= PLANNER_ROWS)
+        later = meta.row_group(firsts + 1).column(list(pq.read_schema(path).names).index("sources"))
+        a = later.dictionary_page_offset or later.data_page_offset
+        assert copy.read_bytes()[a:a + later.total_compressed_size].strip(b"\0") == b"", "a later group's sources"
+    assert gis_ranges(whole / "buildings.parquet", 400, ReaderOptions())[0][3] == "id"
+    for name, first in (("buildings.parquet", False), ("wkb.parquet", True)):  # a range's task: the first row group
+        meta = pq.ParquetFile(files[name]).metadata  # only where the file does not declare its geometry
+        chunk = meta.row_group(0).column(0)
+        a = chunk.dictionary_page_offset or chunk.data_page_offset
+        assert any(x <= a < y for x, y in parquet_spans(files[name], 1200, 1300)) == first, name
+    share = sum(b - a for a, b in parquet_planned_spans(files["buildings.parquet"], files["buildings.parquet"].stat().st_size,
+                                                         columns)) / files["buildings.parquet"].stat().st_size
+    assert share < 0.5, share  # a third of the rows whole (PLANNER_ROWS of 3,000), and the id column
+    got = pair([sparse / n for n in ("buildings.parquet", "parts.parquet")], ReaderOptions())
+    want = pair([whole / n for n in ("buildings.parquet", "parts.parquet")], ReaderOptions())
+    assert got.part_files == (str(sparse / "parts.parquet"),) and want.part_files == (str(whole / "parts.parquet"),)
+    (tmp_path / "not.parquet").write_bytes(b"PAR1 but nothing after it")
+    assert parquet_planned_spans(tmp_path / "not.parquet", 25, columns) is None
+
+
 def _curved_gpkg(path, srs_id=2056):
     """A GeoPackage written as cadastres export footprints with arcs (ALKIS, the Swiss official survey):
     a CURVEPOLYGON of a CompoundCurve, a 10 x 10 m square whose east side is a semicircular bay of

@@ -455,6 +455,56 @@ def test_the_planner_streams_a_large_citygml_file_and_copies_only_its_head(s3, s
         np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
 
 
+def test_the_planner_copies_of_a_large_geoparquet_file_only_what_it_reads(s3, s3_cluster, tmp_path, monkeypatch):
+    """Large GeoParquet files on S3 (Overture-like buildings; a query's WKB column without metadata, its first
+    footprints empty): the planner copies of each only the bytes its footer says the planner reads (the first row
+    groups, the id columns, the footer: no later row group's other columns), never the whole file, and each range's
+    task its own row groups; the records and arrays equal those of the folder read from
+    disk, in the same ranges."""
+    import pyarrow.parquet as pq
+
+    from meshsom import mirror as mirroring
+    from meshsom.gis import PLANNER_ROWS, _chunk_span
+    from pipelines import corpus
+    from test_gis import _overture_like
+
+    local = tmp_path / "city"
+    local.mkdir()
+    _overture_like(local / "buildings.parquet", 2500, 100)
+    _overture_like(local / "query.parquet", 1500, 100, null_geometries=200, geo=False)
+    limit = 2 * 300_000  # twice the config's read_bytes
+    assert all(f.stat().st_size > limit for f in local.iterdir())
+    url = f"s3://{BUCKET}/columnar/city"
+    _upload(local, url)
+    fetched = []
+    fetch = mirroring.fetch
+    monkeypatch.setattr(mirroring, "fetch", lambda copies: fetched.extend(copies) or fetch(copies))
+    runs = {}
+    for key, paths, store in (("disk", [local], str(tmp_path / "disk.zarr")), ("s3", [url], str(tmp_path / "s3.zarr"))):
+        calls = []
+        cfg = _corpus_config(paths, store, tmp_path / "mirror")
+        cfg = dataclasses.replace(cfg, dask=dataclasses.replace(cfg.dask, read_features=500))
+        corpus.run_corpus(s3_cluster, cfg, store, progress=lambda *a: calls.append(a))
+        runs[key] = (read_manifest(store)["records"], open_store(store),
+                     max(total for stage, _, total in calls if stage == "read"))
+    assert sorted(c.url for c in fetched) == [f"{url}/buildings.parquet", f"{url}/query.parquet"]
+    for c in fetched:  # the planner's copies: its spans only, none of the sources of the row groups past the first
+        path = local / c.url.rsplit("/", 1)[1]
+        meta, k = pq.ParquetFile(path).metadata, pq.read_schema(path).names.index("sources")
+        assert c.spans is not None and c.spans[-1][1] == path.stat().st_size, c.spans
+        later = [meta.row_group(g).column(k) for g in range(PLANNER_ROWS // 100 + 1, meta.num_row_groups)]
+        assert len(later) >= 3 and not any(a < _chunk_span(s)[1] and _chunk_span(s)[0] < b
+                                           for s in later for a, b in c.spans), c.spans
+    assert runs["disk"][2] == runs["s3"][2] == 5 + 3  # in ranges of 500 rows
+    disk, on_s3 = runs["disk"][0], runs["s3"][0]
+    assert [{**r, "source": r["source"].replace(str(local), url), "reason": r.get("reason", "").replace(str(local), url)}
+            for r in disk] == [{**r, "reason": r.get("reason", "")} for r in on_s3]
+    assert sum(r["status"] == "accepted" and r["source"].endswith("buildings.parquet") for r in on_s3) == 2500
+    assert sum(r["status"] == "accepted" and r["source"].endswith("query.parquet") for r in on_s3) == 1300
+    for name in ("faces", "vertices", "rings/level1", "meshes/ids"):
+        np.testing.assert_array_equal(runs["disk"][1][name][:], runs["s3"][1][name][:], err_msg=name)
+
+
 def test_a_worker_without_the_copies_fetches_them(s3, tmp_path):
     """What a read task of another machine does: the planner's copies are not there, so the task copies its files
     (the shapefile and its sidecars) from their URLs to the same paths, once, and reads them as the planner would;
