@@ -70,12 +70,20 @@ NOT_SHELL = ("BuildingInstallation", "IntBuildingInstallation", "Room", "Buildin
              "buildingConstructiveElement",
              # the surfaces of a building's inside (CityGML 2.0 LoD4 rooms; 3.0 at any LoD: the storeys
              # of a parking garage): not its outer shell
-             "FloorSurface", "CeilingSurface", "InteriorWallSurface")
+             "FloorSurface", "CeilingSurface", "InteriorWallSurface",
+             # 3.0's subdivisions of a building (and the ADEs' of 2.0, as citygml4j's test ADE): storeys and
+             # units (apartments, shops) are volumes inside the shell, often solids of their own
+             "buildingSubdivision", "Storey", "storey", "BuildingUnit", "buildingUnit")
 #: Local names of the planar pieces a surface is made of: polygons, and the patches of a
 #: ``gml:Surface`` / ``gml:TriangulatedSurface`` (all have an exterior ring and may have interiors).
 POLYGON_NAMES = ("Polygon", "PolygonPatch", "Triangle", "Rectangle")
 #: Local names of the GML solids: where an object has one at a LoD, it is that LoD's shell.
 SOLID_NAMES = ("Solid", "CompositeSolid", "MultiSolid")
+#: Local names of the GML elements whose ``srsName`` is the CRS of a building's surfaces (not a Point's: an
+#: ``Address`` may locate its entrance in another CRS, WGS 84 beside a national grid).
+SURFACE_GEOMETRY_NAMES = POLYGON_NAMES + SOLID_NAMES + (
+    "MultiSurface", "CompositeSurface", "Surface", "TriangulatedSurface", "Tin", "OrientableSurface", "Shell",
+    "LinearRing", "posList", "Envelope")
 _LOD = re.compile(r"^lod(\d)")
 _XLINK_HREF = "{http://www.w3.org/1999/xlink}href"
 #: The namespaces given to prefixes that a file uses without declaring them, where the reader looks
@@ -125,8 +133,9 @@ def _numbers(text: str | None, where: str) -> np.ndarray:
         raise InputFileError(where, f"coordinates must be numbers; received {(text or '')[:60]!r}") from None
 
 
-def _ring(element, where: str) -> np.ndarray:
-    """(k, 3) float64 points of a ``gml:LinearRing`` (closing point dropped)."""
+def _ring(element, where: str, flat_ok: bool = False) -> np.ndarray:
+    """(k, 3) float64 points of a ``gml:LinearRing`` (closing point dropped); ``flat_ok``: a ring of 2D points (a
+    footprint's, ``srsDimension="2"``) is read at z = 0."""
     dims = 3
     points = None
     for child in element.iter():
@@ -138,6 +147,9 @@ def _ring(element, where: str) -> np.ndarray:
             break
         if name == "coordinates":
             points = _numbers(child.text, where)
+            tuples = (child.text or "").split()
+            if tuples and all(t.count(",") == 1 for t in tuples):
+                dims = 2
             break
     if points is None:
         pos = [_numbers(c.text, where) for c in element.iter() if _local(c.tag) == "pos"]
@@ -146,23 +158,28 @@ def _ring(element, where: str) -> np.ndarray:
             points = np.concatenate(pos)
         else:
             points = np.zeros(0)
+    if flat_ok and dims == 2 and len(points) % 2 == 0:
+        points = np.column_stack([points.reshape(-1, 2), np.zeros(len(points) // 2)]).reshape(-1)
+        dims = 3
     if dims != 3 or len(points) % 3:
-        raise InputFileError(where, f"a ring's coordinates are not 3D (srsDimension {dims}, {len(points)} numbers)")
+        raise InputFileError(where, f"a ring's coordinates are not 3D (srsDimension {dims}, {len(points)} numbers)"
+                             + ("; 2D rings are read as footprints (LoD 0) alone" if dims == 2 else ""))
     ring = points.reshape(-1, 3)
     if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
         ring = ring[:-1]
     return ring
 
 
-def _polygon(element, where: str) -> list[np.ndarray]:
-    """The rings of a ``gml:Polygon`` (exterior first, then interiors), each (k, 3)."""
+def _polygon(element, where: str, flat_ok: bool = False) -> list[np.ndarray]:
+    """The rings of a ``gml:Polygon`` (exterior first, then interiors), each (k, 3); ``flat_ok`` as :func:`_ring`."""
     exterior, interiors = [], []
     for child in element:
         name = _local(child.tag)
         if name in ("exterior", "outerBoundaryIs", "interior", "innerBoundaryIs"):
             for ring in child:
                 if _local(ring.tag) == "LinearRing":
-                    (exterior if name in ("exterior", "outerBoundaryIs") else interiors).append(_ring(ring, where))
+                    (exterior if name in ("exterior", "outerBoundaryIs") else interiors).append(
+                        _ring(ring, where, flat_ok))
     return exterior[:1] + interiors if exterior else []
 
 
@@ -183,10 +200,10 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
         key = (id(polygon), reverse, solid)
         if key not in seen:
             seen.add(key)
-            rings = _polygon(polygon, where)
+            rings = _polygon(polygon, where, lod == "0")
             by_lod.setdefault((lod, solid), []).append([r[::-1] for r in rings] if reverse else rings)
 
-    def walk(element, lod: str | None, reverse: bool, solid: bool):
+    def walk(element, lod: str | None, reverse: bool, solid: bool, roof: bool = False):
         nonlocal missing
         for child in element:
             name = _local(child.tag)
@@ -194,9 +211,12 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
                 continue  # a part's geometry is its own; installations and rooms are not the shell
             match = _LOD.match(name)
             child_lod = match.group(1) if match else lod
+            child_roof = roof or name == "RoofSurface" or name.endswith("RoofEdge")
             # a LoD's solid is preferred to its other surfaces; so is a LoD 0 footprint to the roof
-            # edges beside it (the outline of the eaves, metres above the ground)
-            child_solid = solid or name in SOLID_NAMES or (match is not None and name.endswith(("Solid", "FootPrint")))
+            # edges beside it (the outline of the eaves, metres above the ground): 2.0's lod0FootPrint, 3.0's
+            # lod0MultiSurface of the building itself (or of its GroundSurface) beside its RoofSurfaces'
+            child_solid = solid or name in SOLID_NAMES or (match is not None and (
+                name.endswith(("Solid", "FootPrint")) or (child_lod == "0" and not child_roof)))
             # gml:OrientableSurface orientation="-": its base surface, reversed (a party wall
             # that two parts share is written once and referred to so by the second part)
             child_reverse = reverse != (name == "OrientableSurface" and child.attrib.get("orientation", "+").strip() == "-")
@@ -209,12 +229,12 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
                     add(target, child_lod, child_reverse, child_solid)
                 elif (id(target), child_reverse, child_solid) not in seen:  # a surface, solid or patch referred to whole
                     seen.add((id(target), child_reverse, child_solid))
-                    walk(target, child_lod, child_reverse, child_solid or _local(target.tag) in SOLID_NAMES)
+                    walk(target, child_lod, child_reverse, child_solid or _local(target.tag) in SOLID_NAMES, child_roof)
                 continue
             if name in POLYGON_NAMES and child_lod is not None:
                 add(child, child_lod, child_reverse, child_solid)
                 continue
-            walk(child, child_lod, child_reverse, child_solid)
+            walk(child, child_lod, child_reverse, child_solid, child_roof)
 
     walk(obj, None, False, False)
     lods = dict.fromkeys(lod for lod, _ in by_lod)
@@ -250,16 +270,48 @@ HEIGHT_ELEMENTS = ("measuredHeight", "storeysAboveGround")
 #: to its top: such a height is read as its ``measuredHeight``.
 TOP_REFERENCES = ("highestPoint", "highestRoofEdge", "topOfConstruction", "generalRoof")
 GROUND_REFERENCES = ("lowestGroundPoint", "highestGroundPoint", "generalGround", "bottomOfConstruction")
-#: Units of a height read as metres.
-METRES = ("m", "metre", "meter", "urn:ogc:def:uom:EPSG::9001")
+#: Units of a height (``uom``, lower case, without a leading ``#``: the OGC samples write ``#m``) and their length in
+#: metres: the metre, the foot, the US survey foot, the centimetre and the millimetre, by symbol, name and EPSG urn.
+LENGTH_UNITS = {
+    **dict.fromkeys(("m", "metre", "meter", "metres", "meters", "urn:ogc:def:uom:epsg::9001"), 1.0),
+    **dict.fromkeys(("ft", "foot", "feet", "urn:ogc:def:uom:epsg::9002"), 0.3048),
+    **dict.fromkeys(("us-ft", "ftus", "us survey foot", "urn:ogc:def:uom:epsg::9003"), 1200 / 3937),
+    **dict.fromkeys(("cm", "centimetre", "centimeter", "urn:ogc:def:uom:epsg::1033"), 0.01),
+    **dict.fromkeys(("mm", "millimetre", "millimeter", "urn:ogc:def:uom:epsg::1025"), 0.001),
+}
 
 
-def _heights(obj) -> dict:
-    """The object's own ``measuredHeight`` and ``storeysAboveGround`` (direct children), as text; CityGML 3.0's
-    ``con:height`` from the ground to the top (:data:`TOP_REFERENCES`, :data:`GROUND_REFERENCES`, in metres) as
-    its ``measuredHeight`` where it has none."""
-    found = {_local(child.tag): child.text.strip() for child in obj
-             if _local(child.tag) in HEIGHT_ELEMENTS and child.text and child.text.strip()}
+def _metres(element) -> tuple[str | None, str | None]:
+    """A length element's value in metres (as text; its ``uom``, metres where it names none) and a note where it was
+    converted or cannot be: (value, note)."""
+    text = (element.text or "").strip()
+    uom = element.attrib.get("uom", "m").strip()
+    key = uom.lower().lstrip("#")
+    factor = LENGTH_UNITS.get(key, LENGTH_UNITS.get(re.split(r"[:#/]", key)[-1]))  # urn:adv:uom:m, a URL's #m
+    if factor is None:
+        return None, f"its {_local(element.tag)} {text} is in a unit not read ({uom!r}; read: m, ft, US survey ft, cm, mm)"
+    if factor == 1.0:
+        return text, None
+    try:
+        value = float(text)
+    except ValueError:
+        return text, None  # not a number: said as such where the height is read
+    return repr(value * factor), f"its {_local(element.tag)} {text} {uom} read as {value * factor:.6g} m"
+
+
+def _heights(obj) -> tuple[dict, list[str]]:
+    """The object's own ``measuredHeight`` (in metres: :data:`LENGTH_UNITS`) and ``storeysAboveGround`` (direct
+    children), as text; CityGML 3.0's ``con:height`` from the ground to the top (:data:`TOP_REFERENCES`,
+    :data:`GROUND_REFERENCES`) as its ``measuredHeight`` where it has none; and notes of the units converted or not
+    read."""
+    found, notes = {}, []
+    for child in obj:
+        name = _local(child.tag)
+        if name in HEIGHT_ELEMENTS and child.text and child.text.strip():
+            value, note = _metres(child) if name == "measuredHeight" else (child.text.strip(), None)
+            notes += [note] if note else []
+            if value is not None:
+                found[name] = value
     if "measuredHeight" not in found:
         for child in obj:
             if _local(child.tag) != "height":
@@ -269,11 +321,13 @@ def _heights(obj) -> dict:
                 high, low, value = (fields.get(k) for k in ("highReference", "lowReference", "value"))
                 if (high is not None and (high.text or "").strip() in TOP_REFERENCES and value is not None
                         and (value.text or "").strip()
-                        and (low is None or (low.text or "").strip() in GROUND_REFERENCES)
-                        and value.attrib.get("uom", "m").strip() in METRES):
-                    found["measuredHeight"] = value.text.strip()
-                    return found
-    return found
+                        and (low is None or (low.text or "").strip() in GROUND_REFERENCES)):
+                    metres, note = _metres(value)
+                    notes += [note.replace("its value", "its height")] if note else []
+                    if metres is not None:
+                        found["measuredHeight"] = metres
+                        return found, notes
+    return found, notes
 
 
 def building_objects(building, where: str, label_attribute: str) -> tuple[dict, np.ndarray, list[str], str | None]:
@@ -288,21 +342,24 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
         Real coordinates (no transform).
     notes : list of str
     srs_name : str or None
-        The first ``srsName`` of the building's geometry (its CRS), when it names one.
+        The first ``srsName`` of the building's surface geometry (its CRS; :data:`SURFACE_GEOMETRY_NAMES`), when it
+        names one.
     """
     by_id, srs_name = {}, None
     for e in building.iter():  # one pass: the ids that xlink:href refers to, and the CRS
         gml_id = _gml_id(e)
         if gml_id:
             by_id[gml_id] = e
-        if srs_name is None:
+        if srs_name is None and _local(e.tag) in SURFACE_GEOMETRY_NAMES:
             srs_name = e.attrib.get("srsName")
     bid = _gml_id(building)
-    members = [(bid, building)] + [(_gml_id(p), p) for p in building.iter() if _local(p.tag) in PART_NAMES]
+    members = [(bid, building)] + [(_gml_id(p), p) for p in building.iter() if _local(p.tag) in PART_NAMES
+                                   and p is not building]  # (a BuildingPart read as a building: its own parts)
     objects: dict = {}
     rings: list[np.ndarray] = []
     n_points = 0
     missing = 0
+    notes: list[str] = []
     for k, (oid, obj) in enumerate(members):
         oid = oid or (f"{bid}-part{k}" if k else bid)
         by_lod, lost = _object_polygons(obj, where, by_id)
@@ -319,7 +376,9 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
                 if indexed:
                     boundaries.append(indexed)
             geometry.append({"type": "MultiSurface", "lod": lod, "boundaries": boundaries})
-        entry = {"type": "Building" if k == 0 else "BuildingPart", "geometry": geometry, "attributes": _heights(obj)}
+        heights, height_notes = _heights(obj)
+        notes += [note if k == 0 else f"its part {oid}: {note[4:]}" for note in height_notes]
+        entry = {"type": "Building" if k == 0 else "BuildingPart", "geometry": geometry, "attributes": heights}
         if k == 0:
             entry["children"] = []
             label = _label(obj, label_attribute)
@@ -335,7 +394,14 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     for entry in objects.values():
         for g in entry["geometry"]:
             g["boundaries"] = [[[int(inverse[i]) for i in ring] for ring in poly] for poly in g["boundaries"]]
-    notes = [f"{missing} polygon reference(s) (xlink:href) outside the building were not read"] if missing else []
+    if missing:
+        notes.append(f"{missing} polygon reference(s) (xlink:href) outside the building were not read")
+    outside = [href for e in building.iter() if _local(e.tag) in ("consistsOfBuildingPart", "buildingPart")
+               for href in [e.attrib.get(_XLINK_HREF)] if href and href.lstrip("#") not in by_id]
+    if outside:
+        notes.append(f"{len(outside)} BuildingPart(s) it refers to by xlink:href outside it ({', '.join(outside[:3])}"
+                     f"{', ...' if len(outside) > 3 else ''}) are not merged into it: each is read as a building of its "
+                     f"own where the file holds it")
     return objects, vertices, notes, srs_name
 
 
@@ -536,6 +602,7 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
     found = part
     root = None
     file_srs = None  # the srsName of the model's own envelope: the CRS of geometry that names none
+    held: dict[str, int] = {}  # the objects of the members that are no Building, by local name
     stack: list[str] = []  # local names of the open elements
     for event, element in ET.iterparse(stream, events=("start", "end", "start-ns")):
         if event == "start-ns":
@@ -547,9 +614,14 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
             stack.append(local)
             continue
         stack.pop()
-        if local != "Building" or "Building" in stack:
+        # a Building; or a BuildingPart outside any Building (a member of its own, which its building may refer to
+        # by xlink:href): read as a building of its own, noted, rather than lost
+        loose_part = local in PART_NAMES and "Building" not in stack and not any(p in stack for p in PART_NAMES)
+        if (local != "Building" or "Building" in stack) and not loose_part:
             if local == "Envelope" and "Building" not in stack and file_srs is None:
                 file_srs = element.attrib.get("srsName")
+            if len(stack) == 2 and stack[-1].encode() in MEMBER_NAMES:
+                held[local] = held.get(local, 0) + 1  # a member's object: named where the file holds no Building
             if len(stack) == 1:
                 element.clear()  # a member of the CityModel (or of a WFS FeatureCollection) read: let go
             continue
@@ -560,6 +632,8 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
         mesh_id = f"{name}#{element_id}"
         try:
             objects, vertices, notes, srs = building_objects(element, mesh_id, options.label_attribute)
+            if loose_part:
+                notes.append(f"a {local} outside any Building (a member of the file of its own): read as a building")
         except InputFileError as err:
             yield Rejection(mesh_id, str(path), err.problem)
         else:
@@ -572,7 +646,9 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
         element.clear()
     if not found:
         what = "CityGML" if root == "CityModel" else f"XML with root element {root!r}"
-        raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}")
+        kinds = ", ".join(f"{n} {k}" for k, n in sorted(held.items(), key=lambda kv: (-kv[1], kv[0]))[:12])
+        raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}"
+                             + (f" holding {kinds}" if kinds else ""))
 
 
 def citygml_ranges(path: Path, target_bytes: int, options, url: str | None = None) -> list[list[int]] | None:

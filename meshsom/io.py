@@ -1910,7 +1910,9 @@ def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOpt
             continue
         otype = _type(obj)
         if options.parts == "merge":
-            if otype in options.object_types and not obj.get("parents"):
+            # a building whose "parents" are no building (a CityObjectGroup's members name the group so) is one of
+            # its own; only parts (BuildingPart) are merged into their parents
+            if otype in options.object_types and not (otype.endswith("Part") and obj.get("parents")):
                 members = [oid]
                 seen = {oid}
                 stack = _ids(obj.get("children"))
@@ -1926,6 +1928,10 @@ def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOpt
                 groups.append((oid, members))
         else:
             own = bool(obj.get("geometry"))
+            if own and otype in options.object_types and options.lod in ("highest", "lowest") and _footprint_only(obj) \
+                    and any(_type(objects.get(c)).endswith("Part") and objects[c].get("geometry")
+                            for c in _ids(obj.get("children"))):
+                continue  # the 3D BAG's building: a LoD 0 footprint beside its parts' solids, which stand for it
             if (otype in options.object_types and (own or not obj.get("children"))) or otype.endswith("Part") and any(
                 _type(objects.get(p)) in options.object_types for p in _ids(obj.get("parents"))
             ):
@@ -2069,6 +2075,12 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     # where a building has anything else (the 3D BAG gives every Building a LoD 0 footprint
     # beside its LoD 1.2, 1.3 and 2.2 solids)
     volumes = [lo for lo in lods if not _lod_key(lo) < 1] or lods
+    passed_over = []
+    if options.lod in ("highest", "lowest") and len(volumes) > 1:
+        flat = _flat_lods(volumes, geoms, usable_at, vertices, scale, mesh_id)
+        if flat and len(flat) < len(volumes):
+            passed_over = [lo for lo in volumes if lo in flat]
+            volumes = [lo for lo in volumes if lo not in flat]
     if options.lod == "highest":
         want = volumes[-1]
     elif options.lod == "lowest":
@@ -2089,6 +2101,8 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
             poly_member += [geom_member[i]] * len(found)
     if not polygons:
         raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
+    with_volume = {geom_member[i] for i in usable_at if not _lod_key(geoms[i].get("lod")) < 1}
+    left_out = sorted(with_volume - set(poly_member))
     flat = _indices(mesh_id, [i for poly in polygons for ring in poly for i in ring])
     if len(flat) == 0:
         raise InputFileError(mesh_id, f"has only empty rings at LoD {want}")
@@ -2122,6 +2136,13 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     import shapely.errors
 
     local, notes = _in_metres(mesh_id, local, origin, crs)
+    if passed_over:
+        notes.append(f"its LoD {', '.join(passed_over)} geometry is flat (polygons in one horizontal plane, no volume): "
+                     f"LoD {want} read")
+    if left_out and lift is None:
+        shown = ", ".join(members[k] for k in left_out[:3]) + (", ..." if len(left_out) > 3 else "")
+        notes.append(f"{len(left_out)} of its {len(members)} objects ({shown}) have no geometry at LoD {want}: left out "
+                     f"(--lod names another LoD)")
     try:
         faces, face_poly, dropped = _triangulate_polygons(polygons, inverse, local)
         if dropped:
@@ -2152,6 +2173,30 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         else:
             face_part = None
     return RawMesh(mesh_id, source, local, faces, origin, label, lod, parts, face_part, tuple(notes))
+
+
+def _footprint_only(obj: dict) -> bool:
+    """Whether every geometry of a city object is of a LoD below 1 (a footprint or roof outline)."""
+    geoms = obj.get("geometry")
+    return isinstance(geoms, list) and all(isinstance(g, dict) and _lod_key(g.get("lod")) < 1 for g in geoms)
+
+
+def _flat_lods(lods: list, geoms: list, usable_at: list, vertices: np.ndarray, scale, mesh_id: str) -> set:
+    """The LoDs among ``lods`` whose polygons lie in one horizontal plane (a LoD 3 of a ground polygon alone beside a
+    LoD 2 solid): no volume, passed over by "highest" and "lowest"."""
+    flat = set()
+    for lod in lods:
+        idx = _indices(mesh_id, [i for k in usable_at if str(geoms[k].get("lod")) == lod
+                                 for poly in _polygons_of(geoms[k], mesh_id) for ring in poly for i in ring])
+        idx = idx[(idx >= 0) & (idx < len(vertices))].astype(np.int64)
+        if len(idx) == 0:
+            continue
+        with np.errstate(over="ignore", invalid="ignore"):
+            points = vertices[idx].astype(np.float64) * (1.0 if scale is None else np.asarray(scale, np.float64))
+            extent = np.ptp(points, axis=0)
+        if np.isfinite(extent).all() and extent[2] <= 1e-9 * max(extent[0], extent[1]):
+            flat.add(lod)
+    return flat
 
 
 def _indices(mesh_id: str, values: list) -> np.ndarray:
@@ -2352,7 +2397,7 @@ def _footprint_height(mesh_id: str, obj: dict, lod: str, options: ReaderOptions)
     if options.default_height is not None:
         return (f"extruded from its LoD {lod} footprint to the default {options.default_height:g} m "
                 f"(corpus.reader.default_height): it has no height or storey count", float(options.default_height))
-    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint and {no_height(options)[2:]}")
+    raise InputFileError(mesh_id, f"has only a LoD {lod} footprint{no_height(options)[len('is a footprint'):]}")
 
 
 def _extrude_footprint(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, options: ReaderOptions,

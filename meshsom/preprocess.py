@@ -496,6 +496,10 @@ def _clean(vertices, faces, params, source, repairs):
     diag = _diagonal(vertices)
     if diag == 0:
         raise MeshError(source, "all vertices coincide (zero size)")
+    thickness = _thickness(vertices[np.unique(faces)])
+    if thickness <= params.weld_tol * diag and len(np.unique(np.sort(faces, axis=1), axis=0)) >= params.min_faces:
+        raise MeshError(source, f"zero volume: it is flat, all its vertices in one plane (within {thickness:.3g} of a "
+                                f"{diag:.3g} diagonal): a footprint or a single surface, not a solid")
     v, remap = weld(vertices, params.weld_tol * diag)
     if len(v) < len(vertices):
         merged = len(vertices) - len(v)
@@ -2049,8 +2053,16 @@ def _area2d(ring):
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
+def _thickness(points: np.ndarray) -> float:
+    """The extent of ``points`` (N, 3) across their best-fitting plane (0 for coplanar points)."""
+    centred = points - points.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    return float(np.ptp(centred @ normal)) if len(points) else 0.0
+
+
 def _orient(v, f, source, repairs):
-    """Consistent orientation by parity components, then each shell outward."""
+    """Consistent orientation by parity components, then each shell outward, but a shell inside an odd number of
+    others (a cavity: a Solid's interior shell) inward, so that its volume counts against the solid's."""
     n = len(f)
     parity = _parity(f)
     if parity is None:
@@ -2061,12 +2073,63 @@ def _orient(v, f, source, repairs):
     a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
     np.add.at(vol, shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
     inward = vol < 0
-    flip_shell = inward[shell]
+    cavity = _cavities(v, f, shell, n_shells, inward) if n_shells > 1 else np.zeros(n_shells, bool)
+    flip_shell = (inward != cavity)[shell]
     f = np.where(flip_shell[:, None], f[:, ::-1], f)
     flipped = int((flip ^ flip_shell).sum())
     if flipped:
-        repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation")
+        repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation"
+                       + (f" ({int(cavity.sum())} inner shell(s), cavities, facing in)" if cavity.any() else ""))
     return f
+
+
+def _cavities(v, f, shell, n_shells: int, inward) -> np.ndarray:
+    """Which shells are cavities: inside an odd number of the other shells (the even-odd rule of solids).
+
+    A shell is tested where its bounding box lies within another's: the winding number of a point of it (its first
+    face's centroid) about the other shell's faces (the sum of their solid angles, Van Oosterom and Strackee) is 1
+    inside and 0 outside.
+
+    Parameters
+    ----------
+    v : (V, 3) float64
+    f : (F, 3) int64
+        Faces, each shell consistently oriented.
+    shell : (F,) int64
+        Each face's shell.
+    n_shells : int
+    inward : (n_shells,) bool
+        The shells whose faces face in (negative signed volume) as ``f`` has them.
+
+    Returns
+    -------
+    (n_shells,) bool
+    """
+    corners = v[f]
+    low = np.full((n_shells, 3), np.inf)
+    high = np.full((n_shells, 3), -np.inf)
+    np.minimum.at(low, shell, corners.min(axis=1))
+    np.maximum.at(high, shell, corners.max(axis=1))
+    inside = (low[:, None] >= low[None]).all(axis=2) & (high[:, None] <= high[None]).all(axis=2)
+    np.fill_diagonal(inside, False)
+    depth = np.zeros(n_shells, np.int64)
+    if not inside.any():
+        return depth.astype(bool)
+    first = np.full(n_shells, len(f), np.int64)
+    np.minimum.at(first, shell, np.arange(len(f)))
+    for a, b in zip(*np.nonzero(inside)):  # shell a's bounding box within shell b's
+        point = corners[first[a]].mean(axis=0)
+        r = corners[shell == b] - point  # (k, 3, 3)
+        if inward[b]:
+            r = r[:, ::-1]
+        x, y, z = r[:, 0], r[:, 1], r[:, 2]
+        lx, ly, lz = (np.linalg.norm(c, axis=1) for c in (x, y, z))
+        numerator = np.einsum("ij,ij->i", x, np.cross(y, z))
+        denominator = (lx * ly * lz + np.einsum("ij,ij->i", x, y) * lz + np.einsum("ij,ij->i", y, z) * lx
+                       + np.einsum("ij,ij->i", z, x) * ly)
+        winding = np.arctan2(numerator, denominator).sum() / (2 * np.pi)
+        depth[a] += int(winding > 0.5)
+    return depth % 2 == 1
 
 
 def _parity(f):

@@ -522,8 +522,8 @@ def test_a_lod0_footprint_alone_is_extruded_by_its_height(tmp_path):
 
 def test_a_citygml3_lod0_footprint_is_extruded_by_its_con_height(tmp_path):
     """CityGML 3.0 has no measuredHeight: a building's heights are ``con:height`` elements, each from a reference to
-    another. One from the ground to the highest roof edge, in metres, extrudes a LoD 0 footprint; one to the eaves
-    does not (nor one in feet), and storeys do where no such height is given."""
+    another. One from the ground to the highest roof edge (in metres, or in feet, converted) extrudes a LoD 0
+    footprint; one to the eaves does not, and storeys do where no such height is given."""
     from meshsom.preprocess import preprocess
 
     L = [(0, 0), (12, 0), (12, 4), (4, 4), (4, 10), (0, 10)]
@@ -551,7 +551,174 @@ def test_a_citygml3_lod0_footprint_is_extruded_by_its_con_height(tmp_path):
     got = {m.id.split("#")[1]: m for m in read_file(tmp_path / "lod0.gml")}
     assert preprocess(got["top"].vertices, got["top"].faces).volume_out == pytest.approx(area * 8.5, rel=1e-9)
     assert preprocess(got["eaves"].vertices, got["eaves"].faces).volume_out == pytest.approx(area * 6.0, rel=1e-9)
-    assert isinstance(got["feet"], Rejection) and "only a LoD 0 footprint" in got["feet"].reason
+    # a height in feet is converted, and says so
+    assert preprocess(got["feet"].vertices, got["feet"].faces).volume_out == pytest.approx(area * 30 * 0.3048, rel=1e-9)
+    assert any("30 ft read as 9.144 m" in n for n in got["feet"].notes), got["feet"].notes
+
+
+# ----------------------------------------------------------------------------- what a building holds beside its shell
+
+#: A box's corners (unit cube) and its faces as quads, counter-clockwise seen from outside.
+CUBE = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]
+CUBE_QUADS = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+BLDG2 = ('<CityModel xmlns="http://www.opengis.net/citygml/2.0" xmlns:gml="http://www.opengis.net/gml" '
+         'xmlns:xlink="http://www.w3.org/1999/xlink" xmlns:bldg="http://www.opengis.net/citygml/building/2.0">')
+BLDG3 = ('<core:CityModel xmlns:core="http://www.opengis.net/citygml/3.0" xmlns:gml="http://www.opengis.net/gml/3.2" '
+         'xmlns:xlink="http://www.w3.org/1999/xlink" xmlns:bldg="http://www.opengis.net/citygml/building/3.0" '
+         'xmlns:con="http://www.opengis.net/citygml/construction/3.0">')
+
+
+def _box_polygons(origin, size, inward=False) -> str:
+    """A box's six polygons (``gml:surfaceMember``s), outward (or ``inward``: a cavity's shell as GML writes it)."""
+    corners = [tuple(o + c * d for o, c, d in zip(origin, corner, size)) for corner in CUBE]
+    quads = [q[::-1] if inward else q for q in CUBE_QUADS]
+    return "".join(f"<gml:surfaceMember><gml:Polygon><gml:exterior>{_ring_xml([corners[i] for i in q])}</gml:exterior>"
+                   f"</gml:Polygon></gml:surfaceMember>" for q in quads)
+
+
+def _box_solid(prop, origin, size, cavity=None, srs="") -> str:
+    """``<prop>`` holding a gml:Solid of a box (and a cavity: ``(origin, size, inward)`` as an interior shell)."""
+    inner = "" if cavity is None else (f"<gml:interior><gml:CompositeSurface>{_box_polygons(*cavity)}"
+                                       f"</gml:CompositeSurface></gml:interior>")
+    return (f"<{prop}><gml:Solid{srs}><gml:exterior><gml:CompositeSurface>{_box_polygons(origin, size)}"
+            f"</gml:CompositeSurface></gml:exterior>{inner}</gml:Solid></{prop}>")
+
+
+@pytest.mark.parametrize("cavity_inward", [True, False])
+def test_what_a_building_holds_inside_it_is_not_its_volume(tmp_path, cavity_inward):
+    """As the OGC's CityGML 3.0 examples and citygml4j's test ADE hold them: storeys and building units (apartments)
+    with solids of their own inside the building are not its shell; a Solid's interior shell (a cavity) counts
+    against its volume, however the file orients it (GML: facing into the cavity; some writers: outward)."""
+    from meshsom.preprocess import preprocess
+
+    base = (391000.0, 5820000.0, 34.0)
+    subdivisions = "".join(
+        f'<bldg:buildingSubdivision><bldg:{kind} gml:id="{kind}{k}">{_box_solid("core:lod1Solid", (base[0] + 1, base[1] + 1, base[2] + 3 * k), (8, 6, 2.8))}'
+        f"</bldg:{kind}></bldg:buildingSubdivision>" for k, kind in enumerate(("Storey", "BuildingUnit")))
+    xml3 = (BLDG3 + '<core:cityObjectMember><bldg:Building gml:id="units">' + _box_solid("core:lod2Solid", base, (10, 8, 6))
+            + subdivisions + "</bldg:Building></core:cityObjectMember></core:CityModel>")
+    (tmp_path / "units.gml").write_text(xml3)
+    (units,) = read_file(tmp_path / "units.gml")
+    assert preprocess(units.vertices, units.faces).volume_out == pytest.approx(480, rel=1e-9)
+    ade = ('<CityModel xmlns="http://www.opengis.net/citygml/2.0" xmlns:gml="http://www.opengis.net/gml" '
+           'xmlns:bldg="http://www.opengis.net/citygml/building/2.0" xmlns:test="http://www.citygml.org/ade/TestADE/1.0">'
+           '<cityObjectMember><bldg:Building gml:id="ade">' + _box_solid("bldg:lod2Solid", base, (10, 8, 6))
+           + '<test:buildingUnit><test:BuildingUnit gml:id="flat1">' + _box_solid("test:lod2Solid", (base[0] + 1, base[1] + 1, base[2] + 1), (4, 4, 4))
+           + "</test:BuildingUnit></test:buildingUnit></bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "ade.gml").write_text(ade)
+    (unit_ade,) = read_file(tmp_path / "ade.gml")
+    assert preprocess(unit_ade.vertices, unit_ade.faces).volume_out == pytest.approx(480, rel=1e-9)
+    cavity = ((base[0] + 2, base[1] + 2, base[2] + 2), (2, 2, 2), cavity_inward)
+    xml = (BLDG2 + '<cityObjectMember><bldg:Building gml:id="hollow">'
+           + _box_solid("bldg:lod2Solid", base, (10, 8, 6), cavity=cavity) + "</bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "hollow.gml").write_text(xml)
+    (hollow,) = read_file(tmp_path / "hollow.gml")
+    r = preprocess(hollow.vertices, hollow.faces)
+    assert r.volume_out == pytest.approx(480 - 8, rel=1e-9)
+    assert not cavity_inward or not any("flipped" in rep for rep in r.repairs)  # already as GML has it
+    assert cavity_inward or any("1 inner shell(s), cavities, facing in" in rep for rep in r.repairs), r.repairs
+
+
+def test_an_address_in_another_crs_does_not_set_the_buildings(tmp_path):
+    """The OGC's LoD 2 example with attributes: the geometry names no CRS (the model's envelope does: a national
+    grid), its address locates the entrance in WGS 84: the building is in the envelope's CRS."""
+    from meshsom.preprocess import preprocess
+
+    base = (4468000.0, 5333000.0, 500.0)
+    address = ('<bldg:address><core:Address xmlns:core="http://www.opengis.net/citygml/2.0"><core:multiPoint>'
+               '<gml:MultiPoint srsName="EPSG:4326"><gml:pointMember><gml:Point><gml:pos>48.1 11.5 500</gml:pos>'
+               '</gml:Point></gml:pointMember></gml:MultiPoint></core:multiPoint></core:Address></bldg:address>')
+    xml = (BLDG2 + '<gml:boundedBy><gml:Envelope srsName="EPSG:31468" srsDimension="3"><gml:lowerCorner>4468000 5333000 500'
+           '</gml:lowerCorner><gml:upperCorner>4468010 5333008 506</gml:upperCorner></gml:Envelope></gml:boundedBy>'
+           '<cityObjectMember><bldg:Building gml:id="b">' + address + _box_solid("bldg:lod2Solid", base, (10, 8, 6))
+           + "</bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "addr.gml").write_text(xml)
+    (b,) = read_file(tmp_path / "addr.gml")
+    assert isinstance(b, RawMesh), b
+    assert preprocess(b.vertices, b.faces).volume_out == pytest.approx(480, rel=1e-6)
+    np.testing.assert_allclose(b.origin, [4468005, 5333004, 503], atol=1e-6)
+
+
+def test_lod0_footprints_as_citygml3_and_2d_files_give_them(tmp_path):
+    """The OGC's CityGML 3.0 LoD 0 example: the building's footprint (its own lod0MultiSurface) beside its roof's LoD 0
+    outline (the eaves, larger), and a con:height of ``uom="#m"``: the footprint extruded by 5 m, not the eaves' outline
+    by storeys x 3 m. A 2D footprint (``srsDimension="2"``, as 2D LoD 0 files give it) with a height in feet: read at
+    z = 0, the height converted."""
+    from meshsom.preprocess import preprocess
+
+    foot = [(0, 0), (10, 0), (10, 5), (0, 5)]
+    eaves = [(-0.4, -0.31), (10.4, -0.31), (10.4, 5.31), (-0.4, 5.31)]
+
+    def multi(ring):
+        return f"<gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior>{ring}</gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"
+
+    height = ('<con:height><con:Height><con:highReference>highestRoofEdge</con:highReference><con:lowReference>'
+              'lowestGroundPoint</con:lowReference><con:status>measured</con:status><con:value uom="#m">5.0</con:value>'
+              '</con:Height></con:height>')
+    xml = (BLDG3 + '<core:cityObjectMember><bldg:Building gml:id="b">' + height
+           + "<bldg:storeysAboveGround>1</bldg:storeysAboveGround>"
+           + f"<core:lod0MultiSurface>{multi(_ring_xml([(x, y, 0.0) for x, y in foot]))}</core:lod0MultiSurface>"
+           + "<core:boundary><con:RoofSurface><core:lod0MultiSurface>"
+           + multi(_ring_xml([(x, y, 5.0) for x, y in eaves])) + "</core:lod0MultiSurface></con:RoofSurface></core:boundary>"
+           + "</bldg:Building></core:cityObjectMember></core:CityModel>")
+    (tmp_path / "lod0.gml").write_text(xml)
+    (b,) = read_file(tmp_path / "lod0.gml")
+    assert preprocess(b.vertices, b.faces).volume_out == pytest.approx(250, rel=1e-9), b.notes
+    flat = " ".join(f"{x} {y}" for x, y in [*foot, foot[0]])
+    xml2 = (BLDG2 + '<cityObjectMember><bldg:Building gml:id="f"><bldg:measuredHeight uom="ft">16.4042</bldg:measuredHeight>'
+            '<bldg:lod0FootPrint><gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing>'
+            f'<gml:posList srsDimension="2">{flat}</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon>'
+            "</gml:surfaceMember></gml:MultiSurface></bldg:lod0FootPrint></bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "flat.gml").write_text(xml2)
+    (f,) = read_file(tmp_path / "flat.gml")
+    assert preprocess(f.vertices, f.faces).volume_out == pytest.approx(50 * 16.4042 * 0.3048, rel=1e-9)
+    assert any("16.4042 ft read as 5 m" in n for n in f.notes), f.notes
+    (tmp_path / "flat2.gml").write_text(xml2.replace("lod0FootPrint", "lod2MultiSurface"))
+    (g,) = read_file(tmp_path / "flat2.gml")  # 2D rings are footprints alone
+    assert isinstance(g, Rejection) and "not 3D" in g.reason and "LoD 0" in g.reason
+
+
+def test_parts_and_lods_that_are_not_merged_are_said_and_not_lost(tmp_path):
+    """A BuildingPart written as a member of its own that its building refers to (``xlink:href``): read as a
+    building of its own, both noted; a part with no geometry at the LoD read: noted; a LoD 3 of a ground polygon
+    alone (tum-gis' FZK-Haus): flat, passed over for the LoD 2 solid; a file of no Building names what it holds."""
+    from meshsom.preprocess import preprocess
+
+    base = (513000.0, 5402000.0, 100.0)
+    xml = (BLDG2 + '<cityObjectMember><bldg:Building gml:id="house">' + _box_solid("bldg:lod2Solid", base, (10, 5, 3))
+           + '<bldg:consistsOfBuildingPart xlink:href="#garage"/></bldg:Building></cityObjectMember>'
+           + '<cityObjectMember><bldg:BuildingPart gml:id="garage">'
+           + _box_solid("bldg:lod2Solid", (base[0] + 10, base[1], base[2]), (4, 5, 2.5))
+           + "</bldg:BuildingPart></cityObjectMember></CityModel>")
+    (tmp_path / "ref.gml").write_text(xml)
+    house, garage = read_file(tmp_path / "ref.gml")
+    assert (house.id, garage.id) == ("ref.gml#house", "ref.gml#garage")
+    assert any("#garage" in n and "not merged" in n for n in house.notes), house.notes
+    assert any("outside any Building" in n for n in garage.notes), garage.notes
+    assert preprocess(garage.vertices, garage.faces).volume_out == pytest.approx(50, rel=1e-9)
+    lod1_part = xml.replace('<bldg:consistsOfBuildingPart xlink:href="#garage"/></bldg:Building></cityObjectMember>'
+                            '<cityObjectMember><bldg:BuildingPart gml:id="garage">',
+                            '<bldg:consistsOfBuildingPart><bldg:BuildingPart gml:id="garage">').replace(
+        "</bldg:BuildingPart></cityObjectMember>", "</bldg:BuildingPart></bldg:consistsOfBuildingPart></bldg:Building></cityObjectMember>")
+    lod1_part = lod1_part.replace("bldg:lod2Solid", "bldg:lod1Solid").replace("bldg:lod1Solid", "bldg:lod2Solid", 2)
+    (tmp_path / "lod1part.gml").write_text(lod1_part)
+    (merged,) = read_file(tmp_path / "lod1part.gml")
+    assert merged.lod == "2" and preprocess(merged.vertices, merged.faces).volume_out == pytest.approx(150, rel=1e-9)
+    assert any("1 of its 2 objects (garage) have no geometry at LoD 2" in n for n in merged.notes), merged.notes
+    ground = [(base[0] + x, base[1] + y, base[2]) for x, y in [(0, 0), (0, 5), (10, 5), (10, 0)]]
+    lod3 = (BLDG2 + '<cityObjectMember><bldg:Building gml:id="fzk">' + _box_solid("bldg:lod2Solid", base, (10, 5, 3))
+            + f"<bldg:lod3MultiSurface><gml:MultiSurface><gml:surfaceMember><gml:Polygon><gml:exterior>{_ring_xml(ground)}"
+            + "</gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface></bldg:lod3MultiSurface>"
+            + "</bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "lod3.gml").write_text(lod3)
+    (fzk,) = read_file(tmp_path / "lod3.gml")
+    assert fzk.lod == "2" and any("LoD 3 geometry is flat" in n for n in fzk.notes), (fzk.lod, fzk.notes)
+    assert preprocess(fzk.vertices, fzk.faces).volume_out == pytest.approx(150, rel=1e-9)
+    roads = BLDG2 + "".join(f'<cityObjectMember><tran:{k} xmlns:tran="http://www.opengis.net/citygml/transportation/2.0" '
+                            f'gml:id="{k}{n}"/></cityObjectMember>' for k in ("Road", "Road", "Square") for n in range(1)) + "</CityModel>"
+    (tmp_path / "roads.gml").write_text(roads)
+    (rejected,) = read_file(tmp_path / "roads.gml")
+    assert isinstance(rejected, Rejection) and rejected.reason.endswith("it is CityGML holding 2 Road, 1 Square"), rejected.reason
 
 
 # ----------------------------------------------------------------------------- large files read in ranges

@@ -43,6 +43,31 @@ def test_cityjson_parts_kept_apart(tmp_path):
     assert rej == []
 
 
+def test_buildings_in_a_cityobjectgroup_and_the_3d_bags_footprints_are_read_as_buildings(tmp_path):
+    """A CityObjectGroup's members name it among their "parents" (cjval's and the CityJSON corpus' files): they are
+    buildings of their own, not parts, in every parts mode. With parts kept apart, a Building whose own geometry is
+    a LoD 0 footprint beside its parts' solids (the 3D BAG) is its parts, not a rejected footprint."""
+    d = two_buildings()
+    d["CityObjects"]["grp"] = {"type": "CityObjectGroup", "children": ["A", "B"]}
+    for oid in ("A", "B"):
+        d["CityObjects"][oid]["parents"] = ["grp"]
+    path = write(tmp_path / "grouped.city.json", d)
+    ok, rej = _read(path)
+    assert [m.id for m in ok] == ["grouped.city.json#A", "grouped.city.json#B"] and rej == []
+    assert _volume(ok[1]) == pytest.approx(2.0)  # B's two parts still merged into it
+    ok, rej = _read(path, parts="separate")
+    assert [m.id for m in ok] == ["grouped.city.json#A", "grouped.city.json#B1", "grouped.city.json#B2"] and rej == []
+    d = two_buildings()
+    d["vertices"] += [[0, 0, 0], [5000, 0, 0], [5000, 1000, 0], [0, 1000, 0]]
+    n = len(d["vertices"])
+    d["CityObjects"]["B"]["geometry"] = [{"type": "MultiSurface", "lod": "0", "boundaries": [[[n - 4, n - 3, n - 2, n - 1]]]}]
+    path = write(tmp_path / "bag.city.json", d)
+    ok, rej = _read(path, parts="separate")
+    assert [m.id for m in ok] == ["bag.city.json#A", "bag.city.json#B1", "bag.city.json#B2"] and rej == []
+    ok, rej = _read(path, parts="separate", lod="0")  # asked for by name: the footprint is read
+    assert [r.id for r in ok + rej if r.id.endswith("#B")] == ["bag.city.json#B"]
+
+
 def test_recentring_keeps_millimetres_at_lv95_offsets(tmp_path):
     d = doc({"X": {"type": "Building", "geometry": [cube_solid()]}}, [[x + 123, y + 7, z] for x, y, z in CUBE_VERTS])
     path = write(tmp_path / "lv95.city.json", d)
