@@ -305,6 +305,14 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     buildings, parts, others, strays = _areas(path)
     notes = []
     try:
+        found, lost = lost_by_gdal(path, {a.oid for a in buildings + parts} | {oid for oid, _, _ in strays})
+    except InputFileError as err:
+        found, lost = [], []
+        notes.append(f"its ways were not checked for outlines GDAL passes over: the file {err.problem}")
+    for area in found:
+        (buildings if _said(area.tags, "building") else parts).append(area)
+    strays += lost
+    try:
         relations = building_relations(path)
     except InputFileError as err:  # GDAL read its areas: those are read, parts by the outline that holds them
         relations = []
@@ -409,6 +417,77 @@ def building_relations(path: Path) -> list[BuildingRelation]:
     except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged XML or PBF, an XML head without a version
         raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its relations: {err})") from None
     return found
+
+
+def lost_by_gdal(path: Path, reported: set[str]) -> tuple[list[_Area], list[tuple[str, str, str]]]:
+    """The buildings and parts GDAL's OSM driver passes over without a word, found by libosmium (pyosmium).
+
+    GDAL reports no closed way that is the outer ring of a multipolygon relation (the relation stands for it), so a
+    building outline whose way is also the outer of a ``building:part`` multipolygon (S3DB's base of a church, its
+    domes parts inside) would be lost; nor a way of fewer than 4 nodes, nor a multipolygon whose member ways the
+    extract lacks. Tagged ways and multipolygon relations not among ``reported`` (ids ``way/<id>``,
+    ``relation/<id>``) are looked at: such an outline is read from its nodes (a second pass, only then), unless a
+    relation GDAL reported stands for it (an old-style multipolygon, tagged on its outer way, or one tagged
+    ``building`` itself); the rest are listed as having no outline.
+
+    Returns
+    -------
+    areas : list of _Area
+        The outlines read from their nodes (buildings and parts alike: their tags say which).
+    strays : list of (id, kind, problem)
+        As :func:`_areas` gives them: ``building`` or ``building:part``, and how it is mapped.
+    """
+    import osmium
+
+    kinds = ("building", "building:part")
+    ways, relations = {}, {}
+    try:
+        for o in osmium.FileProcessor(osmium_file(path), osmium.osm.WAY | osmium.osm.RELATION).with_filter(
+                osmium.filter.KeyFilter(*kinds)):
+            kind = next((k for k in kinds if _said(dict(o.tags), k)), None)
+            if kind is None:
+                continue
+            if o.is_way() and f"way/{o.id}" not in reported:
+                ways[o.id] = (kind, [n.ref for n in o.nodes], dict(o.tags))
+            elif o.is_relation() and o.tags.get("type") == "multipolygon" and f"relation/{o.id}" not in reported:
+                relations[o.id] = (kind, [m.ref for m in o.members if m.type == "w"])
+        if not ways and not relations:
+            return [], []
+        outer_of: dict[int, list[tuple[str, bool]]] = {}  # a missing way -> the multipolygons it is an outer of
+        if ways:
+            for r in osmium.FileProcessor(osmium_file(path), osmium.osm.RELATION).with_filter(
+                    osmium.filter.TagFilter(("type", "multipolygon"))):
+                own = dict(r.tags)
+                for m in r.members:
+                    if m.type == "w" and m.ref in ways and m.role in ("outer", ""):
+                        outer_of.setdefault(m.ref, []).append((f"relation/{r.id}", _said(own, "building")
+                                                               or set(own) <= {"type"}))
+        strays, wanted = [], {}
+        for wid, (kind, refs, tags) in ways.items():
+            if len(refs) < 4 or refs[0] != refs[-1]:
+                how = (f"mapped as a way of {len(refs)} node(s)" if len(refs) < 4 and refs[:1] == refs[-1:]
+                       else "mapped as a way that does not close")
+                strays.append((f"way/{wid}", kind, how))
+            elif any(rel in reported and stands for rel, stands in outer_of.get(wid, [])):
+                continue  # the relation GDAL reported is this building
+            else:
+                wanted[wid] = (kind, tags)
+        for rid, (kind, members) in relations.items():
+            strays.append((f"relation/{rid}", kind, f"mapped as a multipolygon whose outline GDAL could not assemble "
+                                                     f"from its {len(members)} member way(s) (some may lie outside the extract)"))
+        areas = []
+        if wanted:
+            for w in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE | osmium.osm.WAY).with_locations(
+                    ).with_filter(osmium.filter.EntityFilter(osmium.osm.WAY)).with_filter(osmium.filter.IdFilter(wanted)):
+                if all(n.location.valid() for n in w.nodes):
+                    areas.append(_Area(f"way/{w.id}", wanted[w.id][1],
+                                       {"type": "Polygon", "coordinates": [[[n.lon, n.lat] for n in w.nodes]]}))
+            found = {a.oid for a in areas}
+            strays += [(f"way/{wid}", kind, "mapped as a way whose nodes are not all in the extract")
+                       for wid, (kind, _) in wanted.items() if f"way/{wid}" not in found]
+    except Exception as err:  # libosmium's errors: damaged XML or PBF
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its ways: {err})") from None
+    return areas, strays
 
 
 def _related(buildings: list[_Area], parts: list[_Area], relations: list[BuildingRelation], owner: np.ndarray

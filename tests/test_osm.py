@@ -278,6 +278,37 @@ def test_a_building_of_parts_is_its_parts_united(tmp_path):
         area[80] * 10 + area[81] * 30, rel=1e-4)  # the tower stands 30 m above the nave
 
 
+def test_what_gdal_passes_over_is_read_or_listed(tmp_path):
+    """GDAL's OSM driver reports no closed way that is the outer of a multipolygon, nor a way of one node, nor a
+    multipolygon whose ways the extract lacks (the Lavra's chapels, osmnx's test extract): a chapel (way 10,
+    building, 21.5 m) whose way is also the outer of a building:part multipolygon (relation 11, 6 m), a dome part
+    inside, is one building of both parts; an old-style multipolygon (tags on its outer way) stays one building; the
+    1-node way and the relation of missing ways are rejections saying so."""
+    osm = OsmWriter()
+    osm.way(10, (0, 0, 20, 12), building="chapel", height="21.5")
+    osm.way(12, (6, 3, 12, 9), height="12", **{PART: "yes"})
+    osm.way(20, (40, 0, 50, 10), building="yes", height="10")  # old style: the relation carries no tags of its own
+    lon, lat = _lonlat([(80.0, 0.0)])[0]
+    osm.nodes.append(f'  <node id="9000" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>')
+    osm.ways.append((30, '<nd ref="9000"/>', {"building": "yes"}))
+    text = osm.text().replace("</osm>", (
+        '  <relation id="11" version="1"><member type="way" ref="10" role="outer"/><tag k="building:part" v="yes"/>'
+        '<tag k="height" v="6"/><tag k="type" v="multipolygon"/></relation>\n'
+        '  <relation id="21" version="1"><member type="way" ref="20" role="outer"/><tag k="type" v="multipolygon"/>'
+        '</relation>\n'
+        '  <relation id="40" version="1"><member type="way" ref="41" role="outer"/><member type="way" ref="42" '
+        'role="outer"/><tag k="building" v="yes"/><tag k="type" v="multipolygon"/></relation>\n</osm>'))
+    (tmp_path / "lost.osm").write_text(text)
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "lost.osm")}
+    assert sorted(items) == ["relation/21", "relation/40", "way/10", "way/30"], sorted(items)
+    chapel = items["way/10"]
+    assert isinstance(chapel, RawMesh) and len(chapel.parts) == 2, chapel
+    assert _union_volume(chapel) == pytest.approx(osm.area[10] * 6 + osm.area[12] * 6, rel=1e-4)
+    assert _volume(items["relation/21"]) == pytest.approx(osm.area[20] * 10, rel=1e-5)
+    assert "a way of 1 node(s)" in items["way/30"].reason
+    assert "could not assemble from its 2 member way(s)" in items["relation/40"].reason
+
+
 def _related_district(path):
     """S3DB building relations: a tower whose upper part overhangs its outline over a lower neighbour (by containment
     that part would be the neighbour's), its height on the relation, a part it names missing from the extract; a
