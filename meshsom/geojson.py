@@ -518,21 +518,21 @@ def properties(feature: dict) -> dict:
     return osm_properties({**nested, **props} if isinstance(nested, dict) else props)
 
 
-def _extent(value, depth: int = 0) -> float | None:
-    """The largest magnitude of any position's x or y in nested coordinate lists; None where there
-    is none (or the nesting is not lists of numbers: the reader says so later)."""
+def _extent(value, depth: int = 0) -> tuple[float, float] | None:
+    """The largest magnitudes of any position's x and of any position's y in nested coordinate lists; None where
+    there is none (or the nesting is not lists of numbers: the reader says so later)."""
     if not isinstance(value, list) or depth > 6 or not value:
         return None
     if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        return max(abs(float(v)) for v in value[:2]) if len(value) >= 2 else None
+        return (abs(float(value[0])), abs(float(value[1]))) if len(value) >= 2 else None
     found = [e for e in (_extent(v, depth + 1) for v in value) if e is not None]
-    return max(found) if found else None
+    return (max(e[0] for e in found), max(e[1] for e in found)) if found else None
 
 
 def declared_crs(feature: dict, collection_crs: str | None, old_crs: str | None, options) -> str | None:
     """The CRS a feature's coordinates are in, as the module says: the JSON-FG ``coordRefSys`` of
     its ``place``; else an old-style ``crs`` member; else WGS 84 (``OGC:CRS84h``) where every x
-    and y lies within +/-180 and no :attr:`meshsom.io.ReaderOptions.crs` is set; else None
+    lies within +/-180 and every y within +/-90 and no :attr:`meshsom.io.ReaderOptions.crs` is set; else None
     (projected data written without one)."""
     if isinstance(feature.get("place"), dict):
         return _reference(feature.get("coordRefSys")) or collection_crs
@@ -540,7 +540,8 @@ def declared_crs(feature: dict, collection_crs: str | None, old_crs: str | None,
         return old_crs
     geometry = feature.get("geometry")
     extent = _extent(geometry.get("coordinates")) if isinstance(geometry, dict) else None
-    return GEOJSON_CRS if extent is not None and extent <= 180 and options.crs is None else None
+    lonlat = extent is not None and extent[0] <= 180 and extent[1] <= 90  # a y beyond 90 is no latitude
+    return GEOJSON_CRS if lonlat and options.crs is None else None
 
 
 def _feature_id(feature: dict, index: int) -> str:

@@ -136,8 +136,8 @@ def holds_osm_parts(path: Path, options) -> bool:
 
 
 def holds_overture_parts(path: Path, options) -> bool:
-    """Whether a file's features are Overture's building parts: one names a building (:data:`BUILDING_ID`)
-    other than itself, among all of a GeoParquet file's (two columns read), among the first
+    """Whether a file's features are Overture's building parts: one with an id of its own (:data:`OWN_ID`) names a
+    building (:data:`BUILDING_ID`) other than itself, among all of a GeoParquet file's (two columns read), among the first
     :data:`SNIFF_FEATURES` of other files (a GeoJSON file only where its first :data:`SNIFF_BYTES`
     mention it). Files that cannot be read are not (their reader says why)."""
     if _kind(Path(path)) == "geojson" and not _mentions(Path(path), BUILDING_ID):
@@ -151,8 +151,8 @@ def holds_overture_parts(path: Path, options) -> bool:
             import pyarrow.parquet as pq
 
             names = pq.ParquetFile(path).schema_arrow.names
-            if BUILDING_ID not in names:
-                return False
+            if BUILDING_ID not in names or OWN_ID not in names:
+                return False  # without an id of its own, a building_id is the feature's own (LINZ's outlines)
             table = pq.read_table(path, columns=[c for c in (OWN_ID, BUILDING_ID) if c in names])
             named = table.column(BUILDING_ID).to_pylist()
             own = table.column(OWN_ID).to_pylist() if OWN_ID in table.column_names else [None] * len(named)
@@ -161,8 +161,8 @@ def holds_overture_parts(path: Path, options) -> bool:
             return False
     try:
         for oid, props, _ in features(path, options, SNIFF_FEATURES):
-            named = props.get(BUILDING_ID)
-            if named is not None and str(named) != str(props.get(OWN_ID, oid)):
+            named = props.get(BUILDING_ID)  # a part has an id of its own too: LINZ's outlines name theirs building_id
+            if named is not None and props.get(OWN_ID) is not None and str(named) != str(props[OWN_ID]):
                 return True
     except Exception:  # unreadable: read as any other input, which says why
         return False

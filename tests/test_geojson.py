@@ -134,6 +134,13 @@ def test_projected_footprints_with_or_without_a_crs_member(tmp_path):
         json.dump(doc, fh)
     (m,) = read_file(tmp_path / "ny.geojson.gz")
     assert _volume(m) == pytest.approx(area(L_SHAPE) * 6, rel=1e-9)
+    # local metres of a model (a game engine's, a planner's) within +/-180 in x but beyond +/-90 in y: no longitude
+    # and latitude, read as metres as the other features of such a file are
+    ring = [(-170 + x, -110 + y) for x, y in L_SHAPE]
+    local = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}
+    (tmp_path / "local.geojson").write_text(json.dumps(local))
+    (m,) = read_file(tmp_path / "local.geojson")
+    assert isinstance(m, RawMesh) and _volume(m) == pytest.approx(area(L_SHAPE) * 6, rel=1e-9), m
 
 
 def test_json_fg_solids_and_prisms(tmp_path):

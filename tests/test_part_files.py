@@ -79,6 +79,13 @@ def test_a_building_id_that_is_the_features_own_is_no_part(tmp_path):
     buildings, parts = _geoparquet_pair(tmp_path)
     assert holds_parts(parts, ReaderOptions()) and not holds_parts(buildings, ReaderOptions())
     assert pair([tmp_path / "city.parquet", buildings], ReaderOptions()).part_files == ()
+    # LINZ's NZ Building Outlines: the key column is building_id, and no id column beside it (the features' own ids,
+    # a FlatGeobuf's or GeoJSON's, are row numbers): outlines, not parts
+    linz = {"type": "FeatureCollection", "features": [
+        {"type": "Feature", "geometry": g, "properties": {"building_id": 1_000_000 + k, "height": 6.0}}
+        for k, (_, g, _) in enumerate(BUILDINGS)]}
+    (tmp_path / "nz-building-outlines.geojson").write_text(json.dumps(linz))
+    assert not holds_parts(tmp_path / "nz-building-outlines.geojson", ReaderOptions())
 
 
 def test_overture_downloads_through_meshsom_ingest(tmp_path):
