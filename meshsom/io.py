@@ -2264,7 +2264,9 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
         # it was left out, unless it is degenerate (all its vertices on one line).
         if len(tri) < len(ids) + 2 * (len(rings_idx) - 1) - 2:
             p3 = local[ids] - local[ids].mean(axis=0)
-            dropped += int(np.linalg.matrix_rank(p3) >= 2 and len(np.unique(ids)) == len(ids))
+            # ... nor where the triangles cover the polygon's area (a vertex on a side's line, none missing)
+            dropped += int(np.linalg.matrix_rank(p3) >= 2 and len(np.unique(ids)) == len(ids)
+                           and not _covered(local, rings_idx, ids[tri] if len(tri) else np.zeros((0, 3), np.int64)))
         if len(tri):
             out.append(ids[tri])
             out_poly.append(np.full(len(tri), p, np.int64))
@@ -2272,6 +2274,21 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
     order = np.argsort(np.concatenate(out_poly[1:]), kind="stable")  # after the plain triangles, in polygon order
     faces = np.concatenate([faces[0], np.concatenate(faces[1:])[order]])
     return faces, np.concatenate([out_poly[0], np.concatenate(out_poly[1:])[order]]).astype(np.int64), dropped
+
+
+def _covered(local: np.ndarray, rings: list, faces: np.ndarray) -> bool:
+    """Whether triangles ``faces`` (T, 3) cover a planar polygon's area (its ``rings`` of vertex indices into ``local``,
+    the exterior first): their areas sum to the polygon's (Newell's, holes taken off) within 1e-6."""
+    normal = sum(np.cross(local[r], local[np.roll(r, -1)]).sum(axis=0) for r in rings[:1])
+    length = np.linalg.norm(normal)
+    if not length > 0:
+        return False
+    unit = normal / length
+    area = sum(abs(float(np.cross(local[r], local[np.roll(r, -1)]).sum(axis=0) @ unit)) * (1 if k == 0 else -1)
+               for k, r in enumerate(rings)) / 2
+    a, b, c = (local[faces[:, k]] for k in range(3))
+    covered = float(np.abs(np.cross(b - a, c - a) @ unit).sum()) / 2
+    return area > 0 and abs(covered - area) <= 1e-6 * area
 
 
 #: A quad this close (relative) to being not convex or to having a spike is split one by one, as any

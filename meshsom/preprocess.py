@@ -313,7 +313,9 @@ def preprocess(
     volume_in = signed_volume(v, f)
     diag = _diagonal(v)
     if not volume_in > params.weld_tol * diag**3:  # thinner than the weld tolerance
-        raise MeshError(source, f"zero volume (encloses {volume_in:.3g} cubic units)")
+        raise MeshError(source, f"zero volume: it encloses {volume_in:.3g} cubic units, not more than "
+                                f"{params.weld_tol * diag**3:.3g} (weld_tol x its {diag:.3g} diagonal cubed): a sliver, "
+                                f"a spike or faces folded onto each other")
     check_time("cleaning folds")
     v, f = _clean_folds(v, f, params, diag, volume_in, source, repairs)
     check_time("re-triangulating")

@@ -459,3 +459,14 @@ def test_a_cityjson_file_is_not_scanned_for_features(tmp_path, monkeypatch):
     assert geojson.geojson_ranges(tmp_path / "zeros.json", 10, ReaderOptions()) is None
     assert geojson.geojson_ranges(tmp_path / "footprints.geojson", 10, ReaderOptions()) is not None
     assert scanned == ["footprints.geojson"]
+
+
+def test_a_repeated_corner_is_no_dropped_polygon(tmp_path):
+    """A footprint ring with a corner written twice in a row (the Kampala and Catastro footprints) extrudes a wall of
+    zero width there: nothing is left out, and no note says that polygons were dropped, leaving holes."""
+    ring = [(84600 + x, 447400 + y) for x, y in [(0, 0), (10, 0), (10, 5), (10, 10), (10, 10), (5, 10), (0, 10)]]
+    doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=3)]}
+    (tmp_path / "twice.geojson").write_text(json.dumps(doc))
+    (m,) = read_file(tmp_path / "twice.geojson")
+    assert isinstance(m, RawMesh) and not any("dropped" in n for n in m.notes), m.notes
+    assert _volume(m) == pytest.approx(10 * 10 * 3, rel=1e-12)
