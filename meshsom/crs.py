@@ -8,7 +8,8 @@ common classes are not:
   (EPSG:6697), and CityJSON or CityGML exported in WGS 84 (EPSG:4326, 4979). Read as they are, a
   building 20 m wide spans 2e-4 on x and y and 20 on z: a needle. Each building is converted to a
   local east-north-up frame in metres about its own centre (geodetic -> geocentric -> ENU on the
-  CRS's ellipsoid), exact to far below a millimetre over a building's extent.
+  CRS's ellipsoid), on the tangent plane (:func:`local_tangent`: heights stay heights, so flat roofs stay
+  flat and walls vertical), exact to far below a millimetre over a building's extent.
 - **Projected CRSs in feet** (New York's EPSG:2263 in US survey feet, other US state planes):
   scaled to metres, horizontal and vertical axes each by their own unit.
 - **Projections that distort lengths** (Web Mercator, EPSG:3857, in which web services and ArcGIS
@@ -298,9 +299,34 @@ def to_metres(local: np.ndarray, origin: np.ndarray, crs: CoordinateSystem) -> t
                          f"(projected coordinates labelled as degrees?)")
     geodetic[:, 2] *= crs.vertical_m
     centre = centre * np.array([1.0, 1.0, crs.vertical_m])
-    enu = east_north_up(geodetic, centre, crs.semi_major, crs.flattening)
-    return enu, (f"converted to metres from geographic coordinates ({crs.name}), east-north-up about the "
-                 f"building's centre{swapped}")
+    return local_tangent(geodetic, centre, crs.semi_major, crs.flattening), (
+        f"converted to metres from geographic coordinates ({crs.name}), east-north-up about the building's "
+        f"centre{swapped}")
+
+
+def local_tangent(geodetic: np.ndarray, centre: np.ndarray, semi_major: float, flattening: float) -> np.ndarray:
+    """East and north (metres) of geodetic points on the tangent plane at ``centre`` (their east-north-up position at
+    the centre's height), and up as their height above the centre's: what a projected CRS gives a building, where a
+    geocentric east-north-up frame curves it (a flat roof 50 m across sags 0.2 mm at its edges, a wall leans 8e-6 rad
+    away from the centre, so that a part on its building's roof no longer meets it).
+
+    Parameters
+    ----------
+    geodetic : (V, 3) float64
+        Latitude, longitude (degrees), height (metres).
+    centre : (3,) float64
+        The same, of the frame's origin.
+    semi_major, flattening : float
+
+    Returns
+    -------
+    (V, 3) float64
+    """
+    level = np.array(geodetic, np.float64)
+    level[:, 2] = centre[2]
+    out = east_north_up(level, centre, semi_major, flattening)
+    out[:, 2] = geodetic[:, 2] - centre[2]
+    return out
 
 
 #: A projected CRS whose point scale at a building's centre is off 1 by more than this has the building converted to

@@ -309,6 +309,25 @@ def test_what_gdal_passes_over_is_read_or_listed(tmp_path):
     assert "could not assemble from its 2 member way(s)" in items["relation/40"].reason
 
 
+def test_a_part_on_its_buildings_roof_meets_it(tmp_path):
+    """A club (40 x 50 m, 18 m) with a block standing on its roof (a part from 18 to 30 m, 12 x 12 m), in longitude and
+    latitude: converted to metres on the tangent plane (heights as heights), the block's floor lies in the roof's plane
+    and the union is one shell with both faces gone (as in a projected CRS), not two shells with a floor inside."""
+    from meshsom.preprocess import PreprocessParams
+    from pipelines.ingest import process_one
+
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 40, 50), building="yes", height="18")
+    osm.way(2, (0, 0, 40, 50), height="18", **{PART: "yes"})
+    osm.way(3, (20, 30, 32, 42), min_height="18", height="30", **{PART: "yes"})
+    (tmp_path / "club.osm").write_text(osm.text())
+    (club,) = read_file(tmp_path / "club.osm")
+    record, clean = process_one(club, PreprocessParams())
+    assert record["status"] == "accepted" and record["union"]["shells_after"] == 1, record
+    assert record["union"]["area_removed"] == pytest.approx(2 * osm.area[3], rel=1e-3)
+    assert _volume(clean) == pytest.approx(osm.area[2] * 18 + osm.area[3] * 12, rel=1e-4)
+
+
 def _related_district(path):
     """S3DB building relations: a tower whose upper part overhangs its outline over a lower neighbour (by containment
     that part would be the neighbour's), its height on the relation, a part it names missing from the extract; a
