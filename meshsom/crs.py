@@ -308,19 +308,8 @@ def local_tangent(geodetic: np.ndarray, centre: np.ndarray, semi_major: float, f
     """East and north (metres) of geodetic points on the tangent plane at ``centre`` (their east-north-up position at
     the centre's height), and up as their height above the centre's: what a projected CRS gives a building, where a
     geocentric east-north-up frame curves it (a flat roof 50 m across sags 0.2 mm at its edges, a wall leans 8e-6 rad
-    away from the centre, so that a part on its building's roof no longer meets it).
-
-    Parameters
-    ----------
-    geodetic : (V, 3) float64
-        Latitude, longitude (degrees), height (metres).
-    centre : (3,) float64
-        The same, of the frame's origin.
-    semi_major, flattening : float
-
-    Returns
-    -------
-    (V, 3) float64
+    away from the centre, so that a part on its building's roof no longer meets it). Arguments and result as
+    :func:`east_north_up`'s.
     """
     level = np.array(geodetic, np.float64)
     level[:, 2] = centre[2]
