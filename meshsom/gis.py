@@ -874,7 +874,10 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
                 return
             yield from building_meshes(area, own, alone, options, name, str(path), (system, unknown), file_notes)
             return
-    if _is_gml(path) and layer.name not in INSPIRE_BUILDINGS:  # Catastro's otherconstruction.gml: pools, sheds' roofs
+    from meshsom.inspire import is_ogr_gml
+
+    if _is_gml(path) and layer.name not in INSPIRE_BUILDINGS and not is_ogr_gml(path):  # Catastro's
+        # otherconstruction.gml: pools, sheds' roofs (GDAL's own GML, ogr2ogr's: any layer is footprints)
         yield Rejection(mesh_id, str(path), f"is an INSPIRE {layer.name}, not a building ({' or '.join(INSPIRE_BUILDINGS)})")
         return
     osm = osm_row(props)  # a row of an OpenStreetMap extract converted by ogr2ogr: read as the extract's reader does

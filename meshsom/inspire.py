@@ -35,6 +35,9 @@ from pathlib import Path
 #: Namespaces of INSPIRE's Buildings application schemas (2D) as files declare them (INSPIRE's
 #: registry, the JRC's older location).
 NAMESPACES = (re.compile(rb"inspire[.a-z]*\.europa\.eu/schemas/bu-(core2d|ext2d|base)/"),)
+#: GDAL's own GML namespace (``ogr2ogr -f GML`` writes footprints under ``ogr:FeatureCollection``): simple features,
+#: read through GDAL as INSPIRE's are.
+OGR_NAMESPACE = re.compile(rb"xmlns:ogr=[\"']http://ogr\.maptools\.org/")
 #: A CityGML namespace: a file that declares one is CityGML (INSPIRE's 3D profiles extend it).
 CITYGML = re.compile(rb"opengis\.net/citygml/")
 #: A building part's id naming its building: ``<building id>_part<N>`` (Catastro).
@@ -78,6 +81,22 @@ def is_inspire(path: Path) -> bool:
     CityGML's, in its first :data:`SNIFF_BYTES`."""
     head = _head(Path(path))
     return any(ns.search(head) for ns in NAMESPACES) and not CITYGML.search(head)
+
+
+def is_ogr_gml(path: Path) -> bool:
+    """Whether a GML file (plain or gzipped) is GDAL's own (:data:`OGR_NAMESPACE`, no CityGML namespace); its head
+    read once per version of the file (asked for each of its features)."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return False
+    return _is_ogr_gml(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=256)
+def _is_ogr_gml(path: str, size: int, mtime_ns: int) -> bool:
+    head = _head(Path(path))
+    return bool(OGR_NAMESPACE.search(head)) and not CITYGML.search(head)
 
 
 def holds_parts(path: Path) -> bool:

@@ -455,9 +455,10 @@ def input_kind(path: Path) -> str:
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
-        from meshsom.inspire import is_inspire
+        from meshsom.inspire import is_inspire, is_ogr_gml
 
-        return "gis" if name.endswith(".gml") and is_inspire(path) else "citygml"  # INSPIRE: footprints, through GDAL
+        # INSPIRE's and GDAL's own GML (ogr2ogr -f GML): footprints, through GDAL
+        return "gis" if name.endswith(".gml") and (is_inspire(path) or is_ogr_gml(path)) else "citygml"
     if name.endswith(XML_SUFFIX):  # CityGML saved as .xml (Hamburg's LoD 2 tiles), by its namespace
         from meshsom.inspire import CITYGML, SNIFF_BYTES, _head
 

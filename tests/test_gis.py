@@ -202,7 +202,8 @@ def _check_footprints(got):
 
 
 @pytest.mark.parametrize("driver,name", [("GPKG", "b.gpkg"), ("ESRI Shapefile", "b.shp"), ("FlatGeobuf", "b.fgb"),
-                                         ("OpenFileGDB", "b.gdb"), ("GeoJSONSeq", "b.geojsonl"), (None, "b.parquet")])
+                                         ("OpenFileGDB", "b.gdb"), ("GeoJSONSeq", "b.geojsonl"), (None, "b.parquet"),
+                                         ("GML", "b.gml")])  # GML: ogr2ogr -f GML, GDAL's own namespace
 def test_footprints_in_longitude_latitude(tmp_path, driver, name):
     """WGS 84 footprints: GDAL and GeoParquet give longitude first, whatever EPSG:4326's axis order."""
     features = _footprints(lonlat)
