@@ -1058,6 +1058,11 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     if file_type == "dae":  # COLLADA says its unit and up axis (SketchUp: inches, z up; others: y up)
         to_metres, turn = _collada_frame(data.getvalue())
         items = [(i, (v * to_metres) @ turn.T, f, lab) for i, v, f, lab in items]
+    land = _3dfier_land(data.getvalue()) if file_type == "obj" else {}
+    for mesh_id, v, f, item_label in [item for item in items if item[0][len(name) + 1:] in land]:
+        yield Rejection(mesh_id, str(path), f"is a 3dfier {land[mesh_id[len(name) + 1:]]} object (its material says "
+                                            f"so), not a building", int(len(f)), item_label)
+    items = [item for item in items if item[0][len(name) + 1:] not in land]
     if options.split_components:
         items = [piece for item in items for piece in _connected_pieces(*item)]
     for mesh_id, v, f, item_label in items:
@@ -1374,6 +1379,33 @@ def _bad_vertex_reference(data: bytes, file_type: str) -> str | None:
                 return (f"the face on line {number} refers to vertex {bad[0]}, and the file has {n_vertices} vertices "
                         f"(OFF counts from 0)")
     return None
+
+
+#: The classes of 3dfier's OBJ tiles, as the materials of their objects name them (``usemtl Terrain``, ``usemtl
+#: BuildingWall``): in a tile of them, only a Building object is a building.
+THREEDFIER_CLASSES = ("Building", "Terrain", "Forest", "Water", "Road", "Separation", "Bridge")
+_OBJ_OBJECT_OR_MATERIAL = re.compile(rb"^(o|usemtl)[ \t]+(.+?)[ \t]*\r?$", re.M)
+
+
+def _3dfier_land(data: bytes) -> dict[str, str]:
+    """The objects of a 3dfier OBJ tile that are no building (terrain, roads, water...): their class, by object name.
+
+    A file is taken for 3dfier's where every material its objects use is one of :data:`THREEDFIER_CLASSES` (or
+    ``<class>Wall``); an object with no Building material in it is land. Any other OBJ: nothing."""
+    classes: dict[str, set[str]] = {}
+    current = None
+    for kind, value in _OBJ_OBJECT_OR_MATERIAL.findall(data):
+        text = value.decode("utf-8", "replace")
+        if kind == b"o":
+            current = classes.setdefault(text, set())
+            continue
+        found = text[:-4] if text.endswith("Wall") else text
+        if found not in THREEDFIER_CLASSES or current is None:
+            return {}
+        current.add(found)
+    if not any(classes.values()) or all("Building" in c for c in classes.values() if c):
+        return {}
+    return {name: sorted(c)[0] for name, c in classes.items() if c and "Building" not in c}
 
 
 def triangulated_obj(data: bytes) -> bytes | None:

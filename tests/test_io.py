@@ -453,3 +453,24 @@ def test_an_obj_file_blender_or_sketchup_wrote_is_y_up_by_default(tmp_path, head
     assert any("y up, as its exporter writes by default" in n for n in default.notes) == turned
     assert np.ptp(as_given.vertices, axis=0) == pytest.approx([4, 9, 6]) and as_given.notes == ()
     assert _volume(default) == pytest.approx(4 * 9 * 6)
+
+
+def test_a_3dfier_tile_gives_its_buildings_and_lists_its_land(tmp_path):
+    """3dfier's OBJ tiles (its example's testarea.obj: 160 buildings among 570 objects) hold terrain, roads, water,
+    forest, bridges and separations as objects beside the buildings, each class a material (``usemtl Terrain``,
+    ``BuildingWall``): those are rejections naming their class, not buildings; an OBJ of other materials is as before."""
+    cube = [(x, y, z) for z in (0, 3) for y in (0, 4) for x in (0, 5)]
+    quads = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (2, 4, 8, 6), (4, 3, 7, 8), (3, 1, 5, 7)]
+    lines = ["mtllib ./3dfier.mtl", *(f"v {x + 85000} {y + 447000} {z}" for x, y, z in cube),
+             "v 85010 447000 0", "v 85020 447000 0", "v 85020 447010 0",
+             "o b1", "usemtl Building", *(f"f {' '.join(map(str, q))}" for q in quads[:2]),
+             "usemtl BuildingWall", *(f"f {' '.join(map(str, q))}" for q in quads[2:]),
+             "o t1", "usemtl Terrain", "f 9 10 11", "o r1", "usemtl Road", "f 9 10 11"]
+    (tmp_path / "tile.obj").write_text("\n".join(lines) + "\n")
+    got = {i.id: i for i in read_file(tmp_path / "tile.obj")}
+    assert sorted(got) == ["tile.obj#b1", "tile.obj#r1", "tile.obj#t1"]
+    assert isinstance(got["tile.obj#b1"], RawMesh) and _volume(got["tile.obj#b1"]) == pytest.approx(60)
+    assert got["tile.obj#t1"].reason == "is a 3dfier Terrain object (its material says so), not a building"
+    assert "3dfier Road object" in got["tile.obj#r1"].reason
+    (tmp_path / "cad.obj").write_text("\n".join(lines).replace("usemtl Terrain", "usemtl Concrete") + "\n")
+    assert all(isinstance(i, RawMesh) for i in read_file(tmp_path / "cad.obj"))
