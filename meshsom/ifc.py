@@ -116,6 +116,7 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         shapes = _triangulated(model, [e for _, members in groups for e in members], ifcopenshell)
     except Exception as err:  # IfcOpenShell's geometry kernel raises RuntimeError and its own errors
         raise InputFileError(str(path), f"IfcOpenShell cannot triangulate its elements ({type(err).__name__}: {err})") from None
+    shapes, unit_note = _in_metres(model, shapes)
     placement, placed_note = _placement(model)
     for building, members in groups:
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
@@ -132,7 +133,7 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         # preprocessing keeps each shell's vertices its own (meshsom.union), never welding them together
         parts = tuple(f"shell {k + 1}" for k in range(shells)) if shells > 1 else ()
         yield RawMesh(mesh_id, str(path), local, faces, origin, parts=parts,
-                      face_part=shell_of if parts else None, notes=(*notes, placed_note))
+                      face_part=shell_of if parts else None, notes=(*notes, *unit_note, placed_note))
 
 
 def _open_model(path: Path, options: ReaderOptions, ifcopenshell):
@@ -262,6 +263,25 @@ def _triangulated(model, elements: list, ifcopenshell) -> dict:
         if not iterator.next():
             break
     return shapes
+
+
+def _in_metres(model, shapes: dict) -> tuple[dict, tuple[str, ...]]:
+    """The kernel's shapes in metres, and a note where they were not: IfcOpenShell's kernel converts the project's
+    length unit to metres only where the file holds one context (``[GEO308] Not a single project or context in
+    file``: an IfcProjectLibrary beside the IfcProject, as IfcOpenShell's own test models have) and otherwise leaves
+    coordinates in that unit (a wall of 3000 x 300 x 2000 mm read as kilometres)."""
+    import ifcopenshell.util.unit
+
+    contexts = model.by_type("IfcContext") if model.schema != "IFC2X3" else model.by_type("IfcProject")
+    if len(contexts) <= 1 or not shapes:
+        return shapes, ()
+    project_m = float(ifcopenshell.util.unit.calculate_unit_scale(model))
+    if project_m == 1.0:
+        return shapes, ()
+    scaled = {k: (v * project_m, f) for k, (v, f) in shapes.items()}
+    kinds = ", ".join(sorted({c.is_a() for c in contexts}))
+    return scaled, (f"IFC: scaled to metres by its length unit ({project_m:g} m), which IfcOpenShell's kernel leaves "
+                    f"unapplied in a file of {len(contexts)} contexts ({kinds})",)
 
 
 def _closed_solid(vertices: np.ndarray, faces: np.ndarray, params):

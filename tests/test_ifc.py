@@ -336,3 +336,19 @@ def test_close_surface_closes_without_cleaning_folds():
     assert signed_volume(cv, cf) == pytest.approx(1.0)
     with pytest.raises(MeshError):
         close_surface(v, f[:3])
+
+
+def test_a_project_library_beside_the_project_keeps_the_building_in_metres(models, tmp_path):
+    """IfcOpenShell's own test models declare an IfcProjectLibrary beside the IfcProject: its kernel then finds "not
+    a single project or context" and leaves the millimetre coordinates unconverted. The reader scales them by the
+    project's length unit, says so, and the house has the size it was written with."""
+    def library(model):
+        model.createIfcProjectLibrary(model.by_type("IfcProject")[0].GlobalId[:-1] + "L", None, "Library")
+
+    plain = _house(_meshes(models["IFC4"])[0])
+    path = _edited(models["IFC4"], tmp_path / "library.ifc", library)
+    house = _house(_meshes(path)[0])
+    size = np.ptp(house.vertices, axis=0)
+    np.testing.assert_allclose(size, np.ptp(plain.vertices, axis=0), atol=1e-6)
+    assert any("scaled to metres by its length unit (0.001 m)" in n for n in house.notes), house.notes
+    assert signed_volume(house.vertices, house.faces) == pytest.approx(signed_volume(plain.vertices, plain.faces), rel=1e-9)
