@@ -97,6 +97,11 @@ def split_glb(glb: bytes, where: str) -> tuple[dict, bytes]:
     """
     if len(glb) < 20 or glb[:4] != b"glTF":
         raise InputFileError(where, "holds no binary glTF (its payload does not start with b'glTF')")
+    (version,) = struct.unpack_from("<I", glb, 4)
+    if version == 1:
+        raise InputFileError(where, "holds glTF 1.0 (a GLB of version 1, KHR_binary_glTF), which is not read: upgrade "
+                                    "it to glTF 2.0 (npx 3d-tiles-tools upgrade for a tileset or b3dm, gltf-pipeline "
+                                    "for a .glb)")
     size, kind = struct.unpack_from("<II", glb, 12)
     if kind != _JSON or 20 + size > len(glb):
         raise InputFileError(where, f"holds a GLB whose first chunk is not JSON of {size} bytes within its {len(glb)}")

@@ -248,7 +248,10 @@ def composite_meshes(data: bytes, source: str, prefix: str, options, transform: 
 
     for k, (magic, inner) in enumerate(composite_inner_tiles(data, source)):
         if magic in ("b3dm", "glTF"):
-            yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm")
+            try:  # one inner tile that cannot be read is its rejection; the others are read (or listed) still
+                yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm")
+            except InputFileError as err:
+                yield Rejection(f"{prefix}{k}", source, f"is inner tile {k} of a composite, a {magic} that {err.problem}")
         else:
             yield Rejection(f"{prefix}{k}", source, f"is inner tile {k} of a composite, of type {magic} (points or "
                                                     f"instances); only batched models (b3dm, glb) are read")
@@ -398,6 +401,9 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
         refine = str(tile.get("refine", refine)).upper()
         children = [c for c in tile.get("children", []) if isinstance(c, dict)]
         stack.extend((c, transform, refine, folder, depth + 1) for c in reversed(children))
+        extension = (tile.get("extensions") or {}).get("3DTILES_implicit_tiling") if isinstance(tile.get("extensions"), dict) else None
+        if not isinstance(tile.get("implicitTiling"), dict) and isinstance(extension, dict):
+            tile = {**tile, "implicitTiling": extension}  # 3D Tiles 1.0's extension: the same, as 1.1 took it in
         if isinstance(tile.get("implicitTiling"), dict):  # its tiles named by templates, listed by subtrees
             try:
                 implicit = list(implicit_contents(tile, folder, str(path), lambda p: read_input_bytes(p, options),

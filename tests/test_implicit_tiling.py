@@ -91,10 +91,24 @@ def write_implicit(folder, buildings, refine="REPLACE"):
     return order
 
 
-@pytest.mark.parametrize("refine", ["REPLACE", "ADD"])
-def test_implicit_quadtree_reads_its_finest_contents(tmp_path, refine):
+def _as_extension(folder):
+    """The tileset as 3D Tiles 1.0's ``3DTILES_implicit_tiling`` extension wrote it (CesiumGS' samples before 1.1):
+    the same object in the root's ``extensions``, its last level as ``maximumLevel``."""
+    doc = json.loads((folder / "tileset.json").read_text())
+    spec = doc["root"].pop("implicitTiling")
+    spec["maximumLevel"] = spec.pop("availableLevels") - 1
+    doc["asset"]["version"] = "1.0"
+    doc["root"]["extensions"] = {"3DTILES_implicit_tiling": spec}
+    doc["extensionsUsed"] = doc["extensionsRequired"] = ["3DTILES_implicit_tiling"]
+    (folder / "tileset.json").write_text(json.dumps(doc))
+
+
+@pytest.mark.parametrize("refine,extension", [("REPLACE", False), ("ADD", False), ("REPLACE", True)])
+def test_implicit_quadtree_reads_its_finest_contents(tmp_path, refine, extension):
     buildings = _buildings(len(TILES))
     order = write_implicit(tmp_path, buildings, refine)
+    if extension:
+        _as_extension(tmp_path)
     items = list(read_file(tmp_path / "tileset.json"))
     assert all(isinstance(m, RawMesh) for m in items), items
     read = {m.id.split("#")[1]: m for m in items}

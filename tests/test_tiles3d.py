@@ -282,6 +282,15 @@ def test_composite_tiles_read_their_batched_models(tmp_path):
         assert isinstance(got[2], Rejection) and "of type i3dm (points or instances)" in got[2].reason
         for m, (_, v, f) in zip(got[:2] + got[3:], buildings):
             _same_building(m, v, f)
+    # glTF 1.0 (a GLB of version 1: 3d-tiles-tools' samples): its inner tile a rejection that says so, the others read
+    old = bytearray(b3dm(buildings[:2], lambda v: v))
+    at = bytes(old).index(b"glTF")
+    old[at + 4:at + 8] = struct.pack("<I", 1)
+    (tmp_path / "old.cmpt").write_bytes(_composite([bytes(old), i3dm, b3dm(buildings[2:], lambda v: v)]))
+    got = list(read_file(tmp_path / "old.cmpt"))
+    assert [m.id for m in got] == ["old.cmpt#0", "old.cmpt#1", f"old.cmpt#2#{buildings[2][0]}", f"old.cmpt#2#{buildings[3][0]}"]
+    assert "holds glTF 1.0 (a GLB of version 1" in got[0].reason and "upgrade it to glTF 2.0" in got[0].reason
+    assert all(isinstance(m, RawMesh) for m in got[2:])
     # a composite whose inner tile runs past its end is a rejection that says where
     cut = composite[:-200]
     (tmp_path / "cut.cmpt").write_bytes(cut[:8] + struct.pack("<I", len(cut)) + cut[12:])
