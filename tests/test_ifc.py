@@ -352,3 +352,20 @@ def test_a_project_library_beside_the_project_keeps_the_building_in_metres(model
     np.testing.assert_allclose(size, np.ptp(plain.vertices, axis=0), atol=1e-6)
     assert any("scaled to metres by its length unit (0.001 m)" in n for n in house.notes), house.notes
     assert signed_volume(house.vertices, house.faces) == pytest.approx(signed_volume(plain.vertices, plain.faces), rel=1e-9)
+
+
+def test_the_union_of_many_elements_is_batched_and_bounded_in_time():
+    """The elements are united UNION_BATCH at a time, then the batches' unions: 150 overlapping beams unite into
+    their one volume; past the time allowed (checked between batches) the union stops with a MeshError saying so,
+    where one batch union of a roof of 5,178 beams ran for hours."""
+    from meshsom.ifc import UNION_BATCH, _united
+    from meshsom.union import _manifold3d
+
+    manifold3d = _manifold3d()
+    beams = [manifold3d.Manifold.cube([10.0, 0.2, 0.3]).translate([0.05 * k, 0.1 * (k % 2), 0.0]) for k in range(150)]
+    assert len(beams) > 2 * UNION_BATCH
+    united = _united(beams, "roof.ifc#model", 0, manifold3d)
+    # 0.3 m across where both rows of beams are, 0.2 m for the first and last 5 cm: (17.45 x 0.3 - 2 x 0.05 x 0.1) x 0.3 m
+    assert united.volume() == pytest.approx(((10 + 0.05 * 149) * 0.3 - 2 * 0.05 * 0.1) * 0.3, rel=1e-9)
+    with pytest.raises(MeshError, match=r"took more than 1e-09 s .* pieces left"):
+        _united(beams, "roof.ifc#model", 1e-9, manifold3d)
