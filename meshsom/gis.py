@@ -86,6 +86,8 @@ CSV_DEGREES_NOTE = ("the CSV file declares no CRS (no .prj beside it): its coord
                     "read as WGS 84 longitude, latitude (--crs names another)")
 PARQUET_DEGREES_NOTE = ("the Parquet file declares no CRS (a WKB column without GeoParquet metadata): its coordinates, "
                         "within +/-180 and +/-90, are read as WGS 84 longitude, latitude (--crs names another)")
+NO_CRS_NOTE = ("the file declares no CRS (no .prj, no GeoParquet metadata): its coordinates, beyond +/-180 or +/-90, "
+               "are read as metres (--crs names the CRS, and converts feet)")
 #: File name endings read as GeoParquet (through pyarrow).
 PARQUET_SUFFIXES = (".parquet", ".geoparquet")
 GIS_SUFFIXES = OGR_SUFFIXES + PARQUET_SUFFIXES
@@ -858,6 +860,8 @@ def _feature_meshes(path: Path, name: str, oid: str, props: dict, geometry, laye
     assumed = layer.crs is None and layer.degrees and options.crs is None  # a CSV file in degrees, declaring no CRS
     system, unknown = file_crs(CSV_DEGREES_CRS if assumed else layer.crs, options)
     file_notes = [(PARQUET_DEGREES_NOTE if _is_parquet(path) else CSV_DEGREES_NOTE)] if assumed else []
+    if layer.crs is None and not assumed and options.crs is None:  # projected data written without a CRS
+        file_notes.append(NO_CRS_NOTE)
     if system is not None and system.geographic:
         system = dataclasses.replace(system, latitude_first=False)  # GDAL and GeoParquet: longitude first
     if placement is not None and geometry is not None:  # Overture's building parts, in files of their own
