@@ -712,7 +712,7 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         pieces = [(part, inherit(part.tags, area.tags, options)) for part in own_parts]
         if _is_part(area.tags) and area.geometry is not None:  # a building relation's outline is not in the file
             pieces.insert(0, (area, dict(area.tags)))
-    solids, failed = [], []
+    solids, failed, own_notes = [], [], {}  # own_notes: each piece's notes (its roof), by its object id
     for piece, props in pieces:
         try:
             if piece.geometry is None:
@@ -728,6 +728,7 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
             failed.append(err.problem if not own_parts else f"its part {piece.oid} {err.problem}")
             continue
         solids.append((f"{piece.oid}/part" if piece is area and own_parts else piece.oid, solid))
+        own_notes[solids[-1][0]] = list(said)
         more += [n for n in said if n not in more]
     if not solids:
         yield Rejection(mesh_id, source, "; ".join(failed), 0, None if label is None else str(label))
@@ -745,9 +746,14 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         if how:  # a building relation's outline without parts in the file
             more.insert(0, how)
         objects = {area.oid: building(solids[0][1], area.tags, options)}
+    pieces_notes = {n for said in own_notes.values() for n in said}
     for item in _object_meshes(objects, verts.array(), None, None, options, name, source, crs=crs):
         if not isinstance(item, Rejection):
-            item = dataclasses.replace(item, notes=tuple(more + list(notes)) + item.notes)
+            mine = more
+            if own_parts and options.parts == "separate":  # a part alone: its own roof's notes, not its siblings'
+                said = own_notes.get(item.id[len(name) + 1:], [])
+                mine = [n for n in more if n not in pieces_notes or n in said]
+            item = dataclasses.replace(item, notes=tuple(mine + list(notes)) + item.notes)
         yield item
 
 

@@ -328,6 +328,22 @@ def test_a_part_on_its_buildings_roof_meets_it(tmp_path):
     assert _volume(clean) == pytest.approx(osm.area[2] * 18 + osm.area[3] * 12, rel=1e-4)
 
 
+def test_parts_kept_apart_carry_their_own_roofs_notes(tmp_path):
+    """With parts kept apart, each part's record says how its own roof was built, not every roof of its building."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 30, 10), building="church", height="12")
+    osm.way(2, (0, 0, 20, 10), height="12", **{PART: "yes", ROOF: "gabled", "roof:height": "4"})
+    osm.way(3, (20, 0, 30, 10), height="16", **{PART: "yes", ROOF: "pyramidal", "roof:height": "6"})
+    (tmp_path / "church.osm").write_text(osm.text())
+    got = {m.id.split("#")[1]: m for m in read_file(tmp_path / "church.osm", ReaderOptions(parts="separate"))}
+    assert sorted(got) == ["way/2", "way/3"]
+    for oid, mine, other in (("way/2", "gabled", "pyramidal"), ("way/3", "pyramidal", "gabled")):
+        notes = " | ".join(got[oid].notes)
+        assert f"roof:shape={mine} built" in notes and f"roof:shape={other}" not in notes, notes
+    (merged,) = read_file(tmp_path / "church.osm")  # merged: the building says both
+    assert sum("roof:shape=" in n for n in merged.notes) == 2, merged.notes
+
+
 def _related_district(path):
     """S3DB building relations: a tower whose upper part overhangs its outline over a lower neighbour (by containment
     that part would be the neighbour's), its height on the relation, a part it names missing from the extract; a
