@@ -113,6 +113,10 @@ class PreprocessParams:
         Try pymeshlab's non-manifold and hole repairs before rejecting a mesh.
     min_faces : int
         Meshes with fewer faces after cleaning are rejected.
+    min_height_kept : float
+        The share of its input's height a cleaned mesh must keep (default 0.5): an open roof with a fragment of wall
+        (a 3dfier house whose party walls are missing) capped into a slab a few centimetres thick is refused (then
+        rebuilt under its roofs), not accepted as a building; 0: no check.
     min_edge_length : float
         Edges shorter than this, in metres (absolute, not relative to the diagonal), are collapsed
         before re-triangulation (default 0.01: a centimetre, below the precision of city models;
@@ -194,6 +198,7 @@ class PreprocessParams:
     cap_planar_holes: bool = True
     repair: bool = False
     min_faces: int = 4
+    min_height_kept: float = 0.5
     min_edge_length: float = 0.01
     flat_fold_deg: float = 1.0
     fold_repair_tol: float = 0.01
@@ -239,6 +244,9 @@ class PreprocessParams:
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):
             raise ValueError(f"min_faces must be an integer >= 4 (a tetrahedron); received {self.min_faces!r}")
+        if not (isinstance(self.min_height_kept, (int, float)) and not isinstance(self.min_height_kept, bool)
+                and 0 <= self.min_height_kept <= 1):
+            raise ValueError(f"min_height_kept must be a number in [0, 1]; received {self.min_height_kept!r}")
 
 
 @dataclass
@@ -344,6 +352,12 @@ def preprocess(
     out_v, out_f = _compact(out_v, out_f)
     if len(out_f) < params.min_faces:
         raise MeshError(source, f"only {len(out_f)} faces after cleaning; at least {params.min_faces} needed")
+    height_in = float(np.ptp(vertices[np.unique(faces), 2]))
+    height_out = float(np.ptp(out_v[:, 2]))
+    if height_out < params.min_height_kept * height_in:
+        raise MeshError(source, f"closed only as a slab {height_out:.3g} m high of its {height_in:.3g} m (its walls "
+                                f"open: a roof and fragments capped), less than preprocess.min_height_kept "
+                                f"({params.min_height_kept:g}) of its height")
     return Result(
         vertices=out_v, faces=out_f, repairs=repairs, faces_in=faces_in, faces_out=len(out_f),
         volume_in=volume_in, volume_out=signed_volume(out_v, out_f), regions=regions,
