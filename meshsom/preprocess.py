@@ -2069,6 +2069,11 @@ def _area2d(ring):
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
+#: Shells of one mesh looked at for cavities (each pair's bounding boxes compared): a building has a few; a mesh of
+#: more (a whole district as one mesh of disjoint blocks) has every shell facing out.
+MAX_CAVITY_SHELLS = 1000
+
+
 def _thickness(points: np.ndarray) -> float:
     """The extent of ``points`` (N, 3) across their best-fitting plane (0 for coplanar points)."""
     centred = points - points.mean(axis=0)
@@ -2089,7 +2094,8 @@ def _orient(v, f, source, repairs):
     a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
     np.add.at(vol, shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
     inward = vol < 0
-    cavity = _cavities(v, f, shell, n_shells, inward) if n_shells > 1 else np.zeros(n_shells, bool)
+    cavity = (_cavities(v, f, shell, n_shells, inward) if 1 < n_shells <= MAX_CAVITY_SHELLS
+              else np.zeros(n_shells, bool))
     flip_shell = (inward != cavity)[shell]
     f = np.where(flip_shell[:, None], f[:, ::-1], f)
     flipped = int((flip ^ flip_shell).sum())
