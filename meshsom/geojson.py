@@ -225,6 +225,8 @@ def no_height(options, notes=(), hint: bool = True) -> str:
     """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
     a height given as unknown; ``hint``: and the options that would read it)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
+    if any("no storey above the ground" in n for n in notes):
+        hint = False  # a count of 0 storeys is never raised to the default height: the hint would mislead
     return (f"is a footprint without a height (no property {names} gives one)" + "".join(f"; {n}" for n in notes)
             + ("; --height-attribute NAME names your data's height, --default-height M (corpus.reader.default_height) "
                "extrudes such footprints to M metres" if hint else ""))

@@ -120,6 +120,7 @@ def test_a_parts_file_alone_gives_each_building_as_its_parts(tmp_path, gzipped):
     patio = next(i for i in items if i.id.endswith("9872024VH5797S"))
     assert any("numberOfFloorsAboveGround = 0: no storey above the ground" in n and n.endswith("left out")
                for n in patio.notes), patio.notes
+    assert not any("--default-height" in n for n in patio.notes), patio.notes  # never raised to it: no such hint
     citygml = tmp_path / "c.gml"
     citygml.write_text('<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" '
                        'xmlns:bldg="http://www.opengis.net/citygml/building/2.0"></core:CityModel>')
