@@ -299,6 +299,9 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         return None, notes
     zs = [p[2] for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
           for p in ring if isinstance(p, list) and len(p) > 2 and _number(p[2]) is not None]
+    if flat:
+        polygons, said = valid_footprint(polygons, min(zs) if zs else None)
+        notes += said
     bottom = first_number(props, options.base_attributes)
     base = units.of(props[bottom[0]]) if bottom else 0.0
     below = first_number(props, options.min_levels_attributes) if bottom is None else None
@@ -317,6 +320,46 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
                     ", the roof above them (S3DB: storey counts leave out the roof's)")
             return solid, notes
     return _extruded(polygons, z0, z1, where, verts), notes
+
+
+def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[str]]:
+    """Footprint polygons (GeoJSON's nesting: rings of positions) made valid where a ring crosses itself or a hole
+    crosses its shell (a bow-tie way in OpenStreetMap, a spike drawn back across its outline): the areas they
+    enclose (shapely's ``make_valid``), each position at ``z`` where given, and a note saying where it crossed.
+    Valid polygons, and those that cannot be read as such, are returned as they are (their reading says why).
+
+    Returns
+    -------
+    polygons : list
+    notes : list of str
+    """
+    import shapely
+    from shapely.geometry import Polygon
+
+    fixed, notes, changed = [], [], False
+    for poly in polygons:
+        try:
+            rings = [[(float(p[0]), float(p[1])) for p in ring] for ring in poly]
+            shape = Polygon(rings[0], rings[1:])
+            reason = None if shape.is_valid else shapely.is_valid_reason(shape)
+        except (TypeError, ValueError, IndexError, shapely.errors.GEOSException):
+            reason = None  # not a polygon of numbers: its reading says so
+        if reason is None:
+            fixed.append(poly)
+            continue
+        parts = [g for g in getattr(shapely.make_valid(shape), "geoms", [shapely.make_valid(shape)])
+                 if g.geom_type in ("Polygon", "MultiPolygon")]
+        pieces = [q for g in parts for q in (g.geoms if g.geom_type == "MultiPolygon" else [g]) if q.area > 0]
+        if not pieces:
+            fixed.append(poly)
+            continue
+        changed = True
+        at = lambda xy: [float(xy[0]), float(xy[1])] + ([z] if z is not None else [])  # noqa: E731
+        fixed += [[[at(c) for c in q.exterior.coords]] + [[at(c) for c in r.coords] for r in q.interiors]
+                  for q in pieces]
+        notes.append(f"its footprint is not a valid polygon ({reason}): read as the {len(pieces)} polygon(s) it "
+                     f"encloses (shapely make_valid)")
+    return (fixed if changed else polygons), notes
 
 
 class HeightUnits:

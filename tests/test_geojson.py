@@ -470,3 +470,15 @@ def test_a_repeated_corner_is_no_dropped_polygon(tmp_path):
     (m,) = read_file(tmp_path / "twice.geojson")
     assert isinstance(m, RawMesh) and not any("dropped" in n for n in m.notes), m.notes
     assert _volume(m) == pytest.approx(10 * 10 * 3, rel=1e-12)
+
+
+def test_a_footprint_that_crosses_itself_is_read_as_the_areas_it_encloses(tmp_path):
+    """A bow-tie footprint (a way drawn across itself, as osmnx's test extract and OSM2World's have one): read as its
+    two triangles (25 m^2 each), noted with where it crosses, not rejected for walls that cannot close."""
+    ring = [(84600 + x, 447400 + y) for x, y in [(0, 0), (10, 0), (0, 10), (10, 10)]]
+    doc = {"type": "FeatureCollection", "features": [_feature(1, {"type": "Polygon", "coordinates": [closed(ring)]}, height=6)]}
+    (tmp_path / "bowtie.geojson").write_text(json.dumps(doc))
+    (m,) = read_file(tmp_path / "bowtie.geojson")
+    assert isinstance(m, RawMesh), m
+    assert any("Self-intersection[84605 447405]" in n and "2 polygon(s)" in n for n in m.notes), m.notes
+    assert _volume(m) == pytest.approx(2 * 25 * 6, rel=1e-9)
