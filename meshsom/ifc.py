@@ -397,6 +397,7 @@ def _united(solids: list, mesh_id: str, seconds: float, manifold3d):
                                          f"(preprocess.max_seconds), stopped with {len(solids) - k + len(merged)} "
                                          f"pieces left: too many intersecting elements for one envelope")
             merged.append(manifold3d.Manifold.batch_boolean(solids[k:k + UNION_BATCH], manifold3d.OpType.Add))
+            merged[-1].num_tri()  # manifold3d evaluates lazily: the union is made here, where its time is checked
         solids = merged
     return solids[0]
 

@@ -283,7 +283,8 @@ class Result:
 
 
 def preprocess(
-    vertices: np.ndarray, faces: np.ndarray, params: PreprocessParams | None = None, source: str = "mesh"
+    vertices: np.ndarray, faces: np.ndarray, params: PreprocessParams | None = None, source: str = "mesh",
+    weld_vertices: bool = True,
 ) -> Result:
     """Clean, close, orient and re-triangulate one mesh.
 
@@ -295,6 +296,10 @@ def preprocess(
     params : PreprocessParams, optional
     source : str
         Named in errors (file and object id).
+    weld_vertices : bool
+        Weld vertices closer than the tolerance (default). False where the faces' vertex indices are the topology
+        already (a boolean union's output: solids touching along an edge or at a corner keep vertices of their own
+        there, which welding would join into edges of four faces).
 
     Returns
     -------
@@ -311,7 +316,7 @@ def preprocess(
     repairs: list[str] = []
     check_time("cleaning and closing")
     try:
-        v, f = _clean(vertices, faces, params, source, repairs)
+        v, f = _clean(vertices, faces, params, source, repairs, weld_vertices)
     except MeshError:
         if not params.repair:
             raise
@@ -507,8 +512,9 @@ def _cross(vertices, faces):
     return np.cross(b - a, c - a)
 
 
-def _clean(vertices, faces, params, source, repairs):
-    """Steps 2-4: weld, drop bad faces, cap, check manifoldness, orient. Returns (V, F)."""
+def _clean(vertices, faces, params, source, repairs, weld_vertices: bool = True):
+    """Steps 2-4: weld (unless ``weld_vertices`` is False), drop bad faces, cap, check manifoldness, orient. Returns
+    (V, F)."""
     diag = _diagonal(vertices)
     if diag == 0:
         raise MeshError(source, "all vertices coincide (zero size)")
@@ -516,7 +522,7 @@ def _clean(vertices, faces, params, source, repairs):
     if thickness <= params.weld_tol * diag and len(np.unique(np.sort(faces, axis=1), axis=0)) >= params.min_faces:
         raise MeshError(source, f"zero volume: it is flat, all its vertices in one plane (within {thickness:.3g} of a "
                                 f"{diag:.3g} diagonal): a footprint or a single surface, not a solid")
-    v, remap = weld(vertices, params.weld_tol * diag)
+    v, remap = weld(vertices, params.weld_tol * diag) if weld_vertices else (vertices, np.arange(len(vertices)))
     if len(v) < len(vertices):
         merged = len(vertices) - len(v)
         # Exact duplicates (one vertex per polygon corner, as in many OBJ exports) are not news.

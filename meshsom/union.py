@@ -22,6 +22,8 @@ joined, e.g. a roof spanning two parts) and puts them together as one
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -208,7 +210,16 @@ def preprocess_shells(shells: Sequence[tuple[np.ndarray, np.ndarray]], params=No
         try:
             results.append(preprocess(v, f, params, source=name))
         except MeshError as err:
-            raise MeshError(source, err.problem if len(shells) == 1 else f"shell {k + 1} of {len(shells)}: {err.problem}") from None
+            try:  # where solids touch along an edge, the union gives each its own vertices there: kept apart
+                if not err.problem.startswith("non-manifold"):
+                    raise
+                result = preprocess(v, f, params, source=name, weld_vertices=False)
+                results.append(dataclasses.replace(result, repairs=[
+                    "kept the union's vertices apart where its solids touch (welding them made edges of more than two "
+                    "faces)", *result.repairs]))
+            except MeshError:
+                raise MeshError(source, err.problem if len(shells) == 1
+                                else f"shell {k + 1} of {len(shells)}: {err.problem}") from None
     offsets = np.concatenate([[0], np.cumsum([len(r.vertices) for r in results])]).astype(np.int64)
     repairs = [r if len(results) == 1 else f"shell {k + 1}: {r}" for k, res in enumerate(results) for r in res.repairs]
     return Result(
