@@ -340,15 +340,17 @@ def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[
     for poly in polygons:
         try:
             rings = [[(float(p[0]), float(p[1])) for p in ring] for ring in poly]
+            if not all(math.isfinite(c) for ring in rings for p in ring for c in p):
+                raise ValueError  # NaN or infinite: its reading says so
             shape = Polygon(rings[0], rings[1:])
             reason = None if shape.is_valid else shapely.is_valid_reason(shape)
+            made = shapely.make_valid(shape) if reason is not None else None
         except (TypeError, ValueError, IndexError, shapely.errors.GEOSException):
             reason = None  # not a polygon of numbers: its reading says so
         if reason is None:
             fixed.append(poly)
             continue
-        parts = [g for g in getattr(shapely.make_valid(shape), "geoms", [shapely.make_valid(shape)])
-                 if g.geom_type in ("Polygon", "MultiPolygon")]
+        parts = [g for g in getattr(made, "geoms", [made]) if g.geom_type in ("Polygon", "MultiPolygon")]
         pieces = [q for g in parts for q in (g.geoms if g.geom_type == "MultiPolygon" else [g]) if q.area > 0]
         if not pieces:
             fixed.append(poly)
