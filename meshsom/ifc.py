@@ -319,6 +319,7 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     union shrunk back by as much: gaps narrower than ``gap`` closed): vertices (V, 3), faces
     (F, 3), the shell of every face (F,), and notes on what went."""
     from meshsom.preprocess import PreprocessParams
+    from meshsom.topology import signed_volume, vertex_pieces
     from meshsom.union import _manifold3d
 
     manifold3d = _manifold3d()
@@ -351,9 +352,11 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     united = _united(solids, mesh_id, params.max_seconds, manifold3d)
     if united.status() != manifold3d.Error.NoError or united.is_empty():
         raise MeshError(mesh_id, f"the union of its {len(solids)} elements failed ({united.status().name})")
+    # its shells found at once from its mesh (manifold3d's decompose took over 10 minutes for the thousands of shells
+    # of a roof of 5,178 beams); manifold3d gives solids that touch vertices of their own
     mesh = united.to_mesh64()
-    shells = _components(np.asarray(mesh.vert_properties, np.float64)[:, :3],
-                         np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3))
+    shells = [(v, f, signed_volume(v, f)) for v, f in vertex_pieces(np.asarray(mesh.vert_properties, np.float64)[:, :3],
+                                                                      np.asarray(mesh.tri_verts, np.int64))]
     outer = _outer_shells(shells)
     notes = [f"IFC: the union of {sum(used.values())} elements ({_counted(used)})"]
     if not_closed:
@@ -374,42 +377,6 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     faces = np.concatenate([f + offsets[j] for j, (_, f) in enumerate(pieces)])
     shell_of = np.repeat(np.arange(len(pieces)), [len(f) for _, f in pieces])
     return vertices, faces, shell_of, notes
-
-
-def _components(vertices: np.ndarray, faces: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """The shells of a union's mesh (faces joined through shared vertices: manifold3d gives solids that touch
-    vertices of their own), each with its vertices, faces and volume, found at once (manifold3d's ``decompose`` took
-    minutes for the thousands of shells of a roof of 5,178 beams).
-
-    Parameters
-    ----------
-    vertices : (V, 3) float64
-    faces : (F, 3) int64
-
-    Returns
-    -------
-    list of ((V_i, 3) float64, (F_i, 3) int64, float)
-    """
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
-
-    from meshsom.topology import signed_volume
-
-    if not len(faces):
-        return []
-    n = len(vertices)
-    rows, cols = faces.reshape(-1), np.roll(faces, 1, axis=1).reshape(-1)
-    _, label = connected_components(sparse.coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n)),
-                                    directed=False)
-    face_label = label[faces[:, 0]]
-    order = np.argsort(face_label, kind="stable")
-    cuts = np.flatnonzero(np.diff(face_label[order])) + 1
-    shells = []
-    for group in np.split(order, cuts):
-        used, local = np.unique(faces[group], return_inverse=True)
-        v, f = vertices[used], local.reshape(-1, 3)
-        shells.append((v, f, signed_volume(v, f)))
-    return shells
 
 
 def _united(solids: list, mesh_id: str, seconds: float, manifold3d):

@@ -1059,10 +1059,13 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         to_metres, turn = _collada_frame(data.getvalue())
         items = [(i, (v * to_metres) @ turn.T, f, lab) for i, v, f, lab in items]
     land = _3dfier_land(data.getvalue()) if file_type == "obj" else {}
-    for mesh_id, v, f, item_label in [item for item in items if item[0][len(name) + 1:] in land]:
-        yield Rejection(mesh_id, str(path), f"is a 3dfier {land[mesh_id[len(name) + 1:]]} object (its material says "
-                                            f"so), not a building", int(len(f)), item_label)
-    items = [item for item in items if item[0][len(name) + 1:] not in land]
+    if land:
+        kinds = [land.get(item[0][len(name) + 1:]) for item in items]  # by object name
+        for (mesh_id, _, f, item_label), kind in zip(items, kinds):
+            if kind is not None:
+                yield Rejection(mesh_id, str(path), f"is a 3dfier {kind} object (its material says so), not a building",
+                                int(len(f)), item_label)
+        items = [item for item, kind in zip(items, kinds) if kind is None]
     if options.split_components:
         items = [piece for item in items for piece in _connected_pieces(*item)]
     for mesh_id, v, f, item_label in items:
@@ -1134,37 +1137,19 @@ def _collada_frame(text: bytes) -> tuple[float, np.ndarray]:
 
 def _connected_pieces(mesh_id: str, vertices: np.ndarray, faces: np.ndarray, label):
     """The connected pieces of one mesh (:attr:`ReaderOptions.split_components`): faces joined
-    through vertices at the same position, each piece ``(mesh_id#cN, vertices, faces, label)`` with
-    its own vertices, N from 1 in the order of the pieces' first faces; the mesh as it is when it
-    is one piece (its id unchanged)."""
-    from scipy import sparse
-    from scipy.sparse.csgraph import connected_components
+    through vertices at the same position (:func:`meshsom.topology.vertex_pieces`), each piece
+    ``(mesh_id#cN, vertices, faces, label)`` with its own vertices, N from 1 in the order of the pieces' first faces;
+    the mesh as it is when it is one piece (its id unchanged)."""
+    from meshsom.topology import vertex_pieces
 
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     if len(faces) == 0:
         return [(mesh_id, vertices, faces, label)]
     _, at = np.unique(np.asarray(vertices), axis=0, return_inverse=True)
-    welded = at.reshape(-1)[faces]
-    n, k = len(faces), int(welded.max()) + 1
-    incidence = sparse.coo_matrix((np.ones(3 * n, np.int8), (np.repeat(np.arange(n), 3), welded.reshape(-1))),
-                                  shape=(n, k)).tocsr()
-    graph = sparse.bmat([[None, incidence], [incidence.T, None]])
-    _, component = connected_components(graph, directed=False)
-    _, piece = np.unique(component[:n], return_inverse=True)  # the pieces that have faces, 0..m-1
-    m = int(piece.max()) + 1
-    if m == 1:
+    pieces = vertex_pieces(vertices, faces, joined_by=at.reshape(-1)[faces])
+    if len(pieces) == 1:
         return [(mesh_id, vertices, faces, label)]
-    first = np.full(m, n)
-    np.minimum.at(first, piece, np.arange(n))
-    rank = np.empty(m, np.int64)
-    rank[np.argsort(first)] = np.arange(m)  # numbered in the order of their first faces
-    piece = rank[piece]
-    order = np.argsort(piece, kind="stable")  # faces grouped by piece once (not a scan per piece)
-    out = []
-    for p, f in enumerate(np.split(faces[order], np.cumsum(np.bincount(piece, minlength=m))[:-1])):
-        used, local = np.unique(f, return_inverse=True)
-        out.append((f"{mesh_id}#c{p + 1}", np.asarray(vertices)[used], local.reshape(-1, 3), label))
-    return out
+    return [(f"{mesh_id}#c{p + 1}", v, f, label) for p, (v, f) in enumerate(pieces)]
 
 
 def _closed_groups(data: io.BytesIO, whole):
@@ -1961,7 +1946,7 @@ def _object_meshes(objects: dict, vertices, scale, translate, options: ReaderOpt
                 groups.append((oid, members))
         else:
             own = bool(obj.get("geometry"))
-            if own and otype in options.object_types and options.lod in ("highest", "lowest") and _footprint_only(obj) \
+            if own and otype in options.object_types and options.lod in LOD_CHOICES and _footprint_only(obj) \
                     and any(_type(objects.get(c)).endswith("Part") and objects[c].get("geometry")
                             for c in _ids(obj.get("children"))):
                 continue  # the 3D BAG's building: a LoD 0 footprint beside its parts' solids, which stand for it
@@ -2109,7 +2094,7 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     # beside its LoD 1.2, 1.3 and 2.2 solids)
     volumes = [lo for lo in lods if not _lod_key(lo) < 1] or lods
     passed_over = []
-    if options.lod in ("highest", "lowest") and len(volumes) > 1:
+    if options.lod in LOD_CHOICES and len(volumes) > 1:
         flat = _flat_lods(volumes, geoms, usable_at, vertices, scale, mesh_id)
         if flat and len(flat) < len(volumes):
             passed_over = [lo for lo in volumes if lo in flat]

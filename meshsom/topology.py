@@ -14,7 +14,7 @@ import numpy as np
 
 from meshsom.errors import MeshError
 
-__all__ = ["Adjacency", "adjacency", "edge_table", "half_edges", "signed_volume"]
+__all__ = ["Adjacency", "adjacency", "edge_table", "half_edges", "signed_volume", "vertex_pieces"]
 
 
 def half_edges(faces: np.ndarray) -> np.ndarray:
@@ -130,3 +130,45 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     centre = vertices.mean(axis=0) if len(vertices) else np.zeros(3)
     a, b, c = a - centre, b - centre, c - centre
     return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+def vertex_pieces(vertices: np.ndarray, faces: np.ndarray, joined_by: np.ndarray | None = None
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pieces of a mesh whose faces are joined through shared vertices, each with its own vertices, numbered in
+    the order of their first faces (one sort of the faces, no scan per piece).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    joined_by : (F, 3) int64, optional
+        The vertex ids that join faces, where they are not ``faces``' own (vertices welded by position).
+
+    Returns
+    -------
+    list of ((V_i, 3) float64, (F_i, 3) int64)
+    """
+    from scipy import sparse
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        return []
+    joined = faces if joined_by is None else np.asarray(joined_by, np.int64).reshape(-1, 3)
+    n, k = len(faces), int(joined.max()) + 1
+    incidence = sparse.coo_matrix((np.ones(3 * n, np.int8), (np.repeat(np.arange(n), 3), joined.reshape(-1))),
+                                  shape=(n, k)).tocsr()
+    _, component = connected_components(sparse.bmat([[None, incidence], [incidence.T, None]]), directed=False)
+    _, piece = np.unique(component[:n], return_inverse=True)  # the pieces that have faces, 0..m-1
+    m = int(piece.max()) + 1
+    first = np.full(m, n)
+    np.minimum.at(first, piece, np.arange(n))
+    rank = np.empty(m, np.int64)
+    rank[np.argsort(first)] = np.arange(m)
+    piece = rank[piece]
+    order = np.argsort(piece, kind="stable")
+    out = []
+    for f in np.split(faces[order], np.cumsum(np.bincount(piece, minlength=m))[:-1]):
+        used, local = np.unique(f, return_inverse=True)
+        out.append((np.asarray(vertices)[used], local.reshape(-1, 3)))
+    return out

@@ -22,9 +22,7 @@ joined, e.g. a roof spanning two parts) and puts them together as one
 
 from __future__ import annotations
 
-import dataclasses
-
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -209,17 +207,19 @@ def preprocess_shells(shells: Sequence[tuple[np.ndarray, np.ndarray]], params=No
         name = source if len(shells) == 1 else f"{source} shell {k + 1} of {len(shells)}"
         try:
             results.append(preprocess(v, f, params, source=name))
+            continue
         except MeshError as err:
-            try:  # where solids touch along an edge, the union gives each its own vertices there: kept apart
-                if not err.problem.startswith("non-manifold"):
-                    raise
-                result = preprocess(v, f, params, source=name, weld_vertices=False)
-                results.append(dataclasses.replace(result, repairs=[
-                    "kept the union's vertices apart where its solids touch (welding them made edges of more than two "
-                    "faces)", *result.repairs]))
+            problem = err.problem
+        kept = None
+        if problem.startswith("non-manifold"):  # where solids touch, the union gives each its own vertices: kept apart
+            try:
+                kept = preprocess(v, f, params, source=name, weld_vertices=False)
             except MeshError:
-                raise MeshError(source, err.problem if len(shells) == 1
-                                else f"shell {k + 1} of {len(shells)}: {err.problem}") from None
+                pass
+        if kept is None:
+            raise MeshError(source, problem if len(shells) == 1 else f"shell {k + 1} of {len(shells)}: {problem}")
+        results.append(replace(kept, repairs=["kept the union's vertices apart where its solids touch (welding them "
+                                              "made edges of more than two faces)", *kept.repairs]))
     offsets = np.concatenate([[0], np.cumsum([len(r.vertices) for r in results])]).astype(np.int64)
     repairs = [r if len(results) == 1 else f"shell {k + 1}: {r}" for k, res in enumerate(results) for r in res.repairs]
     return Result(
