@@ -75,6 +75,68 @@ def triangulate_polygon_2d(
     return points, _ccw(points, tri)
 
 
+def triangulate_rings_2d(points: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Constrained Delaunay triangulations of many simple polygons (no holes) in one call.
+
+    What :func:`triangulate_polygon_2d` gives each valid polygon, for whole arrays: one GEOS
+    call for all of them, and the corners mapped back to the input points at once.
+
+    Parameters
+    ----------
+    points : (P, 2) float64
+        The rings one after another, each not closed.
+    lengths : (R,) int64
+        Points of each ring, at least 3.
+
+    Returns
+    -------
+    triangles : (T, 3) int64
+        Indices into ``points``, counter-clockwise; zero-area triangles left out (as
+        :func:`triangulate_polygon_2d` does).
+    ring : (T,) int64
+        The ring of each triangle.
+    valid : (R,) bool
+        False for a ring that is not a valid polygon (it crosses or touches itself): it has no
+        triangles here; :func:`triangulate_polygon_2d` makes it valid first.
+    """
+    points = np.asarray(points, np.float64)
+    lengths = np.asarray(lengths, np.int64)
+    n_rings = len(lengths)
+    empty = np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(n_rings, bool)
+    if n_rings == 0:
+        return empty
+    ring_of_point = np.repeat(np.arange(n_rings), lengths)
+    polys = shapely.polygons(shapely.linearrings(points, indices=ring_of_point))
+    valid = shapely.is_valid(polys)
+    if not valid.any():
+        return empty[0], empty[1], valid
+    chosen = np.flatnonzero(valid)
+    parts, which = shapely.get_parts(shapely.constrained_delaunay_triangles(polys[chosen]), return_index=True)
+    corners = shapely.get_coordinates(parts).reshape(len(parts), 4, 2)[:, :3].reshape(-1, 2)
+    ring_of_corner = np.repeat(chosen[which], 3)
+    # Corner -> point: both as (ring, x, y) rows, matched exactly (GEOS copies the input coordinates).
+    rows = np.concatenate([
+        np.column_stack([ring_of_point.astype(np.float64), points]),
+        np.column_stack([ring_of_corner.astype(np.float64), corners]),
+    ]) + 0.0  # -0.0 -> 0.0, as a lookup by value would match them
+    keys = np.ascontiguousarray(rows).view(np.dtype((np.void, rows.dtype.itemsize * 3))).ravel()
+    _, inverse = np.unique(keys, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    point_of_key = np.full(inverse.max() + 1, -1, np.int64)
+    point_of_key[inverse[: len(points)]] = np.arange(len(points))
+    tri = point_of_key[inverse[len(points):]].reshape(-1, 3)
+    ring = chosen[which]
+    unmatched = (tri < 0).any(axis=1)
+    if unmatched.any():  # pragma: no cover - GEOS adds no points to a valid polygon
+        valid[np.unique(ring[unmatched])] = False
+        keep = ~np.isin(ring, np.flatnonzero(~valid))
+        tri, ring = tri[keep], ring[keep]
+    a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    tri[cross < 0] = tri[cross < 0][:, ::-1]
+    return tri[cross != 0], ring[cross != 0], valid
+
+
 def _ccw(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
     a, b, c = points[tri[:, 0]], points[tri[:, 1]], points[tri[:, 2]]
     cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
@@ -102,12 +164,28 @@ def newell_normal(ring: np.ndarray) -> np.ndarray:
 
 def plane_frame(normal: np.ndarray) -> np.ndarray:
     """Orthonormal (2, 3) basis of the plane with the given normal, right-handed with it."""
-    n = normal / np.linalg.norm(normal)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    return plane_frames(np.asarray(normal, np.float64)[None])[0]
+
+
+def plane_frames(normals: np.ndarray) -> np.ndarray:
+    """:func:`plane_frame` of many planes at once.
+
+    Parameters
+    ----------
+    normals : (R, 3) float64
+        Non-zero normals, any length.
+
+    Returns
+    -------
+    frames : (R, 2, 3) float64
+        Each plane's orthonormal basis ``(e1, e2)``, right-handed with its normal.
+    """
+    n = normals / np.linalg.norm(normals, axis=1)[:, None]
+    helper = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     e1 = np.cross(helper, n)
-    e1 /= np.linalg.norm(e1)
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
     e2 = np.cross(n, e1)
-    return np.stack([e1, e2])
+    return np.stack([e1, e2], axis=1)
 
 
 def triangulate_polygon_3d(rings: Sequence[np.ndarray]) -> np.ndarray:

@@ -60,7 +60,7 @@ from scipy.spatial import cKDTree
 
 from meshsom.errors import MeshError
 from meshsom.time_limit import check as check_time
-from meshsom.polygons import newell_normal, plane_frame, triangulate_polygon_2d
+from meshsom.polygons import newell_normal, plane_frame, plane_frames, triangulate_polygon_2d, triangulate_rings_2d
 from meshsom.topology import edge_table, half_edges, signed_volume
 
 __all__ = ["PreprocessParams", "Result", "check_input", "close_surface", "preprocess", "validate", "weld"]
@@ -2306,14 +2306,116 @@ def _kept_vertices(v, f, region, fallback, b_src, b_dst, b_reg, key_in, key_out,
 
 
 def _triangulate_regions(v, f, region, n_regions, fallback, keep, plane_n, b_src, b_reg, key_in, o_order, k_sorted, nv):
-    """Triangulate every non-fallback region from its kept boundary vertices."""
+    """Triangulate every non-fallback region from its kept boundary vertices.
+
+    Every region is laid into its plane at once; the regions bounded by one loop (almost all) are
+    triangulated in one GEOS call (:func:`triangulate_rings_2d`), those with holes or a loop that
+    is not a valid polygon one at a time (:func:`triangulate_polygon_2d`).
+    """
+    loops, loop_region, failed = _region_loops(b_src, b_reg, key_in, o_order, k_sorted, fallback)
+    out = [f[fallback[region]]]
+    todo = ~fallback
+    todo[failed] = False
+    loops = [lp[keep[lp]] for lp in loops]
+    length = np.array([len(lp) for lp in loops], np.int64)
+    n_loops = np.bincount(loop_region, minlength=n_regions)
+    short = np.zeros(n_regions, bool)
+    short[loop_region[length < 3]] = True
+    bad = todo & ((n_loops == 0) | short)
+    todo &= ~bad
+    chosen = todo[loop_region]
+    loops = [lp for lp, c in zip(loops, chosen) if c]
+    loop_region, length = loop_region[chosen], length[chosen]
+    if not len(loops):
+        return _regions_done(out, failed + np.flatnonzero(bad).tolist())
+
+    # Each region's plane frame, its origin at its first loop's first vertex.
+    points = np.concatenate(loops)
+    first = np.concatenate([[0], np.cumsum(length)[:-1]])
+    point_loop = np.repeat(np.arange(len(loops)), length)
+    point_region = loop_region[point_loop]
+    origin_of = np.zeros(n_regions, np.int64)
+    origin_of[loop_region[::-1]] = points[first[::-1]]  # the first loop of each region wins
+    frames = np.zeros((n_regions, 2, 3))
+    regions = np.unique(loop_region)
+    frames[regions] = plane_frames(plane_n[regions])
+    flat = np.einsum("pk,pjk->pj", v[points] - v[origin_of[point_region]], frames[point_region])
+    nxt = np.arange(len(points)) + 1
+    nxt[first + length - 1] = first
+    area = 0.5 * np.add.reduceat(flat[:, 0] * flat[nxt, 1] - flat[nxt, 0] * flat[:, 1], first)
+    # One outer loop (positive area) per region, the largest of its loops.
+    outers = np.bincount(loop_region, weights=area > 0, minlength=n_regions)
+    largest = np.zeros(n_regions)
+    np.maximum.at(largest, loop_region, np.abs(area))
+    is_outer = (area > 0) & (area >= largest[loop_region])
+    has_outer = np.bincount(loop_region, weights=is_outer, minlength=n_regions) > 0
+    wrong = todo & ((outers != 1) | ~has_outer)
+    todo &= ~wrong
+
+    # Regions of one loop: a triangle as it is, the rest in one batch; regions with holes one at a time.
+    single = todo & (n_loops == 1)
+    batch = single[loop_region] & (length > 3)
+    tris = [points[first[(length == 3) & single[loop_region]][:, None] + np.arange(3)]]
+    tri_region = [loop_region[(length == 3) & single[loop_region]]]
+    one_by_one = np.flatnonzero(todo & ~single).tolist()
+    if batch.any():
+        ids = np.flatnonzero(batch)
+        take = np.concatenate([np.arange(first[i], first[i] + length[i]) for i in ids])
+        tri, ring, valid = triangulate_rings_2d(flat[take], length[ids])
+        counts = np.bincount(ring, minlength=len(ids))
+        whole = valid & (counts == length[ids] - 2)
+        tris.append(points[take[tri[whole[ring]]]])
+        tri_region.append(loop_region[ids[ring[whole[ring]]]])
+        failed += loop_region[ids[valid & ~whole]].tolist()
+        one_by_one += loop_region[ids[~valid]].tolist()
+    for r in one_by_one:
+        mine = np.flatnonzero(loop_region == r)
+        k = int(mine[is_outer[mine]][0])
+        order = [k, *[i for i in mine if i != k]]
+        ids = np.concatenate([loops[i] for i in order])
+        rings = [flat[first[i]:first[i] + length[i]] for i in order]
+        _, tri = triangulate_polygon_2d(rings[0], rings[1:])
+        if len(tri) != len(ids) + 2 * (len(order) - 1) - 2 or (tri >= len(ids)).any():
+            failed.append(r)
+            continue
+        tris.append(ids[tri])
+        tri_region.append(np.full(len(tri), r))
+    tris = np.concatenate(tris)
+    tri_region = np.concatenate(tri_region)
+    zero = ~(np.linalg.norm(_cross(v, tris), axis=1) > 0)
+    if zero.any():  # flip the (rare) zero-area triangles away, region by region
+        for r in np.unique(tri_region[zero]):
+            mine = tri_region == r
+            flipped = _flip_flat_triangles(v, tris[mine])
+            if flipped is None:
+                failed.append(int(r))
+            else:
+                tris[mine] = flipped
+    return _regions_done([*out, tris[~np.isin(tri_region, failed)]], failed + np.flatnonzero(bad | wrong).tolist())
+
+
+def _regions_done(out, failed):
+    if failed:
+        return None, sorted(set(failed))
+    return np.concatenate(out).astype(np.int64), []
+
+
+def _region_loops(b_src, b_reg, key_in, o_order, k_sorted, fallback):
+    """The boundary loops of every region: each as its vertices in order.
+
+    Returns
+    -------
+    loops : list of (K_i,) int64
+    loop_region : (L,) int64
+    failed : list of int
+        Non-fallback regions whose boundary does not close into loops.
+    """
     # next boundary edge of the same region: the outgoing edge at this edge's end vertex
     pos = np.minimum(np.searchsorted(k_sorted, key_in), len(k_sorted) - 1)
     nxt = o_order[pos]
     ok = k_sorted[pos] == key_in
     failed: list[int] = []
-    out = [f[fallback[region]]]
-    loops_of: dict[int, list[np.ndarray]] = {}
+    loops, loop_region = [], []
     seen = np.zeros(len(b_src), bool)
     for start in range(len(b_src)):
         if seen[start]:
@@ -2333,40 +2435,9 @@ def _triangulate_regions(v, f, region, n_regions, fallback, keep, plane_n, b_src
             if not fallback[r]:
                 failed.append(r)
             continue
-        loops_of.setdefault(r, []).append(np.array(loop, np.int64))
-    for r in range(n_regions):
-        if fallback[r] or r in failed:
-            continue
-        loops = [lp[keep[lp]] for lp in loops_of.get(r, [])]
-        if not loops or any(len(lp) < 3 for lp in loops):
-            failed.append(r)
-            continue
-        frame = plane_frame(plane_n[r])
-        origin = v[loops[0][0]]
-        flat = [(v[lp] - origin) @ frame.T for lp in loops]
-        areas = np.array([_area2d(p) for p in flat])
-        outer = np.flatnonzero(areas > 0)
-        if len(outer) != 1 or areas[outer[0]] < np.abs(areas).max():
-            failed.append(r)
-            continue
-        k = int(outer[0])
-        hole_ids = [i for i in range(len(loops)) if i != k]
-        ids = np.concatenate([loops[k], *[loops[i] for i in hole_ids]])
-        if len(loops) == 1 and len(ids) == 3:
-            tri = np.array([[0, 1, 2]], np.int64)
-        else:
-            _, tri = triangulate_polygon_2d(flat[k], [flat[i] for i in hole_ids])
-        if len(tri) != len(ids) + 2 * len(hole_ids) - 2 or (tri >= len(ids)).any():
-            failed.append(r)
-            continue
-        region_tri = _flip_flat_triangles(v, ids[tri])
-        if region_tri is None:
-            failed.append(r)
-            continue
-        out.append(region_tri)
-    if failed:
-        return None, sorted(set(failed))
-    return np.concatenate(out).astype(np.int64), []
+        loops.append(np.array(loop, np.int64))
+        loop_region.append(r)
+    return loops, np.array(loop_region, np.int64), failed
 
 
 def _pymeshlab_repair(vertices, faces, source):

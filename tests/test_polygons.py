@@ -88,3 +88,51 @@ def test_quads_split_at_once_as_one_by_one():
     order = np.argsort([0 if p in simple else 1 for p in np.concatenate(want_poly)], kind="stable")
     assert np.array_equal(faces, np.concatenate(want).reshape(-1, 3)[order])
     assert np.array_equal(face_poly, np.concatenate(want_poly)[order])
+
+
+def test_rings_triangulated_at_once_as_one_by_one():
+    """triangulate_rings_2d gives every valid ring the triangles triangulate_polygon_2d gives it alone
+    (the same GEOS triangulation: same triangles, rectangles' tied diagonals included), and leaves out
+    rings that are not valid polygons."""
+    from meshsom.polygons import triangulate_rings_2d
+
+    rng = np.random.default_rng(3)
+    rings = []
+    for _ in range(150):
+        k = int(rng.integers(4, 12))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, k))
+        radius = rng.uniform(0.5, 1.0, k) * rng.uniform(1, 100)
+        rings.append(np.column_stack([np.cos(angles), np.sin(angles)]) * radius[:, None] + rng.uniform(-1e4, 1e4, 2))
+        a, b = rng.uniform(0.1, 30, 2)
+        rings.append(np.array([[0, 0], [a, 0], [a, b], [0, b]]) + rng.uniform(-100, 100, 2))
+    rings.append(np.array([[0, 0], [4, 0], [0, 4], [4, 4]], float))  # a bow tie: not valid
+    rings.append(np.array([[-0.0, 0], [4, 0], [4, 4], [0, 4]]))  # -0.0 matches 0.0
+    rings.append(np.array([[0, 0], [1, 0], [2, 0], [3, 0]], float))  # collinear: not valid
+    lengths = np.array([len(r) for r in rings])
+    tri, ring, valid = triangulate_rings_2d(np.concatenate(rings), lengths)
+    first = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    import shapely
+
+    assert valid.tolist() == [shapely.Polygon(r).is_valid for r in rings]
+    assert valid.sum() > 250 and valid.tolist()[-3:] == [False, True, False]
+    for r, points in enumerate(rings):
+        if not valid[r]:
+            assert not (ring == r).any()
+            continue
+        _, want = triangulate_polygon_2d(points)
+        got = tri[ring == r] - first[r]
+        assert np.array_equal(got, want), r
+        assert _area2d(points, got).sum() == pytest.approx(shapely.Polygon(points).area)
+
+
+def test_plane_frames_are_right_handed_orthonormal_bases():
+    from meshsom.polygons import plane_frame, plane_frames
+
+    rng = np.random.default_rng(0)
+    normals = np.concatenate([rng.normal(size=(50, 3)) * rng.uniform(1e-3, 1e3, (50, 1)), np.eye(3), -np.eye(3)])
+    frames = plane_frames(normals)
+    n = normals / np.linalg.norm(normals, axis=1)[:, None]
+    assert np.allclose(np.einsum("rij,rkj->rik", frames, frames), np.eye(2))
+    assert np.allclose(np.einsum("rj,rij->ri", n, frames), 0)
+    assert np.allclose(np.cross(frames[:, 0], frames[:, 1]), n)
+    assert np.allclose(plane_frame(normals[7]), frames[7])
