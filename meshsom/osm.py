@@ -305,6 +305,18 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     buildings, parts, others, strays = _areas(path)
     notes = []
     try:
+        clipped = clipped_ways(path)
+    except InputFileError as err:
+        clipped = {}
+        notes.append(f"its ways were not checked for nodes missing from the extract: the file {err.problem}")
+    if clipped:
+        cut = lambda area: area.oid in clipped  # noqa: E731
+        strays += [(a.oid, kind, f"mapped as a way of which only {clipped[a.oid][0]} of its {clipped[a.oid][1]} nodes are "
+                                 f"in the extract (the extract cut it; GDAL would build it from those)")
+                   for kind, group in (("building", buildings), ("building:part", parts)) for a in group if cut(a)]
+        buildings = [a for a in buildings if not cut(a)]
+        parts = [a for a in parts if not cut(a)]
+    try:
         found, lost = lost_by_gdal(path, {a.oid for a in buildings + parts} | {oid for oid, _, _ in strays})
     except InputFileError as err:
         found, lost = [], []
@@ -419,6 +431,44 @@ def building_relations(path: Path) -> list[BuildingRelation]:
     return found
 
 
+def clipped_ways(path: Path) -> dict[str, tuple[int, int]]:
+    """The ways tagged ``building`` or ``building:part`` some of whose nodes the extract lacks (cut at its edge):
+    GDAL builds their outlines from the nodes present, a smaller or twisted footprint. One pass of libosmium over
+    the nodes (their locations, kept by libosmium) and the tagged ways.
+
+    Returns
+    -------
+    dict
+        ``way/<id>`` -> (nodes present, nodes of the way).
+
+    Raises
+    ------
+    InputFileError
+        Where libosmium cannot read the file.
+    """
+    import osmium
+
+    found = {}
+    try:
+        if _negative_ids(path):  # libosmium's location index takes no negative id (JOSM's new nodes): their ids, in Python
+            nodes = {n.id for n in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE)}
+            for w in osmium.FileProcessor(osmium_file(path), osmium.osm.WAY).with_filter(
+                    osmium.filter.KeyFilter("building", "building:part")):
+                present = sum(n.ref in nodes for n in w.nodes)
+                if present < len(w.nodes):
+                    found[f"way/{w.id}"] = (present, len(w.nodes))
+            return found
+        for w in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE | osmium.osm.WAY).with_locations(
+                ).with_filter(osmium.filter.EntityFilter(osmium.osm.WAY)).with_filter(
+                osmium.filter.KeyFilter("building", "building:part")):
+            present = sum(n.location.valid() for n in w.nodes)
+            if present < len(w.nodes):
+                found[f"way/{w.id}"] = (present, len(w.nodes))
+    except Exception as err:  # libosmium's errors: damaged XML or PBF
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its ways' nodes: {err})") from None
+    return found
+
+
 def lost_by_gdal(path: Path, reported: set[str]) -> tuple[list[_Area], list[tuple[str, str, str]]]:
     """The buildings and parts GDAL's OSM driver passes over without a word, found by libosmium (pyosmium).
 
@@ -427,8 +477,9 @@ def lost_by_gdal(path: Path, reported: set[str]) -> tuple[list[_Area], list[tupl
     domes parts inside) would be lost; nor a way of fewer than 4 nodes, nor a multipolygon whose member ways the
     extract lacks. Tagged ways and multipolygon relations not among ``reported`` (ids ``way/<id>``,
     ``relation/<id>``) are looked at: such an outline is read from its nodes (a second pass, only then), unless a
-    relation GDAL reported stands for it (an old-style multipolygon, tagged on its outer way, or one tagged
-    ``building`` itself); the rest are listed as having no outline.
+    relation GDAL reported stands for it (an old-style multipolygon, tagged on its outer way, or one tagged as the
+    way is: a ``building:part`` way that is the outer of a ``building`` multipolygon is a part of its own, as S3DB
+    maps a dome over the whole of a chapel); the rest are listed as having no outline.
 
     Returns
     -------
@@ -460,16 +511,15 @@ def lost_by_gdal(path: Path, reported: set[str]) -> tuple[list[_Area], list[tupl
                 own = dict(r.tags)
                 for m in r.members:
                     if m.type == "w" and m.ref in ways and m.role in ("outer", ""):
-                        outer_of.setdefault(m.ref, []).append((f"relation/{r.id}", _said(own, "building")
-                                                               or set(own) <= {"type"}))
+                        outer_of.setdefault(m.ref, []).append((f"relation/{r.id}", own))
         strays, wanted = [], {}
         for wid, (kind, refs, tags) in ways.items():
             if len(refs) < 4 or refs[0] != refs[-1]:
                 how = (f"mapped as a way of {len(refs)} node(s)" if len(refs) < 4 and refs[:1] == refs[-1:]
                        else "mapped as a way that does not close")
                 strays.append((f"way/{wid}", kind, how))
-            elif any(rel in reported and stands for rel, stands in outer_of.get(wid, [])):
-                continue  # the relation GDAL reported is this building
+            elif any(rel in reported and (_said(own, kind) or set(own) <= {"type"}) for rel, own in outer_of.get(wid, [])):
+                continue  # the relation GDAL reported is this building (or part): its tags, or the way's, say so
             else:
                 wanted[wid] = (kind, tags)
         for rid, (kind, members) in relations.items():
@@ -620,12 +670,21 @@ def _negative_ids(path: Path) -> bool:
 def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:
     """For each part, the index of the smallest building outline holding a point inside it, or -1:
     (P,) int64."""
-    from shapely.geometry import shape
-
     if not parts or not buildings:
         return np.full(len(parts), -1, np.int64)
-    return owners(np.array([shape(b.geometry) for b in buildings], dtype=object),
-                  np.array([shape(p.geometry) for p in parts], dtype=object))
+    return owners(np.array([_shape(b.geometry) for b in buildings], dtype=object),
+                  np.array([_shape(p.geometry) for p in parts], dtype=object))
+
+
+def _shape(geometry):
+    """A shapely geometry of a GeoJSON-like one, or None where it has no area to own or be owned by (a way
+    clipped by the extract to fewer than 4 nodes: its reading says why it is rejected)."""
+    from shapely.geometry import shape
+
+    try:
+        return shape(geometry)
+    except (ValueError, TypeError, AttributeError, IndexError):
+        return None
 
 
 def owners(outlines: np.ndarray, parts: np.ndarray) -> np.ndarray:

@@ -133,6 +133,12 @@ class PreprocessParams:
         (``Manifold.set_tolerance``): vertices, edges and slivers closer than this are merged,
         so a spike or notch thinner than this near its tip, or a partly overlapping fin, goes
         (default 0.01, as ``min_edge_length``). 0 disables the rebuild.
+    union_snap_tol : float
+        Before a building's parts are united, in metres (absolute): a part's vertex this close in plan to
+        another part's wall (its foot line) is moved onto that line, so that walls meant as one (an
+        OpenStreetMap part whose corner was drawn a millimetre off its building's outline) are one plane,
+        not two planes a hundredth of a degree apart that leave a crevice in the union (default 0.01:
+        a centimetre, below the precision of city models; 0: off).
     max_fold_v : float
         After re-triangulation, an edge with a fold whose ``v`` exceeds this (the neighbour's apex
         more than this many edge lengths from the edge: a jog of a few centimetres in a wall tens
@@ -202,6 +208,7 @@ class PreprocessParams:
     min_edge_length: float = 0.01
     flat_fold_deg: float = 1.0
     fold_repair_tol: float = 0.01
+    union_snap_tol: float = 0.01
     max_fold_v: float = 100.0
     max_collapse_length: float = 0.5
     zip_tol: float = 0.002
@@ -226,7 +233,7 @@ class PreprocessParams:
             raise ValueError(f"fold_repair_tol must be a finite number >= 0 (metres); received {self.fold_repair_tol!r}")
         if not (isinstance(self.wall_tilt_deg, (int, float)) and 0 <= self.wall_tilt_deg < 90):
             raise ValueError(f"wall_tilt_deg must be in [0, 90) degrees; received {self.wall_tilt_deg!r}")
-        for name in ("max_fold_v", "max_collapse_length", "zip_tol", "envelope_tol"):
+        for name in ("max_fold_v", "max_collapse_length", "zip_tol", "envelope_tol", "union_snap_tol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 <= value < math.inf):
                 raise ValueError(f"{name} must be a finite number >= 0 (0 disables it); received {value!r}")

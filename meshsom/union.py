@@ -9,9 +9,12 @@ nothing here computes intersections.
 1. Each part alone goes through :func:`meshsom.preprocess.preprocess` (weld, cap, orient), so it is
    a closed, outward-oriented volume that manifold3d accepts; a part that cannot be made one is a
    :class:`~meshsom.errors.MeshError` naming the part (the caller then falls back to merging).
-2. The parts are united in float64 (``Mesh64``) about the centre of their bounding box, so large
+2. A part's vertex within ``union_snap_tol`` in plan of another part's wall is moved onto that
+   wall's foot line (:func:`snap_to_walls`): walls drawn as one but a millimetre apart would leave
+   a crevice a hundredth of a degree wide, which no later repair closes.
+3. The parts are united in float64 (``Mesh64``) about the centre of their bounding box, so large
    national-grid coordinates never reach the boolean.
-3. The union's connected components (manifold3d's ``decompose``) are the shells: parts that do not
+4. The union's connected components (manifold3d's ``decompose``) are the shells: parts that do not
    touch stay separate shells of one mesh. Each shell keeps its own vertices, so two shells that
    touch along an edge stay two manifold shells instead of being welded into a non-manifold edge.
 
@@ -29,7 +32,7 @@ import numpy as np
 
 from meshsom.errors import MeshError
 
-__all__ = ["UnionResult", "union_parts", "preprocess_shells"]
+__all__ = ["UnionResult", "union_parts", "unite", "snap_to_walls", "preprocess_shells"]
 
 
 @dataclass
@@ -51,6 +54,8 @@ class UnionResult:
         Enclosed volume of the parts (summed) and of the union.
     repairs : list of str
         What preprocessing changed in each part, prefixed by the part.
+    moved : int
+        Corners of parts moved onto another part's wall before the union (:func:`snap_to_walls`).
     """
 
     shells: list = field(repr=False)
@@ -62,6 +67,7 @@ class UnionResult:
     volume_in: float
     volume_out: float
     repairs: list[str] = field(default_factory=list)
+    moved: int = 0
 
     @property
     def area_removed(self) -> float:
@@ -74,6 +80,7 @@ class UnionResult:
             "status": "united", "parts": self.parts, "shells_before": self.shells_before,
             "shells_after": self.shells_after, "area_in": self.area_in, "area_out": self.area_out,
             "area_removed": self.area_removed, "volume_in": self.volume_in, "volume_out": self.volume_out,
+            "corners_moved": self.moved,
         }
 
 
@@ -140,7 +147,7 @@ def union_parts(
     # Local origin: the boolean sees coordinates of the building's own size, whatever the input's.
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2 if len(vertices) else np.zeros(3)
     local = vertices - centre
-    solids, repairs = [], []
+    solids, repairs, prepared = [], [], []
     area_in = volume_in = 0.0
     shells_before = 0
     for k in range(n_parts):
@@ -155,9 +162,15 @@ def union_parts(
         a, v = _area_volume(part.vertices, part.faces)
         area_in += a
         volume_in += v
+        prepared.append((k, part.vertices, part.faces))
+    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in prepared], params.union_snap_tol, params.wall_tilt_deg)
+    if moved:
+        repairs.append(f"moved {moved} corners of parts by at most {params.union_snap_tol:g} m in plan onto another "
+                       f"part's wall (walls drawn as one, a little apart)")
+    for (k, _, pf), pv in zip(prepared, snapped):
         solid = manifold3d.Manifold(manifold3d.Mesh64(
-            vert_properties=np.ascontiguousarray(part.vertices, np.float64),
-            tri_verts=np.ascontiguousarray(part.faces, np.uint64),
+            vert_properties=np.ascontiguousarray(pv, np.float64),
+            tri_verts=np.ascontiguousarray(pf, np.uint64),
         ))
         if solid.status() != manifold3d.Error.NoError or solid.is_empty():
             raise MeshError(source, f"part {names[k]}: manifold3d refuses it ({solid.status().name})")
@@ -176,7 +189,120 @@ def union_parts(
         area_out += a
         volume_out += vol
         shells.append((v + centre, f))
-    return UnionResult(shells, len(solids), shells_before, len(shells), area_in, area_out, volume_in, volume_out, repairs)
+    return UnionResult(shells, len(solids), shells_before, len(shells), area_in, area_out, volume_in, volume_out, repairs,
+                       moved)
+
+
+def unite(vertices: np.ndarray, faces: np.ndarray, face_part: np.ndarray, params=None, source: str = "mesh",
+          part_names: Sequence[str] | None = None):
+    """:func:`union_parts`, then :func:`preprocess_shells` of its shells.
+
+    When the union whose parts' corners were snapped onto each other's walls cannot be preprocessed, the parts
+    are united again as they are (a snap can tilt a part's underside off the sloped roof it stands on, a union
+    left as drawn can still close).
+
+    Returns
+    -------
+    united : UnionResult
+    result : meshsom.preprocess.Result
+
+    Raises
+    ------
+    MeshError
+        From the union, or the preprocessing of its shells (the union as drawn, where both were tried).
+    """
+    from meshsom.preprocess import PreprocessParams
+
+    params = params or PreprocessParams()
+    united = union_parts(vertices, faces, face_part, params, source, part_names)
+    try:
+        return united, preprocess_shells(united.shells, params, source=source)
+    except MeshError:
+        if not united.moved:
+            raise
+    as_drawn = replace(params, union_snap_tol=0.0)
+    united = union_parts(vertices, faces, face_part, as_drawn, source, part_names)
+    return united, preprocess_shells(united.shells, params, source=source)
+
+
+def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wall_tilt_deg: float,
+                  rounds: int = 2) -> tuple[list[np.ndarray], int]:
+    """Move every part's vertices that lie within ``tol`` in plan of another part's wall onto it.
+
+    A wall is a face within ``wall_tilt_deg`` of vertical; seen from above it is a segment (its foot
+    line). A vertex that close to another part's wall segment (its ends included) moves in x and y,
+    not z, to the nearest point of that segment: every copy of a footprint's corner (its foot, its
+    eaves) moves alike, so the part's wall becomes the other's plane. Parts of one footprint file
+    drawn a millimetre apart then meet in one plane, which the union merges exactly.
+
+    Parameters
+    ----------
+    parts : sequence of ((V_i, 3) float64, (F_i, 3) int64)
+        Closed parts, in metres.
+    tol : float
+        Largest move, metres in plan; 0: nothing moves.
+    wall_tilt_deg : float
+        Faces within this many degrees of vertical are walls.
+    rounds : int
+        Passes (a vertex moved onto a wall that itself moved is moved again).
+
+    Returns
+    -------
+    vertices : list of (V_i, 3) float64
+        Each part's vertices after the moves (new arrays; the inputs are untouched).
+    moved : int
+        Vertices moved (in the last pass that moved any, counted once each).
+    """
+    import shapely
+
+    verts = [np.array(v, np.float64) for v, _ in parts]
+    if tol <= 0 or len(parts) < 2:
+        return verts, 0
+    part_of_vertex = np.repeat(np.arange(len(parts)), [len(v) for v in verts])
+    offsets = np.concatenate([[0], np.cumsum([len(v) for v in verts])])
+    faces = np.concatenate([f + offsets[k] for k, (_, f) in enumerate(parts)])
+    part_of_face = np.repeat(np.arange(len(parts)), [len(f) for _, f in parts])
+    moved_any = np.zeros(len(part_of_vertex), bool)
+    sin_tilt = np.sin(np.radians(wall_tilt_deg))
+    for _ in range(rounds):
+        v = np.concatenate(verts)
+        tri = v[faces]
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(normal, axis=1)
+        wall = (length > 0) & (np.abs(normal[:, 2]) <= sin_tilt * np.where(length > 0, length, 1.0))
+        if not wall.any():
+            break
+        # A vertical triangle seen from above: the segment between its two corners farthest apart in plan.
+        plan = tri[wall][:, :, :2]
+        pairs = np.array([[0, 1], [1, 2], [2, 0]])
+        span = np.linalg.norm(plan[:, pairs[:, 0]] - plan[:, pairs[:, 1]], axis=2)
+        ends = pairs[np.argmax(span, axis=1)]
+        a = plan[np.arange(len(plan)), ends[:, 0]]
+        b = plan[np.arange(len(plan)), ends[:, 1]]
+        seg_part = part_of_face[wall]
+        ok = np.linalg.norm(b - a, axis=1) > 0
+        a, b, seg_part = a[ok], b[ok], seg_part[ok]
+        tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
+        vi, si = tree.query(shapely.points(v[:, :2]), predicate="dwithin", distance=tol)
+        other = part_of_vertex[vi] != seg_part[si]
+        vi, si = vi[other], si[other]
+        if not len(vi):
+            break
+        d = b[si] - a[si]
+        t = np.clip(np.einsum("ij,ij->i", v[vi, :2] - a[si], d) / np.einsum("ij,ij->i", d, d), 0.0, 1.0)
+        foot = a[si] + t[:, None] * d
+        dist = np.linalg.norm(foot - v[vi, :2], axis=1)
+        # The nearest wall of each vertex; vertices on a wall already (dist 0) stay.
+        order = np.lexsort((dist, vi))
+        first = order[np.r_[True, vi[order][1:] != vi[order][:-1]]]
+        move = first[(dist[first] > 0) & (dist[first] <= tol)]
+        if not len(move):
+            break
+        v = v.copy()
+        v[vi[move], :2] = foot[move]
+        moved_any[vi[move]] = True
+        verts = [v[offsets[k]:offsets[k + 1]] for k in range(len(parts))]
+    return verts, int(moved_any.sum())
 
 
 def preprocess_shells(shells: Sequence[tuple[np.ndarray, np.ndarray]], params=None, source: str = "mesh"):

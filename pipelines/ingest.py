@@ -147,7 +147,7 @@ def _process_one(raw, params) -> tuple[dict, object | None]:
     """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh.
 
     A mesh of several CityJSON objects (a Building and its parts) is first united into its outer
-    surface (:func:`meshsom.union.union_parts`) and each shell of the union preprocessed; the
+    surface (:func:`meshsom.union.unite`) and each shell of the union preprocessed; the
     record's ``union`` says what the union did (parts, shells before and after, area removed) or
     why it failed, in which case the parts' triangles are preprocessed together as they are (faces
     shared by two parts go as internal walls). A mesh that still cannot be closed is rebuilt as the
@@ -160,7 +160,7 @@ def _process_one(raw, params) -> tuple[dict, object | None]:
     from meshsom.preprocess import preprocess
     from meshsom.store import CleanMesh
     from meshsom.envelope import rebuild_under_roofs
-    from meshsom.union import preprocess_shells, union_parts
+    from meshsom.union import unite
 
     if isinstance(raw, Rejection):
         return {
@@ -174,8 +174,7 @@ def _process_one(raw, params) -> tuple[dict, object | None]:
     union_repairs: list[str] = []
     if raw.face_part is not None and len(raw.parts) > 1:
         try:
-            united = union_parts(raw.vertices, raw.faces, raw.face_part, params, raw.id, raw.parts)
-            result = preprocess_shells(united.shells, params, source=raw.id)
+            united, result = unite(raw.vertices, raw.faces, raw.face_part, params, raw.id, raw.parts)
         except MeshError as err:
             record["union"] = {"status": "failed", "parts": len(raw.parts), "reason": err.problem}
         else:

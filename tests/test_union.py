@@ -151,3 +151,51 @@ def test_cube_quads_fixture_is_outward():
     v = np.array(corners, float) / M
     f = np.array([[q[0], q[i], q[i + 1]] for q in CUBE_QUADS for i in (1, 2)])
     assert _area_volume(v, f) == pytest.approx((6.0, 1.0))
+
+
+@pytest.mark.parametrize("off", [0.0009, 0.003, -0.002])
+@pytest.mark.parametrize("height", [6.0, 10.0, 14.0])
+def test_a_part_drawn_a_little_off_its_buildings_wall_is_snapped_onto_it(off, height):
+    """A part whose corner was drawn millimetres off its building's wall (OpenStreetMap parts and outlines share
+    one corner, the next is a hair off the line) meets that wall in a wedge a hundredth of a degree wide: the
+    union kept the part a shell of its own (outside) or cut a notch into the wall. Snapped onto the wall, the two
+    are one shell whose volume is that of the footprints as meant: area by shapely x heights."""
+    import shapely
+
+    from meshsom.polygons import extrude_polygon
+    from meshsom.union import preprocess_shells, snap_to_walls
+
+    hall = np.array([[0, 0], [12, 0], [12, 8], [0, 8]], float)
+    part = np.array([[0, 0], [0, -5], [3.6, -5], [3.6, -off]], float)  # meant: its top edge on the hall's y = 0
+    vb, fb = extrude_polygon(hall, [], 0, 10)
+    va, fa = extrude_polygon(part, [], 0, height)
+    v = np.concatenate([vb, va])
+    f = np.concatenate([fb, fa + len(vb)])
+    face_part = np.repeat([0, 1], [len(fb), len(fa)])
+    meant = shapely.Polygon(hall).area * 10 + shapely.Polygon(np.where(part == -off, 0, part)).area * height
+
+    snapped, moved = snap_to_walls([(vb, fb), (va, fa)], 0.01, 5.0)
+    assert moved == 2  # the corner (3.6, -off) at its foot and at its eaves
+    assert np.allclose(snapped[1][np.isclose(va[:, 0], 3.6) & (va[:, 1] > -1)][:, :2], [3.6, 0], atol=1e-12)
+    assert np.array_equal(snapped[0], vb)  # the hall's corners are all farther than 1 cm from the part's walls
+    united = union_parts(v, f, face_part, PreprocessParams())
+    assert united.shells_after == 1
+    assert any("moved 2 corners" in r for r in united.repairs), united.repairs
+    result = preprocess_shells(united.shells, PreprocessParams())
+    assert validate(result.vertices, result.faces) is None
+    assert result.volume_out == pytest.approx(meant, rel=1e-9)
+    off_united = union_parts(v, f, face_part, PreprocessParams(union_snap_tol=0))
+    if off > 0:  # outside the wall: without the snap the part stays a shell of its own
+        assert off_united.shells_after == 2
+
+
+def test_parts_farther_apart_than_the_snap_tolerance_stay_apart():
+    from meshsom.polygons import extrude_polygon
+    from meshsom.union import snap_to_walls
+
+    a = extrude_polygon(np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float), [], 0, 5)
+    b = extrude_polygon(np.array([[10.02, 2], [15, 2], [15, 8], [10.02, 8]], float), [], 0, 5)
+    snapped, moved = snap_to_walls([a, b], 0.01, 5.0)
+    assert moved == 0 and np.array_equal(snapped[0], a[0]) and np.array_equal(snapped[1], b[0])
+    snapped, moved = snap_to_walls([a, b], 0.05, 5.0)
+    assert moved == 4 and np.allclose(snapped[1][np.isclose(b[0][:, 0], 10.02), 0], 10.0)
