@@ -2121,9 +2121,11 @@ def _orient(v, f, source, repairs):
 def _cavities(v, f, shell, n_shells: int, inward) -> np.ndarray:
     """Which shells are cavities: inside an odd number of the other shells (the even-odd rule of solids).
 
-    A shell is tested where its bounding box lies within another's: the winding number of a point of it (its first
-    face's centroid) about the other shell's faces (the sum of their solid angles, Van Oosterom and Strackee) is 1
-    inside and 0 outside.
+    A shell is tested where its bounding box lies within another's: the winding number of a point about the other
+    shell's faces (the sum of their solid angles, Van Oosterom and Strackee) is 1 inside, 0 outside and 1/2 on a
+    face. A cavity lies wholly inside: every one of its corners (up to :data:`CAVITY_POINTS` of them) must be,
+    strictly (winding above 3/4). A shell touching the other (a building part standing on another's roof, two
+    solids of a MultiSolid sharing a wall) has corners on its faces or outside, and is a solid of its own.
 
     Parameters
     ----------
@@ -2150,21 +2152,25 @@ def _cavities(v, f, shell, n_shells: int, inward) -> np.ndarray:
     depth = np.zeros(n_shells, np.int64)
     if not inside.any():
         return depth.astype(bool)
-    first = np.full(n_shells, len(f), np.int64)
-    np.minimum.at(first, shell, np.arange(len(f)))
     for a, b in zip(*np.nonzero(inside)):  # shell a's bounding box within shell b's
-        point = corners[first[a]].mean(axis=0)
-        r = corners[shell == b] - point  # (k, 3, 3)
+        own = np.unique(f[shell == a])
+        points = v[own[np.linspace(0, len(own) - 1, min(len(own), CAVITY_POINTS)).astype(np.int64)]]
+        tri = corners[shell == b]
         if inward[b]:
-            r = r[:, ::-1]
-        x, y, z = r[:, 0], r[:, 1], r[:, 2]
-        lx, ly, lz = (np.linalg.norm(c, axis=1) for c in (x, y, z))
-        numerator = np.einsum("ij,ij->i", x, np.cross(y, z))
-        denominator = (lx * ly * lz + np.einsum("ij,ij->i", x, y) * lz + np.einsum("ij,ij->i", y, z) * lx
-                       + np.einsum("ij,ij->i", z, x) * ly)
-        winding = np.arctan2(numerator, denominator).sum() / (2 * np.pi)
-        depth[a] += int(winding > 0.5)
+            tri = tri[:, ::-1]
+        r = tri[None] - points[:, None, None]  # (p, k, 3, 3)
+        x, y, z = r[:, :, 0], r[:, :, 1], r[:, :, 2]
+        lx, ly, lz = (np.linalg.norm(c, axis=2) for c in (x, y, z))
+        dot = lambda p, q: np.einsum("pki,pki->pk", p, q)  # noqa: E731
+        numerator = dot(x, np.cross(y, z))
+        denominator = lx * ly * lz + dot(x, y) * lz + dot(y, z) * lx + dot(z, x) * ly
+        winding = np.arctan2(numerator, denominator).sum(axis=1) / (2 * np.pi)
+        depth[a] += int((winding > 0.75).all())
     return depth % 2 == 1
+
+
+#: Corners of a shell whose winding numbers about another shell say whether it lies inside it (:func:`_cavities`).
+CAVITY_POINTS = 64
 
 
 def _parity(f):

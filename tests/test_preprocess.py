@@ -1099,3 +1099,35 @@ def test_an_open_roof_capped_into_a_slab_is_refused_then_rebuilt_under_its_roof(
     record, clean = process_one(RawMesh("tile.obj#b31bd5f76", "tile.obj", v, f, np.zeros(3)), PreprocessParams())
     assert record["status"] == "accepted" and "envelope" in record, record
     assert record["volume"] == pytest.approx(area * (6.84 - 0.39), rel=1e-6)
+
+
+@pytest.mark.parametrize("first", [0, 1])
+def test_a_solid_touching_another_is_not_its_cavity(first):
+    """A building's geometry of two solids (a CityJSON MultiSolid, or a Solid written with a part's shell in it): an
+    L-shaped block and a box standing in its notch, a centimetre into its walls. The box's corners are outside the
+    L or on it, so it is a solid of its own, not a cavity: before, one point of its first face (inside the L, on the
+    box's wall a centimetre into it) made it a cavity, and its volume was taken off (DenHaag's buildings, -23 %).
+    Volume: each shell's, by trimesh, summed (the shells are not united here). A true cavity, a box wholly inside,
+    still counts against its solid."""
+    import shapely
+    import trimesh
+
+    from meshsom.polygons import extrude_polygon
+
+    ell = shapely.Polygon([(0, 0), (10, 0), (10, 5), (5, 5), (5, 10), (0, 10)])
+    lv, lf = extrude_polygon(np.array(ell.exterior.coords[:-1]), [], 0, 10)
+    bv, bf = extrude_polygon(np.array([[4.99, 4.99], [10, 4.99], [10, 10], [4.99, 10]]), [], 0, 5)
+    centroid = bv[bf].mean(axis=1)
+    inside_ell = np.flatnonzero(np.isclose(centroid[:, 0], 4.99))
+    bf = np.concatenate([bf[inside_ell], np.delete(bf, inside_ell, axis=0)])  # the box's first face lies inside the L
+    shells = [(lv, lf), (bv, bf)][::1 if first == 0 else -1]
+    v = np.concatenate([s[0] for s in shells])
+    f = np.concatenate([shells[0][1], shells[1][1] + len(shells[0][0])])
+    want = sum(trimesh.Trimesh(sv, sf).volume for sv, sf in shells)
+    r = preprocess(v, f, PreprocessParams(retriangulate=False))
+    assert r.volume_out == pytest.approx(want, rel=1e-9)
+    assert want == pytest.approx(750 + 5.01 ** 2 * 5)
+
+    cv, cf = extrude_polygon(np.array([[1, 1], [3, 1], [3, 3], [1, 3]]), [], 2, 6)  # wholly inside the L: a cavity
+    r = preprocess(np.concatenate([lv, cv]), np.concatenate([lf, cf + len(lv)]), PreprocessParams(retriangulate=False))
+    assert r.volume_out == pytest.approx(750 - 16)
