@@ -999,6 +999,8 @@ def _split_t_junctions(v, f, tol, repairs, rounds=4):
     Only boundary edges are examined (a closed mesh has none), so the cost is that of the defect.
     A triangle whose edge is split becomes a fan from its opposite vertex.
     """
+    from scipy.spatial import cKDTree
+
     split_total = 0
     for _ in range(rounds):
         he = half_edges(f)
@@ -1010,20 +1012,27 @@ def _split_t_junctions(v, f, tol, repairs, rounds=4):
         p, q = v[he[open_h, 0]], v[he[open_h, 1]]
         d = q - p
         dd = np.einsum("ek,ek->e", d, d)
-        t = np.einsum("eck,ek->ec", v[cand][None] - p[:, None], d) / dd[:, None]
-        dist = np.linalg.norm(v[cand][None] - (p[:, None] + t[..., None] * d[:, None]), axis=2)
-        length = np.sqrt(dd)[:, None]
+        # Candidate vertices of each open edge: those within half its length (and tol) of its midpoint (a k-d tree,
+        # so that the cost follows the pairs that are near, not open edges x open vertices).
+        near = cKDTree(v[cand]).query_ball_point((p + q) / 2, np.sqrt(dd) / 2 + tol)
+        e_idx = np.repeat(np.arange(len(open_h)), [len(c) for c in near])
+        c_idx = np.fromiter((c for found in near for c in found), np.int64, len(e_idx))
+        t = np.einsum("ik,ik->i", v[cand[c_idx]] - p[e_idx], d[e_idx]) / dd[e_idx]
+        dist = np.linalg.norm(v[cand[c_idx]] - (p[e_idx] + t[:, None] * d[e_idx]), axis=1)
+        length = np.sqrt(dd[e_idx])
         on = (dist <= tol) & (t * length > tol) & ((1 - t) * length > tol)
         if not on.any():
             break
+        e_idx, c_idx, t = e_idx[on], c_idx[on], t[on]
         new_faces = []
         touched = np.zeros(len(f), bool)
-        for e in np.flatnonzero(on.any(axis=1)):
+        for e in np.unique(e_idx):
             face, i = divmod(int(open_h[e]), 3)
             if touched[face]:
                 continue  # one split per face and round
             touched[face] = True
-            pts = cand[on[e]][np.argsort(t[e, on[e]])]
+            mine = e_idx == e
+            pts = cand[c_idx[mine]][np.argsort(t[mine])]
             a, b, c = f[face, i], f[face, (i + 1) % 3], f[face, (i + 2) % 3]
             chain = [a, *pts.tolist(), b]
             new_faces += [[chain[k], chain[k + 1], c] for k in range(len(chain) - 1)]
@@ -2158,19 +2167,24 @@ def _cavities(v, f, shell, n_shells: int, inward) -> np.ndarray:
         tri = corners[shell == b]
         if inward[b]:
             tri = tri[:, ::-1]
-        r = tri[None] - points[:, None, None]  # (p, k, 3, 3)
-        x, y, z = r[:, :, 0], r[:, :, 1], r[:, :, 2]
-        lx, ly, lz = (np.linalg.norm(c, axis=2) for c in (x, y, z))
-        dot = lambda p, q: np.einsum("pki,pki->pk", p, q)  # noqa: E731
-        numerator = dot(x, np.cross(y, z))
-        denominator = lx * ly * lz + dot(x, y) * lz + dot(y, z) * lx + dot(z, x) * ly
-        winding = np.arctan2(numerator, denominator).sum(axis=1) / (2 * np.pi)
+        winding = np.zeros(len(points))
+        step = max(1, WINDING_PAIRS // len(points))
+        for start in range(0, len(tri), step):  # (points, faces, 3, 3) in pieces of WINDING_PAIRS pairs
+            r = tri[None, start:start + step] - points[:, None, None]
+            x, y, z = r[:, :, 0], r[:, :, 1], r[:, :, 2]
+            lx, ly, lz = (np.linalg.norm(c, axis=2) for c in (x, y, z))
+            dot = lambda p, q: np.einsum("pki,pki->pk", p, q)  # noqa: E731
+            numerator = dot(x, np.cross(y, z))
+            denominator = lx * ly * lz + dot(x, y) * lz + dot(y, z) * lx + dot(z, x) * ly
+            winding += np.arctan2(numerator, denominator).sum(axis=1) / (2 * np.pi)
         depth[a] += int((winding > 0.75).all())
     return depth % 2 == 1
 
 
 #: Corners of a shell whose winding numbers about another shell say whether it lies inside it (:func:`_cavities`).
 CAVITY_POINTS = 64
+#: (Point, face) pairs of one piece of :func:`_cavities`' winding numbers (each 9 float64 of 8 bytes: 75 MB).
+WINDING_PAIRS = 1 << 20
 
 
 def _parity(f):

@@ -127,7 +127,8 @@ def iter_raw_meshes(paths: Iterable[str], reader, generator=None) -> Iterator:
 def process_one(raw, params) -> tuple[dict, object | None]:
     """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh
     (:func:`_process_one`), within ``params.max_seconds`` (:mod:`meshsom.time_limit`): a mesh that
-    takes longer is rejected, and its reason names the limit and the stage it stopped in.
+    takes longer is rejected, and its reason names the limit and the stage it stopped in; one that
+    runs out of memory is rejected too, and its shard goes on.
     """
     from meshsom.time_limit import TimeLimitExceeded, time_limit
 
@@ -135,12 +136,15 @@ def process_one(raw, params) -> tuple[dict, object | None]:
         with time_limit(getattr(params, "max_seconds", 0)):
             return _process_one(raw, params)
     except TimeLimitExceeded as err:
-        record = {"id": raw.id, "source": raw.source, "status": "rejected",
-                  "reason": f"preprocessing {err} (preprocess.max_seconds; raise it, or 0 for no limit)",
-                  "faces_in": int(len(raw.faces)), "faces_out": 0, "label": raw.label, "lod": raw.lod, "repairs": []}
-        if raw.notes:
-            record["notes"] = list(raw.notes)
-        return record, None
+        reason = f"preprocessing {err} (preprocess.max_seconds; raise it, or 0 for no limit)"
+    except MemoryError as err:  # one mesh too large for this worker: its rejection, not the end of its shard
+        reason = (f"preprocessing ran out of memory ({err or 'MemoryError'}) on its {len(raw.faces):,} triangles; "
+                  f"give the workers more memory, or split the mesh")
+    record = {"id": raw.id, "source": raw.source, "status": "rejected", "reason": reason,
+              "faces_in": int(len(raw.faces)), "faces_out": 0, "label": raw.label, "lod": raw.lod, "repairs": []}
+    if raw.notes:
+        record["notes"] = list(raw.notes)
+    return record, None
 
 
 def _process_one(raw, params) -> tuple[dict, object | None]:
