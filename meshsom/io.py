@@ -978,7 +978,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     """Read OBJ, PLY, STL, OFF, GLB or glTF through trimesh (gzipped or not: ``house.obj.gz``).
 
     A scene yields one mesh per geometry node, with the node's transform
-    applied, id ``name#node`` (``name`` defaults to the file name); so does an OBJ of several
+    applied, id ``name#node`` (``name`` defaults to the file name; a glTF node's mesh of several
+    primitives, one per material, is one mesh); so does an OBJ of several
     objects (``o`` lines: a city's buildings), one mesh per object, and an OBJ of several groups
     (``g``) and no objects when every group is closed on its own (:func:`_closed_groups`). Labels come from a
     ``labels.csv`` (columns ``file``, ``label``; ``file#node`` for one object of a file) in the
@@ -1042,7 +1043,10 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             if not isinstance(geom, trimesh.Trimesh):
                 continue
             v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
+            if geom.metadata.get("from_gltf_primitive"):  # one primitive (a material) of a glTF node's mesh: the node's
+                node = loaded.graph.transforms.parents.get(node, node)
             items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64), labels.get(f"{path.name}#{node}", label)))
+        items = _joined_by_id(items)
         if not items:
             raise InputFileError(str(path), "holds no triangle mesh (only points, lines or nothing)")
         if file_type == "obj":  # objects of no faces (only points or lines) are not in the scene
@@ -1077,6 +1081,23 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         if turn_up and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
         yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, up_notes)
+
+
+def _joined_by_id(items: list) -> list:
+    """Items (id, vertices, faces, label) of one id joined into one, in the order of their first: the primitives of
+    a glTF mesh (trimesh gives each material's its own geometry) are one building, as the node that holds them."""
+    joined: dict[str, list] = {}
+    for item in items:
+        joined.setdefault(item[0], []).append(item)
+    out = []
+    for mesh_id, group in joined.items():
+        if len(group) == 1:
+            out.append(group[0])
+            continue
+        offsets = np.cumsum([0] + [len(v) for _, v, _, _ in group])[:-1]
+        out.append((mesh_id, np.concatenate([v for _, v, _, _ in group]),
+                    np.concatenate([f + o for (_, _, f, _), o in zip(group, offsets)]), group[0][3]))
+    return out
 
 
 def up_axis_note(file_type: str, head: bytes) -> tuple[str, ...]:

@@ -474,3 +474,40 @@ def test_a_3dfier_tile_gives_its_buildings_and_lists_its_land(tmp_path):
     assert "3dfier Road object" in got["tile.obj#r1"].reason
     (tmp_path / "cad.obj").write_text("\n".join(lines).replace("usemtl Terrain", "usemtl Concrete") + "\n")
     assert all(isinstance(i, RawMesh) for i in read_file(tmp_path / "cad.obj"))
+
+
+def test_a_gltf_mesh_of_several_materials_is_one_building(tmp_path):
+    """A glTF node's mesh of two primitives (walls in one material, roof and floor in another: how Blender and SketchUp
+    write a house) is one building, the node's; trimesh makes each primitive a geometry of its own, and each was read
+    as a building (two of 480 m3: walls capped, roof and floor rebuilt under the roof). A second node reusing the mesh
+    is a second building, moved by its transform."""
+    from meshsom.gltf_compression import join_glb
+
+    box = trimesh.creation.box(bounds=[[0, 0, 0], [10, 6, 8]])  # 10 x 8 x 6 m, glTF's y up
+    v = np.asarray(box.vertices, np.float32)
+    f = np.asarray(box.faces, np.uint32)
+    normals = np.asarray(box.face_normals)
+    walls, caps = f[np.abs(normals[:, 1]) < 0.5], f[np.abs(normals[:, 1]) >= 0.5]
+    binary = v.tobytes() + walls.tobytes() + caps.tobytes()
+    views = [{"buffer": 0, "byteOffset": 0, "byteLength": v.nbytes},
+             {"buffer": 0, "byteOffset": v.nbytes, "byteLength": walls.nbytes},
+             {"buffer": 0, "byteOffset": v.nbytes + walls.nbytes, "byteLength": caps.nbytes}]
+    accessors = [{"bufferView": 0, "componentType": 5126, "count": len(v), "type": "VEC3",
+                  "min": v.min(0).tolist(), "max": v.max(0).tolist()},
+                 {"bufferView": 1, "componentType": 5125, "count": walls.size, "type": "SCALAR"},
+                 {"bufferView": 2, "componentType": 5125, "count": caps.size, "type": "SCALAR"}]
+    doc = {"asset": {"version": "2.0", "generator": "Khronos glTF Blender I/O"}, "scene": 0,
+           "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"mesh": 0, "name": "house"}, {"mesh": 0, "name": "neighbour", "translation": [30, 0, 0]}],
+           "meshes": [{"name": "house", "primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0},
+                                                       {"attributes": {"POSITION": 0}, "indices": 2, "material": 1}]}],
+           "materials": [{"name": "walls"}, {"name": "roof"}],
+           "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(binary)}]}
+    (tmp_path / "houses.glb").write_bytes(join_glb(doc, binary))
+    items = list(read_file(tmp_path / "houses.glb"))
+    assert [type(m).__name__ for m in items] == ["RawMesh", "RawMesh"], items
+    assert sorted(m.id.split("#")[1] for m in items) == ["house", "neighbour"]
+    for m in items:
+        assert len(m.faces) == 12 and _volume(m) == pytest.approx(480.0)
+    origins = sorted(m.origin[0] for m in items)
+    assert origins[1] - origins[0] == pytest.approx(30.0)
