@@ -138,7 +138,8 @@ def _rtc_centre(feature_table: dict, feature_binary: bytes, where: str) -> np.nd
 QUANTIZED_ID_TOL = 0.25
 
 
-def batched_meshes(glb: bytes, where: str, said: list | None = None) -> list[tuple[int, np.ndarray, np.ndarray]]:
+def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bool = False,
+                   node_names: dict | None = None) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """The triangles of a glTF content split by batch (feature) id, in 3D Tiles' z-up frame.
 
     Parameters
@@ -153,7 +154,9 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None) -> list[tup
         any RTC centre or tile transform. A glTF without batch ids is batch 0; triangles whose
         batch id is not a whole number from 0 are batch -1. Ids all within :data:`QUANTIZED_ID_TOL`
         of whole numbers (a compression's quantization) are rounded, and ``said`` (a list) gets a
-        note that says so.
+        note that says so. With ``by_node``, the triangles of nodes without batch ids are each
+        node's own batch (0, 1, ... in node order; a mesh's primitives together) and ``node_names``
+        (a dict) gets each such batch's node name.
     """
     import trimesh
 
@@ -163,7 +166,9 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None) -> list[tup
     except Exception as err:  # trimesh raises many types for corrupt files
         raise InputFileError(where, f"holds a glTF that cannot be read ({type(err).__name__}: {err})") from None
     parts: dict[int, list] = {}
-    for node in scene.graph.nodes_geometry:
+    nodes = list(scene.graph.nodes_geometry)
+    node_of: dict[int, str] = {}
+    for node in nodes:
         transform, geom_name = scene.graph[node]
         geom = scene.geometry[geom_name]
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
@@ -180,6 +185,11 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None) -> list[tup
             ids = ids.reshape(len(v), -1)[:, 0]
         if ids is None:
             face_batch = np.zeros(len(faces), np.int64)
+            if by_node:  # no batch ids in the content: its nodes, each a building (named by the node)
+                node_name = scene.graph.transforms.parents.get(node, node) if geom.metadata.get("from_gltf_primitive") else node
+                batch = next((k for k, n in node_of.items() if n == node_name), len(node_of))
+                node_of[batch] = str(node_name)
+                face_batch = np.full(len(faces), batch, np.int64)
         else:  # a batch id that is not a whole number in range is -1: listed as not read
             value = np.asarray(ids[faces[:, 0]], np.float64)
             off = np.abs(value - np.rint(value))
@@ -199,6 +209,8 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None) -> list[tup
         pieces = parts[batch]
         offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
         out.append((batch, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])))
+    if node_names is not None:
+        node_names.update(node_of)
     return out
 
 
@@ -286,10 +298,16 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     if cesium_rtc is not None:
         rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)
     said: list[str] = []
-    batches = batched_meshes(glb, source, said)
-    said = list(dict.fromkeys(said))[:1]
     declared = feature_table.get("BATCH_LENGTH")
     length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared > 0 else None  # 0: one model
+    node_names: dict[int, str] = {}
+    batches = batched_meshes(glb, source, said, by_node=length is None, node_names=node_names)
+    if len(node_names) > 1:  # no batch ids: each node a building (assimp's b3dm of a city, a node per building)
+        said.append(f"its content has no batch ids: each of its {len(node_names)} glTF nodes read as a building")
+    elif node_names and not getattr(options, "split_components", False):
+        said.append("its content has no batch ids: read as one model (--split-components, or "
+                    "corpus.reader.split_components, reads each connected piece as a building)")
+    said = list(dict.fromkeys(said))
     ids = _batch_ids(batch_table, length, options)
     labels = batch_table.get(options.label_attribute)
     for batch, v, f in batches:
@@ -297,7 +315,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
             what = "not whole numbers from 0" if batch < 0 else f"{batch}, beyond BATCH_LENGTH {length}"
             yield Rejection(f"{prefix}(batch {batch})", source, f"{len(f)} triangles carry batch ids {what}; not read")
             continue
-        mesh_id = f"{prefix}{ids[batch] if ids else batch}"
+        mesh_id = f"{prefix}{ids[batch] if ids else node_names.get(batch, batch) if len(node_names) > 1 else batch}"
         label = labels[batch] if isinstance(labels, list) and 0 <= batch < len(labels) else None
         label = None if label is None else str(label)
         world = v + rtc
@@ -318,6 +336,12 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
                     "that places it, or a tileset without one)")
         if len(f) == 0:
             yield Rejection(mesh_id, source, "holds no faces", 0, label)
+            continue
+        if getattr(options, "split_components", False):  # a feature of several buildings (one model, no batches)
+            from meshsom.io import _connected_pieces
+
+            for piece_id, pv, pf, _ in _connected_pieces(mesh_id, local, f, label):  # about the feature's origin
+                yield RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said))
             continue
         yield RawMesh(mesh_id, source, local, f, origin, label, None, notes=(note, *said))
 

@@ -21,7 +21,7 @@ import pytest
 import trimesh
 
 from meshsom.crs import WGS84, east_north_up_of_geocentric, geodetic
-from meshsom.io import RawMesh, Rejection, expand_inputs, read_file
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, read_file
 
 DELFT = Path(__file__).resolve().parents[1] / "data/real/delft-lod1-3dfier/delft.city.json"
 CENTRE = (52.0116, 4.3571, 0.0)  # latitude, longitude, height of the local frame's origin
@@ -320,3 +320,36 @@ def test_batch_ids_quantized_by_compression_are_rounded(tmp_path):
     assert any("batch ids rounded to whole numbers" in n for n in items[0].notes), items[0].notes
     (tmp_path / "coarse.b3dm").write_bytes(b3dm(buildings, lambda v: v, id_bits=6))
     assert any(isinstance(m, Rejection) and "not whole numbers" in m.reason for m in read_file(tmp_path / "coarse.b3dm"))
+
+
+def _no_batch_b3dm(scene) -> bytes:
+    """A b3dm of one model (BATCH_LENGTH 0, no batch table, no batch ids) around a trimesh scene's GLB."""
+    glb = trimesh.exchange.gltf.export_glb(scene, include_normals=False)
+    ft = _pad(json.dumps({"BATCH_LENGTH": 0}).encode())
+    body = ft + glb
+    return b"b3dm" + struct.pack("<6I", 1, 28 + len(body), len(ft), 0, 0, 0) + body
+
+
+def test_content_without_batch_ids_is_read_by_node_or_by_piece(tmp_path):
+    """A b3dm without batch ids (BATCH_LENGTH 0: assimp's export of Berlin, a node per building, named by its id) gave
+    one model of all its buildings, open where they touched: each node is a building now, its id the node's name.
+    A single node holding several buildings (CesiumJS's BatchedNoBatchIds) stays one model, noted, and
+    --split-components reads each connected piece as a building (it was ignored for 3D Tiles)."""
+    a = trimesh.creation.box(bounds=[[0, 0, 0], [10, 6, 8]])  # glTF y up: 10 x 8 x 6 m
+    b = trimesh.creation.box(bounds=[[20, 0, 0], [24, 3, 5]])
+    scene = trimesh.Scene()
+    scene.add_geometry(a, node_name="bldg_1001", geom_name="g1")
+    scene.add_geometry(b, node_name="bldg_1002", geom_name="g2")
+    (tmp_path / "nodes.b3dm").write_bytes(_no_batch_b3dm(scene))
+    items = {m.id.split("#", 1)[1]: m for m in read_file(tmp_path / "nodes.b3dm")}
+    assert sorted(items) == ["bldg_1001", "bldg_1002"], items
+    assert abs(_signed_volume(items["bldg_1001"].vertices, items["bldg_1001"].faces)) == pytest.approx(480)
+    assert abs(_signed_volume(items["bldg_1002"].vertices, items["bldg_1002"].faces)) == pytest.approx(60)
+    assert any("each of its 2 glTF nodes read as a building" in n for n in items["bldg_1001"].notes)
+
+    (tmp_path / "one.b3dm").write_bytes(_no_batch_b3dm(trimesh.Scene(trimesh.util.concatenate([a, b]))))
+    (whole,) = read_file(tmp_path / "one.b3dm")
+    assert any("--split-components" in n for n in whole.notes), whole.notes
+    pieces = list(read_file(tmp_path / "one.b3dm", ReaderOptions(split_components=True)))
+    assert sorted(round(abs(_signed_volume(m.vertices, m.faces)), 6) for m in pieces) == [60, 480]
+    assert all(m.id.endswith(("#c1", "#c2")) for m in pieces)
