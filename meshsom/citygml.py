@@ -119,6 +119,19 @@ def _local(tag) -> str:
     return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
 
 
+#: Namespaces of CityGML, GML and the other OGC schemas a building's own geometry is written in; an element of any other
+#: (an Application Domain Extension's) is not the building's shell.
+OGC_NAMESPACES = ("http://www.opengis.net/", "https://www.opengis.net/")
+
+
+@functools.lru_cache(maxsize=4096)
+def _ade(tag) -> bool:
+    """Whether an element is an ADE's (a namespace not OGC's): the Energy ADE's thermal zones and thermal boundaries
+    (their own LoD 2-3 solids and surfaces), a utility network's pipes, a test ADE's building units. A tag without a
+    namespace is taken as CityGML's."""
+    return isinstance(tag, str) and tag.startswith("{") and not tag[1:].startswith(OGC_NAMESPACES)
+
+
 def _gml_id(element) -> str | None:
     for key, value in element.attrib.items():
         if _local(key) == "id":
@@ -207,8 +220,9 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
         nonlocal missing
         for child in element:
             name = _local(child.tag)
-            if name in PART_NAMES or name in ("consistsOfBuildingPart", "buildingPart") or name in NOT_SHELL:
-                continue  # a part's geometry is its own; installations and rooms are not the shell
+            if (name in PART_NAMES or name in ("consistsOfBuildingPart", "buildingPart") or name in NOT_SHELL
+                    or _ade(child.tag)):
+                continue  # a part's geometry is its own; installations, rooms and an ADE's zones are not the shell
             match = _LOD.match(name)
             child_lod = match.group(1) if match else lod
             child_roof = roof or name == "RoofSurface" or name.endswith("RoofEdge")

@@ -867,3 +867,31 @@ def test_citygml_saved_as_xml_is_read_and_other_xml_is_not(tmp_path):
     files, _ = expand_inputs([tmp_path / "tiles"], skipped)
     assert sorted(f.name for f in files) == ["LoD2_32_565_5933_1_HH.xml", "LoD2_32_565_5933_1_HH.xml.gz"]
     assert [(Path(p).name, "not CityGML" in why) for p, why in skipped] == [("metadata.xml", True)]
+
+
+def test_an_energy_ade_thermal_zone_is_not_the_buildings_shell(tmp_path):
+    """The Energy ADE (as CityGML2Eplus's Alderaan samples write it) gives a building thermal zones with solids of their
+    own, at LoD 3 where the building stops at LoD 2: the zone was read as the building's highest LoD (lod "3", the
+    heated volume for the building's). An ADE's elements (a namespace not OGC's) are not the shell: the building is
+    its LoD 2 solid at every --lod, whatever volume the zone has."""
+    from meshsom.preprocess import preprocess
+
+    base = (391000.0, 5820000.0, 34.0)
+    zone = ('<energy:thermalZone><energy:ThermalZone gml:id="zone1">'
+            + _box_solid("energy:lod3Solid", (base[0] + 0.3, base[1] + 0.3, base[2] + 0.3), (9.4, 7.4, 5.4))
+            + '<energy:boundedBy><energy:ThermalBoundary gml:id="tb1"><energy:lod2MultiSurface><gml:MultiSurface>'
+            + '<gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing><gml:posList>'
+            + " ".join(f"{base[0] + x} {base[1] + y} {base[2]}" for x, y in ((0, 0), (0, 30), (30, 30), (30, 0), (0, 0)))
+            + "</gml:posList></gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember></gml:MultiSurface>"
+            + "</energy:lod2MultiSurface></energy:ThermalBoundary></energy:boundedBy>"
+            + "</energy:ThermalZone></energy:thermalZone>")
+    xml = ('<CityModel xmlns="http://www.opengis.net/citygml/2.0" xmlns:gml="http://www.opengis.net/gml" '
+           'xmlns:bldg="http://www.opengis.net/citygml/building/2.0" '
+           'xmlns:energy="http://www.sig3d.org/citygml/2.0/energy/1.0">'
+           '<cityObjectMember><bldg:Building gml:id="b">' + _box_solid("bldg:lod2Solid", base, (10, 8, 6))
+           + zone + "</bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "energy.gml").write_text(xml)
+    for lod in ("highest", "lowest", "2"):
+        (b,) = read_file(tmp_path / "energy.gml", ReaderOptions(lod=lod))
+        assert isinstance(b, RawMesh) and b.lod == "2", (lod, b)
+        assert preprocess(b.vertices, b.faces).volume_out == pytest.approx(480, rel=1e-9)
