@@ -56,13 +56,20 @@ from meshsom.errors import InputFileError
 MAX_COORDINATE = 1e12
 #: The CRS of GeoJSON ``geometry`` (RFC 7946): longitude, latitude, ellipsoidal height.
 GEOJSON_CRS = "OGC:CRS84h"
-_NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+#: A number and what follows it: a unit (letters, a degree sign, an inch mark), a full stop, and after a ``;`` or ``|``
+#: further values (OpenStreetMap's lists: the first is read).
+_NUMBER = re.compile(r"""^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-zA-Z\u00b0"']*)\.?\s*(?:[;|].*)?$""")
 #: A length in feet (and inches), as OpenStreetMap allows it: 40', 40 ft, 12'6", 12' 6".
 _FEET = re.compile(r"""^\s*(\d+(?:\.\d+)?)\s*(?:'|ft\b|feet\b|foot\b)\s*(?:(\d+(?:\.\d+)?)\s*(?:"|''|in\b|inch(?:es)?\b))?\s*$""", re.I)
 #: A decimal comma (12,5: common in European OpenStreetMap data, though its wiki asks for a point).
 _DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
 #: Metres per foot and per inch.
 FOOT, INCH = 0.3048, 0.0254
+#: The units a number may be written with (lower case), as the factor that makes it metres (lengths) or leaves it
+#: as it is (degrees, and no unit); any other word after a number (``3 storeys``) makes it no length.
+UNIT_FACTORS = {"": 1.0, "m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "meters": 1.0, "cm": 0.01, "mm": 0.001,
+                "km": 1000.0, "in": INCH, "inch": INCH, "inches": INCH, '"': INCH, "''": INCH, "yd": 0.9144,
+                "yard": 0.9144, "yards": 0.9144, "\u00b0": 1.0, "deg": 1.0, "degree": 1.0, "degrees": 1.0}
 #: Properties that say a footprint lies underground (OpenStreetMap's ``location``, Overture's ``is_underground``), and
 #: their values that say so (lower case).
 UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
@@ -105,7 +112,8 @@ def _reference(value) -> str | None:
 
 def _number(value) -> float | None:
     """A property's number: 12, 12.5, "12.5", "12 m", "12,5" (a decimal comma), "40'" or "40 ft"
-    (feet, in metres), "12'6\"" (feet and inches) as OpenStreetMap writes them; None otherwise."""
+    (feet, in metres), "12'6\"" (feet and inches), "3600\"" (inches), "350 cm", "30 yd" (in metres), "45°", "12;15"
+    (the first) as OpenStreetMap writes them; None otherwise (``3 storeys``, ``1.2 km high``: not a length)."""
     if isinstance(value, bool):
         return None
     if isinstance(value, (int, float)):
@@ -118,8 +126,9 @@ def _number(value) -> float | None:
         if comma:
             return float(f"{comma.group(1)}.{comma.group(2)}")
         match = _NUMBER.match(value)
-        if match and math.isfinite(float(match.group(1))):
-            return float(match.group(1))
+        factor = UNIT_FACTORS.get(match.group(2).lower()) if match else None
+        if factor is not None and math.isfinite(float(match.group(1))):
+            return float(match.group(1)) * factor
     return None
 
 

@@ -69,6 +69,7 @@ def test_osm_like_footprints_in_longitude_latitude(tmp_path):
 @pytest.mark.parametrize("height,metres", [
     ("12,5", 12.5), ("12,5 m", 12.5), ("40'", 40 * 0.3048), ("40 ft", 40 * 0.3048), ("12'6\"", 12 * 0.3048 + 6 * 0.0254),
     ("12' 6\"", 12 * 0.3048 + 6 * 0.0254), ("9 m", 9.0), ("9", 9.0), (" 7.5 ", 7.5),
+    ("360\"", 360 * 0.0254), ("350 cm", 3.5), ("30 yd", 30 * 0.9144), ("8.5 metres", 8.5), ("12;15", 12.0),
 ])
 def test_heights_as_openstreetmap_writes_them(tmp_path, height, metres):
     """OpenStreetMap heights are metres unless a unit says otherwise: feet (40', 40 ft), feet and
@@ -78,6 +79,16 @@ def test_heights_as_openstreetmap_writes_them(tmp_path, height, metres):
     (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
     (block,) = read_file(tmp_path / "osm.geojson")
     assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5), block
+
+
+@pytest.mark.parametrize("height", ["3 storeys", "12 m high", "approx. 10"])
+def test_a_height_that_is_not_a_length_is_no_height(tmp_path, height):
+    """A number followed by a word that is no unit (OSMBuilding's samples: ``3600"`` was read as 3,600 m; a count of
+    storeys in the height) is not read as metres: the footprint has no height, and its rejection says so."""
+    feature = _feature("b", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height=height)
+    (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    (item,) = read_file(tmp_path / "osm.geojson")
+    assert isinstance(item, Rejection) and "without a height" in item.reason, item
 
 
 def test_storeys_below_the_bottom_raise_it(tmp_path):
