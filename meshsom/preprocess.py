@@ -335,7 +335,7 @@ def preprocess(
     if not volume_in > params.weld_tol * diag**3:  # thinner than the weld tolerance
         raise MeshError(source, f"zero volume: it encloses {volume_in:.3g} cubic units, not more than "
                                 f"{params.weld_tol * diag**3:.3g} (weld_tol x its {diag:.3g} diagonal cubed): a sliver, "
-                                f"a spike or faces folded onto each other")
+                                f"a spike or faces folded onto each other{_far_vertices(v[np.unique(f)])}")
     check_time("cleaning folds")
     v, f = _clean_folds(v, f, params, diag, volume_in, source, repairs)
     check_time("re-triangulating")
@@ -505,6 +505,27 @@ def check_input(vertices, faces, source: str = "mesh") -> tuple[np.ndarray, np.n
         k = int(np.flatnonzero((faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1))[0])
         raise MeshError(source, f"face {k} references vertex index {faces[k].tolist()} out of range (the mesh has {len(vertices)} vertices)")
     return vertices, faces
+
+
+#: How far from the others, in robust spreads (the median distance to the median, plus a metre), a vertex lies when it
+#: is no part of the building: a no-data value written as a coordinate (roofer's ground height of -2^31 mm).
+FAR_VERTEX_SPREADS = 1000.0
+
+
+def _far_vertices(v: np.ndarray) -> str:
+    """A clause naming the vertices of ``v`` (V, 3) that lie far from the rest, per axis (:data:`FAR_VERTEX_SPREADS`),
+    where there are such; else ``""``."""
+    median = np.median(v, axis=0)
+    spread = np.median(np.abs(v - median), axis=0) + 1.0
+    far = np.abs(v - median) > FAR_VERTEX_SPREADS * spread
+    if not far.any():
+        return ""
+    axis = int(np.argmax(far.sum(axis=0)))
+    rest = v[~far.any(axis=1), axis]
+    worst = v[far[:, axis], axis]
+    gap = float(np.max(np.maximum(rest.min() - worst, worst - rest.max())))
+    return (f"; {int(far.any(axis=1).sum())} of its {len(v)} vertices lie up to {gap:.3g} units from the others in "
+            f"{'xyz'[axis]}, which span {np.ptp(rest):.3g}: a no-data value written as a coordinate?")
 
 
 def _diagonal(vertices):

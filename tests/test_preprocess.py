@@ -1216,3 +1216,29 @@ def test_a_mesh_that_runs_out_of_memory_is_a_rejection(monkeypatch):
     record, clean = ingest.process_one(raw, PreprocessParams())
     assert clean is None and record["status"] == "rejected"
     assert "ran out of memory" in record["reason"] and "3.39 GiB" in record["reason"]
+
+
+def test_a_no_data_coordinate_is_named_in_the_rejection():
+    """A roofer building whose ground height is a no-data value (-2^31 mm: its floor 2,147 km below its roof) is no
+    building; its rejection said only "zero volume ... a sliver" (its diagonal cubed dwarfs what it encloses). It now
+    says which vertices lie how far from the others, and that this looks like a no-data value."""
+    from meshsom.polygons import extrude_polygon
+
+    v, f = extrude_polygon(np.array([[0, 0], [30, 0], [30, 30], [0, 30]], float), [], 93.0, 145.0)
+    v[v[:, 2] == 93.0, 2] = -2147483.648
+    for x in (5.0, 20.0):  # two chimneys on its roof: most of its vertices are the roof's
+        cv, cf = extrude_polygon(np.array([[x, 5], [x + 2, 5], [x + 2, 7], [x, 7]], float), [], 145.0, 147.0)
+        f = np.concatenate([f, cf + len(v)])
+        v = np.concatenate([v, cv])
+    with pytest.raises(MeshError) as err:
+        preprocess(v, f)
+    assert "4 of its 24 vertices lie up to 2.15e+06 units from the others in z, which span 2:" in err.value.problem
+    assert "no-data value" in err.value.problem
+    block = extrude_polygon(np.array([[0, 0], [3000, 0], [3000, 2], [0, 2]], float), [], 0.0, 300.0)
+    assert _far_vertices_of(block[0]) == ""  # a long, tall block: nothing far from the rest
+
+
+def _far_vertices_of(v):
+    from meshsom.preprocess import _far_vertices
+
+    return _far_vertices(v)
