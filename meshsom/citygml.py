@@ -49,6 +49,7 @@ Details of the encoding:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import io
 import re
@@ -651,7 +652,7 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
         except InputFileError as err:
             yield Rejection(mesh_id, str(path), err.problem)
         else:
-            crs = file_crs(srs or file_srs, options)
+            crs = _gml_axis_order(srs or file_srs, file_crs(srs or file_srs, options), notes)
             for item in _object_meshes(objects, vertices, None, None, options, name, str(path), crs=crs):
                 if notes and not isinstance(item, Rejection):
                     item = dataclasses.replace(item, notes=item.notes + tuple(notes))
@@ -663,6 +664,25 @@ def _buildings(stream, path: Path, name: str, options, declared: set[str], ordin
         kinds = ", ".join(f"{n} {k}" for k, n in sorted(held.items(), key=lambda kv: (-kv[1], kv[0]))[:12])
         raise InputFileError(str(path), f"holds no Building (CityGML bldg:Building); it is {what}"
                              + (f" holding {kinds}" if kinds else ""))
+
+
+#: srsName forms that GML writers (FME, GeoServer's WFS, deegree) write in x/y order, longitude first, whatever the
+#: EPSG axis order: ``EPSG:4326`` and ``http://www.opengis.net/gml/srs/epsg.xml#4326`` (GeoServer's axis-order
+#: convention). The URN (``urn:ogc:def:crs:EPSG::4326``) and ``http://www.opengis.net/def/crs/EPSG/0/4326`` forms
+#: follow EPSG's order: latitude first.
+LONGITUDE_FIRST_FORMS = re.compile(r"^\s*(?:EPSG:\d+|https?://www\.opengis\.net/gml/srs/epsg\.xml#\d+)\s*$", re.I)
+
+
+def _gml_axis_order(srs_name, crs: tuple, notes: list) -> tuple:
+    """``crs`` (:func:`meshsom.io.file_crs`'s pair) with a geographic CRS named in a longitude-first form
+    (:data:`LONGITUDE_FIRST_FORMS`) read longitude first, noted in ``notes``."""
+    system, unknown = crs
+    if system is None or not system.geographic or not system.latitude_first or not isinstance(srs_name, str) \
+            or not LONGITUDE_FIRST_FORMS.match(srs_name):
+        return crs
+    notes.append(f"srsName {srs_name.strip()!r} read longitude first, as GML writers write that form (the "
+                 f"urn:ogc:def:crs:EPSG:: and opengis.net/def/crs forms are read latitude first, in EPSG's order)")
+    return dataclasses.replace(system, latitude_first=False), unknown
 
 
 def citygml_ranges(path: Path, target_bytes: int, options, url: str | None = None) -> list[list[int]] | None:

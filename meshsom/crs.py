@@ -86,6 +86,10 @@ class UnknownCRS(ValueError):
     """A CRS reference that pyproj does not know (the message says what was received)."""
 
 
+#: GML 2's (and GeoServer's) CRS URL, ``http://www.opengis.net/gml/srs/epsg.xml#4326``: the EPSG code.
+_GML_EPSG = re.compile(r"^https?://www\.opengis\.net/gml/srs/epsg\.xml#(\d+)$", re.I)
+
+
 @functools.lru_cache(maxsize=64)
 def coordinate_system(reference: str) -> CoordinateSystem:
     """Identify a CRS reference.
@@ -110,8 +114,9 @@ def coordinate_system(reference: str) -> CoordinateSystem:
         return CoordinateSystem(name=text, declared=text)
     import pyproj
 
+    gml = _GML_EPSG.match(text)  # GML 2's form, which PROJ does not know
     try:
-        crs = pyproj.CRS.from_user_input(text)
+        crs = pyproj.CRS.from_user_input(f"EPSG:{gml.group(1)}" if gml else text)
     except pyproj.exceptions.CRSError as err:
         raise UnknownCRS(f"CRS {text!r} is not known to pyproj ({str(err).splitlines()[0][:120]})") from None
     horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs

@@ -895,3 +895,42 @@ def test_an_energy_ade_thermal_zone_is_not_the_buildings_shell(tmp_path):
         (b,) = read_file(tmp_path / "energy.gml", ReaderOptions(lod=lod))
         assert isinstance(b, RawMesh) and b.lod == "2", (lod, b)
         assert preprocess(b.vertices, b.faces).volume_out == pytest.approx(480, rel=1e-9)
+
+
+@pytest.mark.parametrize("srs, lat_first", [("EPSG:4326", False), ("http://www.opengis.net/gml/srs/epsg.xml#4326", False),
+                                            ("urn:ogc:def:crs:EPSG::4326", True),
+                                            ("http://www.opengis.net/def/crs/EPSG/0/4326", True)])
+def test_gml_srs_name_forms_say_the_axis_order(tmp_path, srs, lat_first):
+    """An FME export of Gran Canaria (srsName "EPSG:4326", longitude first, as GML writers write that form) was read
+    latitude first: the building mirrored, moved to Zambia and 9 % too large (cos 27.9 / cos 15.4). The short and
+    the gml/srs/epsg.xml forms are read longitude first, the URN and def/crs forms latitude first (EPSG's order):
+    each gives the volume of the footprint's geodesic area (pyproj.Geod) times its height, not mirrored."""
+    import pyproj
+
+    from meshsom.preprocess import preprocess
+
+    lon0, lat0, z0, height = -15.4402, 27.9031, 263.26, 11.87
+    plan = [(0, 0), (0.00021, 0), (0.00021, 0.00013), (0.0001, 0.00019), (0, 0.00013)]  # a pentagon, ccw in lon/lat
+    ring = [(lon0 + dx, lat0 + dy) for dx, dy in plan]
+
+    def pos(points, z):
+        return " ".join(f"{lat:.9f} {lon:.9f} {z}" if lat_first else f"{lon:.9f} {lat:.9f} {z}"
+                        for lon, lat in (*points, points[0]))
+
+    walls = [[ring[k], ring[(k + 1) % 5]] for k in range(5)]
+    polygons = [pos(ring[::-1], z0), pos(ring, z0 + height)]  # floor facing down, roof up
+    for a, b in walls:
+        polygons.append(" ".join(f"{lat:.9f} {lon:.9f} {z}" if lat_first else f"{lon:.9f} {lat:.9f} {z}"
+                                 for (lon, lat), z in ((a, z0), (b, z0), (b, z0 + height), (a, z0 + height), (a, z0))))
+    members = "".join(f"<gml:surfaceMember><gml:Polygon><gml:exterior><gml:LinearRing><gml:posList>{p}</gml:posList>"
+                      f"</gml:LinearRing></gml:exterior></gml:Polygon></gml:surfaceMember>" for p in polygons)
+    xml = (BLDG2 + f'<cityObjectMember><bldg:Building gml:id="b18"><bldg:lod1Solid><gml:Solid srsName="{srs}" '
+           f'srsDimension="3"><gml:exterior><gml:CompositeSurface>{members}</gml:CompositeSurface></gml:exterior>'
+           f"</gml:Solid></bldg:lod1Solid></bldg:Building></cityObjectMember></CityModel>")
+    (tmp_path / "b.gml").write_text(xml)
+    (b,) = read_file(tmp_path / "b.gml")
+    result = preprocess(b.vertices, b.faces)
+    area = abs(pyproj.Geod(ellps="WGS84").polygon_area_perimeter([p[0] for p in ring], [p[1] for p in ring])[0])
+    assert result.volume_out == pytest.approx(area * height, rel=2e-4)
+    assert not any("flipped" in r for r in result.repairs), result.repairs  # outward as written: not mirrored
+    assert any("read longitude first" in n for n in b.notes) != lat_first
