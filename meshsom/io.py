@@ -1015,6 +1015,16 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
 
         content = decompress_glb(pack_gltf(bytes(content), FolderResolver(path.parent, str(path)), str(path)), str(path))
         file_type = "glb"
+    if file_type in ("glb", "gltf"):
+        from meshsom.tiles3d import content_meshes, is_tile_content
+
+        if is_tile_content(bytes(content), str(path)):  # 3D Tiles content saved as a file: by batch, RTC centre
+            if file_type == "gltf":
+                from meshsom.gltf_compression import pack_gltf
+
+                content = pack_gltf(bytes(content), FolderResolver(path.parent, str(path)), str(path))
+            yield from content_meshes(bytes(content), str(path), f"{name or path.name}#", options, b3dm=False)
+            return
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the

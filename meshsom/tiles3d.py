@@ -138,8 +138,27 @@ def _rtc_centre(feature_table: dict, feature_binary: bytes, where: str) -> np.nd
 QUANTIZED_ID_TOL = 0.25
 
 
+def is_tile_content(glb: bytes, where: str) -> bool:
+    """Whether a GLB (or a glTF JSON file) is 3D Tiles content (saved as a ``.glb`` by 3d-tiles-tools' ``b3dmToGlb``, or 3D Tiles 1.1 content
+    copied out): it has a ``CESIUM_RTC`` centre, or its primitives carry batch or feature ids
+    (:data:`_FEATURE_ATTRIBUTES`). Such a file is read as its tile is (:func:`content_meshes`): a building per batch,
+    moved by its centre; trimesh alone would give a building per primitive, in the centre's frame."""
+    try:
+        gltf = split_glb(glb, where)[0] if glb[:4] == b"glTF" else json.loads(glb)  # a GLB, or glTF JSON
+    except (InputFileError, ValueError):
+        return False  # its reading says why
+    if not isinstance(gltf, dict):
+        return False
+    if "CESIUM_RTC" in (gltf.get("extensions") or {}):
+        return True
+    meshes = gltf.get("meshes") if isinstance(gltf.get("meshes"), list) else []
+    return any(isinstance(p, dict) and isinstance(p.get("attributes"), dict)
+               and any(a in p["attributes"] for a in _FEATURE_ATTRIBUTES)
+               for m in meshes if isinstance(m, dict) for p in (m.get("primitives") or []))
+
+
 def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bool = False,
-                   node_names: dict | None = None) -> list[tuple[int, np.ndarray, np.ndarray]]:
+                   node_names: dict | None = None, y_up: bool = True) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """The triangles of a glTF content split by batch (feature) id, in 3D Tiles' z-up frame.
 
     Parameters
@@ -156,7 +175,8 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
         of whole numbers (a compression's quantization) are rounded, and ``said`` (a list) gets a
         note that says so. With ``by_node``, the triangles of nodes without batch ids are each
         node's own batch (0, 1, ... in node order; a mesh's primitives together) and ``node_names``
-        (a dict) gets each such batch's node name.
+        (a dict) gets each such batch's node name. ``y_up`` false: the glTF is z up already (a tileset's
+        ``asset.gltfUpAxis`` "Z"), not turned.
     """
     import trimesh
 
@@ -173,7 +193,8 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
         geom = scene.geometry[geom_name]
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue
-        v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), Y_UP_TO_Z_UP @ transform)
+        v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64),
+                                                     (Y_UP_TO_Z_UP if y_up else np.eye(4)) @ transform)
         faces = np.asarray(geom.faces, np.int64)
         if faces.min() < 0 or faces.max() >= len(v):
             raise InputFileError(where, f"holds glTF triangles whose indices go beyond its {len(v)} vertices")
@@ -265,7 +286,8 @@ def composite_inner_tiles(data: bytes, where: str, depth: int = 0) -> list[tuple
     return out
 
 
-def composite_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None) -> Iterator:
+def composite_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
+                     y_up: bool = True) -> Iterator:
     """RawMesh / Rejection items of a composite tile's batched models (b3dm, glb: :func:`content_meshes`,
     ids ``prefix`` + ``N#`` + batch, N its inner tile from 0); each instanced model or point cloud a
     Rejection that says so."""
@@ -274,7 +296,8 @@ def composite_meshes(data: bytes, source: str, prefix: str, options, transform: 
     for k, (magic, inner) in enumerate(composite_inner_tiles(data, source)):
         if magic in ("b3dm", "glTF"):
             try:  # one inner tile that cannot be read is its rejection; the others are read (or listed) still
-                yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm")
+                yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm",
+                                          y_up=y_up)
             except InputFileError as err:
                 yield Rejection(f"{prefix}{k}", source, f"is inner tile {k} of a composite, a {magic} that {err.problem}")
         else:
@@ -283,7 +306,7 @@ def composite_meshes(data: bytes, source: str, prefix: str, options, transform: 
 
 
 def content_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
-                   b3dm: bool = True) -> Iterator:
+                   b3dm: bool = True, y_up: bool = True) -> Iterator:
     """RawMesh / Rejection items of one b3dm (or, ``b3dm`` false, glb) content (``prefix`` starts
     the ids; ``transform`` the tile's, column vectors, 4 x 4)."""
     from meshsom.io import RawMesh, Rejection, recentre
@@ -301,7 +324,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     declared = feature_table.get("BATCH_LENGTH")
     length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared > 0 else None  # 0: one model
     node_names: dict[int, str] = {}
-    batches = batched_meshes(glb, source, said, by_node=length is None, node_names=node_names)
+    batches = batched_meshes(glb, source, said, by_node=length is None, node_names=node_names, y_up=y_up)
     if len(node_names) > 1:  # no batch ids: each node a building (assimp's b3dm of a city, a node per building)
         said.append(f"its content has no batch ids: each of its {len(node_names)} glTF nodes read as a building")
     elif node_names and not getattr(options, "split_components", False):
@@ -389,6 +412,8 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
     name = name or path.name
     root_folder = path.parent.resolve()
     found = False
+    # 3D Tiles 1.0's asset.gltfUpAxis: "Z" where the tiler wrote z-up glTF (fanvanzh/3dtiles, CesiumLab), Y by default
+    y_up = str(document["asset"].get("gltfUpAxis", "Y")).strip().upper() != "Z"
 
     def _content(uri: str, folder: Path, transform: np.ndarray, refine: str, depth: int) -> Iterator:
         """The items of one content: its buildings, or rejections; an external tileset joins the walk."""
@@ -422,9 +447,10 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
 
                 data, suffix = pack_gltf(data, FolderResolver(target.parent, str(target)), str(target)), ".glb"
             if suffix == ".cmpt":
-                yield from composite_meshes(data, str(target), f"{content_id}#", options, transform)
+                yield from composite_meshes(data, str(target), f"{content_id}#", options, transform, y_up=y_up)
             else:
-                yield from content_meshes(data, str(target), f"{content_id}#", options, transform, b3dm=suffix == ".b3dm")
+                yield from content_meshes(data, str(target), f"{content_id}#", options, transform, b3dm=suffix == ".b3dm",
+                                          y_up=y_up)
         except (InputFileError, OSError) as err:
             yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
 

@@ -183,8 +183,9 @@ def test_meshopt_glb_reads_as_its_plain_tile(tmp_path, buildings):
 
 
 def test_compressed_glb_through_read_trimesh(tmp_path, buildings):
-    """A plain .glb file (no tileset) compressed either way reads as one mesh per node, like its plain
-    form; decompress_glb leaves an uncompressed GLB as it is and declares no compression after."""
+    """A plain .glb file (no tileset) compressed either way reads like its plain form: its feature ids make it 3D Tiles
+    content saved as a file (3d-tiles-tools' b3dmToGlb), a building per feature (it was one mesh per node, all its
+    buildings in one); decompress_glb leaves an uncompressed GLB as it is and declares no compression after."""
     plain = b3dm(buildings[:2], lambda v: v, glb_only=True)
     assert decompress_glb(plain, "plain.glb") is plain
     for name, glb in (("draco.glb", draco_glb(buildings[:2])), ("meshopt.glb", meshopt_glb(buildings[:2]))):
@@ -192,8 +193,9 @@ def test_compressed_glb_through_read_trimesh(tmp_path, buildings):
         out = decompress_glb(glb, name)
         assert compression_used(split_glb(out, name)[0]) == []
         (tmp_path / name).write_bytes(glb)
-        (m,) = read_file(tmp_path / name)
-        assert isinstance(m, RawMesh) and len(m.faces) == sum(len(b[2]) for b in buildings[:2])
+        items = list(read_file(tmp_path / name))
+        assert all(isinstance(m, RawMesh) for m in items)
+        assert [len(m.faces) for m in items] == [len(b[2]) for b in buildings[:2]]
 
 
 def test_draco_without_normals_and_with_feature_ids_of_tiles_1_1(tmp_path, buildings):

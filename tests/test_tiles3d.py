@@ -353,3 +353,44 @@ def test_content_without_batch_ids_is_read_by_node_or_by_piece(tmp_path):
     pieces = list(read_file(tmp_path / "one.b3dm", ReaderOptions(split_components=True)))
     assert sorted(round(abs(_signed_volume(m.vertices, m.faces)), 6) for m in pieces) == [60, 480]
     assert all(m.id.endswith(("#c1", "#c2")) for m in pieces)
+
+
+def test_tile_content_saved_as_a_glb_file_reads_as_its_tile(tmp_path):
+    """A b3dm's glTF saved as a .glb (3d-tiles-tools' b3dmToGlb; loaders.gl's cesium-rtc-extension tile): its
+    CESIUM_RTC centre and batch ids make it 3D Tiles content, read as its tile is, a building per batch, placed on
+    the earth; trimesh alone gave a building per primitive, clusters of buildings tilted in the centre's frame."""
+    from meshsom.tiles3d import parse_b3dm
+
+    buildings = _buildings(5)
+    ecef = [_ecef(v) for _, v, _ in buildings]
+    rtc = np.mean(np.concatenate(ecef), axis=0)
+    lookup = {id(v): e - rtc for (_, v, _), e in zip(buildings, ecef)}
+    tile = b3dm(buildings, lambda v: lookup[id(v)], extra_gltf={
+        "extensionsUsed": ["CESIUM_RTC"], "extensions": {"CESIUM_RTC": {"center": [float(c) for c in rtc]}}})
+    glb = parse_b3dm(tile, "tile.b3dm")[2]
+    (tmp_path / "tile.glb").write_bytes(glb)
+    got = list(read_file(tmp_path / "tile.glb"))
+    assert [m.id for m in got] == [f"tile.glb#{k}" for k in range(5)]
+    for m, (bid, v, f), e in zip(got, buildings, ecef):
+        assert "earth-centred" in m.notes[0]
+        _same_building(m, v, f)
+        assert np.linalg.norm(m.origin - e.mean(axis=0)) < 50
+
+
+def test_a_tileset_whose_gltf_is_z_up_says_so(tmp_path):
+    """3D Tiles 1.0's asset.gltfUpAxis "Z" (fanvanzh/3dtiles, CesiumLab): the glTF content is z up already and is not
+    turned (its buildings lay on their side: 13.4 m tall became 13.4 m deep); without it, y up as the spec says."""
+    buildings = _buildings(3)
+    z_up = lambda v: np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])  # noqa: E731 (b3dm() turns z up to y up: undone)
+    (tmp_path / "t.b3dm").write_bytes(b3dm(buildings, z_up))
+    for axis, upright in (("Z", True), ("Y", False)):
+        (tmp_path / "tileset.json").write_text(json.dumps({
+            "asset": {"version": "1.0", "gltfUpAxis": axis}, "geometricError": 0,
+            "root": {"boundingVolume": {"sphere": [0, 0, 0, 1000]}, "geometricError": 0, "content": {"uri": "t.b3dm"}}}))
+        got = list(read_file(tmp_path / "tileset.json"))
+        assert len(got) == 3
+        for m, (_, v, f) in zip(got, buildings):
+            same = np.allclose(np.ptp(m.vertices, axis=0), np.ptp(v, axis=0), atol=1e-4)
+            assert same == upright, (axis, np.ptp(m.vertices, axis=0), np.ptp(v, axis=0))
+            if upright:
+                _same_building(m, v, f)
