@@ -302,6 +302,9 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     if path.name.lower().endswith(BZIP2_SUFFIX):
         yield from _read_bzip2(path, options, name, feature_range)
         return
+    if _deleted_elements(path):
+        yield from _read_without_deleted(path, options, name, feature_range)
+        return
     buildings, parts, others, strays = _areas(path)
     notes = []
     try:
@@ -383,6 +386,54 @@ def _read_bzip2(path: Path, options, name: str, feature_range) -> Iterator:
             raise InputFileError(str(path), err.problem) from None
     for item in items:
         yield dataclasses.replace(item, source=str(path))
+
+
+#: JOSM's mark of an element deleted in an edit not yet uploaded (``action='delete'``): not part of the data.
+JOSM_DELETED = re.compile(rb"""<(?:node|way|relation)\b[^>]*\saction=["']delete["']""")
+
+
+def _deleted_elements(path: Path) -> bool:
+    """Whether an OSM XML file (gzipped or not; not PBF or bzip2) holds elements JOSM marks deleted: one pass."""
+    from meshsom.io import holds_match
+
+    lower = path.name.lower()
+    return not lower.endswith((".pbf", BZIP2_SUFFIX)) and holds_match(path, JOSM_DELETED, SCAN_BYTES)
+
+
+def _read_without_deleted(path: Path, options, name: str, feature_range) -> Iterator:
+    """:func:`read_osm` of a JOSM file without the elements it marks deleted (GDAL and libosmium read them as any
+    other: a deleted building:part way came back as a rejection, a deleted way with nodes as a building), written
+    without them into a temporary folder, read from there, the items naming ``path``
+    and saying how many were left out."""
+    import tempfile
+    import xml.etree.ElementTree as ET
+
+    from meshsom.io import open_input
+
+    dropped = 0
+    with tempfile.TemporaryDirectory(prefix="meshsom-osm-") as folder:
+        clean = Path(folder) / (path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name)
+        try:
+            with open_input(path) as stream:
+                tree = ET.parse(stream)
+        except ET.ParseError as err:
+            raise InputFileError(str(path), f"cannot be read as OpenStreetMap XML ({err})") from None
+        root = tree.getroot()
+        for element in list(root):
+            if element.tag in ("node", "way", "relation") and element.get("action") == "delete":
+                root.remove(element)
+                dropped += 1
+        tree.write(str(clean), xml_declaration=True, encoding="UTF-8")
+        try:
+            items = list(read_osm(clean, options, name, feature_range))
+        except InputFileError as err:
+            raise InputFileError(str(path), err.problem) from None
+    note = f"{dropped} elements JOSM marks deleted (action='delete') left out"
+    for item in items:
+        item = dataclasses.replace(item, source=str(path))
+        if hasattr(item, "notes"):
+            item = dataclasses.replace(item, notes=(*item.notes, note))
+        yield item
 
 
 @dataclasses.dataclass

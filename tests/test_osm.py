@@ -1105,3 +1105,26 @@ def test_a_part_way_that_is_the_outer_of_its_building_multipolygon_is_read(tmp_p
     assert chapel.id.endswith("#relation/20")
     assert "way/10" in chapel.parts and "way/11" in chapel.parts, chapel.parts
     assert _union_volume(chapel) == pytest.approx(osm.area[10] * 12, rel=1e-4)
+
+
+@pytest.mark.parametrize("gzipped", [False, True])
+def test_elements_josm_marks_deleted_are_not_read(tmp_path, gzipped):
+    """A JOSM file saved mid-edit keeps the elements deleted in it, marked action='delete' (Zkir's Parish of St James):
+    GDAL and libosmium read them as any other, so a deleted building came back as a building and a deleted part with
+    its nodes gone as a rejection. They are left out, and the buildings read say so."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), building="yes", height="9")
+    osm.way(2, (40, 0, 50, 10), building="yes", height="6")  # deleted in the edit
+    osm.way(3, (60, 0, 70, 10), height="6", **{PART: "yes"})  # deleted, and its nodes with it
+    text = osm.text()
+    text = text.replace('<way id="2" version="1">', '<way id="2" version="1" action="delete">')
+    text = text.replace('<way id="3" version="1">', "<way id='3' version='1' action='delete'>")
+    for ref in set(re.findall(r'<nd ref="(\d+)"/>', text[text.index("<way id='3'"):text.index("</way>", text.index("<way id='3'"))])):
+        text = text.replace(f'<node id="{ref}" version="1"', f'<node id="{ref}" version="1" action="delete"', 1)
+    path = tmp_path / ("edit.osm.gz" if gzipped else "edit.osm")
+    path.write_bytes(gzip.compress(text.encode()) if gzipped else text.encode())
+    items = list(read_file(path))
+    assert [i.id.split("#")[1] for i in items] == ["way/1"], items
+    assert isinstance(items[0], RawMesh) and any("JOSM marks deleted" in n for n in items[0].notes)
+    assert _volume(items[0]) == pytest.approx(osm.area[1] * 9, rel=1e-5)
+    assert items[0].source == str(path)
