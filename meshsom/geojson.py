@@ -237,8 +237,8 @@ def no_height(options, notes=(), hint: bool = True) -> str:
     if any("no storey above the ground" in n for n in notes):
         hint = False  # a count of 0 storeys is never raised to the default height: the hint would mislead
     return (f"is a footprint without a height (no property {names} gives one)" + "".join(f"; {n}" for n in notes)
-            + ("; --height-attribute NAME names your data's height, --default-height M (corpus.reader.default_height) "
-               "extrudes such footprints to M metres" if hint else ""))
+            + ("; --height-attribute NAME names your data's height (--levels-attribute NAME its storey count), "
+               "--default-height M (corpus.reader.default_height) extrudes such footprints to M metres" if hint else ""))
 
 
 def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,

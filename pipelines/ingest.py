@@ -418,6 +418,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height-attribute", action="append", metavar="NAME",
                    help="footprints: a property holding the building's height above the ground, tried before the "
                         "defaults (height, measuredHeight, building:height); may be given more than once")
+    p.add_argument("--levels-attribute", action="append", metavar="NAME",
+                   help="footprints: a property holding the building's count of storeys above the ground, tried "
+                        "before the defaults (building:levels, num_floors, ...); times corpus.reader.storey_height; "
+                        "may be given more than once")
     p.add_argument("--height-unit", choices=tuple(HEIGHT_UNITS),
                    help="footprints: the unit of their height properties (New York's footprints as GeoJSON: ft); "
                         "default the CRS's vertical unit, metres for degrees")
@@ -481,9 +485,9 @@ def run(args: argparse.Namespace) -> int:
                  ("default_height", args.default_height), ("roofs", False if args.flat_roofs else None),
                  ("height_unit", args.height_unit))
         changes = {k: v for k, v in given if v is not None}
-        if args.height_attribute:
-            changes["height_attributes"] = tuple(args.height_attribute) + tuple(
-                a for a in reader.height_attributes if a not in args.height_attribute)
+        for given_names, field in ((args.height_attribute, "height_attributes"), (args.levels_attribute, "levels_attributes")):
+            if given_names:
+                changes[field] = tuple(given_names) + tuple(a for a in getattr(reader, field) if a not in given_names)
         reader = replace(reader, **changes)
         if args.repair:
             params = replace(params, repair=True)

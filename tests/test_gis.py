@@ -653,6 +653,24 @@ def test_height_unit_reads_heights_in_feet_over_degrees(tmp_path):
         dataclasses.replace(ReaderOptions(), height_unit="yard")
 
 
+def test_a_storey_count_column_is_named_on_the_command_line(tmp_path):
+    """ShelterBetShemesh's 5,419 footprints hold their storeys in ``Floors``: every one was rejected "without a height",
+    with no way to name that column from the command line (--height-attribute would read storeys as metres).
+    ``--levels-attribute Floors`` reads it: 4 storeys x 3 m; the rejection's hint names the option."""
+    w, d = 12.0, 9.0
+    features = [{"type": "Feature", "id": "flat", "properties": {"Floors": 4},
+                 "geometry": {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(0, 0, w, d)))]}}]
+    path = tmp_path / "shelters.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    (refused,) = read_file(path)
+    assert isinstance(refused, Rejection) and "--levels-attribute NAME" in refused.reason
+    out = subprocess.run([sys.executable, "-m", "pipelines.cli", "ingest", str(path), "--out", str(tmp_path / "s.zarr"),
+                          "--levels-attribute", "Floors"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    (record,) = json.loads((tmp_path / "s.zarr" / "manifest.json").read_text())["records"]
+    assert record["status"] == "accepted" and record["volume"] == pytest.approx(w * d * 4 * 3.0, rel=1e-5)
+
+
 def test_damaged_csv_inputs_say_what_is_wrong(tmp_path):
     """A row whose WKT GDAL cannot read, a row of a point, and a gzipped CSV cut short (a truncated download): each a
     rejection naming the problem, the truncated file listed as an input that is rejected, not skipped."""
