@@ -135,6 +135,10 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         # several shells (a canopy apart from the house, wings that touch along an edge) go as parts:
         # preprocessing keeps each shell's vertices its own (meshsom.union), never welding them together
         parts = tuple(f"shell {k + 1}" for k in range(shells)) if shells > 1 else ()
+        if building is None:  # a model of elements alone (a wall, a covering exported on its own) is no building
+            kinds = Counter(e.is_a() for e in members)
+            notes = (f"the file has no IfcBuilding: its {len(members)} element(s) read as one building ("
+                     + ", ".join(f"{k} x {n}" for k, n in kinds.most_common(6)) + ")", *notes)
         yield RawMesh(mesh_id, str(path), local, faces, origin, parts=parts,
                       face_part=shell_of if parts else None, notes=(*notes, *unit_note, placed_note))
 

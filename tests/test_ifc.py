@@ -263,11 +263,14 @@ def test_bad_ifc_files_are_rejected_with_reasons(tmp_path, models):
 
 def test_elements_under_no_building_are_one_model(tmp_path):
     """A file whose elements stand in a storey of no IfcBuilding (tools that write storeys only)
-    is one mesh of all of them, id ``file#model``."""
+    is one mesh of all of them, id ``file#model``, noted with the elements it holds (a single covering or beam
+    exported alone is such a file too: the note says what was read as a building)."""
     path = write_house(tmp_path / "nobuilding.ifc", garage=False, building=False)
     meshes, rejected = _meshes(path)
     assert not rejected and [m.id for m in meshes] == ["nobuilding.ifc#model"]
     assert signed_volume(meshes[0].vertices, meshes[0].faces) == pytest.approx(HOUSE_VOLUME, rel=1e-4)
+    note = next(n for n in meshes[0].notes if n.startswith("the file has no IfcBuilding"))
+    assert "element(s) read as one building" in note and "IfcWall" in note, note
 
 
 def test_ifc_through_ingest(models, tmp_path):
