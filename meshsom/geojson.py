@@ -334,9 +334,9 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
 def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[str]]:
     """Footprint polygons (GeoJSON's nesting: rings of positions) made valid where a ring crosses itself or a hole
     crosses its shell (a bow-tie way in OpenStreetMap, a spike drawn back across its outline): the areas they
-    enclose (shapely's ``make_valid``; with holes, the shell's area less the union of the holes', as OpenStreetMap
-    means a multipolygon whose inner rings touch), each position at ``z`` where given, and a note saying where it
-    crossed.
+    enclose (shapely's ``make_valid``; with holes, the area inside an odd number of its rings, within the shell, as
+    libosmium assembles an OpenStreetMap multipolygon: inner rings that touch are taken out together, where two
+    overlap an island stays), each position at ``z`` where given, and a note saying where it crossed.
     Valid polygons, and those that cannot be read as such, are returned as they are (their reading says why).
 
     Returns
@@ -356,9 +356,13 @@ def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[
             shape = Polygon(rings[0], rings[1:])
             reason = None if shape.is_valid else shapely.is_valid_reason(shape)
             made = None
-            if reason is not None and len(rings) > 1:  # the shell's area less every hole's (OSM's, GeoJSON's meaning)
-                holes = shapely.unary_union([shapely.make_valid(Polygon(r)) for r in rings[1:]])
-                made = shapely.make_valid(Polygon(rings[0])).difference(holes)
+            if reason is not None and len(rings) > 1:  # the rings by the even-odd rule, within the shell (libosmium's)
+                shell = shapely.make_valid(Polygon(rings[0]))
+                odd = shell
+                holes = {frozenset(ring): ring for ring in rings[1:]}  # a hole drawn twice (osm-testdata 795) is one
+                for ring in holes.values():  # holes that touch come out together; where two overlap, an island stays
+                    odd = odd.symmetric_difference(shapely.make_valid(Polygon(ring)))
+                made = odd.intersection(shell)
             elif reason is not None:
                 made = shapely.make_valid(shape)
         except (TypeError, ValueError, IndexError, shapely.errors.GEOSException):
@@ -376,7 +380,7 @@ def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[
         fixed += [[[at(c) for c in q.exterior.coords]] + [[at(c) for c in r.coords] for r in q.interiors]
                   for q in pieces]
         notes.append(f"its footprint is not a valid polygon ({reason}): read as the {len(pieces)} polygon(s) it "
-                     f"encloses (shapely make_valid{', less its holes' if len(rings) > 1 else ''})")
+                     f"encloses (shapely make_valid{'; its rings by the even-odd rule' if len(rings) > 1 else ''})")
     return (fixed if changed else polygons), notes
 
 

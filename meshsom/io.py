@@ -1104,9 +1104,15 @@ def _joined_by_id(items: list) -> list:
         if len(group) == 1:
             out.append(group[0])
             continue
-        offsets = np.cumsum([0] + [len(v) for _, v, _, _ in group])[:-1]
-        out.append((mesh_id, np.concatenate([v for _, v, _, _ in group]),
-                    np.concatenate([f + o for (_, _, f, _), o in zip(group, offsets)]), group[0][3]))
+        # each primitive's own vertices only: trimesh gives every primitive the whole vertex accessor they share
+        # (Cesium's tiles: 29 primitives of one 44,268-vertex accessor made 1.3 million vertices to weld)
+        pieces = []
+        for _, v, f, _ in group:
+            used, inverse = np.unique(np.asarray(f, np.int64), return_inverse=True)
+            pieces.append((np.asarray(v)[used], inverse.reshape(-1, 3)))
+        offsets = np.cumsum([0] + [len(v) for v, _ in pieces])[:-1]
+        out.append((mesh_id, np.concatenate([v for v, _ in pieces]),
+                    np.concatenate([f + o for (_, f), o in zip(pieces, offsets)]), group[0][3]))
     return out
 
 

@@ -147,6 +147,9 @@ def union_parts(
     # Local origin: the boolean sees coordinates of the building's own size, whatever the input's.
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2 if len(vertices) else np.zeros(3)
     local = vertices - centre
+    # Each part keeps its shape: collapsing a part's short jogs (max_fold_v) keeps its volume but moves its walls,
+    # into a neighbour's (Vienna's parts overlapped by 20 m3 so); the united shells are cleaned so afterwards.
+    part_params = replace(params, max_fold_v=0.0)
     solids, repairs, prepared = [], [], []
     area_in = volume_in = 0.0
     shells_before = 0
@@ -155,7 +158,7 @@ def union_parts(
         if not sel.any():
             continue
         try:
-            part = preprocess(local, faces[sel], params, source=f"{source} part {names[k]}")
+            part = preprocess(local, faces[sel], part_params, source=f"{source} part {names[k]}")
         except MeshError as err:
             raise MeshError(source, f"part {names[k]} is not a closed volume ({err.problem})") from None
         repairs += [f"part {names[k]}: {r}" for r in part.repairs]

@@ -199,3 +199,21 @@ def test_parts_farther_apart_than_the_snap_tolerance_stay_apart():
     assert moved == 0 and np.array_equal(snapped[0], a[0]) and np.array_equal(snapped[1], b[0])
     snapped, moved = snap_to_walls([a, b], 0.05, 5.0)
     assert moved == 4 and np.allclose(snapped[1][np.isclose(b[0][:, 0], 10.02), 0], 10.0)
+
+
+def test_parts_keep_their_shape_for_the_union():
+    """Two parts meeting along a wall with a 5 cm jog (Vienna's LoD 2 parts have such): collapsing each part's jog
+    alone (max_fold_v: its volume kept, its wall moved) made the parts overlap, and the union lost 20 m3 of a
+    22,678 m3 building. The parts are united as they are (the union's shells are cleaned afterwards): the union is
+    the two blocks' 20 x 10 x 10 m exactly."""
+    from meshsom.polygons import extrude_polygon
+
+    west = np.array([(0, 0), (10, 0), (10, 5), (10.05, 5), (10.05, 10), (0, 10)], float)
+    east = np.array([(10, 0), (20, 0), (20, 10), (10.05, 10), (10.05, 5), (10, 5)], float)
+    va, fa = extrude_polygon(west, [], 0, 10)
+    vb, fb = extrude_polygon(east, [], 0, 10)
+    v = np.concatenate([va, vb])
+    f = np.concatenate([fa, fb + len(va)])
+    united = union_parts(v, f, np.repeat([0, 1], [len(fa), len(fb)]), PreprocessParams())
+    assert united.volume_out == pytest.approx(2000.0, rel=1e-12) and united.shells_after == 1
+    assert not any("collapsed" in r for r in united.repairs), united.repairs
