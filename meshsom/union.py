@@ -184,14 +184,23 @@ def union_parts(
         raise MeshError(source, f"the union of {len(solids)} parts failed ({united.status().name})")
     shells = []
     area_out = volume_out = 0.0
+    sheets = 0
     for piece in united.decompose():
         mesh = piece.to_mesh64()
         v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
         f = np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
         a, vol = _area_volume(v, f)
+        if len(v) and not abs(vol) > params.weld_tol * float(np.linalg.norm(np.ptp(v, axis=0))) ** 3:
+            sheets += 1  # a flat sheet (both sides of faces of parts that touched face to face): no volume, no shell
+            continue
         area_out += a
         volume_out += vol
         shells.append((v + centre, f))
+    if sheets:
+        repairs.append(f"dropped {sheets} flat sheet(s) the union left (zero volume: faces of parts that touch face to "
+                       f"face)")
+    if not shells:
+        raise MeshError(source, f"the union of {len(solids)} parts encloses no volume")
     return UnionResult(shells, len(solids), shells_before, len(shells), area_in, area_out, volume_in, volume_out, repairs,
                        moved)
 
