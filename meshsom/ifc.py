@@ -115,6 +115,15 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
     if not groups:
         raise InputFileError(str(path), f"an IFC file ({model.schema}) without elements of the envelope classes "
                                         f"({', '.join(options.ifc_classes)}); it holds {_class_list(model)}")
+    if groups[0][0] is not None:  # a building of no envelope element beside others (a garage of spaces only): listed
+        held = {b.id() for b, _ in groups}
+        for building in model.by_type("IfcBuilding"):
+            if building.id() not in held:
+                what = f"IfcBuilding {building.Name!r}" if building.Name else "an IfcBuilding"
+                kinds = Counter(e.is_a() for e in ifcopenshell.util.element.get_decomposition(building))
+                yield Rejection(f"{name}#{building.GlobalId}", str(path), (
+                    f"{what} holds no element of the envelope classes ({', '.join(options.ifc_classes)}); it holds "
+                    + (", ".join(f"{n} {k}" for k, n in kinds.most_common(6)) or "nothing")))
     try:
         shapes = _triangulated(model, [e for _, members in groups for e in members], ifcopenshell)
     except Exception as err:  # IfcOpenShell's geometry kernel raises RuntimeError and its own errors

@@ -1221,10 +1221,14 @@ def _opposite_overlap(v, f, normal, a, dist):
     if up.all() or not up.any():
         return inside, coplanar
     polys = shapely.polygons(v[f[idx]] @ plane_frame(n).T)
-    overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
+    try:
+        overlap = shapely.intersection(shapely.union_all(polys[up]), shapely.union_all(polys[~up]))
+        covered = shapely.area(shapely.intersection(polys, overlap))
+    except shapely.errors.GEOSException:  # GEOS's overlay failed on them (a TopologyException): none found here
+        return inside, coplanar
     if overlap.area <= dist * dist:
         return inside, coplanar
-    inside[idx[shapely.area(shapely.intersection(polys, overlap)) >= 0.999 * shapely.area(polys)]] = True
+    inside[idx[covered >= 0.999 * shapely.area(polys)]] = True
     return inside, coplanar
 
 

@@ -681,7 +681,8 @@ def _shards_failed(path: str, shards: list, failed: list, what: Callable) -> Non
         sh, err = failed[0]
         raise MeshsomError(
             f"{path}: {len(failed)} of {len(shards)} shards failed (first: {sh.name}, items {sh.start}..{sh.stop} "
-            f"of {what(sh)}: {type(err).__name__}: {err}); the others are kept, rerun with resume to finish"
+            f"of {what(sh)}: {type(err).__name__}: {err}); the others are kept: `meshsom run --resume` goes on from them "
+            f"(`meshsom ingest` starts afresh)"
         ) from err
 
 

@@ -128,7 +128,8 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     """Preprocess one read mesh into a manifest record and, when accepted, a CleanMesh
     (:func:`_process_one`), within ``params.max_seconds`` (:mod:`meshsom.time_limit`): a mesh that
     takes longer is rejected, and its reason names the limit and the stage it stopped in; one that
-    runs out of memory is rejected too, and its shard goes on.
+    runs out of memory, or on which a library fails (GEOS's TopologyException), is rejected too, and
+    its shard goes on.
     """
     from meshsom.time_limit import TimeLimitExceeded, time_limit
 
@@ -140,6 +141,9 @@ def process_one(raw, params) -> tuple[dict, object | None]:
     except MemoryError as err:  # one mesh too large for this worker: its rejection, not the end of its shard
         reason = (f"preprocessing ran out of memory ({err or 'MemoryError'}) on its {len(raw.faces):,} triangles; "
                   f"give the workers more memory, or split the mesh")
+    except Exception as err:  # a library's error on one mesh (GEOS's TopologyException): its rejection, not its shard's
+        reason = (f"preprocessing failed on it ({type(err).__name__}: {str(err).splitlines()[0][:300] if str(err) else ''}): "
+                  f"an error of meshsom or a library it uses on this mesh; please report it with the file")
     record = {"id": raw.id, "source": raw.source, "status": "rejected", "reason": reason,
               "faces_in": int(len(raw.faces)), "faces_out": 0, "label": raw.label, "lod": raw.lod, "repairs": []}
     if raw.notes:

@@ -171,7 +171,7 @@ def test_resume_redoes_only_unfinished_shards(local_client, inputs, in_process, 
         return original(raw, params)
 
     monkeypatch.setattr(ingest, "process_one", crashing)
-    with pytest.raises(MeshsomError, match=r"2 of 8 shards failed.*RuntimeError.*rerun with resume"):
+    with pytest.raises(MeshsomError, match=r"2 of 8 shards failed.*RuntimeError.*meshsom run --resume"):
         corpus.run_corpus(local_client, cfg, store)
     plan = zarr.open_group(str(store / corpus.STAGING), mode="r").attrs["plan"]
     names = [s["name"] for s in plan["shards"]]

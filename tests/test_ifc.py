@@ -372,3 +372,27 @@ def test_the_union_of_many_elements_is_batched_and_bounded_in_time():
     assert united.volume() == pytest.approx(((10 + 0.05 * 149) * 0.3 - 2 * 0.05 * 0.1) * 0.3, rel=1e-9)
     with pytest.raises(MeshError, match=r"took more than 1e-09 s .* pieces left"):
         _united(beams, "roof.ifc#model", 1e-9, manifold3d)
+
+
+def test_a_building_without_envelope_elements_is_a_rejection(tmp_path):
+    """A second IfcBuilding holding only a space (a garage whose walls were not modelled, as BIM2SIM's ExampleHOM was
+    probed with) was left out without a word, where the module says such buildings are rejected by name: it is a
+    rejection naming the classes it holds; the other building is read as before."""
+    import ifcopenshell
+    import ifcopenshell.api.aggregate
+    import ifcopenshell.api.root
+
+    path = write_house(tmp_path / "two.ifc", garage=False)
+    model = ifcopenshell.open(str(path))
+    site = model.by_type("IfcSite")[0]
+    garage = ifcopenshell.api.root.create_entity(model, ifc_class="IfcBuilding", name="Garage (no walls)")
+    ifcopenshell.api.aggregate.assign_object(model, products=[garage], relating_object=site)
+    space = ifcopenshell.api.root.create_entity(model, ifc_class="IfcSpace", name="Parking")
+    ifcopenshell.api.aggregate.assign_object(model, products=[space], relating_object=garage)
+    model.write(str(path))
+    meshes, rejected = _meshes(path)
+    assert len(meshes) == 1 and signed_volume(meshes[0].vertices, meshes[0].faces) == pytest.approx(HOUSE_VOLUME, rel=1e-4)
+    (garage_rejection,) = rejected
+    assert garage_rejection.id == f"two.ifc#{garage.GlobalId}"
+    assert "IfcBuilding 'Garage (no walls)' holds no element of the envelope classes" in garage_rejection.reason
+    assert "1 IfcSpace" in garage_rejection.reason

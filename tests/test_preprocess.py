@@ -1242,3 +1242,37 @@ def _far_vertices_of(v):
     from meshsom.preprocess import _far_vertices
 
     return _far_vertices(v)
+
+
+def test_a_library_error_on_one_mesh_is_its_rejection(monkeypatch):
+    """GEOS's overlay raised a TopologyException on one IFC model's faces (FreeMVD's restaurant details): the whole
+    ingest stopped, no manifest, the other buildings of the folder lost with it. Such an error is that mesh's
+    rejection, naming it; and the overlay of opposite faces that fails that way finds no overlap instead of raising."""
+    import shapely
+
+    import pipelines.ingest as ingest
+    from meshsom.io import RawMesh
+    from meshsom.preprocess import _opposite_overlap
+
+    def topology(raw, params):
+        raise shapely.errors.GEOSException("TopologyException: found non-noded intersection")
+
+    monkeypatch.setattr(ingest, "_process_one", topology)
+    raw = RawMesh("details.ifc#a", "details.ifc", np.eye(3), np.array([[0, 1, 2]]), np.zeros(3))
+    record, clean = ingest.process_one(raw, PreprocessParams())
+    assert clean is None and record["status"] == "rejected"
+    assert "GEOSException: TopologyException: found non-noded intersection" in record["reason"]
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 0], [0, 1, 0], [1, 0, 0]], float)  # a face and its back
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    normal = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    inside, coplanar = _opposite_overlap(v, f, normal, 0, 1e-6)
+    assert inside.all() and coplanar.all()
+
+    def fails(*args, **kwargs):
+        raise shapely.errors.GEOSException("TopologyException")
+
+    monkeypatch.setattr(shapely, "union_all", fails)
+    inside, coplanar = _opposite_overlap(v, f, normal, 0, 1e-6)
+    assert not inside.any() and coplanar.all()
