@@ -1047,6 +1047,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     crs = file_crs(None, options)
     if isinstance(loaded, trimesh.Scene):
         items = []
+        collada_ids = set(re.findall(rb'<geometry\b[^>]*\bid="([^"]+)"', data.getvalue())) if file_type == "dae" else set()
+        collada_ids = {i.decode("utf-8", "replace") for i in collada_ids}
         for node in loaded.graph.nodes_geometry:
             transform, geom_name = loaded.graph[node]
             geom = loaded.geometry[geom_name]
@@ -1055,6 +1057,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             v = trimesh.transformations.transform_points(np.asarray(geom.vertices, np.float64), transform)
             if geom.metadata.get("from_gltf_primitive"):  # one primitive (a material) of a glTF node's mesh: the node's
                 node = loaded.graph.transforms.parents.get(node, node)
+            elif file_type == "dae":  # trimesh names a COLLADA geometry's primitives (a material each) id, id_1, ...
+                node = _collada_geometry(str(node), collada_ids)
             items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64), labels.get(f"{path.name}#{node}", label)))
         items = _joined_by_id(items)
         if not items:
@@ -1093,9 +1097,17 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, up_notes)
 
 
+def _collada_geometry(name: str, ids: set) -> str:
+    """The COLLADA ``<geometry>`` id of a trimesh geometry named for it (``id``, or ``id_N`` for its N-th material's
+    primitive, where ``id_N`` is no geometry id of its own); the name as it is otherwise."""
+    base, _, number = name.rpartition("_")
+    return base if number.isdigit() and base in ids and name not in ids else name
+
+
 def _joined_by_id(items: list) -> list:
     """Items (id, vertices, faces, label) of one id joined into one, in the order of their first: the primitives of
-    a glTF mesh (trimesh gives each material's its own geometry) are one building, as the node that holds them."""
+    a glTF mesh or of a COLLADA geometry (trimesh gives each material's its own geometry) are one building, as the
+    node or geometry that holds them."""
     joined: dict[str, list] = {}
     for item in items:
         joined.setdefault(item[0], []).append(item)

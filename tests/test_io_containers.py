@@ -977,3 +977,25 @@ def test_buildings_drawn_in_kml_as_extruded_polygons(tmp_path, form):
     assert isinstance(items["absnone"], Rejection) and items["absnone"].reason.endswith(
         "its altitudes are absolute: the ground beneath is not in KML (export it relative to the ground)")
     assert isinstance(items["lawn"], Rejection) and "a flat area, not a building" in items["lawn"].reason
+
+
+def test_a_collada_geometry_of_several_materials_is_one_building(tmp_path):
+    """SketchUp writes a COLLADA geometry's faces as one <triangles> per material (Macky Auditorium's KMZ in Google's
+    KML samples: 12 geometries, 52 material primitives); trimesh makes each primitive a geometry (id, id_1, ...),
+    and each was read as a building, open where the materials met. A geometry is one building, its id the
+    geometry's: the box (walls one material, roof and floor another) is one of 10 x 6 x 4 m."""
+    v, f = box(10.0, 6.0, 4.0)
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    walls, caps = f[np.abs(normals[:, 2]) < 1e-9], f[np.abs(normals[:, 2]) >= 1e-9]
+    doc = _collada(None, "Z", v, walls)
+    second = (f'<triangles count="{len(caps)}"><input semantic="VERTEX" source="#v" offset="0"/>'
+              f'<p>{" ".join(str(int(i)) for i in caps.reshape(-1))}</p></triangles>')
+    doc = doc.replace("</triangles>\n  </mesh>", "</triangles>" + second + "\n  </mesh>")
+    assert doc.count("<triangles") == 2
+    (tmp_path / "house.dae").write_text(doc)
+    items = list(read_file(tmp_path / "house.dae"))
+    assert [type(m).__name__ for m in items] == ["RawMesh"], items
+    (m,) = items
+    assert m.id == "house.dae#g" and len(m.faces) == len(f)
+    t = m.vertices[m.faces]
+    assert abs(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6) == pytest.approx(240.0)
