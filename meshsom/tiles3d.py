@@ -187,7 +187,7 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
         raise InputFileError(where, f"holds a glTF that cannot be read ({type(err).__name__}: {err})") from None
     parts: dict[int, list] = {}
     nodes = list(scene.graph.nodes_geometry)
-    node_of: dict[int, str] = {}
+    batch_of: dict[str, int] = {}  # node name -> its batch, for content without batch ids
     for node in nodes:
         transform, geom_name = scene.graph[node]
         geom = scene.geometry[geom_name]
@@ -208,8 +208,7 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
             face_batch = np.zeros(len(faces), np.int64)
             if by_node:  # no batch ids in the content: its nodes, each a building (named by the node)
                 node_name = scene.graph.transforms.parents.get(node, node) if geom.metadata.get("from_gltf_primitive") else node
-                batch = next((k for k, n in node_of.items() if n == node_name), len(node_of))
-                node_of[batch] = str(node_name)
+                batch = batch_of.setdefault(str(node_name), len(batch_of))
                 face_batch = np.full(len(faces), batch, np.int64)
         else:  # a batch id that is not a whole number in range is -1: listed as not read
             value = np.asarray(ids[faces[:, 0]], np.float64)
@@ -231,7 +230,7 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
         offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
         out.append((batch, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])))
     if node_names is not None:
-        node_names.update(node_of)
+        node_names.update({batch: node for node, batch in batch_of.items()})
     return out
 
 

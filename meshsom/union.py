@@ -131,10 +131,15 @@ def union_parts(
         When a part cannot be made a closed volume, manifold3d refuses it, or the union fails or
         is empty; ``problem`` names the part and the reason.
     """
-    from meshsom.preprocess import PreprocessParams, preprocess
+    from meshsom.preprocess import PreprocessParams
 
-    manifold3d = _manifold3d()
     params = params or PreprocessParams()
+    vertices, faces, face_part, names = _checked(vertices, faces, face_part, part_names)
+    return _united(_prepared(vertices, faces, face_part, params, source, names), params, params.union_snap_tol, source)
+
+
+def _checked(vertices, faces, face_part, part_names) -> tuple:
+    """The arrays as float64 and int64, and a name for each part, checked (ValueError where they do not fit)."""
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
     face_part = np.asarray(face_part, np.int64).reshape(-1)
@@ -144,16 +149,22 @@ def union_parts(
     names = list(part_names) if part_names is not None else [str(k) for k in range(n_parts)]
     if len(names) < n_parts:
         raise ValueError(f"part_names must name all {n_parts} parts, received {len(names)}")
+    return vertices, faces, face_part, names[:n_parts]
+
+
+def _prepared(vertices, faces, face_part, params, source: str, names: list) -> tuple:
+    """Each part preprocessed alone, about the parts' centre: (centre, [(part, vertices, faces)], repairs, area, volume)."""
+    from meshsom.preprocess import preprocess
+
     # Local origin: the boolean sees coordinates of the building's own size, whatever the input's.
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2 if len(vertices) else np.zeros(3)
     local = vertices - centre
     # Each part keeps its shape: collapsing a part's short jogs (max_fold_v) keeps its volume but moves its walls,
     # into a neighbour's (Vienna's parts overlapped by 20 m3 so); the united shells are cleaned so afterwards.
     part_params = replace(params, max_fold_v=0.0)
-    solids, repairs, prepared = [], [], []
+    repairs, prepared = [], []
     area_in = volume_in = 0.0
-    shells_before = 0
-    for k in range(n_parts):
+    for k in range(len(names)):
         sel = face_part == k
         if not sel.any():
             continue
@@ -165,18 +176,27 @@ def union_parts(
         a, v = _area_volume(part.vertices, part.faces)
         area_in += a
         volume_in += v
-        prepared.append((k, part.vertices, part.faces))
-    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in prepared], params.union_snap_tol, params.wall_tilt_deg)
+        prepared.append((names[k], part.vertices, part.faces))
+    return centre, prepared, repairs, area_in, volume_in
+
+
+def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResult:
+    """The union of :func:`_prepared` parts, their corners snapped onto each other's walls within ``snap_tol``."""
+    manifold3d = _manifold3d()
+    centre, parts, repairs, area_in, volume_in = prepared
+    repairs = list(repairs)
+    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in parts], snap_tol, params.wall_tilt_deg)
     if moved:
-        repairs.append(f"moved {moved} corners of parts by at most {params.union_snap_tol:g} m in plan onto another "
+        repairs.append(f"moved {moved} corners of parts by at most {snap_tol:g} m in plan onto another "
                        f"part's wall (walls drawn as one, a little apart)")
-    for (k, _, pf), pv in zip(prepared, snapped):
+    solids, shells_before = [], 0
+    for (name, _, pf), pv in zip(parts, snapped):
         solid = manifold3d.Manifold(manifold3d.Mesh64(
             vert_properties=np.ascontiguousarray(pv, np.float64),
             tri_verts=np.ascontiguousarray(pf, np.uint64),
         ))
         if solid.status() != manifold3d.Error.NoError or solid.is_empty():
-            raise MeshError(source, f"part {names[k]}: manifold3d refuses it ({solid.status().name})")
+            raise MeshError(source, f"part {name}: manifold3d refuses it ({solid.status().name})")
         shells_before += len(solid.decompose())
         solids.append(solid)
     united = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add)
@@ -226,14 +246,15 @@ def unite(vertices: np.ndarray, faces: np.ndarray, face_part: np.ndarray, params
     from meshsom.preprocess import PreprocessParams
 
     params = params or PreprocessParams()
-    united = union_parts(vertices, faces, face_part, params, source, part_names)
+    vertices, faces, face_part, names = _checked(vertices, faces, face_part, part_names)
+    prepared = _prepared(vertices, faces, face_part, params, source, names)  # the parts preprocessed once, for both
+    united = _united(prepared, params, params.union_snap_tol, source)
     try:
         return united, preprocess_shells(united.shells, params, source=source)
     except MeshError:
         if not united.moved:
             raise
-    as_drawn = replace(params, union_snap_tol=0.0)
-    united = union_parts(vertices, faces, face_part, as_drawn, source, part_names)
+    united = _united(prepared, params, 0.0, source)  # as drawn
     return united, preprocess_shells(united.shells, params, source=source)
 
 
