@@ -75,6 +75,9 @@ UNIT_FACTORS = {"": 1.0, "m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "m
 UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
+#: The share of the area of a footprint's polygons that may be covered twice before they are read as their union
+#: (:func:`valid_footprint`): parts that share a wall overlap by rounding only.
+OVERLAP_REL = 1e-6
 #: Shapes built as another where they cannot be built on a footprint (a half-hipped roof on one without a square wing
 #: end: the hipped roof, which its hips make it most like), noted; others are flat there.
 FALLBACK = {"half-hipped": "hipped"}
@@ -376,12 +379,45 @@ def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[
             fixed.append(poly)
             continue
         changed = True
-        at = lambda xy: [float(xy[0]), float(xy[1])] + ([z] if z is not None else [])  # noqa: E731
-        fixed += [[[at(c) for c in q.exterior.coords]] + [[at(c) for c in r.coords] for r in q.interiors]
-                  for q in pieces]
+        fixed += _nested(pieces, z)
         notes.append(f"its footprint is not a valid polygon ({reason}): read as the {len(pieces)} polygon(s) it "
                      f"encloses (shapely make_valid{'; its rings by the even-odd rule' if len(rings) > 1 else ''})")
-    return (fixed if changed else polygons), notes
+    united, said = _united_overlaps(fixed if changed else polygons, z)
+    return united, notes + said
+
+
+def _nested(pieces: list, z: float | None) -> list:
+    """Shapely polygons as GeoJSON nests them (rings of positions), each position at ``z`` where given."""
+    at = lambda xy: [float(xy[0]), float(xy[1])] + ([z] if z is not None else [])  # noqa: E731
+    return [[[at(c) for c in q.exterior.coords]] + [[at(c) for c in r.coords] for r in q.interiors] for q in pieces]
+
+
+def _united_overlaps(polygons: list, z: float | None) -> tuple[list, list[str]]:
+    """A footprint's polygons as their union where they overlap (a MultiPolygon's parts drawn over each other: an
+    outline inside another, two halves that cross, a part written twice), each position at ``z`` where given, and a
+    note saying how much was covered more than once. Each extruded alone, the overlap was built twice: two prisms
+    through each other, its volume counted twice. Polygons that do not overlap (touching, or an island in a
+    courtyard) are returned as they are."""
+    import shapely
+    from shapely.geometry import Polygon
+
+    if len(polygons) < 2:
+        return polygons, []
+    try:
+        shapes = [Polygon([(float(p[0]), float(p[1])) for p in poly[0]],
+                          [[(float(p[0]), float(p[1])) for p in ring] for ring in poly[1:]]) for poly in polygons]
+        if not all(s.is_valid for s in shapes):
+            return polygons, []  # what valid_footprint could not make valid: its reading says why
+        total = sum(s.area for s in shapes)
+        union = shapely.unary_union(shapes)
+    except (TypeError, ValueError, IndexError, shapely.errors.GEOSException):
+        return polygons, []
+    overlap = total - union.area
+    if not overlap > OVERLAP_REL * total:
+        return polygons, []
+    pieces = [q for q in getattr(union, "geoms", [union]) if q.geom_type == "Polygon" and q.area > 0]
+    return _nested(pieces, z), [f"the {len(polygons)} polygons of its footprint overlap ({overlap / total:.2%} of their area "
+                    f"covered more than once): read as their union, {len(pieces)} polygon(s)"]
 
 
 class HeightUnits:

@@ -495,6 +495,42 @@ def test_a_footprint_that_crosses_itself_is_read_as_the_areas_it_encloses(tmp_pa
     assert _volume(m) == pytest.approx(2 * 25 * 6, rel=1e-9)
 
 
+@pytest.mark.parametrize("parts, area", [
+    ([[(0, 0), (10, 0), (10, 10), (0, 10)], [(5, 0), (15, 0), (15, 10), (5, 10)]], 150),  # two halves drawn across
+    ([[(0, 0), (10, 0), (10, 10), (0, 10)], [(2, 2), (6, 2), (6, 6), (2, 6)]], 100),  # an outline inside another
+    ([[(0, 0), (10, 0), (10, 10), (0, 10)], [(0, 0), (10, 0), (10, 10), (0, 10)]], 100),  # a part written twice
+    ([[(0, 0), (10, 0), (10, 10), (0, 10)], [(8, 8), (14, 8), (14, 14), (8, 14)], [(20, 0), (24, 0), (24, 4), (20, 4)]],
+     100 + 36 - 4 + 16),  # two that overlap beside one apart
+])
+def test_overlapping_parts_of_a_multipolygon_are_read_as_their_union(tmp_path, parts, area):
+    """A MultiPolygon whose parts overlap (invalid: a municipal layer's parts drawn over each other, an outline
+    inside another, a part written twice): each was extruded alone, the overlap built twice through itself and its
+    volume counted twice (two 10 x 10 halves crossing by 5 m gave 2,000 m3 for 10 x 15 x 10 = 1,500). Read as the
+    area the building covers, the parts' union, noted; the volume is that area (by hand) times the height."""
+    ring = lambda pts: closed([(84600 + x, 447400 + y) for x, y in pts])  # noqa: E731
+    geometry = {"type": "MultiPolygon", "coordinates": [[ring(p)] for p in parts]}
+    doc = {"type": "FeatureCollection", "features": [_feature(1, geometry, height=10)]}
+    (tmp_path / "parts.geojson").write_text(json.dumps(doc))
+    (m,) = read_file(tmp_path / "parts.geojson")
+    assert isinstance(m, RawMesh), m
+    assert any("overlap" in n and "their union" in n for n in m.notes), m.notes
+    assert _volume(m) == pytest.approx(area * 10, rel=1e-9)
+
+
+def test_parts_of_a_multipolygon_that_only_touch_are_not_united(tmp_path):
+    """Parts that share a wall or a corner, and an island in a courtyard, do not overlap: read as they are."""
+    ring = lambda pts: closed([(84600 + x, 447400 + y) for x, y in pts])  # noqa: E731
+    square = [(0, 0), (10, 0), (10, 10), (0, 10)]
+    geometry = {"type": "MultiPolygon", "coordinates": [
+        [ring(square), ring([(3, 3), (3, 7), (7, 7), (7, 3)])], [ring([(4, 4), (6, 4), (6, 6), (4, 6)])],
+        [ring([(10, 0), (20, 0), (20, 10), (10, 10)])], [ring([(20, 10), (24, 10), (24, 14), (20, 14)])]]}
+    doc = {"type": "FeatureCollection", "features": [_feature(1, geometry, height=10)]}
+    (tmp_path / "touching.geojson").write_text(json.dumps(doc))
+    (m,) = read_file(tmp_path / "touching.geojson")
+    assert isinstance(m, RawMesh) and not any("overlap" in n for n in m.notes), m.notes
+    assert _volume(m) == pytest.approx((100 - 16 + 4 + 100 + 16) * 10, rel=1e-9)
+
+
 @pytest.mark.parametrize("holes, area", [
     ([[(4, 3), (4, 9), (8, 9), (8, 3)], [(8, 3), (8, 9), (14, 9), (14, 3)]], 240 - 24 - 36),  # touching (784)
     ([[(4, 3), (4, 9), (10, 9), (10, 3)], [(8, 3), (8, 9), (14, 9), (14, 3)]], 240 - 48),  # overlapping: an island (778)
