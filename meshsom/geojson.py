@@ -75,6 +75,8 @@ UNIT_FACTORS = {"": 1.0, "m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "m
 UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
+#: How deep GeometryCollections may nest in a feature's geometry (deeper members are left out, noted).
+MAX_COLLECTION_DEPTH = 16
 #: The share of the area of a footprint's polygons that may be covered twice before they are read as their union
 #: (:func:`valid_footprint`): parts that share a wall overlap by rounding only.
 OVERLAP_REL = 1e-6
@@ -576,6 +578,9 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
     kind = geom.get("type")
     verts = FeatureVertices()
     notes: list[str] = []
+    if kind == "GeometryCollection":  # a PostGIS ST_Collect, a QGIS "collect geometries": its polygons
+        geom, notes = _collected_polygons(geom, where)
+        kind = geom["type"]
     if kind == "Polyhedron" or kind == "MultiPolyhedron":
         coords = geom.get("coordinates")
         solids = [coords] if kind == "Polyhedron" else coords
@@ -597,7 +602,9 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
         polygons = _polygons(geom, where)
         heights = {_number(p[2]) for poly in polygons if isinstance(poly, list) for ring in poly if isinstance(ring, list)
                    for p in ring if isinstance(p, list) and len(p) > 2}
+        collected = notes
         g, notes = footprint_solid(polygons, props, where, options, verts, flat=len(heights) <= 1, crs=crs)
+        notes = collected + notes
         if g is None:
             try:
                 g = surfaces(polygons, where, verts)
@@ -608,6 +615,29 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
     else:
         raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
     return building(g, props, options), verts.array(), member, notes
+
+
+def _collected_polygons(collection: dict, where: str) -> tuple[dict, list[str]]:
+    """A GeometryCollection's polygons (of its Polygon and MultiPolygon members, nested collections too) as one
+    MultiPolygon, with a note naming the members left out (lines, points); a collection without polygons is left
+    as it is (refused, naming it)."""
+    polygons: list = []
+    other: dict[str, int] = {}
+    stack = [(collection, 0)]
+    while stack:
+        g, depth = stack.pop()
+        kind = g.get("type") if isinstance(g, dict) else type(g).__name__
+        if kind == "GeometryCollection" and depth <= MAX_COLLECTION_DEPTH and isinstance(g.get("geometries"), list):
+            stack.extend((member, depth + 1) for member in reversed(g["geometries"]))
+        elif kind in ("Polygon", "MultiPolygon"):
+            polygons += _polygons(g, where)
+        else:
+            other[str(kind)] = other.get(str(kind), 0) + 1
+    if not polygons:
+        return collection, []
+    notes = [f"its GeometryCollection read as its {len(polygons)} polygon(s)"
+             + (" (left out: " + ", ".join(f"{n} {k}" for k, n in sorted(other.items())) + ")" if other else "")]
+    return {"type": "MultiPolygon", "coordinates": polygons}, notes
 
 
 def properties(feature: dict) -> dict:
