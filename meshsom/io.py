@@ -1587,17 +1587,29 @@ def _polygons_of(geom: dict, mesh_id: str) -> list[list[list[int]]]:
     The nesting is checked (lists down to the rings) so malformed boundaries are an
     InputFileError naming the object; polygons with no ring are dropped.
     """
+    return [poly for shell in _shells_of(geom, mesh_id) for poly in shell]
+
+
+def _shells_of(geom: dict, mesh_id: str) -> list[list[list[list[int]]]]:
+    """The polygons of a surface or solid geometry, by shell: a Solid's shells (exterior, then interiors), every
+    shell of each solid of a CompositeSolid or MultiSolid, or a surface geometry's polygons as one shell.
+
+    The nesting is checked (lists down to the rings) so malformed boundaries are an InputFileError naming the
+    object; polygons with no ring are dropped, and shells left without a polygon.
+    """
     gtype = geom.get("type")
     if gtype not in _NESTING:
         return []
     items = [geom.get("boundaries", [])]
-    for _ in range(_NESTING[gtype] + 1):
+    for _ in range(_NESTING[gtype]):
         if not all(isinstance(x, list) for x in items):
             break
         items = [y for x in items for y in x]
     else:
-        if all(isinstance(poly, list) and all(isinstance(ring, list) for ring in poly) for poly in items):
-            return [poly for poly in items if poly]
+        if all(isinstance(shell, list) and all(isinstance(poly, list) and all(isinstance(ring, list) for ring in poly)
+                                               for poly in shell) for shell in items):
+            shells = [[poly for poly in shell if poly] for shell in items]
+            return [shell for shell in shells if shell]
     raise InputFileError(mesh_id, f"{gtype} boundaries must be nested lists down to rings of vertex indices")
 
 
@@ -2160,12 +2172,14 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     lift = None
     if _lod_key(want) < 1 and options.lod in LOD_CHOICES:  # a footprint alone: extruded by its height, if it has one
         lift = _footprint_height(mesh_id, objects[members[0]], want, options)
-    polygons, poly_member = [], []
+    polygons, poly_member, poly_shell = [], [], []
     for i in usable_at:
         if str(geoms[i].get("lod")) == want:
-            found = _polygons_of(geoms[i], mesh_id)
-            polygons += found
-            poly_member += [geom_member[i]] * len(found)
+            for shell in _shells_of(geoms[i], mesh_id):
+                polygons += shell
+                poly_member += [geom_member[i]] * len(shell)
+                # a solid's shells are each a shell; a member's surfaces are one
+                poly_shell += [len(poly_shell) if geoms[i].get("type") not in SURFACE_TYPES else -1 - geom_member[i]] * len(shell)
     if not polygons:
         raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
     with_volume = {geom_member[i] for i in usable_at if not _lod_key(geoms[i].get("lod")) < 1}
@@ -2233,13 +2247,100 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
         raise InputFileError(mesh_id, f"all {n_in} polygons at LoD {want} are degenerate")
     parts, face_part = (), None
     if not options.extrude_lod1 and lift is None:
-        used_members, face_part = np.unique(np.asarray(poly_member, np.int64)[face_poly], return_inverse=True)
-        if len(used_members) > 1:
-            parts = tuple(members[k] for k in used_members)
-            face_part = face_part.reshape(-1).astype(np.int64)
-        else:
-            face_part = None
+        parts, face_part = _parts(local, faces, np.asarray(poly_member, np.int64)[face_poly],
+                                  np.asarray(poly_shell, np.int64)[face_poly], members)
     return RawMesh(mesh_id, source, local, faces, origin, label, lod, parts, face_part, tuple(notes))
+
+
+def _parts(local: np.ndarray, faces: np.ndarray, face_member: np.ndarray, face_shell: np.ndarray, members: list
+           ) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """The parts that preprocessing unites (:mod:`meshsom.union`): each object's, and each shell of an object's
+    solids that is no cavity.
+
+    The solids of a CompositeSolid share faces, those of a MultiSolid may touch or overlap, and a Solid's
+    interior shells are written for pieces beside its exterior (the windows of IFC exports: 7 shells of one
+    Solid); preprocessed together, faces where they touch are fins and walls inside, not their union. A shell
+    is a cavity where all its corners lie strictly inside another shell
+    (:func:`meshsom.preprocess.cavity_shells`); where the object has one, its shells stay one part (a part's
+    cavity would come out of the union as a solid).
+
+    Parameters
+    ----------
+    local : (V, 3) float64
+    faces : (F, 3) int64
+    face_member : (F,) int64
+        Each face's object, an index into ``members``.
+    face_shell : (F,) int64
+        Each face's shell (numbered across the objects), or a negative number for an object's surfaces.
+    members : list of str
+
+    Returns
+    -------
+    parts : tuple of str
+        The object ids, with `` shell k`` where an object has several shells; empty for one part.
+    face_part : (F,) int64 or None
+        Each face's part; None for one part.
+    """
+    from meshsom.preprocess import cavity_shells
+
+    used_members, by_member = np.unique(face_member, return_inverse=True)
+    by_member = by_member.reshape(-1).astype(np.int64)
+    shells, by_shell = np.unique(face_shell, return_inverse=True)
+    by_shell = by_shell.reshape(-1).astype(np.int64)
+    shell_member = np.zeros(len(shells), np.int64)
+    shell_member[by_shell] = by_member
+    per_member = np.bincount(shell_member, minlength=len(used_members))
+    surfaces = np.zeros(len(used_members), bool)
+    surfaces[shell_member[shells < 0]] = True  # an object's surfaces beside its solids: its shells are not split
+    split = (per_member > 1)[shell_member] & ~surfaces[shell_member]  # the solid shells of an object of several
+    if split.any():
+        cavity = cavity_shells(local, faces, by_shell)
+        split &= ~np.isin(shell_member, shell_member[cavity]) & ~np.isin(shell_member, _snap_distorted(
+            local, faces, by_shell, shell_member, split))
+    if not split.any():
+        if len(used_members) < 2:
+            return (), None
+        return tuple(members[k] for k in used_members), by_member
+    # a part per shell of the objects split, one per other object
+    key = np.where(split, len(used_members) + np.arange(len(shells)), shell_member)
+    part_keys, part_of_shell = np.unique(key, return_inverse=True)
+    part_of_shell = part_of_shell.reshape(-1)
+    rank = np.zeros(len(shells), np.int64)
+    order = np.lexsort((np.arange(len(shells)), shell_member))
+    first = np.searchsorted(shell_member[order], shell_member[order])
+    rank[order] = np.arange(len(shells)) - first
+    names = [None] * len(part_keys)
+    for s_, p_ in enumerate(part_of_shell):
+        member = members[used_members[shell_member[s_]]]
+        names[p_] = f"{member} shell {rank[s_] + 1}" if split[s_] else member
+    return tuple(names), part_of_shell[by_shell].astype(np.int64)
+
+
+def _snap_distorted(local: np.ndarray, faces: np.ndarray, by_shell: np.ndarray, shell_member: np.ndarray,
+                    split: np.ndarray) -> np.ndarray:
+    """The objects (indices as ``shell_member`` has them) of which a shell would change its volume by more than
+    ``volume_rtol`` where the union moves the parts' corners onto each other's walls
+    (:func:`meshsom.union.snap_to_walls`, with :class:`~meshsom.preprocess.PreprocessParams`' defaults): a window's
+    pane a centimetre thick between its frame's walls would be flattened, so its shells stay one part."""
+    from meshsom.preprocess import PreprocessParams
+    from meshsom.topology import signed_volume
+    from meshsom.union import snap_to_walls
+
+    params = PreprocessParams()
+    shells = np.flatnonzero(split)
+    pieces = []
+    for s in shells:
+        used, inverse = np.unique(faces[by_shell == s], return_inverse=True)
+        pieces.append((local[used], inverse.reshape(-1, 3).astype(np.int64)))
+    distorted = np.zeros(len(shells), bool)
+    for member in np.unique(shell_member[shells]):
+        mine = np.flatnonzero(shell_member[shells] == member)
+        snapped, moved = snap_to_walls([pieces[k] for k in mine], params.union_snap_tol, params.wall_tilt_deg)
+        if moved:
+            before = np.array([signed_volume(*pieces[k]) for k in mine])
+            after = np.array([signed_volume(v, pieces[k][1]) for k, v in zip(mine, snapped)])
+            distorted[mine] = (np.abs(after - before) > params.volume_rtol * np.abs(before)).any()
+    return np.unique(shell_member[shells[distorted]])
 
 
 def _footprint_only(obj: dict) -> bool:

@@ -63,7 +63,7 @@ from meshsom.time_limit import check as check_time
 from meshsom.polygons import newell_normal, plane_frame, plane_frames, triangulate_polygon_2d, triangulate_rings_2d
 from meshsom.topology import edge_table, half_edges, signed_volume
 
-__all__ = ["PreprocessParams", "Result", "check_input", "close_surface", "preprocess", "validate", "weld"]
+__all__ = ["PreprocessParams", "Result", "cavity_shells", "check_input", "close_surface", "preprocess", "validate", "weld"]
 
 #: Largest bounding-box diagonal taken: squared face areas (diagonal^4) and volumes (diagonal^3
 #: summed over faces) stay far from float64 overflow (1.8e308).
@@ -2150,6 +2150,38 @@ def _orient(v, f, source, repairs):
         repairs.append(f"flipped {flipped} of {n} faces to a consistent outward orientation"
                        + (f" ({int(cavity.sum())} inner shell(s), cavities, facing in)" if cavity.any() else ""))
     return f
+
+
+def cavity_shells(vertices: np.ndarray, faces: np.ndarray, face_shell: np.ndarray) -> np.ndarray:
+    """Which of a mesh's given shells are cavities, by the rule :func:`preprocess` orients them by.
+
+    A shell is a cavity where every corner of it (up to :data:`CAVITY_POINTS`) lies strictly inside an odd number
+    of the other shells (:func:`_cavities`); a shell touching or overlapping another is a solid of its own. The
+    shells are those the caller names (a city model's shells of a Solid, CompositeSolid or MultiSolid), each
+    oriented alike for the test whatever way the file walks its faces.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    face_shell : (F,) int64
+        Each face's shell, 0 .. S-1.
+
+    Returns
+    -------
+    (S,) bool
+        All False where there are more than :data:`MAX_CAVITY_SHELLS` shells (as :func:`preprocess` takes them).
+    """
+    v = np.asarray(vertices, np.float64)
+    face_shell = np.asarray(face_shell, np.int64).reshape(-1)
+    n_shells = int(face_shell.max()) + 1 if len(face_shell) else 0
+    if not 1 < n_shells <= MAX_CAVITY_SHELLS:
+        return np.zeros(n_shells, bool)
+    f = _oriented_alike(np.asarray(faces, np.int64))
+    a, b, c = (v[f[:, k]] - v.mean(axis=0) for k in range(3))
+    vol = np.zeros(n_shells)
+    np.add.at(vol, face_shell, np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0)
+    return _cavities(v, f, face_shell, n_shells, vol < 0)
 
 
 def _cavities(v, f, shell, n_shells: int, inward) -> np.ndarray:
