@@ -8,7 +8,9 @@ nothing here computes intersections.
 
 1. Each part alone goes through :func:`meshsom.preprocess.preprocess` (weld, cap, orient), so it is
    a closed, outward-oriented volume that manifold3d accepts; a part that cannot be made one is a
-   :class:`~meshsom.errors.MeshError` naming the part (the caller then falls back to merging).
+   :class:`~meshsom.errors.MeshError` naming the part (the caller then falls back to merging). Its
+   corners all stay where they are (no ``flatten_collinear``, no ``max_fold_v`` collapse): a corner
+   a centimetre off the line of its wall is where a neighbouring part meets it.
 2. A part's vertex within ``union_snap_tol`` in plan of another part's wall is moved onto that
    wall's foot line (:func:`snap_to_walls`): walls drawn as one but a millimetre apart would leave
    a crevice a hundredth of a degree wide, which no later repair closes.
@@ -160,8 +162,11 @@ def _prepared(vertices, faces, face_part, params, source: str, names: list) -> t
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2 if len(vertices) else np.zeros(3)
     local = vertices - centre
     # Each part keeps its shape: collapsing a part's short jogs (max_fold_v) keeps its volume but moves its walls,
-    # into a neighbour's (Vienna's parts overlapped by 20 m3 so); the united shells are cleaned so afterwards.
-    part_params = replace(params, max_fold_v=0.0)
+    # into a neighbour's (Vienna's parts overlapped by 20 m3 so); dropping its outline's corners that lie within
+    # planar_dist of the line through their neighbours (flatten_collinear: up to 2 cm on a part 200 m across) moves
+    # its wall off the neighbour whose corner that was, leaving a wedge a hundredth of a degree wide that no repair
+    # of the union closes (OpenStreetMap's parts share their nodes). The united shells are cleaned so afterwards.
+    part_params = replace(params, max_fold_v=0.0, flatten_collinear=False)
     repairs, prepared = [], []
     area_in = volume_in = 0.0
     for k in range(len(names)):
