@@ -75,6 +75,15 @@ UNIT_FACTORS = {"": 1.0, "m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "m
 UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
+#: Words in a property's name (lower case, letters only) that say it may hold a building's height, in the languages of
+#: national footprint layers (:func:`height_candidates`), and a storey count.
+HEIGHT_WORDS = ("height", "hoehe", "hohe", "hauteur", "altezza", "altura", "hoogte", "wysokosc", "korkeus", "hojd",
+                "hojde", "hoyde")
+STOREY_WORDS = ("storey", "stories", "floors", "levels", "etages", "geschoss", "plantas", "piani", "bouwlagen",
+                "kondygnac", "verdieping", "kerros")
+#: ... and those that say it is some other height: a roof's own, a base's, one below the ground, a count of flats.
+NOT_HEIGHT_STARTS = ("roof", "min", "base", "ground")
+NOT_HEIGHT_WORDS = ("bg", "below", "under", "unter", "sous", "minimum")
 #: How deep GeometryCollections may nest in a feature's geometry (deeper members are left out, noted).
 MAX_COLLECTION_DEPTH = 16
 #: The share of the area of a footprint's polygons that may be covered twice before they are read as their union
@@ -235,15 +244,37 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVe
     return {"type": "Solid", "lod": "1", "boundaries": [faces]}
 
 
-def no_height(options, notes=(), hint: bool = True) -> str:
+def no_height(options, notes=(), hint: bool = True, props: dict | None = None) -> str:
     """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
-    a height given as unknown; ``hint``: and the options that would read it)."""
+    a height given as unknown; ``hint``: and the options that would read it, naming the properties of ``props``
+    that may hold a height or a storey count: :func:`height_candidates`)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
     if any("no storey above the ground" in n for n in notes):
         hint = False  # a count of 0 storeys is never raised to the default height: the hint would mislead
+    found = height_candidates(props) if hint and props else []
     return (f"is a footprint without a height (no property {names} gives one)" + "".join(f"; {n}" for n in notes)
+            + "".join(f"; its property {key} = {value:g} may be its {what}: {flag} {key}" for key, value, what, flag in found)
             + ("; --height-attribute NAME names your data's height (--levels-attribute NAME its storey count), "
                "--default-height M (corpus.reader.default_height) extrudes such footprints to M metres" if hint else ""))
+
+
+def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str, str]]:
+    """Properties of a footprint that no height or storey attribute names, whose names say they may hold its height
+    or its storey count (:data:`HEIGHT_WORDS`, :data:`STOREY_WORDS`: URBANopt's ``number_of_stories``, the City
+    Energy Analyst's ``height_ag``, the IGN's ``HAUTEUR``) and whose values are positive numbers: ``(key, value,
+    "height" or "storey count", the option that reads it)``, at most ``most``, heights first."""
+    found = []
+    for key, value in props.items():
+        folded = re.sub(r"[^a-z]", "", str(key).lower().replace("ö", "oe").replace("ø", "o").replace("å", "a"))
+        number = _number(value)
+        if number is None or not number > 0 or folded.startswith(NOT_HEIGHT_STARTS) or any(
+                w in folded for w in NOT_HEIGHT_WORDS):
+            continue
+        if any(w in folded for w in HEIGHT_WORDS):
+            found.append((0, str(key), number, "height", "--height-attribute"))
+        elif any(w in folded for w in STOREY_WORDS):
+            found.append((1, str(key), number, "storey count", "--levels-attribute"))
+    return [f[1:] for f in sorted(found, key=lambda f: f[0])[:most]]
 
 
 def footprint_solid(polygons: list, props: dict, where: str, options, verts: FeatureVertices, flat: bool = True,
@@ -611,7 +642,7 @@ def feature_object(feature: dict, where: str, options, crs=None) -> tuple[dict, 
             except InputFileError as err:
                 if "three coordinates" not in err.problem:
                     raise
-                raise InputFileError(where, no_height(options, notes)) from None
+                raise InputFileError(where, no_height(options, notes, props=props)) from None
     else:
         raise InputFileError(where, f"holds a {kind}, not a building's polygons or solid")
     return building(g, props, options), verts.array(), member, notes

@@ -320,7 +320,7 @@ def feature_object(polygons: list[list[np.ndarray]], kinds: set[str], has_z: boo
         solid, notes = footprint_solid([[ring.tolist() for ring in poly] for poly in polygons], props, where, options, verts,
                                        crs=crs)
         if solid is None:
-            raise InputFileError(where, no_height(options, notes))
+            raise InputFileError(where, no_height(options, notes, props=props))
     else:
         solid, notes = surfaces(polygons, where, verts), []
     return building(solid, props, options), verts.array(), notes

@@ -926,3 +926,36 @@ def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
     # a layer named that is not a 3D one: read as any layer (pand: footprints without a height)
     (first, _) = read_file(path, ReaderOptions(layer="pand"))
     assert isinstance(first, Rejection) and "without a height" in first.reason
+
+
+def test_a_footprint_without_a_height_names_the_columns_that_may_hold_one(tmp_path):
+    """The City Energy Analyst's zone.shp holds its heights in ``height_ag`` and ``floors_ag`` (with ``height_bg``,
+    ``floors_bg`` below the ground), URBANopt's GeoJSON its storeys in ``number_of_stories``: all were rejected
+    "without a height", the hint naming only the options. It now names the columns whose names and positive values
+    say they may be one (not those below the ground, nor a floor area), in the option that reads them; read so, the
+    volume is the footprint's area (by hand) times that column."""
+    import dataclasses
+
+    w, d = 12.0, 9.0
+    ring = closed(rectangle(2600000, 1200000, w, d))
+    schema = {"geometry": "Polygon", "properties": {"Name": "str", "floors_ag": "int", "floors_bg": "int",
+                                                    "height_ag": "int", "height_bg": "int", "floor_area": "float"}}
+    with fiona.open(tmp_path / "zone.shp", "w", driver="ESRI Shapefile", schema=schema, crs="EPSG:2056") as out:
+        out.write({"geometry": {"type": "Polygon", "coordinates": [ring]},
+                   "properties": {"Name": "B1000", "floors_ag": 7, "floors_bg": 1, "height_ag": 21, "height_bg": 3,
+                                  "floor_area": 756.0}})
+    (refused,) = read_file(tmp_path / "zone.shp")
+    assert isinstance(refused, Rejection), refused
+    assert ("its property height_ag = 21 may be its height: --height-attribute height_ag; its property floors_ag = 7 "
+            "may be its storey count: --levels-attribute floors_ag; --height-attribute NAME") in refused.reason
+    assert "height_bg" not in refused.reason and "floor_area" not in refused.reason
+    options = ReaderOptions()
+    (read,) = read_file(tmp_path / "zone.shp", dataclasses.replace(
+        options, height_attributes=("height_ag",) + options.height_attributes))
+    assert _volume(read) == pytest.approx(w * d * 21, rel=1e-9)
+    features = [{"type": "Feature", "properties": {"name": "Office 1", "number_of_stories": 6, "floor_area": 30000},
+                 "geometry": {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(0, 0, w, d)))]}}]
+    (tmp_path / "urbanopt.json").write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    (refused,) = read_file(tmp_path / "urbanopt.json")
+    assert isinstance(refused, Rejection)
+    assert "its property number_of_stories = 6 may be its storey count: --levels-attribute number_of_stories" in refused.reason
