@@ -22,9 +22,10 @@ of a drawing, not the model).
   not a building: it is counted with the 2D entities.
 - **One mesh of a district**: with :attr:`meshsom.io.ReaderOptions.split_components` each connected
   piece of a POLYFACE, MESH or INSERT is a building (``...#cN``), as for mesh files.
-- **2.5D outlines**: a closed LWPOLYLINE or 2D POLYLINE, or a CIRCLE, with a thickness (how older
-  block models draw a building: its outline at its base elevation, the thickness its height) is
-  the prism it draws: the outline (bulges and circles flattened within :data:`FLATTEN_REL` of its
+- **2.5D outlines**: a closed LWPOLYLINE or 2D POLYLINE (flagged closed, or ending where it starts,
+  as GIS exports write a ring), a CIRCLE, or a SOLID or TRACE (a filled triangle or quadrilateral),
+  with a thickness (how older block models draw a building: its outline at its base elevation, the
+  thickness its height) is the prism it draws: the outline (bulges and circles flattened within :data:`FLATTEN_REL` of its
   extent) extruded by the thickness along its extrusion direction, id ``name#<handle>`` (in a
   block, part of the INSERT's building). An open polyline with a thickness (a wall, a fence) and a
   closed one without are 2D.
@@ -118,10 +119,11 @@ M_CLOSED, POLYGON_MESH, N_CLOSED, POLYFACE = 1, 16, 32, 64
 SPLIT_02 = np.array([[0, 1, 2], [0, 2, 3]])
 SPLIT_13 = np.array([[0, 1, 3], [1, 2, 3]])
 
-_3D_WORDS = ("3D faces (3DFACE, POLYFACE, POLYGON MESH, MESH, closed polylines or circles with a thickness, "
-             "INSERT of them)")
-#: Entities that are prisms where they have a thickness (2.5D block models): closed outlines.
-PRISM_TYPES = ("LWPOLYLINE", "POLYLINE", "CIRCLE")
+_3D_WORDS = ("3D faces (3DFACE, POLYFACE, POLYGON MESH, MESH, closed polylines, circles, SOLIDs or TRACEs with a "
+             "thickness, INSERT of them)")
+#: Entities that are prisms where they have a thickness (2.5D block models): closed outlines, and the filled
+#: triangles and quadrilaterals of SOLID and TRACE (AutoCAD shows them as prisms).
+PRISM_TYPES = ("LWPOLYLINE", "POLYLINE", "CIRCLE", "SOLID", "TRACE")
 #: The largest distance of a flattened arc (a polyline's bulge, a circle) from the arc, as a
 #: fraction of the outline's extent (1 mm on a 10 m tower).
 FLATTEN_REL = 1e-4
@@ -418,16 +420,24 @@ def _face_corners(face) -> np.ndarray:
 
 
 def _is_prism(entity) -> bool:
-    """Whether ``entity`` is a closed outline with a thickness: a closed LWPOLYLINE or 2D POLYLINE,
-    or a CIRCLE (an open polyline with a thickness is a wall or a fence, not a building)."""
+    """Whether ``entity`` is a closed outline with a thickness: a closed LWPOLYLINE or 2D POLYLINE (flagged closed,
+    or ending where it starts: GIS exports write a ring so), a CIRCLE, a SOLID or a TRACE (an open polyline with a
+    thickness is a wall or a fence, not a building)."""
     kind = entity.dxftype()
     if kind not in PRISM_TYPES or not float(entity.dxf.get("thickness", 0.0) or 0.0):
         return False
-    if kind == "CIRCLE":
+    if kind in ("CIRCLE", "SOLID", "TRACE"):
         return True
     if kind == "POLYLINE" and (entity.dxf.flags & (POLYFACE | POLYGON_MESH) or entity.is_3d_polyline):
         return False
-    return bool(entity.closed if kind == "LWPOLYLINE" else entity.is_closed)
+    if entity.closed if kind == "LWPOLYLINE" else entity.is_closed:
+        return True
+    points = np.asarray([tuple(p)[:2] for p in (entity.vertices() if kind == "LWPOLYLINE" else entity.points())],
+                        np.float64).reshape(-1, 2)
+    if len(points) < 4:
+        return False
+    extent = float(np.linalg.norm(np.ptp(points, axis=0)))
+    return extent > 0 and bool(np.linalg.norm(points[0] - points[-1]) <= FLATTEN_REL * extent * 1e-3)
 
 
 def _prism_part(entity) -> _Part:
@@ -457,7 +467,7 @@ def _prism_part(entity) -> _Part:
         raise ValueError(f"its outline cannot be triangulated ({type(err).__name__}: {err})") from None
     axes = np.array([tuple(ocs.ux), tuple(ocs.uy), tuple(ocs.uz)], np.float64)
     kind = entity.dxftype()
-    note = f"a {'' if kind == 'CIRCLE' else 'closed '}{kind} with a thickness, read as the prism it draws (2.5D)"
+    note = f"a {'closed ' if kind in ('LWPOLYLINE', 'POLYLINE') else ''}{kind} with a thickness, read as the prism it draws (2.5D)"
     return _Part(v @ axes, [f], [note])
 
 

@@ -414,6 +414,34 @@ def test_closed_outlines_with_a_thickness_are_prisms(tmp_path):
     assert any("LWPOLYLINE x 2" in n for n in items[0].notes), items[0].notes
 
 
+def test_rings_not_flagged_closed_and_solids_with_a_thickness_are_prisms(tmp_path):
+    """A GIS export writes a ring as a polyline that ends where it starts, without the closed flag; AutoCAD draws a
+    SOLID or TRACE (a filled quadrilateral or triangle) with a thickness as a prism. All were counted as 2D drawing
+    and not read: an LWPOLYLINE and a 2D POLYLINE ending at their start, a SOLID quad (corners in DXF's 1-2-4-3
+    order), a SOLID triangle and a TRACE, each with a thickness, are the prisms they draw (volumes and extents by
+    hand); a polyline that does not end at its start stays 2D, and so does a SOLID without a thickness."""
+    doc, msp = new_doc()
+    msp.add_lwpolyline([(0, 0), (20, 0), (20, 10), (0, 10), (0, 0)], dxfattribs={"thickness": 12, "elevation": 40})
+    msp.add_polyline2d([(100, 0), (104, 0), (104, 3), (100, 3), (100, 0)], dxfattribs={"thickness": 5})
+    msp.add_solid([(200, 0), (210, 0), (200, 8), (210, 8)], dxfattribs={"thickness": 7})
+    msp.add_solid([(300, 0), (306, 0), (300, 4)], dxfattribs={"thickness": 10})
+    msp.add_trace([(400, 0), (405, 0), (400, 2), (405, 2)], dxfattribs={"thickness": 3})
+    msp.add_lwpolyline([(500, 0), (510, 0), (510, 10), (500, 10)], dxfattribs={"thickness": 3})
+    msp.add_solid([(600, 0), (610, 0), (600, 8), (610, 8)])
+    doc.saveas(tmp_path / "rings.dxf")
+    items = read(tmp_path / "rings.dxf")
+    assert all(isinstance(i, RawMesh) for i in items) and len(items) == 5, items
+    by_x = {round(float(i.vertices[:, 0].min() + i.origin[0])): i for i in items}
+    expected = {0: (200 * 12, [20, 10, 12], 46), 100: (12 * 5, [4, 3, 5], 2.5), 200: (80 * 7, [10, 8, 7], 3.5),
+                300: (12 * 10, [6, 4, 10], 5), 400: (10 * 3, [5, 2, 3], 1.5)}
+    for x, (volume, size, z) in expected.items():
+        mesh = by_x[x]
+        assert signed_volume(mesh.vertices, mesh.faces) == pytest.approx(volume, rel=1e-9), x
+        assert np.ptp(mesh.vertices, axis=0) == pytest.approx(size, rel=1e-9), x
+        assert mesh.origin[2] == pytest.approx(z, abs=1e-6) and closed(mesh.faces), x
+    assert any("LWPOLYLINE x 1, SOLID x 1" in n for n in items[0].notes), items[0].notes
+
+
 def test_a_crs_in_feet_is_not_applied_twice(tmp_path):
     """A drawing in feet ($INSUNITS 2) of New York's State Plane (EPSG:2263, US survey feet), read
     with that CRS: the CRS scales the coordinates, the drawing's unit is not applied as well."""
