@@ -77,13 +77,15 @@ UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "ye
 MAX_ROOF_SHARE = 0.95
 #: Words in a property's name (lower case, letters only) that say it may hold a building's height, in the languages of
 #: national footprint layers (:func:`height_candidates`), and a storey count.
-HEIGHT_WORDS = ("height", "hoehe", "hohe", "hauteur", "altezza", "altura", "hoogte", "wysokosc", "korkeus", "hojd",
+HEIGHT_WORDS = ("height", "hgt", "hoehe", "hohe", "hauteur", "altezza", "altura", "hoogte", "wysokosc", "korkeus", "hojd",
                 "hojde", "hoyde")
 STOREY_WORDS = ("storey", "stories", "floors", "levels", "etages", "geschoss", "plantas", "piani", "bouwlagen",
                 "kondygnac", "verdieping", "kerros")
 #: ... and those that say it is some other height: a roof's own, a base's, one below the ground, a count of flats.
 NOT_HEIGHT_STARTS = ("roof", "min", "base", "ground")
 NOT_HEIGHT_WORDS = ("bg", "below", "under", "unter", "sous", "minimum")
+#: The endings of a height's name that say it is in a unit :attr:`meshsom.io.ReaderOptions.height_unit` has not.
+UNREAD_UNITS = {"cm": "centimetres", "mm": "millimetres", "dm": "decimetres"}
 #: How deep GeometryCollections may nest in a feature's geometry (deeper members are left out, noted).
 MAX_COLLECTION_DEPTH = 16
 #: The share of the area of a footprint's polygons that may be covered twice before they are read as their union
@@ -253,16 +255,17 @@ def no_height(options, notes=(), hint: bool = True, props: dict | None = None) -
         hint = False  # a count of 0 storeys is never raised to the default height: the hint would mislead
     found = height_candidates(props) if hint and props else []
     return (f"is a footprint without a height (no property {names} gives one)" + "".join(f"; {n}" for n in notes)
-            + "".join(f"; its property {key} = {value:g} may be its {what}: {flag} {key}" for key, value, what, flag in found)
+            + "".join(f"; its property {key} = {value:g} may be its {what}" for key, value, what in found)
             + ("; --height-attribute NAME names your data's height (--levels-attribute NAME its storey count), "
                "--default-height M (corpus.reader.default_height) extrudes such footprints to M metres" if hint else ""))
 
 
-def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str, str]]:
+def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str]]:
     """Properties of a footprint that no height or storey attribute names, whose names say they may hold its height
     or its storey count (:data:`HEIGHT_WORDS`, :data:`STOREY_WORDS`: URBANopt's ``number_of_stories``, the City
     Energy Analyst's ``height_ag``, the IGN's ``HAUTEUR``) and whose values are positive numbers: ``(key, value,
-    "height" or "storey count", the option that reads it)``, at most ``most``, heights first."""
+    what it may be and the option that reads it)``, at most ``most``, heights first. A height whose name ends in a
+    unit no option reads (San Francisco's ``hgt_maxcm``: centimetres) says so instead of naming the option."""
     found = []
     for key, value in props.items():
         folded = re.sub(r"[^a-z]", "", str(key).lower().replace("ö", "oe").replace("ø", "o").replace("å", "a"))
@@ -271,9 +274,11 @@ def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str,
                 w in folded for w in NOT_HEIGHT_WORDS):
             continue
         if any(w in folded for w in HEIGHT_WORDS):
-            found.append((0, str(key), number, "height", "--height-attribute"))
+            unit = next((name for end, name in UNREAD_UNITS.items() if folded.endswith(end)), None)
+            found.append((0, str(key), number, f"height, in {unit} by its name, which no --height-unit reads: convert "
+                                               f"it to metres first" if unit else f"height: --height-attribute {key}"))
         elif any(w in folded for w in STOREY_WORDS):
-            found.append((1, str(key), number, "storey count", "--levels-attribute"))
+            found.append((1, str(key), number, f"storey count: --levels-attribute {key}"))
     return [f[1:] for f in sorted(found, key=lambda f: f[0])[:most]]
 
 

@@ -930,7 +930,8 @@ def test_a_3d_bag_geopackage_reads_each_building_once_at_one_lod(tmp_path):
 
 def test_a_footprint_without_a_height_names_the_columns_that_may_hold_one(tmp_path):
     """The City Energy Analyst's zone.shp holds its heights in ``height_ag`` and ``floors_ag`` (with ``height_bg``,
-    ``floors_bg`` below the ground), URBANopt's GeoJSON its storeys in ``number_of_stories``: all were rejected
+    ``floors_bg`` below the ground), URBANopt's GeoJSON its storeys in ``number_of_stories``, San Francisco's
+    footprints theirs in ``hgt_maxcm`` (centimetres): all were rejected
     "without a height", the hint naming only the options. It now names the columns whose names and positive values
     say they may be one (not those below the ground, nor a floor area), in the option that reads them; read so, the
     volume is the footprint's area (by hand) times that column."""
@@ -955,7 +956,12 @@ def test_a_footprint_without_a_height_names_the_columns_that_may_hold_one(tmp_pa
     assert _volume(read) == pytest.approx(w * d * 21, rel=1e-9)
     features = [{"type": "Feature", "properties": {"name": "Office 1", "number_of_stories": 6, "floor_area": 30000},
                  "geometry": {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(0, 0, w, d)))]}}]
+    features.append({"type": "Feature", "properties": {"sf16_bldgid": "201006_1", "hgt_maxcm": 1530},
+                     "geometry": features[0]["geometry"]})
     (tmp_path / "urbanopt.json").write_text(json.dumps({"type": "FeatureCollection", "features": features}))
-    (refused,) = read_file(tmp_path / "urbanopt.json")
-    assert isinstance(refused, Rejection)
+    refused, centimetres = read_file(tmp_path / "urbanopt.json")
+    assert isinstance(refused, Rejection) and isinstance(centimetres, Rejection)
     assert "its property number_of_stories = 6 may be its storey count: --levels-attribute number_of_stories" in refused.reason
+    # San Francisco's heights are centimetres by their names: no option reads them, the hint says so
+    assert ("its property hgt_maxcm = 1530 may be its height, in centimetres by its name, which no --height-unit reads: "
+            "convert it to metres first") in centimetres.reason
