@@ -70,6 +70,27 @@ FOOT_M, US_SURVEY_FOOT_M = 0.3048, 1200.0 / 3937.0
 STEP_MAGIC = b"ISO-10303-21"
 #: The last statement of a STEP physical file.
 STEP_END = b"END-ISO-10303-21"
+#: Faces of elements are on one plane where their unit normals and offsets (metres) are this close (4D distance).
+PLANE_TOLERANCE = 1e-6
+#: A face of the grown union further than this share of the growth from its grown plane fixes no vertex.
+PLANE_SLACK = 0.02
+#: Vertices of the union moved back farther than this many growth distances: nearly parallel planes, the shell
+#: kept grown (a corner of planes at a few degrees moves a few distances; a 45-degree chamfer grown to nothing, four).
+MAX_MOVE = 20.0
+#: Singular values of a vertex's planes below this share of the largest are taken for zero (one plane, or two).
+RCOND_PLANES = 1e-6
+#: Faces turned over with an area under (this share of the growth) squared are collapsed slivers, not folds.
+AREA_SLACK = 0.01
+#: The shrunk shell's volume may differ from the grown one's less the growth times its area by this share of
+#: that product (second-order terms at edges and corners are far smaller).
+VOLUME_SLACK = 0.25
+#: manifold3d's simplification of a shell before and after it is shrunk, and the vertices it keeps apart at one
+#: point (metres): only what moves nothing.
+SIMPLIFY_TOLERANCE = 1e-7
+#: Sweeps in which a vertex free along an edge or a face follows its neighbours when a shell is shrunk.
+FREE_SWEEPS = 20
+#: Rounds in which the corners of faces that a shrink turns over are left where they were.
+KEEP_ROUNDS = 10
 
 
 def _ifcopenshell(path: Path):
@@ -338,12 +359,14 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     manifold3d = _manifold3d()
     params = PreprocessParams()
     solids, used, no_geometry, not_closed = [], Counter(), Counter(), Counter()
+    planes = []  # (normals, offsets, areas) of every element's faces, as drawn: the faces' ids in the union
     drawn = [shapes[e.id()][0] for e in members if e.id() in shapes]
     if not drawn:
         raise MeshError(mesh_id, f"IfcOpenShell made no geometry of its {len(members)} envelope elements "
                                  f"({_counted(Counter(e.is_a() for e in members))})")
     every = np.concatenate(drawn)
     centre = (every.min(axis=0) + every.max(axis=0)) / 2
+    first_face = 0
     for e in members:
         if e.id() not in shapes:
             no_geometry[e.is_a()] += 1
@@ -353,9 +376,12 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
         if solid is not None:
             body = manifold3d.Manifold(manifold3d.Mesh64(
                 vert_properties=np.ascontiguousarray(mitered_offset(*solid, gap / 2), np.float64),
-                tri_verts=np.ascontiguousarray(solid[1], np.uint64)))
+                tri_verts=np.ascontiguousarray(solid[1], np.uint64),
+                face_id=np.arange(first_face, first_face + len(solid[1]), dtype=np.uint64)))
             if body.status() == manifold3d.Error.NoError and not body.is_empty():
                 solids.append(body)
+                planes.append(_face_planes(*solid))
+                first_face += len(solid[1])
                 used[e.is_a()] += 1
                 continue
         not_closed[e.is_a()] += 1
@@ -368,8 +394,18 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     # its shells found at once from its mesh (manifold3d's decompose took over 10 minutes for the thousands of shells
     # of a roof of 5,178 beams); manifold3d gives solids that touch vertices of their own
     mesh = united.to_mesh64()
-    shells = [(v, f, signed_volume(v, f)) for v, f in vertex_pieces(np.asarray(mesh.vert_properties, np.float64)[:, :3],
-                                                                      np.asarray(mesh.tri_verts, np.int64))]
+    union_vertices = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+    union_faces = np.asarray(mesh.tri_verts, np.int64)
+    normals, offsets, plane_of = _plane_groups(planes)
+    union_planes = plane_of[np.asarray(mesh.face_id, np.int64)]
+    # each shell's vertices carry their index in the union (a 4th column), so its faces' planes are found again
+    indexed = np.column_stack([union_vertices, np.arange(len(union_vertices))])
+    pieces = vertex_pieces(indexed, union_faces)
+    shells = [(v[:, :3], f, signed_volume(v[:, :3], f)) for v, f in pieces]
+    shell_of_vertex = np.empty(len(union_vertices), np.int64)
+    for k, (v, _) in enumerate(pieces):
+        shell_of_vertex[v[:, 3].astype(np.int64)] = k
+    shell_of_face = shell_of_vertex[union_faces[:, 0]]
     outer = _outer_shells(shells)
     notes = [f"IFC: the union of {sum(used.values())} elements ({_counted(used)})"]
     if not_closed:
@@ -379,15 +415,16 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     inner = len(shells) - len(outer)
     if inner:
         notes.append(f"IFC: {inner} shells inside the envelope not kept (rooms, and what stands free in them)")
-    kept = [_shrunk(shells[k][0], shells[k][1], gap / 2) for k in outer]
-    grown = sum(v is None for v in kept)
-    if grown:
-        notes.append(f"IFC: {grown} of {len(outer)} shells left {1000 * gap / 2:g} mm outside the elements' faces "
-                     f"(shrinking them back would fold features thinner than {1000 * gap:g} mm onto themselves)")
-    pieces = [shells[k][:2] if done is None else done for k, done in zip(outer, kept)]
-    offsets = np.cumsum([0] + [len(v) for v, _ in pieces])
+    kept = [_shrunk(shells[k][0], shells[k][1], union_planes[shell_of_face == k], normals, offsets, gap / 2, manifold3d)
+            for k in outer]
+    why = Counter(done for done in kept if isinstance(done, str))
+    if why:
+        notes.append(f"IFC: {sum(why.values())} of {len(outer)} shells left {1000 * gap / 2:g} mm outside the elements' "
+                     f"faces (not moved back onto the elements' planes: {'; '.join(why)})")
+    pieces = [shells[k][:2] if isinstance(done, str) else done for k, done in zip(outer, kept)]
+    starts = np.cumsum([0] + [len(v) for v, _ in pieces])
     vertices = np.concatenate([v for v, _ in pieces]) + centre
-    faces = np.concatenate([f + offsets[j] for j, (_, f) in enumerate(pieces)])
+    faces = np.concatenate([f + starts[j] for j, (_, f) in enumerate(pieces)])
     shell_of = np.repeat(np.arange(len(pieces)), [len(f) for _, f in pieces])
     return vertices, faces, shell_of, notes
 
@@ -416,27 +453,148 @@ def _united(solids: list, mesh_id: str, seconds: float, manifold3d):
     return solids[0]
 
 
-def _shrunk(vertices: np.ndarray, faces: np.ndarray, distance: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """A shell moved in by ``distance`` (the growth undone), or None where that turns a face over
-    or brings two vertices together (a feature thinner than twice the distance). Edges shorter
-    than ``distance`` (slivers where grown elements meet at a corner) are collapsed first."""
-    from meshsom.preprocess import _collapse_short_edges, validate
+def _face_planes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plane of every face: unit normals (F, 3) float64 (zero for a face of no area), offsets (F,)
+    float64 (``n . x`` on the plane, metres) and areas (F,) float64."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    cross = np.cross(b - a, c - a)
+    double_area = np.linalg.norm(cross, axis=1)
+    normals = cross / np.where(double_area > 0, double_area, 1.0)[:, None]
+    return normals, np.einsum("ij,ij->i", normals, (a + b + c) / 3), double_area / 2
+
+
+def _plane_groups(planes: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct planes of the elements' faces (faces on one plane, of one element or of several flush
+    ones, share it; told apart at :data:`PLANE_DECIMALS`), each the area-weighted mean of its faces'.
+
+    Parameters
+    ----------
+    planes : list of ((F_i, 3) float64, (F_i,) float64, (F_i,) float64)
+        Each element's :func:`_face_planes`, in the order of the faces' ids.
+
+    Returns
+    -------
+    normals : (P, 3) float64
+        Unit normals; zero for a plane of faces without area (no plane).
+    offsets : (P,) float64
+    plane_of : (F,) int64
+        The plane of every face id.
+    """
+    from meshsom.preprocess import weld
+
+    if not planes:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
+    normal, offset, area = (np.concatenate(p) for p in zip(*planes))
+    distinct, plane_of = weld(np.column_stack([normal, offset]), PLANE_TOLERANCE)
+    count = len(distinct)
+    weight = np.bincount(plane_of, area, count)
+    normals = np.stack([np.bincount(plane_of, area * normal[:, k], count) for k in range(3)], axis=1)
+    length = np.linalg.norm(normals, axis=1)
+    normals = np.where(length[:, None] > 0, normals / np.where(length > 0, length, 1.0)[:, None], 0.0)
+    offsets = np.bincount(plane_of, area * offset, count) / np.where(weight > 0, weight, 1.0)
+    return normals, offsets, plane_of
+
+
+def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+            distance: float, manifold3d) -> tuple[np.ndarray, np.ndarray] | str:
+    """A shell of the union of grown elements with every face moved back onto the plane of the element face it
+    lies on (the growth undone: the union of the elements as drawn, its gaps narrower than twice ``distance``
+    closed), or why not.
+
+    The shell is first simplified by manifold3d (faces of one plane merged, the vertices inside them and on
+    straight edges dropped), so that every vertex left is a corner of three or more planes; each moves to the
+    least-squares point of its faces' planes as drawn (exact where three meet). Faces that collapse (the
+    slivers and chamfers where grown elements meet) are removed by manifold3d.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+        Closed, oriented outwards.
+    plane : (F,) int64
+        Each face's plane, an index into ``normals`` and ``offsets`` (:func:`_plane_groups`).
+    normals : (P, 3) float64
+    offsets : (P,) float64
+    distance : float
+        How far the elements were grown (metres).
+
+    Returns
+    -------
+    ((V', 3) float64, (F', 3) int64) or str
+        The shrunk shell, or why it was not shrunk.
+    """
+    from meshsom.preprocess import weld
 
     if distance == 0:
         return vertices, faces
-    v, f = _collapse_short_edges(vertices, faces, distance, "shell", [])
-    if validate(v, f) is None:
-        vertices, faces = v, f
-    moved = mitered_offset(vertices, faces, -distance)
-    before = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    after = np.cross(moved[faces[:, 1]] - moved[faces[:, 0]], moved[faces[:, 2]] - moved[faces[:, 0]])
-    if (np.einsum("ij,ij->i", before, after) <= 0).any():
-        return None
-    from scipy.spatial import cKDTree
+    shell = manifold3d.Manifold(manifold3d.Mesh64(
+        vert_properties=np.array(vertices, np.float64, order="C"), tri_verts=np.array(faces, np.uint64, order="C"),
+        face_id=np.array(plane, np.uint64, order="C"))).simplify(SIMPLIFY_TOLERANCE)
+    mesh = shell.to_mesh64()
+    v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+    f = np.asarray(mesh.tri_verts, np.int64)
+    p = np.asarray(mesh.face_id, np.int64)
+    grown_volume, grown_area = shell.volume(), shell.surface_area()
+    # a face that does not lie on its plane grown (an element whose mitered offset is not exact) fixes nothing
+    off = np.abs(np.einsum("fkj,fj->fk", v[f], normals[p]) - offsets[p][:, None] - distance).max(axis=1)
+    on_plane = (off <= PLANE_SLACK * distance) & (np.abs(normals[p]).sum(axis=1) > 0)
+    # vertices at one point (manifold3d keeps apart the sheets of a shell that touch there) move as one
+    at, point = weld(v, SIMPLIFY_TOLERANCE)
+    points = len(at)
+    pairs = np.unique(np.column_stack([point[f[on_plane].reshape(-1)], np.repeat(p[on_plane], 3)]), axis=0)
+    if len(np.unique(pairs[:, 0])) < points:
+        return "a corner on no element's plane"
+    n = normals[pairs[:, 1]]
+    gap = offsets[pairs[:, 1]] - np.einsum("ij,ij->i", n, at[pairs[:, 0]])
+    matrix = np.zeros((points, 3, 3))
+    rhs = np.zeros((points, 3))
+    np.add.at(matrix, pairs[:, 0], n[:, :, None] * n[:, None, :])
+    np.add.at(rhs, pairs[:, 0], n * gap[:, None])
+    solve = np.linalg.pinv(matrix, rcond=RCOND_PLANES, hermitian=True)
+    fixed = np.einsum("vij,vj->vi", solve, rhs)
+    # a point on an edge (two planes) or inside a face (one) that simplification kept is free along them: it
+    # follows its neighbours there (so that it stays between the corners that bound it), a few Jacobi sweeps
+    free = np.eye(3) - np.einsum("vij,vjk->vik", solve, matrix)
+    loose = np.abs(free).max(axis=(1, 2)) > RCOND_PLANES
+    move = fixed
+    if loose.any():
+        from scipy import sparse
 
-    if len(cKDTree(moved).query_pairs(distance / 2)) > len(cKDTree(vertices).query_pairs(distance / 2)):
-        return None
-    return moved, faces
+        edges = np.unique(np.sort(point[np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])], axis=1), axis=0)
+        edges = edges[edges[:, 0] != edges[:, 1]]
+        # the nearest neighbours weigh most: a point a hair from a corner moves with it
+        weight = 1.0 / np.maximum(np.sum((at[edges[:, 0]] - at[edges[:, 1]]) ** 2, axis=1), SIMPLIFY_TOLERANCE ** 2)
+        adjacency = sparse.coo_matrix((np.concatenate([weight, weight]), (np.concatenate([edges[:, 0], edges[:, 1]]),
+                                       np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(points, points)).tocsr()
+        degree = np.asarray(adjacency.sum(axis=1)).reshape(-1, 1)
+        for _ in range(FREE_SWEEPS):
+            mean = adjacency @ move / np.where(degree > 0, degree, 1.0)
+            move = np.where(loose[:, None], fixed + np.einsum("vij,vj->vi", free, mean), fixed)
+    move = move[point]
+    # where faces turn over (a point whose place the planes of its own faces do not tell), the points of those
+    # faces stay where the union put them, round by round, until none turns: the shell stays grown there alone
+    before = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    kept = np.zeros(points, bool)
+    for _ in range(KEEP_ROUNDS):
+        moved = v + np.where(kept[point][:, None], 0.0, move)
+        after = np.cross(moved[f[:, 1]] - moved[f[:, 0]], moved[f[:, 2]] - moved[f[:, 0]])
+        turned = (np.einsum("ij,ij->i", before, after) < 0) & (np.linalg.norm(after, axis=1) > (AREA_SLACK * distance) ** 2)
+        if not turned.any():
+            break
+        kept[point[f[turned].reshape(-1)]] = True
+    else:
+        return f"{int(turned.sum())} faces turned over"
+    result = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(moved),
+                                                   tri_verts=np.ascontiguousarray(f, np.uint64)))
+    result = result.simplify(SIMPLIFY_TOLERANCE)
+    # to first order the volume lost is the distance times the area; more or less is a shell gone wrong
+    if result.status() != manifold3d.Error.NoError or result.is_empty():
+        return f"manifold3d: {result.status().name}"
+    expected = grown_volume - distance * grown_area
+    if abs(result.volume() - expected) > VOLUME_SLACK * distance * grown_area:
+        return f"its volume {result.volume():.6g} m3, not about {expected:.6g} m3"
+    mesh = result.to_mesh64()
+    return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
 
 
 def _counted(counts: Counter) -> str:

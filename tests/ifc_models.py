@@ -67,14 +67,20 @@ def write_house(path: Path, schema: str = "IFC4", georeferenced: bool = True, ga
     return _write(m, api, path, schema, georeferenced, garage, openings, roof_gap, building)
 
 
-def _write(m, api, path, schema, georeferenced, garage, openings, roof_gap, building):
-    project = api.root.create_entity(m, ifc_class="IfcProject", name="meshsom test")
+def _project(m, api, name):
+    """The project of a new file ``m`` (metres), its body context and its site: (body, site)."""
+    project = api.root.create_entity(m, ifc_class="IfcProject", name=name)
     api.unit.assign_unit(m)
     model = api.context.add_context(m, context_type="Model")
     body = api.context.add_context(m, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
                                    parent=model)
     site = api.root.create_entity(m, ifc_class="IfcSite", name="site")
     api.aggregate.assign_object(m, relating_object=project, products=[site])
+    return body, site
+
+
+def _write(m, api, path, schema, georeferenced, garage, openings, roof_gap, building):
+    body, site = _project(m, api, "meshsom test")
     # the terrain: a 40 x 40 m plate under both buildings (IfcSite geometry, never a building)
     terrain = api.geometry.add_slab_representation(m, context=body, depth=0.5,
                                                    polyline=[(-15, -15), (25, -15), (25, 25), (-15, 25)])
@@ -158,5 +164,47 @@ def _write(m, api, path, schema, georeferenced, garage, openings, roof_gap, buil
     element("IfcSpace", storey, room, _placement(0, 0, 0), "living room")
     if garage:
         block("garage", *GARAGE_AT, GARAGE, slab=0.2, wall=0.2, doors=[(1.0, 2.0, 2.0, "IfcDoor")])
+    m.write(str(path))
+    return path
+
+
+def write_mitred_house(path: Path, size=(9.0, 7.0, 3.4), wall: float = 0.3, slab: float = 0.2, gap: float = 0.0) -> Path:
+    """A house whose four walls meet in 45-degree mitres (ArchiCAD's FZK-Haus joins its walls so): each wall a
+    trapezoid in plan, extruded; a floor slab under them and a roof slab ``gap`` above their tops, all as wide as
+    the outline. Its envelope is the box ``size`` (plus ``gap`` in height), from z = -slab."""
+    import ifcopenshell.api as api
+    import ifcopenshell.api.aggregate
+    import ifcopenshell.api.context
+    import ifcopenshell.api.geometry
+    import ifcopenshell.api.project
+    import ifcopenshell.api.root
+    import ifcopenshell.api.spatial
+    import ifcopenshell.api.unit  # noqa: F401 (each API module is imported by name)
+
+    m = api.project.create_file(version="IFC4")
+    body, site = _project(m, api, "mitred")
+    building = api.root.create_entity(m, ifc_class="IfcBuilding", name="mitred house")
+    api.aggregate.assign_object(m, relating_object=site, products=[building])
+    storey = api.root.create_entity(m, ifc_class="IfcBuildingStorey", name="ground floor")
+    api.aggregate.assign_object(m, relating_object=building, products=[storey])
+    lx, ly, lz = size
+    h = lz - 2 * slab
+
+    def extruded(ifc_class, polyline, z, depth):
+        e = api.root.create_entity(m, ifc_class=ifc_class, name=ifc_class)
+        api.geometry.assign_representation(m, product=e, representation=api.geometry.add_slab_representation(
+            m, context=body, depth=depth, polyline=polyline))
+        api.geometry.edit_object_placement(m, product=e, matrix=_placement(0, 0, z))
+        api.spatial.assign_container(m, relating_structure=storey, products=[e])
+        return e
+
+    outer = [(0, 0), (lx, 0), (lx, ly), (0, ly)]
+    inner = [(wall, wall), (lx - wall, wall), (lx - wall, ly - wall), (wall, ly - wall)]
+    for k in range(4):  # the wall between corners k and k + 1: outer edge, then the inner one back (mitred ends)
+        a, b = outer[k], outer[(k + 1) % 4]
+        c, d = inner[(k + 1) % 4], inner[k]
+        extruded("IfcWall", [a, b, c, d], 0.0, h)
+    extruded("IfcSlab", outer, -slab, slab)
+    extruded("IfcSlab", outer, h + gap, slab)
     m.write(str(path))
     return path

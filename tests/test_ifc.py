@@ -10,7 +10,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from ifc_models import CRS_NAME, EASTINGS, GARAGE, GARAGE_AT, HEIGHT, HOUSE, NORTHINGS, ROTATION_DEG, write_house
+from ifc_models import (CRS_NAME, EASTINGS, GARAGE, GARAGE_AT, HEIGHT, HOUSE, NORTHINGS, ROTATION_DEG, write_house,
+                        write_mitred_house)
 from meshsom.errors import MeshError
 from meshsom.ifc import winding_number
 from meshsom.io import RawMesh, ReaderOptions, Rejection, read_file
@@ -396,3 +397,20 @@ def test_a_building_without_envelope_elements_is_a_rejection(tmp_path):
     assert garage_rejection.id == f"two.ifc#{garage.GlobalId}"
     assert "IfcBuilding 'Garage (no walls)' holds no element of the envelope classes" in garage_rejection.reason
     assert "1 IfcSpace" in garage_rejection.reason
+
+
+@pytest.mark.parametrize("gap", [0.0, 0.003])
+def test_the_growth_is_undone_on_walls_that_meet_in_mitres(tmp_path, gap):
+    """Walls joined in 45-degree mitres (as ArchiCAD's FZK-Haus joins them), grown by 5 mm and united, leave a
+    chamfer at every corner whose planes meet far out: moving the union's vertices back along their own normals
+    (limited to three distances) turned faces over, so the house stayed grown, 1.4 m3 (0.5 %) too large, as
+    FZK-Haus stayed 616.78 m3 where its elements unite into 614.26. Each face moved back onto the plane of the
+    element face it lies on gives the box as drawn (its roof ``gap`` above the walls closed), one valid shell."""
+    size = (9.0, 7.0, 3.4)
+    path = write_mitred_house(tmp_path / "mitred.ifc", size=size, gap=gap)
+    (house,), rejected = _meshes(path)
+    assert not rejected
+    assert signed_volume(house.vertices, house.faces) == pytest.approx(size[0] * size[1] * (size[2] + gap), rel=1e-9)
+    assert np.ptp(house.vertices, axis=0) == pytest.approx([size[0], size[1], size[2] + gap], abs=1e-9)
+    assert validate(house.vertices, house.faces) is None and not house.parts
+    assert not any("outside the elements' faces" in n for n in house.notes), house.notes
