@@ -1025,6 +1025,9 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 content = pack_gltf(bytes(content), FolderResolver(path.parent, str(path)), str(path))
             yield from content_meshes(bytes(content), str(path), f"{name or path.name}#", options, b3dm=False)
             return
+        from meshsom.tiles3d import instanced_gltf  # EXT_mesh_gpu_instancing: a node per instance
+
+        content, file_type, _ = instanced_gltf(content, file_type, FolderResolver(path.parent, str(path)), str(path))
     data = io.BytesIO(content)
     try:
         # an OBJ of a city holds one object ("o") per building: one mesh each, whatever the

@@ -24,7 +24,10 @@ City models published for the web (Cesium ion, municipal portals, converters fro
 
 Draco- and meshopt-compressed glTF is decompressed first (:mod:`meshsom.gltf_compression`);
 implicit tiling (3D Tiles 1.1 quadtrees and octrees named by templates, listed by subtree files) is
-walked by :mod:`meshsom.implicit_tiling`. Not read: b3dm of the 2016 draft layouts (upgrade with
+walked by :mod:`meshsom.implicit_tiling`. A node that draws its mesh once per instance
+(``EXT_mesh_gpu_instancing``: 3D Tiles 1.1's instanced content, gltfpack's ``-mi``) holds one child node per
+instance (:func:`instanced_glb`), read as any node (trimesh ignores the extension: the instances were one mesh at the
+node's place); so in ``.glb`` and ``.gltf`` files (:func:`meshsom.io.read_trimesh`). Not read: b3dm of the 2016 draft layouts (upgrade with
 ``3d-tiles-tools upgrade``).
 """
 
@@ -56,6 +59,13 @@ MAX_COORDINATE = 1e9
 #: Tilesets nested (external tilesets) deeper than this are refused.
 MAX_TILESET_DEPTH = 64
 _FEATURE_ATTRIBUTES = ("_BATCHID", "_FEATURE_ID_0", "_batchid")
+#: The glTF extension that draws a node's mesh once per instance (3D Tiles 1.1's instanced content, gltfpack -mi,
+#: Blender's GPU instances), and the most instances expanded.
+GPU_INSTANCING = "EXT_mesh_gpu_instancing"
+MAX_INSTANCES = 1_000_000
+#: glTF accessor component types: NumPy dtype and, for normalized integers, the value that stands for 1.
+_COMPONENTS = {5120: ("<i1", 127), 5121: ("<u1", 255), 5122: ("<i2", 32767), 5123: ("<u2", 65535),
+               5125: ("<u4", None), 5126: ("<f4", None)}
 
 
 def is_tileset(document) -> bool:
@@ -157,6 +167,129 @@ def is_tile_content(glb: bytes, where: str) -> bool:
                for m in meshes if isinstance(m, dict) for p in (m.get("primitives") or []))
 
 
+def declares_instancing(gltf: dict) -> bool:
+    """Whether a glTF document uses :data:`GPU_INSTANCING`."""
+    return GPU_INSTANCING in (set(gltf.get("extensionsUsed") or []) | set(gltf.get("extensionsRequired") or []))
+
+
+def instanced_glb(glb: bytes, where: str) -> tuple[bytes, int]:
+    """A GLB whose nodes that draw their mesh once per instance (:data:`GPU_INSTANCING`) hold it in one child node per
+    instance instead, each moved by its instance's translation, rotation and scale (in the node's frame, as the
+    extension says), so that each instance is read as a node is: a building where it stands. trimesh ignores the
+    extension: a city of repeated houses was one house at the node's place.
+
+    Returns
+    -------
+    glb : bytes
+        The same bytes where no node uses the extension.
+    instances : int
+
+    Raises
+    ------
+    InputFileError
+        Instance attributes that are no accessors of the GLB's binary chunk, of other types or counts than the
+        extension allows, or more than :data:`MAX_INSTANCES` instances.
+    """
+    from meshsom.gltf_compression import join_glb
+
+    gltf, binary = split_glb(glb, where)
+    nodes = gltf.get("nodes") if isinstance(gltf.get("nodes"), list) else []
+    total = 0
+    for k, node in enumerate(list(nodes)):
+        extension = ((node.get("extensions") or {}) if isinstance(node, dict) else {}).get(GPU_INSTANCING)
+        if not isinstance(extension, dict):
+            continue
+        attributes = extension.get("attributes") if isinstance(extension.get("attributes"), dict) else {}
+        trs = {key: _accessor(gltf, binary, attributes[key], where, f"{GPU_INSTANCING} {key} of node {k}", kind)
+               for key, kind in (("TRANSLATION", "VEC3"), ("ROTATION", "VEC4"), ("SCALE", "VEC3")) if key in attributes}
+        counts = {len(a) for a in trs.values()}
+        if len(counts) > 1:
+            raise InputFileError(where, f"holds node {k} whose {GPU_INSTANCING} attributes count {sorted(counts)} instances")
+        count = counts.pop() if counts else 0
+        total += count
+        if total > MAX_INSTANCES:
+            raise InputFileError(where, f"holds more than {MAX_INSTANCES:,} instances ({GPU_INSTANCING})")
+        del node["extensions"][GPU_INSTANCING]
+        if "mesh" not in node or not count:
+            continue
+        matrices = _instance_matrices(count, trs.get("TRANSLATION"), trs.get("ROTATION"), trs.get("SCALE"))
+        name = str(node.get("name") or f"node {k}")
+        children = list(range(len(nodes), len(nodes) + count))
+        nodes.extend({"name": f"{name} instance {i + 1}", "mesh": node["mesh"], "matrix": m.T.reshape(-1).tolist()}
+                     for i, m in enumerate(matrices))
+        del node["mesh"]
+        node["children"] = list(node.get("children") or []) + children
+    if not total and not declares_instancing(gltf):
+        return glb, 0
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if key in gltf:
+            gltf[key] = [e for e in gltf[key] if e != GPU_INSTANCING]
+    return join_glb(gltf, binary), total
+
+
+def instanced_gltf(content: bytes, file_type: str, resolver, where: str) -> tuple[bytes, str, int]:
+    """A ``.glb`` or ``.gltf`` file's bytes with its instances expanded (:func:`instanced_glb`; a glTF JSON file that
+    uses the extension packed into a GLB first, its buffers found by ``resolver``): ``(content, file type, instances)``,
+    the same content and type where it has none."""
+    if file_type == "gltf":
+        try:
+            document = json.loads(bytes(content).decode("utf-8-sig"))
+        except (ValueError, UnicodeDecodeError):
+            return content, file_type, 0  # trimesh says what is wrong
+        if not isinstance(document, dict) or not declares_instancing(document):
+            return content, file_type, 0
+        from meshsom.gltf_compression import pack_gltf
+
+        content, file_type = pack_gltf(bytes(content), resolver, where), "glb"
+    expanded, instances = instanced_glb(bytes(content), where)
+    return expanded, file_type, instances
+
+
+def _accessor(gltf: dict, binary: bytes, index, where: str, what: str, kind: str) -> np.ndarray:
+    """An accessor's values ``(count, 3 or 4) float64`` (normalized integers as the fractions they stand for), from the
+    GLB's binary chunk."""
+    width = {"VEC3": 3, "VEC4": 4}[kind]
+    accessors, views = gltf.get("accessors") or [], gltf.get("bufferViews") or []
+    accessor = accessors[index] if isinstance(index, int) and 0 <= index < len(accessors) else None
+    if not isinstance(accessor, dict) or accessor.get("type") != kind or accessor.get("componentType") not in _COMPONENTS \
+            or "sparse" in accessor or not isinstance(accessor.get("count"), int) or accessor["count"] < 0:
+        raise InputFileError(where, f"holds {what} that is no dense {kind} accessor ({index!r})")
+    dtype, top = _COMPONENTS[accessor["componentType"]]
+    count, size = accessor["count"], np.dtype(dtype).itemsize
+    view = views[accessor.get("bufferView")] if isinstance(accessor.get("bufferView"), int) and \
+        0 <= accessor["bufferView"] < len(views) else None
+    if not isinstance(view, dict) or view.get("buffer", 0) != 0 or ((gltf.get("buffers") or [{}])[0] or {}).get("uri"):
+        raise InputFileError(where, f"holds {what} outside the GLB's binary chunk")
+    stride = view.get("byteStride") or width * size
+    start = int(view.get("byteOffset", 0)) + int(accessor.get("byteOffset", 0))
+    end = start + ((count - 1) * stride + width * size if count else 0)
+    if start < 0 or end > len(binary):
+        raise InputFileError(where, f"holds {what} at bytes {start}..{end}, beyond its {len(binary)}-byte binary chunk")
+    values = np.ndarray((count, width), dtype, binary, start, (stride, size)).astype(np.float64) if count else \
+        np.zeros((0, width))
+    if accessor.get("normalized") and top:
+        values = np.maximum(values / top, -1.0)
+    return values
+
+
+def _instance_matrices(count: int, translation, rotation, scale) -> np.ndarray:
+    """``(count, 4, 4)`` float64 matrices T R S of instances' translations ``(count, 3)``, unit quaternions
+    ``(count, 4)`` (x, y, z, w) and scales ``(count, 3)`` (None: none)."""
+    m = np.tile(np.eye(4), (count, 1, 1))
+    if rotation is not None:
+        q = rotation / np.maximum(np.linalg.norm(rotation, axis=1, keepdims=True), 1e-300)
+        x, y, z, w = q.T
+        m[:, :3, :3] = np.stack([
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1)], axis=1)
+    if scale is not None:
+        m[:, :3, :3] = m[:, :3, :3] * scale[:, None, :]
+    if translation is not None:
+        m[:, :3, 3] = translation
+    return m
+
+
 def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bool = False,
                    node_names: dict | None = None, y_up: bool = True) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """The triangles of a glTF content split by batch (feature) id, in 3D Tiles' z-up frame.
@@ -181,6 +314,9 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
     import trimesh
 
     glb = decompress_glb(glb, where)  # Draco, meshopt: plain accessors (meshsom.gltf_compression)
+    glb, instances = instanced_glb(glb, where)  # EXT_mesh_gpu_instancing: a node per instance
+    if instances and said is not None:
+        said.append(f"{instances} instances of {GPU_INSTANCING} each read as a glTF node")
     try:
         scene = trimesh.load(io.BytesIO(glb), file_type="glb", process=False, force="scene", skip_materials=True)
     except Exception as err:  # trimesh raises many types for corrupt files
