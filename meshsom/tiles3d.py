@@ -10,7 +10,9 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   then turned from glTF's y up to 3D Tiles' z up, and moved by ``RTC_CENTER`` (or the glTF's
   ``CESIUM_RTC`` centre). One mesh per batch: ids ``name#<id>``, ``<id>`` the batch's first
   property of :attr:`meshsom.io.ReaderOptions.id_attributes` when those are unique in the batch
-  table, else the batch number; labels from :attr:`meshsom.io.ReaderOptions.label_attribute`.
+  table, else the batch number; labels from :attr:`meshsom.io.ReaderOptions.label_attribute`. In 3D
+  Tiles 1.1 glTF content the batch table is the ``EXT_structural_metadata`` property table that the
+  ``EXT_mesh_features`` feature ids name (:func:`property_table`: its string and number columns).
 - **A tileset** (a ``.json`` with ``asset`` and ``root``): its tiles are walked with their
   transforms (external tilesets followed, within the tileset's folder), and the contents that
   make the finest level are read: a tile's content when it has no children, or when its
@@ -370,6 +372,74 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
     return out
 
 
+def property_table(gltf: dict, binary: bytes, names, where: str) -> tuple[dict, int | None]:
+    """The columns ``names`` (those it has, of strings or numbers) of the ``EXT_structural_metadata`` property table
+    that a glTF content's feature ids name (``EXT_mesh_features``: the table of the first feature-id set read from
+    ``_FEATURE_ID_0``; 3D Tiles 1.1's batch table), as lists of its row count, and that count; ``({}, None)`` without
+    one. Columns of other types (arrays, vectors, enums), and any the binary chunk does not hold, are left out."""
+    metadata = (gltf.get("extensions") or {}).get("EXT_structural_metadata")
+    tables = metadata.get("propertyTables") if isinstance(metadata, dict) else None
+    if not isinstance(tables, list):
+        return {}, None
+    chosen = None
+    for mesh in gltf.get("meshes") or []:
+        for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
+            sets = (((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}).get("featureIds") or []) \
+                if isinstance(primitive, dict) else []
+            chosen = next((f.get("propertyTable") for f in sets if isinstance(f, dict) and f.get("attribute") == 0
+                           and isinstance(f.get("propertyTable"), int)), chosen)
+    table = tables[chosen] if isinstance(chosen, int) and 0 <= chosen < len(tables) else None
+    if not isinstance(table, dict) or not isinstance(table.get("count"), int) or table["count"] < 1:
+        return {}, None
+    count = table["count"]
+    classes = ((metadata.get("schema") or {}).get("classes") or {}) if isinstance(metadata.get("schema"), dict) else {}
+    declared = ((classes.get(table.get("class")) or {}).get("properties") or {}) if isinstance(classes, dict) else {}
+    columns = {}
+    for name in dict.fromkeys(n for n in names if n):
+        column, kind = (table.get("properties") or {}).get(name), declared.get(name)
+        if not isinstance(column, dict) or not isinstance(kind, dict) or kind.get("array") or "arrayOffsets" in column:
+            continue
+        try:
+            if kind.get("type") == "STRING":
+                ends = _view_array(gltf, binary, column.get("stringOffsets"),
+                                   _OFFSET_TYPES.get(column.get("stringOffsetType", "UINT32")), count + 1)
+                data = _view_bytes(gltf, binary, column.get("values"))
+                if ends is not None and data is not None and np.all(np.diff(ends) >= 0) and ends[-1] <= len(data):
+                    columns[name] = [data[int(a):int(b)].decode("utf-8", "replace") for a, b in zip(ends[:-1], ends[1:])]
+            elif kind.get("type") == "SCALAR":
+                values = _view_array(gltf, binary, column.get("values"), _SCALAR_TYPES.get(kind.get("componentType")), count)
+                if values is not None:
+                    columns[name] = [v.item() for v in values]
+        except (TypeError, ValueError):
+            continue  # a column laid out otherwise than the specification says: not an id, not a label
+    return columns, count
+
+
+#: EXT_structural_metadata's offset and scalar component types, as NumPy dtypes.
+_OFFSET_TYPES = {"UINT8": "<u1", "UINT16": "<u2", "UINT32": "<u4", "UINT64": "<u8"}
+_SCALAR_TYPES = {**_OFFSET_TYPES, "INT8": "<i1", "INT16": "<i2", "INT32": "<i4", "INT64": "<i8", "FLOAT32": "<f4",
+                 "FLOAT64": "<f8"}
+
+
+def _view_bytes(gltf: dict, binary: bytes, index) -> bytes | None:
+    """A buffer view's bytes in the GLB's binary chunk; None where it lies elsewhere or beyond it."""
+    views = gltf.get("bufferViews") or []
+    view = views[index] if isinstance(index, int) and 0 <= index < len(views) else None
+    if not isinstance(view, dict) or view.get("buffer", 0) != 0:
+        return None
+    start, length = view.get("byteOffset", 0), view.get("byteLength")
+    if not (isinstance(start, int) and isinstance(length, int) and 0 <= start and start + length <= len(binary)):
+        return None
+    return bytes(binary[start:start + length])
+
+
+def _view_array(gltf: dict, binary: bytes, index, dtype: str | None, count: int) -> np.ndarray | None:
+    data = _view_bytes(gltf, binary, index)
+    if dtype is None or data is None or len(data) < count * np.dtype(dtype).itemsize:
+        return None
+    return np.frombuffer(data, dtype, count)
+
+
 def _batch_ids(batch_table: dict, length: int | None, options) -> list[str] | None:
     """The batches' ids: the first property of ``options.id_attributes`` that names the
     ``length`` batches uniquely; None (batch numbers) otherwise."""
@@ -452,6 +522,11 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     else:
         feature_table, batch_table, glb, rtc = {}, {}, bytes(data), np.zeros(3)
     gltf = split_glb(glb, source)[0]
+    if "EXT_structural_metadata" in (gltf.get("extensions") or {}):  # its columns as they stand uncompressed
+        table, rows = property_table(*split_glb(decompress_glb(glb, source), source),
+                                     (*options.id_attributes, options.label_attribute), source)
+    else:
+        table, rows = {}, None
     cesium_rtc = (gltf.get("extensions") or {}).get("CESIUM_RTC", {}).get("center")
     if cesium_rtc is not None:
         rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)
@@ -466,7 +541,9 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         said.append("its content has no batch ids: read as one model (--split-components, or "
                     "corpus.reader.split_components, reads each connected piece as a building)")
     said = list(dict.fromkeys(said))
-    ids = _batch_ids(batch_table, length, options)
+    if rows and not batch_table:  # 3D Tiles 1.1: the property table that the feature ids name
+        batch_table = table
+    ids = _batch_ids(batch_table, length or rows, options)
     labels = batch_table.get(options.label_attribute)
     for batch, v, f in batches:
         if batch < 0 or (length is not None and batch >= length):
