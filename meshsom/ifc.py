@@ -70,6 +70,18 @@ FOOT_M, US_SURVEY_FOOT_M = 0.3048, 1200.0 / 3937.0
 STEP_MAGIC = b"ISO-10303-21"
 #: The last statement of a STEP physical file.
 STEP_END = b"END-ISO-10303-21"
+#: Abstract classes that some exporters write instances of, for elements they give no type (cadwork: insulation,
+#: battens, boards): read as ``IfcBuildingElementProxy`` where that class is read.
+IFC_UNTYPED_CLASSES = ("IfcBuildingElement", "IfcBuiltElement")
+#: A building whose envelope elements are all of these classes is a structural model (a steel or timber frame of
+#: Tekla, cadwork, GeometryGym): it encloses nothing and is rejected as such, where the classes read include an
+#: enclosing one (:data:`IFC_ENCLOSING_CLASSES`).
+IFC_FRAMING_CLASSES = ("IfcBeam", "IfcColumn", "IfcMember", "IfcPlate")
+#: Classes that enclose a building: walls, slabs, roofs, curtain walls, coverings.
+IFC_ENCLOSING_CLASSES = ("IfcWall", "IfcSlab", "IfcRoof", "IfcCurtainWall", "IfcCovering")
+#: Elements of these classes are neither read nor counted as left out: the spatial structure and the openings.
+IFC_NOT_ELEMENTS = ("IfcSpatialStructureElement", "IfcSpatialElement", "IfcOpeningElement", "IfcVirtualElement",
+                    "IfcAnnotation", "IfcGrid")
 #: Faces of elements are on one plane where their unit normals and offsets (metres) are this close (4D distance).
 PLANE_TOLERANCE = 1e-6
 #: A face of the grown union further than this share of the growth from its grown plane fixes no vertex.
@@ -82,8 +94,13 @@ RCOND_PLANES = 1e-6
 #: Faces turned over with an area under (this share of the growth) squared are collapsed slivers, not folds.
 AREA_SLACK = 0.01
 #: The shrunk shell's volume may differ from the grown one's less the growth times its area by this share of
-#: that product (second-order terms at edges and corners are far smaller).
+#: that product (second-order terms at edges and corners are far smaller) where the product is at most
+#: THICK_SHARE of the grown volume; a thinner shell (a bar, a sheet) may lose anything from nothing to
+#: (1 + VOLUME_SLACK) times the product.
 VOLUME_SLACK = 0.25
+THICK_SHARE = 0.05
+#: A union whose rooms (its volume less its elements') are at most this share of it encloses no room (noted).
+MIN_ENCLOSED = 0.01
 #: manifold3d's simplification of a shell before and after it is shrunk, and the vertices it keeps apart at one
 #: point (metres): only what moves nothing.
 SIMPLIFY_TOLERANCE = 1e-7
@@ -154,6 +171,13 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
     for building, members in groups:
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
         what = f"IfcBuilding {building.Name!r}" if building is not None and building.Name else "the model"
+        kinds = Counter(e.is_a() for e in members)
+        if (set(options.ifc_classes) & set(IFC_ENCLOSING_CLASSES)
+                and all(any(e.is_a(c) for c in IFC_FRAMING_CLASSES) for e in members)):
+            yield Rejection(mesh_id, str(path), (
+                f"{what}: a structural model, {len(members)} framing elements ({_counted(kinds)}) and no "
+                f"{', '.join(IFC_ENCLOSING_CLASSES)}: a frame encloses no building, it has no envelope"))
+            continue
         try:
             vertices, faces, shell_of, notes = _envelope(members, shapes, mesh_id, options.ifc_gap)
         except MeshError as err:
@@ -165,8 +189,13 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         # several shells (a canopy apart from the house, wings that touch along an edge) go as parts:
         # preprocessing keeps each shell's vertices its own (meshsom.union), never welding them together
         parts = tuple(f"shell {k + 1}" for k in range(shells)) if shells > 1 else ()
+        notes = (*notes, *_left_out(building if building is not None else model, members, ifcopenshell))
+        untyped = sum(n for k, n in kinds.items() if k in IFC_UNTYPED_CLASSES)
+        if untyped:
+            notes = (f"IFC: {untyped} elements of the abstract class {' or '.join(k for k in IFC_UNTYPED_CLASSES if kinds[k])} "
+                     f"(elements the exporter gave no type: cadwork's insulation, battens, boards) read as "
+                     f"IfcBuildingElementProxy", *notes)
         if building is None:  # a model of elements alone (a wall, a covering exported on its own) is no building
-            kinds = Counter(e.is_a() for e in members)
             notes = (f"the file has no IfcBuilding: its {len(members)} element(s) read as one building ("
                      + ", ".join(f"{k} x {n}" for k, n in kinds.most_common(6)) + ")", *notes)
         yield RawMesh(mesh_id, str(path), local, faces, origin, parts=parts,
@@ -231,11 +260,13 @@ def _parse(path: Path, filename: str, ifcopenshell):
 
 
 def _envelope_elements(model, classes) -> list:
-    """Elements of ``classes`` (and subclasses) that have a representation, each once, in file order."""
+    """Elements of ``classes`` (and subclasses) that have a representation, each once, in file order; with
+    instances of the abstract :data:`IFC_UNTYPED_CLASSES` where ``IfcBuildingElementProxy`` is one of them."""
     found = {}
-    for cls in classes:
+    untyped = IFC_UNTYPED_CLASSES if "IfcBuildingElementProxy" in classes else ()
+    for cls, subtypes in [(c, True) for c in classes] + [(c, False) for c in untyped]:
         try:
-            elements = model.by_type(cls)
+            elements = model.by_type(cls, include_subtypes=subtypes)
         except RuntimeError:  # not in this schema
             continue
         for e in elements:
@@ -268,6 +299,24 @@ def _class_list(model) -> str:
     if not counts:
         return "no element with geometry"
     return ", ".join(f"{n} {cls}" for cls, n in counts.most_common(8)) + (" ..." if len(counts) > 8 else "")
+
+
+def _left_out(holder, members: list, ifcopenshell) -> tuple[str, ...]:
+    """A note on the elements with geometry of a building (or of a model without one) that are not read, by class
+    (furniture, building services, railings, footings, fasteners...): () where there are none. The spatial
+    structure and openings (:data:`IFC_NOT_ELEMENTS`) are not counted."""
+    read = {e.id() for e in members}
+    if isinstance(holder, ifcopenshell.entity_instance):
+        held = ifcopenshell.util.element.get_decomposition(holder)
+    else:  # the file
+        held = holder.by_type("IfcProduct")
+    kinds = Counter(e.is_a() for e in held if e.id() not in read and getattr(e, "Representation", None) is not None
+                    and not any(e.is_a(c) for c in IFC_NOT_ELEMENTS))
+    if not kinds:
+        return ()
+    shown = ", ".join(f"{n} {k}" for k, n in kinds.most_common(8)) + (" ..." if len(kinds) > 8 else "")
+    return (f"IFC: {sum(kinds.values())} elements not of the envelope classes left out ({shown}): what stands in "
+            f"or on a building, not what encloses it",)
 
 
 def _triangulated(model, elements: list, ifcopenshell) -> dict:
@@ -415,6 +464,11 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     inner = len(shells) - len(outer)
     if inner:
         notes.append(f"IFC: {inner} shells inside the envelope not kept (rooms, and what stands free in them)")
+    envelope_volume = sum(shells[k][2] for k in outer)
+    enclosed = envelope_volume - sum(vol for _, _, vol in shells)  # the rooms (less what stands free in them)
+    if enclosed <= MIN_ENCLOSED * envelope_volume:
+        notes.append(f"IFC: its elements enclose no room: the envelope is their solids alone ({envelope_volume:.4g} m3 "
+                     f"grown; openings or gaps wider than {1000 * gap:g} mm lead from outside into any rooms)")
     kept = [_shrunk(shells[k][0], shells[k][1], union_planes[shell_of_face == k], normals, offsets, gap / 2, manifold3d)
             for k in outer]
     why = Counter(done for done in kept if isinstance(done, str))
@@ -542,8 +596,7 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
     at, point = weld(v, SIMPLIFY_TOLERANCE)
     points = len(at)
     pairs = np.unique(np.column_stack([point[f[on_plane].reshape(-1)], np.repeat(p[on_plane], 3)]), axis=0)
-    if len(np.unique(pairs[:, 0])) < points:
-        return "a corner on no element's plane"
+    # (a point of faces none of which lies on its plane has none: it is free, and follows its neighbours)
     n = normals[pairs[:, 1]]
     gap = offsets[pairs[:, 1]] - np.einsum("ij,ij->i", n, at[pairs[:, 0]])
     matrix = np.zeros((points, 3, 3))
@@ -589,10 +642,13 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
     result = result.simplify(SIMPLIFY_TOLERANCE)
     # to first order the volume lost is the distance times the area; more or less is a shell gone wrong
     if result.status() != manifold3d.Error.NoError or result.is_empty():
-        return f"manifold3d: {result.status().name}"
-    expected = grown_volume - distance * grown_area
-    if abs(result.volume() - expected) > VOLUME_SLACK * distance * grown_area:
-        return f"its volume {result.volume():.6g} m3, not about {expected:.6g} m3"
+        return f"manifold3d: {'nothing left' if result.is_empty() else result.status().name}"
+    # the growth took about the distance times the area (a thick shell: within VOLUME_SLACK of that), never more
+    # than (1 + VOLUME_SLACK) times it, never less than nothing (a thin one: its edges' and corners' share is large)
+    taken, expected = grown_volume - result.volume(), distance * grown_area
+    thick = expected <= THICK_SHARE * grown_volume
+    if not (0 <= taken <= (1 + VOLUME_SLACK) * expected) or (thick and abs(taken - expected) > VOLUME_SLACK * expected):
+        return f"its volume {result.volume():.6g} m3, {grown_volume:.6g} m3 grown (about {expected:.3g} m3 less expected)"
     mesh = result.to_mesh64()
     return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
 

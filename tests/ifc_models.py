@@ -208,3 +208,52 @@ def write_mitred_house(path: Path, size=(9.0, 7.0, 3.4), wall: float = 0.3, slab
     extruded("IfcSlab", outer, h + gap, slab)
     m.write(str(path))
     return path
+
+
+def write_frame(path: Path, bays: int = 2, span: float = 6.0, height: float = 4.0, section: float = 0.3) -> Path:
+    """A steel frame as Tekla exports one: ``bays + 1`` pairs of square columns ``section`` wide and the beams on
+    them, in an IfcBuilding, nothing else: (bays + 1) x 2 IfcColumn and bays x 2 + bays + 1 IfcBeam."""
+    import ifcopenshell.api as api
+    import ifcopenshell.api.aggregate
+    import ifcopenshell.api.context
+    import ifcopenshell.api.geometry
+    import ifcopenshell.api.project
+    import ifcopenshell.api.root
+    import ifcopenshell.api.spatial  # noqa: F401 (each API module is imported by name)
+
+    m = api.project.create_file(version="IFC2X3")
+    import ifcopenshell.api.owner.settings as owner  # IFC2X3: every rooted entity has an owner history
+
+    user = api.owner.add_person_and_organisation(m, person=api.owner.add_person(m),
+                                                  organisation=api.owner.add_organisation(m))
+    application = api.owner.add_application(m)
+    saved = owner.get_user, owner.get_application
+    owner.get_user, owner.get_application = (lambda f: user), (lambda f: application)
+    try:
+        body, site = _project(m, api, "frame")
+        building = api.root.create_entity(m, ifc_class="IfcBuilding", name="hall frame")
+        api.aggregate.assign_object(m, relating_object=site, products=[building])
+        storey = api.root.create_entity(m, ifc_class="IfcBuildingStorey", name="level 0")
+        api.aggregate.assign_object(m, relating_object=building, products=[storey])
+
+        def member(ifc_class, x0, y0, z0, x1, y1, z1):
+            e = api.root.create_entity(m, ifc_class=ifc_class, name=ifc_class)
+            rep = api.geometry.add_slab_representation(m, context=body, depth=z1 - z0,
+                                                       polyline=[(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+            api.geometry.assign_representation(m, product=e, representation=rep)
+            api.geometry.edit_object_placement(m, product=e, matrix=_placement(0, 0, z0))
+            api.spatial.assign_container(m, relating_structure=storey, products=[e])
+
+        s = section
+        for k in range(bays + 1):
+            x = k * span
+            for y in (0.0, span):
+                member("IfcColumn", x, y, 0.0, x + s, y + s, height)
+            member("IfcBeam", x, 0.0, height, x + s, span + s, height + s)  # across, on the pair
+        for k in range(bays):
+            for y in (0.0, span):
+                member("IfcBeam", k * span + s, y, height, (k + 1) * span, y + s, height + s)  # along
+        m.write(str(path))
+    finally:
+        owner.get_user, owner.get_application = saved
+    return path

@@ -56,7 +56,8 @@ def test_each_building_is_the_closed_envelope_of_its_walls_slabs_and_roof(models
         assert (counts == 2).all() and validate(m.vertices, m.faces) is None
         notes = " | ".join(m.notes)
         assert "shells inside the envelope not kept" in notes, notes
-        assert "IfcFurni" not in notes and "IfcSpace" not in notes and "IfcOpening" not in notes
+        union = next(n for n in m.notes if n.startswith("IFC: the union of"))
+        assert "IfcFurni" not in union and "IfcSpace" not in notes and "IfcOpening" not in notes
         r = preprocess(m.vertices, m.faces)
         assert r.volume_out == pytest.approx(signed_volume(m.vertices, m.faces), rel=1e-4)
     house = max(meshes, key=lambda m: signed_volume(m.vertices, m.faces))
@@ -414,3 +415,40 @@ def test_the_growth_is_undone_on_walls_that_meet_in_mitres(tmp_path, gap):
     assert np.ptp(house.vertices, axis=0) == pytest.approx([size[0], size[1], size[2] + gap], abs=1e-9)
     assert validate(house.vertices, house.faces) is None and not house.parts
     assert not any("outside the elements' faces" in n for n in house.notes), house.notes
+
+
+def test_a_structural_model_is_a_rejection_saying_so(tmp_path):
+    """A steel frame (Tekla's, cadwork's, GeometryGym's test models: beams, columns, members, plates and no wall,
+    slab, roof, curtain wall or covering) encloses nothing: it was handed on as the union of its bars (thin steel
+    grown by 5 mm, +84 %) and rejected by preprocessing for folds or edges of more than two faces, reasons that
+    come from the hand-off. It is a rejection naming what it holds; with only framing classes asked for, the frame
+    is read (as the union of its bars: volume by hand)."""
+    from ifc_models import write_frame
+
+    path = write_frame(tmp_path / "frame.ifc", bays=2, span=6.0, height=4.0, section=0.3)
+    meshes, (rejection,) = _meshes(path)
+    assert not meshes and rejection.id.startswith("frame.ifc#")
+    assert "IfcBuilding 'hall frame': a structural model, 13 framing elements (7 IfcBeam, 6 IfcColumn)" in rejection.reason
+    assert "no IfcWall, IfcSlab, IfcRoof, IfcCurtainWall, IfcCovering" in rejection.reason
+    (frame,), _ = _meshes(path, ReaderOptions(ifc_classes=("IfcBeam", "IfcColumn")))
+    columns = 6 * 0.3 * 0.3 * 4.0
+    beams = 3 * 0.3 * 0.3 * 6.3 + 4 * 0.3 * 0.3 * 5.7
+    assert signed_volume(frame.vertices, frame.faces) == pytest.approx(columns + beams, rel=1e-9)
+    assert any("enclose no room" in n for n in frame.notes), frame.notes
+
+
+def test_untyped_building_elements_are_read_and_what_is_left_out_is_noted(models, tmp_path):
+    """cadwork writes insulation, battens and boards as instances of the abstract IfcBuildingElement; they were
+    left out without a word (a house whose wall is one has a hole to its rooms). They are read as proxies, with a
+    note saying so; the elements of other classes left out (the table) are counted in a note."""
+    text = models["IFC2X3"].read_text()
+    wall = next(line for line in text.splitlines() if "=IFCWALL(" in line and "'IfcWall'" in line)
+    path = tmp_path / "untyped.ifc"
+    path.write_text(text.replace(wall, wall.replace("=IFCWALL(", "=IFCBUILDINGELEMENT(")))
+    meshes, rejected = _meshes(path)
+    assert not rejected
+    assert _volumes(meshes) == pytest.approx(sorted([HOUSE_VOLUME, GARAGE_VOLUME]), rel=1e-6)
+    notes = " | ".join(_house(meshes).notes)
+    assert "IFC: 1 elements of the abstract class IfcBuildingElement" in notes and "IfcBuildingElementProxy" in notes
+    assert "1 IfcBuildingElement" in notes  # in the union's count
+    assert "IFC: 1 elements not of the envelope classes left out (1 IfcFurnishingElement)" in notes, notes
