@@ -13,6 +13,9 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   table, else the batch number; labels from :attr:`meshsom.io.ReaderOptions.label_attribute`. In 3D
   Tiles 1.1 glTF content the batch table is the ``EXT_structural_metadata`` property table that the
   ``EXT_mesh_features`` feature ids name (:func:`property_table`: its string and number columns).
+  Batches that a batch table hierarchy (``3DTILES_batch_table_hierarchy``, the draft's ``HIERARCHY``)
+  makes parts of an object without geometry of its own (walls, roofs and doors of a building) are
+  that object, one building of parts united in preprocessing (:func:`hierarchy_groups`).
 - **A tileset** (a ``.json`` with ``asset`` and ``root``): its tiles are walked with their
   transforms (external tilesets followed, within the tileset's folder), and the contents that
   make the finest level are read: a tile's content when it has no children, or when its
@@ -440,6 +443,88 @@ def _view_array(gltf: dict, binary: bytes, index, dtype: str | None, count: int)
     return np.frombuffer(data, dtype, count)
 
 
+def hierarchy_groups(batch_table: dict, batch_binary: bytes, length: int, where: str) -> dict[int, str] | None:
+    """The building each batch belongs to by the batch table's ``3DTILES_batch_table_hierarchy`` (or the draft's
+    ``HIERARCHY``: what converters of CityGML write where each batch is a wall, a roof or a door of a building that
+    has no geometry of its own), as ``{batch: name}`` for the batches that belong to one; None without a hierarchy
+    (or one without parents). A batch's building is its first ancestor (first parents, up) that is no batch of
+    geometry itself and whose class is named a building, not a part; else its nearest such ancestor. Names are
+    ``<class> <instance's index in its class>``, or the instance's ``name``/``id`` where its class gives one."""
+    hierarchy = (batch_table.get("extensions") or {}).get("3DTILES_batch_table_hierarchy") \
+        if isinstance(batch_table.get("extensions"), dict) else None
+    hierarchy = hierarchy if isinstance(hierarchy, dict) else batch_table.get("HIERARCHY")
+    if not isinstance(hierarchy, dict):
+        return None
+    n, classes = hierarchy.get("instancesLength"), hierarchy.get("classes")
+    if not isinstance(n, int) or n < length or not isinstance(classes, list) or "parentIds" not in hierarchy:
+        return None
+    class_ids = _hierarchy_column(hierarchy.get("classIds"), n, batch_binary, where, "classIds")
+    counts = _hierarchy_column(hierarchy.get("parentCounts"), n, batch_binary, where, "parentCounts") \
+        if "parentCounts" in hierarchy else np.ones(n, np.int64)
+    parents = _hierarchy_column(hierarchy.get("parentIds"), int(counts.sum()), batch_binary, where, "parentIds")
+    if class_ids.min(initial=0) < 0 or class_ids.max(initial=0) >= len(classes):
+        raise InputFileError(where, f"has a batch table hierarchy whose class ids go beyond its {len(classes)} classes")
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    parent = np.where(counts > 0, parents[np.minimum(first, max(len(parents) - 1, 0))] if len(parents) else 0,
+                      np.arange(n))
+    index_in_class = np.zeros(n, np.int64)
+    for c in np.unique(class_ids):
+        index_in_class[class_ids == c] = np.arange(int((class_ids == c).sum()))
+
+    def name(instance: int) -> str:
+        cls = classes[int(class_ids[instance])] if isinstance(classes[int(class_ids[instance])], dict) else {}
+        instances = cls.get("instances") if isinstance(cls.get("instances"), dict) else {}
+        for key, values in instances.items():
+            if key.lower() in ("id", "gml_id", "name") or key.lower().endswith("_name"):
+                if isinstance(values, list) and index_in_class[instance] < len(values):
+                    return str(values[index_in_class[instance]])
+        return f"{cls.get('name', 'class %d' % class_ids[instance])} {index_in_class[instance]}"
+
+    def is_building(instance: int) -> bool:
+        cls = classes[int(class_ids[instance])]
+        word = str(cls.get("name", "") if isinstance(cls, dict) else "").lower()
+        return "building" in word or "bldg" in word and "part" not in word
+
+    groups = {}
+    for batch in range(length):
+        chain, at = [], batch
+        for _ in range(n):  # a cycle stops where it comes round
+            up = int(parent[at])
+            if up == at or not 0 <= up < n or up in chain:
+                break
+            chain.append(up)
+            at = up
+        above = [a for a in chain if a >= length]  # instances without geometry: the objects batches make up
+        chosen = next((a for a in above if is_building(a) and "part" not in name(a).lower()), above[0] if above else None)
+        if chosen is not None:
+            groups[batch] = name(chosen)
+    return groups or None
+
+
+def _hierarchy_column(values, count: int, binary: bytes, where: str, what: str) -> np.ndarray:
+    """A hierarchy column (a JSON list, or a reference into the batch table's binary body: ``byteOffset`` and
+    ``componentType``, UNSIGNED_SHORT by default) as ``(count,)`` int64."""
+    if isinstance(values, dict):
+        dtype = {"UNSIGNED_BYTE": "<u1", "UNSIGNED_SHORT": "<u2", "UNSIGNED_INT": "<u4"}.get(
+            values.get("componentType", "UNSIGNED_SHORT"))
+        offset = values.get("byteOffset")
+        if dtype is None or not isinstance(offset, int) or offset < 0 or \
+                offset + count * np.dtype(dtype).itemsize > len(binary):
+            raise InputFileError(where, f"has a batch table hierarchy whose {what} lie beyond its binary body")
+        return np.frombuffer(binary, dtype, count, offset).astype(np.int64)
+    if not isinstance(values, list) or len(values) != count or not all(
+            isinstance(v, int) and not isinstance(v, bool) for v in values):
+        raise InputFileError(where, f"has a batch table hierarchy whose {what} are not {count} whole numbers")
+    return np.asarray(values, np.int64)
+
+
+def _batch_binary(data: bytes) -> bytes:
+    """A b3dm's batch table binary body (its header read by :func:`parse_b3dm` already)."""
+    _, _, _, ft_json, ft_bin, bt_json, bt_bin = struct.unpack_from("<4sIIIIII", data)
+    start = 28 + ft_json + ft_bin + bt_json
+    return bytes(data[start:start + bt_bin])
+
+
 def _batch_ids(batch_table: dict, length: int | None, options) -> list[str] | None:
     """The batches' ids: the first property of ``options.id_attributes`` that names the
     ``length`` batches uniquely; None (batch numbers) otherwise."""
@@ -545,12 +630,17 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         batch_table = table
     ids = _batch_ids(batch_table, length or rows, options)
     labels = batch_table.get(options.label_attribute)
-    for batch, v, f in batches:
+    groups = hierarchy_groups(batch_table, _batch_binary(data), length, source) if b3dm and length else None
+    entries = _grouped(batches, groups or {}, ids)
+    if groups:
+        said.append(f"its {len(groups)} batches are parts of {len(set(groups.values()))} objects by the batch table's "
+                    f"hierarchy (3DTILES_batch_table_hierarchy): each object read as a building of its parts")
+    for batch, key, v, f, parts, face_part in entries:
         if batch < 0 or (length is not None and batch >= length):
             what = "not whole numbers from 0" if batch < 0 else f"{batch}, beyond BATCH_LENGTH {length}"
             yield Rejection(f"{prefix}(batch {batch})", source, f"{len(f)} triangles carry batch ids {what}; not read")
             continue
-        mesh_id = f"{prefix}{ids[batch] if ids else node_names.get(batch, batch) if len(node_names) > 1 else batch}"
+        mesh_id = f"{prefix}{key if key is not None else ids[batch] if ids else node_names.get(batch, batch) if len(node_names) > 1 else batch}"
         label = labels[batch] if isinstance(labels, list) and 0 <= batch < len(labels) else None
         label = None if label is None else str(label)
         world = v + rtc
@@ -578,7 +668,36 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
             for piece_id, pv, pf, _ in _connected_pieces(mesh_id, local, f, label):  # about the feature's origin
                 yield RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said))
             continue
-        yield RawMesh(mesh_id, source, local, f, origin, label, None, notes=(note, *said))
+        yield RawMesh(mesh_id, source, local, f, origin, label, None, parts, face_part, notes=(note, *said))
+
+
+def _grouped(batches: list, groups: dict[int, str], ids: list[str] | None) -> list:
+    """``batches`` (batch, vertices, faces) as ``(first batch, group name or None, vertices, faces, parts,
+    face_part)``: the batches of one group (:func:`hierarchy_groups`) one entry of parts (the batches' ids), in the
+    order of their first batches; the others as they are."""
+    entries, members = [], {}
+    for batch, v, f in batches:
+        key = groups.get(batch)
+        if key is None:
+            entries.append((batch, None, v, f, (), None))
+            continue
+        if key not in members:
+            members[key] = []
+            entries.append((batch, key, None, None, (), None))
+        members[key].append((batch, v, f))
+    out = []
+    for batch, key, v, f, parts, face_part in entries:
+        if key is not None:
+            pieces = members[key]
+            offsets = np.cumsum([0] + [len(p[1]) for p in pieces])[:-1]
+            v = np.concatenate([p[1] for p in pieces])
+            f = np.concatenate([p[2] + o for p, o in zip(pieces, offsets)])
+            parts = tuple(str(ids[p[0]] if ids else p[0]) for p in pieces)
+            face_part = np.repeat(np.arange(len(pieces)), [len(p[2]) for p in pieces]).astype(np.int64)
+            if len(pieces) == 1:
+                parts, face_part = (), None
+        out.append((batch, key, v, f, parts, face_part))
+    return out
 
 
 def read_b3dm(path: Path, options, name: str | None = None) -> Iterator:

@@ -394,3 +394,47 @@ def test_a_tileset_whose_gltf_is_z_up_says_so(tmp_path):
             assert same == upright, (axis, np.ptp(m.vertices, axis=0), np.ptp(v, axis=0))
             if upright:
                 _same_building(m, v, f)
+
+
+def _hierarchy_tile(hierarchy_key="extensions"):
+    """Two houses of a wall block (10 x 10 x 6 m) and a roof block on it (10 x 10 x 2 m), each block a batch, 50 m
+    apart; the batch table's hierarchy makes the blocks parts of two buildings (instances without geometry) of one
+    zone, as converters of CityGML write thematic surfaces under their building."""
+    blocks = []
+    for x in (0.0, 50.0):
+        for z0, z1 in ((0.0, 6.0), (6.0, 8.0)):
+            box = trimesh.creation.box(bounds=[(x, 0, z0), (x + 10, 10, z1)])
+            blocks.append((f"b{len(blocks)}", np.asarray(box.vertices), np.asarray(box.faces)))
+    hierarchy = {"instancesLength": 7, "classIds": [0, 1, 0, 1, 2, 2, 3], "parentIds": [4, 4, 5, 5, 6, 6, 6],
+                 "classes": [{"name": "WallSurface", "length": 2, "instances": {"kind": ["wall", "wall"]}},
+                             {"name": "RoofSurface", "length": 2, "instances": {"kind": ["roof", "roof"]}},
+                             {"name": "Building", "length": 2, "instances": {"building_name": ["A-house", "B-house"]}},
+                             {"name": "zone", "length": 1, "instances": {"zone_name": ["zone0"]}}]}
+    table = {"family": ["wall", "roof", "wall", "roof"]}
+    if hierarchy_key == "extensions":
+        table["extensions"] = {"3DTILES_batch_table_hierarchy": hierarchy}
+    elif hierarchy_key == "HIERARCHY":  # the draft's form
+        table["HIERARCHY"] = hierarchy
+    return b3dm(blocks, lambda v: v, batch_table=table)
+
+
+@pytest.mark.parametrize("form", ["extensions", "HIERARCHY"])
+def test_batches_that_a_hierarchy_makes_parts_of_a_building_are_one_building(tmp_path, form):
+    """3DTILES_batch_table_hierarchy: each batch a wall or roof block of a building that has no geometry of its own
+    (Cesium's BatchTableHierarchy sample: 30 batches of doorknobs, doors, roofs and walls of 3 buildings, each read
+    as a building, doorknobs of 0.056 m3 accepted). Read as the buildings, each its batches united: 10 x 10 x 8 m =
+    800 m3 by hand, named by the building's name."""
+    from meshsom.union import union_parts
+
+    (tmp_path / "tile.b3dm").write_bytes(_hierarchy_tile(form))
+    items = {m.id.split("#", 1)[1]: m for m in read_file(tmp_path / "tile.b3dm")}
+    assert sorted(items) == ["A-house", "B-house"] and all(isinstance(m, RawMesh) for m in items.values()), items
+    for mesh in items.values():
+        assert len(mesh.parts) == 2 and mesh.label == "wall"
+        assert any("parts of 2 objects by the batch table's hierarchy" in n for n in mesh.notes), mesh.notes
+        assert union_parts(mesh.vertices, mesh.faces, mesh.face_part).volume_out == pytest.approx(800.0, rel=1e-6)
+
+
+def test_a_batch_table_without_a_hierarchy_keeps_a_building_per_batch(tmp_path):
+    (tmp_path / "tile.b3dm").write_bytes(_hierarchy_tile(None))
+    assert len([m for m in read_file(tmp_path / "tile.b3dm") if isinstance(m, RawMesh)]) == 4
