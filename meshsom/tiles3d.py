@@ -483,7 +483,7 @@ def hierarchy_groups(batch_table: dict, batch_binary: bytes, length: int, where:
     def is_building(instance: int) -> bool:
         cls = classes[int(class_ids[instance])]
         word = str(cls.get("name", "") if isinstance(cls, dict) else "").lower()
-        return "building" in word or "bldg" in word and "part" not in word
+        return ("building" in word or "bldg" in word) and "part" not in word
 
     groups = {}
     for batch in range(length):
@@ -495,7 +495,7 @@ def hierarchy_groups(batch_table: dict, batch_binary: bytes, length: int, where:
             chain.append(up)
             at = up
         above = [a for a in chain if a >= length]  # instances without geometry: the objects batches make up
-        chosen = next((a for a in above if is_building(a) and "part" not in name(a).lower()), above[0] if above else None)
+        chosen = next((a for a in above if is_building(a)), above[0] if above else None)
         if chosen is not None:
             groups[batch] = name(chosen)
     return groups or None

@@ -438,3 +438,24 @@ def test_batches_that_a_hierarchy_makes_parts_of_a_building_are_one_building(tmp
 def test_a_batch_table_without_a_hierarchy_keeps_a_building_per_batch(tmp_path):
     (tmp_path / "tile.b3dm").write_bytes(_hierarchy_tile(None))
     assert len([m for m in read_file(tmp_path / "tile.b3dm") if isinstance(m, RawMesh)]) == 4
+
+
+def test_a_hierarchy_of_building_parts_makes_one_building(tmp_path):
+    """Surfaces under BuildingParts under their Building: the batches are the Building's (the class named a
+    building, not a part), whatever the building's own name says ("Apartment block"): one building of 4 batches,
+    800 + 800 m3 by hand."""
+    from meshsom.union import union_parts
+
+    tile = _hierarchy_tile(None)
+    blocks_table = {"family": ["wall", "roof", "wall", "roof"], "extensions": {"3DTILES_batch_table_hierarchy": {
+        "instancesLength": 7, "classIds": [0, 0, 0, 0, 1, 1, 2], "parentIds": [4, 4, 5, 5, 6, 6, 6],
+        "classes": [{"name": "Surface", "length": 4, "instances": {}},
+                    {"name": "BuildingPart", "length": 2, "instances": {"gml_id": ["p1", "p2"]}},
+                    {"name": "Building", "length": 1, "instances": {"gml_id": ["Apartment block"]}}]}}}
+    ft, bt = struct.unpack_from("<II", tile, 12), struct.unpack_from("<I", tile, 20)[0]
+    table = _pad(json.dumps(blocks_table).encode())
+    body = tile[28:28 + ft[0]] + table + tile[28 + ft[0] + bt:]
+    (tmp_path / "tile.b3dm").write_bytes(b"b3dm" + struct.pack("<6I", 1, 28 + len(body), ft[0], 0, len(table), 0) + body)
+    (mesh,) = read_file(tmp_path / "tile.b3dm")
+    assert isinstance(mesh, RawMesh) and mesh.id == "tile.b3dm#Apartment block" and len(mesh.parts) == 4, mesh
+    assert union_parts(mesh.vertices, mesh.faces, mesh.face_part).volume_out == pytest.approx(1600.0, rel=1e-6)
