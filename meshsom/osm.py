@@ -289,6 +289,9 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     """Read every building of an OpenStreetMap extract (as the module says): RawMesh or Rejection
     items; with ``feature_range`` (one of :func:`osm_ranges`) only the buildings of that range.
 
+    The file is parsed twice: by GDAL's OSM driver (its areas, :func:`_areas`), then by one libosmium pass
+    (:func:`osmium_scan`: ways the extract cut, what GDAL passed over, S3DB's building relations).
+
     Raises
     ------
     InputFileError
@@ -300,40 +303,35 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     if size > int(options.max_bytes):
         raise InputFileError(str(path), f"has {size:,} bytes, more than {int(options.max_bytes):,} (ReaderOptions.max_bytes)")
     if path.name.lower().endswith(BZIP2_SUFFIX):
-        yield from _read_bzip2(path, options, name, feature_range)
+        yield from _read_rewritten(path, f"{path.name.removesuffix(BZIP2_SUFFIX)}.pbf", bzip2_as_pbf, options, name,
+                                   feature_range)
         return
     if _deleted_elements(path):
-        yield from _read_without_deleted(path, options, name, feature_range)
+        clean = path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name
+        yield from _read_rewritten(path, clean, without_deleted, options, name, feature_range)
         return
-    buildings, parts, others, strays = _areas(path)
+    negative = _negative_ids(path)
+    buildings, parts, others, strays = _areas(path, negative)
     notes = []
     try:
-        clipped = clipped_ways(path)
-    except InputFileError as err:
-        clipped = {}
-        notes.append(f"its ways were not checked for nodes missing from the extract: the file {err.problem}")
-    if clipped:
+        scan = osmium_scan(path, {a.oid for a in buildings + parts} | {oid for oid, _, _ in strays}, negative)
+    except InputFileError as err:  # GDAL read its areas: those are read, parts by the outline that holds them
+        scan = OsmiumScan({}, [], [], [])
+        notes.append(f"its ways were not checked for nodes missing from the extract nor for outlines GDAL passes over, "
+                     f"and its building relations are not read: the file {err.problem}; each building:part goes to the "
+                     "outline holding it")
+    if scan.clipped:
+        clipped = scan.clipped
         cut = lambda area: area.oid in clipped  # noqa: E731
         strays += [(a.oid, kind, f"mapped as a way of which only {clipped[a.oid][0]} of its {clipped[a.oid][1]} nodes are "
                                  f"in the extract (the extract cut it; GDAL would build it from those)")
                    for kind, group in (("building", buildings), ("building:part", parts)) for a in group if cut(a)]
         buildings = [a for a in buildings if not cut(a)]
         parts = [a for a in parts if not cut(a)]
-    try:
-        found, lost = lost_by_gdal(path, {a.oid for a in buildings + parts} | {oid for oid, _, _ in strays})
-    except InputFileError as err:
-        found, lost = [], []
-        notes.append(f"its ways were not checked for outlines GDAL passes over: the file {err.problem}")
-    for area in found:
+    for area in scan.areas:
         (buildings if _said(area.tags, "building") else parts).append(area)
-    strays += lost
-    try:
-        relations = building_relations(path)
-    except InputFileError as err:  # GDAL read its areas: those are read, parts by the outline that holds them
-        relations = []
-        notes.append(f"its building relations are not read: the file {err.problem}; each building:part goes to the "
-                     "outline holding it")
-    owner, how, unbuilt = _related(buildings, parts, relations, _owners(buildings, parts))
+    strays += scan.strays
+    owner, how, unbuilt = _related(buildings, parts, scan.relations, _owners(buildings, parts))
     part_of = (0, 1) if feature_range is None else (int(feature_range[1]), int(feature_range[2]))
     if not buildings and not parts and not strays:
         if part_of[0]:
@@ -372,20 +370,31 @@ def bzip2_as_pbf(path: Path, out: Path) -> None:
         raise InputFileError(str(path), f"cannot be read as bzip2-compressed OpenStreetMap XML by libosmium ({err})") from None
 
 
-def _read_bzip2(path: Path, options, name: str, feature_range) -> Iterator:
-    """:func:`read_osm` of a bzip2-compressed OSM XML extract: written as PBF (:func:`bzip2_as_pbf`) into a temporary
-    folder, read from there, the items naming ``path``."""
+def _read_rewritten(path: Path, file_name: str, write, options, name: str, feature_range) -> Iterator:
+    """:func:`read_osm` of an extract that GDAL cannot read as it is, written by ``write(path, out)`` as ``file_name``
+    into a temporary folder and read from there (a bzip2-compressed one as PBF: :func:`bzip2_as_pbf`; a JOSM file
+    without the elements it marks deleted: :func:`without_deleted`), the items naming ``path``, and with the note
+    ``write`` returns, if any.
+
+    Raises
+    ------
+    InputFileError
+        As :func:`read_osm`, naming ``path``.
+    """
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="meshsom-osm-") as folder:
-        pbf = Path(folder) / f"{path.name.removesuffix(BZIP2_SUFFIX)}.pbf"
-        bzip2_as_pbf(path, pbf)
+        out = Path(folder) / file_name
+        note = write(path, out)
         try:
-            items = list(read_osm(pbf, options, name, feature_range))
+            items = list(read_osm(out, options, name, feature_range))
         except InputFileError as err:
             raise InputFileError(str(path), err.problem) from None
     for item in items:
-        yield dataclasses.replace(item, source=str(path))
+        item = dataclasses.replace(item, source=str(path))
+        if note and hasattr(item, "notes"):
+            item = dataclasses.replace(item, notes=(*item.notes, note))
+        yield item
 
 
 #: JOSM's mark of an element deleted in an edit not yet uploaded (``action='delete'``): not part of the data.
@@ -400,40 +409,31 @@ def _deleted_elements(path: Path) -> bool:
     return not lower.endswith((".pbf", BZIP2_SUFFIX)) and holds_match(path, JOSM_DELETED, SCAN_BYTES)
 
 
-def _read_without_deleted(path: Path, options, name: str, feature_range) -> Iterator:
-    """:func:`read_osm` of a JOSM file without the elements it marks deleted (GDAL and libosmium read them as any
-    other: a deleted building:part way came back as a rejection, a deleted way with nodes as a building), written
-    without them into a temporary folder, read from there, the items naming ``path``
-    and saying how many were left out."""
-    import tempfile
+def without_deleted(path: Path, out: Path) -> str:
+    """Write a JOSM file (OSM XML, gzipped or not) as plain XML without the elements it marks deleted (GDAL and
+    libosmium read them as any other: a deleted building:part way came back as a rejection, a deleted way with nodes
+    as a building); the note that says how many were left out.
+
+    Raises
+    ------
+    InputFileError
+        Where the XML cannot be parsed, naming ``path``.
+    """
     import xml.etree.ElementTree as ET
 
     from meshsom.io import open_input
 
-    dropped = 0
-    with tempfile.TemporaryDirectory(prefix="meshsom-osm-") as folder:
-        clean = Path(folder) / (path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name)
-        try:
-            with open_input(path) as stream:
-                tree = ET.parse(stream)
-        except ET.ParseError as err:
-            raise InputFileError(str(path), f"cannot be read as OpenStreetMap XML ({err})") from None
-        root = tree.getroot()
-        for element in list(root):
-            if element.tag in ("node", "way", "relation") and element.get("action") == "delete":
-                root.remove(element)
-                dropped += 1
-        tree.write(str(clean), xml_declaration=True, encoding="UTF-8")
-        try:
-            items = list(read_osm(clean, options, name, feature_range))
-        except InputFileError as err:
-            raise InputFileError(str(path), err.problem) from None
-    note = f"{dropped} elements JOSM marks deleted (action='delete') left out"
-    for item in items:
-        item = dataclasses.replace(item, source=str(path))
-        if hasattr(item, "notes"):
-            item = dataclasses.replace(item, notes=(*item.notes, note))
-        yield item
+    try:
+        with open_input(path) as stream:
+            tree = ET.parse(stream)
+    except ET.ParseError as err:
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap XML ({err})") from None
+    root = tree.getroot()
+    deleted = [e for e in root if e.tag in ("node", "way", "relation") and e.get("action") == "delete"]
+    for element in deleted:
+        root.remove(element)
+    tree.write(str(out), xml_declaration=True, encoding="UTF-8")
+    return f"{len(deleted)} elements JOSM marks deleted (action='delete') left out"
 
 
 @dataclasses.dataclass
@@ -457,137 +457,160 @@ def osmium_file(path: Path):
     return osmium.io.File(str(path), "pbf" if lower.endswith(".pbf") else f"osm{compressed}")
 
 
-def building_relations(path: Path) -> list[BuildingRelation]:
-    """The S3DB building relations of an extract, in file order (pyosmium: relations only, nodes and ways passed
-    over by libosmium).
+@dataclasses.dataclass
+class OsmiumScan:
+    """What one libosmium pass over an extract finds beside GDAL's areas (:func:`osmium_scan`).
 
-    Raises
-    ------
-    InputFileError
-        Where libosmium cannot read the file.
-    """
-    import osmium
-
-    kinds = {"w": "way", "r": "relation", "n": "node"}
-    found = []
-    try:
-        for relation in osmium.FileProcessor(osmium_file(path), osmium.osm.RELATION).with_filter(
-                osmium.filter.TagFilter(("type", BUILDING_RELATION))):
-            members = [(m.role, f"{kinds.get(m.type, m.type)}/{m.ref}") for m in relation.members]
-            found.append(BuildingRelation(f"relation/{relation.id}", dict(relation.tags),
-                                          [oid for role, oid in members if role == OUTLINE_ROLE],
-                                          [oid for role, oid in members if role == PART_ROLE]))
-    except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged XML or PBF, an XML head without a version
-        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its relations: {err})") from None
-    return found
-
-
-def clipped_ways(path: Path) -> dict[str, tuple[int, int]]:
-    """The ways tagged ``building`` or ``building:part`` some of whose nodes the extract lacks (cut at its edge):
-    GDAL builds their outlines from the nodes present, a smaller or twisted footprint. One pass of libosmium over
-    the nodes (their locations, kept by libosmium) and the tagged ways.
-
-    Returns
-    -------
-    dict
-        ``way/<id>`` -> (nodes present, nodes of the way).
-
-    Raises
-    ------
-    InputFileError
-        Where libosmium cannot read the file.
-    """
-    import osmium
-
-    found = {}
-    try:
-        if _negative_ids(path):  # libosmium's location index takes no negative id (JOSM's new nodes): their ids, in Python
-            nodes = {n.id for n in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE)}
-            for w in osmium.FileProcessor(osmium_file(path), osmium.osm.WAY).with_filter(
-                    osmium.filter.KeyFilter("building", "building:part")):
-                present = sum(n.ref in nodes for n in w.nodes)
-                if present < len(w.nodes):
-                    found[f"way/{w.id}"] = (present, len(w.nodes))
-            return found
-        for w in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE | osmium.osm.WAY).with_locations(
-                ).with_filter(osmium.filter.EntityFilter(osmium.osm.WAY)).with_filter(
-                osmium.filter.KeyFilter("building", "building:part")):
-            present = sum(n.location.valid() for n in w.nodes)
-            if present < len(w.nodes):
-                found[f"way/{w.id}"] = (present, len(w.nodes))
-    except Exception as err:  # libosmium's errors: damaged XML or PBF
-        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its ways' nodes: {err})") from None
-    return found
-
-
-def lost_by_gdal(path: Path, reported: set[str]) -> tuple[list[_Area], list[tuple[str, str, str]]]:
-    """The buildings and parts GDAL's OSM driver passes over without a word, found by libosmium (pyosmium).
-
-    GDAL reports no closed way that is the outer ring of a multipolygon relation (the relation stands for it), so a
-    building outline whose way is also the outer of a ``building:part`` multipolygon (S3DB's base of a church, its
-    domes parts inside) would be lost; nor a way of fewer than 4 nodes, nor a multipolygon whose member ways the
-    extract lacks. Tagged ways and multipolygon relations not among ``reported`` (ids ``way/<id>``,
-    ``relation/<id>``) are looked at: such an outline is read from its nodes (a second pass, only then), unless a
-    relation GDAL reported stands for it (an old-style multipolygon, tagged on its outer way, or one tagged as the
-    way is: a ``building:part`` way that is the outer of a ``building`` multipolygon is a part of its own, as S3DB
-    maps a dome over the whole of a chapel); the rest are listed as having no outline.
-
-    Returns
-    -------
+    Attributes
+    ----------
+    clipped : dict
+        ``way/<id>`` -> (nodes present, nodes of the way), for the ways tagged ``building`` or ``building:part`` some
+        of whose nodes the extract lacks (cut at its edge): GDAL builds their outlines from the nodes present, a
+        smaller or twisted footprint.
     areas : list of _Area
-        The outlines read from their nodes (buildings and parts alike: their tags say which).
+        The outlines GDAL passed over, read from their nodes (buildings and parts alike: their tags say which).
     strays : list of (id, kind, problem)
-        As :func:`_areas` gives them: ``building`` or ``building:part``, and how it is mapped.
+        The buildings and parts GDAL passed over that have no outline, as :func:`_areas` gives them: ``building`` or
+        ``building:part``, and how it is mapped.
+    relations : list of BuildingRelation
+        The S3DB building relations, in file order.
+    """
+
+    clipped: dict[str, tuple[int, int]]
+    areas: list[_Area]
+    strays: list[tuple[str, str, str]]
+    relations: list[BuildingRelation]
+
+
+#: OpenStreetMap's member types as pyosmium gives them, and as ids name them.
+MEMBER_KINDS = {"w": "way", "r": "relation", "n": "node"}
+
+
+def osmium_scan(path: Path, reported: set[str], negative: bool = False) -> OsmiumScan:
+    """One libosmium (pyosmium) pass over an extract: its nodes' locations (kept by libosmium), its ways and relations
+    tagged ``building`` or ``building:part``, its multipolygon and building relations; what it finds
+    (:class:`OsmiumScan`):
+
+    - **Ways the extract cut**: tagged ways some of whose nodes are not in it.
+    - **What GDAL's OSM driver passes over without a word**: GDAL reports no closed way that is the outer ring of a
+      multipolygon relation (the relation stands for it), so a building outline whose way is also the outer of a
+      ``building:part`` multipolygon (S3DB's base of a church, its domes parts inside) would be lost; nor a way of
+      fewer than 4 nodes, nor a multipolygon whose member ways the extract lacks. Tagged ways and multipolygon
+      relations not among ``reported`` (ids ``way/<id>``, ``relation/<id>``) are looked at: such an outline is read
+      from its nodes, unless a relation GDAL reported stands for it (an old-style multipolygon, tagged on its outer
+      way, or one tagged as the way is: a ``building:part`` way that is the outer of a ``building`` multipolygon is a
+      part of its own, as S3DB maps a dome over the whole of a chapel); the rest are strays, with no outline.
+    - **S3DB's building relations** (``type=building``), with their members' roles.
+
+    Parameters
+    ----------
+    path : Path
+    reported : set of str
+        The ids of the areas, nodes and ways GDAL reported.
+    negative : bool
+        Whether the file holds negative ids (JOSM's new objects: :func:`_negative_ids`), which libosmium's location
+        index does not take: the nodes' locations are then kept here.
+
+    Raises
+    ------
+    InputFileError
+        Where libosmium cannot read the file.
     """
     import osmium
 
     kinds = ("building", "building:part")
-    ways, relations = {}, {}
+    clipped: dict[str, tuple[int, int]] = {}
+    ways: dict[int, tuple] = {}  # way id -> (kind, node refs, tags, ring or None), of the tagged ways GDAL did not report
+    lost: dict[int, tuple[str, int]] = {}  # relation id -> (kind, member ways), of the multipolygons GDAL did not report
+    outers: list[tuple[str, dict, list[int]]] = []  # each multipolygon: its id, tags and outer ways (role outer or none)
+    relations = []
+    nodes: dict[int, tuple | None] = {}  # with ``negative``: node id -> (lon, lat), None where not a valid location
+    processor = osmium.FileProcessor(osmium_file(path), osmium.osm.NODE | osmium.osm.WAY | osmium.osm.RELATION)
+    if not negative:  # libosmium keeps the locations; Python sees the tagged ways and relations only
+        processor = processor.with_locations().with_filter(osmium.filter.EntityFilter(osmium.osm.WAY | osmium.osm.RELATION)
+                                                           ).with_filter(osmium.filter.KeyFilter(*kinds, "type"))
     try:
-        for o in osmium.FileProcessor(osmium_file(path), osmium.osm.WAY | osmium.osm.RELATION).with_filter(
-                osmium.filter.KeyFilter(*kinds)):
-            kind = next((k for k in kinds if _said(dict(o.tags), k)), None)
-            if kind is None:
+        for o in processor:
+            if o.is_node():
+                nodes[o.id] = (o.location.lon, o.location.lat) if o.location.valid() else None
                 continue
-            if o.is_way() and f"way/{o.id}" not in reported:
-                ways[o.id] = (kind, [n.ref for n in o.nodes], dict(o.tags))
-            elif o.is_relation() and o.tags.get("type") == "multipolygon" and f"relation/{o.id}" not in reported:
-                relations[o.id] = (kind, [m.ref for m in o.members if m.type == "w"])
-        if not ways and not relations:
-            return [], []
-        outer_of: dict[int, list[tuple[str, bool]]] = {}  # a missing way -> the multipolygons it is an outer of
-        if ways:
-            for r in osmium.FileProcessor(osmium_file(path), osmium.osm.RELATION).with_filter(
-                    osmium.filter.TagFilter(("type", "multipolygon"))):
-                own = dict(r.tags)
-                for m in r.members:
-                    if m.type == "w" and m.ref in ways and m.role in ("outer", ""):
-                        outer_of.setdefault(m.ref, []).append((f"relation/{r.id}", own))
-        strays, wanted = [], {}
-        for wid, (kind, refs, tags) in ways.items():
-            if len(refs) < 4 or refs[0] != refs[-1]:
-                how = (f"mapped as a way of {len(refs)} node(s)" if len(refs) < 4 and refs[:1] == refs[-1:]
-                       else "mapped as a way that does not close")
-                strays.append((f"way/{wid}", kind, how))
-            elif any(rel in reported and (_said(own, kind) or set(own) <= {"type"}) for rel, own in outer_of.get(wid, [])):
-                continue  # the relation GDAL reported is this building (or part): its tags, or the way's, say so
-            else:
-                wanted[wid] = (kind, tags)
-        for rid, (kind, members) in relations.items():
-            strays.append((f"relation/{rid}", kind, f"mapped as a multipolygon whose outline GDAL could not assemble "
-                                                     f"from its {len(members)} member way(s) (some may lie outside the extract)"))
-        areas = []
-        if wanted:
-            for w in osmium.FileProcessor(osmium_file(path), osmium.osm.NODE | osmium.osm.WAY).with_locations(
-                    ).with_filter(osmium.filter.EntityFilter(osmium.osm.WAY)).with_filter(osmium.filter.IdFilter(wanted)):
-                if all(n.location.valid() for n in w.nodes):
-                    areas.append(_Area(f"way/{w.id}", wanted[w.id][1],
-                                       {"type": "Polygon", "coordinates": [[[n.lon, n.lat] for n in w.nodes]]}))
-            found = {a.oid for a in areas}
-            strays += [(f"way/{wid}", kind, "mapped as a way whose nodes are not all in the extract")
-                       for wid, (kind, _) in wanted.items() if f"way/{wid}" not in found]
-    except Exception as err:  # libosmium's errors: damaged XML or PBF
-        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium (its ways: {err})") from None
+            kind = next((k for k in kinds if _said(o.tags, k)), None)
+            if o.is_way():
+                if kind is None and not any(k in o.tags for k in kinds):
+                    continue
+                if negative:
+                    present = sum(n.ref in nodes for n in o.nodes)
+                else:
+                    present = sum(n.location.valid() for n in o.nodes)
+                if present < len(o.nodes):
+                    clipped[f"way/{o.id}"] = (present, len(o.nodes))
+                if kind is not None and f"way/{o.id}" not in reported:  # few: GDAL reports the others
+                    refs = [n.ref for n in o.nodes]
+                    ring = None
+                    if present == len(refs):
+                        ring = [nodes[r] for r in refs] if negative else [(n.lon, n.lat) for n in o.nodes]
+                        ring = None if any(c is None for c in ring) else [list(c) for c in ring]
+                    ways[o.id] = (kind, refs, dict(o.tags), ring)
+            elif o.is_relation():
+                what = o.tags.get("type")
+                if what == BUILDING_RELATION:
+                    members = [(m.role, f"{MEMBER_KINDS.get(m.type, m.type)}/{m.ref}") for m in o.members]
+                    relations.append(BuildingRelation(f"relation/{o.id}", dict(o.tags),
+                                                      [oid for role, oid in members if role == OUTLINE_ROLE],
+                                                      [oid for role, oid in members if role == PART_ROLE]))
+                elif what == "multipolygon":
+                    outers.append((f"relation/{o.id}", dict(o.tags),
+                                   [m.ref for m in o.members if m.type == "w" and m.role in ("outer", "")]))
+                    if kind is not None and f"relation/{o.id}" not in reported:
+                        lost[o.id] = (kind, sum(m.type == "w" for m in o.members))
+    except Exception as err:  # libosmium's errors (RuntimeError, ValueError): damaged XML or PBF, an XML head without a version
+        raise InputFileError(str(path), f"cannot be read as OpenStreetMap data by libosmium ({err})") from None
+    areas, strays = _lost(ways, lost, outers, reported)
+    return OsmiumScan(clipped, areas, strays, relations)
+
+
+def _lost(ways: dict[int, tuple], relations: dict[int, tuple[str, int]], outers: list[tuple[str, dict, list[int]]],
+          reported: set[str]) -> tuple[list[_Area], list[tuple[str, str, str]]]:
+    """The outlines and strays of the tagged ways and multipolygons GDAL did not report (:func:`osmium_scan`).
+
+    Parameters
+    ----------
+    ways : dict
+        Way id -> (kind, node refs, tags, ring: [[lon, lat], ...] where all its nodes are in the extract, else None).
+    relations : dict
+        Multipolygon id -> (kind, number of member ways).
+    outers : list of (id, tags, list of int)
+        Every multipolygon relation: its id (``relation/<id>``), tags and outer ways (role ``outer`` or none).
+    reported : set of str
+        The ids GDAL reported.
+
+    Returns
+    -------
+    areas : list of _Area
+        In file order.
+    strays : list of (id, kind, problem)
+        The ways that do not close, then the multipolygons, then the ways with nodes outside the extract.
+    """
+    outer_of: dict[int, list[tuple[str, dict]]] = {}  # a way GDAL did not report -> the multipolygons it is an outer of
+    for rel, own, refs in outers:
+        for ref in refs:
+            if ref in ways:
+                outer_of.setdefault(ref, []).append((rel, own))
+    strays, wanted = [], []
+    for wid, (kind, refs, tags, ring) in ways.items():
+        if len(refs) < 4 or refs[0] != refs[-1]:
+            how = (f"mapped as a way of {len(refs)} node(s)" if len(refs) < 4 and refs[:1] == refs[-1:]
+                   else "mapped as a way that does not close")
+            strays.append((f"way/{wid}", kind, how))
+        elif not any(rel in reported and (_said(own, kind) or set(own) <= {"type"}) for rel, own in outer_of.get(wid, [])):
+            wanted.append(wid)  # else the relation GDAL reported is this building (or part): its tags, or the way's, say so
+    for rid, (kind, members) in relations.items():
+        strays.append((f"relation/{rid}", kind, f"mapped as a multipolygon whose outline GDAL could not assemble "
+                                                 f"from its {members} member way(s) (some may lie outside the extract)"))
+    areas = [_Area(f"way/{wid}", ways[wid][2], {"type": "Polygon", "coordinates": [ways[wid][3]]})
+             for wid in wanted if ways[wid][3] is not None]
+    strays += [(f"way/{wid}", ways[wid][0], "mapped as a way whose nodes are not all in the extract")
+               for wid in wanted if ways[wid][3] is None]
     return areas, strays
 
 
@@ -661,9 +684,10 @@ def _related(buildings: list[_Area], parts: list[_Area], relations: list[Buildin
     return owner, how, unbuilt
 
 
-def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[str, str, str]]]:
+def _areas(path: Path, negative: bool = False) -> tuple[list[_Area], list[_Area], Counter, list[tuple[str, str, str]]]:
     """The file's building outlines, building parts, the other areas counted by their first tag, and the
-    buildings and parts without an area: (id, ``building`` or ``building:part``, how it is mapped)."""
+    buildings and parts without an area: (id, ``building`` or ``building:part``, how it is mapped); GDAL's OSM driver
+    told to use its slower node index where the file holds ``negative`` ids (:func:`_negative_ids`)."""
     import fiona
     from fiona.drvsupport import supported_drivers
 
@@ -671,7 +695,7 @@ def _areas(path: Path) -> tuple[list[_Area], list[_Area], Counter, list[tuple[st
     source = f"/vsigzip/{path}" if path.name.lower().endswith(".gz") else str(path)
     buildings, parts, others = [], [], Counter()
     env = {"OSM_CONFIG_FILE": str(CONFIG)}
-    if _negative_ids(path):  # JOSM's new objects: GDAL's fast index takes none
+    if negative:  # JOSM's new objects: GDAL's fast index takes none
         env["OSM_USE_CUSTOM_INDEXING"] = "NO"
     try:
         with fiona.Env(**env), fiona.open(source, layer=LAYER) as layer:

@@ -458,6 +458,26 @@ def test_building_relations_give_parts_to_their_outline(tmp_path, suffix):
                for i in ranged if isinstance(i, RawMesh))
 
 
+def test_libosmium_reads_an_extract_once(tmp_path, monkeypatch):
+    """The ways the extract cut, what GDAL passes over and the building relations are found in one libosmium pass over
+    the file (there were up to five: each read task of a large extract repeats them), with the buildings as before."""
+    import osmium
+
+    xml, area = _related_district(tmp_path / "r.osm")
+    passes = []
+
+    class Counted(osmium.FileProcessor):
+        def __init__(self, *args, **kwargs):
+            passes.append(args[0])
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(osmium, "FileProcessor", Counted)
+    items = {i.id.split("#")[1]: i for i in read_file(xml)}
+    assert len(passes) == 1, passes
+    assert sorted(items["way/100"].parts) == ["way/101", "way/102"]  # named by its building relation
+    assert _volume(items["way/110"]) == pytest.approx(area[110] * 6, rel=1e-5)
+
+
 def test_relations_libosmium_cannot_read_leave_parts_to_their_outlines(tmp_path):
     """An OSM XML file without a version on its root (hand-written, or cut from a larger one), which GDAL reads and
     libosmium refuses: its areas are read, each part by the outline holding it, noted."""
@@ -969,6 +989,25 @@ def test_josm_negative_ids_read_as_positive_ones(tmp_path):
         assert type(item) is type(want[key]), key
         if isinstance(item, RawMesh):
             assert _volume(item) == pytest.approx(_volume(want[key]), rel=1e-9), key
+
+
+def test_josm_negative_ids_read_what_gdal_passes_over_from_their_nodes(tmp_path):
+    """A chapel way that is also the outer of a building:part multipolygon (GDAL passes over it; libosmium finds it),
+    saved by JOSM with new objects (negative ids, which libosmium's location index does not take): read from its
+    nodes with its parts, as with positive ids; it was a rejection ('nodes are not all in the extract')."""
+    osm = OsmWriter()
+    osm.way(10, (0, 0, 20, 12), building="chapel", height="21.5")
+    osm.way(12, (6, 3, 12, 9), height="12", **{PART: "yes"})
+    text = osm.text().replace("</osm>", (
+        '  <relation id="11" version="1"><member type="way" ref="10" role="outer"/><tag k="building:part" v="yes"/>'
+        '<tag k="height" v="6"/><tag k="type" v="multipolygon"/></relation>\n</osm>'))
+    text = re.sub(r'(<nd ref="|<node id=")(\d+)', r"\1-\2", text)
+    (tmp_path / "josm.osm").write_text(text)
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "josm.osm")}
+    assert sorted(items) == ["way/10"], items
+    chapel = items["way/10"]
+    assert isinstance(chapel, RawMesh) and sorted(chapel.parts) == ["relation/11", "way/12"], chapel
+    assert _union_volume(chapel) == pytest.approx(osm.area[10] * 6 + osm.area[12] * 6, rel=1e-4)
 
 
 def test_a_roof_stands_on_walls_of_its_storeys(tmp_path):
