@@ -85,6 +85,10 @@ class EnvelopeResult:
         Volume of the kept shells.
     slivers : int
         Shells dropped as thinner than ``envelope_tol``.
+    sheets : int
+        Of the slivers, those of no volume (within ``weld_tol`` x their diagonal cubed): both sides of
+        prisms' faces that touch face to face, where walls of parts stand against each other inside
+        the building; not pieces of the solid (:func:`rebuild_under_roofs`' ``envelope_max_pieces``).
     undersides : int
         Roof faces (of those above the floor) facing down under another: floors above the lowest
         vertex, soffits of overhangs; the column under them is left empty.
@@ -104,6 +108,7 @@ class EnvelopeResult:
     base: float
     volume: float
     slivers: int = 0
+    sheets: int = 0
     undersides: int = 0
     walls_outside: int = 0
     lost_volume: float = 0.0
@@ -400,16 +405,49 @@ def _prisms(tri: np.ndarray, base: float) -> tuple[np.ndarray, np.ndarray]:
     vertices : (R, 6, 3) float64
         Each prism's corners: the triangle counter-clockwise seen from above, then its feet.
     """
-    x, y = tri[..., 0], tri[..., 1]
-    ccw = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (y[:, 1] - y[:, 0]) * (x[:, 2] - x[:, 0])
+    ccw = _plan_area2(tri)
     top = np.where((ccw < 0)[:, None, None], tri[:, ::-1], tri)
     feet = top.copy()
     feet[..., 2] = base
     return np.concatenate([top, feet], axis=1), ccw != 0
 
 
-#: Most point-triangle pairs :func:`_covered_above` tests at once (memory: about 100 bytes each).
+#: Most point-triangle pairs :func:`_covered_above` and :func:`_winding_above` test at once (memory:
+#: about 100 bytes each).
 COVER_CHUNK = 1 << 20
+#: The points of a roof face whose columns decide whether it is an underside, or under one
+#: (:func:`_roof_prisms`), as barycentric weights: its centroid, and points a hundredth of the way in
+#: from its corners and from the middles of its edges (on an edge, a point would be a neighbour's too).
+SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [0.98, 0.01, 0.01], [0.01, 0.98, 0.01], [0.01, 0.01, 0.98],
+                    [0.495, 0.495, 0.01], [0.01, 0.495, 0.495], [0.495, 0.01, 0.495]])
+#: How far from a triangle's edge in plan, in metres, a point counts as on it (:func:`_winding_above`):
+#: float64 rounding of local coordinates a few hundred metres across, not a modelling tolerance.
+ON_EDGE = 1e-9
+
+
+def _heights_in_plan(points: np.ndarray, tri: np.ndarray):
+    """Barycentric coordinates in plan of points in triangles, and the triangles' heights there.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    tri : (T, 3, 3) float64
+        Not vertical (non-zero area in plan).
+
+    Returns
+    -------
+    s, t : (P, T) float64
+        Coordinates along edges 0-1 and 0-2.
+    above : (P, T) float64
+        How far each triangle lies above each point, at the point's x and y.
+    """
+    a = tri[:, 0]
+    e1, e2 = tri[:, 1] - a, tri[:, 2] - a
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    p = points[:, None, :] - a[None]
+    s = (p[..., 0] * e2[:, 1] - p[..., 1] * e2[:, 0]) / det
+    t = (e1[:, 0] * p[..., 1] - e1[:, 1] * p[..., 0]) / det
+    return s, t, s * e1[:, 2] + t * e2[:, 2] - p[..., 2]
 
 
 def _covered_above(points: np.ndarray, tri: np.ndarray, margin: float) -> np.ndarray:
@@ -428,19 +466,59 @@ def _covered_above(points: np.ndarray, tri: np.ndarray, margin: float) -> np.nda
     out = np.zeros(len(points), bool)
     if not len(points) or not len(tri):
         return out
-    a = tri[:, 0]
-    e1, e2 = tri[:, 1] - a, tri[:, 2] - a
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    usable = np.abs(det) > 0
-    a, e1, e2, det = a[usable], e1[usable], e2[usable], det[usable]
-    step = max(1, COVER_CHUNK // max(len(a), 1))
+    tri = tri[_plan_area2(tri) != 0]
+    step = max(1, COVER_CHUNK // max(len(tri), 1))
     for lo in range(0, len(points), step):
-        p = points[lo:lo + step, None, :] - a[None]
-        s = (p[..., 0] * e2[:, 1] - p[..., 1] * e2[:, 0]) / det
-        t = (e1[:, 0] * p[..., 1] - e1[:, 1] * p[..., 0]) / det
+        s, t, above = _heights_in_plan(points[lo:lo + step], tri)
         inside = (s >= -1e-9) & (t >= -1e-9) & (s + t <= 1 + 1e-9)
-        height = s * e1[:, 2] + t * e2[:, 2]  # relative to the point's z (p holds point - a)
-        out[lo:lo + step] = (inside & (height > p[..., 2] + margin)).any(axis=1)
+        out[lo:lo + step] = (inside & (above > margin)).any(axis=1)
+    return out
+
+
+def _plan_area2(tri: np.ndarray) -> np.ndarray:
+    """Twice each triangle's signed area in plan, (T,) float64: positive counter-clockwise seen from above."""
+    x, y = tri[..., 0], tri[..., 1]
+    return (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (y[:, 1] - y[:, 0]) * (x[:, 2] - x[:, 0])
+
+
+def _winding_above(points: np.ndarray, tri: np.ndarray, margin: float) -> np.ndarray:
+    """How many of the faces above each point face up, less how many face down: 1 or more inside a closed
+    solid (a part), 0 outside every one.
+
+    A vertical line crosses a closed, outward-oriented solid's surface going up as often through faces
+    facing down (entering) as through faces facing up (leaving); above a point inside, one more faces up.
+    A point on an edge that two triangles share in plan counts for one of them only (the one whose
+    counter-clockwise edge runs downwards in y, or along +x), so that a face's triangulation does not
+    count twice.
+
+    Parameters
+    ----------
+    points : (P, 3) float64
+    tri : (T, 3, 3) float64
+        Oriented triangles: counter-clockwise seen from outside.
+    margin : float
+        Triangles count where they lie higher than the point's z + ``margin``.
+
+    Returns
+    -------
+    (P,) int64
+    """
+    out = np.zeros(len(points), np.int64)
+    if not len(points) or not len(tri):
+        return out
+    area2 = _plan_area2(tri)
+    tri, sign = tri[area2 != 0], np.sign(area2[area2 != 0]).astype(np.int64)
+    ccw = np.where((sign < 0)[:, None, None], tri[:, ::-1], tri)  # counter-clockwise seen from above
+    d = ccw[:, [1, 2, 0], :2] - ccw[:, :, :2]
+    length = np.linalg.norm(d, axis=2)
+    owns = (d[..., 1] < 0) | ((d[..., 1] == 0) & (d[..., 0] > 0))  # a point on this edge is this triangle's
+    step = max(1, COVER_CHUNK // max(3 * len(tri), 1))
+    for lo in range(0, len(points), step):
+        p = points[lo:lo + step, None, None, :2] - ccw[None, :, :, :2]
+        left = (d[None, ..., 0] * p[..., 1] - d[None, ..., 1] * p[..., 0]) / length[None]  # metres left of each edge
+        inside = ((left > ON_EDGE) | ((np.abs(left) <= ON_EDGE) & owns[None])).all(axis=2)
+        _, _, above = _heights_in_plan(points[lo:lo + step], tri)
+        out[lo:lo + step] = ((inside & (above > margin)) * sign[None]).sum(axis=1)
     return out
 
 
@@ -533,6 +611,7 @@ class _RoofPrisms:
     wall_reach: float = 0.0
     lost_volume: float = 0.0
     max_loss: float = 0.01
+    weld_tol: float = 0.0
 
 
 def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, split: str = "all") -> _RoofPrisms:
@@ -562,15 +641,23 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
                     f"a detailed or scanned mesh, not a roof model (uniting that many prisms takes minutes)")
     walls_outside = _walls_outside(snapped[faces[~roofs]], tri, tol)
     # Undersides: faces facing down with a face above them (a sloping or raised floor, the soffit
-    # of an overhang); the column under them is not filled, except under faces at or below them
-    # (a lower roof under an overhang, the roof of a part that another part stands on).
+    # of an overhang) and nothing solid under some point of them; the column under them is not filled,
+    # except under faces under some point of them (a lower roof under an overhang, the roof of a part
+    # that another part stands on). The bottom of a part standing inside another (a box in a hall, a
+    # part on a lower one's roof) has the other's inside under it (_winding_above, counting the faces
+    # within tol above the points, itself and a roof it stands on included): no underside; hollowed, its
+    # column was lost (the Bolshoi Theatre's boxes in its hall: 8 % of its volume). Points of each face
+    # (SAMPLES), not its centroid alone: a capital on a column is an underside where it overhangs it.
     normal_z = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])[:, 2]
     centroid = tri.mean(axis=1)
     under = np.zeros(len(tri), bool)
     down = np.flatnonzero(normal_z < 0)
-    under[down] = _covered_above(centroid[down], tri, tol)
+    down = down[_covered_above(centroid[down], tri, tol)]
+    points = np.einsum("sk,tkd->tsd", SAMPLES, tri[down]).reshape(-1, 3)
+    under[down] = (_winding_above(points, tri, -tol) <= 0).reshape(len(down), len(SAMPLES)).any(axis=1)
     below = ~under
-    below[below] = _covered_above(centroid[below], tri[under], -tol)
+    points = np.einsum("sk,tkd->tsd", SAMPLES, tri[below]).reshape(-1, 3)
+    below[below] = _covered_above(points, tri[under], -tol).reshape(-1, len(SAMPLES)).any(axis=1)
     label = under.astype(np.int64) + 2 * below
     splits = 0
     try:
@@ -585,7 +672,7 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
                     f"preprocess.envelope_max_roofs ({params.envelope_max_roofs}): a detailed mesh, not a roof model "
                     f"(uniting that many prisms takes minutes; roof models give at most hundreds)")
     return _RoofPrisms(centre, tri, label, base, int(roofs.sum()), int((~roofs).sum()), splits + crossings, tol,
-                       *walls_outside, params.envelope_max_loss)
+                       *walls_outside, params.envelope_max_loss, params.weld_tol)
 
 
 def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
@@ -607,7 +694,7 @@ def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
                 united = united + refill
     if united.status() != manifold3d.Error.NoError or united.is_empty():
         raise MeshError(source, f"the union of the prisms under its {len(tri)} roof triangles failed ({united.status().name})")
-    shells, slivers, volume = [], 0, 0.0
+    shells, slivers, sheets, volume = [], 0, 0, 0.0
     for piece in united.decompose():
         mesh = piece.to_mesh64()
         v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
@@ -615,6 +702,7 @@ def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
         area, vol = _area_volume(v, f)
         if not 2 * vol > tol * area:  # thinner than the tolerance on average: a sliver between roofs
             slivers += 1
+            sheets += not abs(vol) > prisms.weld_tol * float(np.linalg.norm(np.ptp(v, axis=0))) ** 3
             continue
         volume += vol
         shells.append((v + prisms.centre, f))
@@ -628,7 +716,7 @@ def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
                     f"preprocess.envelope_max_loss {100 * prisms.max_loss:g} %: a part whose roof is missing?)")
     return EnvelopeResult(
         shells=shells, roof_faces=prisms.roof_faces, wall_faces=prisms.wall_faces, splits=prisms.splits,
-        base=base + float(prisms.centre[2]), volume=volume, slivers=slivers, undersides=int((label == 1).sum()),
+        base=base + float(prisms.centre[2]), volume=volume, slivers=slivers, sheets=sheets, undersides=int((label == 1).sum()),
         walls_outside=prisms.walls_outside, lost_volume=prisms.lost_volume, tol=tol,
     )
 
@@ -720,7 +808,8 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                     raise
                 except MeshError as err:
                     first = first or err
-                    pieces = len(envelope.shells) + envelope.slivers if envelope is not None else 0
+                    # flat sheets are no pieces: where parts' walls stand against each other inside a building
+                    pieces = len(envelope.shells) + envelope.slivers - envelope.sheets if envelope is not None else 0
                     if params.envelope_max_pieces and pieces > params.envelope_max_pieces:
                         raise _Refusal(source, f"{first.problem}; its union under the roofs falls into {pieces} "
                                                f"pieces, more than preprocess.envelope_max_pieces "

@@ -474,3 +474,42 @@ def test_more_prisms_after_splitting_than_the_limit_is_refused_at_once():
     with pytest.raises(MeshError, match=f"split where they meet into {len(prisms.tri)} prisms, more than "
                                         rf"preprocess.envelope_max_roofs \({limit}\)"):
         rebuild_under_roofs(raw.vertices, raw.faces, PreprocessParams(envelope_max_roofs=limit), raw.id)
+
+
+def test_a_part_standing_inside_another_keeps_the_column_under_it():
+    """Parts as one mesh (OpenStreetMap's S3DB parts: a theatre's boxes, 4 x 3 m from 5 to 8 m, inside its hall, 20 x 10
+    x 12 m; a canopy 3 m deep on the hall's side from 4 to 4.5 m, nothing under it; a column with a capital wider
+    than it). The bottoms of the boxes face down under roofs, as a soffit does, and their columns were taken away: the Bolshoi Theatre rebuilt under its roofs lost
+    8 % (207,627 of the parts' union's 226,217 m3). Inside the hall they are no undersides; the canopy's is, and the
+    capital's, where it overhangs the column (not where the centroids of its triangles lie, over the column). The solid
+    is the parts' union, as shapely's plan areas x heights give it."""
+    import shapely
+
+    from meshsom.polygons import extrude_polygon
+
+    def block(x0, y0, x1, y1, z0, z1):
+        return extrude_polygon(np.array([(x0, y0), (x1, y0), (x1, y1), (x0, y1)], float), [], z0, z1)
+
+    parts = [block(0, 0, 20, 10, 0, 12), block(2, 1, 6, 4, 5, 8), block(8, 1, 12, 4, 5, 8), block(-3, 0, 0, 10, 4, 4.5),
+             block(24.5, 4.5, 25.5, 5.5, 0, 5), block(24, 4, 26, 6, 5, 6)]  # a column 5 m tall, its capital 2 x 2 m
+    offsets = np.cumsum([0] + [len(v) for v, _ in parts])
+    v = np.concatenate([v for v, _ in parts])
+    f = np.concatenate([f + offsets[k] for k, (_, f) in enumerate(parts)])
+    hall, canopy, column, capital = (shapely.box(0, 0, 20, 10), shapely.box(-3, 0, 0, 10), shapely.box(24.5, 4.5, 25.5, 5.5),
+                                     shapely.box(24, 4, 26, 6))
+    meant = hall.area * 12 + canopy.area * 0.5 + column.area * 5 + capital.area * 1
+    result = solid_under_roofs(v, f, PreprocessParams(), "theatre")
+    assert result.undersides > 0  # the canopy's and the capital's triangles (as split at T-junctions)
+    assert result.volume == pytest.approx(meant, rel=1e-9)
+    assert sum(signed_volume(sv, sf) for sv, sf in result.shells) == pytest.approx(meant, rel=1e-9)
+
+
+def test_a_theatre_of_many_parts_rebuilt_under_its_roofs_keeps_its_volume():
+    """The Bolshoi Theatre (data/real/osm-s3db-bolshoi, 127 S3DB parts, flat roofs), rebuilt under its roofs: its
+    boxes and galleries stand inside its hall, no undersides (34 remain: the portico's, the cornices'). The solid is
+    the parts' union (a slab-by-slab union of their prisms, libosmium's areas in a transverse Mercator, shapely:
+    226,216 m3) within 0.1 %; it was 8 % short."""
+    path = DATA / "osm-s3db-bolshoi" / "bolshoi_theater.osm"
+    (theatre,) = [m for m in read_file(path, ReaderOptions(roofs=False)) if isinstance(m, RawMesh)]
+    result = solid_under_roofs(theatre.vertices, theatre.faces, PreprocessParams(), theatre.id)
+    assert result.volume == pytest.approx(226216.0, rel=1e-3)
