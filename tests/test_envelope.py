@@ -513,3 +513,29 @@ def test_a_theatre_of_many_parts_rebuilt_under_its_roofs_keeps_its_volume():
     (theatre,) = [m for m in read_file(path, ReaderOptions(roofs=False)) if isinstance(m, RawMesh)]
     result = solid_under_roofs(theatre.vertices, theatre.faces, PreprocessParams(), theatre.id)
     assert result.volume == pytest.approx(226216.0, rel=1e-3)
+
+
+def test_flat_sheets_of_the_union_under_the_roofs_are_no_pieces(monkeypatch):
+    """The Bolshoi Theatre with its S3DB roofs: the union of the prisms under its roofs is one solid and 56 flat sheets
+    (both sides of faces of prisms standing against each other inside it: zero volume). Refused by preprocessing, it
+    is not taken for a tree crown of 57 pieces (envelope_max_pieces): the next way of uniting is tried."""
+    import meshsom.union
+    from meshsom import envelope
+
+    path = DATA / "osm-s3db-bolshoi" / "bolshoi_theater.osm"
+    (theatre,) = [m for m in read_file(path, ReaderOptions()) if isinstance(m, RawMesh)]
+    calls = []
+
+    def first_fails(shells, params=None, source="mesh"):
+        calls.append(len(shells))
+        if len(calls) == 1:
+            raise MeshError(source, "refused")
+        return "accepted"
+
+    monkeypatch.setattr(meshsom.union, "preprocess_shells", first_fails)
+    result, accepted = envelope.rebuild_under_roofs(theatre.vertices, theatre.faces, PreprocessParams(envelope_max_pieces=4),
+                                                    theatre.id)
+    assert accepted == "accepted" and calls == [1, 1]
+    assert result.sheets == result.slivers > 4
+    for v, f in result.shells:
+        assert signed_volume(v, f) > 1.0
