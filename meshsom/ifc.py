@@ -91,8 +91,9 @@ PLANE_SLACK = 0.02
 MAX_MOVE = 20.0
 #: Singular values of a vertex's planes below this share of the largest are taken for zero (one plane, or two).
 RCOND_PLANES = 1e-6
-#: Faces turned over with an area under (this share of the growth) squared are collapsed slivers, not folds.
-AREA_SLACK = 0.01
+#: Faces turned over less high than this share of the growth (over their longest side) are collapsed slivers,
+#: not folds.
+SLIVER_HEIGHT = 0.01
 #: The shrunk shell's volume may differ from the grown one's less the growth times its area by this share of
 #: that product (second-order terms at edges and corners are far smaller) where the product is at most
 #: THICK_SHARE of the grown volume; a thinner shell (a bar, a sheet) may lose anything from nothing to
@@ -106,8 +107,8 @@ MIN_ENCLOSED = 0.01
 SIMPLIFY_TOLERANCE = 1e-7
 #: Sweeps in which a vertex free along an edge or a face follows its neighbours when a shell is shrunk.
 FREE_SWEEPS = 20
-#: Rounds in which the corners of faces that a shrink turns over are left where they were.
-KEEP_ROUNDS = 10
+#: Rounds in which the points of faces that a shrink turns over are placed otherwise (at last left where they were).
+KEEP_ROUNDS = 40
 
 
 def _ifcopenshell(path: Path):
@@ -610,31 +611,46 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
     free = np.eye(3) - np.einsum("vij,vjk->vik", solve, matrix)
     loose = np.abs(free).max(axis=(1, 2)) > RCOND_PLANES
     move = fixed
+    edges = np.unique(np.sort(point[np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])], axis=1), axis=0)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    length = np.sqrt(np.sum((at[edges[:, 0]] - at[edges[:, 1]]) ** 2, axis=1))
     if loose.any():
         from scipy import sparse
 
-        edges = np.unique(np.sort(point[np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])], axis=1), axis=0)
-        edges = edges[edges[:, 0] != edges[:, 1]]
         # the nearest neighbours weigh most: a point a hair from a corner moves with it
-        weight = 1.0 / np.maximum(np.sum((at[edges[:, 0]] - at[edges[:, 1]]) ** 2, axis=1), SIMPLIFY_TOLERANCE ** 2)
+        weight = 1.0 / np.maximum(length, SIMPLIFY_TOLERANCE) ** 2
         adjacency = sparse.coo_matrix((np.concatenate([weight, weight]), (np.concatenate([edges[:, 0], edges[:, 1]]),
                                        np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(points, points)).tocsr()
         degree = np.asarray(adjacency.sum(axis=1)).reshape(-1, 1)
         for _ in range(FREE_SWEEPS):
             mean = adjacency @ move / np.where(degree > 0, degree, 1.0)
             move = np.where(loose[:, None], fixed + np.einsum("vij,vj->vi", free, mean), fixed)
-    move = move[point]
-    # where faces turn over (a point whose place the planes of its own faces do not tell), the points of those
-    # faces stay where the union put them, round by round, until none turns: the shell stays grown there alone
+    # where faces turn over, their free points try, round by round: no move along their planes; the place of
+    # their nearest corner (the sliver between them collapses); their place in the union. Their corners last
+    # stay in the union too: the shell stays grown there alone
+    nearest = np.arange(points)
+    ends, end_length = np.concatenate([edges, edges[:, ::-1]]), np.tile(length, 2)
+    towards_corner = loose[ends[:, 0]] & ~loose[ends[:, 1]]
+    ends, end_length = ends[towards_corner], end_length[towards_corner]
+    order = np.lexsort((end_length, ends[:, 0]))  # by point, the shortest edge first
+    first = order[np.unique(ends[order, 0], return_index=True)[1]]
+    nearest[ends[first, 0]] = ends[first, 1]
+    tries = [move, fixed, (at[nearest] + move[nearest]) - at, np.zeros_like(move)]
+    stage = np.zeros(points, np.int64)  # the try each point is at; past the last, its faces' corners stay too
     before = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    kept = np.zeros(points, bool)
+    turned = np.zeros(len(f), bool)
     for _ in range(KEEP_ROUNDS):
-        moved = v + np.where(kept[point][:, None], 0.0, move)
-        after = np.cross(moved[f[:, 1]] - moved[f[:, 0]], moved[f[:, 2]] - moved[f[:, 0]])
-        turned = (np.einsum("ij,ij->i", before, after) < 0) & (np.linalg.norm(after, axis=1) > (AREA_SLACK * distance) ** 2)
+        chosen = np.choose(np.minimum(stage, len(tries) - 1)[:, None], tries)
+        moved = v + chosen[point]
+        turned = _turned_over(before, moved, f, SLIVER_HEIGHT * distance)
         if not turned.any():
             break
-        kept[point[f[turned].reshape(-1)]] = True
+        corners = np.unique(point[f[turned].reshape(-1)])
+        free_corners = corners[loose[corners] & (stage[corners] < len(tries) - 1)]
+        if len(free_corners):
+            stage[free_corners] += 1
+        else:
+            stage[corners] = len(tries) - 1
     else:
         return f"{int(turned.sum())} faces turned over"
     result = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(moved),
@@ -651,6 +667,29 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
         return f"its volume {result.volume():.6g} m3, {grown_volume:.6g} m3 grown (about {expected:.3g} m3 less expected)"
     mesh = result.to_mesh64()
     return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64)
+
+
+def _turned_over(before: np.ndarray, vertices: np.ndarray, faces: np.ndarray, height: float) -> np.ndarray:
+    """Faces turned over: their normal against ``before``'s, and higher than ``height`` over their longest side
+    (a sliver that collapsed onto a line, its normal whatever rounding made it, is not a fold).
+
+    Parameters
+    ----------
+    before : (F, 3) float64
+        The faces' normals (any length) before the vertices moved.
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    height : float
+
+    Returns
+    -------
+    (F,) bool
+    """
+    after = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    longest = np.max([np.linalg.norm(vertices[faces[:, k]] - vertices[faces[:, k - 1]], axis=1) for k in range(3)],
+                     axis=0)
+    high = np.linalg.norm(after, axis=1) / np.where(longest > 0, longest, 1.0)  # twice the area over the side
+    return (np.einsum("ij,ij->i", before, after) < 0) & (high > height)
 
 
 def _counted(counts: Counter) -> str:

@@ -452,3 +452,22 @@ def test_untyped_building_elements_are_read_and_what_is_left_out_is_noted(models
     assert "IFC: 1 elements of the abstract class IfcBuildingElement" in notes and "IfcBuildingElementProxy" in notes
     assert "1 IfcBuildingElement" in notes  # in the union's count
     assert "IFC: 1 elements not of the envelope classes left out (1 IfcFurnishingElement)" in notes, notes
+
+
+def test_a_sliver_that_collapses_onto_a_line_is_not_a_fold():
+    """Where grown elements meet flush (storeys stacked, BlenderBIM's ExampleHOM), the union has slivers 1e-7 m
+    high along its edges; moved back, their corners meet on a line and rounding gives them either side. Counted
+    as folds by their area (3 m long, 1e-6 m high: 1.5e-6 m2 over the old limit of (0.01 x 5 mm)^2), they kept
+    ExampleHOM, b03 and 3rooms grown by 5 mm (+0.3 %); by their height they are not, and a face truly turned
+    over (1 mm high) still is."""
+    from meshsom.ifc import SLIVER_HEIGHT, _turned_over
+
+    distance = 0.005
+    v = np.array([[0.0, 0, 0], [3.0, 0, 0], [1.5, 1e-6, 0], [0, 0, 0], [3.0, 0, 0], [1.5, -1e-3, 0]])
+    f = np.array([[0, 1, 2], [3, 4, 5]])
+    before = np.array([[0.0, 0, 1], [0.0, 0, -1]])
+    assert _turned_over(before, v, f, SLIVER_HEIGHT * distance).tolist() == [False, False]  # as they stood
+    # both stood the other way before: the sliver (1e-6 m high) is no fold, the face 1 mm high is
+    assert _turned_over(-before, v, f, SLIVER_HEIGHT * distance).tolist() == [False, True]
+    area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1) / 2
+    assert area[0] == pytest.approx(1.5e-6) and area[0] > (0.01 * distance) ** 2  # the old criterion's fold
