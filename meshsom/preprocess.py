@@ -504,7 +504,40 @@ def check_input(vertices, faces, source: str = "mesh") -> tuple[np.ndarray, np.n
     if faces.min() < 0 or faces.max() >= len(vertices):
         k = int(np.flatnonzero((faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1))[0])
         raise MeshError(source, f"face {k} references vertex index {faces[k].tolist()} out of range (the mesh has {len(vertices)} vertices)")
+    used = vertices[np.unique(faces)]
+    centred = used - used.mean(axis=0)
+    axes = np.linalg.svd(centred, full_matrices=True)[2]
+    extent = np.ptp(centred @ axes.T, axis=0)  # across its principal axes, longest first
+    if not extent[2] > FLAT_SHEET_THICKNESS * extent[1]:
+        raise MeshError(source, _flat_sheet(vertices, faces))
     return vertices, faces
+
+
+#: A mesh whose vertices all lie within this fraction of its width (its second principal extent) of one plane is a
+#: surface, not a solid (:func:`check_input`): a tilted polygon on a file's millimetre grid is off its plane by under
+#: a millimetre, while a wall 10 cm thick would have to be 100 m high to come this close. Compared with the width, not
+#: the length: a needle (a floor read 2,147 km below its roof) is no plane.
+FLAT_SHEET_THICKNESS = 1e-3
+
+
+def _flat_sheet(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """What a mesh of faces in one plane is, in words: its polygons (the union of its faces in their plane), their
+    area and the plane's tilt."""
+    import shapely
+
+    points = vertices[faces]
+    centred = points.reshape(-1, 3) - points.reshape(-1, 3).mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]
+    plan = (centred @ plane_frame(normal).T).reshape(-1, 3, 2)
+    triangles = shapely.polygons(plan)
+    cover = shapely.union_all(triangles[shapely.area(triangles) > 0])
+    pieces = len(shapely.get_parts(cover)) if not cover.is_empty else 0
+    tilt = math.degrees(math.acos(min(1.0, abs(float(normal[2])))))
+    if not pieces:
+        return f"its {len(faces)} faces have no area (they lie on a line or at a point), not a solid (zero volume)"
+    what = "one planar polygon" if pieces == 1 else f"{pieces} planar polygons"
+    return (f"{what} of {cover.area:.4g} square units, not a solid: its {len(faces)} faces lie in one plane "
+            f"({tilt:.3g} degrees from horizontal; zero volume)")
 
 
 #: How far from the others, in robust spreads (the median distance to the median, plus a metre), a vertex lies when it

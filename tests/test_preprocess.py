@@ -1,6 +1,7 @@
 """Preprocessing: answers known by hand (triangle counts of planar polygons, volumes), watertightness."""
 
 import itertools
+import math
 from pathlib import Path
 
 import numpy as np
@@ -232,7 +233,7 @@ def test_unshared_corners_are_welded(cube):
         ("open_side", "boundary"),
         ("fin", "non-manifold"),
         ("flat", "zero volume"),
-        ("tiny", "at least 4"),
+        ("tiny", "one planar polygon of 1 square units, not a solid"),
     ],
 )
 def test_bad_meshes_are_rejected_with_reason(cube, case, reason):
@@ -1276,3 +1277,39 @@ def test_a_library_error_on_one_mesh_is_its_rejection(monkeypatch):
     monkeypatch.setattr(shapely, "union_all", fails)
     inside, coplanar = _opposite_overlap(v, f, normal, 0, 1e-6)
     assert not inside.any() and coplanar.all()
+
+
+def test_a_single_tilted_polygon_is_rejected_as_what_it_is(tmp_path):
+    """One tilted polygon (a CityJSON Building whose only geometry is a MultiSurface of one roof-like quad, or an OBJ
+    of one quad) was rebuilt as the solid under it, a wedge down to its lowest corner (6.55 m3), and accepted without
+    a word. It is a rejection saying what was received: a rectangle 5 x 2.46 m, tilted 30 degrees (12.3 m2, by
+    hand). A horizontal footprint with a height is still extruded (the documented LoD 0 rule)."""
+    import json
+
+    from pipelines.ingest import process_one
+    from meshsom.io import RawMesh, ReaderOptions, read_file
+
+    tilt = math.radians(30)
+    corners = np.array([[0, 0, 0], [5, 0, 0], [5, 2.46 * math.cos(tilt), 2.46 * math.sin(tilt)],
+                        [0, 2.46 * math.cos(tilt), 2.46 * math.sin(tilt)]])
+    doc = {"type": "CityJSON", "version": "2.0", "transform": {"scale": [0.001] * 3, "translate": [0, 0, 0]},
+           "vertices": np.round(corners * 1000).astype(int).tolist(),
+           "CityObjects": {"T": {"type": "Building", "geometry": [
+               {"type": "MultiSurface", "lod": "2", "boundaries": [[[0, 1, 2, 3]]]}]}}}
+    path = tmp_path / "tilted.city.json"
+    path.write_text(json.dumps(doc))
+    (raw,) = read_file(path, ReaderOptions())
+    quad = RawMesh("quad.obj", "quad.obj", corners, np.array([[0, 1, 2], [0, 2, 3]]), np.zeros(3))
+    for mesh in (raw, quad):
+        record, clean = process_one(mesh, PreprocessParams())
+        assert clean is None and record["status"] == "rejected", record
+        assert record["reason"].startswith("one planar polygon of 12.3 square units, not a solid"), record["reason"]
+        assert "30 degrees from horizontal" in record["reason"]
+
+    doc["CityObjects"]["T"] = {"type": "Building", "attributes": {"measuredHeight": 3.0}, "geometry": [
+        {"type": "MultiSurface", "lod": "0", "boundaries": [[[0, 1, 4, 5]]]}]}
+    doc["vertices"] += [[5000, 2460, 0], [0, 2460, 0]]
+    path.write_text(json.dumps(doc))
+    (raw,) = read_file(path, ReaderOptions())
+    record, _ = process_one(raw, PreprocessParams())
+    assert record["status"] == "accepted" and record["volume"] == pytest.approx(5 * 2.46 * 3.0, rel=1e-9)
