@@ -86,6 +86,8 @@ NOT_HEIGHT_STARTS = ("roof", "min", "base", "ground")
 NOT_HEIGHT_WORDS = ("bg", "below", "under", "unter", "sous", "minimum")
 #: The endings of a height's name that say it is in a unit :attr:`meshsom.io.ReaderOptions.height_unit` has not.
 UNREAD_UNITS = {"cm": "centimetres", "mm": "millimetres", "dm": "decimetres"}
+#: A footprint whose outer rings enclose at most (this x its extent)^2 encloses no area (:func:`_encloses_area`).
+FLAT_FOOTPRINT_REL = 1e-9
 #: How deep GeometryCollections may nest in a feature's geometry (deeper members are left out, noted).
 MAX_COLLECTION_DEPTH = 16
 #: The share of the area of a footprint's polygons that may be covered twice before they are read as their union
@@ -352,6 +354,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     if flat:
         polygons, said = valid_footprint(polygons, min(zs) if zs else None)
         notes += said
+        _encloses_area(polygons, where)
     bottom = first_number(props, options.base_attributes)
     base = units.of(props[bottom[0]]) if bottom else 0.0
     below = first_number(props, options.min_levels_attributes) if bottom is None else None
@@ -370,6 +373,22 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
                     ", the roof above them (S3DB: storey counts leave out the roof's)")
             return solid, notes
     return _extruded(polygons, z0, z1, where, verts), notes
+
+
+def _encloses_area(polygons: list, where: str) -> None:
+    """Raises where no outer ring of a footprint encloses any area (its corners on one line, or all one point: a
+    sliver a tracer or a model left, a way drawn back on itself); extruded, it was a flat wall refused as 'one planar
+    polygon ... 90 degrees from horizontal'."""
+    try:
+        areas = [abs(_signed_area(poly[0])) for poly in polygons if isinstance(poly, list) and poly]
+        extent = max(float(np.ptp(np.asarray(poly[0], np.float64)[:, :2], axis=0).max()) for poly in polygons if poly)
+    except (TypeError, ValueError, IndexError):
+        return  # not rings of numbers: their reading says so
+    if areas and max(areas) <= (FLAT_FOOTPRINT_REL * extent) ** 2:
+        corners = sum(len(p[0]) for p in polygons if p)
+        raise InputFileError(where, "has a footprint that encloses no area (" + (
+            f"its {corners} corners lie on one line, {extent:.3g} units long" if extent > 0 else
+            f"its {corners} corners are one point") + "): no building to extrude")
 
 
 def valid_footprint(polygons: list, z: float | None = None) -> tuple[list, list[str]]:

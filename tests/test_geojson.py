@@ -539,6 +539,23 @@ def test_a_geometry_collection_of_polygons_is_a_footprint(tmp_path):
     assert isinstance(lined, Rejection) and "holds a GeometryCollection" in lined.reason, lined
 
 
+def test_a_footprint_that_encloses_no_area_says_so(tmp_path):
+    """A footprint whose corners lie on one line (a way drawn back on itself, a traced sliver) or are one point was
+    extruded into a flat wall and refused as 'one planar polygon ... 90 degrees from horizontal'; it is refused as a
+    footprint that encloses no area. A thin one that does enclose some (0.01 m x 10 m) is still read (0.1 m2 x 10)."""
+    ring = lambda pts: closed([(84600 + x, 447400 + y) for x, y in pts])  # noqa: E731
+    doc = {"type": "FeatureCollection", "features": [
+        _feature(1, {"type": "Polygon", "coordinates": [ring([(0, 0), (10, 0), (10, 0), (4, 0)])]}, height=10),
+        _feature(2, {"type": "Polygon", "coordinates": [ring([(0, 0), (0, 0), (0, 0)])]}, height=10),
+        _feature(3, {"type": "Polygon", "coordinates": [ring([(0, 0), (10, 0), (10, 0.01), (0, 0.01)])]}, height=10)]}
+    (tmp_path / "flat.geojson").write_text(json.dumps(doc))
+    line, point, thin = read_file(tmp_path / "flat.geojson")
+    assert isinstance(line, Rejection) and line.reason == ("has a footprint that encloses no area (its 5 corners lie "
+                                                           "on one line, 10 units long): no building to extrude"), line
+    assert isinstance(point, Rejection) and "its 4 corners are one point" in point.reason, point
+    assert isinstance(thin, RawMesh) and _volume(thin) == pytest.approx(0.1 * 10, rel=1e-6)
+
+
 def test_parts_of_a_multipolygon_that_only_touch_are_not_united(tmp_path):
     """Parts that share a wall or a corner, and an island in a courtyard, do not overlap: read as they are."""
     ring = lambda pts: closed([(84600 + x, 447400 + y) for x, y in pts])  # noqa: E731
