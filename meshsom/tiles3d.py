@@ -375,6 +375,20 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
     return out
 
 
+def _null_feature_id(gltf: dict) -> int | None:
+    """The ``nullFeatureId`` of the ``EXT_mesh_features`` feature-id set read from ``_FEATURE_ID_0`` (the id that
+    marks vertices of no feature), None where none is given."""
+    for mesh in gltf.get("meshes") or []:
+        for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
+            sets = (((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}).get("featureIds") or []) \
+                if isinstance(primitive, dict) else []
+            for feature_ids in sets:
+                if isinstance(feature_ids, dict) and feature_ids.get("attribute") == 0 and \
+                        isinstance(feature_ids.get("nullFeatureId"), int) and feature_ids["nullFeatureId"] >= 0:
+                    return feature_ids["nullFeatureId"]
+    return None
+
+
 def property_table(gltf: dict, binary: bytes, names, where: str) -> tuple[dict, int | None]:
     """The columns ``names`` (those it has, of strings or numbers) of the ``EXT_structural_metadata`` property table
     that a glTF content's feature ids name (``EXT_mesh_features``: the table of the first feature-id set read from
@@ -607,6 +621,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     else:
         feature_table, batch_table, glb, rtc = {}, {}, bytes(data), np.zeros(3)
     gltf = split_glb(glb, source)[0]
+    null_id = _null_feature_id(gltf)
     if "EXT_structural_metadata" in (gltf.get("extensions") or {}):  # its columns as they stand uncompressed
         table, rows = property_table(*split_glb(decompress_glb(glb, source), source),
                                      (*options.id_attributes, options.label_attribute), source)
@@ -636,11 +651,16 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         said.append(f"its {len(groups)} batches are parts of {len(set(groups.values()))} objects by the batch table's "
                     f"hierarchy (3DTILES_batch_table_hierarchy): each object read as a building of its parts")
     for batch, key, v, f, parts, face_part in entries:
+        if null_id is not None and batch == null_id:  # EXT_mesh_features: the triangles of no feature
+            yield Rejection(f"{prefix}(feature id {batch})", source, f"{len(f)} triangles carry the null feature id "
+                                                                     f"{batch} (EXT_mesh_features nullFeatureId): "
+                                                                     "no feature's, not read")
+            continue
         if batch < 0 or (length is not None and batch >= length):
             what = "not whole numbers from 0" if batch < 0 else f"{batch}, beyond BATCH_LENGTH {length}"
             yield Rejection(f"{prefix}(batch {batch})", source, f"{len(f)} triangles carry batch ids {what}; not read")
             continue
-        mesh_id = f"{prefix}{key if key is not None else ids[batch] if ids else node_names.get(batch, batch) if len(node_names) > 1 else batch}"
+        mesh_id = f"{prefix}{key if key is not None else ids[batch] if ids and batch < len(ids) else node_names.get(batch, batch) if len(node_names) > 1 else batch}"
         label = labels[batch] if isinstance(labels, list) and 0 <= batch < len(labels) else None
         label = None if label is None else str(label)
         world = v + rtc

@@ -20,10 +20,12 @@ FAMILIES = ["house", "tower"]
 SIZES = [(10, 4, 6), (8, 30, 8)]  # glTF: y up
 
 
-def houses_with_metadata(path, ids=IDS):
+def houses_with_metadata(path, ids=IDS, ground=False, null=True):
     """Two boxes 100 m apart in one primitive, ``_FEATURE_ID_0`` 0 and 1, a property table of ``id`` and ``family``
-    (strings: UTF-8 bytes and UINT32 offsets) and ``height`` (FLOAT32)."""
-    boxes = [trimesh.creation.box(extents=size) for size in SIZES]
+    (strings: UTF-8 bytes and UINT32 offsets) and ``height`` (FLOAT32); ``ground``: and a slab of ground whose
+    vertices carry feature id 65535, the set's ``nullFeatureId`` (with ``null``): no feature's."""
+    boxes = [trimesh.creation.box(extents=size) for size in SIZES] + ([trimesh.creation.box(extents=(300, 1, 300))]
+                                                                      if ground else [])
     boxes[1].apply_translation((100, 0, 0))
     glb = trimesh.exchange.gltf.export_glb(trimesh.Scene(trimesh.util.concatenate(boxes)))
     gltf, binary = split_glb(glb, "boxes")
@@ -40,13 +42,14 @@ def houses_with_metadata(path, ids=IDS):
         offsets = np.concatenate([[0], np.cumsum([len(d) for d in data])]).astype("<u4")
         return {"values": view(b"".join(data)), "stringOffsets": view(offsets.tobytes())}
 
-    feature = np.repeat([0.0, 1.0], [len(b.vertices) for b in boxes]).astype("<f4")
+    feature = np.repeat([0.0, 1.0, 65535.0][:len(boxes)], [len(b.vertices) for b in boxes]).astype("<f4")
     gltf["accessors"].append({"bufferView": view(feature.tobytes()), "componentType": 5126, "count": len(feature),
                               "type": "SCALAR"})
     primitive = gltf["meshes"][0]["primitives"][0]
     primitive["attributes"]["_FEATURE_ID_0"] = len(gltf["accessors"]) - 1
     primitive["extensions"] = {"EXT_mesh_features": {"featureIds": [{"featureCount": 2, "attribute": 0,
-                                                                     "propertyTable": 0}]}}
+                                                                     "propertyTable": 0,
+                                                                     **({"nullFeatureId": 65535} if null else {})}]}}
     gltf["extensions"] = {"EXT_structural_metadata": {
         "schema": {"id": "buildings", "classes": {"building": {"properties": {
             "id": {"type": "STRING"}, "family": {"type": "STRING"},
@@ -81,3 +84,21 @@ def test_ids_that_repeat_are_left_for_feature_numbers(tmp_path):
     houses_with_metadata(tmp_path / "houses.glb", ids=["same", "same"])
     items = {m.id.rsplit("#", 1)[1]: m for m in read_file(tmp_path / "houses.glb")}
     assert sorted(items) == ["0", "1"] and [items["0"].label, items["1"].label] == FAMILIES
+
+
+def test_the_null_feature_id_is_no_building(tmp_path):
+    """Vertices whose feature id is the set's ``nullFeatureId`` belong to no feature (EXT_mesh_features): the ground
+    slab they make was read as a building of its own; it is a rejection saying so, the two houses read."""
+    houses_with_metadata(tmp_path / "houses.glb", ground=True)
+    items = list(read_file(tmp_path / "houses.glb"))
+    assert sorted(m.id.rsplit("#", 1)[1] for m in items if isinstance(m, RawMesh)) == sorted(IDS)
+    (ground,) = [m for m in items if not isinstance(m, RawMesh)]
+    assert "null feature id 65535 (EXT_mesh_features nullFeatureId)" in ground.reason, ground
+
+
+def test_a_feature_beyond_the_property_table_keeps_its_number(tmp_path):
+    """Feature ids beyond the property table's rows (no null id declared): that feature is read under its number
+    (an index beyond the ids raised IndexError out of the reader)."""
+    houses_with_metadata(tmp_path / "houses.glb", ground=True, null=False)
+    items = list(read_file(tmp_path / "houses.glb"))
+    assert sorted(m.id.rsplit("#", 1)[1] for m in items) == sorted([*IDS, "65535"]), items
