@@ -762,6 +762,74 @@ def _shape(geometry):
         return None
 
 
+def even_odd(geometry):
+    """A multipolygon relation's area as libosmium assembles it where GDAL's OSM driver gives overlapping polygons.
+
+    GDAL makes a polygon of each ring it closes, so two outer rings that touch at two nodes (osm-testdata's case
+    775) come as two polygons that overlap, and their union was extruded: a footprint 14 % too large. libosmium
+    builds a multipolygon's rings from its ways' segments: a point is inside where it lies inside an odd number of
+    its rings, the even-odd rule, which is the symmetric difference of the rings' areas. That is taken where GDAL's
+    geometry is not valid, each of its rings is, and no two rings meet but at nodes of both (no ring crosses
+    another, nor shares a segment with it: libosmium calls those multipolygons invalid, and they are left as GDAL
+    gives them); else the geometry is returned as it is.
+
+    Parameters
+    ----------
+    geometry : dict
+        GeoJSON-like (``Polygon`` or ``MultiPolygon``), longitude and latitude.
+
+    Returns
+    -------
+    dict
+        GeoJSON-like, a ``MultiPolygon`` where the rule was applied.
+    """
+    import functools
+
+    import shapely
+
+    whole = _shape(geometry)
+    if whole is None or whole.geom_type != "MultiPolygon" or whole.is_valid:
+        return geometry
+    rings = shapely.get_rings(shapely.get_parts(whole))
+    polygons = shapely.polygons(rings)
+    if not shapely.is_valid(polygons).all() or not _meet_at_nodes(rings):
+        return geometry
+    area = functools.reduce(shapely.symmetric_difference, polygons)
+    parts = [p for p in shapely.get_parts(area) if p.geom_type == "Polygon" and not p.is_empty]
+    if not parts:
+        return geometry
+    return shapely.geometry.mapping(shapely.MultiPolygon(parts))
+
+
+def _meet_at_nodes(rings: np.ndarray) -> bool:
+    """Whether no two of the rings meet but at vertices of both: they neither cross nor share a segment.
+
+    Parameters
+    ----------
+    rings : (R,) object
+        Shapely linear rings.
+    """
+    import shapely
+
+    first, second = shapely.STRtree(rings).query(rings, predicate="intersects")
+    first, second = first[first < second], second[first < second]
+    if not len(first):
+        return True
+    meet = shapely.intersection(rings[first], rings[second])
+    points, pair = shapely.get_parts(meet, return_index=True)
+    if (shapely.get_type_id(points) != 0).any():  # a segment in common, or a line of their crossing
+        return False
+    xy = shapely.get_coordinates(points)
+    vertices, ring = shapely.get_coordinates(rings, return_index=True)
+    known = np.column_stack([ring, vertices])
+    for side in (first, second):  # each meeting point a vertex of both rings
+        asked = np.column_stack([side[pair], xy])
+        _, inverse = np.unique(np.concatenate([known, asked]), axis=0, return_inverse=True)
+        if not np.isin(inverse.ravel()[len(known):], inverse.ravel()[:len(known)]).all():
+            return False
+    return True
+
+
 def owners(outlines: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """For each part, the index of the smallest outline holding a point inside it (shapely's STRtree), or -1.
 
@@ -851,7 +919,8 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
         try:
             if piece.geometry is None:
                 raise InputFileError(mesh_id, "has no geometry")
-            polygons, kinds, _ = fiona_polygons(piece.geometry, mesh_id)
+            geometry = even_odd(piece.geometry) if piece.oid.startswith("relation/") else piece.geometry
+            polygons, kinds, _ = fiona_polygons(geometry, mesh_id)
             flat = [[ring.tolist() for ring in poly] for poly in polygons]
             if not flat:
                 raise InputFileError(mesh_id, f"has no polygon to extrude (its geometry: {', '.join(sorted(kinds)) or 'empty'})")

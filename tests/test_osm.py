@@ -1167,3 +1167,56 @@ def test_elements_josm_marks_deleted_are_not_read(tmp_path, gzipped):
     assert isinstance(items[0], RawMesh) and any("JOSM marks deleted" in n for n in items[0].notes)
     assert _volume(items[0]) == pytest.approx(osm.area[1] * 9, rel=1e-5)
     assert items[0].source == str(path)
+
+
+#: osm-testdata's case 775 (Jochen Topf's test suite of libosmium's multipolygon assembly): two closed ways of one
+#: multipolygon relation, whose outer rings touch at two nodes, and the expected area (its WKT).
+CASE_775_WAYS = ([(7.52, 1.73), (7.52, 1.75), (7.54, 1.75), (7.55, 1.75), (7.55, 1.73), (7.54, 1.73), (7.52, 1.73)],
+                 [(7.54, 1.76), (7.57, 1.76), (7.57, 1.72), (7.54, 1.72), (7.54, 1.73), (7.54, 1.75), (7.54, 1.76)])
+CASE_775_WKT = ("MULTIPOLYGON(((7.52 1.73,7.52 1.75,7.54 1.75,7.54 1.73,7.52 1.73)),((7.54 1.75,7.54 1.76,7.57 1.76,"
+                "7.57 1.72,7.54 1.72,7.54 1.73,7.55 1.73,7.55 1.75,7.54 1.75)))")
+
+
+def test_overlapping_rings_of_a_multipolygon_are_its_even_odd_area():
+    """GDAL gives osm-testdata's case 775 as two overlapping polygons (their union 14 % larger than the expected
+    area): read by the even-odd rule of libosmium, the footprint is osm-testdata's expected multipolygon. Rings that
+    cross (its case 710, which libosmium calls invalid) or share a segment are left as GDAL gives them."""
+    import shapely
+    import shapely.wkt
+    from shapely.geometry import mapping, shape
+
+    from meshsom.osm import even_odd
+
+    gdal = mapping(shapely.MultiPolygon([shapely.Polygon(w) for w in CASE_775_WAYS]))
+    expected = shapely.wkt.loads(CASE_775_WKT)
+    got = shape(even_odd(gdal))
+    assert shapely.unary_union(shape(gdal)).area == pytest.approx(expected.area * 16 / 14, rel=1e-9)  # as it was
+    assert got.is_valid and got.area == pytest.approx(expected.area, rel=1e-9)
+    assert got.symmetric_difference(expected).area < 1e-12
+    crossing = mapping(shapely.MultiPolygon([shapely.box(0, 0, 2, 2), shapely.box(1, 1, 3, 3)]))
+    assert even_odd(crossing) is crossing
+    sharing = mapping(shapely.MultiPolygon([shapely.box(0, 0, 2, 2), shapely.Polygon([(0, 0), (2, 0), (1, -1)])]))
+    assert even_odd(sharing) is sharing  # a segment in common (cases 750, 783): as GDAL gives it
+    twice = mapping(shapely.MultiPolygon([shapely.box(0, 0, 2, 2), shapely.box(0, 0, 2, 2)]))
+    assert even_odd(twice) is twice  # the same way twice (case 790): as GDAL gives it
+
+
+def test_a_multipolygon_of_outer_rings_touching_at_two_nodes_is_read_as_libosmium_reads_it(tmp_path):
+    """osm-testdata's case 775 drawn in metres (10 m for its 0.01 degree): the building is its expected area (the
+    XOR of its rings, as libosmium assembles it: 1,400 m2, not their union's 1,600) times its height."""
+    xy = {0: (0, 10), 1: (0, 30), 2: (20, 0), 3: (20, 10), 4: (20, 30), 5: (20, 40), 6: (30, 10), 7: (30, 30),
+          8: (50, 0), 9: (50, 40)}
+    lonlat = {k: (round(lon, 7), round(lat, 7)) for k, (lon, lat) in zip(xy, _lonlat(list(xy.values())))}
+    nodes = [f'  <node id="{k + 1}" version="1" lat="{lat:.7f}" lon="{lon:.7f}"/>' for k, (lon, lat) in lonlat.items()]
+    nd = lambda ring: "".join(f'<nd ref="{k + 1}"/>' for k in ring)  # noqa: E731
+    text = "\n".join(['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="meshsom tests">', *nodes,
+                      f'  <way id="800" version="1">{nd([0, 1, 4, 7, 6, 3, 0])}</way>',
+                      f'  <way id="801" version="1">{nd([5, 9, 8, 2, 3, 4, 5])}</way>',
+                      '  <relation id="900" version="1"><member type="way" ref="800" role=""/><member type="way" '
+                      'ref="801" role=""/><tag k="type" v="multipolygon"/><tag k="building" v="yes"/>'
+                      '<tag k="height" v="10"/></relation>', "</osm>"]) + "\n"
+    (tmp_path / "775.osm").write_text(text)
+    (item,) = read_file(tmp_path / "775.osm")
+    expected = sum(_enu_area([lonlat[k] for k in ring]) for ring in ([0, 1, 4, 3], [4, 5, 9, 8, 2, 3, 6, 7]))
+    assert expected == pytest.approx(1400, rel=1e-3)  # the rings drawn, at OSM's centimetre
+    assert _union_volume(item) == pytest.approx(expected * 10, rel=1e-4)
