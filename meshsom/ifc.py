@@ -173,14 +173,15 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
         what = f"IfcBuilding {building.Name!r}" if building is not None and building.Name else "the model"
         kinds = Counter(e.is_a() for e in members)
-        if (set(options.ifc_classes) & set(IFC_ENCLOSING_CLASSES)
-                and all(any(e.is_a(c) for c in IFC_FRAMING_CLASSES) for e in members)):
+        enclosing = bool(set(options.ifc_classes) & set(IFC_ENCLOSING_CLASSES))  # an envelope is asked for
+        if enclosing and all(any(e.is_a(c) for c in IFC_FRAMING_CLASSES) for e in members):
             yield Rejection(mesh_id, str(path), (
                 f"{what}: a structural model, {len(members)} framing elements ({_counted(kinds)}) and no "
                 f"{', '.join(IFC_ENCLOSING_CLASSES)}: a frame encloses no building, it has no envelope"))
             continue
         try:
-            vertices, faces, shell_of, notes = _envelope(members, shapes, mesh_id, options.ifc_gap)
+            vertices, faces, shell_of, notes = _envelope(members, shapes, mesh_id, options.ifc_gap,
+                                                         rooms=building is not None and enclosing)
         except MeshError as err:
             yield Rejection(mesh_id, str(path), f"{what}: {err.problem}")
             continue
@@ -397,11 +398,12 @@ def _closed_solid(vertices: np.ndarray, faces: np.ndarray, params):
         return None
 
 
-def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
+def _envelope(members: list, shapes: dict, mesh_id: str, gap: float, rooms: bool = False
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """The outer surface of the union of ``members``' solids, each grown by ``gap / 2`` (and the
     union shrunk back by as much: gaps narrower than ``gap`` closed): vertices (V, 3), faces
-    (F, 3), the shell of every face (F,), and notes on what went."""
+    (F, 3), the shell of every face (F,), and notes on what went. ``rooms``: a union that encloses
+    no room (its volume its elements' alone) is a MeshError (a building), not a note (elements alone)."""
     from meshsom.preprocess import PreprocessParams
     from meshsom.topology import signed_volume, vertex_pieces
     from meshsom.union import _manifold3d
@@ -468,6 +470,11 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
     envelope_volume = sum(shells[k][2] for k in outer)
     enclosed = envelope_volume - sum(vol for _, _, vol in shells)  # the rooms (less what stands free in them)
     if enclosed <= MIN_ENCLOSED * envelope_volume:
+        if rooms:
+            raise MeshError(mesh_id, f"its {sum(used.values())} elements ({_counted(used)}) enclose no room: their union "
+                                     f"is {envelope_volume:.4g} m3 of solid (grown by the gap closing) with nothing "
+                                     f"inside, no envelope (a roof, windows or doors not in the file, or openings and "
+                                     f"gaps wider than ifc_gap, {1000 * gap:g} mm, lead from outside into the rooms)")
         notes.append(f"IFC: its elements enclose no room: the envelope is their solids alone ({envelope_volume:.4g} m3 "
                      f"grown; openings or gaps wider than {1000 * gap:g} mm lead from outside into any rooms)")
     kept = [_shrunk(shells[k][0], shells[k][1], union_planes[shell_of_face == k], normals, offsets, gap / 2, manifold3d)
@@ -477,6 +484,13 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float
         notes.append(f"IFC: {sum(why.values())} of {len(outer)} shells left {1000 * gap / 2:g} mm outside the elements' "
                      f"faces (not moved back onto the elements' planes: {'; '.join(why)})")
     pieces = [shells[k][:2] if isinstance(done, str) else done for k, done in zip(outer, kept)]
+    flat = sum(len(f) == 0 for _, f in pieces)
+    if flat == len(pieces):
+        raise MeshError(mesh_id, f"its {sum(used.values())} elements ({_counted(used)}) have no volume as drawn: "
+                                 f"sheets of no thickness, solids only once grown by the gap closing")
+    if flat:
+        notes.append(f"IFC: {flat} shells of no volume as drawn left out (elements of no thickness)")
+        pieces = [piece for piece in pieces if len(piece[1])]
     starts = np.cumsum([0] + [len(v) for v, _ in pieces])
     vertices = np.concatenate([v for v, _ in pieces]) + centre
     faces = np.concatenate([f + starts[j] for j, (_, f) in enumerate(pieces)])
@@ -576,7 +590,7 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
     Returns
     -------
     ((V', 3) float64, (F', 3) int64) or str
-        The shrunk shell, or why it was not shrunk.
+        The shrunk shell (empty where nothing is left: elements drawn flat), or why it was not shrunk.
     """
     from meshsom.preprocess import weld
 
@@ -657,8 +671,10 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
                                                    tri_verts=np.ascontiguousarray(f, np.uint64)))
     result = result.simplify(SIMPLIFY_TOLERANCE)
     # to first order the volume lost is the distance times the area; more or less is a shell gone wrong
-    if result.status() != manifold3d.Error.NoError or result.is_empty():
-        return f"manifold3d: {'nothing left' if result.is_empty() else result.status().name}"
+    if result.status() != manifold3d.Error.NoError:
+        return f"manifold3d: {result.status().name}"
+    if result.is_empty():  # elements drawn flat (a sheet of no thickness), closed by the growth alone
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     # the growth took about the distance times the area (a thick shell: within VOLUME_SLACK of that), never more
     # than (1 + VOLUME_SLACK) times it, never less than nothing (a thin one: its edges' and corners' share is large)
     taken, expected = grown_volume - result.volume(), distance * grown_area

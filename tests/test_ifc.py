@@ -225,16 +225,17 @@ def test_a_site_at_latitude_and_longitude_zero_is_not_a_place(models, tmp_path):
 def test_hairline_gaps_between_elements_are_closed(tmp_path):
     """A roof slab 3 mm above the walls' tops (as BIM models leave them): with the default
     ``ifc_gap`` (1 cm) the house is one closed box (its volume plus the gap's); with 0 the rooms
-    lead out through the gap, so no room is dropped and the envelope is the walls, floor and roof
-    as separate walls around empty rooms: far less volume."""
+    lead out through the gap, so no room is enclosed: the union is the walls, floor and roof
+    alone, no envelope, and the building is a rejection saying so (it was accepted as that union,
+    far less than the box)."""
     path = write_house(tmp_path / "gap.ifc", garage=False, roof_gap=0.003)
     closed, _ = _meshes(path)
-    open_, _ = _meshes(path, ReaderOptions(ifc_gap=0.0))
-    assert len(closed) == len(open_) == 1
+    open_, (rejection,) = _meshes(path, ReaderOptions(ifc_gap=0.0))
+    assert len(closed) == 1 and not open_
     box = HOUSE[0] * HOUSE[1] * (HOUSE[2] + 0.003)
     assert signed_volume(closed[0].vertices, closed[0].faces) == pytest.approx(box, rel=1e-4)
-    assert signed_volume(open_[0].vertices, open_[0].faces) < 0.5 * box
-    assert not any("inside the envelope" in n for n in open_[0].notes)
+    assert "IfcBuilding 'house': its " in rejection.reason and "enclose no room" in rejection.reason
+    assert "ifc_gap, 0 mm" in rejection.reason, rejection.reason
 
 
 def test_gzipped_and_zipped_ifc_read_alike(models, tmp_path):
@@ -471,3 +472,27 @@ def test_a_sliver_that_collapses_onto_a_line_is_not_a_fold():
     assert _turned_over(-before, v, f, SLIVER_HEIGHT * distance).tolist() == [False, True]
     area = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1) / 2
     assert area[0] == pytest.approx(1.5e-6) and area[0] > (0.01 * distance) ** 2  # the old criterion's fold
+
+
+def test_a_shell_of_elements_drawn_flat_shrinks_to_nothing():
+    """A sheet drawn without thickness (aalseth's Revit model has two) is a solid only once grown by the gap
+    closing: moved back onto its planes nothing is left, and it is dropped (was: kept 5 mm grown, a flat box
+    that preprocessing found folded). A sheet 2 mm thick comes back 2 mm thick."""
+    from meshsom.ifc import _face_planes, _plane_groups, _shrunk
+    from meshsom.union import _manifold3d
+
+    manifold3d = _manifold3d()
+    distance = 0.005
+    for thickness, volume in ((0.0, 0.0), (0.002, 2.0 * 1.0 * 0.002)):
+        v, f = _box([0, 0, 0], [2.0, 1.0, max(thickness, 1e-12)])
+        v[:, 2] = np.where(v[:, 2] > 0, thickness, 0.0)
+        normals, offsets, plane_of = _plane_groups([_face_planes(*_box([0, 0, 0], [2.0, 1.0, 1.0]))])
+        # the drawn sheet's planes: its sides as the unit box's, its top at the thickness
+        offsets = np.where(normals[:, 2] > 0.5, thickness, offsets)
+        grown = mitered_offset(*_box([0, 0, 0], [2.0, 1.0, max(thickness, 1e-3)]), distance)
+        grown[:, 2] = np.where(grown[:, 2] > 0, thickness + distance, -distance)
+        done = _shrunk(grown, f, plane_of, normals, offsets, distance, manifold3d)
+        assert not isinstance(done, str), done
+        assert (len(done[1]) == 0) == (thickness == 0.0)
+        if len(done[1]):
+            assert signed_volume(*done) == pytest.approx(volume, rel=1e-9)
