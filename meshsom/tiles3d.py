@@ -174,7 +174,8 @@ def is_tile_content(glb: bytes, where: str) -> bool:
 
 def declares_instancing(gltf: dict) -> bool:
     """Whether a glTF document uses :data:`GPU_INSTANCING`."""
-    return GPU_INSTANCING in (set(gltf.get("extensionsUsed") or []) | set(gltf.get("extensionsRequired") or []))
+    return any(isinstance(names, list) and GPU_INSTANCING in names
+               for names in (gltf.get("extensionsUsed"), gltf.get("extensionsRequired")))
 
 
 def instanced_glb(glb: bytes, where: str) -> tuple[bytes, int]:
@@ -195,9 +196,22 @@ def instanced_glb(glb: bytes, where: str) -> tuple[bytes, int]:
         Instance attributes that are no accessors of the GLB's binary chunk, of other types or counts than the
         extension allows, or more than :data:`MAX_INSTANCES` instances.
     """
+    gltf, binary = split_glb(glb, where)
+    if not declares_instancing(gltf) and not any(
+            isinstance(n, dict) and isinstance(n.get("extensions"), dict) and GPU_INSTANCING in n["extensions"]
+            for n in (gltf.get("nodes") if isinstance(gltf.get("nodes"), list) else [])):
+        return glb, 0
+    try:
+        return _instanced(gltf, binary, where)
+    except (AttributeError, TypeError, ValueError, KeyError, IndexError) as err:
+        raise InputFileError(where, f"holds {GPU_INSTANCING} laid out otherwise than its specification says "
+                                    f"({type(err).__name__}: {err})") from None
+
+
+def _instanced(gltf: dict, binary: bytes, where: str) -> tuple[bytes, int]:
+    """The work of :func:`instanced_glb` on a document that uses the extension."""
     from meshsom.gltf_compression import join_glb
 
-    gltf, binary = split_glb(glb, where)
     nodes = gltf.get("nodes") if isinstance(gltf.get("nodes"), list) else []
     total = 0
     for k, node in enumerate(list(nodes)):
@@ -224,8 +238,6 @@ def instanced_glb(glb: bytes, where: str) -> tuple[bytes, int]:
                      for i, m in enumerate(matrices))
         del node["mesh"]
         node["children"] = list(node.get("children") or []) + children
-    if not total and not declares_instancing(gltf):
-        return glb, 0
     for key in ("extensionsUsed", "extensionsRequired"):
         if key in gltf:
             gltf[key] = [e for e in gltf[key] if e != GPU_INSTANCING]
@@ -377,15 +389,19 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
 
 def _null_feature_id(gltf: dict) -> int | None:
     """The ``nullFeatureId`` of the ``EXT_mesh_features`` feature-id set read from ``_FEATURE_ID_0`` (the id that
-    marks vertices of no feature), None where none is given."""
-    for mesh in gltf.get("meshes") or []:
-        for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
-            sets = (((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}).get("featureIds") or []) \
-                if isinstance(primitive, dict) else []
-            for feature_ids in sets:
-                if isinstance(feature_ids, dict) and feature_ids.get("attribute") == 0 and \
-                        isinstance(feature_ids.get("nullFeatureId"), int) and feature_ids["nullFeatureId"] >= 0:
-                    return feature_ids["nullFeatureId"]
+    marks vertices of no feature), None where none is given (or the JSON is laid out otherwise than the
+    specification says)."""
+    try:
+        for mesh in gltf.get("meshes") or []:
+            for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
+                extension = ((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}) \
+                    if isinstance(primitive, dict) else {}
+                for feature_ids in extension.get("featureIds") or []:
+                    if isinstance(feature_ids, dict) and feature_ids.get("attribute") == 0 and \
+                            isinstance(feature_ids.get("nullFeatureId"), int) and feature_ids["nullFeatureId"] >= 0:
+                        return feature_ids["nullFeatureId"]
+    except (AttributeError, TypeError):
+        return None
     return None
 
 
@@ -394,6 +410,14 @@ def property_table(gltf: dict, binary: bytes, names, where: str) -> tuple[dict, 
     that a glTF content's feature ids name (``EXT_mesh_features``: the table of the first feature-id set read from
     ``_FEATURE_ID_0``; 3D Tiles 1.1's batch table), as lists of its row count, and that count; ``({}, None)`` without
     one. Columns of other types (arrays, vectors, enums), and any the binary chunk does not hold, are left out."""
+    try:
+        return _property_table(gltf, binary, names)
+    except (AttributeError, TypeError, ValueError, KeyError):  # metadata laid out otherwise than the specification
+        return {}, None  # says: no ids, no labels (the geometry is read as it is)
+
+
+def _property_table(gltf: dict, binary: bytes, names) -> tuple[dict, int | None]:
+    """The work of :func:`property_table`, which answers for what it raises."""
     metadata = (gltf.get("extensions") or {}).get("EXT_structural_metadata")
     tables = metadata.get("propertyTables") if isinstance(metadata, dict) else None
     if not isinstance(tables, list):

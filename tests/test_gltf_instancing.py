@@ -81,3 +81,15 @@ def test_instances_outside_the_binary_chunk_are_a_rejection(tmp_path):
     glb, _ = instanced_houses(tmp_path, rotation_accessor={"byteOffset": 1 << 20})
     (item,) = read_file(glb)
     assert isinstance(item, Rejection) and "ROTATION of node 0" in item.reason and "beyond" in item.reason, item
+
+
+def test_instancing_laid_out_otherwise_is_a_rejection(tmp_path):
+    """An instanced node whose children are a number, not a list (found by mutating the JSON): the file's rejection
+    names the extension (a TypeError stopped the read)."""
+    glb, _ = instanced_houses(tmp_path)
+    gltf, binary = split_glb(glb.read_bytes(), "houses")
+    node = next(n for n in gltf["nodes"] if "extensions" in n)
+    node["children"] = 5
+    (tmp_path / "odd.glb").write_bytes(join_glb(gltf, binary))
+    (item,) = read_file(tmp_path / "odd.glb")
+    assert isinstance(item, Rejection) and "EXT_mesh_gpu_instancing" in item.reason, item

@@ -102,3 +102,16 @@ def test_a_feature_beyond_the_property_table_keeps_its_number(tmp_path):
     houses_with_metadata(tmp_path / "houses.glb", ground=True, null=False)
     items = list(read_file(tmp_path / "houses.glb"))
     assert sorted(m.id.rsplit("#", 1)[1] for m in items) == sorted([*IDS, "65535"]), items
+
+
+def test_metadata_laid_out_otherwise_leaves_feature_numbers(tmp_path):
+    """A property table whose properties are a list, not an object (found by mutating the JSON): no ids, no labels,
+    the buildings read under their feature numbers (an AttributeError stopped the read)."""
+    from meshsom.tiles3d import property_table
+
+    glb = houses_with_metadata(tmp_path / "houses.glb").read_bytes()
+    gltf, binary = split_glb(glb, "houses")
+    gltf["extensions"]["EXT_structural_metadata"]["propertyTables"][0]["properties"] = ["id", "family"]
+    assert property_table(gltf, binary, ("id", "family"), "houses") == ({}, None)
+    (tmp_path / "odd.glb").write_bytes(join_glb(gltf, binary))
+    assert sorted(m.id.rsplit("#", 1)[1] for m in read_file(tmp_path / "odd.glb")) == ["0", "1"]
