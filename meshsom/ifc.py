@@ -171,7 +171,8 @@ def read_ifc(path: Path, options: ReaderOptions = ReaderOptions(), name: str | N
     placement, placed_note = _placement(model)
     for building, members in groups:
         mesh_id = f"{name}#{building.GlobalId}" if building is not None else f"{name}#model"
-        what = f"IfcBuilding {building.Name!r}" if building is not None and building.Name else "the model"
+        what = ("the model" if building is None else f"IfcBuilding {building.Name!r}" if building.Name
+                else "its IfcBuilding (no name)")
         kinds = Counter(e.is_a() for e in members)
         enclosing = bool(set(options.ifc_classes) & set(IFC_ENCLOSING_CLASSES))  # an envelope is asked for
         if enclosing and all(any(e.is_a(c) for c in IFC_FRAMING_CLASSES) for e in members):

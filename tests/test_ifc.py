@@ -431,6 +431,12 @@ def test_a_structural_model_is_a_rejection_saying_so(tmp_path):
     assert not meshes and rejection.id.startswith("frame.ifc#")
     assert "IfcBuilding 'hall frame': a structural model, 13 framing elements (7 IfcBeam, 6 IfcColumn)" in rejection.reason
     assert "no IfcWall, IfcSlab, IfcRoof, IfcCurtainWall, IfcCovering" in rejection.reason
+
+    def unnamed(model):
+        model.by_type("IfcBuilding")[0].Name = None
+
+    (rejection,) = _meshes(_edited(path, tmp_path / "unnamed.ifc", unnamed))[1]  # was called "the model"
+    assert rejection.reason.startswith("its IfcBuilding (no name): a structural model"), rejection.reason
     (frame,), _ = _meshes(path, ReaderOptions(ifc_classes=("IfcBeam", "IfcColumn")))
     columns = 6 * 0.3 * 0.3 * 4.0
     beams = 3 * 0.3 * 0.3 * 6.3 + 4 * 0.3 * 0.3 * 5.7
