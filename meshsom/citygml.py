@@ -18,6 +18,10 @@ Details of the encoding:
 - Where an object has a solid at a LoD, that LoD is the solid's polygons alone: the thematic
   surfaces beside it may hold what is not shell (roof overhangs, recessed windows). Without a
   solid, every surface at the LoD is read.
+- The shells of an object's solids at a LoD (each ``gml:Solid``'s exterior and interiors, those of a
+  ``gml:CompositeSolid`` or ``gml:MultiSolid``) are kept apart where there are several: the LoD is then a
+  MultiSolid of one shell per solid, whose shells that are no cavity are united as CityJSON's are
+  (:func:`meshsom.io._parts`).
 - ``gml:OrientableSurface orientation="-"`` is its base surface reversed: a party wall that a
   Building and its BuildingPart share is written once and referred to so by the second.
 - Planar pieces are ``gml:Polygon`` and the patches of ``gml:Surface`` (``PolygonPatch``,
@@ -197,27 +201,38 @@ def _polygon(element, where: str, flat_ok: bool = False) -> list[np.ndarray]:
     return exterior[:1] + interiors if exterior else []
 
 
-def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int]:
-    """Every polygon of one city object (not of its parts), by LoD; and the count of references
-    (``xlink:href``, to a polygon or to a whole surface or solid) not found in the building.
+def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, tuple[list, list]], int]:
+    """Every polygon of one city object (not of its parts), by LoD, with the shell of a solid each lies in; and the
+    count of references (``xlink:href``, to a polygon or to a whole surface or solid) not found in the building.
 
     Where the object has a solid at a LoD (``lod2Solid``, a ``gml:Solid``), that LoD's polygons
     are the solid's alone: the solid is the closed shell, while the thematic surfaces at the same
     LoD may hold more (roof overhangs, recessed windows, surfaces of the ground). Otherwise they
-    are the polygons of every surface at that LoD.
+    are the polygons of every surface at that LoD. A shell is a ``gml:Solid``'s ``exterior`` or ``interior``
+    (the solids of a ``gml:CompositeSolid`` or ``gml:MultiSolid`` each have theirs); a polygon outside any has
+    shell None.
+
+    Returns
+    -------
+    by_lod : dict
+        ``{lod: (polygons, shells)}``: the polygons (lists of rings) and each one's shell number (or None).
+    missing : int
     """
-    by_lod: dict[tuple[str, bool], list] = {}
+    by_lod: dict[tuple[str, bool], tuple[list, list]] = {}
     seen: set = set()
     missing = 0
+    shells = [0]
 
-    def add(polygon, lod: str, reverse: bool, solid: bool):
-        key = (id(polygon), reverse, solid)
+    def add(polygon, lod: str, reverse: bool, solid: bool, shell):
+        key = (id(polygon), reverse, solid, shell)
         if key not in seen:
             seen.add(key)
             rings = _polygon(polygon, where, lod == "0")
-            by_lod.setdefault((lod, solid), []).append([r[::-1] for r in rings] if reverse else rings)
+            polys, of = by_lod.setdefault((lod, solid), ([], []))
+            polys.append([r[::-1] for r in rings] if reverse else rings)
+            of.append(shell)
 
-    def walk(element, lod: str | None, reverse: bool, solid: bool, roof: bool = False):
+    def walk(element, lod: str | None, reverse: bool, solid: bool, roof: bool = False, shell=None):
         nonlocal missing
         for child in element:
             name = _local(child.tag)
@@ -235,21 +250,26 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, list], int
             # gml:OrientableSurface orientation="-": its base surface, reversed (a party wall
             # that two parts share is written once and referred to so by the second part)
             child_reverse = reverse != (name == "OrientableSurface" and child.attrib.get("orientation", "+").strip() == "-")
+            child_shell = shell
+            if name in ("exterior", "interior") and _local(element.tag) == "Solid":  # a solid's shell
+                shells[0] += 1
+                child_shell = shells[0]
             href = child.attrib.get(_XLINK_HREF)
             if href and child_lod is not None:
                 target = by_id.get(href.lstrip("#"))
                 if target is None:
                     missing += 1
                 elif _local(target.tag) in POLYGON_NAMES:
-                    add(target, child_lod, child_reverse, child_solid)
-                elif (id(target), child_reverse, child_solid) not in seen:  # a surface, solid or patch referred to whole
-                    seen.add((id(target), child_reverse, child_solid))
-                    walk(target, child_lod, child_reverse, child_solid or _local(target.tag) in SOLID_NAMES, child_roof)
+                    add(target, child_lod, child_reverse, child_solid, child_shell)
+                elif (id(target), child_reverse, child_solid, child_shell) not in seen:  # a surface, solid or patch referred to whole
+                    seen.add((id(target), child_reverse, child_solid, child_shell))
+                    walk(target, child_lod, child_reverse, child_solid or _local(target.tag) in SOLID_NAMES, child_roof,
+                         child_shell)
                 continue
             if name in POLYGON_NAMES and child_lod is not None:
-                add(child, child_lod, child_reverse, child_solid)
+                add(child, child_lod, child_reverse, child_solid, child_shell)
                 continue
-            walk(child, child_lod, child_reverse, child_solid, child_roof)
+            walk(child, child_lod, child_reverse, child_solid, child_roof, child_shell)
 
     walk(obj, None, False, False)
     lods = dict.fromkeys(lod for lod, _ in by_lod)
@@ -380,7 +400,7 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
         by_lod, lost = _object_polygons(obj, where, by_id)
         missing += lost
         geometry = []
-        for lod, polys in by_lod.items():
+        for lod, (polys, shell_of) in by_lod.items():
             boundaries = []
             for poly in polys:
                 indexed = []
@@ -388,9 +408,13 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
                     rings.append(ring)
                     indexed.append(list(range(n_points, n_points + len(ring))))
                     n_points += len(ring)
-                if indexed:
-                    boundaries.append(indexed)
-            geometry.append({"type": "MultiSurface", "lod": lod, "boundaries": boundaries})
+                boundaries.append(indexed)
+            shell_ids = list(dict.fromkeys(shell_of))
+            if len(shell_ids) > 1 and None not in shell_ids:  # several shells of solids: each its own, as CityJSON's
+                geometry.append({"type": "MultiSolid", "lod": lod, "boundaries": [
+                    [[b for b, k in zip(boundaries, shell_of) if k == shell and b]] for shell in shell_ids]})
+            else:
+                geometry.append({"type": "MultiSurface", "lod": lod, "boundaries": [b for b in boundaries if b]})
         heights, height_notes = _heights(obj)
         notes += [note if k == 0 else f"its part {oid}: {note[4:]}" for note in height_notes]
         entry = {"type": "Building" if k == 0 else "BuildingPart", "geometry": geometry, "attributes": heights}
@@ -408,7 +432,9 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     inverse = inverse.reshape(-1)
     for entry in objects.values():
         for g in entry["geometry"]:
-            g["boundaries"] = [[[int(inverse[i]) for i in ring] for ring in poly] for poly in g["boundaries"]]
+            polys = g["boundaries"] if g["type"] == "MultiSurface" else [p for solid in g["boundaries"] for p in solid[0]]
+            for poly in polys:
+                poly[:] = [[int(inverse[i]) for i in ring] for ring in poly]
     if missing:
         notes.append(f"{missing} polygon reference(s) (xlink:href) outside the building were not read")
     outside = [href for e in building.iter() if _local(e.tag) in ("consistsOfBuildingPart", "buildingPart")

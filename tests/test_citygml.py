@@ -934,3 +934,53 @@ def test_gml_srs_name_forms_say_the_axis_order(tmp_path, srs, lat_first):
     assert result.volume_out == pytest.approx(area * height, rel=2e-4)
     assert not any("flipped" in r for r in result.repairs), result.repairs  # outward as written: not mirrored
     assert any("read longitude first" in n for n in b.notes) != lat_first
+
+
+def _box_shell_xml(lo, hi) -> str:
+    """A box's six faces as a gml:CompositeSurface of polygons (counter-clockwise seen from outside)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    c = [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0), (x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)]
+    quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+    members = "".join(f"<gml:surfaceMember><gml:Polygon><gml:exterior>{_ring_xml([c[i] for i in q])}</gml:exterior>"
+                      f"</gml:Polygon></gml:surfaceMember>" for q in quads)
+    return f"<gml:CompositeSurface>{members}</gml:CompositeSurface>"
+
+
+def _solids_building(kind: str, boxes) -> str:
+    """A CityGML 2.0 Building whose lod2Solid is a ``kind`` (CompositeSolid, MultiSolid: a gml:Solid per box;
+    Solid: the first box its exterior, the others interiors) of boxes (metres, lo/hi pairs)."""
+    if kind == "Solid":
+        shells = "".join(f"<gml:{'exterior' if k == 0 else 'interior'}>{_box_shell_xml(*b)}"
+                         f"</gml:{'exterior' if k == 0 else 'interior'}>" for k, b in enumerate(boxes))
+        solid = f"<gml:Solid>{shells}</gml:Solid>"
+    else:
+        solid = f"<gml:{kind}>" + "".join(f"<gml:solidMember><gml:Solid><gml:exterior>{_box_shell_xml(*b)}</gml:exterior>"
+                                          f"</gml:Solid></gml:solidMember>" for b in boxes) + f"</gml:{kind}>"
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<core:CityModel xmlns:core="http://www.opengis.net/citygml/2.0" xmlns:bldg="http://www.opengis.net/citygml/building/2.0"
+ xmlns:gml="http://www.opengis.net/gml"><core:cityObjectMember><bldg:Building gml:id="S">
+ <bldg:lod2Solid>{solid}</bldg:lod2Solid></bldg:Building></core:cityObjectMember></core:CityModel>
+"""
+
+
+@pytest.mark.parametrize("kind, boxes, want", [
+    ("MultiSolid", [((0, 0, 0), (2, 1, 1)), ((1, 0, 0), (3, 1, 1))], 3.0),  # 2 + 2 - 1
+    ("CompositeSolid", [((0, 0, 0), (2, 0.2, 2)), ((0.5, 0.1, 0.5), (1.5, 0.3, 1.5))], 0.9),  # 0.8 + 0.2 - 0.1
+    ("Solid", [((0, 0, 0), (2, 2, 1)), ((1, 0.5, 0), (3, 1.5, 2))], 7.0),  # an interior shell reaching out: 4 + 4 - 1
+    ("Solid", [((0, 0, 0), (3, 3, 3)), ((1, 1, 1), (2, 2, 2))], 26.0),  # a cavity: 27 - 1
+])
+def test_the_shells_of_a_building_s_solids_are_united(tmp_path, kind, boxes, want):
+    """Each shell of a gml:Solid (its exterior, its interiors) is read as a shell of its own, as CityJSON's reader
+    reads a MultiSolid's, so that shells touching or overlapping are united and a cavity stays one
+    (test_io.test_shells_of_a_solid_geometry_that_touch_or_overlap_are_united). The CityGML reader made every
+    polygon of a LoD one MultiSurface: the overlaps were counted twice. Volumes by hand."""
+    from pipelines.ingest import process_one
+    from meshsom.preprocess import PreprocessParams
+
+    path = tmp_path / "solids.gml"
+    path.write_text(_solids_building(kind, boxes))
+    (raw,) = read_file(path, ReaderOptions())
+    record, _ = process_one(raw, PreprocessParams())
+    assert record["status"] == "accepted", record
+    assert record["volume"] == pytest.approx(want, rel=1e-9)
+    assert (record.get("union", {}).get("status") == "united") == (want != 26.0)
