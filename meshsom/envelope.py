@@ -20,9 +20,10 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    set under the upper envelope of the roofs: overlapping roofs keep the higher, dormers stand on
    the roof, parts become one solid.
 4. Undersides: a face facing down with another face above it (a raised or sloping floor, the
-   soffit of an overhang) has the column under it taken away again, and the prisms under faces at
-   or below an underside (a lower roof under an overhang, the roof of a part another stands on)
-   put back.
+   soffit of an overhang) and, under some point of it, nothing solid (the winding of the faces above
+   that point: the bottom of a part standing inside another or on another's roof is none) has the
+   column under it taken away again, and the prisms under faces at or below an underside (a lower
+   roof under an overhang, the roof of a part another stands on) put back.
 5. Shells of the union thinner than ``envelope_tol`` on average (slivers between roofs that did
    not quite meet) are dropped; the caller preprocesses the rest
    (:func:`meshsom.union.preprocess_shells`).
