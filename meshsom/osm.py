@@ -82,6 +82,8 @@ HSTORE = re.compile(r'"((?:[^"\\]|\\.)*)"=>"((?:[^"\\]|\\.)*)"')
 #: Tags a part takes from its building where it has none of its group (:func:`inherit`): its top, its bottom.
 INHERITED_TOP = ("height", "building:levels")
 INHERITED_BOTTOM = ("min_height", "building:min_level")
+#: The tag :func:`level_base` writes a base in (the first of the reader's ``base_attributes`` by default).
+BASE_TAG = "min_height"
 #: The note on a building part inside no building outline.
 STRAY = "a building:part inside no building outline, read as a building of its own"
 #: The name ending of a bzip2-compressed extract (Geofabrik's ``.osm.bz2``).
@@ -924,7 +926,9 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
             flat = [[ring.tolist() for ring in poly] for poly in polygons]
             if not flat:
                 raise InputFileError(mesh_id, f"has no polygon to extrude (its geometry: {', '.join(sorted(kinds)) or 'empty'})")
+            props, based = level_base(props, options)
             solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
+            said = ([based] if based else []) + list(said)
             if solid is None:
                 raise InputFileError(mesh_id, no_height(options, said))
         except InputFileError as err:
@@ -972,6 +976,45 @@ def inherit(part: dict, building: dict, options) -> dict:
         if not any(part.get(t) is not None for t in group):
             out.update({t: building[t] for t in dict.fromkeys(group) if building.get(t) is not None})
     return out
+
+
+def level_base(props: dict, options) -> tuple[dict, str | None]:
+    """The tags with ``building:min_level`` read as a ``min_height`` where they give the storeys' own height, as
+    OSM2World reads them: a part with a ``height``, a storey count and a roof of known height (flat, ``roof:height``,
+    or ``roof:levels`` x ``storey_height``) has storeys of its walls' height over their count, and its lowest storey starts that many
+    storeys up (a roof storey of 5 m with a 2.2 m roof over 1 storey, ``building:min_level=1``, stands on its ground
+    storey's 2.8 m, where ``storey_height`` put it at 3 m: a gap under it, its roof squeezed). Unchanged where a
+    base is given, or the storeys' height is not known (no height, no count, a pitched roof of no given height);
+    also the note that says so, None where unchanged."""
+    from meshsom.geojson import _number, first_number
+    from meshsom.roofs import ALIASES, roof_tags
+
+    below = first_number(props, options.min_levels_attributes)
+    height = first_number(props, options.height_attributes)
+    levels = first_number(props, options.levels_attributes)
+    if (below is None or not below[1] > 0 or height is None or not height[1] > 0 or levels is None
+            or not levels[1] > 0 or first_number(props, options.base_attributes) is not None):
+        return props, None
+    found = roof_tags(props)
+    tagged = str(found.get("roof:shape", "flat")).strip().lower()
+    roof, said = 0.0, ""
+    if ALIASES.get(tagged, tagged) not in ("flat", ""):
+        roof = _number(found.get("roof:height"))
+        roof_levels = _number(found.get("roof:levels"))
+        if roof is not None and roof >= 0:
+            said = f" less roof:height {roof:g}"
+        elif roof_levels is not None and roof_levels > 0:  # as the roof is built (meshsom.roofs.roof_height)
+            roof = roof_levels * options.storey_height
+            said = f" less roof:levels {roof_levels:g} x {options.storey_height:g} m"
+        else:
+            return props, None
+    storey = (height[1] - roof) / levels[1]
+    base = below[1] * storey
+    if not (storey > 0 and base <= height[1] - roof and base < height[1]):
+        return props, None
+    out = {**props, BASE_TAG: f"{base:.6g}"}
+    return out, (f"base from {below[0]} = {below[1]:g} storeys of {storey:.4g} m ({height[0]} {height[1]:g}{said}, "
+                 f"over {levels[0]} = {levels[1]:g})")
 
 
 def _is_part(found: dict) -> bool:

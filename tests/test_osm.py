@@ -1220,3 +1220,31 @@ def test_a_multipolygon_of_outer_rings_touching_at_two_nodes_is_read_as_libosmiu
     expected = sum(_enu_area([lonlat[k] for k in ring]) for ring in ([0, 1, 4, 3], [4, 5, 9, 8, 2, 3, 6, 7]))
     assert expected == pytest.approx(1400, rel=1e-3)  # the rings drawn, at OSM's centimetre
     assert _union_volume(item) == pytest.approx(expected * 10, rel=1e-4)
+
+
+def test_a_parts_lowest_storey_starts_at_its_own_storeys_height(tmp_path):
+    """building:min_level on a part with a height and a storey count counts storeys of its walls' own height (its
+    height less its roof's, over its storeys), as OSM2World reads it, not of storey_height (3 m): a tower of 3 storeys
+    in 12 m over a 4 m podium, overhanging it, starts at 4 m; a gabled roof storey (roof:height 4) over 2 storeys of
+    12 m, min_level 1, starts at 4 m (OSM2World's issue 203: a roof storey floated over its ground floor, squeezed)."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), building="office")
+    osm.way(2, (0, 0, 10, 10), height="4", **{PART: "yes", LEVELS: "1"})
+    osm.way(3, (0, 0, 20, 10), height="12", **{PART: "yes", LEVELS: "3", "building:min_level": "1"})
+    osm.way(4, (40, 0, 60, 10), building="house")
+    osm.way(5, (40, 0, 50, 10), height="4", **{PART: "yes", LEVELS: "1"})
+    osm.way(6, (40, 0, 60, 10), height="12", **{PART: "yes", LEVELS: "2", "building:min_level": "1", ROOF: "gabled",
+                                                  "roof:height": "4"})
+    osm.way(7, (80, 0, 90, 10), building="yes", height="12", min_height="2", **{LEVELS: "3", "building:min_level": "1"})
+    osm.way(8, (100, 0, 110, 10), building="yes", height="12", **{LEVELS: "3", "building:min_level": "1",
+                                                                  ROOF: "hipped"})
+    (tmp_path / "o.osm").write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "o.osm")}
+    # the podium 0-4 m, the tower 4-12 m (was 3-12 m: 9 m over the overhang)
+    assert _union_volume(items["way/1"]) == pytest.approx(osm.area[2] * 4 + osm.area[3] * 8, rel=1e-4)
+    # the podium 0-4 m; walls 4-8 m, a gabled roof 8-12 m (half its prism)
+    assert _union_volume(items["way/4"]) == pytest.approx(osm.area[5] * 4 + osm.area[6] * (4 + 4 / 2), rel=1e-4)
+    assert any("base from building:min_level = 1 storeys of 4 m" in n for n in items["way/4"].notes)
+    # a min_height given is the base; a pitched roof of no given height leaves the storeys' height unknown: 3 m
+    assert _volume(items["way/7"]) == pytest.approx(osm.area[7] * 10, rel=1e-5)
+    assert any("base from building:min_level = 1 storeys x 3 m" in n for n in items["way/8"].notes)
