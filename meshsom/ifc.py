@@ -100,8 +100,9 @@ SLIVER_HEIGHT = 0.01
 #: (1 + VOLUME_SLACK) times the product.
 VOLUME_SLACK = 0.25
 THICK_SHARE = 0.05
-#: A union whose rooms (its volume less its elements') are at most this share of it encloses no room (noted).
-MIN_ENCLOSED = 0.01
+#: A union without a cavity of this many cubic metres (a closet) encloses no room: the cavities between the
+#: layers of a timber wall or inside a steel tube are not rooms.
+MIN_ROOM_VOLUME = 2.0
 #: manifold3d's simplification of a shell before and after it is shrunk, and the vertices it keeps apart at one
 #: point (metres): only what moves nothing.
 SIMPLIFY_TOLERANCE = 1e-7
@@ -404,7 +405,7 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float, rooms: bool
     """The outer surface of the union of ``members``' solids, each grown by ``gap / 2`` (and the
     union shrunk back by as much: gaps narrower than ``gap`` closed): vertices (V, 3), faces
     (F, 3), the shell of every face (F,), and notes on what went. ``rooms``: a union that encloses
-    no room (its volume its elements' alone) is a MeshError (a building), not a note (elements alone)."""
+    no room (no cavity of :data:`MIN_ROOM_VOLUME`) is a MeshError (a building), not a note (elements alone)."""
     from meshsom.preprocess import PreprocessParams
     from meshsom.topology import signed_volume, vertex_pieces
     from meshsom.union import _manifold3d
@@ -469,15 +470,17 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float, rooms: bool
     if inner:
         notes.append(f"IFC: {inner} shells inside the envelope not kept (rooms, and what stands free in them)")
     envelope_volume = sum(shells[k][2] for k in outer)
-    enclosed = envelope_volume - sum(vol for _, _, vol in shells)  # the rooms (less what stands free in them)
-    if enclosed <= MIN_ENCLOSED * envelope_volume:
+    largest_room = max([-vol for _, _, vol in shells if vol < 0], default=0.0)  # rooms face inwards
+    if largest_room < MIN_ROOM_VOLUME:
+        held = (f"{envelope_volume:.4g} m3 of solid (grown by the gap closing), its largest cavity "
+                f"{largest_room:.3g} m3")
         if rooms:
-            raise MeshError(mesh_id, f"its {sum(used.values())} elements ({_counted(used)}) enclose no room: their union "
-                                     f"is {envelope_volume:.4g} m3 of solid (grown by the gap closing) with nothing "
-                                     f"inside, no envelope (a roof, windows or doors not in the file, or openings and "
-                                     f"gaps wider than ifc_gap, {1000 * gap:g} mm, lead from outside into the rooms)")
-        notes.append(f"IFC: its elements enclose no room: the envelope is their solids alone ({envelope_volume:.4g} m3 "
-                     f"grown; openings or gaps wider than {1000 * gap:g} mm lead from outside into any rooms)")
+            raise MeshError(mesh_id, f"its {sum(used.values())} elements ({_counted(used)}) enclose no room: their "
+                                     f"union is {held}, no envelope (a roof, windows or doors not in the file, or "
+                                     f"openings and gaps wider than ifc_gap, {1000 * gap:g} mm, lead from outside into "
+                                     f"the rooms)")
+        notes.append(f"IFC: its elements enclose no room: the envelope is their solids alone ({held}; openings or "
+                     f"gaps wider than {1000 * gap:g} mm lead from outside into any rooms)")
     kept = [_shrunk(shells[k][0], shells[k][1], union_planes[shell_of_face == k], normals, offsets, gap / 2, manifold3d)
             for k in outer]
     why = Counter(done for done in kept if isinstance(done, str))
