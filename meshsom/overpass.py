@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -81,6 +82,17 @@ def read_overpass(document: dict, path: Path, options, name: str | None = None) 
         what = "way" if oid.startswith("way/") else "multipolygon with ways"
         yield Rejection(f"{name}#{oid}", str(path), f"a {kind} {what} without corners: {ASK_FOR_GEOMETRY}", 0,
                         None if label is None else str(label))
+
+
+#: Characters XML 1.0 does not allow (C0 controls but tab, newline and carriage return; unpaired surrogates;
+#: U+FFFE, U+FFFF): one in a tag's key or value made the whole answer unreadable as OSM XML.
+NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def xml_text(text: str) -> str:
+    """``text`` with each character XML 1.0 does not allow (:data:`NOT_XML`) replaced by U+FFFD: a JSON string may
+    hold any character, OSM XML (what GDAL and libosmium read) not."""
+    return NOT_XML.sub("\ufffd", text)
 
 
 def _whole(value) -> bool:
@@ -168,7 +180,8 @@ def overpass_xml(document: dict, where: str, out) -> list[tuple[str, str, str | 
     write = lambda line: out.write(line + "\n")  # noqa: E731
     write('<?xml version="1.0" encoding="UTF-8"?>')
     write('<osm version="0.6" generator="meshsom (an Overpass answer)">')
-    tag = lambda tags: "".join(f"<tag k={quoteattr(k)} v={quoteattr(v)}/>" for k, v in tags.items())  # noqa: E731
+    tag = lambda tags: "".join(f"<tag k={quoteattr(xml_text(k))} v={quoteattr(xml_text(v))}/>"  # noqa: E731
+                               for k, v in tags.items())
     built = lambda tags: next((k for k in ("building", "building:part")  # noqa: E731
                                if str(tags.get(k, "no")).strip().lower() != "no"), None)
     for number, (lat, lon, tags) in sorted(nodes.items()):

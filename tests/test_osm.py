@@ -1248,3 +1248,33 @@ def test_a_parts_lowest_storey_starts_at_its_own_storeys_height(tmp_path):
     # a min_height given is the base; a pitched roof of no given height leaves the storeys' height unknown: 3 m
     assert _volume(items["way/7"]) == pytest.approx(osm.area[7] * 10, rel=1e-5)
     assert any("base from building:min_level = 1 storeys x 3 m" in n for n in items["way/8"].notes)
+
+
+def test_characters_xml_forbids_in_an_overpass_answers_tags_are_replaced(tmp_path):
+    """A JSON string may hold any character, OSM XML not: a control character (U+000B, U+0000) or an unpaired
+    surrogate in one tag's key or value made GDAL stop at it, and the whole answer was refused as holding no building
+    (or the surrogate could not be written). Each is U+FFFD now; every building is read at PROJ's area x height."""
+    import json
+
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), building="yes", height="10", name="tab\x0bvertical")
+    osm.way(2, (30, 0, 40, 10), building="yes", height="6", name="nul\x00", **{"note\x1f": "x"})
+    osm.way(3, (50, 0, 60, 10), building="yes", height="4", name="half \ud83c pair")
+    osm.way(4, (70, 0, 80, 10), building="yes", height="3", name='Caf\u00e9 & <Bar> "x" \U0001f3e0')
+    source = tmp_path / "plain.osm"  # written with the characters XML allows, then given the others in JSON
+    plain = OsmWriter()
+    plain.nodes, plain.ways = osm.nodes, [(i, refs, {k: v for k, v in tags.items() if k == "height" or k == "building"})
+                                           for i, refs, tags in osm.ways]
+    source.write_text(plain.text())
+    answer = _overpass_answer(source, geom=True)
+    names = {i: tags for i, _, tags in osm.ways}
+    for element in answer["elements"]:
+        if element["type"] == "way":
+            element["tags"] = names[element["id"]]
+    path = tmp_path / "answer.json"
+    path.write_text(json.dumps(answer), encoding="utf-8")
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    heights = {1: 10, 2: 6, 3: 4, 4: 3}
+    assert sorted(items) == [f"way/{i}" for i in heights]
+    for i, height in heights.items():
+        assert _volume(items[f"way/{i}"]) == pytest.approx(osm.area[i] * height, rel=1e-5)
