@@ -314,11 +314,11 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
         return
     negative = _negative_ids(path)
     buildings, parts, others, strays = _areas(path, negative)
-    notes = []
+    notes, damaged = [], None
     try:
         scan = osmium_scan(path, {a.oid for a in buildings + parts} | {oid for oid, _, _ in strays}, negative)
     except InputFileError as err:  # GDAL read its areas: those are read, parts by the outline that holds them
-        scan = OsmiumScan({}, [], [], [])
+        scan, damaged = OsmiumScan({}, [], [], []), err.problem
         notes.append(f"its ways were not checked for nodes missing from the extract nor for outlines GDAL passes over, "
                      f"and its building relations are not read: the file {err.problem}; each building:part goes to the "
                      "outline holding it")
@@ -339,6 +339,9 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
         if part_of[0]:
             return  # the first range says it
         kinds = ", ".join(f"{k} x {n:,}" for k, n in others.most_common(OTHERS_SHOWN)) or "none"
+        if damaged:  # a truncated download, a control character in a tag: GDAL stops at the fault without a word
+            raise InputFileError(str(path), f"holds no building that GDAL's OSM driver could read (its areas: {kinds}), "
+                                            f"and {damaged}: a damaged or truncated file?")
         raise InputFileError(str(path), f"holds no building (an area tagged building or building:part) among its areas: {kinds}")
     if others:
         notes.append(f"{sum(others.values()):,} areas that are not buildings, not read ("

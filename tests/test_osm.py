@@ -1278,3 +1278,18 @@ def test_characters_xml_forbids_in_an_overpass_answers_tags_are_replaced(tmp_pat
     assert sorted(items) == [f"way/{i}" for i in heights]
     for i, height in heights.items():
         assert _volume(items[f"way/{i}"]) == pytest.approx(osm.area[i] * height, rel=1e-5)
+
+
+def test_a_truncated_extract_says_it_is_damaged(tmp_path):
+    """An extract cut off mid-way (an interrupted download): GDAL's OSM driver stops at the fault and reports no area;
+    the rejection says libosmium's error (where, what) and that the file may be damaged or truncated, not only that
+    it holds no building."""
+    osm = OsmWriter()
+    for i in range(12):
+        osm.way(i + 1, (20 * i, 0, 20 * i + 10, 10), building="yes", height="5")
+    text = osm.text()
+    cut = text.index('<way id="11"') + 30
+    (tmp_path / "cut.osm").write_text(text[:cut])
+    (item,) = read_file(tmp_path / "cut.osm")
+    assert isinstance(item, Rejection)
+    assert re.search(r"libosmium \(XML parsing error at line \d+.*damaged or truncated", item.reason), item.reason
