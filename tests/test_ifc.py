@@ -418,16 +418,24 @@ def test_the_growth_is_undone_on_walls_that_meet_in_mitres(tmp_path, gap):
     assert not any("outside the elements' faces" in n for n in house.notes), house.notes
 
 
-def test_a_structural_model_is_a_rejection_saying_so(tmp_path):
+def test_a_structural_model_is_a_rejection_saying_so(tmp_path, monkeypatch):
     """A steel frame (Tekla's, cadwork's, GeometryGym's test models: beams, columns, members, plates and no wall,
     slab, roof, curtain wall or covering) encloses nothing: it was handed on as the union of its bars (thin steel
     grown by 5 mm, +84 %) and rejected by preprocessing for folds or edges of more than two faces, reasons that
     come from the hand-off. It is a rejection naming what it holds; with only framing classes asked for, the frame
-    is read (as the union of its bars: volume by hand)."""
+    is read (as the union of its bars: volume by hand). It is told before its elements are triangulated."""
     from ifc_models import write_frame
 
+    import meshsom.ifc
+
     path = write_frame(tmp_path / "frame.ifc", bays=2, span=6.0, height=4.0, section=0.3)
+    triangulated = []
+    real = meshsom.ifc._triangulated
+    monkeypatch.setattr(meshsom.ifc, "_triangulated", lambda model, elements, ifc: triangulated.extend(elements)
+                        or real(model, elements, ifc))
     meshes, (rejection,) = _meshes(path)
+    assert triangulated == []  # told by its classes (Tekla's costmodell: 4,319 elements, 418 s of union before)
+    monkeypatch.setattr(meshsom.ifc, "_triangulated", real)
     assert not meshes and rejection.id.startswith("frame.ifc#")
     assert "IfcBuilding 'hall frame': a structural model, 13 framing elements (7 IfcBeam, 6 IfcColumn)" in rejection.reason
     assert "no IfcWall, IfcSlab, IfcRoof, IfcCurtainWall, IfcCovering" in rejection.reason
