@@ -1313,3 +1313,18 @@ def test_a_single_tilted_polygon_is_rejected_as_what_it_is(tmp_path):
     (raw,) = read_file(path, ReaderOptions())
     record, _ = process_one(raw, PreprocessParams())
     assert record["status"] == "accepted" and record["volume"] == pytest.approx(5 * 2.46 * 3.0, rel=1e-9)
+
+
+def test_a_small_piece_keeps_the_short_edges_whose_collapse_would_flatten_it():
+    """A door's sill 2 x 7 cm in profile with a 5 mm step (a shell of KIT's AC20-FZK-Haus door #27013): collapsing
+    its edges under min_edge_length (1 cm) is a valid mesh 9 % smaller, which rejected the piece ('collapsing edges
+    shorter than 0.01 m: the volume changed by 9 %'), and with it the union of the door's 14 shells. The edges are
+    kept instead, as where the collapse breaks the mesh. Volume by hand: the profile's 12.5 cm2 x 0.91 m."""
+    from meshsom.polygons import extrude_polygon
+
+    profile = np.array([[0, 0], [0.02, 0], [0.02, 0.07], [0.015, 0.07], [0, 0.05]])
+    v, f = extrude_polygon(profile, [], 0.0, 0.91)
+    r = preprocess(v, f)
+    assert r.volume_out == pytest.approx((0.02 * 0.07 - 0.5 * 0.015 * 0.02) * 0.91, rel=1e-9)
+    assert any(x.startswith("kept the edges shorter than 0.01 m (collapsing them gives: the volume changed by")
+               for x in r.repairs), r.repairs
