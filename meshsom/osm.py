@@ -312,6 +312,10 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
         clean = path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name
         yield from _read_rewritten(path, clean, without_deleted, options, name, feature_range)
         return
+    if _out_of_order(path):
+        clean = path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name
+        yield from _read_rewritten(path, clean, in_order, options, name, feature_range)
+        return
     negative = _negative_ids(path)
     buildings, parts, others, strays = _areas(path, negative)
     notes, damaged = [], None
@@ -414,10 +418,8 @@ def _deleted_elements(path: Path) -> bool:
     return not lower.endswith((".pbf", BZIP2_SUFFIX)) and holds_match(path, JOSM_DELETED, SCAN_BYTES)
 
 
-def without_deleted(path: Path, out: Path) -> str:
-    """Write a JOSM file (OSM XML, gzipped or not) as plain XML without the elements it marks deleted (GDAL and
-    libosmium read them as any other: a deleted building:part way came back as a rejection, a deleted way with nodes
-    as a building); the note that says how many were left out.
+def _xml_tree(path: Path):
+    """An OSM XML file (gzipped or not) parsed whole (an ElementTree), for the rewrites :func:`_read_rewritten` reads.
 
     Raises
     ------
@@ -430,15 +432,91 @@ def without_deleted(path: Path, out: Path) -> str:
 
     try:
         with open_input(path) as stream:
-            tree = ET.parse(stream)
+            return ET.parse(stream)
     except ET.ParseError as err:
         raise InputFileError(str(path), f"cannot be read as OpenStreetMap XML ({err})") from None
+
+
+def without_deleted(path: Path, out: Path) -> str:
+    """Write a JOSM file (OSM XML, gzipped or not) as plain XML without the elements it marks deleted (GDAL and
+    libosmium read them as any other: a deleted building:part way came back as a rejection, a deleted way with nodes
+    as a building); the note that says how many were left out.
+
+    Raises
+    ------
+    InputFileError
+        Where the XML cannot be parsed, naming ``path``.
+    """
+    tree = _xml_tree(path)
     root = tree.getroot()
     deleted = [e for e in root if e.tag in ("node", "way", "relation") and e.get("action") == "delete"]
     for element in deleted:
         root.remove(element)
     tree.write(str(out), xml_declaration=True, encoding="UTF-8")
     return f"{len(deleted)} elements JOSM marks deleted (action='delete') left out"
+
+
+#: Each kind of OpenStreetMap element as an XML file starts it, in the order GDAL's OSM driver and libosmium's location
+#: index read them: every node before the first way, every way before the first relation.
+ELEMENT_STARTS = (b"<node", b"<way", b"<relation")
+
+
+def _out_of_order(path: Path) -> bool:
+    """Whether an OSM XML file (gzipped or not; not PBF or bzip2) holds an element after one of a later kind
+    (:data:`ELEMENT_STARTS`: a node after a way, a way after a relation), as the Overpass API writes ``out body; >;
+    out skel qt;`` (Overpass turbo's wizard: the ways, then their nodes): one pass over its bytes."""
+    from meshsom.io import open_input
+
+    if path.name.lower().endswith((".pbf", BZIP2_SUFFIX)):
+        return False
+    reached, tail = 0, b""  # the latest kind seen (its index in ELEMENT_STARTS)
+    try:
+        with open_input(path) as stream:
+            while chunk := stream.read(SCAN_BYTES):
+                text = tail + chunk
+                firsts = [_element_at(text, start, max(0, len(tail) - len(start))) for start in ELEMENT_STARTS]
+                for kind, at in enumerate(firsts):  # each kind's first start not seen in the chunk before
+                    if at >= 0 and (kind < reached or any(_element_at(text, ELEMENT_STARTS[k], at) >= 0
+                                                          for k in range(kind))):
+                        return True
+                reached = max([reached] + [kind for kind, at in enumerate(firsts) if at >= 0])
+                tail = text[-16:]
+    except (OSError, InputFileError):
+        pass
+    return False
+
+
+def _element_at(text: bytes, start: bytes, after: int = 0) -> int:
+    """Where an element's start tag (``start`` then a space, tab, line end, ``/`` or ``>``) begins in ``text`` from
+    ``after``; -1 where none does."""
+    at = text.find(start, after)
+    while at >= 0 and text[at + len(start):at + len(start) + 1] not in (b" ", b"\t", b"\n", b"\r", b"/", b">"):
+        at = text.find(start, at + 1)
+    return at
+
+
+def in_order(path: Path, out: Path) -> str:
+    """Write an OSM XML file (gzipped or not) whose elements are out of order (:func:`_out_of_order`) as plain XML of
+    its nodes, ways and relations in that order, each kind by id (what GDAL's OSM driver and libosmium read: a way
+    before its nodes had no corners, every building a rejection); the note that says so. Raises as
+    :func:`_xml_tree` does."""
+    tree = _xml_tree(path)
+    root = tree.getroot()
+    kinds = [start.decode()[1:] for start in ELEMENT_STARTS]
+    elements = [e for e in root if e.tag in kinds]
+    for element in elements:
+        root.remove(element)
+
+    def key(element):
+        try:
+            return kinds.index(element.tag), int(element.get("id") or 0)
+        except ValueError:
+            return kinds.index(element.tag), 0
+
+    root.extend(sorted(elements, key=key))
+    tree.write(str(out), xml_declaration=True, encoding="UTF-8")
+    return ("its nodes, ways and relations read in that order, each kind by id (the file has elements after later "
+            "kinds, as the Overpass API writes `out body; >; out skel qt;`)")
 
 
 @dataclasses.dataclass

@@ -1293,3 +1293,33 @@ def test_a_truncated_extract_says_it_is_damaged(tmp_path):
     (item,) = read_file(tmp_path / "cut.osm")
     assert isinstance(item, Rejection)
     assert re.search(r"libosmium \(XML parsing error at line \d+.*damaged or truncated", item.reason), item.reason
+
+
+@pytest.mark.parametrize("gzipped", [False, True])
+def test_ways_written_before_their_nodes_are_read(tmp_path, gzipped):
+    """The Overpass API writes `out body; >; out skel qt;` (Overpass turbo's wizard) as the ways and relations, then
+    their nodes: GDAL's OSM driver and libosmium's location index read no corner of a way before its nodes, and every
+    building was a rejection ('nodes not all in the extract'). Read in order now, each at PROJ's area x height, a
+    courtyard block and a building of two parts too; a file in order is read as it is."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), building="yes", height="10")
+    osm.way(2, (40, 0, 70, 30), building="yes")
+    osm.way(3, (50, 10, 60, 20))
+    osm.relation(4, 2, 3, building="yes", height="6")
+    osm.way(5, (100, 0, 120, 10), building="yes")
+    osm.way(6, (100, 0, 110, 10), height="4", **{PART: "yes"})
+    osm.way(7, (110, 0, 120, 10), height="8", **{PART: "yes"})
+    lines = osm.text().splitlines()
+    nodes = [line for line in lines if line.lstrip().startswith("<node")]
+    rest = [line for line in lines if line not in nodes]
+    text = "\n".join(rest[:-1] + nodes + rest[-1:]) + "\n"  # ways and relations, then the nodes, then </osm>
+    path = tmp_path / ("o.osm.gz" if gzipped else "o.osm")
+    path.write_bytes(gzip.compress(text.encode()) if gzipped else text.encode())
+    items = {i.id.split("#")[1]: i for i in read_file(path)}
+    assert sorted(items) == ["relation/4", "way/1", "way/5"], {k: getattr(v, "reason", "") for k, v in items.items()}
+    assert _volume(items["way/1"]) == pytest.approx(osm.area[1] * 10, rel=1e-5)
+    assert _volume(items["relation/4"]) == pytest.approx((osm.area[2] - osm.area[3]) * 6, rel=1e-5)
+    assert _union_volume(items["way/5"]) == pytest.approx(osm.area[6] * 4 + osm.area[7] * 8, rel=1e-4)
+    assert any("read in that order" in n for n in items["way/1"].notes)
+    (tmp_path / "in_order.osm").write_text(osm.text())
+    assert not any("read in that order" in n for i in read_file(tmp_path / "in_order.osm") for n in i.notes)
