@@ -9,8 +9,11 @@ building is the outer surface of what its walls, slabs and roofs enclose:
    is one of :data:`~meshsom.io.IFC_ENVELOPE_CLASSES` (``ReaderOptions.ifc_classes``) are triangulated by IfcOpenShell
    in world coordinates (metres, whatever the file's unit) with openings left closed: a wall is
    whole where its windows and doors are, so the envelope has no holes where a window was left out.
-   Spaces, furniture, building services, openings, the site's terrain and annotations are never
-   part of it.
+   Instances of the abstract ``IfcBuildingElement`` (``IfcBuiltElement``), which cadwork writes for
+   insulation, battens and boards, are read as proxies (noted). Spaces, furniture, building services,
+   openings, the site's terrain and annotations are never part of it; the building's elements left out
+   are counted by class in a note. A building of framing elements alone (beams, columns, members,
+   plates: a steel frame) is rejected as a structural model before anything is triangulated.
 2. Each element is welded and must be a closed, consistently oriented volume (the common case;
    :func:`meshsom.preprocess.validate`); one that is not goes through
    :func:`meshsom.preprocess.close_surface` (capped, closed, oriented), and one that still is not (a door leaf
@@ -18,12 +21,15 @@ building is the outer surface of what its walls, slabs and roofs enclose:
 3. Elements of real models miss each other by hairlines (a gable wall's top a millimetre under
    the roof slab, at a slightly other slope): a crack that the union would keep, leading from
    outside into the attic. So each element is grown by half of ``ReaderOptions.ifc_gap`` (default
-   1 cm; :func:`meshsom.offset.mitered_offset`, every plane moved by exactly that), the union is
-   taken and its shells are shrunk back by as much: gaps narrower than ``ifc_gap`` close, planar
-   walls end where they were.
+   1 cm; :func:`meshsom.offset.mitered_offset`, every plane moved by exactly that) and the union is
+   taken; manifold3d carries every face's id through it, so each face of the union is moved back
+   onto the plane of the element face it lies on (:func:`_shrunk`): gaps narrower than ``ifc_gap``
+   close, everything else is the union of the elements as drawn.
 4. The elements are united by manifold3d (:mod:`meshsom.union`'s boolean); of the union's shells,
    the rooms (shells facing inwards, negative volume) and whatever stands free inside another
    shell (a column or a stair in a room) are dropped: what remains is what one sees from outside.
+   A building whose union has no cavity of :data:`MIN_ROOM_VOLUME` encloses no room (walls without
+   a roof, a timber frame whose windows are not in the file) and is rejected saying so.
 5. Where the file places its project in a map CRS (``IfcMapConversion`` or
    ``IfcMapConversionScaled``, IFC4 and later; IFC2X3's ``ePSet_MapConversion``), the envelope is
    moved there (eastings, northings, height in the map's unit, the rotation of the x axis, the grid
