@@ -506,8 +506,8 @@ def check_input(vertices, faces, source: str = "mesh") -> tuple[np.ndarray, np.n
         raise MeshError(source, f"face {k} references vertex index {faces[k].tolist()} out of range (the mesh has {len(vertices)} vertices)")
     used = vertices[np.unique(faces)]
     centred = used - used.mean(axis=0)
-    axes = np.linalg.svd(centred, full_matrices=True)[2]
-    extent = np.ptp(centred @ axes.T, axis=0)  # across its principal axes, longest first
+    axes = np.linalg.eigh(centred.T @ centred)[1][:, ::-1].T  # (3, 3) whatever the count: an SVD of (V, 3) with
+    extent = np.ptp(centred @ axes.T, axis=0)  # full matrices made (V, V); across its principal axes, longest first
     if not extent[2] > FLAT_SHEET_THICKNESS * extent[1]:
         raise MeshError(source, _flat_sheet(vertices, faces))
     return vertices, faces

@@ -1315,6 +1315,24 @@ def test_a_single_tilted_polygon_is_rejected_as_what_it_is(tmp_path):
     assert record["status"] == "accepted" and record["volume"] == pytest.approx(5 * 2.46 * 3.0, rel=1e-9)
 
 
+def test_the_flatness_check_holds_a_city_block_and_a_mesh_of_one_vertex():
+    """The flatness check of check_input took the SVD of the (V, 3) vertices with full matrices, a (V, V) array:
+    a relation of 1,000 blocks (112,000 vertices) asked for 93.5 GiB and was rejected as out of memory. It takes
+    the (3, 3) scatter's eigenvectors: two grids 10 m apart, 101,400 vertices, pass as a solid; a face on one
+    vertex has no area (the scatter of one vertex still has three axes)."""
+    from meshsom.preprocess import check_input
+
+    n = 130  # grids of n x n vertices, 10 m apart, each vertex in one face: 101,400 vertices
+    u, v = np.meshgrid(np.linspace(0, 50, n), np.linspace(0, 20, n), indexing="ij")
+    top = np.column_stack([u.ravel(), v.ravel(), np.full(n * n, 10.0)])
+    many = np.concatenate([top, top * [1, 1, 0]] * 3)
+    faces = np.arange(len(many)).reshape(-1, 3)
+    vertices, _ = check_input(many, faces)  # would allocate 101,400^2 x 8 bytes = 82 GB
+    assert len(vertices) == len(many)
+    with pytest.raises(MeshError, match="no area"):
+        check_input(np.array([[0.0, 0, 0], [1, 2, 3]]), np.array([[0, 0, 0]]))
+
+
 def test_a_small_piece_keeps_the_short_edges_whose_collapse_would_flatten_it():
     """A door's sill 2 x 7 cm in profile with a 5 mm step (a shell of KIT's AC20-FZK-Haus door #27013): collapsing
     its edges under min_edge_length (1 cm) is a valid mesh 9 % smaller, which rejected the piece ('collapsing edges
