@@ -109,6 +109,10 @@ THICK_SHARE = 0.05
 #: A union without a cavity of this many cubic metres (a closet) encloses no room: the cavities between the
 #: layers of a timber wall or inside a steel tube are not rooms.
 MIN_ROOM_VOLUME = 2.0
+#: A union without rooms whose mean thickness (twice its volume over its area: a slab's thickness, a third of
+#: a cube's side) is at least this many metres is a massing (solid blocks: urban design models, CityGML
+#: converted to proxies), the building itself; walls, frames and details are thinner.
+MIN_MASSING_THICKNESS = 1.0
 #: manifold3d's simplification of a shell before and after it is shrunk, and the vertices it keeps apart at one
 #: point (metres): only what moves nothing.
 SIMPLIFY_TOLERANCE = 1e-7
@@ -482,7 +486,12 @@ def _envelope(members: list, shapes: dict, mesh_id: str, gap: float, rooms: bool
         notes.append(f"IFC: {inner} shells inside the envelope not kept (rooms, and what stands free in them)")
     envelope_volume = sum(shells[k][2] for k in outer)
     largest_room = max([-vol for _, _, vol in shells if vol < 0], default=0.0)  # rooms face inwards
-    if largest_room < MIN_ROOM_VOLUME:
+    envelope_area = sum(_face_planes(shells[k][0], shells[k][1])[2].sum() for k in outer)
+    massing = 2 * envelope_volume >= MIN_MASSING_THICKNESS * envelope_area
+    if largest_room < MIN_ROOM_VOLUME and massing:
+        notes.append(f"IFC: its elements enclose no room but are solid blocks (a massing: {envelope_volume:.4g} m3, "
+                     f"{2 * envelope_volume / envelope_area:.3g} m thick on average): the envelope is their union")
+    elif largest_room < MIN_ROOM_VOLUME:
         held = (f"{envelope_volume:.4g} m3 of solid (grown by the gap closing), its largest cavity "
                 f"{largest_room:.3g} m3")
         if rooms:

@@ -257,3 +257,31 @@ def write_frame(path: Path, bays: int = 2, span: float = 6.0, height: float = 4.
     finally:
         owner.get_user, owner.get_application = saved
     return path
+
+
+def write_massing(path: Path, blocks=((0.0, 0.0, 20.0, 10.0, 9.0), (20.0, 0.0, 30.0, 6.0, 15.0))) -> Path:
+    """A massing model as urban design tools and CityGML converters export one: an IfcBuilding whose elements are
+    solid blocks (IfcBuildingElementProxy), ``(x0, y0, x1, y1, height)`` each, standing on the ground side by side;
+    no walls, no rooms."""
+    import ifcopenshell.api as api
+    import ifcopenshell.api.aggregate
+    import ifcopenshell.api.context
+    import ifcopenshell.api.geometry
+    import ifcopenshell.api.project
+    import ifcopenshell.api.root
+    import ifcopenshell.api.spatial
+    import ifcopenshell.api.unit  # noqa: F401 (each API module is imported by name)
+
+    m = api.project.create_file(version="IFC4")
+    body, site = _project(m, api, "massing")
+    building = api.root.create_entity(m, ifc_class="IfcBuilding", name="block")
+    api.aggregate.assign_object(m, relating_object=site, products=[building])
+    for k, (x0, y0, x1, y1, height) in enumerate(blocks):
+        e = api.root.create_entity(m, ifc_class="IfcBuildingElementProxy", name=f"mass {k}")
+        rep = api.geometry.add_slab_representation(m, context=body, depth=height,
+                                                   polyline=[(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+        api.geometry.assign_representation(m, product=e, representation=rep)
+        api.geometry.edit_object_placement(m, product=e, matrix=_placement(0, 0, 0))
+        api.spatial.assign_container(m, relating_structure=building, products=[e])
+    m.write(str(path))
+    return path
