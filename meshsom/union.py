@@ -207,7 +207,7 @@ def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResul
     united = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add)
     if united.status() != manifold3d.Error.NoError or united.is_empty():
         raise MeshError(source, f"the union of {len(solids)} parts failed ({united.status().name})")
-    shells = []
+    pieces, volumes = [], []
     area_out = volume_out = 0.0
     sheets = 0
     for piece in united.decompose():
@@ -220,7 +220,9 @@ def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResul
             continue
         area_out += a
         volume_out += vol
-        shells.append((v + centre, f))
+        pieces.append((v, f))
+        volumes.append(vol)
+    shells = [(v + centre, f) for v, f in _with_cavities(pieces, np.asarray(volumes, np.float64))]
     if sheets:
         repairs.append(f"dropped {sheets} flat sheet(s) the union left (zero volume: faces of parts that touch face to "
                        f"face)")
@@ -228,6 +230,51 @@ def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResul
         raise MeshError(source, f"the union of {len(solids)} parts encloses no volume")
     return UnionResult(shells, len(solids), shells_before, len(shells), area_in, area_out, volume_in, volume_out, repairs,
                        moved)
+
+
+def _with_cavities(pieces: list, volumes: np.ndarray) -> list:
+    """The union's pieces, each cavity (a piece of negative volume: manifold3d's ``decompose`` gives the hollow of a
+    part as a piece of its own, facing in) joined to the smallest piece that encloses it, so that preprocessing keeps
+    it a cavity (:func:`meshsom.preprocess.cavity_shells`, the rule it orients shells by) instead of turning it
+    outward as a solid.
+
+    Parameters
+    ----------
+    pieces : list of ((V_i, 3) float64, (F_i, 3) int64)
+    volumes : (P,) float64
+        Each piece's signed volume.
+
+    Returns
+    -------
+    list of ((V_j, 3) float64, (F_j, 3) int64)
+        The pieces of positive volume, each with the cavities it encloses (its vertices first); a cavity that no
+        piece encloses stays a piece of its own.
+    """
+    from meshsom.preprocess import cavity_shells
+
+    hollow = np.flatnonzero(volumes < 0)
+    if not len(hollow):
+        return pieces
+    low = np.array([v.min(axis=0) for v, _ in pieces])
+    high = np.array([v.max(axis=0) for v, _ in pieces])
+    host = np.full(len(pieces), -1, np.int64)
+    for c in hollow:
+        within = np.flatnonzero((volumes > 0) & (low <= low[c]).all(axis=1) & (high >= high[c]).all(axis=1))
+        for s in within[np.argsort(volumes[within])]:  # the smallest enclosing piece first
+            (vs, fs), (vc, fc) = pieces[s], pieces[c]
+            both = np.concatenate([fs, fc + len(vs)])
+            if cavity_shells(np.concatenate([vs, vc]), both, np.repeat([0, 1], [len(fs), len(fc)]))[1]:
+                host[c] = s
+                break
+    out = []
+    for s in range(len(pieces)):
+        if host[s] >= 0:
+            continue
+        mine = [s, *np.flatnonzero(host == s)]
+        offsets = np.cumsum([0] + [len(pieces[k][0]) for k in mine])
+        out.append((np.concatenate([pieces[k][0] for k in mine]),
+                    np.concatenate([pieces[k][1] + offsets[i] for i, k in enumerate(mine)])))
+    return out
 
 
 def unite(vertices: np.ndarray, faces: np.ndarray, face_part: np.ndarray, params=None, source: str = "mesh",

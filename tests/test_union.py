@@ -307,3 +307,37 @@ def test_flat_sheets_the_union_leaves_are_dropped(bolshoi):
     for v, f in united.shells:
         assert abs(signed_volume(v, f)) > 1.0
     assert united.volume_out == pytest.approx(BOLSHOI_UNION, rel=1e-3)
+
+
+def _manifold_box(lo, hi):
+    import manifold3d
+
+    mesh = manifold3d.Manifold.cube(list(np.subtract(hi, lo))).translate(list(lo)).to_mesh64()
+    return np.asarray(mesh.vert_properties, np.float64)[:, :3], np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
+
+
+def test_a_parts_cavity_stays_a_cavity_of_the_union():
+    """A 2 m cube with a 1 m cube cavity (one part: its inner shell facing in) beside a 1.5 m cube: manifold3d's union
+    decomposes into pieces of 8, -1 and 3.375 m3, and the cavity, preprocessed alone, was turned outward as a solid
+    (12.375 m3). Kept with the piece that encloses it, it stays a cavity: 7 + 3.375 m3, as manifold3d's own volume of
+    the union of the two parts (the hollow cube as the difference of its cubes)."""
+    import manifold3d
+
+    from meshsom.union import unite
+
+    boxes = [_manifold_box((0, 0, 0), (2, 2, 2)), _manifold_box((0.5, 0.5, 0.5), (1.5, 1.5, 1.5)),
+             _manifold_box((3, 0, 0), (4.5, 1.5, 1.5))]
+    boxes[1] = (boxes[1][0], boxes[1][1][:, ::-1])  # the cavity faces in
+    offsets = np.cumsum([0] + [len(v) for v, _ in boxes])
+    v = np.concatenate([b[0] for b in boxes])
+    f = np.concatenate([b[1] + offsets[k] for k, b in enumerate(boxes)])
+    face_part = np.repeat([0, 0, 1], [len(b[1]) for b in boxes])
+    cube = manifold3d.Manifold.cube
+    independent = ((cube([2, 2, 2]) - cube([1, 1, 1]).translate([0.5, 0.5, 0.5]))
+                   + cube([1.5, 1.5, 1.5]).translate([3, 0, 0])).volume()
+    assert independent == pytest.approx(10.375)
+    united, result = unite(v, f, face_part, PreprocessParams())
+    assert united.shells_after == 2 and len(united.shells) == 2
+    assert united.volume_out == pytest.approx(independent, rel=1e-12)
+    assert result.volume_out == pytest.approx(independent, rel=1e-12)
+    assert validate(result.vertices, result.faces) is None
