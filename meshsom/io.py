@@ -2264,8 +2264,8 @@ def _parts(local: np.ndarray, faces: np.ndarray, face_member: np.ndarray, face_s
     interior shells are written for pieces beside its exterior (the windows of IFC exports: 7 shells of one
     Solid); preprocessed together, faces where they touch are fins and walls inside, not their union. A shell
     is a cavity where all its corners lie strictly inside another shell
-    (:func:`meshsom.preprocess.cavity_shells`); where the object has one, its shells stay one part (a part's
-    cavity would come out of the union as a solid).
+    (:func:`meshsom.preprocess.cavity_shells`); it stays with the shell that encloses it, in its part
+    (:func:`_cavity_hosts`), and the union keeps it a cavity of that part.
 
     Parameters
     ----------
@@ -2296,16 +2296,19 @@ def _parts(local: np.ndarray, faces: np.ndarray, face_member: np.ndarray, face_s
     surfaces = np.zeros(len(used_members), bool)
     surfaces[shell_member[shells < 0]] = True  # an object's surfaces beside its solids: its shells are not split
     split = (per_member > 1)[shell_member] & ~surfaces[shell_member]  # the solid shells of an object of several
+    host = np.arange(len(shells))  # the shell whose part each shell joins: itself, or a cavity's enclosing shell
     if split.any():
         cavity = cavity_shells(local, faces, by_shell)
-        split &= ~np.isin(shell_member, shell_member[cavity]) & ~np.isin(shell_member, _snap_distorted(
-            local, faces, by_shell, shell_member, split))
+        host = _cavity_hosts(local, faces, by_shell, shell_member, cavity)
+        solids = np.bincount(shell_member[host == np.arange(len(shells))], minlength=len(used_members))
+        split &= (solids > 1)[shell_member] & ~np.isin(shell_member, shell_member[host < 0])
+        split &= ~np.isin(shell_member, _snap_distorted(local, faces, by_shell, shell_member, split & ~cavity))
     if not split.any():
         if len(used_members) < 2:
             return (), None
         return tuple(members[k] for k in used_members), by_member
-    # a part per shell of the objects split, one per other object
-    key = np.where(split, len(used_members) + np.arange(len(shells)), shell_member)
+    # a part per shell of the objects split (a cavity in its enclosing shell's), one per other object
+    key = np.where(split, len(used_members) + host, shell_member)
     part_keys, part_of_shell = np.unique(key, return_inverse=True)
     part_of_shell = part_of_shell.reshape(-1)
     rank = np.zeros(len(shells), np.int64)
@@ -2315,8 +2318,46 @@ def _parts(local: np.ndarray, faces: np.ndarray, face_member: np.ndarray, face_s
     names = [None] * len(part_keys)
     for s_, p_ in enumerate(part_of_shell):
         member = members[used_members[shell_member[s_]]]
-        names[p_] = f"{member} shell {rank[s_] + 1}" if split[s_] else member
+        names[p_] = f"{member} shell {rank[host[s_]] + 1}" if split[s_] else member
     return tuple(names), part_of_shell[by_shell].astype(np.int64)
+
+
+def _cavity_hosts(local: np.ndarray, faces: np.ndarray, by_shell: np.ndarray, shell_member: np.ndarray,
+                  cavity: np.ndarray) -> np.ndarray:
+    """For each shell, the shell whose part it joins: itself, or for a cavity the smallest other shell of its object
+    that encloses it (all its corners strictly inside, :func:`meshsom.preprocess.cavity_shells` of the pair); -1 for
+    a cavity that no shell of its object encloses alone (one inside the object's shells only together).
+
+    Parameters
+    ----------
+    local : (V, 3) float64
+        The vertices, about the building's origin.
+    faces : (F, 3) int64
+    by_shell : (F,) int64
+        Each face's shell, 0 .. S-1.
+    shell_member : (S,) int64
+        Each shell's object.
+    cavity : (S,) bool
+
+    Returns
+    -------
+    (S,) int64
+    """
+    from meshsom.preprocess import cavity_shells
+
+    host = np.arange(len(shell_member))
+    if not cavity.any():
+        return host
+    for c in np.flatnonzero(cavity):
+        host[c] = -1
+        mates = np.flatnonzero((shell_member == shell_member[c]) & ~cavity)
+        size = [np.ptp(local[faces[by_shell == s]].reshape(-1, 3), axis=0).prod() for s in mates]
+        for s in mates[np.argsort(size, kind="stable")]:  # the smallest shell first (its bounding box)
+            pair = (by_shell == s) | (by_shell == c)
+            if cavity_shells(local, faces[pair], (by_shell[pair] == c).astype(np.int64))[1]:
+                host[c] = s
+                break
+    return host
 
 
 def _snap_distorted(local: np.ndarray, faces: np.ndarray, by_shell: np.ndarray, shell_member: np.ndarray,

@@ -603,3 +603,20 @@ def test_shells_that_the_union_would_flatten_stay_one_part(tmp_path):
     assert m.parts == ()
     record, _ = process_one(m, PreprocessParams())
     assert record["volume"] == pytest.approx(1.006, rel=1e-9)
+
+
+def test_an_object_with_a_cavity_is_split_with_the_cavity_in_its_shells_part(tmp_path):
+    """A Solid of a 3 m cube, a 1 m cube cavity in it and an "interior" shell reaching out of it (3 x 0.5 x 0.5 m, a
+    quarter of it inside the cube): its shells stayed one part, the overlap counted twice (26 + 0.75 = 26.75 m3).
+    Split, the cavity stays in its cube's part and a cavity of the union: 27 - 1 + 0.75 - 0.25 = 26.5 m3 by hand."""
+    from pipelines.ingest import process_one
+    from meshsom.preprocess import PreprocessParams
+
+    d = _shells_building("Solid", [((0, 0, 0), (3000, 3000, 3000)), ((1000, 1000, 1000), (2000, 2000, 2000)),
+                                   ((2000, 0, 0), (5000, 500, 500))])
+    (m,), rej = _read(write(tmp_path / "hollow.city.json", d))
+    assert rej == [] and m.parts == ("S shell 1", "S shell 3")
+    assert np.bincount(m.face_part).tolist() == [24, 12]  # the cube's and its cavity's 12 triangles, the bar's 12
+    record, _ = process_one(m, PreprocessParams())
+    assert record["status"] == "accepted" and record["union"]["status"] == "united", record
+    assert record["volume"] == pytest.approx(26.5, rel=1e-9)
