@@ -18,7 +18,9 @@ triangulation, CRS handling and rejections behave as for CityJSON:
   ``MultiPolygon`` base extruded from ``lower``, default 0, to ``upper``) is a Solid (LoD ``"1"``).
 - **GeoJSON footprints**: a ``Polygon`` or ``MultiPolygon`` (``place``, else ``geometry``) with a
   height property (:attr:`meshsom.io.ReaderOptions.height_attributes`: ``height``,
-  ``measuredHeight``, ``building:height``; numbers or text such as ``"12.5 m"``) is extruded, as
+  ``measuredHeight``, ``building:height``; numbers or text such as ``"12.5 m"``; an estimate, ``~10``, ``>10``,
+  ``10-12``, is read as its number, its bound, the range's middle, noted: :func:`loose_number`; text that is no number
+  is named with its value where the footprint is refused) is extruded, as
   OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (else storeys below it,
   ``building:min_level`` or ``min_floor``, times ``storey_height``; 0 when absent) to
   ground + height, the ground being the footprint's lowest z (0 for a 2D footprint) (LoD ``"1"``);
@@ -63,6 +65,18 @@ _NUMBER = re.compile(r"""^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-z
 _FEET = re.compile(r"""^\s*(\d+(?:\.\d+)?)\s*(?:'|ft\b|feet\b|foot\b)\s*(?:(\d+(?:\.\d+)?)\s*(?:"|''|in\b|inch(?:es)?\b))?\s*$""", re.I)
 #: A decimal comma (12,5: common in European OpenStreetMap data, though its wiki asks for a point).
 _DECIMAL_COMMA = re.compile(r"^\s*([-+]?\d+),(\d+)\s*(?:m\b.*)?$")
+#: Signs and words before a number that say it is approximate (``~10``, ``ca. 10``, ``approx 10``): read as the
+#: number, noted (:func:`loose_number`).
+APPROXIMATE = re.compile(r"^\s*(?:~|\u2248|ca\.?|circa|c\.|approx\.?|approximately|about|around|env\.?|etwa)\s*(?=[\d.])",
+                         re.I)
+#: Signs before a number that say it is a bound (``>10``, ``<=12``): read as the bound, noted.
+BOUND = re.compile(r"^\s*(>=|<=|\u2265|\u2264|>|<)\s*(?=[\d.])")
+#: A range of two numbers (``10-12``, ``10 - 12 m``, ``10\u201312``, ``10 to 12``, ``10..12``), the first perhaps with a
+#: unit of its own (else the second's): read as its middle, noted.
+RANGE = re.compile(r"^\s*(\d+(?:[.,]\d+)?)\s*([a-zA-Z]*)\s*(?:-|\u2013|\u2014|to\b|\.\.)\s*(\d+(?:[.,]\d+)?)\s*([a-zA-Z]*\.?)\s*$",
+                   re.I)
+#: How a height or storey count that is none of these is said in a rejection or a note (:func:`unread_numbers`).
+NOT_A_NUMBER = "is not a number"
 #: Metres per foot and per inch.
 FOOT, INCH = 0.3048, 0.0254
 #: The units a number may be written with (lower case), as the factor that makes it metres (lengths) or leaves it
@@ -150,12 +164,37 @@ def _number(value) -> float | None:
     return None
 
 
-def first_number(props: dict, names) -> tuple[str, float] | None:
-    """The first of ``names`` whose property is a number (:func:`_number`): the property's own key
-    and its value; None when none is. A name matches a property of its spelling, else one that
-    differs only in case and punctuation (:func:`folded_key`: a Shapefile's or an Esri layer's
-    ``HEIGHT``, ``Num_Floors``; ``minHeight`` for ``min_height``; ``building_levels`` for
-    ``building:levels``, as tools that allow no colon in a column's name write it)."""
+def loose_number(value, read=None) -> tuple[float, str] | None:
+    """A value :func:`_number` does not read that is a number all the same, as OpenStreetMap's mappers write an
+    estimate: approximate (:data:`APPROXIMATE`: ``~10``, ``ca. 10``, ``approx 10``: the number), a bound
+    (:data:`BOUND`: ``>10``, ``<12``: the bound) or a range (:data:`RANGE`: ``10-12``, ``3-4`` storeys: its middle,
+    the estimate that is never off by more than half the range), and how it was read, in words; None otherwise.
+    ``read`` reads each number (:meth:`HeightUnits.of`; default :func:`_number`)."""
+    read = read or _number
+    if not isinstance(value, str):
+        return None
+    for pattern, kind in ((APPROXIMATE, "approximate"), (BOUND, None)):
+        match = pattern.match(value)
+        if match:
+            number = read(value[match.end():])
+            if kind is None:
+                kind = "a lower bound" if match.group(1) in (">", ">=", "\u2265") else "an upper bound"
+            return None if number is None else (number, f"is {kind}: read as {value[match.end():].strip()}")
+    match = RANGE.match(value)
+    if match:
+        unit = match.group(2) or match.group(4)
+        numbers = [read(f"{match.group(1)} {unit}".strip()), read(f"{match.group(3)} {match.group(4)}".strip())]
+        if None in numbers:
+            return None
+        low, high = sorted(numbers)
+        middle = 0.5 * (low + high)
+        said = 0.5 * (_number(match.group(1)) + _number(match.group(3)))
+        return middle, f"is a range: read as its middle, {said:g}{' ' + unit if unit else ''}"
+    return None
+
+
+def _keys(props: dict, names) -> Iterator[str]:
+    """The keys of ``props`` that ``names`` name, in the order of ``names`` (:func:`first_number`'s matching)."""
     folded = None
     for name in names:
         key = name if name in props else None
@@ -166,9 +205,40 @@ def first_number(props: dict, names) -> tuple[str, float] | None:
                     folded.setdefault(folded_key(k), k)
             key = folded.get(folded_key(name))
         if key is not None:
-            value = _number(props.get(key))
-            if value is not None:
-                return key, value
+            yield key
+
+
+def first_reading(props: dict, names) -> tuple[str, float, str | None] | None:
+    """As :func:`first_number`, else the first of ``names`` whose property :func:`loose_number` reads: the key, the
+    number, and the note that says how it was read (None for a plain number)."""
+    found = first_number(props, names)
+    if found is not None:
+        return found[0], found[1], None
+    for key in _keys(props, names):
+        loose = loose_number(props[key])
+        if loose is not None:
+            return key, loose[0], f"{key} = {props[key]!r} {loose[1]}"
+    return None
+
+
+def unread_numbers(props: dict, names) -> list[str]:
+    """Notes naming the properties of ``names`` given as text that neither :func:`_number` nor :func:`loose_number`
+    reads (``height = 'tall'``), each with its value."""
+    return [f"{key} = {props[key]!r} {NOT_A_NUMBER}" for key in _keys(props, names)
+            if isinstance(props[key], str) and props[key].strip() and _number(props[key]) is None
+            and loose_number(props[key]) is None]
+
+
+def first_number(props: dict, names) -> tuple[str, float] | None:
+    """The first of ``names`` whose property is a number (:func:`_number`): the property's own key
+    and its value; None when none is. A name matches a property of its spelling, else one that
+    differs only in case and punctuation (:func:`folded_key`: a Shapefile's or an Esri layer's
+    ``HEIGHT``, ``Num_Floors``; ``minHeight`` for ``min_height``; ``building_levels`` for
+    ``building:levels``, as tools that allow no colon in a column's name write it)."""
+    for key in _keys(props, names):
+        value = _number(props.get(key))
+        if value is not None:
+            return key, value
     return None
 
 
@@ -250,13 +320,16 @@ def _extruded(polygons: list, z0: float, z1: float, where: str, verts: FeatureVe
 
 def no_height(options, notes=(), hint: bool = True, props: dict | None = None) -> str:
     """The reason a footprint without a height is refused (with what :func:`footprint_solid` noted:
-    a height given as unknown; ``hint``: and the options that would read it, naming the properties of ``props``
+    a height given as unknown, or as text that is no number, named with its value; ``hint``: and the options that would read it, naming the properties of ``props``
     that may hold a height or a storey count: :func:`height_candidates`)."""
     names = ", ".join(options.height_attributes + options.levels_attributes)
     if any("no storey above the ground" in n for n in notes):
         hint = False  # a count of 0 storeys is never raised to the default height: the hint would mislead
     found = height_candidates(props) if hint and props else []
-    return (f"is a footprint without a height (no property {names} gives one)" + "".join(f"; {n}" for n in notes)
+    unread = [n for n in notes if n.endswith(NOT_A_NUMBER)]  # given, but not as a number (unread_numbers)
+    head = (f"is a footprint without a height it can read ({'; '.join(unread)}; no other property {names} gives one)"
+            if unread else f"is a footprint without a height (no property {names} gives one)")
+    return (head + "".join(f"; {n}" for n in notes if n not in unread)
             + "".join(f"; its property {key} = {value:g} may be its {what}" for key, value, what in found)
             + ("; --height-attribute NAME names your data's height (--levels-attribute NAME its storey count), "
                "--default-height M (corpus.reader.default_height) extrudes such footprints to M metres" if hint else ""))
@@ -326,7 +399,12 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
                                         "not read")
     notes: list[str] = []
     units = HeightUnits(crs, options)
-    height = first_number(props, options.height_attributes)
+    height = first_reading(props, options.height_attributes)
+    if height is None:
+        notes += unread_numbers(props, options.height_attributes)
+    elif height[2] is not None:
+        notes.append(height[2])
+    height = height and height[:2]
     if height is not None and not height[1] > 0:  # Microsoft's footprints write -1 for "not known"
         others = first_number({k: v for k, v in props.items() if (_number(v) or 0) > 0}, options.height_attributes)
         if others is None:
@@ -336,7 +414,11 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         height = (height[0], units.of(props[height[0]]))
     storeys = None  # where the height is a storey count's: the walls' (S3DB: building:levels exclude the roof's)
     if height is None:
-        levels = first_number(props, options.levels_attributes)
+        levels = first_reading(props, options.levels_attributes)
+        if levels is None:
+            notes += unread_numbers(props, options.levels_attributes)
+        elif levels[2] is not None:
+            notes.append(levels[2])
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height * units.per_metre)
             storeys = len(notes)
@@ -492,8 +574,9 @@ class HeightUnits:
         """An attribute's value (a number, or text: ``"12"``, ``"12 m"``, ``"40 ft"``) in the vertical unit; None
         where it is not a length."""
         number = _number(value)
-        if number is None:
-            return None
+        if number is None:  # approximate, a bound, a range: each number in its own unit
+            loose = loose_number(value, self.of)
+            return None if loose is None else loose[0]
         if isinstance(value, str) and re.search(r"[a-zA-Z'\"]", value):  # written with its unit: read in metres
             return number * self.per_metre
         return number * self.per_unit

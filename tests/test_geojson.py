@@ -81,14 +81,39 @@ def test_heights_as_openstreetmap_writes_them(tmp_path, height, metres):
     assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5), block
 
 
-@pytest.mark.parametrize("height", ["3 storeys", "12 m high", "approx. 10"])
+@pytest.mark.parametrize("height", ["3 storeys", "12 m high", "tall"])
 def test_a_height_that_is_not_a_length_is_no_height(tmp_path, height):
     """A number followed by a word that is no unit (OSMBuilding's samples: ``3600"`` was read as 3,600 m; a count of
-    storeys in the height) is not read as metres: the footprint has no height, and its rejection says so."""
+    storeys in the height) is not read as metres: the footprint has no height, and its rejection says so, naming the
+    value (it said "no property height ... gives one", though the property was there)."""
     feature = _feature("b", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height=height)
     (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
     (item,) = read_file(tmp_path / "osm.geojson")
-    assert isinstance(item, Rejection) and "without a height" in item.reason, item
+    assert isinstance(item, Rejection), item
+    assert item.reason.startswith(f"is a footprint without a height it can read (height = {height!r} is not a number; "
+                                  "no other property height, "), item.reason
+
+
+@pytest.mark.parametrize("props,metres,said", [
+    ({"height": "~10"}, 10.0, "height = '~10' is approximate: read as 10"),
+    ({"height": "ca. 10 m"}, 10.0, "height = 'ca. 10 m' is approximate: read as 10 m"),
+    ({"height": "approx 10"}, 10.0, "height = 'approx 10' is approximate: read as 10"),
+    ({"height": ">10"}, 10.0, "height = '>10' is a lower bound: read as 10"),
+    ({"height": "10-12"}, 11.0, "height = '10-12' is a range: read as its middle, 11"),
+    ({"height": "30 - 40 ft"}, 35 * 0.3048, "height = '30 - 40 ft' is a range: read as its middle, 35 ft"),
+    ({"building:levels": "3-4"}, 3.5 * 3.0, "building:levels = '3-4' is a range: read as its middle, 3.5"),
+    ({"height": "~10", "building:levels": "5"}, 10.0, "height = '~10' is approximate"),  # the height wins
+])
+def test_approximate_heights_bounds_and_ranges(tmp_path, props, metres, said):
+    """OpenStreetMap's estimates (``~10``, ``ca. 10``, ``>10``, ``10-12``: probeG's tags.osm) were rejected as "no
+    property height ... gives one": an approximate value or a bound is read as its number, a range as its middle (the
+    estimate never off by more than half the range), each noted; volumes: the L's shoelace area x that height."""
+    feature = _feature("b", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, **props)
+    (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    (block,) = read_file(tmp_path / "osm.geojson")
+    assert isinstance(block, RawMesh), block
+    assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5)
+    assert any(n.startswith(said) for n in block.notes), block.notes
 
 
 def test_storeys_below_the_bottom_raise_it(tmp_path):
