@@ -87,6 +87,10 @@ UNIT_FACTORS = {"": 1.0, "m": 1.0, "metre": 1.0, "metres": 1.0, "meter": 1.0, "m
 #: Properties that say a footprint lies underground (OpenStreetMap's ``location``, Overture's ``is_underground``), and
 #: their values that say so (lower case).
 UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "yes")}
+#: The most storeys a storey count (``building:levels``, ``building:min_level``, ``num_floors``) may give: the tallest
+#: building, the Burj Khalifa, has 163 above the ground (the Jeddah Tower is planned with 167). A count above it
+#: (``building:levels=1e3``, a typo or a count of flats: a 3 km tower) is refused, naming its value.
+MAX_STOREYS = 200
 #: The largest share of a building's height its roof takes (the walls keep the rest).
 MAX_ROOF_SHARE = 0.95
 #: Words in a property's name (lower case, letters only) that say it may hold a building's height, in the languages of
@@ -419,6 +423,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
             notes += unread_numbers(props, options.levels_attributes)
         elif levels[2] is not None:
             notes.append(levels[2])
+        _plausible_storeys(levels, props, where)
         if levels is not None and levels[1] > 0:
             height = (levels[0], levels[1] * options.storey_height * units.per_metre)
             storeys = len(notes)
@@ -440,6 +445,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
     bottom = first_number(props, options.base_attributes)
     base = units.of(props[bottom[0]]) if bottom else 0.0
     below = first_number(props, options.min_levels_attributes) if bottom is None else None
+    _plausible_storeys(below, props, where)
     if below is not None and below[1] > 0:  # storeys below its bottom: a bridge's deck, an overhang
         base = below[1] * options.storey_height * units.per_metre
         notes.append(f"base from {below[0]} = {below[1]:g} storeys x {options.storey_height:g} m")
@@ -455,6 +461,14 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
                     ", the roof above them (S3DB: storey counts leave out the roof's)")
             return solid, notes
     return _extruded(polygons, z0, z1, where, verts), notes
+
+
+def _plausible_storeys(found: tuple | None, props: dict, where: str) -> None:
+    """Raises where a storey count (:func:`first_reading`'s or :func:`first_number`'s ``(key, count, ...)``) is above
+    :data:`MAX_STOREYS`, naming its value."""
+    if found is not None and found[1] > MAX_STOREYS:
+        raise InputFileError(where, f"{found[0]} = {props[found[0]]!r} is {found[1]:g} storeys, more than any building "
+                                    f"has (the tallest has 163; at most {MAX_STOREYS} are read): not read")
 
 
 def _encloses_area(polygons: list, where: str) -> None:

@@ -136,6 +136,28 @@ def test_storeys_below_the_bottom_raise_it(tmp_path):
     assert _volume(items["both"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-9)
 
 
+def test_a_storey_count_above_any_buildings_is_refused_naming_it(tmp_path):
+    """``building:levels=1e3`` (probeG's tags.osm) was read as a 3 km tower (600,642 m3 on 200 m2): a storey count above
+    MAX_STOREYS (the tallest building has 163) is refused, naming its value; 200 storeys are still read (the L's
+    shoelace area x 200 x 3 m), as is a height beside an implausible count (the height wins, the count unused)."""
+    from meshsom.geojson import MAX_STOREYS
+
+    polygon = {"type": "Polygon", "coordinates": [closed([(84600 + x, 447400 + y) for x, y in L_SHAPE])]}  # metres
+    doc = {"type": "FeatureCollection", "features": [
+        _feature("big", polygon, **{"building:levels": "1e3"}),
+        _feature("under", polygon, **{"building:levels": 5, "building:min_level": 1000}),
+        _feature("tall", polygon, **{"building:levels": MAX_STOREYS}),
+        _feature("height", polygon, height=12, **{"building:levels": "1e3"})]}
+    (tmp_path / "levels.geojson").write_text(json.dumps(doc))
+    got = _by_id(read_file(tmp_path / "levels.geojson"))
+    assert isinstance(got["big"], Rejection) and got["big"].reason.startswith(
+        "building:levels = '1e3' is 1000 storeys, more than any building has"), got["big"]
+    assert isinstance(got["under"], Rejection) and got["under"].reason.startswith(
+        "building:min_level = 1000 is 1000 storeys"), got["under"]
+    assert _volume(got["tall"]) == pytest.approx(area(L_SHAPE) * MAX_STOREYS * 3.0, rel=1e-5)
+    assert _volume(got["height"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-5)
+
+
 def test_underground_footprints_are_refused_saying_so(tmp_path):
     """A garage under a square (OpenStreetMap's ``location=underground``, Overture's ``is_underground``) is no block
     above it, whatever height stands in: a rejection saying so, with ``default_height`` set too; a building above
