@@ -2302,7 +2302,6 @@ def _parts(local: np.ndarray, faces: np.ndarray, face_member: np.ndarray, face_s
         host = _cavity_hosts(local, faces, by_shell, shell_member, cavity)
         solids = np.bincount(shell_member[host == np.arange(len(shells))], minlength=len(used_members))
         split &= (solids > 1)[shell_member] & ~np.isin(shell_member, shell_member[host < 0])
-        split &= ~np.isin(shell_member, _snap_distorted(local, faces, by_shell, shell_member, split & ~cavity))
     if not split.any():
         if len(used_members) < 2:
             return (), None
@@ -2358,33 +2357,6 @@ def _cavity_hosts(local: np.ndarray, faces: np.ndarray, by_shell: np.ndarray, sh
                 host[c] = s
                 break
     return host
-
-
-def _snap_distorted(local: np.ndarray, faces: np.ndarray, by_shell: np.ndarray, shell_member: np.ndarray,
-                    split: np.ndarray) -> np.ndarray:
-    """The objects (indices as ``shell_member`` has them) of which a shell would change its volume by more than
-    ``volume_rtol`` where the union moves the parts' corners onto each other's walls
-    (:func:`meshsom.union.snap_to_walls`, with :class:`~meshsom.preprocess.PreprocessParams`' defaults): a window's
-    pane a centimetre thick between its frame's walls would be flattened, so its shells stay one part."""
-    from meshsom.preprocess import PreprocessParams
-    from meshsom.topology import signed_volume
-    from meshsom.union import snap_to_walls
-
-    params = PreprocessParams()
-    shells = np.flatnonzero(split)
-    pieces = []
-    for s in shells:
-        used, inverse = np.unique(faces[by_shell == s], return_inverse=True)
-        pieces.append((local[used], inverse.reshape(-1, 3).astype(np.int64)))
-    distorted = np.zeros(len(shells), bool)
-    for member in np.unique(shell_member[shells]):
-        mine = np.flatnonzero(shell_member[shells] == member)
-        snapped, moved = snap_to_walls([pieces[k] for k in mine], params.union_snap_tol, params.wall_tilt_deg)
-        if moved:
-            before = np.array([signed_volume(*pieces[k]) for k in mine])
-            after = np.array([signed_volume(v, pieces[k][1]) for k, v in zip(mine, snapped)])
-            distorted[mine] = (np.abs(after - before) > params.volume_rtol * np.abs(before)).any()
-    return np.unique(shell_member[shells[distorted]])
 
 
 def _footprint_only(obj: dict) -> bool:

@@ -190,7 +190,8 @@ def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResul
     manifold3d = _manifold3d()
     centre, parts, repairs, area_in, volume_in = prepared
     repairs = list(repairs)
-    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in parts], snap_tol, params.wall_tilt_deg)
+    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in parts], snap_tol, params.wall_tilt_deg,
+                                   volume_rtol=params.volume_rtol)
     if moved:
         repairs.append(f"moved {moved} corners of parts by at most {snap_tol:g} m in plan onto another "
                        f"part's wall (walls drawn as one, a little apart)")
@@ -311,7 +312,7 @@ def unite(vertices: np.ndarray, faces: np.ndarray, face_part: np.ndarray, params
 
 
 def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wall_tilt_deg: float,
-                  rounds: int = 2) -> tuple[list[np.ndarray], int]:
+                  rounds: int = 2, volume_rtol: float | None = None) -> tuple[list[np.ndarray], int]:
     """Move every part's vertices that lie within ``tol`` in plan of another part's wall onto it.
 
     A wall is a face within ``wall_tilt_deg`` of vertical; seen from above it is a segment (its foot
@@ -330,6 +331,10 @@ def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wa
         Faces within this many degrees of vertical are walls.
     rounds : int
         Passes (a vertex moved onto a wall that itself moved is moved again).
+    volume_rtol : float, optional
+        A part whose volume the moves change by more than this fraction keeps all its vertices (a window's pane a
+        centimetre thick beside its frame would be flattened); the others are snapped again without it. None: no
+        part is held.
 
     Returns
     -------
@@ -338,11 +343,28 @@ def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wa
     moved : int
         Vertices moved (in the last pass that moved any, counted once each).
     """
-    import shapely
-
     verts = [np.array(v, np.float64) for v, _ in parts]
     if tol <= 0 or len(parts) < 2:
         return verts, 0
+    held = np.zeros(len(parts), bool)
+    before = np.array([_area_volume(v, f)[1] for v, f in zip(verts, (f for _, f in parts))])
+    while True:
+        snapped, moved = _snapped(parts, verts, tol, wall_tilt_deg, rounds, held)
+        if volume_rtol is None or not moved:
+            return snapped, moved
+        after = np.array([_area_volume(v, f)[1] for v, f in zip(snapped, (f for _, f in parts))])
+        distorted = np.abs(after - before) > volume_rtol * np.abs(before)
+        if not distorted.any():
+            return snapped, moved
+        held |= distorted  # held parts keep their volume: each pass holds new ones, so this ends
+
+
+def _snapped(parts, verts: list, tol: float, wall_tilt_deg: float, rounds: int, held: np.ndarray
+             ) -> tuple[list[np.ndarray], int]:
+    """:func:`snap_to_walls`' passes, the vertices of the ``held`` (P,) bool parts left where they are (their walls
+    still taken)."""
+    import shapely
+
     part_of_vertex = np.repeat(np.arange(len(parts)), [len(v) for v in verts])
     offsets = np.concatenate([[0], np.cumsum([len(v) for v in verts])])
     faces = np.concatenate([f + offsets[k] for k, (_, f) in enumerate(parts)])
@@ -369,7 +391,7 @@ def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wa
         a, b, seg_part = a[ok], b[ok], seg_part[ok]
         tree = shapely.STRtree(shapely.linestrings(np.stack([a, b], axis=1)))
         vi, si = tree.query(shapely.points(v[:, :2]), predicate="dwithin", distance=tol)
-        other = part_of_vertex[vi] != seg_part[si]
+        other = (part_of_vertex[vi] != seg_part[si]) & ~held[part_of_vertex[vi]]
         vi, si = vi[other], si[other]
         if not len(vi):
             break

@@ -341,3 +341,26 @@ def test_a_parts_cavity_stays_a_cavity_of_the_union():
     assert united.volume_out == pytest.approx(independent, rel=1e-12)
     assert result.volume_out == pytest.approx(independent, rel=1e-12)
     assert validate(result.vertices, result.faces) is None
+
+
+def test_the_snap_leaves_a_part_it_would_flatten_as_drawn():
+    """A pane 6 mm thick 2 mm beside its frame (a 1 m cube), and a 10 m block drawn 3 mm off the frame's other wall:
+    the snap onto walls (1 cm) moved both of the pane's faces onto the frame's wall, flattening it (KIT's FZK-Haus
+    windows lost 94 % of a pane so). A part whose volume the moves change by more than volume_rtol keeps its corners;
+    the block (0.03 %) is still snapped onto the frame. Union: 1 + 10 (block snapped) + 0.006 m3, by hand, in two
+    shells (the pane 2 mm apart)."""
+    from meshsom.union import snap_to_walls
+
+    boxes = [_manifold_box((0, 0, 0), (1, 1, 1)), _manifold_box((1.002, 0, 0), (1.008, 1, 1)),
+             _manifold_box((-10, 0, 0), (-0.003, 1, 1))]
+    offsets = np.cumsum([0] + [len(v) for v, _ in boxes])
+    v = np.concatenate([b[0] for b in boxes])
+    f = np.concatenate([b[1] + offsets[k] for k, b in enumerate(boxes)])
+    face_part = np.repeat([0, 1, 2], [len(b[1]) for b in boxes])
+    params = PreprocessParams()
+    snapped, moved = snap_to_walls(boxes, params.union_snap_tol, params.wall_tilt_deg, volume_rtol=params.volume_rtol)
+    assert moved == 4 and np.array_equal(snapped[1], boxes[1][0])  # the block's 4 corners at x = -0.003; no pane's
+    united = union_parts(v, f, face_part, params)
+    assert united.shells_after == 2 and united.moved == 4
+    assert united.volume_out == pytest.approx(11.006, rel=1e-9)
+    assert sorted(_area_volume(sv, sf)[1] for sv, sf in united.shells) == pytest.approx([0.006, 11.0], rel=1e-9)
