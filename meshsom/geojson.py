@@ -91,8 +91,12 @@ UNDERGROUND = {"location": ("underground",), "is_underground": ("true", "1", "ye
 #: building, the Burj Khalifa, has 163 above the ground (the Jeddah Tower is planned with 167). A count above it
 #: (``building:levels=1e3``, a typo or a count of flats: a 3 km tower) is refused, naming its value.
 MAX_STOREYS = 200
-#: The largest share of a building's height its roof takes (the walls keep the rest).
+#: The largest share of a building's height its roof takes where the roof is lower than the height (the walls keep
+#: the rest, at least 5 %: no sliver of a wall), the roof cut to it, noted; a roof as high as the height, or higher,
+#: takes all of it, no walls (a roof storey on the part below it: :func:`roofed_solid`).
 MAX_ROOF_SHARE = 0.95
+#: A roof's height within this share of its footprint's height is the height (a base and a top written to 6 digits).
+WHOLE_HEIGHT_REL = 1e-6
 #: Words in a property's name (lower case, letters only) that say it may hold a building's height, in the languages of
 #: national footprint layers (:func:`height_candidates`), and a storey count.
 HEIGHT_WORDS = ("height", "hgt", "hoehe", "hohe", "hauteur", "altezza", "altura", "hoogte", "wysokosc", "korkeus", "hojd",
@@ -637,7 +641,9 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     on_walls : bool
         Whether ``z1`` is the walls' top, the roof standing on them (a height from a storey count: S3DB's
         ``building:levels`` leave out the roof's levels); else the roof's top, the eaves below it by the roof's height
-        (S3DB's ``height`` holds the roof).
+        (S3DB's ``height`` holds the roof). There a roof as high as ``z1 - z0``, or higher, takes all of it, no walls
+        (:func:`_without_walls`; a higher one cut to it), and one of :data:`MAX_ROOF_SHARE` to 100 % is cut to that
+        share; each noted.
     """
     from meshsom.roofs import (ALIASES, RIDGED_ROUND_COURTYARDS, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces,
                                roof_height, roof_tags)
@@ -657,7 +663,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     if direction is not None and degrees is None:
         degrees = _number(direction)
     across = str(found.get("roof:orientation", "")).strip().lower() == "across"
-    built, eaves, tops, fell_back = [], [], [], []
+    built, eaves, tops, fell_back, cut = [], [], [], [], []
     for polygon in polygons:  # several (a building in pieces): each its own roof, of the same tags
         for ring in polygon:
             FeatureVertices().ring(ring, where, z0)  # refused as a flat block's would be
@@ -668,13 +674,25 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         scale = roof_scale(ring, crs)
         units = HeightUnits(crs, options)
         rise = roof_height(shape, ring, scale, found, options.storey_height * units.per_metre, _number, units.of)
-        rise = rise if on_walls else min(rise, MAX_ROOF_SHARE * (z1 - z0))
+        whole = z1 - z0
+        no_walls = not on_walls and rise >= whole * (1.0 - WHOLE_HEIGHT_REL)
+        if no_walls:  # the roof fills its footprint's height (a roof storey on its part's walls): a roof, no walls
+            said = (f"a roof of {rise:.4g} m, more than its {whole:.4g} m: cut to it" if rise > whole * (1.0 + WHOLE_HEIGHT_REL)
+                    else "the roof fills its whole height") + ", no walls"
+            cut.append(said) if said not in cut else None
+            rise = whole
+        elif not on_walls and rise > MAX_ROOF_SHARE * whole:
+            said = (f"a roof of {rise:.4g} m leaves walls under {1 - MAX_ROOF_SHARE:.0%} of its {whole:.4g} m: cut to "
+                    f"{MAX_ROOF_SHARE * whole:.4g} m")
+            cut.append(said) if said not in cut else None
+            rise = MAX_ROOF_SHARE * whole
         if not rise > 0:
             return None, None
         low, top = (z1, z1 + rise) if on_walls else (z1 - rise, z1)
-        faces = roof_faces(ring, z0, low, top, shape, scale, degrees, across=across, holes=holes)
+        under = z0 - whole if no_walls else z0  # a block from below its base, its walls then of no height: dropped
+        faces = roof_faces(ring, under, low, top, shape, scale, degrees, across=across, holes=holes)
         if faces is None and shape in FALLBACK:  # a half-hipped roof without a wing end to hip: its hipped kin
-            faces = roof_faces(ring, z0, low, top, FALLBACK[shape], scale, degrees, across=across, holes=holes)
+            faces = roof_faces(ring, under, low, top, FALLBACK[shape], scale, degrees, across=across, holes=holes)
             if faces is not None:
                 fell_back.append(f"roof:shape={shape} built as {FALLBACK[shape]} ({UNBUILT[shape]})")
         if faces is not None and holes and shape in RIDGED_ROUND_COURTYARDS:
@@ -683,7 +701,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         if faces is None:
             which = f" (its polygon {len(built) + 1} of {len(polygons)})" if len(polygons) > 1 else ""
             return None, f"roof:shape={shape} not modelled on this footprint{which} ({UNBUILT[shape]}): flat"
-        built += faces
+        built += _without_walls(faces, z0) if no_walls else faces
         eaves.append(low - z0)
         tops.append(top - z0)
     solid = {"type": "Solid", "lod": "2", "boundaries": [[[verts.ring(face, where)] for face in built]]}
@@ -691,9 +709,37 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     low, high = min(eaves), max(eaves)
     if fell_back:
         read_as += f" ({fell_back[0]}" + (f", on {len(fell_back)} of its polygons" if len(polygons) > 1 else "") + ")"
+    read_as += "".join(f" ({said})" for said in cut)
     return solid, (f"roof:shape={shape} built (S3DB){read_as}: eaves {low:.3g}"
                    + (f" to {high:.3g}" if high - low > 1e-9 * max(abs(high), 1.0) else "")
                    + f" m, top {max(tops):.3g} m above its base" + (f", on {len(polygons)} polygons" if len(polygons) > 1 else ""))
+
+
+def _without_walls(faces: list, z0: float) -> list:
+    """A roof's faces (:func:`meshsom.roofs.roof_faces`, built on a block from below ``z0``, its eaves at ``z0``)
+    with that block's vertices raised to ``z0``: its walls, of no height then, dropped (their corners repeated, no
+    area left), its gable ends triangles, its floor at ``z0``.
+
+    Parameters
+    ----------
+    faces : list of (n, 3) float64
+    z0 : float
+
+    Returns
+    -------
+    list of (m, 3) float64
+        The faces that enclose an area, without repeated corners.
+    """
+    kept = []
+    for face in faces:
+        face = np.column_stack([face[:, :2], np.maximum(face[:, 2], z0)])
+        face = face[np.any(face != np.roll(face, 1, axis=0), axis=1)]  # corners repeated in a row (cyclically)
+        if len(face) < 3:
+            continue
+        centred = face - face.mean(axis=0)
+        if np.linalg.norm(np.cross(centred, np.roll(centred, -1, axis=0)).sum(axis=0)) > 0:  # Newell: an area left
+            kept.append(face)
+    return kept
 
 
 def surfaces(polygons: list, where: str, verts: FeatureVertices) -> dict:

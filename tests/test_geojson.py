@@ -299,6 +299,43 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     assert _volume(flat["way/7"]) == pytest.approx(10 * 6 * 8, rel=1e-5)
 
 
+def test_a_roof_as_high_as_its_footprint_is_all_roof(tmp_path):
+    """A roof as high as its footprint's height (a roof storey: OSM2World's issue-203, roof:height 2.2 on a part from
+    2.8 to 5 m) kept 5 % walls under it (the roof cut to 95 %: +5 %), and a roof higher than the footprint was cut so
+    without a note: such a roof now takes the whole height, no walls, noted; a roof of 95 to 100 % is cut to 95 %,
+    noted. Volumes by hand (footprints.HOUSE, eaves 0): gabled W D r / 2, pyramidal W D r / 3, hipped r D (3W - D) / 6."""
+    def _house(fid, x0, w, d, **props):  # in metres (a projected CRS): no earth's curve in the volumes
+        return _feature(fid, {"type": "Polygon", "coordinates": [closed([(84600 + x, 447400 + y)
+                                                                         for x, y in rectangle(x0, 0, w, d)])]}, **props)
+
+    features = [
+        _house("gabled", 0, 12, 8, height=5, roof_shape="gabled", roof_height=5),
+        _house("pyramid", 20, 10, 10, height=6, roof_shape="pyramidal", roof_height=8),  # higher: cut to 6 m
+        _house("hipped", 40, 12, 8, height=10, min_height=7, roof_shape="hipped", roof_height=3),  # 7-10 m, all roof
+        _house("skillion", 60, 10, 6, height=4, roof_shape="skillion", roof_height=4, roof_direction=0),
+        _house("capped", 80, 12, 8, height=10, roof_shape="gabled", roof_height=9.8),  # cut to 9.5 m, eaves 0.5 m
+        _feature("L", {"type": "Polygon", "coordinates": [closed([(84700 + x, 447400 + y) for x, y in L_SHAPE])]},
+                 height=4, roof_shape="hipped", roof_height=4),  # the straight skeleton's hipped roof, no walls
+    ]
+    path = tmp_path / "roofs.geojson"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    got = _by_id(read_file(path))
+    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    for fid, shape, (w, d, e, r) in [("gabled", "gabled", (12, 8, 0, 5)), ("pyramid", "pyramidal", (10, 10, 0, 6)),
+                                     ("hipped", "hipped", (12, 8, 0, 3)), ("skillion", "skillion", (10, 6, 0, 4)),
+                                     ("capped", "gabled", (12, 8, 0.5, 9.5))]:
+        assert _volume(got[fid]) == pytest.approx(HOUSE[shape](w, d, e, r), rel=1e-5), fid
+    assert _volume(got["gabled"]) == pytest.approx(12 * 8 * 5 / 2, rel=1e-5)  # was 12 x 8 x (0.25 + 4.75 / 2) = 252
+    for fid, said in (("gabled", "(the roof fills its whole height, no walls): eaves 0 m, top 5 m"),
+                      ("pyramid", "(a roof of 8 m, more than its 6 m: cut to it, no walls): eaves 0 m, top 6 m"),
+                      ("capped", "(a roof of 9.8 m leaves walls under 5% of its 10 m: cut to 9.5 m): eaves 0.5 m")):
+        assert any(said in n for n in got[fid].notes), (fid, got[fid].notes)
+    z = got["hipped"].vertices[:, 2] + got["hipped"].origin[2]
+    assert np.ptp(z) == pytest.approx(3, abs=1e-4)
+    assert united_volume(got["L"]) == pytest.approx(_volume(got["L"]), rel=1e-9)  # closed, accepted
+    assert 0 < _volume(got["L"]) < area(L_SHAPE) * 4 / 2  # under half the block: a hipped roof, no walls
+
+
 def test_attributes_spelled_otherwise_in_case_and_punctuation(tmp_path):
     """Heights, bases, storeys and roofs under the names other tools give them: OSM Buildings' camel case (minHeight,
     roofShape, roofHeight), a layer's upper case with underscores (ROOF_SHAPE), OpenStreetMap's keys with the colon a
