@@ -227,6 +227,14 @@ def test_json_fg_solids_and_prisms(tmp_path):
     assert isinstance(got["flat"], Rejection) and "no height" in got["flat"].reason
 
 
+def _all_read(path, features):
+    """The meshes of ``features`` written as a FeatureCollection to ``path``, by id, each read (no rejection)."""
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    got = _by_id(read_file(path))
+    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    return got, path
+
+
 def _house(fid, x0, w, d, **props):
     return _feature(fid, {"type": "Polygon", "coordinates": [closed(lonlat(rectangle(x0, 0, w, d)))]}, **props)
 
@@ -259,10 +267,7 @@ def test_roofs_from_overture_and_openstreetmap_properties(tmp_path):
     ]
     features[-1]["geometry"] = {"type": "MultiPolygon", "coordinates": [
         [closed(lonlat(rectangle(200, 0, 5, 8)))], [closed(lonlat(rectangle(210, 0, 5, 8)))]]}
-    path = tmp_path / "overture.geojson"
-    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
-    got = _by_id(read_file(path))
-    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    got, path = _all_read(tmp_path / "overture.geojson", features)
     for fid, shape, (w, d, e, r) in [("gabled", "gabled", (12, 8, 6, 3)), ("hipped", "hipped", (12, 8, 6, 3)),
                                      ("pyramid", "pyramidal", (10, 10, 5, 5)), ("way/7", "skillion", (10, 6, 6, 2)),
                                      ("pitched", "gabled", (12, 8, 9 - pitch, pitch)),
@@ -317,10 +322,7 @@ def test_a_roof_as_high_as_its_footprint_is_all_roof(tmp_path):
         _feature("L", {"type": "Polygon", "coordinates": [closed([(84700 + x, 447400 + y) for x, y in L_SHAPE])]},
                  height=4, roof_shape="hipped", roof_height=4),  # the straight skeleton's hipped roof, no walls
     ]
-    path = tmp_path / "roofs.geojson"
-    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
-    got = _by_id(read_file(path))
-    assert all(isinstance(m, RawMesh) for m in got.values()), got
+    got, _ = _all_read(tmp_path / "roofs.geojson", features)
     for fid, shape, (w, d, e, r) in [("gabled", "gabled", (12, 8, 0, 5)), ("pyramid", "pyramidal", (10, 10, 0, 6)),
                                      ("hipped", "hipped", (12, 8, 0, 3)), ("skillion", "skillion", (10, 6, 0, 4)),
                                      ("capped", "gabled", (12, 8, 0.5, 9.5))]:
