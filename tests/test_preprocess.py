@@ -1331,6 +1331,11 @@ def test_the_flatness_check_holds_a_city_block_and_a_mesh_of_one_vertex():
     assert len(vertices) == len(many)
     with pytest.raises(MeshError, match="no area"):
         check_input(np.array([[0.0, 0, 0], [1, 2, 3]]), np.array([[0, 0, 0]]))
+    # a footprint 20 km across extruded 10 m (osm-testdata's multipolygons) is thinner than 1e-3 of its width: a solid
+    from meshsom.polygons import extrude_polygon
+
+    vertices, faces = extrude_polygon(np.array([[0, 0], [20000, 0], [20000, 12000], [0, 12000]]), [], 0.0, 10.0)
+    check_input(vertices, faces)
 
 
 def test_a_small_piece_keeps_the_short_edges_whose_collapse_would_flatten_it():
