@@ -1295,6 +1295,11 @@ def test_a_truncated_extract_says_it_is_damaged(tmp_path):
     (item,) = read_file(tmp_path / "cut.osm")
     assert isinstance(item, Rejection)
     assert re.search(r"libosmium \(XML parsing error at line \d+.*damaged or truncated", item.reason), item.reason
+    # a whole file without buildings whose head has no version (libosmium refuses it) is not called damaged
+    bare = '<?xml version="1.0"?>\n<osm>\n  <node id="3" lat="4" lon="4"/>\n</osm>\n'
+    (tmp_path / "bare.osm").write_text(bare)
+    (bare,) = read_file(tmp_path / "bare.osm")
+    assert bare.reason.startswith("holds no building (an area tagged building"), bare.reason
 
 
 @pytest.mark.parametrize("gzipped", [False, True])
