@@ -22,7 +22,8 @@ triangulation, CRS handling and rejections behave as for CityJSON:
   ``10-12``, is read as its number, its bound, the range's middle, noted: :func:`loose_number`; text that is no number
   is named with its value where the footprint is refused) is extruded, as
   OpenStreetMap's and Overture's buildings mean it, from ground + ``min_height`` (else storeys below it,
-  ``building:min_level`` or ``min_floor``, times ``storey_height``; 0 when absent) to
+  ``building:min_level`` or ``min_floor``, times its walls' own storey height where a height, a storey count and its
+  roof's height give it, :func:`meshsom.osm.level_base`, else ``storey_height``; 0 when absent) to
   ground + height, the ground being the footprint's lowest z (0 for a 2D footprint) (LoD ``"1"``);
   without a height, a storey count (``building:levels``, ``num_floors``) times ``storey_height``
   (3 m) is used, with a note; without either, :attr:`meshsom.io.ReaderOptions.default_height`
@@ -405,7 +406,10 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         if str(props.get(key)).strip().lower() in values:
             raise InputFileError(where, f"lies underground ({key}={props[key]}): not a building above the ground, "
                                         "not read")
-    notes: list[str] = []
+    from meshsom.osm import level_base
+
+    props, based = level_base(props, options)  # building:min_level in storeys of its walls' own height (OSM2World)
+    notes: list[str] = [based] if based else []
     units = HeightUnits(crs, options)
     height = first_reading(props, options.height_attributes)
     if height is None:

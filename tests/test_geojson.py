@@ -136,6 +136,26 @@ def test_storeys_below_the_bottom_raise_it(tmp_path):
     assert _volume(items["both"]) == pytest.approx(area(L_SHAPE) * 12, rel=1e-9)
 
 
+def test_a_lowest_storey_starts_at_the_walls_own_storey_height(tmp_path):
+    """building:min_level on a footprint with a height and a storey count counts storeys of its walls' own height
+    (its height less its roof's, over its storeys: meshsom.osm.level_base), on GeoJSON footprints as on OSM extracts
+    (OpenStreetMap read through osm.building_meshes alone did; here 3 m storeys stood): 3 storeys in 12 m from
+    min_level 1 stand from 4 m (was 3 m: A x 9); 2 storeys under a 4 m gabled roof in 12 m, from min_level 1: walls
+    4-8 m, the roof 8-12 m (was walls 3-8 m). Volumes by hand: 12 x 8 x 8; HOUSE gabled (12, 8, 4, 4)."""
+    def block(fid, x0, **props):
+        return _feature(fid, {"type": "Polygon", "coordinates": [closed([(84600 + x, 447400 + y)
+                                                                         for x, y in rectangle(x0, 0, 12, 8)])]}, **props)
+
+    got, _ = _all_read(tmp_path / "levels.geojson", [
+        block("tower", 0, height=12, **{"building:levels": 3, "building:min_level": 1}),
+        block("roofed", 20, height=12, roof_shape="gabled", roof_height=4, **{"building:levels": 2, "building:min_level": 1})])
+    z = got["tower"].vertices[:, 2] + got["tower"].origin[2]
+    assert (z.min(), z.max()) == pytest.approx((4.0, 12.0), abs=1e-9)
+    assert _volume(got["tower"]) == pytest.approx(12 * 8 * 8, rel=1e-9)
+    assert any("base from building:min_level = 1 storeys of 4 m" in n for n in got["tower"].notes), got["tower"].notes
+    assert _volume(got["roofed"]) == pytest.approx(HOUSE["gabled"](12, 8, 4, 4), rel=1e-9)
+
+
 def test_a_storey_count_above_any_buildings_is_refused_naming_it(tmp_path):
     """``building:levels=1e3`` (probeG's tags.osm) was read as a 3 km tower (600,642 m3 on 200 m2): a storey count above
     MAX_STOREYS (the tallest building has 163) is refused, naming its value; 200 storeys are still read (the L's

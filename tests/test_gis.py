@@ -391,6 +391,19 @@ def test_gis_files_through_meshsom_ingest(tmp_path):
                                      "district.gpkg#3": area(L_SHAPE) * 7, "more.gdb#1": area(L_SHAPE) * 4}, rel=1e-9)
 
 
+def test_overtures_min_floor_counts_storeys_of_the_walls_own_height(tmp_path):
+    """Overture's min_floor on a GeoParquet footprint with a height and num_floors counts storeys of its walls' own
+    height (meshsom.osm.level_base, as OSM extracts read building:min_level): 3 floors in 12 m from min_floor 1 stand
+    from 4 m, 12 x 8 x 8 m3 by hand (3 m storeys before: 12 x 8 x 9)."""
+    box = shapely.geometry.mapping(shapely.box(84600, 447400, 84612, 447408))
+    write_geoparquet(tmp_path / "floors.parquet", [("f", box, {"height": 12.0, "num_floors": 3, "min_floor": 1})],
+                     crs=None, extra=("min_floor",))
+    (mesh,) = read_file(tmp_path / "floors.parquet")
+    z = mesh.vertices[:, 2] + mesh.origin[2]
+    assert (z.min(), z.max()) == pytest.approx((4.0, 12.0), abs=1e-9), mesh
+    assert any("base from min_floor = 1 storeys of 4 m" in n for n in mesh.notes), mesh.notes
+
+
 def test_geoparquet_ranges_start_at_their_row_group(tmp_path):
     """A range of a GeoParquet file is read from the row group that holds its first row: the same
     rows as the whole file's, at every boundary."""
