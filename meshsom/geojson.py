@@ -108,7 +108,7 @@ STOREY_WORDS = ("storey", "stories", "floors", "levels", "etages", "geschoss", "
 NOT_HEIGHT_STARTS = ("roof", "min", "base", "ground")
 NOT_HEIGHT_WORDS = ("bg", "below", "under", "unter", "sous", "minimum")
 #: The endings of a height's name that say it is in a unit :attr:`meshsom.io.ReaderOptions.height_unit` has not.
-UNREAD_UNITS = {"cm": "centimetres", "mm": "millimetres", "dm": "decimetres"}
+UNIT_ENDINGS = {"cm": "centimetres", "mm": "millimetres", "dm": "decimetres"}
 #: A footprint whose outer rings enclose at most (this x its extent)^2 encloses no area (:func:`_encloses_area`).
 FLAT_FOOTPRINT_REL = 1e-9
 #: How deep GeometryCollections may nest in a feature's geometry (deeper members are left out, noted).
@@ -349,7 +349,7 @@ def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str]
     or its storey count (:data:`HEIGHT_WORDS`, :data:`STOREY_WORDS`: URBANopt's ``number_of_stories``, the City
     Energy Analyst's ``height_ag``, the IGN's ``HAUTEUR``) and whose values are positive numbers: ``(key, value,
     what it may be and the option that reads it)``, at most ``most``, heights first. A height whose name ends in a
-    unit no option reads (San Francisco's ``hgt_maxcm``: centimetres) says so instead of naming the option."""
+    unit (San Francisco's ``hgt_maxcm``: centimetres) names that unit's ``--height-unit`` too."""
     found = []
     for key, value in props.items():
         folded = re.sub(r"[^a-z]", "", str(key).lower().replace("ö", "oe").replace("ø", "o").replace("å", "a"))
@@ -358,9 +358,9 @@ def height_candidates(props: dict, most: int = 3) -> list[tuple[str, float, str]
                 w in folded for w in NOT_HEIGHT_WORDS):
             continue
         if any(w in folded for w in HEIGHT_WORDS):
-            unit = next((name for end, name in UNREAD_UNITS.items() if folded.endswith(end)), None)
-            found.append((0, str(key), number, f"height, in {unit} by its name, which no --height-unit reads: convert "
-                                               f"it to metres first" if unit else f"height: --height-attribute {key}"))
+            unit = next((end for end in UNIT_ENDINGS if folded.endswith(end)), None)
+            found.append((0, str(key), number, f"height, in {UNIT_ENDINGS[unit]} by its name: --height-attribute {key} "
+                                               f"--height-unit {unit}" if unit else f"height: --height-attribute {key}"))
         elif any(w in folded for w in STOREY_WORDS):
             found.append((1, str(key), number, f"storey count: --levels-attribute {key}"))
     return [f[1:] for f in sorted(found, key=lambda f: f[0])[:most]]

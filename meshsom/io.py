@@ -67,8 +67,8 @@ _GLTF_GENERATOR = re.compile(rb'"generator"\s*:\s*"((?:[^"\\]|\\.)*)"')
 GLTF_Y_UP_NOTE = ("glTF is y up by its specification: turned to z up (corpus.reader.up_axis: z, or --up z, reads it "
                   "as it is)")
 #: Units a footprint's height attributes may be given in (:attr:`ReaderOptions.height_unit`): metres per unit
-#: (the international foot; the US survey foot).
-HEIGHT_UNITS = {"m": 1.0, "ft": 0.3048, "us-ft": 1200 / 3937}
+#: (the international foot; the US survey foot; centimetres as San Francisco's ``hgt_maxcm``).
+HEIGHT_UNITS = {"m": 1.0, "ft": 0.3048, "us-ft": 1200 / 3937, "dm": 0.1, "cm": 0.01, "mm": 0.001}
 #: IFC element classes (with their subclasses) whose solids make a building's envelope
 #: (:mod:`meshsom.ifc`; ``ReaderOptions.ifc_classes``). Classes a file's schema lacks (``IfcChimney``
 #: in IFC2X3) are passed over.

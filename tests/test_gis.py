@@ -975,6 +975,12 @@ def test_a_footprint_without_a_height_names_the_columns_that_may_hold_one(tmp_pa
     refused, centimetres = read_file(tmp_path / "urbanopt.json")
     assert isinstance(refused, Rejection) and isinstance(centimetres, Rejection)
     assert "its property number_of_stories = 6 may be its storey count: --levels-attribute number_of_stories" in refused.reason
-    # San Francisco's heights are centimetres by their names: no option reads them, the hint says so
-    assert ("its property hgt_maxcm = 1530 may be its height, in centimetres by its name, which no --height-unit reads: "
-            "convert it to metres first") in centimetres.reason
+    # San Francisco's heights are centimetres by their names: the hint names the unit, and --height-unit cm reads them
+    assert ("its property hgt_maxcm = 1530 may be its height, in centimetres by its name: --height-attribute hgt_maxcm "
+            "--height-unit cm") in centimetres.reason
+    (_, in_cm) = read_file(tmp_path / "urbanopt.json", dataclasses.replace(
+        options, height_attributes=("hgt_maxcm",), height_unit="cm"))
+    features[1]["properties"] = {"height": 15.3}
+    (tmp_path / "metres.json").write_text(json.dumps({"type": "FeatureCollection", "features": features[1:]}))
+    (in_m,) = read_file(tmp_path / "metres.json")
+    assert _volume(in_cm) == pytest.approx(_volume(in_m), rel=1e-12)  # 15.3 m, not 1,530 m
