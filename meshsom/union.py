@@ -190,11 +190,16 @@ def _united(prepared: tuple, params, snap_tol: float, source: str) -> UnionResul
     manifold3d = _manifold3d()
     centre, parts, repairs, area_in, volume_in = prepared
     repairs = list(repairs)
-    snapped, moved = snap_to_walls([(pv, pf) for _, pv, pf in parts], snap_tol, params.wall_tilt_deg,
-                                   volume_rtol=params.volume_rtol)
+    snapped, moved, held = snap_to_walls([(pv, pf) for _, pv, pf in parts], snap_tol, params.wall_tilt_deg,
+                                         volume_rtol=params.volume_rtol)
     if moved:
         repairs.append(f"moved {moved} corners of parts by at most {snap_tol:g} m in plan onto another "
                        f"part's wall (walls drawn as one, a little apart)")
+    if held.any():
+        names = [name for (name, _, _), h in zip(parts, held) if h]
+        repairs.append(f"left {len(names)} parts unsnapped, as moving their corners onto walls changed their volume by "
+                       f"more than {params.volume_rtol:g} ({', '.join(names[:3])}"
+                       f"{', ...' if len(names) > 3 else ''})")
     solids, shells_before = [], 0
     for (name, _, pf), pv in zip(parts, snapped):
         solid = manifold3d.Manifold(manifold3d.Mesh64(
@@ -312,7 +317,7 @@ def unite(vertices: np.ndarray, faces: np.ndarray, face_part: np.ndarray, params
 
 
 def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wall_tilt_deg: float,
-                  rounds: int = 2, volume_rtol: float | None = None) -> tuple[list[np.ndarray], int]:
+                  rounds: int = 2, volume_rtol: float | None = None) -> tuple[list[np.ndarray], int, np.ndarray]:
     """Move every part's vertices that lie within ``tol`` in plan of another part's wall onto it.
 
     A wall is a face within ``wall_tilt_deg`` of vertical; seen from above it is a segment (its foot
@@ -342,20 +347,22 @@ def snap_to_walls(parts: Sequence[tuple[np.ndarray, np.ndarray]], tol: float, wa
         Each part's vertices after the moves (new arrays; the inputs are untouched).
     moved : int
         Vertices moved (in the last pass that moved any, counted once each).
+    held : (P,) bool
+        The parts left as they are because the moves changed their volume (``volume_rtol``).
     """
     verts = [np.array(v, np.float64) for v, _ in parts]
-    if tol <= 0 or len(parts) < 2:
-        return verts, 0
     held = np.zeros(len(parts), bool)
+    if tol <= 0 or len(parts) < 2:
+        return verts, 0, held
     before = np.array([_area_volume(v, f)[1] for v, f in zip(verts, (f for _, f in parts))])
     while True:
         snapped, moved = _snapped(parts, verts, tol, wall_tilt_deg, rounds, held)
         if volume_rtol is None or not moved:
-            return snapped, moved
+            return snapped, moved, held
         after = np.array([_area_volume(v, f)[1] for v, f in zip(snapped, (f for _, f in parts))])
         distorted = np.abs(after - before) > volume_rtol * np.abs(before)
         if not distorted.any():
-            return snapped, moved
+            return snapped, moved, held
         held |= distorted  # held parts keep their volume: each pass holds new ones, so this ends
 
 

@@ -174,7 +174,7 @@ def test_a_part_drawn_a_little_off_its_buildings_wall_is_snapped_onto_it(off, he
     face_part = np.repeat([0, 1], [len(fb), len(fa)])
     meant = shapely.Polygon(hall).area * 10 + shapely.Polygon(np.where(part == -off, 0, part)).area * height
 
-    snapped, moved = snap_to_walls([(vb, fb), (va, fa)], 0.01, 5.0)
+    snapped, moved, _ = snap_to_walls([(vb, fb), (va, fa)], 0.01, 5.0)
     assert moved == 2  # the corner (3.6, -off) at its foot and at its eaves
     assert np.allclose(snapped[1][np.isclose(va[:, 0], 3.6) & (va[:, 1] > -1)][:, :2], [3.6, 0], atol=1e-12)
     assert np.array_equal(snapped[0], vb)  # the hall's corners are all farther than 1 cm from the part's walls
@@ -195,9 +195,9 @@ def test_parts_farther_apart_than_the_snap_tolerance_stay_apart():
 
     a = extrude_polygon(np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float), [], 0, 5)
     b = extrude_polygon(np.array([[10.02, 2], [15, 2], [15, 8], [10.02, 8]], float), [], 0, 5)
-    snapped, moved = snap_to_walls([a, b], 0.01, 5.0)
+    snapped, moved, _ = snap_to_walls([a, b], 0.01, 5.0)
     assert moved == 0 and np.array_equal(snapped[0], a[0]) and np.array_equal(snapped[1], b[0])
-    snapped, moved = snap_to_walls([a, b], 0.05, 5.0)
+    snapped, moved, _ = snap_to_walls([a, b], 0.05, 5.0)
     assert moved == 4 and np.allclose(snapped[1][np.isclose(b[0][:, 0], 10.02), 0], 10.0)
 
 
@@ -358,9 +358,12 @@ def test_the_snap_leaves_a_part_it_would_flatten_as_drawn():
     f = np.concatenate([b[1] + offsets[k] for k, b in enumerate(boxes)])
     face_part = np.repeat([0, 1, 2], [len(b[1]) for b in boxes])
     params = PreprocessParams()
-    snapped, moved = snap_to_walls(boxes, params.union_snap_tol, params.wall_tilt_deg, volume_rtol=params.volume_rtol)
+    snapped, moved, held = snap_to_walls(boxes, params.union_snap_tol, params.wall_tilt_deg,
+                                         volume_rtol=params.volume_rtol)
     assert moved == 4 and np.array_equal(snapped[1], boxes[1][0])  # the block's 4 corners at x = -0.003; no pane's
+    assert held.tolist() == [True, True, False]  # the cube too: moved 2 mm onto the pane it grows 0.2 %
     united = union_parts(v, f, face_part, params)
+    assert any(r.startswith("left 2 parts unsnapped") for r in united.repairs), united.repairs
     assert united.shells_after == 2 and united.moved == 4
     assert united.volume_out == pytest.approx(11.006, rel=1e-9)
     assert sorted(_area_volume(sv, sf)[1] for sv, sf in united.shells) == pytest.approx([0.006, 11.0], rel=1e-9)
