@@ -450,9 +450,14 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         polygons, said = valid_footprint(polygons, min(zs) if zs else None)
         notes += said
         _encloses_area(polygons, where)
-    bottom = first_number(props, options.base_attributes)
-    base = units.of(props[bottom[0]]) if bottom else 0.0
-    below = first_number(props, options.min_levels_attributes) if bottom is None else None
+    bottom = first_reading(props, options.base_attributes)  # an estimate too (min_height "~3" was the ground)
+    base = (units.of(props[bottom[0]]) or 0.0) if bottom else 0.0
+    if bottom is None:
+        notes += [f"{said}: the base is the ground" for said in unread_numbers(props, options.base_attributes)]
+    below = first_reading(props, options.min_levels_attributes) if bottom is None else None
+    for said in (bottom, below):
+        if said is not None and said[2]:
+            notes.append(said[2])
     _plausible_storeys(below, props, where)
     if below is not None and below[1] > 0:  # storeys below its bottom: a bridge's deck, an overhang
         base = below[1] * options.storey_height * units.per_metre

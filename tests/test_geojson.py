@@ -116,6 +116,23 @@ def test_approximate_heights_bounds_and_ranges(tmp_path, props, metres, said):
     assert any(n.startswith(said) for n in block.notes), block.notes
 
 
+@pytest.mark.parametrize("props,metres,said", [
+    ({"min_height": "~3"}, 7.0, "min_height = '~3' is approximate: read as 3"),
+    ({"min_height": "2-4"}, 7.0, "min_height = '2-4' is a range: read as its middle, 3"),
+    ({"building:min_level": "~1"}, 7.0, "building:min_level = '~1' is approximate: read as 1"),
+    ({"min_height": "low"}, 10.0, "min_height = 'low' is not a number"),
+])
+def test_bases_written_as_estimates(tmp_path, props, metres, said):
+    """A base written as an estimate (``min_height`` "~3") was read as no base, the part standing on the ground
+    without a word; it is read as heights are (approximate, bounds, ranges), noted, and a base that is no number is
+    named: the L's shoelace area x (10 m less the base)."""
+    feature = _feature("b", {"type": "Polygon", "coordinates": [closed(lonlat(L_SHAPE))]}, height=10, **props)
+    (tmp_path / "osm.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    (block,) = read_file(tmp_path / "osm.geojson")
+    assert _volume(block) == pytest.approx(area(L_SHAPE) * metres, rel=1e-5)
+    assert any(n.startswith(said) for n in block.notes), block.notes
+
+
 def test_storeys_below_the_bottom_raise_it(tmp_path):
     """Overture's ``min_floor`` and OpenStreetMap's ``building:min_level`` (a skybridge, an overhang) raise the base by
     their storeys where no ``min_height`` is given: 5 floors from floor 2 stand from 6 m to 15 m; ``min_height``
