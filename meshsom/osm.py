@@ -1065,9 +1065,8 @@ def building_meshes(area: _Area, own_parts: list[_Area], alone: str | None, opti
             flat = [[ring.tolist() for ring in poly] for poly in polygons]
             if not flat:
                 raise InputFileError(mesh_id, f"has no polygon to extrude (its geometry: {', '.join(sorted(kinds)) or 'empty'})")
-            props, based = level_base(props, options)
-            solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)
-            said = ([based] if based else []) + list(said)
+            solid, said = footprint_solid(flat, props, mesh_id, options, verts, crs=system)  # its level_base too
+            said = list(said)
             if solid is None:
                 raise InputFileError(mesh_id, no_height(options, said))
         except InputFileError as err:
@@ -1123,23 +1122,41 @@ def level_base(props: dict, options) -> tuple[dict, str | None]:
     or ``roof:levels`` x ``storey_height``) has storeys of its walls' height over their count, and its lowest storey starts that many
     storeys up (a roof storey of 5 m with a 2.2 m roof over 1 storey, ``building:min_level=1``, stands on its ground
     storey's 2.8 m, where ``storey_height`` put it at 3 m: a gap under it, its roof squeezed). Unchanged where a
-    base is given, or the storeys' height is not known (no height, no count, a pitched roof of no given height);
-    also the note that says so, None where unchanged."""
-    from meshsom.geojson import _number, first_number
-    from meshsom.roofs import ALIASES, roof_tags
+    base is given, or the storeys' height is not known (no height, no count, a pitched roof of no given height).
+    Each of these may be written as an estimate (``~10``, ``2-4``: :func:`meshsom.geojson.first_reading`). A
+    ``roof:direction`` written as an estimate (``~90``) is written as the degrees it gives (``90``). Also the note
+    that says so, with how the roof's tags were read (:func:`meshsom.roofs.roof_readings`: each estimate, each value
+    that is no number); None where there is nothing to say."""
+    from meshsom.geojson import _number
+    from meshsom.roofs import roof_direction, roof_readings, roof_tags
 
-    below = first_number(props, options.min_levels_attributes)
-    height = first_number(props, options.height_attributes)
-    levels = first_number(props, options.levels_attributes)
-    if (below is None or not below[1] > 0 or height is None or not height[1] > 0 or levels is None
-            or not levels[1] > 0 or first_number(props, options.base_attributes) is not None):
-        return props, None
     found = roof_tags(props)
+    notes = roof_readings(found)
+    direction = found.get("roof:direction")
+    degrees = roof_direction(direction)
+    if isinstance(direction, str) and _number(direction) is None and degrees is not None and not direction.strip().isalpha():
+        props = {**props, "roof:direction": f"{degrees:g}"}  # an estimate: as meshsom.geojson.roofed_solid reads it
+    props, based = _storey_base(props, found, options)
+    notes = ([based] if based else []) + notes
+    return props, "; ".join(notes) if notes else None
+
+
+def _storey_base(props: dict, found: dict, options) -> tuple[dict, str | None]:
+    """:func:`level_base`'s base from ``building:min_level``, ``found`` the roof's tags (:func:`roof_tags`)."""
+    from meshsom.geojson import _number, first_reading
+    from meshsom.roofs import ALIASES, _loosely
+
+    below = first_reading(props, options.min_levels_attributes)
+    height = first_reading(props, options.height_attributes)
+    levels = first_reading(props, options.levels_attributes)
+    if (below is None or not below[1] > 0 or height is None or not height[1] > 0 or levels is None
+            or not levels[1] > 0 or first_reading(props, options.base_attributes) is not None):
+        return props, None
     tagged = str(found.get("roof:shape", "flat")).strip().lower()
     roof, said = 0.0, ""
     if ALIASES.get(tagged, tagged) not in ("flat", ""):
-        roof = _number(found.get("roof:height"))
-        roof_levels = _number(found.get("roof:levels"))
+        roof = _loosely(_number, found.get("roof:height"))
+        roof_levels = _loosely(_number, found.get("roof:levels"))
         if roof is not None and roof >= 0:
             said = f" less roof:height {roof:g}"
         elif roof_levels is not None and roof_levels > 0:  # as the roof is built (meshsom.roofs.roof_height)

@@ -174,10 +174,10 @@ def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: 
     length : callable, optional
         Reads ``roof:height`` in the height's unit (:class:`meshsom.geojson.HeightUnits`); default ``number``.
     """
-    height = (length or number)(tags.get("roof:height"))
+    height = _loosely(length or number, tags.get("roof:height"))
     if height is not None:
         return max(float(height), 0.0)
-    levels = number(tags.get("roof:levels"))
+    levels = _loosely(number, tags.get("roof:levels"))
     if levels is not None and levels > 0:  # roof:levels=0 (no storey in the roof, common) says nothing of its height
         return float(levels) * storey_height
     metric = ring * np.asarray(scale, np.float64)
@@ -186,9 +186,66 @@ def roof_height(shape: str, ring: np.ndarray, scale: tuple[float, float], tags: 
         return width / 2
     if shape == "onion":
         return width
-    angle = number(tags.get("roof:angle"))
+    angle = _loosely(number, tags.get("roof:angle"))
     pitch = math.radians(float(angle) if angle is not None and 0 < angle < 90 else DEFAULT_PITCH_DEG)
     return math.tan(pitch) * (width if shape == "skillion" else width / 2)
+
+
+def _loosely(read, value) -> float | None:
+    """A tag's number as ``read`` reads it, else as an estimate (:func:`meshsom.geojson.loose_number`: ``~3``,
+    ``ca. 30``, ``2-4``: its middle) with each number read by ``read``; None where it is neither."""
+    from meshsom.geojson import loose_number
+
+    number = read(value)
+    if number is None:
+        loose = loose_number(value, read)
+        number = None if loose is None else loose[0]
+    return number
+
+
+#: What a roof tag left unread stands for, said after its value (:func:`roof_readings`).
+UNREAD = {"roof:height": "the roof's default height", "roof:levels": "the roof's default height",
+          "roof:angle": f"the default pitch, {DEFAULT_PITCH_DEG:g} degrees",
+          "roof:direction": "the default direction, down towards the longest wall"}
+
+
+def roof_readings(tags: dict) -> list[str]:
+    """Notes on how :func:`roof_height` and :func:`roof_direction` read a roof's tags (:func:`roof_tags`): each given
+    as an estimate (``roof:height = '~3' is approximate: read as 3``), and each that is no number, named with what
+    stands in for it (``roof:height = 'abc' is not a number: the roof's default height``); none for a flat roof."""
+    from meshsom.geojson import _number, loose_number
+
+    tagged = str(tags.get("roof:shape", "flat")).strip().lower()
+    if ALIASES.get(tagged, tagged) in ("flat", ""):
+        return []
+    notes = []
+    for key, said in UNREAD.items():
+        value = tags.get(key)
+        if not isinstance(value, str) or not value.strip() or _number(value) is not None:
+            continue
+        if key == "roof:direction" and value.strip().upper() in _cardinal():
+            continue
+        loose = loose_number(value, _number)
+        notes.append(f"{key} = {value!r} {loose[1]}" if loose is not None else f"{key} = {value!r} is not a number"
+                     + (" or a compass point" if key == "roof:direction" else "") + f": {said}")
+    return notes
+
+
+def _cardinal() -> dict:
+    from meshsom.geojson import CARDINAL
+
+    return CARDINAL
+
+
+def roof_direction(value) -> float | None:
+    """``roof:direction`` in degrees clockwise from north: a compass point (``NNE``), a number (``45``) or an estimate
+    of one (``~90``, ``80-100``: :func:`meshsom.geojson.loose_number`); None where it is none of these."""
+    from meshsom.geojson import _number
+
+    if value is None:
+        return None
+    degrees = _cardinal().get(str(value).strip().upper())
+    return degrees if degrees is not None else _loosely(_number, value)
 
 
 def _width(metric: np.ndarray) -> float:

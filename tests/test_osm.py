@@ -1252,6 +1252,70 @@ def test_a_parts_lowest_storey_starts_at_its_own_storeys_height(tmp_path):
     assert any("base from building:min_level = 1 storeys x 3 m" in n for n in items["way/8"].notes)
 
 
+def test_roof_tags_written_as_estimates_are_read_and_noted(tmp_path):
+    """roof:levels, roof:angle, roof:direction written as estimates ('~1', 'ca. 45', '2-4', '~90') are read as heights
+    are (geojson.loose_number), each noted; they were the default pitch (30 degrees: a roof of tan 30 x 4 m on a 12 x 8
+    footprint) or direction without a word. A value that is no number is named, with what stands in for it. Hand
+    figures on 12 x 8 m (area A), 10 m high: a pyramid of h on walls of 10 - h is A (10 - h) + A h / 3; a gabled roof,
+    A (10 - h) + A h / 2; a skillion, A (10 - h) + A h / 2 with its top along the side away from roof:direction."""
+    osm = OsmWriter()
+    rect = lambda i: (20 * i, 0, 20 * i + 12, 8)  # noqa: E731
+    osm.way(1, rect(1), building="house", height="10", **{ROOF: "gabled", "roof:height": "~3"})
+    osm.way(2, rect(2), building="house", height="10", **{ROOF: "pyramidal", "roof:levels": "~1"})
+    osm.way(3, rect(3), building="house", height="10", **{ROOF: "pyramidal", "roof:levels": "0-2"})
+    osm.way(4, rect(4), building="house", height="10", **{ROOF: "pyramidal", "roof:angle": "ca. 45"})
+    osm.way(5, rect(5), building="house", height="10", **{ROOF: "pyramidal", "roof:height": "abc"})
+    osm.way(6, rect(6), building="house", height="10", **{ROOF: "pyramidal", "roof:angle": "steep"})
+    osm.way(7, rect(7), building="house", height="10", **{ROOF: "skillion", "roof:direction": "~90"})
+    osm.way(8, rect(8), building="house", height="10", **{ROOF: "skillion", "roof:direction": "E"})
+    osm.way(9, rect(9), building="house", height="10", **{ROOF: "skillion", "roof:direction": "uphill"})
+    (tmp_path / "o.osm").write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "o.osm")}
+    a = osm.area
+    pitched = np.tan(np.radians(30)) * 4  # the default: 2.31 m
+    assert _volume(items["way/1"]) == pytest.approx(a[1] * 7 + a[1] * 3 / 2, rel=1e-4)  # 816 (read already, silently)
+    assert "roof:height = '~3' is approximate: read as 3" in items["way/1"].notes
+    assert _volume(items["way/2"]) == pytest.approx(a[2] * 7 + a[2] * 3 / 3, rel=1e-4)  # 768; was 812.2
+    assert "roof:levels = '~1' is approximate: read as 1" in items["way/2"].notes
+    assert _volume(items["way/3"]) == pytest.approx(a[3] * 7 + a[3] * 3 / 3, rel=1e-4)  # its middle, 1 storey
+    assert "roof:levels = '0-2' is a range: read as its middle, 1" in items["way/3"].notes
+    assert _volume(items["way/4"]) == pytest.approx(a[4] * 6 + a[4] * 4 / 3, rel=1e-3)  # 704: tan 45 x 4; was 812.2
+    assert "roof:angle = 'ca. 45' is approximate: read as 45" in items["way/4"].notes
+    for i, said in ((5, "roof:height = 'abc' is not a number: the roof's default height"),
+                    (6, "roof:angle = 'steep' is not a number: the default pitch, 30 degrees")):
+        assert _volume(items[f"way/{i}"]) == pytest.approx(a[i] * (10 - pitched) + a[i] * pitched / 3, rel=1e-3)
+        assert said in items[f"way/{i}"].notes, items[f"way/{i}"].notes
+    for i in (7, 8, 9):  # the rise is the same whichever way it faces: A (10 - 2 tan 30 x 4) + A tan 30 x 8 / 2
+        assert _volume(items[f"way/{i}"]) == pytest.approx(a[i] * (10 - 2 * pitched) + a[i] * pitched, rel=1e-3)
+    for i in (7, 8):  # facing east, lowest along its east wall: its top along the west wall (was along y, as way/9)
+        v = items[f"way/{i}"].vertices
+        top = v[v[:, 2] > v[:, 2].max() - 1e-3]
+        assert np.ptp(top[:, 0]) < 0.05 and np.ptp(top[:, 1]) == pytest.approx(8, abs=0.05), top
+    assert "roof:direction = '~90' is approximate: read as 90" in items["way/7"].notes
+    assert not any("roof:direction" in n for n in items["way/8"].notes)
+    v = items["way/9"].vertices
+    assert np.ptp(v[v[:, 2] > v[:, 2].max() - 1e-3][:, 0]) == pytest.approx(12, abs=0.05)  # the default: across y
+    assert ("roof:direction = 'uphill' is not a number or a compass point: the default direction, down towards the "
+            "longest wall") in items["way/9"].notes
+
+
+def test_a_parts_base_from_storeys_written_as_estimates(tmp_path):
+    """level_base reads a height, a storey count and a roof's height written as estimates: a part of height '~12',
+    building:levels '2-4' (3), building:min_level 1, flat, stands on storeys of 12 / 3 = 4 m (was 1 x 3 m: storey_height,
+    the estimates unread); with a gabled roof:height '~3' over 2 storeys of 11 m, its storeys are (11 - 3) / 2 = 4 m."""
+    osm = OsmWriter()
+    osm.way(1, (0, 0, 20, 10), height="~12", **{PART: "yes", LEVELS: "2-4", "building:min_level": "1"})
+    osm.way(2, (40, 0, 60, 10), height="11", **{PART: "yes", LEVELS: "2", "building:min_level": "1", ROOF: "gabled",
+                                                 "roof:height": "~3"})
+    (tmp_path / "o.osm").write_text(osm.text())
+    items = {i.id.split("#")[1]: i for i in read_file(tmp_path / "o.osm")}
+    assert _volume(items["way/1"]) == pytest.approx(osm.area[1] * 8, rel=1e-4)  # 12 - 4; was 12 - 3
+    assert any("base from building:min_level = 1 storeys of 4 m" in n for n in items["way/1"].notes), items["way/1"].notes
+    # walls 4-8 m, a gabled roof 8-11 m (half its prism); was 3-8 m
+    assert _volume(items["way/2"]) == pytest.approx(osm.area[2] * 4 + osm.area[2] * 3 / 2, rel=1e-4)
+    assert any("less roof:height 3" in n for n in items["way/2"].notes), items["way/2"].notes
+
+
 def test_characters_xml_forbids_in_an_overpass_answers_tags_are_replaced(tmp_path):
     """A JSON string may hold any character, OSM XML not: a control character (U+000B, U+0000) or an unpaired
     surrogate in one tag's key or value made GDAL stop at it, and the whole answer was refused as holding no building

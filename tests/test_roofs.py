@@ -112,6 +112,28 @@ def test_shapes_that_cannot_be_built_and_roof_heights():
     assert roof_height("onion", RECT, (1, 1), {}, 3.0, number) == pytest.approx(8.0)
 
 
+def test_roof_heights_written_as_estimates_and_their_notes():
+    """roof:levels and roof:angle written as estimates are read (their middle for a range), in the caller's reader: a
+    gabled roof on 12 x 8 m of roof:levels '~2' is 2 x 3 m (was the 30 degree default, 4 tan 30 = 2.31 m), of
+    roof:angle '40-50' is 4 tan 45 = 4 m; roof_readings notes each estimate and names each value that is no number."""
+    from meshsom.geojson import _number
+    from meshsom.roofs import roof_direction, roof_readings
+
+    assert roof_height("gabled", RECT, (1, 1), {"roof:levels": "~2"}, 3.0, _number) == 6.0
+    assert roof_height("gabled", RECT, (1, 1), {"roof:levels": "1-3"}, 3.0, _number) == 6.0
+    assert roof_height("gabled", RECT, (1, 1), {"roof:angle": "40-50"}, 3.0, _number) == pytest.approx(4.0)
+    assert roof_height("gabled", RECT, (1, 1), {"roof:angle": "ca. 45"}, 3.0, _number) == pytest.approx(4.0)
+    assert roof_height("gabled", RECT, (1, 1), {"roof:height": "~2.5"}, 3.0, _number) == 2.5
+    assert roof_height("gabled", RECT, (1, 1), {"roof:height": "abc"}, 3.0, _number) == pytest.approx(
+        4 * math.tan(math.radians(30)))
+    tags = {"roof:shape": "gabled", "roof:height": "abc", "roof:levels": "~2", "roof:angle": "3", "roof:direction": "NNE"}
+    assert roof_readings(tags) == ["roof:height = 'abc' is not a number: the roof's default height",
+                                   "roof:levels = '~2' is approximate: read as 2"]
+    assert roof_readings({**tags, "roof:shape": "flat"}) == []
+    assert [roof_direction(v) for v in ("NNE", "n", "45", "~90", "80-100", "uphill", None)] == [
+        22.5, 0.0, 45.0, 90.0, 90.0, None, None]
+
+
 # --------------------------------------------------------------------------------------------
 # Shapes on any footprint: checked against what defines them, volumes integrated independently
 # --------------------------------------------------------------------------------------------
