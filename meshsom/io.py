@@ -50,7 +50,7 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 from meshsom.gltf_compression import decompress_glb, needs_rewriting
-from meshsom.polygons import extrude_polygon, triangulate_polygon_3d
+from meshsom.polygons import extrude_polygon, triangulate_polygon_3d, triangulate_polygons_3d
 
 if TYPE_CHECKING:
     from meshsom.crs import CoordinateSystem
@@ -2401,11 +2401,14 @@ def _indices(mesh_id: str, values: list) -> np.ndarray:
     return flat
 
 
-def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray, triangulate=None
+                          ) -> tuple[np.ndarray, np.ndarray, int]:
     """Triangles of every polygon, as indices into ``local``.
 
     Triangles without holes (most of a triangulated city model) are taken as
-    they are, in one vectorised step; other polygons are triangulated one by one.
+    they are, in one vectorised step; plain convex quads (walls) too (:func:`_split_quads`); the
+    other polygons are triangulated by ``triangulate``: :func:`meshsom.polygons.triangulate_polygons_3d`
+    (one GEOS call for those of one ring), or :func:`_triangulate_one_by_one`, the reference.
 
     Returns
     -------
@@ -2417,6 +2420,7 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
         triangulated whole from their own vertices: self-crossing rings, whose triangles would
         need the crossing point, lose those triangles.
     """
+    triangulate = triangulate or triangulate_polygons_3d
     sizes = np.array([len(ring) for poly in polygons for ring in poly], np.int64)
     rings_per_poly = np.array([len(poly) for poly in polygons], np.int64)
     ring_start = np.concatenate([[0], np.cumsum(sizes)])
@@ -2435,14 +2439,17 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
     rest[simple_tri] = False
     rest[quads[done]] = False
     dropped = 0
+    kept = []
     for p in np.flatnonzero(rest):
         r0 = poly_first_ring[p]
         rings_idx = [inverse[ring_start[r]:ring_start[r + 1]] for r in range(r0, r0 + rings_per_poly[p])]
         rings_idx = [_drop_spikes(_drop_closing_vertex(r), local) for r in rings_idx]
         if len(rings_idx[0]) < 3:
             continue  # a polygon collapsed to a line or point: nothing to triangulate
-        rings_idx = rings_idx[:1] + [r for r in rings_idx[1:] if len(r) >= 3]
-        tri = triangulate_polygon_3d([local[r] for r in rings_idx])
+        kept.append((p, rings_idx[:1] + [r for r in rings_idx[1:] if len(r) >= 3]))
+    # one GEOS call for the polygons of one ring (a footprint's floor and roof), as one by one
+    triangulated = triangulate([[local[r] for r in rings_idx] for _, rings_idx in kept])
+    for (p, rings_idx), tri in zip(kept, triangulated):
         ids = np.concatenate(rings_idx)
         # A polygon of n vertices and h holes has n + 2h - 2 triangles; fewer means a part of
         # it was left out, unless it is degenerate (all its vertices on one line).
@@ -2458,6 +2465,12 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray) -> t
     order = np.argsort(np.concatenate(out_poly[1:]), kind="stable")  # after the plain triangles, in polygon order
     faces = np.concatenate([faces[0], np.concatenate(faces[1:])[order]])
     return faces, np.concatenate([out_poly[0], np.concatenate(out_poly[1:])[order]]).astype(np.int64), dropped
+
+
+def _triangulate_one_by_one(polygons: list) -> list:
+    """The reference for :func:`meshsom.polygons.triangulate_polygons_3d`: each polygon by
+    :func:`meshsom.polygons.triangulate_polygon_3d` alone (``polygons``: lists of (K, 3) float64 rings)."""
+    return [triangulate_polygon_3d(rings) for rings in polygons]
 
 
 def _covered(local: np.ndarray, rings: list, faces: np.ndarray) -> bool:
@@ -2501,22 +2514,25 @@ def _split_quads(quads: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.n
     if len(quads) == 0:
         return np.zeros((0, 2, 3), np.int64), np.zeros(0, bool)
     p = local[quads]
-    distinct = (quads != np.roll(quads, 1, axis=1)).all(axis=1)
-    d_in = p - np.roll(p, 1, axis=1)
-    d_out = np.roll(p, -1, axis=1) - p
+    # np.roll along the 4 corners and np.cross, written out (the same products and differences, in the
+    # same order: the same bits); per call they cost more than the arithmetic of a building's walls
+    prev, nxt = [3, 0, 1, 2], [1, 2, 3, 0]
+    distinct = (quads != quads[:, prev]).all(axis=1)
+    d_in = p - p[:, prev]
+    d_out = p[:, nxt] - p
     norms = np.linalg.norm(d_in, axis=2) * np.linalg.norm(d_out, axis=2)
     cos = np.einsum("qij,qij->qi", d_in, d_out) / np.where(norms > 0, norms, 1.0)
     centred = p - p.mean(axis=1, keepdims=True)
-    normal = np.cross(centred, np.roll(centred, -1, axis=1)).sum(axis=1)
+    normal = _cross(centred, centred[:, nxt]).sum(axis=1)
     size = np.linalg.norm(normal, axis=1)
     n = normal / np.where(size > 0, size, 1.0)[:, None]
     helper = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-    e1 = np.cross(helper, n)
+    e1 = _cross(helper, n)
     e1 /= np.where(np.linalg.norm(e1, axis=1) > 0, np.linalg.norm(e1, axis=1), 1.0)[:, None]
-    e2 = np.cross(n, e1)
+    e2 = _cross(n, e1)
     flat = np.stack([np.einsum("qij,qj->qi", centred, e1), np.einsum("qij,qj->qi", centred, e2)], axis=2)
-    d1 = np.roll(flat, -1, axis=1) - flat
-    d2 = np.roll(d1, -1, axis=1)
+    d1 = flat[:, nxt] - flat
+    d2 = d1[:, nxt]
     cross = d1[:, :, 0] * d2[:, :, 1] - d1[:, :, 1] * d2[:, :, 0]
     scale = np.einsum("qij,qij->q", d1, d1)
     convex = ((cross > 0).all(axis=1) | (cross < 0).all(axis=1)) & (np.abs(cross).min(axis=1) > QUAD_TIE_TOL * scale)
@@ -2524,13 +2540,21 @@ def _split_quads(quads: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.n
     d02, d13 = np.linalg.norm(v02, axis=1), np.linalg.norm(v13, axis=1)
     short02 = d02 <= d13
     # near a tie (every rectangle: a wall), the diagonals measured as the one-by-one path does
-    for k in np.flatnonzero(np.abs(d02 - d13) <= QUAD_TIE_TOL * np.maximum(d02, d13)):
-        short02[k] = math.sqrt(v02[k].dot(v02[k])) <= math.sqrt(v13[k].dot(v13[k]))
+    ties = np.flatnonzero(np.abs(d02 - d13) <= QUAD_TIE_TOL * np.maximum(d02, d13))
+    short02[ties] = [math.sqrt(a.dot(a)) <= math.sqrt(b.dot(b)) for a, b in zip(v02[ties], v13[ties])]
     done = distinct & (cos > -0.9999 + QUAD_TIE_TOL).all(axis=1) & (size > 0) & convex
     short02 = short02[done]
     q = quads[done]
     tri = np.where(short02[:, None, None], q[:, [[0, 1, 2], [0, 2, 3]]], q[:, [[0, 1, 3], [1, 2, 3]]])
     return tri.astype(np.int64), done
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross(a, b)`` of (..., 3) float64 arrays, the same bits (each component ``a_i b_j - a_j b_i``, as
+    NumPy computes it), without its per-call overhead."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) -> np.ndarray:
@@ -2541,8 +2565,8 @@ def _drop_spikes(ring: np.ndarray, local: np.ndarray, cos_tol: float = -0.9999) 
     """
     while len(ring) > 3:
         p = local[ring]
-        d_in = p - np.roll(p, 1, axis=0)
-        d_out = np.roll(p, -1, axis=0) - p
+        d_in = np.diff(p, axis=0, prepend=p[-1:])  # p - np.roll(p, 1, axis=0)
+        d_out = np.diff(p, axis=0, append=p[:1])  # np.roll(p, -1, axis=0) - p
         norms = np.linalg.norm(d_in, axis=1) * np.linalg.norm(d_out, axis=1)
         cos = np.einsum("ij,ij->i", d_in, d_out) / np.where(norms > 0, norms, 1.0)
         spikes = np.flatnonzero(cos < cos_tol)
