@@ -45,6 +45,7 @@ triangulation, CRS handling and rejections behave as for CityJSON:
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from pathlib import Path
@@ -78,6 +79,8 @@ RANGE = re.compile(r"^\s*(\d+(?:[.,]\d+)?)\s*([a-zA-Z]*)\s*(?:-|\u2013|\u2014|to
                    re.I)
 #: How a height or storey count that is none of these is said in a rejection or a note (:func:`unread_numbers`).
 NOT_A_NUMBER = "is not a number"
+#: Attribute names whose folded form (:func:`folded_key`) is remembered: a layer's columns, many times over.
+FOLDED_KEYS_CACHED = 4096
 #: Metres per foot and per inch.
 FOOT, INCH = 0.3048, 0.0254
 #: The units a number may be written with (lower case), as the factor that makes it metres (lengths) or leaves it
@@ -251,8 +254,10 @@ def first_number(props: dict, names) -> tuple[str, float] | None:
     return None
 
 
+@functools.lru_cache(maxsize=FOLDED_KEYS_CACHED)
 def folded_key(name) -> str:
-    """An attribute's name as :func:`first_number` compares it: lower case, letters and digits alone."""
+    """An attribute's name as :func:`first_number` compares it: lower case, letters and digits alone (remembered:
+    a footprint's names are folded again for every attribute looked up, a third of a flat footprint's read)."""
     return re.sub(r"[^0-9a-z]", "", str(name).lower())
 
 
