@@ -1367,6 +1367,8 @@ CONVERSIONS = {
     ".laz": "a point cloud: not read (reconstruct buildings first, e.g. with 3dfier or geoflow)",
     ".pnts": "a 3D Tiles point cloud: not read",
     ".i3dm": "3D Tiles instances: not read",
+    ".ifcxml": "IFC-XML: IfcOpenShell reads IFC as STEP; export the model as .ifc from its authoring tool",
+    ".ifcjson": "IFC-JSON: IfcOpenShell reads IFC as STEP; export the model as .ifc from its authoring tool",
 }
 #: The UTF-8 byte order mark that Windows tools put before text (JSON, OBJ); dropped before parsing.
 UTF8_BOM = b"\xef\xbb\xbf"

@@ -424,13 +424,14 @@ def test_a_byte_order_mark_before_json_or_mesh_text_is_read(tmp_path):
 
 
 @pytest.mark.parametrize("name,way", [("plan.dwg", "DWG"), ("city.skp", "export it as OBJ"),
-                                      ("scan.laz", "point cloud"), ("notes.txt", None)])
+                                      ("scan.laz", "point cloud"), ("house.ifcXML", "export the model as .ifc"),
+                                      ("notes.txt", None)])
 def test_a_building_format_meshsom_does_not_read_says_the_way_in(tmp_path, name, way):
     """DWG, SketchUp, point clouds...: the rejection names the conversion that leads into
     meshsom (and still lists what is read); other unknown types just the list."""
     (tmp_path / name).write_text("x")
     (item,) = read_file(tmp_path / name)
-    assert isinstance(item, Rejection) and item.reason.startswith(f"unknown file type '{name[name.index('.'):]}'")
+    assert isinstance(item, Rejection) and item.reason.startswith(f"unknown file type '{name[name.index('.'):].lower()}'")
     assert "expected one of .obj" in item.reason
     assert (way in item.reason) if way else ("(" not in item.reason.split(";")[0]), item.reason
 
