@@ -291,8 +291,10 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
     """Read every building of an OpenStreetMap extract (as the module says): RawMesh or Rejection
     items; with ``feature_range`` (one of :func:`osm_ranges`) only the buildings of that range.
 
-    The file is parsed twice: by GDAL's OSM driver (its areas, :func:`_areas`), then by one libosmium pass
-    (:func:`osmium_scan`: ways the extract cut, what GDAL passed over, S3DB's building relations).
+    An XML file's bytes are scanned once (:func:`_xml_traits`: JOSM's deletions, elements out of order, negative
+    ids); the file is then parsed by GDAL's OSM driver (its areas, :func:`_areas`) and by one libosmium pass
+    (:func:`osmium_scan`: ways the extract cut, what GDAL passed over, S3DB's building relations), and a second over
+    the member ways of its building multipolygons where it has any (:func:`_clipped_multipolygons`).
 
     Raises
     ------
@@ -308,15 +310,13 @@ def read_osm(path: Path, options, name: str | None = None, feature_range: list |
         yield from _read_rewritten(path, f"{path.name.removesuffix(BZIP2_SUFFIX)}.pbf", bzip2_as_pbf, options, name,
                                    feature_range)
         return
-    if _deleted_elements(path):
+    traits = _xml_traits(path)
+    rewrite = without_deleted if traits.deleted else in_order if traits.out_of_order else None
+    if rewrite is not None:
         clean = path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name
-        yield from _read_rewritten(path, clean, without_deleted, options, name, feature_range)
+        yield from _read_rewritten(path, clean, rewrite, options, name, feature_range)
         return
-    if _out_of_order(path):
-        clean = path.name.removesuffix(".gz") if path.name.lower().endswith(".gz") else path.name
-        yield from _read_rewritten(path, clean, in_order, options, name, feature_range)
-        return
-    negative = _negative_ids(path)
+    negative = traits.negative
     buildings, parts, others, strays = _areas(path, negative)
     notes, damaged = [], None
     try:
@@ -410,14 +410,6 @@ def _read_rewritten(path: Path, file_name: str, write, options, name: str, featu
 JOSM_DELETED = re.compile(rb"""<(?:node|way|relation)\b[^>]*\saction=["']delete["']""")
 
 
-def _deleted_elements(path: Path) -> bool:
-    """Whether an OSM XML file (gzipped or not; not PBF or bzip2) holds elements JOSM marks deleted: one pass."""
-    from meshsom.io import holds_match
-
-    lower = path.name.lower()
-    return not lower.endswith((".pbf", BZIP2_SUFFIX)) and holds_match(path, JOSM_DELETED, SCAN_BYTES)
-
-
 def _xml_tree(path: Path):
     """An OSM XML file (gzipped or not) parsed whole (an ElementTree), for the rewrites :func:`_read_rewritten` reads.
 
@@ -461,29 +453,55 @@ def without_deleted(path: Path, out: Path) -> str:
 ELEMENT_STARTS = (b"<node", b"<way", b"<relation")
 
 
-def _out_of_order(path: Path) -> bool:
-    """Whether an OSM XML file (gzipped or not; not PBF or bzip2) holds an element after one of a later kind
-    (:data:`ELEMENT_STARTS`: a node after a way, a way after a relation), as the Overpass API writes ``out body; >;
-    out skel qt;`` (Overpass turbo's wizard: the ways, then their nodes): one pass over its bytes."""
+@dataclasses.dataclass(frozen=True)
+class XmlTraits:
+    """What one pass over an OSM XML file's bytes finds (:func:`_xml_traits`).
+
+    Attributes
+    ----------
+    deleted : bool
+        It holds elements JOSM marks deleted (:data:`JOSM_DELETED`): read without them (:func:`without_deleted`).
+    out_of_order : bool
+        It holds an element after one of a later kind (:data:`ELEMENT_STARTS`: a node after a way, a way after a
+        relation), as the Overpass API writes ``out body; >; out skel qt;`` (Overpass turbo's wizard: the ways, then
+        their nodes): read rewritten in order (:func:`in_order`).
+    negative : bool
+        It holds a negative id or reference (:data:`NEGATIVE_ID`, JOSM's new objects), which libosmium's location
+        index does not take.
+    """
+
+    deleted: bool = False
+    out_of_order: bool = False
+    negative: bool = False
+
+
+def _xml_traits(path: Path) -> XmlTraits:
+    """:class:`XmlTraits` of an OSM XML file (gzipped or not), from one pass over its bytes, :data:`SCAN_BYTES` at a
+    time (matches across the joins found); none for PBF and bzip2 (read as PBF), nor where it cannot be read (its
+    reader says why)."""
     from meshsom.io import open_input
 
     if path.name.lower().endswith((".pbf", BZIP2_SUFFIX)):
-        return False
-    reached, tail = 0, b""  # the latest kind seen (its index in ELEMENT_STARTS)
+        return XmlTraits()
+    deleted = negative = disordered = False
+    reached, tail = 0, b""  # the latest kind of element seen (its index in ELEMENT_STARTS)
     try:
         with open_input(path) as stream:
-            while chunk := stream.read(SCAN_BYTES):
+            while not (deleted and negative and disordered) and (chunk := stream.read(SCAN_BYTES)):
                 text = tail + chunk
-                firsts = [_element_at(text, start, max(0, len(tail) - len(start))) for start in ELEMENT_STARTS]
-                for kind, at in enumerate(firsts):  # each kind's first start not seen in the chunk before
-                    if at >= 0 and (kind < reached or any(_element_at(text, ELEMENT_STARTS[k], at) >= 0
-                                                          for k in range(kind))):
-                        return True
-                reached = max([reached] + [kind for kind, at in enumerate(firsts) if at >= 0])
-                tail = text[-16:]
+                deleted = deleted or JOSM_DELETED.search(text) is not None
+                negative = negative or NEGATIVE_ID.search(text) is not None
+                if not disordered:
+                    firsts = [_element_at(text, start, max(0, len(tail) - len(start))) for start in ELEMENT_STARTS]
+                    disordered = any(  # each kind's first start not seen in the text before
+                        at >= 0 and (kind < reached or any(_element_at(text, ELEMENT_STARTS[k], at) >= 0
+                                                           for k in range(kind)))
+                        for kind, at in enumerate(firsts))
+                    reached = max([reached] + [kind for kind, at in enumerate(firsts) if at >= 0])
+                tail = text[-SCAN_OVERLAP:]
     except (OSError, InputFileError):
         pass
-    return False
+    return XmlTraits(deleted, disordered, negative)
 
 
 def _element_at(text: bytes, start: bytes, after: int = 0) -> int:
@@ -496,7 +514,7 @@ def _element_at(text: bytes, start: bytes, after: int = 0) -> int:
 
 
 def in_order(path: Path, out: Path) -> str:
-    """Write an OSM XML file (gzipped or not) whose elements are out of order (:func:`_out_of_order`) as plain XML of
+    """Write an OSM XML file (gzipped or not) whose elements are out of order (:attr:`XmlTraits.out_of_order`) as plain XML of
     its nodes, ways and relations in that order, each kind by id (what GDAL's OSM driver and libosmium read: a way
     before its nodes had no corners, every building a rejection); the note that says so. Raises as
     :func:`_xml_tree` does."""
@@ -593,7 +611,7 @@ def osmium_scan(path: Path, reported: set[str], negative: bool = False) -> Osmiu
     reported : set of str
         The ids of the areas, nodes and ways GDAL reported.
     negative : bool
-        Whether the file holds negative ids (JOSM's new objects: :func:`_negative_ids`), which libosmium's location
+        Whether the file holds negative ids (JOSM's new objects: :attr:`XmlTraits.negative`), which libosmium's location
         index does not take: the nodes' locations are then kept here.
 
     Raises
@@ -828,7 +846,7 @@ def _related(buildings: list[_Area], parts: list[_Area], relations: list[Buildin
 def _areas(path: Path, negative: bool = False) -> tuple[list[_Area], list[_Area], Counter, list[tuple[str, str, str]]]:
     """The file's building outlines, building parts, the other areas counted by their first tag, and the
     buildings and parts without an area: (id, ``building`` or ``building:part``, how it is mapped); GDAL's OSM driver
-    told to use its slower node index where the file holds ``negative`` ids (:func:`_negative_ids`)."""
+    told to use its slower node index where the file holds ``negative`` ids (:attr:`XmlTraits.negative`)."""
     import fiona
     from fiona.drvsupport import supported_drivers
 
@@ -872,15 +890,10 @@ def _areas(path: Path, negative: bool = False) -> tuple[list[_Area], list[_Area]
 
 #: A negative id or reference in OSM XML (JOSM writes new objects so).
 NEGATIVE_ID = re.compile(rb"(?:id|ref)=[\"']-\d")
-#: Bytes of OSM XML read at a time when looking for one.
+#: Bytes of OSM XML read at a time when scanning it (:func:`_xml_traits`), and the bytes of one read kept before the
+#: next, so that a match across the join is found.
 SCAN_BYTES = 1 << 22
-
-
-def _negative_ids(path: Path) -> bool:
-    """Whether an OSM XML file (gzipped or not; not PBF) holds a negative id or reference: one pass over its bytes."""
-    from meshsom.io import holds_match
-
-    return not path.name.lower().endswith(".pbf") and holds_match(path, NEGATIVE_ID, SCAN_BYTES)
+SCAN_OVERLAP = 256
 
 
 def _owners(buildings: list[_Area], parts: list[_Area]) -> np.ndarray:
@@ -1123,22 +1136,11 @@ def level_base(props: dict, options) -> tuple[dict, str | None]:
     storeys up (a roof storey of 5 m with a 2.2 m roof over 1 storey, ``building:min_level=1``, stands on its ground
     storey's 2.8 m, where ``storey_height`` put it at 3 m: a gap under it, its roof squeezed). Unchanged where a
     base is given, or the storeys' height is not known (no height, no count, a pitched roof of no given height).
-    Each of these may be written as an estimate (``~10``, ``2-4``: :func:`meshsom.geojson.first_reading`). A
-    ``roof:direction`` written as an estimate (``~90``) is written as the degrees it gives (``90``). Also the note
-    that says so, with how the roof's tags were read (:func:`meshsom.roofs.roof_readings`: each estimate, each value
-    that is no number); None where there is nothing to say."""
-    from meshsom.geojson import _number
-    from meshsom.roofs import roof_direction, roof_readings, roof_tags
+    Each of these may be written as an estimate (``~10``, ``2-4``: :func:`meshsom.geojson.first_reading`). Also the
+    note that says so, None where unchanged."""
+    from meshsom.roofs import roof_tags
 
-    found = roof_tags(props)
-    notes = roof_readings(found)
-    direction = found.get("roof:direction")
-    degrees = roof_direction(direction)
-    if isinstance(direction, str) and _number(direction) is None and degrees is not None and not direction.strip().isalpha():
-        props = {**props, "roof:direction": f"{degrees:g}"}  # an estimate: as meshsom.geojson.roofed_solid reads it
-    props, based = _storey_base(props, found, options)
-    notes = ([based] if based else []) + notes
-    return props, "; ".join(notes) if notes else None
+    return _storey_base(props, roof_tags(props), options)
 
 
 def _storey_base(props: dict, found: dict, options) -> tuple[dict, str | None]:

@@ -1423,3 +1423,26 @@ def test_a_multipolygon_the_extract_cut_is_a_rejection_saying_so(tmp_path):
     assert isinstance(cut, Rejection)
     assert "multipolygon whose member ways have only 8 of their 10 nodes in the extract" in cut.reason, cut.reason
     assert "some may lie outside the extract" in items["relation/320"].reason, items["relation/320"].reason
+
+
+@pytest.mark.parametrize("chunk", [64, 1 << 22])
+def test_one_scan_of_the_xml_finds_deletions_disorder_and_negative_ids(tmp_path, monkeypatch, chunk):
+    """JOSM's deletions, elements out of order and negative ids are found in one pass over an XML file's bytes (there
+    were three), across the joins of its reads too (64 bytes a read): each trait alone, in files written here."""
+    import meshsom.osm as osm
+
+    monkeypatch.setattr(osm, "SCAN_BYTES", chunk)
+    node = '  <node id="{}" version="1" lat="0.1" lon="0.2"{}/>\n'
+    way = '  <way id="9" version="1"><nd ref="1"/><tag k="building" v="yes"/></way>\n'
+    files = {"plain": node.format(1, "") + node.format(2, "") + way,
+             "deleted": node.format(1, "") + node.format(2, " action='delete'") + way,
+             "disorder": node.format(1, "") + way + node.format(2, ""),
+             "negative": node.format(1, "") + node.format(-2, "") + way}
+    traits = {}
+    for name, body in files.items():
+        (tmp_path / f"{name}.osm").write_text(f'<?xml version="1.0"?>\n<osm version="0.6">\n{"  " * 40}\n{body}</osm>\n')
+        traits[name] = osm._xml_traits(tmp_path / f"{name}.osm")
+    assert traits["plain"] == osm.XmlTraits()
+    assert traits["deleted"] == osm.XmlTraits(deleted=True)
+    assert traits["disorder"] == osm.XmlTraits(out_of_order=True)
+    assert traits["negative"] == osm.XmlTraits(negative=True)
