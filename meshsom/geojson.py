@@ -412,6 +412,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
             raise InputFileError(where, f"lies underground ({key}={props[key]}): not a building above the ground, "
                                         "not read")
     from meshsom.osm import level_base
+    from meshsom.roofs import roof_readings, roof_tags
 
     props, based = level_base(props, options)  # building:min_level in storeys of its walls' own height (OSM2World)
     notes: list[str] = [based] if based else []
@@ -474,6 +475,7 @@ def footprint_solid(polygons: list, props: dict, where: str, options, verts: Fea
         if said:
             notes.append(said)
         if solid is not None:
+            notes += roof_readings(roof_tags(props))  # its tags' estimates read, and values that are no number
             if storeys is not None:
                 notes[storeys] = notes[storeys].replace("height from", "walls from", 1) + (
                     ", the roof above them (S3DB: storey counts leave out the roof's)")
@@ -659,8 +661,8 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
         (:func:`_without_walls`; a higher one cut to it), and one of :data:`MAX_ROOF_SHARE` to 100 % is cut to that
         share; each noted.
     """
-    from meshsom.roofs import (ALIASES, RIDGED_ROUND_COURTYARDS, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_faces,
-                               roof_height, roof_tags)
+    from meshsom.roofs import (ALIASES, RIDGED_ROUND_COURTYARDS, ROUND_COURTYARDS, SHAPES, UNBUILT, roof_direction,
+                               roof_faces, roof_height, roof_tags)
 
     found = roof_tags(props)
     tagged = str(found.get("roof:shape", "flat")).strip().lower()
@@ -672,10 +674,7 @@ def roofed_solid(polygons: list, props: dict, z0: float, z1: float, crs, options
     if any(len(polygon) != 1 for polygon in polygons) and shape not in ROUND_COURTYARDS:
         return None, (f"roof:shape={shape} not modelled on a footprint with courtyards ({' and '.join(ROUND_COURTYARDS)} "
                       "are): flat")
-    direction = found.get("roof:direction")
-    degrees = CARDINAL.get(str(direction).strip().upper()) if direction is not None else None
-    if direction is not None and degrees is None:
-        degrees = _number(direction)
+    degrees = roof_direction(found.get("roof:direction"))  # a compass point, degrees, or an estimate of them
     across = str(found.get("roof:orientation", "")).strip().lower() == "across"
     built, eaves, tops, fell_back, cut = [], [], [], [], []
     for polygon in polygons:  # several (a building in pieces): each its own roof, of the same tags
