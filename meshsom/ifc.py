@@ -546,11 +546,18 @@ def _united(solids: list, mesh_id: str, seconds: float, manifold3d):
     return solids[0]
 
 
+def _face_cross(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Each face's edge cross product (F, 3) float64: its normal times twice its area (zero for a face of no area,
+    where :func:`meshsom.folds.face_normals` would divide by it)."""
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return np.cross(b - a, c - a)
+
+
 def _face_planes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plane of every face: unit normals (F, 3) float64 (zero for a face of no area), offsets (F,)
     float64 (``n . x`` on the plane, metres) and areas (F,) float64."""
     a, b, c = (vertices[faces[:, k]] for k in range(3))
-    cross = np.cross(b - a, c - a)
+    cross = _face_cross(vertices, faces)
     double_area = np.linalg.norm(cross, axis=1)
     normals = cross / np.where(double_area > 0, double_area, 1.0)[:, None]
     return normals, np.einsum("ij,ij->i", normals, (a + b + c) / 3), double_area / 2
@@ -675,7 +682,7 @@ def _shrunk(vertices: np.ndarray, faces: np.ndarray, plane: np.ndarray, normals:
     nearest[ends[first, 0]] = ends[first, 1]
     tries = [move, fixed, (at[nearest] + move[nearest]) - at, np.zeros_like(move)]
     stage = np.zeros(points, np.int64)  # the try each point is at; past the last, its faces' corners stay too
-    before = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    before = _face_cross(v, f)
     turned = np.zeros(len(f), bool)
     for _ in range(KEEP_ROUNDS):
         chosen = np.choose(np.minimum(stage, len(tries) - 1)[:, None], tries)
@@ -725,7 +732,7 @@ def _turned_over(before: np.ndarray, vertices: np.ndarray, faces: np.ndarray, he
     -------
     (F,) bool
     """
-    after = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    after = _face_cross(vertices, faces)
     longest = np.max([np.linalg.norm(vertices[faces[:, k]] - vertices[faces[:, k - 1]], axis=1) for k in range(3)],
                      axis=0)
     high = np.linalg.norm(after, axis=1) / np.where(longest > 0, longest, 1.0)  # twice the area over the side
