@@ -107,6 +107,8 @@ DXF_SUFFIX = ".dxf"
 #: FBX scenes (:mod:`meshsom.fbx`) and 3D Studio files (:mod:`meshsom.three_ds`).
 FBX_SUFFIX = ".fbx"
 THREE_DS_SUFFIX = ".3ds"
+#: USD stages (:mod:`meshsom.usd`): either encoding (.usd), text (.usda), crate (.usdc), zipped (.usdz).
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 #: OpenStreetMap extracts (:mod:`meshsom.osm`).
 OSM_SUFFIXES = (".osm", ".osm.pbf", ".osm.bz2")
 GZIP_MAGIC = b"\x1f\x8b"
@@ -411,8 +413,8 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds' or 'trimesh' by file name (a
-    final ``.gz`` aside); InputFileError for anything else."""
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds', 'usd'
+    or 'trimesh' by file name (a final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import CSV_GEOMETRY_COLUMNS, CSV_SUFFIX, GIS_SUFFIXES, csv_geometry_column
     from meshsom.tiles3d import B3DM_SUFFIXES
 
@@ -452,6 +454,8 @@ def input_kind(path: Path) -> str:
         return "fbx"
     if name.endswith(THREE_DS_SUFFIX):
         return "3ds"
+    if name.endswith(USD_SUFFIXES):
+        return "usd"
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
@@ -479,7 +483,8 @@ def readable_types() -> str:
 
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + (
         ".xml (CityGML)",) + B3DM_SUFFIXES + (
-        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + OSM_SUFFIXES + IFC_SUFFIXES
+        ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + USD_SUFFIXES + (
+        OSM_SUFFIXES + IFC_SUFFIXES)
     return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
             f".csv (footprints as WKT, also gzipped)")
 
@@ -941,10 +946,53 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.three_ds import read_3ds
 
             yield from read_3ds(path, options, name)
+        elif kind == "usd":
+            from meshsom.usd import read_usd
+
+            yield from read_usd(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
         yield Rejection(name or str(path), str(path), err.problem)
+
+
+def library_input(path: Path, options: ReaderOptions, what: str, module: str, package: str) -> tuple[object, bool]:
+    """The library ``module`` that reads a file of ``what`` format by opening it itself, and whether the file is
+    gzipped (then :func:`read_decompressed`).
+
+    Raises
+    ------
+    InputFileError
+        The library is not installed (naming the ``package`` to install), or the file is larger than
+        ``options.max_bytes``.
+    """
+    import importlib
+
+    try:
+        library = importlib.import_module(module)
+    except ImportError:
+        raise InputFileError(str(path), f"reading {what} needs {package} (pip install {package}), which is not "
+                                        f"installed") from None
+    size = path.stat().st_size
+    if size > options.max_bytes:
+        raise InputFileError(str(path), f"is {size:,} bytes, more than max_bytes ({options.max_bytes:,})")
+    with open(path, "rb") as fh:
+        return library, fh.read(len(GZIP_MAGIC)) == GZIP_MAGIC
+
+
+def read_decompressed(path: Path, options: ReaderOptions, name: str | None, reader) -> Iterator[RawMesh | Rejection]:
+    """The items of a gzipped file read by ``reader(plain, options, name)``, a reader that opens files itself (USD,
+    assimp): its content, decompressed under the guards of :func:`read_input_bytes`, in a temporary file of its name
+    less ``.gz`` (removed afterwards); each item's source is ``path``, and a rejection's reason names ``path`` where
+    it named the temporary file."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        plain = Path(folder) / path.name.removesuffix(GZIP_SUFFIX).removesuffix(GZIP_SUFFIX.upper())
+        plain.write_bytes(read_input_bytes(path, options))
+        for item in reader(plain, options, name or path.name):
+            yield dataclasses.replace(item, source=str(path), **(
+                {"reason": item.reason.replace(str(plain), str(path))} if isinstance(item, Rejection) else {}))
 
 
 def _labels_beside(path: Path) -> dict[str, str]:
