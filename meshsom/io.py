@@ -109,6 +109,8 @@ FBX_SUFFIX = ".fbx"
 THREE_DS_SUFFIX = ".3ds"
 #: USD stages (:mod:`meshsom.usd`): either encoding (.usd), text (.usda), crate (.usdc), zipped (.usdz).
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+#: 3MF packages (:mod:`meshsom.threemf`).
+THREEMF_SUFFIX = ".3mf"
 #: OpenStreetMap extracts (:mod:`meshsom.osm`).
 OSM_SUFFIXES = (".osm", ".osm.pbf", ".osm.bz2")
 GZIP_MAGIC = b"\x1f\x8b"
@@ -413,8 +415,8 @@ def format_name(path: Path) -> str:
 
 
 def input_kind(path: Path) -> str:
-    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds', 'usd'
-    or 'trimesh' by file name (a final ``.gz`` aside); InputFileError for anything else."""
+    """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds', 'usd',
+    '3mf' or 'trimesh' by file name (a final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import CSV_GEOMETRY_COLUMNS, CSV_SUFFIX, GIS_SUFFIXES, csv_geometry_column
     from meshsom.tiles3d import B3DM_SUFFIXES
 
@@ -456,6 +458,8 @@ def input_kind(path: Path) -> str:
         return "3ds"
     if name.endswith(USD_SUFFIXES):
         return "usd"
+    if name.endswith(THREEMF_SUFFIX):
+        return "3mf"
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
@@ -484,7 +488,7 @@ def readable_types() -> str:
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + (
         ".xml (CityGML)",) + B3DM_SUFFIXES + (
         ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + USD_SUFFIXES + (
-        OSM_SUFFIXES + IFC_SUFFIXES)
+        THREEMF_SUFFIX,) + OSM_SUFFIXES + IFC_SUFFIXES
     return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
             f".csv (footprints as WKT, also gzipped)")
 
@@ -950,6 +954,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.usd import read_usd
 
             yield from read_usd(path, options, name)
+        elif kind == "3mf":
+            from meshsom.threemf import read_3mf
+
+            yield from read_3mf(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1213,6 +1221,20 @@ def placed_mesh(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarr
     except InputFileError as err:
         return Rejection(mesh_id, source, err.problem, 0, label)
     return RawMesh(mesh_id, source, local, faces, origin, label, None, notes=tuple(notes) + tuple(crs_notes))
+
+
+def building_meshes(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes,
+                    options: ReaderOptions) -> Iterator[RawMesh | Rejection]:
+    """One building of a scene file in world coordinates (``vertices (V, 3)`` metres, ``faces (F, 3)``) as
+    :func:`placed_mesh` places it, or its connected pieces (:func:`_connected_pieces`) under
+    :attr:`ReaderOptions.split_components`; a Rejection where it has no faces."""
+    items = _connected_pieces(mesh_id, vertices, faces, label) if options.split_components else [
+        (mesh_id, vertices, faces, label)]
+    for piece_id, v, f, piece_label in items:
+        if len(f) == 0:
+            yield Rejection(piece_id, source, "holds no faces (no polygon of 3 or more vertices)", 0, piece_label)
+            continue
+        yield placed_mesh(piece_id, source, v, f, piece_label, crs, notes)
 
 
 #: COLLADA's up axes, as the rotation that turns each to z up (proper rotations: faces keep their side).

@@ -183,7 +183,7 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
     """The buildings of an uncompressed USD file."""
     from pxr import Usd, UsdGeom
 
-    from meshsom.io import Rejection, _connected_pieces, _labels_beside, file_crs, placed_mesh
+    from meshsom.io import Rejection, _labels_beside, building_meshes, file_crs
 
     stage = _open(path)
     metres, turn, frame_notes = stage_frame(stage, options)
@@ -254,14 +254,8 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
         vertices = vertices * metres
         if turn is not None:
             vertices = vertices @ turn.T
-        items = _connected_pieces(mesh_id, vertices, faces, item_label) if options.split_components else [
-            (mesh_id, vertices, faces, item_label)]
-        for piece_id, v, f, piece_label in items:
-            if len(f) == 0:
-                yield Rejection(piece_id, str(path), "holds no faces (its meshes have no polygon of 3 or more "
-                                                     "vertices)", 0, piece_label)
-                continue
-            yield placed_mesh(piece_id, str(path), v, f, piece_label, crs, tuple(frame_notes) + tuple(notes))
+        yield from building_meshes(mesh_id, str(path), vertices, faces, item_label, crs,
+                                   tuple(frame_notes) + tuple(notes), options)
 
 
 def _drawn(building: _Building) -> tuple[list, list[str]]:
