@@ -79,6 +79,13 @@ NOT_SHELL = ("BuildingInstallation", "IntBuildingInstallation", "Room", "Buildin
              # 3.0's subdivisions of a building (and the ADEs' of 2.0, as citygml4j's test ADE): storeys and
              # units (apartments, shops) are volumes inside the shell, often solids of their own
              "buildingSubdivision", "Storey", "storey", "BuildingUnit", "buildingUnit")
+#: Local names of the openings of a wall or roof: CityGML 1.0 / 2.0's ``bldg:Window`` and ``bldg:Door`` (under
+#: ``bldg:opening``), 3.0's ``con:WindowSurface`` and ``con:DoorSurface`` (under ``con:fillingSurface``). Their
+#: geometry (frames, glass, sills, recessed panes; a window written flush, sharing the edges of its hole) is not the
+#: building's envelope: it is left out, counted in a note, and the hole it fills is closed where the remaining
+#: surfaces leave it open (:func:`meshsom.preprocess.close_surface`'s planar caps: in the wall's plane where the wall
+#: has no reveal, at the reveal's inner end where it has).
+OPENING_NAMES = ("Window", "Door", "WindowSurface", "DoorSurface")
 #: Local names of the planar pieces a surface is made of: polygons, and the patches of a
 #: ``gml:Surface`` / ``gml:TriangulatedSurface`` (all have an exterior ring and may have interiors).
 POLYGON_NAMES = ("Polygon", "PolygonPatch", "Triangle", "Rectangle")
@@ -201,9 +208,23 @@ def _polygon(element, where: str, flat_ok: bool = False) -> list[np.ndarray]:
     return exterior[:1] + interiors if exterior else []
 
 
-def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, tuple[list, list]], int]:
+def _opening_polygons(building) -> dict[int, int]:
+    """The polygons of a building's openings (:data:`OPENING_NAMES`): ``{id(polygon): id(opening)}``, so that a solid
+    that refers to them (``xlink:href``) leaves them out too."""
+    found: dict[int, int] = {}
+    for e in building.iter():
+        if _local(e.tag) in OPENING_NAMES:
+            found.update((id(p), id(e)) for p in e.iter() if _local(p.tag) in POLYGON_NAMES)
+    return found
+
+
+def _object_polygons(obj, where: str, by_id: dict, openings: dict | None = None, left_out: set | None = None
+                     ) -> tuple[dict[str, tuple[list, list]], int]:
     """Every polygon of one city object (not of its parts), by LoD, with the shell of a solid each lies in; and the
     count of references (``xlink:href``, to a polygon or to a whole surface or solid) not found in the building.
+
+    The polygons of openings (``openings``, :func:`_opening_polygons`; windows and doors, whether met inside their
+    wall or referred to by a solid) are left out, the ids of their openings added to ``left_out``.
 
     Where the object has a solid at a LoD (``lod2Solid``, a ``gml:Solid``), that LoD's polygons
     are the solid's alone: the solid is the closed shell, while the thematic surfaces at the same
@@ -223,7 +244,13 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, tuple[list
     missing = 0
     shells = [0]
 
+    openings = {} if openings is None else openings
+    left_out = set() if left_out is None else left_out
+
     def add(polygon, lod: str, reverse: bool, solid: bool, shell):
+        if id(polygon) in openings:
+            left_out.add(openings[id(polygon)])
+            return
         key = (id(polygon), reverse, solid, shell)
         if key not in seen:
             seen.add(key)
@@ -239,6 +266,10 @@ def _object_polygons(obj, where: str, by_id: dict) -> tuple[dict[str, tuple[list
             if (name in PART_NAMES or name in ("consistsOfBuildingPart", "buildingPart") or name in NOT_SHELL
                     or _ade(child.tag)):
                 continue  # a part's geometry is its own; installations, rooms and an ADE's zones are not the shell
+            if name in OPENING_NAMES:
+                if any(id(p) in openings for p in child.iter()):
+                    left_out.add(id(child))  # a window's or door's own geometry: not the envelope
+                continue
             match = _LOD.match(name)
             child_lod = match.group(1) if match else lod
             child_roof = roof or name == "RoofSurface" or name.endswith("RoofEdge")
@@ -395,9 +426,11 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
     n_points = 0
     missing = 0
     notes: list[str] = []
+    openings = _opening_polygons(building)
+    left_out: set[int] = set()
     for k, (oid, obj) in enumerate(members):
         oid = oid or (f"{bid}-part{k}" if k else bid)
-        by_lod, lost = _object_polygons(obj, where, by_id)
+        by_lod, lost = _object_polygons(obj, where, by_id, openings, left_out)
         missing += lost
         geometry = []
         for lod, (polys, shell_of) in by_lod.items():
@@ -435,6 +468,10 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
             polys = g["boundaries"] if g["type"] == "MultiSurface" else [p for solid in g["boundaries"] for p in solid[0]]
             for poly in polys:
                 poly[:] = [[int(inverse[i]) for i in ring] for ring in poly]
+    if left_out:
+        polygons = len({p for p, o in openings.items() if o in left_out})
+        notes.append(f"left out the geometry of {len(left_out)} opening(s) (windows, doors: {polygons} polygon(s)): "
+                     f"not the envelope; the holes they fill are closed where they are open")
     if missing:
         notes.append(f"{missing} polygon reference(s) (xlink:href) outside the building were not read")
     outside = [href for e in building.iter() if _local(e.tag) in ("consistsOfBuildingPart", "buildingPart")

@@ -19,7 +19,8 @@ common classes are not:
 
 The CRS is the one the file declares (CityJSON ``metadata.referenceSystem``, a GML ``srsName``),
 else :attr:`meshsom.io.ReaderOptions.crs`. It is identified with pyproj (EPSG codes, OGC URNs and
-URLs, compound CRSs); the German AdV names (``urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH``) are
+URLs, compound CRSs, OGC's compound URN ``urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::7837`` in the forms PROJ refuses:
+one part, or a part without its version field, ``crs:EPSG:31467``); the German AdV names (``urn:adv:crs:ETRS89_UTM32*DE_DHHN2016_NH``) are
 metric projected CRSs. A mesh's ``origin`` stays in the file's own coordinates.
 """
 
@@ -88,6 +89,42 @@ class UnknownCRS(ValueError):
 
 #: GML 2's (and GeoServer's) CRS URL, ``http://www.opengis.net/gml/srs/epsg.xml#4326``: the EPSG code.
 _GML_EPSG = re.compile(r"^https?://www\.opengis\.net/gml/srs/epsg\.xml#(\d+)$", re.I)
+#: OGC's compound-CRS URN (OGC 07-092r3): ``urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::7837``, its parts
+#: ``crs:<authority>:<version>:<code>`` (the version may be empty: ``crs:EPSG:6.12:31467``, ``crs:EPSG::5783``).
+_OGC_COMPOUND = re.compile(r"^urn:ogc:def:crs,(crs:.+)$", re.I)
+#: One part of it; writers also leave the version out with its colon (``crs:EPSG:31467``, as the geoRES test data
+#: of CityGML 1.0 writes), which the last field tells apart: the code is always last.
+_OGC_PART = re.compile(r"^crs:([A-Za-z][\w.\-]*):(?:([\w.\-]*):)?(\w+)$")
+
+
+def _ogc_compound(text: str) -> str | None:
+    """A compound-CRS URN (:data:`_OGC_COMPOUND`) in a form PROJ reads, or None where ``text`` is none or a part is
+    not ``crs:<authority>:[<version>:]<code>``: one part is that CRS (``EPSG:31467``; PROJ refuses a compound of one),
+    several are their compound with versions kept (``urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::7837``)."""
+    match = _OGC_COMPOUND.match(text)
+    if match is None:
+        return None
+    parts = [_OGC_PART.match(part.strip()) for part in match.group(1).split(",")]
+    if not all(parts):
+        return None
+    if len(parts) == 1:
+        return f"{parts[0].group(1)}:{parts[0].group(3)}"
+    return "urn:ogc:def:crs," + ",".join(f"crs:{p.group(1)}:{p.group(2) or ''}:{p.group(3)}" for p in parts)
+
+
+def _pyproj_crs(text: str):
+    """``pyproj.CRS`` of a reference: GML 2's URL as its EPSG code, OGC's compound URN as :func:`_ogc_compound`
+    writes it (where PROJ does not read it as it is). Raises ``pyproj.exceptions.CRSError``."""
+    import pyproj
+
+    gml = _GML_EPSG.match(text)  # GML 2's form, which PROJ does not know
+    try:
+        return pyproj.CRS.from_user_input(f"EPSG:{gml.group(1)}" if gml else text)
+    except pyproj.exceptions.CRSError:
+        compound = _ogc_compound(text)
+        if compound is None:
+            raise
+        return pyproj.CRS.from_user_input(compound)
 
 
 @functools.lru_cache(maxsize=64)
@@ -114,9 +151,8 @@ def coordinate_system(reference: str) -> CoordinateSystem:
         return CoordinateSystem(name=text, declared=text)
     import pyproj
 
-    gml = _GML_EPSG.match(text)  # GML 2's form, which PROJ does not know
     try:
-        crs = pyproj.CRS.from_user_input(f"EPSG:{gml.group(1)}" if gml else text)
+        crs = _pyproj_crs(text)
     except pyproj.exceptions.CRSError as err:
         raise UnknownCRS(f"CRS {text!r} is not known to pyproj ({str(err).splitlines()[0][:120]})") from None
     horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
@@ -336,7 +372,7 @@ def _projection(declared: str):
     import pyproj
 
     try:
-        crs = pyproj.CRS.from_user_input(declared)
+        crs = _pyproj_crs(declared)
     except pyproj.exceptions.CRSError:
         return None
     horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs

@@ -1069,6 +1069,13 @@ def _split_t_junctions(v, f, tol, repairs, rounds=4):
         p, q = v[he[open_h, 0]], v[he[open_h, 1]]
         d = q - p
         dd = np.einsum("ek,ek->e", d, d)
+        # A zero-length open edge (of a degenerate face: a vertex repeated, or two at one point) has no point between
+        # its ends to split it at: passed over, where dividing by its length gave NaN and a RuntimeWarning.
+        sound = dd > 0
+        if not sound.all():
+            open_h, p, q, d, dd = open_h[sound], p[sound], q[sound], d[sound], dd[sound]
+            if len(open_h) == 0:
+                break
         # Candidate vertices of each open edge: those within half its length (and tol) of its midpoint (a k-d tree,
         # so that the cost follows the pairs that are near, not open edges x open vertices).
         near = cKDTree(v[cand]).query_ball_point((p + q) / 2, np.sqrt(dd) / 2 + tol)

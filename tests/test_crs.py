@@ -142,6 +142,29 @@ def test_coordinate_systems_are_identified(reference, geographic, latitude_first
         assert crs.metric == (horizontal_m == 1.0)
 
 
+@pytest.mark.parametrize("reference,expected", [
+    # geoRES's CityGML 1.0 test data: one part, its version field left out (PROJ: "invalid crs component")
+    ("urn:ogc:def:crs,crs:EPSG:31467", "EPSG:31467"),
+    ("urn:ogc:def:crs,crs:EPSG::31467", "EPSG:31467"),  # one part (PROJ refuses a compound of one)
+    ("urn:ogc:def:crs,crs:EPSG:31467,crs:EPSG:5783", "EPSG:31467+5783"),
+    ("urn:ogc:def:crs,crs:EPSG:6.12:31467,crs:EPSG:6.12:5783", "EPSG:31467+5783"),  # with versions, as PROJ reads it
+    ("urn:ogc:def:crs,crs:EPSG::25832,crs:EPSG::7837", "EPSG:25832+7837"),
+    ("urn:ogc:def:crs,crs:EPSG::4326", "EPSG:4326"),
+])
+def test_ogc_compound_urns_read_as_their_parts(reference, expected):
+    """OGC's compound-CRS URN in the forms PROJ refuses is the CRS of its parts, as pyproj names them."""
+    crs = coordinate_system(reference)
+    reference_crs = pyproj.CRS.from_user_input(expected)
+    assert crs.name == reference_crs.name
+    assert crs.geographic == reference_crs.is_geographic
+    assert crs.metric == (not reference_crs.is_geographic)
+
+
+def test_a_malformed_compound_urn_is_still_unknown():
+    with pytest.raises(UnknownCRS, match="not known to pyproj"):
+        coordinate_system("urn:ogc:def:crs,crs:EPSG:a b,crs:EPSG::5783")
+
+
 @pytest.mark.parametrize("reference,problem", [
     ("EPSG:99999999", "not known to pyproj"),
     ("no such crs", "not known to pyproj"),

@@ -1351,3 +1351,21 @@ def test_a_small_piece_keeps_the_short_edges_whose_collapse_would_flatten_it():
     assert r.volume_out == pytest.approx((0.02 * 0.07 - 0.5 * 0.015 * 0.02) * 0.91, rel=1e-9)
     assert any(x.startswith("kept the edges shorter than 0.01 m (collapsing them gives: the volume changed by")
                for x in r.repairs), r.repairs
+
+
+def test_a_zero_length_open_edge_is_passed_over_when_t_junctions_are_split():
+    """A degenerate face (a vertex repeated) has a zero-length open edge: the T-junction split passes it over, where
+    dividing by its length gave NaN and a RuntimeWarning (geoRES's LoD3 test data); the real T-junction beside it
+    (vertex 3 on the edge 0 -> 1) is still split."""
+    import warnings
+
+    from meshsom.preprocess import _split_t_junctions
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.5, 0, 0], [2, 2, 0], [0.5, -1, 0]], float)
+    f = np.array([[0, 1, 2], [3, 0, 5], [4, 4, 2]])
+    repairs: list[str] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        out = _split_t_junctions(v, f, 1e-5, repairs)
+    assert repairs == ["split open edges at 1 T-junction vertices"]
+    assert sorted(map(tuple, np.sort(out, axis=1))) == sorted([(0, 2, 3), (1, 2, 3), (0, 3, 5), (2, 4, 4)])
