@@ -8,8 +8,9 @@ neither, so :func:`decompress_glb` rewrites a GLB into the plain glTF it stands 
 
 - **Draco**: each compressed primitive is decoded (Google's decoder through DracoPy); its
   positions, its triangles and its feature ids (``_BATCHID``, ``_FEATURE_ID_n``: which building a
-  vertex belongs to) become plain accessors, float32 and uint32; its other attributes (normals,
-  texture coordinates, colours: not used here) are dropped. Positions come back dequantized, as a
+  vertex belongs to; the texture coordinates of an ``EXT_mesh_features`` feature-id texture) become
+  plain accessors, float32 and uint32; its other attributes (normals, other texture coordinates,
+  colours: not used here) are dropped. Positions come back dequantized, as a
   viewer shows them (Draco's usual 11 to 14 bits: millimetres to centimetres over a tile).
 - **meshopt**: each compressed buffer view is decoded (meshoptimizer's decoder through meshopt) into
   the plain bytes its fallback buffer stands for, filters (octahedral, quaternion, exponential,
@@ -140,8 +141,9 @@ def pack_gltf(text: bytes, resolver, where: str) -> bytes:
     Every buffer with data (an external file through ``resolver.get(name)``: :class:`meshsom.io.FolderResolver`,
     or a ``data:`` URI) goes into the binary chunk, on a 4-byte boundary, and the buffer views and
     meshopt sources that pointed into it point there; a meshopt fallback buffer (no data) stays a
-    buffer of its own. Images, textures, samplers and materials are left out (only geometry is
-    read).
+    buffer of its own. Materials are left out (only geometry is read), and images, textures and
+    samplers too unless feature ids are read from a texture (``EXT_mesh_features``): those images are
+    moved into the binary chunk, the others left empty.
 
     Raises
     ------
@@ -166,9 +168,6 @@ def pack_gltf(text: bytes, resolver, where: str) -> bytes:
 
 def _packed(gltf: dict, resolver, where: str) -> bytes:
     """:func:`pack_gltf` of a parsed document."""
-    import base64
-    from urllib.parse import unquote
-
     out, moved, kept = _Binary(b""), {}, []  # moved: buffer -> its offset in the chunk; kept: fallbacks
     for k, buffer in enumerate(gltf.get("buffers") or []):
         length = buffer.get("byteLength") if isinstance(buffer, dict) else None
@@ -182,16 +181,7 @@ def _packed(gltf: dict, resolver, where: str) -> bytes:
             raise InputFileError(where, f"has buffer {k} without a uri (the binary chunk of a GLB, in a glTF JSON file)")
         if not isinstance(uri, str):
             raise InputFileError(where, f"has buffer {k} whose uri is not text")
-        if uri.startswith("data:"):
-            head, _, payload = uri.partition(",")
-            if not head.endswith(";base64"):
-                raise InputFileError(where, f"has buffer {k} as a data URI that is not base64 ({head[:40]})")
-            try:
-                data = base64.b64decode(payload)
-            except ValueError as err:
-                raise InputFileError(where, f"has buffer {k} as base64 that cannot be decoded ({err})") from None
-        else:
-            data = resolver.get(unquote(uri))
+        data = _uri_bytes(uri, resolver, where, f"buffer {k}")
         if len(data) < length:
             raise InputFileError(where, f"has buffer {k} ({uri[:60]}) of {len(data)} bytes, fewer than its byteLength {length}")
         moved[k] = out.append(bytes(data[:length]))
@@ -211,15 +201,55 @@ def _packed(gltf: dict, resolver, where: str) -> bytes:
         for name in MESHOPT:
             if name in (view.get("extensions") or {}):
                 point(view["extensions"][name], f"the meshopt data of buffer view {k}")
+    images = _feature_images(gltf)
+    for k, image in enumerate(gltf.get("images") or []):  # those of feature ids, moved into the chunk
+        if k not in images:
+            gltf["images"][k] = {}
+        elif isinstance(image, dict) and isinstance(image.get("uri"), str):
+            data = _uri_bytes(image["uri"], resolver, where, f"image {k}")
+            gltf.setdefault("bufferViews", []).append({"buffer": 0, "byteOffset": out.append(data), "byteLength": len(data)})
+            gltf["images"][k] = {"bufferView": len(gltf["bufferViews"]) - 1,
+                                 "mimeType": image.get("mimeType", "image/png")}
     buffers = gltf.get("buffers") or []
-    gltf["buffers"] = ([{"byteLength": len(out.data)}] if moved else [{"byteLength": 0}]) + [buffers[k] for k in kept]
-    for key in ("images", "textures", "samplers", "materials"):
+    gltf["buffers"] = ([{"byteLength": len(out.data)}] if out.data else [{"byteLength": 0}]) + [buffers[k] for k in kept]
+    for key in ("materials",) if images else ("images", "textures", "samplers", "materials"):
         gltf.pop(key, None)
     for mesh in gltf.get("meshes") or []:
         for primitive in mesh.get("primitives") or []:
             if isinstance(primitive, dict):
                 primitive.pop("material", None)
     return join_glb(gltf, bytes(out.data))
+
+
+def _feature_images(gltf: dict) -> set:
+    """The images of a glTF document's feature-id textures (``EXT_mesh_features``: which building a texel belongs to)."""
+    textures, found = gltf.get("textures") if isinstance(gltf.get("textures"), list) else [], set()
+    for mesh in gltf.get("meshes") if isinstance(gltf.get("meshes"), list) else []:
+        for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
+            ext = ((primitive.get("extensions") or {}) if isinstance(primitive, dict) else {}).get("EXT_mesh_features")
+            for spec in (ext.get("featureIds") or []) if isinstance(ext, dict) else []:
+                index = (spec.get("texture") or {}).get("index") if isinstance(spec, dict) else None
+                if isinstance(index, int) and 0 <= index < len(textures) and isinstance(textures[index], dict) \
+                        and isinstance(textures[index].get("source"), int):
+                    found.add(textures[index]["source"])
+    return found
+
+
+def _uri_bytes(uri: str, resolver, where: str, what: str) -> bytes:
+    """The bytes a glTF buffer or image ``uri`` names: a base64 ``data:`` URI, or a file beside the glTF
+    (``resolver.get``)."""
+    import base64
+    from urllib.parse import unquote
+
+    if uri.startswith("data:"):
+        head, _, payload = uri.partition(",")
+        if not head.endswith(";base64"):
+            raise InputFileError(where, f"has {what} as a data URI that is not base64 ({head[:40]})")
+        try:
+            return base64.b64decode(payload)
+        except ValueError as err:
+            raise InputFileError(where, f"has {what} as base64 that cannot be decoded ({err})") from None
+    return resolver.get(unquote(uri))
 
 
 class _Binary:
@@ -364,8 +394,11 @@ def _draco(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
             raise InputFileError(where, f"holds {what} that decodes to points, not triangles")
         by_id = {a["unique_id"]: a for a in mesh.attributes}
         attributes = {}
+        features = (primitive.get("extensions") or {}).get("EXT_mesh_features") or {}
+        read_at = {f"TEXCOORD_{s['texture'].get('texCoord', 0)}" for s in features.get("featureIds") or []
+                   if isinstance(s, dict) and isinstance(s.get("texture"), dict)}  # of feature-id textures
         for semantic, uid in (ext.get("attributes") or {}).items():
-            if not _kept(semantic):
+            if not _kept(semantic) and semantic not in read_at:
                 continue
             if uid not in by_id:
                 raise InputFileError(where, f"holds {what} whose {semantic} (Draco attribute {uid!r}) is not in it")

@@ -11,8 +11,12 @@ City models published for the web (Cesium ion, municipal portals, converters fro
   ``CESIUM_RTC`` centre). One mesh per batch: ids ``name#<id>``, ``<id>`` the batch's first
   property of :attr:`meshsom.io.ReaderOptions.id_attributes` when those are unique in the batch
   table, else the batch number; labels from :attr:`meshsom.io.ReaderOptions.label_attribute`. In 3D
-  Tiles 1.1 glTF content the batch table is the ``EXT_structural_metadata`` property table that the
-  ``EXT_mesh_features`` feature ids name (:func:`property_table`: its string and number columns).
+  Tiles 1.1 glTF content the batches are the features of the ``EXT_mesh_features`` feature-id set (by
+  attribute ``_FEATURE_ID_N``, texture or implicit) that names buildings, not their surfaces or parts
+  (:mod:`meshsom.feature_ids`), and of ``EXT_instance_features`` (instances sharing an id one building);
+  the batch table is the ``EXT_structural_metadata`` property table that set names
+  (:func:`property_table`: its string and number columns), its class looked up in the content's schema,
+  the file its ``schemaUri`` names, or the tileset's ``schema``.
   Batches that a batch table hierarchy (``3DTILES_batch_table_hierarchy``, the draft's ``HIERARCHY``)
   makes parts of an object without geometry of its own (walls, roofs and doors of a building) are
   that object, one building of parts united in preprocessing (:func:`hierarchy_groups`).
@@ -48,6 +52,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 
 from meshsom.errors import InputFileError
+from meshsom.feature_ids import INSTANCE_FEATURE, INSTANCE_MARK
 from meshsom.gltf_compression import decompress_glb, split_glb
 from meshsom.implicit_tiling import implicit_contents
 
@@ -157,7 +162,9 @@ def is_tile_content(glb: bytes, where: str) -> bool:
     """Whether a GLB (or a glTF JSON file) is 3D Tiles content (saved as a ``.glb`` by 3d-tiles-tools' ``b3dmToGlb``, or 3D Tiles 1.1 content
     copied out): it has a ``CESIUM_RTC`` centre, or its primitives carry batch or feature ids
     (:data:`_FEATURE_ATTRIBUTES`). Such a file is read as its tile is (:func:`content_meshes`): a building per batch,
-    moved by its centre; trimesh alone would give a building per primitive, in the centre's frame."""
+    moved by its centre; trimesh alone would give a building per primitive, in the centre's frame. So is a glTF
+    whose primitives carry ``EXT_mesh_features`` sets or whose instances ``EXT_instance_features``
+    (:mod:`meshsom.feature_ids`)."""
     try:
         gltf = split_glb(glb, where)[0] if glb[:4] == b"glTF" else json.loads(glb)  # a GLB, or glTF JSON
     except (InputFileError, ValueError):
@@ -165,6 +172,10 @@ def is_tile_content(glb: bytes, where: str) -> bool:
     if not isinstance(gltf, dict):
         return False
     if "CESIUM_RTC" in (gltf.get("extensions") or {}):
+        return True
+    from meshsom.feature_ids import has_features
+
+    if has_features(gltf):  # 3D Tiles 1.1: feature ids of any set (attribute, texture, implicit) or of instances
         return True
     meshes = gltf.get("meshes") if isinstance(gltf.get("meshes"), list) else []
     return any(isinstance(p, dict) and isinstance(p.get("attributes"), dict)
@@ -234,8 +245,17 @@ def _instanced(gltf: dict, binary: bytes, where: str) -> tuple[bytes, int]:
         matrices = _instance_matrices(count, trs.get("TRANSLATION"), trs.get("ROTATION"), trs.get("SCALE"))
         name = str(node.get("name") or f"node {k}")
         children = list(range(len(nodes), len(nodes) + count))
-        nodes.extend({"name": f"{name} instance {i + 1}", "mesh": node["mesh"], "matrix": m.T.reshape(-1).tolist()}
-                     for i, m in enumerate(matrices))
+        features = [{}] * count
+        if isinstance(node.get("extras"), dict) and node["extras"].get(INSTANCE_MARK) and "_FEATURE_ID_0" in attributes:
+            ids = _accessor(gltf, binary, attributes["_FEATURE_ID_0"], where, f"{GPU_INSTANCING} _FEATURE_ID_0 of node {k}",
+                            "SCALAR")[:, 0]
+            if len(ids) != count:
+                raise InputFileError(where, f"holds node {k} whose instances' feature ids count {len(ids)} for {count} "
+                                            "instances")
+            ok = np.isfinite(ids) & (ids >= 0) & (ids == np.rint(ids))
+            features = [{"extras": {INSTANCE_FEATURE: int(i) if good else -1}} for i, good in zip(ids, ok)]
+        nodes.extend({"name": f"{name} instance {i + 1}", "mesh": node["mesh"], "matrix": m.T.reshape(-1).tolist(),
+                      **feature} for i, (m, feature) in enumerate(zip(matrices, features)))
         del node["mesh"]
         node["children"] = list(node.get("children") or []) + children
     for key in ("extensionsUsed", "extensionsRequired"):
@@ -263,9 +283,9 @@ def instanced_gltf(content: bytes, file_type: str, resolver, where: str) -> tupl
 
 
 def _accessor(gltf: dict, binary: bytes, index, where: str, what: str, kind: str) -> np.ndarray:
-    """An accessor's values ``(count, 3 or 4) float64`` (normalized integers as the fractions they stand for), from the
-    GLB's binary chunk."""
-    width = {"VEC3": 3, "VEC4": 4}[kind]
+    """An accessor's values ``(count, width) float64`` (width 1 to 4 for ``kind`` SCALAR to VEC4; normalized integers as
+    the fractions they stand for), from the GLB's binary chunk."""
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[kind]
     accessors, views = gltf.get("accessors") or [], gltf.get("bufferViews") or []
     accessor = accessors[index] if isinstance(index, int) and 0 <= index < len(accessors) else None
     if not isinstance(accessor, dict) or accessor.get("type") != kind or accessor.get("componentType") not in _COMPONENTS \
@@ -353,6 +373,9 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
             raise InputFileError(where, f"holds glTF triangles whose indices go beyond its {len(v)} vertices")
         attrs = getattr(geom, "vertex_attributes", {}) or {}
         ids = next((np.asarray(attrs[a]) for a in _FEATURE_ATTRIBUTES if a in attrs), None)
+        instance = _instance_feature(scene, node)
+        if instance is not None:  # EXT_instance_features: the instance's id is its triangles'
+            ids = np.full(len(v), float(instance))
         if ids is not None:
             if len(ids) != len(v) or ids.size % max(len(v), 1):
                 raise InputFileError(where, f"holds a batch-id attribute of {len(ids)} values for {len(v)} vertices")
@@ -387,43 +410,43 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
     return out
 
 
-def _null_feature_id(gltf: dict) -> int | None:
-    """The ``nullFeatureId`` of the ``EXT_mesh_features`` feature-id set read from ``_FEATURE_ID_0`` (the id that
-    marks vertices of no feature), None where none is given (or the JSON is laid out otherwise than the
-    specification says)."""
-    try:
-        for mesh in gltf.get("meshes") or []:
-            for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
-                extension = ((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}) \
-                    if isinstance(primitive, dict) else {}
-                for feature_ids in extension.get("featureIds") or []:
-                    if isinstance(feature_ids, dict) and feature_ids.get("attribute") == 0 and \
-                            isinstance(feature_ids.get("nullFeatureId"), int) and feature_ids["nullFeatureId"] >= 0:
-                        return feature_ids["nullFeatureId"]
-    except (AttributeError, TypeError):
-        return None
+def _instance_feature(scene, node: str) -> int | None:
+    """The feature id :func:`instanced_glb` gave the instance a scene node draws (``EXT_instance_features``; -1 for an
+    id that is not a whole number from 0), None for a node of no such instance."""
+    edges = scene.graph.transforms.edge_data
+    at = node
+    for _ in range(2):  # the instance's node, or the primitive's node under it
+        parent = scene.graph.transforms.parents.get(at)
+        metadata = (edges.get((parent, at)) or {}).get("metadata") if parent is not None else None
+        if isinstance(metadata, dict) and INSTANCE_FEATURE in metadata:
+            return int(metadata[INSTANCE_FEATURE])
+        if parent is None:
+            return None
+        at = parent
     return None
 
 
-def property_table(gltf: dict, binary: bytes, names, where: str) -> tuple[dict, int | None]:
-    """The columns ``names`` (those it has, of strings or numbers) of the ``EXT_structural_metadata`` property table
-    that a glTF content's feature ids name (``EXT_mesh_features``: the table of the first feature-id set read from
-    ``_FEATURE_ID_0``; 3D Tiles 1.1's batch table), as lists of its row count, and that count; ``({}, None)`` without
-    one. Columns of other types (arrays, vectors, enums), and any the binary chunk does not hold, are left out."""
+def property_table(gltf: dict, binary: bytes, names, where: str, table: int | None = None,
+                   schema: dict | None = None) -> tuple[dict, int | None]:
+    """The columns ``names`` (those it has, of strings or numbers) of an ``EXT_structural_metadata`` property table
+    (3D Tiles 1.1's batch table), as lists of its row count, and that count; ``({}, None)`` without one. The table is
+    ``table``, by default the one of the first feature-id set read from ``_FEATURE_ID_0`` (``EXT_mesh_features``); its
+    class is looked up in ``schema``, by default the content's own. Columns of other types (arrays, vectors, enums),
+    and any the binary chunk does not hold, are left out."""
     try:
-        return _property_table(gltf, binary, names)
+        return _property_table(gltf, binary, names, table, schema)
     except (AttributeError, TypeError, ValueError, KeyError):  # metadata laid out otherwise than the specification
         return {}, None  # says: no ids, no labels (the geometry is read as it is)
 
 
-def _property_table(gltf: dict, binary: bytes, names) -> tuple[dict, int | None]:
+def _property_table(gltf: dict, binary: bytes, names, chosen: int | None, schema: dict | None
+                    ) -> tuple[dict, int | None]:
     """The work of :func:`property_table`, which answers for what it raises."""
     metadata = (gltf.get("extensions") or {}).get("EXT_structural_metadata")
     tables = metadata.get("propertyTables") if isinstance(metadata, dict) else None
     if not isinstance(tables, list):
         return {}, None
-    chosen = None
-    for mesh in gltf.get("meshes") or []:
+    for mesh in (gltf.get("meshes") or []) if chosen is None else []:
         for primitive in (mesh.get("primitives") or []) if isinstance(mesh, dict) else []:
             sets = (((primitive.get("extensions") or {}).get("EXT_mesh_features") or {}).get("featureIds") or []) \
                 if isinstance(primitive, dict) else []
@@ -433,7 +456,8 @@ def _property_table(gltf: dict, binary: bytes, names) -> tuple[dict, int | None]
     if not isinstance(table, dict) or not isinstance(table.get("count"), int) or table["count"] < 1:
         return {}, None
     count = table["count"]
-    classes = ((metadata.get("schema") or {}).get("classes") or {}) if isinstance(metadata.get("schema"), dict) else {}
+    schema = schema if isinstance(schema, dict) else metadata.get("schema")
+    classes = (schema.get("classes") or {}) if isinstance(schema, dict) else {}
     declared = ((classes.get(table.get("class")) or {}).get("properties") or {}) if isinstance(classes, dict) else {}
     columns = {}
     for name in dict.fromkeys(n for n in names if n):
@@ -615,7 +639,7 @@ def composite_inner_tiles(data: bytes, where: str, depth: int = 0) -> list[tuple
 
 
 def composite_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
-                     y_up: bool = True) -> Iterator:
+                     y_up: bool = True, schema: dict | None = None, resolve=None) -> Iterator:
     """RawMesh / Rejection items of a composite tile's batched models (b3dm, glb: :func:`content_meshes`,
     ids ``prefix`` + ``N#`` + batch, N its inner tile from 0); each instanced model or point cloud a
     Rejection that says so."""
@@ -625,7 +649,7 @@ def composite_meshes(data: bytes, source: str, prefix: str, options, transform: 
         if magic in ("b3dm", "glTF"):
             try:  # one inner tile that cannot be read is its rejection; the others are read (or listed) still
                 yield from content_meshes(inner, source, f"{prefix}{k}#", options, transform, b3dm=magic == "b3dm",
-                                          y_up=y_up)
+                                          y_up=y_up, schema=schema, resolve=resolve)
             except InputFileError as err:
                 yield Rejection(f"{prefix}{k}", source, f"is inner tile {k} of a composite, a {magic} that {err.problem}")
         else:
@@ -634,9 +658,13 @@ def composite_meshes(data: bytes, source: str, prefix: str, options, transform: 
 
 
 def content_meshes(data: bytes, source: str, prefix: str, options, transform: np.ndarray | None = None,
-                   b3dm: bool = True, y_up: bool = True) -> Iterator:
+                   b3dm: bool = True, y_up: bool = True, schema: dict | None = None, resolve=None) -> Iterator:
     """RawMesh / Rejection items of one b3dm (or, ``b3dm`` false, glb) content (``prefix`` starts
-    the ids; ``transform`` the tile's, column vectors, 4 x 4)."""
+    the ids; ``transform`` the tile's, column vectors, 4 x 4). 3D Tiles 1.1 feature ids: the set that is the
+    buildings (:func:`meshsom.feature_ids.building_ids`), its property table's class looked up in the content's
+    ``EXT_structural_metadata`` schema, the file its ``schemaUri`` names (``resolve(uri)`` gives its bytes; by default
+    a file beside ``source``), or else ``schema`` (the tileset's)."""
+    from meshsom.feature_ids import building_ids, resolve_schema
     from meshsom.io import RawMesh, Rejection, recentre
 
     if b3dm:
@@ -644,17 +672,21 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         rtc = _rtc_centre(feature_table, feature_binary, source)
     else:
         feature_table, batch_table, glb, rtc = {}, {}, bytes(data), np.zeros(3)
+    glb = decompress_glb(glb, source)  # Draco, meshopt: plain accessors (meshsom.gltf_compression)
     gltf = split_glb(glb, source)[0]
-    null_id = _null_feature_id(gltf)
-    if "EXT_structural_metadata" in (gltf.get("extensions") or {}):  # its columns as they stand uncompressed
-        table, rows = property_table(*split_glb(decompress_glb(glb, source), source),
-                                     (*options.id_attributes, options.label_attribute), source)
+    content_schema, schema_note = resolve_schema(gltf, resolve or _beside(source, options), schema, source)
+    glb, choice = building_ids(glb, source, content_schema)
+    null_id = choice.null_id
+    if "EXT_structural_metadata" in (gltf.get("extensions") or {}):
+        table, rows = property_table(*split_glb(glb, source), (*options.id_attributes, options.label_attribute,
+                                                                choice.parent_column), source, choice.table,
+                                     content_schema)
     else:
         table, rows = {}, None
     cesium_rtc = (gltf.get("extensions") or {}).get("CESIUM_RTC", {}).get("center")
     if cesium_rtc is not None:
         rtc = rtc + np.asarray(cesium_rtc, np.float64).reshape(3)
-    said: list[str] = []
+    said: list[str] = [*choice.notes, *([schema_note] if schema_note else [])]
     declared = feature_table.get("BATCH_LENGTH")
     length = declared if isinstance(declared, int) and not isinstance(declared, bool) and declared > 0 else None  # 0: one model
     node_names: dict[int, str] = {}
@@ -670,8 +702,17 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     ids = _batch_ids(batch_table, length or rows, options)
     labels = batch_table.get(options.label_attribute)
     groups = hierarchy_groups(batch_table, _batch_binary(data), length, source) if b3dm and length else None
+    parents = table.get(choice.parent_column) if choice.parent_column else None
+    if isinstance(parents, list):  # EXT_mesh_features sets of parts only: the parts of one building together
+        groups = {batch: str(parents[batch]) for batch, _, _ in batches if 0 <= batch < len(parents)
+                  and batch != null_id and parents[batch] not in (None, "")}
+    elif choice.parent_column:
+        said.append(f"its parts' column {choice.parent_column!r} cannot be read: each part read as a building")
     entries = _grouped(batches, groups or {}, ids)
-    if groups:
+    if groups and isinstance(parents, list):
+        said.append(f"its {len(groups)} parts make {len(set(groups.values()))} buildings by their property table's "
+                    f"{choice.parent_column!r} (EXT_structural_metadata): each read as a building of its parts")
+    elif groups:
         said.append(f"its {len(groups)} batches are parts of {len(set(groups.values()))} objects by the batch table's "
                     f"hierarchy (3DTILES_batch_table_hierarchy): each object read as a building of its parts")
     for batch, key, v, f, parts, face_part in entries:
@@ -713,6 +754,15 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
                 yield RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said))
             continue
         yield RawMesh(mesh_id, source, local, f, origin, label, None, parts, face_part, notes=(note, *said))
+
+
+def _beside(source: str, options):
+    """A function giving the bytes of a file a content names (its metadata ``schemaUri``), looked up in the content's
+    own folder (:class:`meshsom.io.FolderResolver`: nothing outside it is opened)."""
+    from meshsom.io import FolderResolver
+
+    resolver = FolderResolver(Path(source).parent, source)
+    return lambda uri: resolver.get(unquote(uri))
 
 
 def _grouped(batches: list, groups: dict[int, str], ids: list[str] | None) -> list:
@@ -790,6 +840,24 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
     # 3D Tiles 1.0's asset.gltfUpAxis: "Z" where the tiler wrote z-up glTF (fanvanzh/3dtiles, CesiumLab), Y by default
     y_up = str(document["asset"].get("gltfUpAxis", "Y")).strip().upper() != "Z"
 
+    def within(folder: Path):
+        """The bytes of a file a content in ``folder`` names (its metadata schemaUri), within the tileset's folder."""
+        def read(uri: str) -> bytes:
+            parsed = urlparse(uri)
+            target = (folder / unquote(parsed.path)).resolve()
+            if parsed.scheme or parsed.netloc or not target.is_relative_to(root_folder):
+                raise InputFileError(str(path), f"names a file outside the tileset's folder ({uri}); not followed")
+            return bytes(read_input_bytes(target, options))
+        return read
+
+    # 3D Tiles 1.1's metadata schema (its own, or the file schemaUri names): for content that names no schema
+    schema = document.get("schema") if isinstance(document.get("schema"), dict) else None
+    if schema is None and isinstance(document.get("schemaUri"), str):
+        try:
+            schema = _parse_json(within(path.parent)(document["schemaUri"]), str(path))
+        except (InputFileError, OSError):
+            schema = None  # the contents' own schemas stand; a content that names none says so
+
     def _content(uri: str, folder: Path, transform: np.ndarray, refine: str, depth: int) -> Iterator:
         """The items of one content: its buildings, or rejections; an external tileset joins the walk."""
         parsed = urlparse(uri)
@@ -821,11 +889,12 @@ def read_tileset(document: dict, path: Path, options, name: str | None = None) -
                 from meshsom.io import FolderResolver
 
                 data, suffix = pack_gltf(data, FolderResolver(target.parent, str(target)), str(target)), ".glb"
+            where = {"schema": schema if isinstance(schema, dict) else None, "resolve": within(target.parent)}
             if suffix == ".cmpt":
-                yield from composite_meshes(data, str(target), f"{content_id}#", options, transform, y_up=y_up)
+                yield from composite_meshes(data, str(target), f"{content_id}#", options, transform, y_up=y_up, **where)
             else:
                 yield from content_meshes(data, str(target), f"{content_id}#", options, transform, b3dm=suffix == ".b3dm",
-                                          y_up=y_up)
+                                          y_up=y_up, **where)
         except (InputFileError, OSError) as err:
             yield Rejection(content_id, str(target), getattr(err, "problem", None) or f"cannot be read ({err})")
 
