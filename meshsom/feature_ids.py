@@ -14,9 +14,10 @@ surface (wall, roof) or part. The set read as the buildings is, in this order
    (:data:`BUILDING_WORDS`) and no parts (:data:`PART_WORDS`: ``BuildingPart``, ``roof``,
    ``buildingComponents``...);
 2. else a set, not named for parts, whose class has a property that names buildings
-   (``building_id``, ``BuildingID``, ``bldg``, ``gml_id``);
+   (``building_id``, ``BuildingID``, ``bldg``, ``gml_id``), unless another such set, or an unnamed
+   one, has fewer features that still split the content (a part's table may name its building);
 3. else, of the sets not named for parts, the one of the fewest features present that still splits
-   the content (two or more), ties to the lower index; set 0 where none splits;
+   the content (two or more), ties to the lower index; the first where none splits;
 4. else (every set names parts): the parts grouped into buildings by a property of their table
    that names their building (:func:`parent_column`: ``building_id``, ``parent``...); without one
    the feature ids are not used: each glTF node a building, so that no building is split into its
@@ -326,12 +327,18 @@ def _choose(schema: dict | None, tables: list, by_position: dict[int, list[_Set]
     def others(k: int) -> str:
         return "; the others: " + ", ".join(name(j) for j in sorted(kinds) if j != k) if len(kinds) > 1 else ""
 
-    for wanted, why in (("building", "its name names buildings"), ("building property", "a property names buildings")):
-        named = [k for k in sorted(kinds) if kinds[k] == wanted]
-        if named:
-            k = min(named, key=lambda j: (present[j], j))
-            return k, None, f"its {what} feature ids of {name(k)} read as the buildings: {why}{others(k)}"
-    plain = [k for k in sorted(kinds) if kinds[k] is None]
+    named = [k for k in sorted(kinds) if kinds[k] == "building"]
+    if named:
+        k = min(named, key=lambda j: (present[j], j))
+        return k, None, f"its {what} feature ids of {name(k)} read as the buildings: its name names buildings{others(k)}"
+    named = [k for k in sorted(kinds) if kinds[k] == "building property"]
+    if named:  # unless a set of fewer features splits the content (a part's table names its building too)
+        k = min(named, key=lambda j: (present[j], j))
+        coarser = [j for j in sorted(kinds) if kinds[j] != "part" and 1 < present[j] < present[k]]
+        if not coarser:
+            return k, None, f"its {what} feature ids of {name(k)} read as the buildings: a property names buildings" \
+                            f"{others(k)}"
+    plain = [k for k in sorted(kinds) if kinds[k] in (None, "building property")]
     if plain:
         splitting = [k for k in plain if present[k] > 1]
         k = min(splitting, key=lambda j: (present[j], j)) if splitting else plain[0]

@@ -155,10 +155,13 @@ def test_the_set_that_names_buildings_is_read_not_the_surfaces(tmp_path, classes
     assert any("set 1" in n and "read as the buildings" in n for n in items[0].notes), items[0].notes
 
 
-def test_unnamed_sets_fewest_features_that_split(tmp_path):
+@pytest.mark.parametrize("parent", [False, True])
+def test_unnamed_sets_fewest_features_that_split(tmp_path, parent):
     """Neither set's class names buildings or parts ("classA", "classB"), nor their columns ("code"): the set of the
-    fewest features that still splits the content (the 2 buildings, not the 12 surfaces) is read."""
-    two_sets(tmp_path / "city.glb", "classA", "classB", id_column="code")
+    fewest features that still splits the content (the 2 buildings, not the 12 surfaces) is read. So too where the
+    surfaces' table has a column naming their building (``building_id``: a property naming buildings, but in a
+    table of more features than another set that splits the content)."""
+    two_sets(tmp_path / "city.glb", "classA", "classB", id_column="code", parent=parent)
     items = list(read_file(tmp_path / "city.glb", ReaderOptions(id_attributes=("code",))))
     assert sorted(_volumes_by_id(items)) == sorted(BUILDINGS), items
     assert any("fewest features that splits" in n for n in items[0].notes)
