@@ -132,8 +132,10 @@ def _local(tag) -> str:
 
 
 #: Namespaces of CityGML, GML and the other OGC schemas a building's own geometry is written in; an element of any other
-#: (an Application Domain Extension's) is not the building's shell.
-OGC_NAMESPACES = ("http://www.opengis.net/", "https://www.opengis.net/")
+#: (an Application Domain Extension's) is not the building's shell. CityGML 0.4, before the OGC adopted it, has
+#: ``http://www.citygml.org/citygml/1/0/0`` (citygml4j's LoD3 sample of 2010); ``http://www.citygml.org/ade/...`` is
+#: an ADE's.
+OGC_NAMESPACES = ("http://www.opengis.net/", "https://www.opengis.net/", "http://www.citygml.org/citygml/")
 
 
 @functools.lru_cache(maxsize=4096)

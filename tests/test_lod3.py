@@ -206,3 +206,18 @@ def test_a_flush_window_body_read_as_shell_was_the_rejection(tmp_path):
     assert len(as_shell.faces) > len(mesh.faces)
     with pytest.raises(MeshError, match="non-manifold"):
         preprocess(as_shell.vertices, as_shell.faces)
+
+
+def test_citygml_0_4_namespace_is_citygml_not_an_ade(tmp_path):
+    """CityGML 0.4 (``http://www.citygml.org/citygml/1/0/0``, citygml4j's LoD3 sample of 2010) is read as CityGML,
+    where every element of it was taken for an ADE's and the building had no geometry; an ADE under
+    ``http://www.citygml.org/ade/`` is still left out."""
+    xml = house("recessed").replace("http://www.opengis.net/citygml/2.0", "http://www.citygml.org/citygml/1/0/0").replace(
+        "http://www.opengis.net/citygml/building/2.0", "http://www.citygml.org/citygml/1/0/0")
+    mesh = _read(tmp_path, xml)
+    assert preprocess(mesh.vertices, mesh.faces).volume_out == pytest.approx(BOX, rel=1e-9)
+    ade = house("recessed").replace("</bldg:Building>", '<test:unit xmlns:test="http://www.citygml.org/ade/TestADE/1.0">'
+                                    '<bldg:lod3MultiSurface><gml:MultiSurface>'
+                                    + _polygon([(20, 0, 0), (21, 0, 0), (21, 0, 1)]) + "</gml:MultiSurface>"
+                                    "</bldg:lod3MultiSurface></test:unit></bldg:Building>")
+    assert len(_read(tmp_path, ade).faces) == len(mesh.faces)
