@@ -445,3 +445,20 @@ def test_feature_ids_laid_out_otherwise_are_read_or_rejected(tmp_path, mutate):
     items = list(read_file(tmp_path / "odd.glb"))
     assert items and all(isinstance(m, (RawMesh, Rejection)) for m in items), items
     assert all(str(tmp_path / "odd.glb") in m.source for m in items)
+
+
+def test_null_feature_id_of_the_set_read(tmp_path):
+    """The set read (set 1, per building) declares ``nullFeatureId`` 255, carried by the second box: its triangles
+    are a rejection saying so, the first box a building; set 0's ids (surfaces, no null id) do not matter."""
+    mesh, building, surface = boxes()
+    writer = Writer(mesh)
+    writer.attribute("_FEATURE_ID_0", np.repeat(surface, 3).astype("<u2"), 5123)
+    writer.attribute("_FEATURE_ID_1", np.repeat(np.where(building == 1, 255, building), 3).astype("<u1"), 5121)
+    writer.write(tmp_path / "city.glb", [{"featureCount": 12, "attribute": 0, "label": "surfaces"},
+                                         {"featureCount": 1, "attribute": 1, "label": "buildings",
+                                          "nullFeatureId": 255}])
+    items = list(read_file(tmp_path / "city.glb"))
+    meshes = [m for m in items if isinstance(m, RawMesh)]
+    assert [m.id.rsplit("#", 1)[1] for m in meshes] == ["0"] and len(meshes[0].faces) == 12
+    (null,) = [m for m in items if isinstance(m, Rejection)]
+    assert "12 triangles carry the null feature id 255" in null.reason, null
