@@ -111,6 +111,9 @@ THREE_DS_SUFFIX = ".3ds"
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 #: 3MF packages (:mod:`meshsom.threemf`).
 THREEMF_SUFFIX = ".3mf"
+#: X3D (XML and classic encodings) and VRML97 scenes (:mod:`meshsom.x3d`), and their gzipped names (.x3dz, .x3dvz,
+#: .wrz: gzip is recognised by the content, as for any input).
+X3D_SUFFIXES = (".x3d", ".x3dv", ".wrl", ".x3dz", ".x3dvz", ".wrz")
 #: OpenStreetMap extracts (:mod:`meshsom.osm`).
 OSM_SUFFIXES = (".osm", ".osm.pbf", ".osm.bz2")
 GZIP_MAGIC = b"\x1f\x8b"
@@ -416,7 +419,7 @@ def format_name(path: Path) -> str:
 
 def input_kind(path: Path) -> str:
     """'cityjson', 'cityjsonseq', 'citygml', 'gis', 'b3dm', 'zip', 'kml', 'slpk', '3dm', 'dxf', 'osm', 'ifc', 'fbx', '3ds', 'usd',
-    '3mf' or 'trimesh' by file name (a final ``.gz`` aside); InputFileError for anything else."""
+    '3mf', 'x3d' or 'trimesh' by file name (a final ``.gz`` aside); InputFileError for anything else."""
     from meshsom.gis import CSV_GEOMETRY_COLUMNS, CSV_SUFFIX, GIS_SUFFIXES, csv_geometry_column
     from meshsom.tiles3d import B3DM_SUFFIXES
 
@@ -460,6 +463,8 @@ def input_kind(path: Path) -> str:
         return "usd"
     if name.endswith(THREEMF_SUFFIX):
         return "3mf"
+    if name.endswith(X3D_SUFFIXES):
+        return "x3d"
     if name.endswith(IFC_SUFFIXES):
         return "ifc"
     if name.endswith(CITYGML_SUFFIXES):
@@ -488,7 +493,7 @@ def readable_types() -> str:
     readable = TRIMESH_SUFFIXES + (".city.json", ".json", ".city.jsonl", ".geojson") + CITYGML_SUFFIXES + (
         ".xml (CityGML)",) + B3DM_SUFFIXES + (
         ".zip", ".kmz", ".kml", ".slpk", RHINO_SUFFIX, DXF_SUFFIX, FBX_SUFFIX, THREE_DS_SUFFIX) + USD_SUFFIXES + (
-        THREEMF_SUFFIX,) + OSM_SUFFIXES + IFC_SUFFIXES
+        THREEMF_SUFFIX,) + X3D_SUFFIXES + OSM_SUFFIXES + IFC_SUFFIXES
     return (f"{', '.join(readable)}, each possibly followed by {GZIP_SUFFIX}, or a GIS file: {', '.join(GIS_SUFFIXES)}, "
             f".csv (footprints as WKT, also gzipped)")
 
@@ -958,6 +963,10 @@ def _read_file(path: Path, options: ReaderOptions, name: str | None, byte_range,
             from meshsom.threemf import read_3mf
 
             yield from read_3mf(path, options, name)
+        elif kind == "x3d":
+            from meshsom.x3d import read_x3d
+
+            yield from read_x3d(path, options, name)
         else:
             yield from read_trimesh(path, name, options)
     except InputFileError as err:
@@ -1439,6 +1448,7 @@ CONVERSIONS = {
     ".i3dm": "3D Tiles instances: not read",
     ".ifcxml": "IFC-XML: IfcOpenShell reads IFC as STEP; export the model as .ifc from its authoring tool",
     ".ifcjson": "IFC-JSON: IfcOpenShell reads IFC as STEP; export the model as .ifc from its authoring tool",
+    ".x3db": "binary X3D: not read; save it in the XML (.x3d) or classic (.x3dv) encoding, which are read",
 }
 #: The UTF-8 byte order mark that Windows tools put before text (JSON, OBJ); dropped before parsing.
 UTF8_BOM = b"\xef\xbb\xbf"

@@ -9,8 +9,8 @@ the items to make, each an object with a transform. Read here with the standard 
 triangles gathered into NumPy arrays:
 
 - **Buildings**: each build item is one building, its object's mesh and components (recursively, each at its
-  transform) united, vertices at the same place one vertex; id ``<file>#<item partnumber>``, else ``<file>#<object name>``, else
-  ``<file>#object-<id>`` (a name met again: ``<name> (2)``: an object built twice).
+  transform) united, vertices at the same place one vertex; id ``<file>#<item partnumber>``, else
+  ``<file>#<object name>``, else ``<file>#object-<id>`` (a name met again: ``<name> (2)``: an object built twice).
 - **Placement**: transforms are 3MF's 3 x 4 matrices ``m00 m01 m02 m10 m11 m12 m20 m21 m22 m30 m31 m32``, applied
   to row vectors (``[x y z 1] @ M``), a component's before its object's and the item's; a mirroring transform keeps
   the faces' sides (their order is turned).

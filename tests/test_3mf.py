@@ -16,20 +16,17 @@ import numpy as np
 import pytest
 
 from meshsom.io import RawMesh, Rejection, expand_inputs, input_kind, read_file
+from mesh_checks import HEIGHT, L_AREA, L_SHAPE, rotation_z, same_points, signed_volume
 
 CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
 PRODUCTION = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
 CONTENT_TYPES = ('<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.openxmlformats.org/package/2006/'
                  'content-types"><Default Extension="rels" ContentType="application/vnd.openxmlformats-package.'
-                 'relationships+xml"/><Default Extension="model" ContentType="application/vnd.ms-package.3dmanufacturing'
-                 '-3dmodel+xml"/></Types>')
+                 'relationships+xml"/><Default Extension="model" ContentType="application/vnd.ms-package.'
+                 '3dmanufacturing-3dmodel+xml"/></Types>')
 RELS = ('<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.openxmlformats.org/package/2006/'
         'relationships"><Relationship Target="/{target}" Id="rel0" Type="http://schemas.microsoft.com/3dmanufacturing'
         '/2013/01/3dmodel"/></Relationships>')
-#: An L-shaped footprint (metres), its area; the prism's height.
-L_SHAPE = [(12.0, 4.0), (4.0, 4.0), (4.0, 10.0), (0.0, 10.0), (0.0, 0.0), (12.0, 0.0)]
-L_AREA = 12 * 4 + 4 * 6
-HEIGHT = 7.0
 
 
 def l_prism() -> tuple[np.ndarray, np.ndarray]:
@@ -77,19 +74,10 @@ def write_3mf(path, model: str, parts: dict | None = None, root: str = "3D/3dmod
             package.writestr(name, text)
 
 
-def rotation_z(degrees: float) -> np.ndarray:
-    a = np.radians(degrees)
-    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
 
 
-def signed_volume(mesh) -> float:
-    corners = (mesh.vertices + mesh.origin)[mesh.faces]
-    return float(np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum() / 6)
 
 
-def same_points(got: RawMesh, expected: np.ndarray) -> None:
-    world = np.unique(np.round(got.vertices + got.origin, 6), axis=0)
-    np.testing.assert_allclose(world, np.unique(np.round(expected, 6), axis=0), atol=1e-6)
 
 
 @pytest.mark.parametrize("unit", ["millimeter", None, "meter", "inch"])

@@ -18,27 +18,24 @@ pxr = pytest.importorskip("pxr")
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdUtils, Vt  # noqa: E402
 
 from meshsom.io import RawMesh, Rejection, expand_inputs, input_kind, read_file  # noqa: E402
+from mesh_checks import (  # noqa: E402
+    HEIGHT, L_AREA, L_PERIMETER, L_SHAPE, l_prism_polygons, rotation_z, signed_volume, unsigned_area,
+)
+from mesh_checks import same_points as _same_points  # noqa: E402
 
-#: An L-shaped footprint (metres), its ring started at a corner that does not see the whole L (a fan from it folds
-#: over itself), its area and perimeter.
-L_SHAPE = [(12.0, 4.0), (4.0, 4.0), (4.0, 10.0), (0.0, 10.0), (0.0, 0.0), (12.0, 0.0)]
-L_AREA = 12 * 4 + 4 * 6
-L_PERIMETER = 12 + 4 + 8 + 6 + 4 + 10
-HEIGHT = 7.0
 #: z up -> a file's axes (the inverse of the turn to z up; orthogonal): a y-up file's (x, y, z) is z up's (x, z, -y).
 FROM_Z_UP = {"Z": np.eye(3), "Y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])}
 
 
 def l_prism() -> tuple[np.ndarray, list[int], list[int]]:
-    """The L-prism in metres, z up: points (12, 3), faceVertexCounts, faceVertexIndices (floor and roof one concave
-    polygon each, walls quads, all turned outwards as USD's rightHanded orientation has them)."""
-    n = len(L_SHAPE)
-    points = np.array([(x, y, 0.0) for x, y in L_SHAPE] + [(x, y, HEIGHT) for x, y in L_SHAPE])
-    ccw = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(L_SHAPE, L_SHAPE[1:] + L_SHAPE[:1])) > 0
-    ring = list(range(n)) if ccw else list(range(n))[::-1]
-    polygons = [ring[::-1], [i + n for i in ring]]
-    polygons += [[a, b, b + n, a + n] for a, b in zip(ring, ring[1:] + ring[:1])]
+    """The L-prism in metres, z up: points (12, 3), faceVertexCounts, faceVertexIndices (USD's rightHanded)."""
+    points, polygons = l_prism_polygons()
     return points, [len(p) for p in polygons], [i for p in polygons for i in p]
+
+
+def same_points(got: RawMesh, expected: np.ndarray) -> None:
+    """The world vertices are the expected points, to the float32 precision of USD's points."""
+    _same_points(got, expected, decimals=3, atol=2e-3)
 
 
 def define_mesh(stage, path: str, points_m: np.ndarray, counts, indices, metres: float, up: str):
@@ -62,26 +59,12 @@ def new_stage(path, metres: float | None, up: str | None):
     return stage
 
 
-def signed_volume(mesh) -> float:
-    corners = (mesh.vertices + mesh.origin)[mesh.faces]
-    return float(np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum() / 6)
 
 
-def unsigned_area(mesh) -> float:
-    corners = mesh.vertices[mesh.faces]
-    return float(np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum() / 2)
 
 
-def rotation_z(degrees: float) -> np.ndarray:
-    a = np.radians(degrees)
-    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
 
 
-def same_points(got: RawMesh, expected: np.ndarray) -> None:
-    """The mesh's world vertices are the expected points (as sets, to float32 precision of the file)."""
-    world = np.unique(np.round(got.vertices + got.origin, 3), axis=0)
-    assert world.shape == np.unique(np.round(expected, 3), axis=0).shape
-    np.testing.assert_allclose(world, np.unique(np.round(expected, 3), axis=0), atol=2e-3)
 
 
 @pytest.mark.parametrize("up", ["Z", "Y", None])

@@ -1,0 +1,247 @@
+"""X3D (XML and classic encodings) and VRML97 scenes read as the buildings they place (meshsom.x3d).
+
+The scenes are written here in each encoding as converters write them (Transforms with every field, Groups, DEF and
+USE, IndexedFaceSet polygons with an L-shaped roof and floor as one polygon each, IndexedTriangleSet, Box, Inline,
+Switch, units). Every expected coordinate is worked out here: the Transform's matrix from its fields with SciPy's
+rotations (not the reader's Rodrigues formula), the turn from y up to z up by hand, every volume and area from the
+footprint.
+"""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from meshsom.io import RawMesh, ReaderOptions, Rejection, expand_inputs, input_kind, read_file
+from mesh_checks import HEIGHT, L_AREA, L_PERIMETER, l_prism_polygons, same_points, signed_volume, unsigned_area
+
+#: y up -> z up: (x, y, z) -> (x, -z, y).
+TO_Z_UP = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+
+
+def l_prism() -> tuple[np.ndarray, list[list[int]]]:
+    """The L-prism in the file's y-up frame (ground x, -z; up y): points (12, 3) and polygons turned outwards,
+    counter-clockwise seen from outside (X3D's ccw TRUE)."""
+    points, polygons = l_prism_polygons()
+    return points @ TO_Z_UP, polygons  # the inverse turn (orthogonal): z up -> the file's y up
+
+
+#: The Transform of the test: every field (translation, rotation, scale, scaleOrientation, center).
+FIELDS = {"translation": (100.0, 2.0, -30.0), "rotation": (0.0, 1.0, 0.0, 0.6), "scale": (2.0, 2.0, 2.0),
+          "scaleOrientation": (0.0, 0.0, 1.0, 0.3), "center": (1.0, 0.0, 1.0)}
+
+
+def expected_matrix(fields: dict) -> np.ndarray:
+    """``T C R SR S -SR -C`` of X3D's Transform, with SciPy's rotations (column vectors)."""
+    def affine(linear=np.eye(3), shift=(0.0, 0.0, 0.0)):
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = linear, shift
+        return m
+
+    def rotation(axis_angle):
+        axis = np.asarray(axis_angle[:3], float)
+        return Rotation.from_rotvec(axis / np.linalg.norm(axis) * axis_angle[3]).as_matrix()
+
+    r, so = rotation(fields["rotation"]), rotation(fields["scaleOrientation"])
+    c = np.asarray(fields["center"])
+    return (affine(shift=fields["translation"]) @ affine(shift=c) @ affine(r) @ affine(so)
+            @ affine(np.diag(fields["scale"])) @ affine(so.T) @ affine(shift=-c))
+
+
+def placed(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """Points placed by a 4 x 4 matrix and turned to z up."""
+    return (points @ matrix[:3, :3].T + matrix[:3, 3]) @ TO_Z_UP.T
+
+
+def classic(header: str, points: np.ndarray, polygons, fields: dict) -> str:
+    """The test scene in the classic encoding: a placed house (DEF'd), its geometry USE'd again in a Group moved by
+    a second Transform, and a Box."""
+    point_text = ", ".join(" ".join(f"{v:.10g}" for v in p) for p in points)
+    index_text = " -1 ".join(" ".join(map(str, p)) for p in polygons)
+    field_text = " ".join(f"{k} {' '.join(f'{v:.10g}' for v in value)}" for k, value in fields.items())
+    return f"""{header}
+# written by a converter
+WorldInfo {{ title "city" info [ "test" ] }}
+NavigationInfo {{ type [ "EXAMINE", "ANY" ] }}
+DEF House Transform {{ {field_text}
+  children [
+    Shape {{
+      appearance Appearance {{ material Material {{ diffuseColor 0.8 0.8 0.8 }} }}
+      geometry DEF HouseGeometry IndexedFaceSet {{ solid TRUE convex FALSE
+        coord Coordinate {{ point [ {point_text} ] }}
+        coordIndex [ {index_text} ] }}
+    }}
+  ]
+}}
+ROUTE Clock.fraction_changed TO House.set_translation
+Group {{ children [ Transform {{ translation 0 0 50 children [ Shape {{ geometry USE HouseGeometry }} ] }} ] }}
+DEF Kiosk Transform {{ translation -20 1.5 0 children Shape {{ geometry Box {{ size 2 3 4 }} }} }}
+"""
+
+
+def xml(points: np.ndarray, polygons, fields: dict, head: str = "") -> str:
+    point_text = ", ".join(" ".join(f"{v:.10g}" for v in p) for p in points)
+    index_text = " -1 ".join(" ".join(map(str, p)) for p in polygons) + " -1"
+    field_text = " ".join(f"{k}='{' '.join(f'{v:.10g}' for v in value)}'" for k, value in fields.items())
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<!DOCTYPE X3D PUBLIC "ISO//Web3D//DTD X3D 3.3//EN" "https://www.web3d.org/specifications/x3d-3.3.dtd">
+<X3D profile='Interchange' version='3.3' xmlns:xsd='http://www.w3.org/2001/XMLSchema-instance'>
+  <head><meta name='generator' content='test'/>{head}</head>
+  <Scene>
+    <WorldInfo title='city'/>
+    <NavigationInfo type='"EXAMINE" "ANY"'/>
+    <Transform DEF='House' {field_text}>
+      <Shape><Appearance><Material diffuseColor='0.8 0.8 0.8'/></Appearance>
+        <IndexedFaceSet DEF='HouseGeometry' convex='false' coordIndex='{index_text}'>
+          <Coordinate point='{point_text}'/>
+        </IndexedFaceSet>
+      </Shape>
+    </Transform>
+    <Group><Transform translation='0 0 50'><Shape><IndexedFaceSet USE='HouseGeometry'/></Shape></Transform></Group>
+    <Transform DEF='Kiosk' translation='-20 1.5 0'><Shape><Box size='2 3 4'/></Shape></Transform>
+  </Scene>
+</X3D>
+"""
+
+
+
+
+
+
+
+
+@pytest.mark.parametrize("encoding", ["vrml97", "x3d-xml", "x3d-classic"])
+def test_top_level_nodes_placed_in_metres_z_up(tmp_path, encoding):
+    """Each top-level node with geometry is a building (named by DEF, else by type and place), placed by its
+    Transform's every field, turned to z up (noted); the L's concave polygons triangulated in their plane (the
+    unsigned area: no fold), USE repeating the geometry where the second Transform puts it, a Box of its size."""
+    points, polygons = l_prism()
+    suffix, text = {"vrml97": (".wrl", classic("#VRML V2.0 utf8", points, polygons, FIELDS)),
+                    "x3d-xml": (".x3d", xml(points, polygons, FIELDS)),
+                    "x3d-classic": (".x3dv", classic("#X3D V3.3 utf8\nPROFILE Interchange\nMETA \"generator\" \"t\"",
+                                                     points, polygons, FIELDS))}[encoding]
+    path = tmp_path / f"city{suffix}"
+    path.write_text(text)
+    assert input_kind(path) == "x3d"
+    got = {m.id: m for m in read_file(path)}
+    name = path.name
+    assert sorted(got) == sorted([f"{name}#House", f"{name}#Group-4", f"{name}#Kiosk"])
+    house = got[f"{name}#House"]
+    same_points(house, placed(points, expected_matrix(FIELDS)))
+    assert signed_volume(house) == pytest.approx(L_AREA * HEIGHT * 8, rel=1e-9)
+    assert unsigned_area(house) == pytest.approx((2 * L_AREA + L_PERIMETER * HEIGHT) * 4, rel=1e-9)
+    assert any("y up" in n for n in house.notes)
+    moved = np.eye(4)
+    moved[:3, 3] = (0, 0, 50)
+    same_points(got[f"{name}#Group-4"], placed(points, moved))
+    kiosk = got[f"{name}#Kiosk"]
+    corners = np.array([(x, y, z) for x in (-1, 1) for y in (-1.5, 1.5) for z in (-2, 2)]) + (-20, 1.5, 0)
+    same_points(kiosk, corners @ TO_Z_UP.T)
+    assert signed_volume(kiosk) == pytest.approx(24.0)
+
+
+def test_triangle_sets_clockwise_faces_and_z_up_option(tmp_path):
+    """An IndexedTriangleSet with ccw FALSE is turned (a positive volume); up_axis z reads the coordinates as they
+    are, without the note."""
+    cube = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)], float) * 3
+    quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]  # outwards, z up
+    clockwise = [t[::-1] for q in quads for t in ([q[0], q[1], q[2]], [q[0], q[2], q[3]])]
+    path = tmp_path / "box.x3d"
+    index = " ".join(str(i) for t in clockwise for i in t)
+    point = " ".join(f"{v:g}" for v in cube.reshape(-1))
+    path.write_text(f"<X3D><Scene><Shape><IndexedTriangleSet ccw='false' index='{index}'><Coordinate point='{point}'/>"
+                    f"</IndexedTriangleSet></Shape></Scene></X3D>")
+    (got,) = read_file(path, ReaderOptions(up_axis="z"))
+    assert got.id == "box.x3d#Shape-1" and got.notes == ()
+    same_points(got, cube)
+    assert signed_volume(got) == pytest.approx(27.0)
+
+
+def test_inline_switch_unit_and_unread_geometry(tmp_path):
+    """An Inline reads the file beside it (in its unit) where it stands; one naming a file outside the folder or
+    none is a rejection of its building; a Switch draws its chosen child; a building of only a Sphere is a rejection
+    naming it; the X3D length unit scales the scene."""
+    points, polygons = l_prism()
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "house.wrl").write_text(classic("#VRML V2.0 utf8", points, polygons, {"scale": (1, 1, 1)}))
+    (tmp_path / "outside.wrl").write_text("#VRML V2.0 utf8\nShape { geometry Box { } }\n")
+    city = tmp_path / "city" / "city.x3d"
+    city.parent.mkdir()
+    (city.parent / "house.wrl").write_text(classic("#VRML V2.0 utf8", points, polygons, {"scale": (1, 1, 1)}))
+    city.write_text("""<X3D><head><unit category='length' name='centimetre' conversionFactor='0.01'/></head><Scene>
+      <Transform DEF='A' translation='1000 0 0'><Inline url='"missing.wrl" "house.wrl"'/></Transform>
+      <Transform DEF='B'><Inline url='"../outside.wrl"'/></Transform>
+      <Switch DEF='C' whichChoice='1'>
+        <Shape><Box size='100 100 100'/></Shape><Shape><Box size='200 200 200'/></Shape></Switch>
+      <Transform DEF='D'><Shape><Sphere radius='3'/></Shape></Transform>
+    </Scene></X3D>""")
+    got = {m.id: m for m in read_file(city)}
+    assert sorted(got) == ["city.x3d#A", "city.x3d#B", "city.x3d#C", "city.x3d#D"]
+    a = got["city.x3d#A"]
+    assert isinstance(a, RawMesh)
+    # the inlined scene: House (the L, scale 1), the USE'd copy 50 along z, the Kiosk box; all times 0.01, moved 10 m
+    assert signed_volume(a) == pytest.approx((2 * L_AREA * HEIGHT + 24.0) * 1e-6, rel=1e-9)
+    assert (a.vertices + a.origin)[:, 0].min() == pytest.approx(10.0 - 0.21)
+    assert isinstance(got["city.x3d#B"], Rejection) and "outside its own folder" in got["city.x3d#B"].reason
+    assert signed_volume(got["city.x3d#C"]) == pytest.approx(8.0)
+    assert isinstance(got["city.x3d#D"], Rejection) and "1 Sphere" in got["city.x3d#D"].reason
+
+
+def test_damaged_files_are_rejections_naming_them(tmp_path):
+    """A brace never closed, VRML 1.0, an XML file that is not X3D, and a face naming a point its Coordinate has
+    not (that building alone) are rejections saying so."""
+    cases = {"open.wrl": "#VRML V2.0 utf8\nTransform { children [ Shape { geometry Box { } }\n",
+             "old.wrl": "#VRML V1.0 ascii\nSeparator { Cube { } }\n",
+             "other.x3d": "<COLLADA><asset/></COLLADA>",
+             "text.wrl": "just some text\n"}
+    for file_name, text in cases.items():
+        (tmp_path / file_name).write_text(text)
+        (got,) = read_file(tmp_path / file_name)
+        assert isinstance(got, Rejection) and got.source == str(tmp_path / file_name)
+    reasons = {n: next(iter(read_file(tmp_path / n))).reason for n in cases}
+    assert "missing" in reasons["open.wrl"] and "VRML 1.0" in reasons["old.wrl"]
+    assert "expected an <X3D> document" in reasons["other.x3d"] and "neither X3D" in reasons["text.wrl"]
+    path = tmp_path / "mixed.wrl"
+    path.write_text("#VRML V2.0 utf8\nDEF Good Shape { geometry Box { } }\nDEF Bad Shape { geometry IndexedFaceSet {"
+                    " coord Coordinate { point [ 0 0 0, 1 0 0, 0 1 0 ] } coordIndex [ 0 1 5 -1 ] } }\n")
+    got = {m.id: m for m in read_file(path)}
+    assert isinstance(got["mixed.wrl#Good"], RawMesh)
+    assert "refers to point 5, and its Coordinate has 3 points" in got["mixed.wrl#Bad"].reason
+
+
+def test_gzipped_scenes_and_folder_walk(tmp_path):
+    points, polygons = l_prism()
+    text = classic("#VRML V2.0 utf8", points, polygons, {"scale": (1, 1, 1)})
+    (tmp_path / "a.wrl.gz").write_bytes(gzip.compress(text.encode()))
+    (tmp_path / "b.wrz").write_bytes(gzip.compress(text.encode()))
+    (tmp_path / "c.x3d").write_text(xml(points, polygons, {"scale": (1, 1, 1)}))
+    files, rejected = expand_inputs([tmp_path])
+    assert sorted(f.name for f in files) == ["a.wrl.gz", "b.wrz", "c.x3d"] and not rejected
+    for name in ("a.wrl.gz", "b.wrz"):
+        got = {m.id: m for m in read_file(tmp_path / name)}
+        assert signed_volume(got[f"{name}#House"]) == pytest.approx(L_AREA * HEIGHT)
+
+
+def test_a_node_that_uses_itself_and_deep_nesting_are_rejections(tmp_path):
+    """A Group that USEs itself (an endless scene) is a rejection of its building, and a file nested deeper than
+    the recursion limit a rejection of the file; neither crashes the reader."""
+    path = tmp_path / "loop.x3d"
+    path.write_text("<X3D><Scene><Shape DEF='ok'><Box/></Shape><Group DEF='a'><Shape><Box/></Shape><Group USE='a'/>"
+                    "</Group></Scene></X3D>")
+    got = {m.id: m for m in read_file(path)}
+    assert isinstance(got["loop.x3d#ok"], RawMesh) and "USEs itself" in got["loop.x3d#a"].reason
+    deep = tmp_path / "deep.wrl"
+    deep.write_text("#VRML V2.0 utf8\n" + "Group { children [ " * 5000 + "Shape { geometry Box { } }" + " ] }" * 5000)
+    (got,) = read_file(deep)
+    assert isinstance(got, Rejection) and "recursion limit" in got.reason
+
+
+def test_binary_x3d_is_refused_naming_the_encodings_read(tmp_path):
+    path = tmp_path / "city.x3db"
+    path.write_bytes(b"\x00\x01binary")
+    (got,) = read_file(path)
+    assert got.reason.startswith("unknown file type '.x3db' (binary X3D: not read; save it in the XML (.x3d)")
+    assert ".x3d, .x3dv, .wrl" in got.reason
