@@ -73,6 +73,8 @@ ID_WORDS = frozenset({"id", "ids", "gml", "ref", "key", "name", "uuid", "guid", 
 #: instance feature ids; and the child-node extras (:func:`meshsom.tiles3d.instanced_glb`) of each instance's id.
 INSTANCE_MARK = "meshsom_instance_features"
 INSTANCE_FEATURE = "meshsom_feature"
+#: The extension that moves, turns and scales a texture's coordinates (honoured on feature-id textures).
+TEXTURE_TRANSFORM = "KHR_texture_transform"
 #: glTF sampler wrap modes (REPEAT by default).
 _REPEAT, _CLAMP, _MIRROR = 10497, 33071, 33648
 _TRIANGLES = 4
@@ -260,14 +262,20 @@ def _wrap(t: np.ndarray, size: int, mode) -> np.ndarray:
 def _texture_ids(gltf: dict, binary: bytes, primitive: dict, info: dict, faces: np.ndarray, where: str,
                  cache: dict) -> np.ndarray:
     """Each triangle's feature id ``(F,) float64`` from a feature-id texture: the texel (nearest) at the mean of the
-    triangle's texture coordinates, its ``channels`` (default ``[0]``) read as the id's bytes, least significant
-    first."""
+    triangle's texture coordinates (moved by the texture's :data:`TEXTURE_TRANSFORM`), its ``channels`` (default
+    ``[0]``) read as the id's bytes, least significant first."""
     from meshsom.tiles3d import _accessor
 
-    semantic = f"TEXCOORD_{info.get('texCoord', 0)}"
+    transform = (info.get("extensions") or {}).get(TEXTURE_TRANSFORM) if isinstance(info.get("extensions"), dict) else None
+    transform = transform if isinstance(transform, dict) else {}
+    semantic = f"TEXCOORD_{transform.get('texCoord', info.get('texCoord', 0))}"
     if semantic not in (primitive.get("attributes") or {}):
         raise InputFileError(where, f"holds a feature-id texture read at {semantic}, which its primitive does not have")
     uv = _accessor(gltf, binary, primitive["attributes"][semantic], where, semantic, "VEC2")
+    if transform:  # offset + rotation (counter-clockwise) x scale, as KHR_texture_transform composes them
+        (sx, sy), angle = transform.get("scale", (1.0, 1.0)), float(transform.get("rotation", 0.0))
+        matrix = np.array([[np.cos(angle) * sx, -np.sin(angle) * sy], [np.sin(angle) * sx, np.cos(angle) * sy]])
+        uv = uv @ matrix.T + np.asarray(transform.get("offset", (0.0, 0.0)), np.float64)
     pixels = _image(gltf, binary, info.get("index"), where, cache)
     channels = info.get("channels", [0])
     if not isinstance(channels, list) or not channels or not all(isinstance(c, int) and 0 <= c < pixels.shape[2]

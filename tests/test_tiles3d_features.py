@@ -201,7 +201,7 @@ def test_implicit_ids_are_the_vertex_index(tmp_path):
     assert all(isinstance(m, RawMesh) and len(m.faces) == 1 for m in items)
 
 
-def texture_glb(path, channels=(0, 1), merged=False):
+def texture_glb(path, channels=(0, 1), merged=False, transform=None, swap=False):
     """The two boxes, their feature ids in a 2 x 1 texture (RGBA: left texel (7, 1, 0, 255): id 7 + 256 = 263 by
     channels 0 and 1; right (9, 0, 0, 255): 9), each box's texture coordinates in its texel. ``merged``: one box of
     8 shared vertices instead, u from its x (left half: texel 0), so that triangles of both features share vertices."""
@@ -212,13 +212,17 @@ def texture_glb(path, channels=(0, 1), merged=False):
         mesh, building, _ = boxes()
         u = np.where(np.repeat(building, 3) == 0, 0.25, 0.75)
     writer = Writer(mesh)
-    writer.attribute("TEXCOORD_0", np.column_stack([u, np.full(len(u), 0.5)]).astype("<f4"), 5126, "VEC2")
+    uv = np.column_stack([u, np.full(len(u), 0.5)])
+    writer.attribute("TEXCOORD_0", (uv[:, ::-1] if swap else uv).astype("<f4"), 5126, "VEC2")
     png = io.BytesIO()
     Image.fromarray(np.array([[[7, 1, 0, 255], [9, 0, 0, 255]]], np.uint8), "RGBA").save(png, "PNG")
     writer.gltf["images"] = [{"bufferView": writer.view(png.getvalue()), "mimeType": "image/png"}]
     writer.gltf["samplers"] = [{"magFilter": 9728, "minFilter": 9728}]
     writer.gltf["textures"] = [{"source": 0, "sampler": 0}]
-    writer.write(path, [{"featureCount": 2, "texture": {"index": 0, "texCoord": 0, "channels": list(channels)}}])
+    texture = {"index": 0, "texCoord": 0, "channels": list(channels)}
+    if transform:
+        texture["extensions"] = {"KHR_texture_transform": transform}
+    writer.write(path, [{"featureCount": 2, "texture": texture}])
     return mesh
 
 
@@ -228,6 +232,19 @@ def test_texture_ids_by_their_channels(tmp_path):
     texture_glb(tmp_path / "texture.glb")
     volumes = _volumes_by_id(read_file(tmp_path / "texture.glb"))
     assert volumes == pytest.approx({"263": float(np.prod(SIZES[0])), "9": float(np.prod(SIZES[1]))})
+
+
+@pytest.mark.parametrize("transform, swap", [({"offset": [0.5, 0]}, False), ({"scale": [-1, 1]}, False),
+                                             ({"rotation": float(np.pi), "offset": [0, 1]}, False),
+                                             ({"rotation": float(np.pi / 2)}, True)])
+def test_texture_transform_moves_the_ids(tmp_path, transform, swap):
+    """KHR_texture_transform on the feature-id texture: u moved by half the texture (u 0.25 -> 0.75, 0.75 -> 1.25,
+    which repeats to 0.25), mirrored (-0.25 -> 0.75 and -0.75 -> 0.25 by REPEAT), turned half a turn about the
+    origin and moved up one (u, v) -> (-u, 1 - v), or (the boxes' coordinates in v instead) turned a quarter turn
+    counter-clockwise, (u, v) -> (-v, u) (the specification's GLSL matrices): each box reads the other texel's id."""
+    texture_glb(tmp_path / "texture.glb", transform=transform, swap=swap)
+    volumes = _volumes_by_id(read_file(tmp_path / "texture.glb"))
+    assert volumes == pytest.approx({"9": float(np.prod(SIZES[0])), "263": float(np.prod(SIZES[1]))})
 
 
 def test_texture_ids_split_shared_vertices(tmp_path):
@@ -242,10 +259,11 @@ def test_texture_ids_split_shared_vertices(tmp_path):
         assert len(m.vertices) == len(np.unique(m.faces))
 
 
-@pytest.mark.parametrize("schema", ["uri", "tileset"])
+@pytest.mark.parametrize("schema", ["uri", "tileset", "tileset uri"])
 def test_schema_outside_the_content(tmp_path, schema):
     """The property tables' classes in a schema file the content names (``schemaUri``), or, where the content names
-    none, in the tileset's ``schema``: the building set is still found by its class and its ids read."""
+    none, in the tileset's ``schema`` (or the file its ``schemaUri`` names): the building set is still found by its
+    class and its ids read."""
     mesh, building, surface = boxes()
     writer = Writer(mesh)
     writer.attribute("_FEATURE_ID_0", np.repeat(surface, 3).astype("<u2"), 5123)
@@ -259,6 +277,10 @@ def test_schema_outside_the_content(tmp_path, schema):
                          "refine": "ADD", "content": {"uri": "city.glb"}}}
     if schema == "tileset":
         document["schema"] = {"id": "buildings", "classes": writer.classes}
+    elif schema == "tileset uri":
+        (tmp_path / "meta").mkdir()
+        (tmp_path / "meta" / "tileset-schema.json").write_text(json.dumps({"id": "b", "classes": writer.classes}))
+        document["schemaUri"] = "meta/tileset-schema.json"
     (tmp_path / "tileset.json").write_text(json.dumps(document))
     assert sorted(_volumes_by_id(read_file(tmp_path / "tileset.json"))) == sorted(BUILDINGS)
 
