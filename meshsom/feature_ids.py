@@ -73,6 +73,9 @@ ID_WORDS = frozenset({"id", "ids", "gml", "ref", "key", "name", "uuid", "guid", 
 #: instance feature ids; and the child-node extras (:func:`meshsom.tiles3d.instanced_glb`) of each instance's id.
 INSTANCE_MARK = "meshsom_instance_features"
 INSTANCE_FEATURE = "meshsom_feature"
+#: The feature id given the triangles of a primitive that lacks the set read as buildings (a set's index is its place in
+#: each primitive's list; a primitive may have fewer): listed as not read, never merged into a feature's building.
+NO_SET_ID = 2**31 - 1
 #: The extension that moves, turns and scales a texture's coordinates (honoured on feature-id textures).
 TEXTURE_TRANSFORM = "KHR_texture_transform"
 #: glTF sampler wrap modes (REPEAT by default).
@@ -95,6 +98,8 @@ class FeatureChoice:
         A column of ``table`` naming each part's building (every set names parts): features grouped by it.
     by_node : bool
         The feature ids are not used (every set names parts, none says their building): each glTF node a building.
+    set_index : int or None
+        The set read, where some primitive lacks it (its triangles carry :data:`NO_SET_ID`).
     notes : list of str
     """
 
@@ -102,6 +107,7 @@ class FeatureChoice:
     null_id: int | None = None
     parent_column: str | None = None
     by_node: bool = False
+    set_index: int | None = None
     notes: list = field(default_factory=list)
 
 
@@ -518,6 +524,10 @@ def _building_ids(gltf: dict, binary: bytes, where: str, schema: dict | None) ->
             for name in [a for a in attributes if a.startswith("_FEATURE_ID_") or a in ("_BATCHID", "_batchid")]:
                 del attributes[name]
             if chosen is None:
+                if k is not None:  # a primitive without the set: listed, not merged into another's feature
+                    count = gltf["accessors"][attributes["POSITION"]]["count"]
+                    attributes["_FEATURE_ID_0"] = add(np.full(count, NO_SET_ID, "<u4"), _UINT)
+                    choice.set_index = k
                 continue
             _chosen_meta(choice, chosen.spec, column)
             if chosen.accessor is not None:

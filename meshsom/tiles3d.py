@@ -52,7 +52,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 
 from meshsom.errors import InputFileError
-from meshsom.feature_ids import INSTANCE_FEATURE, INSTANCE_MARK
+from meshsom.feature_ids import INSTANCE_FEATURE, INSTANCE_MARK, NO_SET_ID
 from meshsom.gltf_compression import decompress_glb, split_glb
 from meshsom.implicit_tiling import implicit_contents
 
@@ -716,6 +716,11 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
         said.append(f"its {len(groups)} batches are parts of {len(set(groups.values()))} objects by the batch table's "
                     f"hierarchy (3DTILES_batch_table_hierarchy): each object read as a building of its parts")
     for batch, key, v, f, parts, face_part in entries:
+        if choice.set_index is not None and batch == NO_SET_ID:
+            yield Rejection(f"{prefix}(no feature-id set)", source, f"{len(f)} triangles of primitives without "
+                                                                    f"EXT_mesh_features set {choice.set_index}, the set "
+                                                                    "read as the buildings: not read")
+            continue
         if null_id is not None and batch == null_id:  # EXT_mesh_features: the triangles of no feature
             yield Rejection(f"{prefix}(feature id {batch})", source, f"{len(f)} triangles carry the null feature id "
                                                                      f"{batch} (EXT_mesh_features nullFeatureId): "

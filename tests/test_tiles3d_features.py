@@ -484,3 +484,23 @@ def test_null_feature_id_of_the_set_read(tmp_path):
     assert [m.id.rsplit("#", 1)[1] for m in meshes] == ["0"] and len(meshes[0].faces) == 12
     (null,) = [m for m in items if isinstance(m, Rejection)]
     assert "12 triangles carry the null feature id 255" in null.reason, null
+
+
+def test_a_primitive_without_the_set_read_is_listed(tmp_path):
+    """Two primitives: the first has both sets (surfaces, buildings), the second (a third box) only the surfaces'.
+    The buildings are set 1's; the second primitive's triangles are a rejection saying they lack set 1, not merged
+    into building 0 (as its node's number, 0, would have)."""
+    two_sets(tmp_path / "city.glb")
+    gltf, binary = split_glb((tmp_path / "city.glb").read_bytes(), "city")
+    primitive = gltf["meshes"][0]["primitives"][0]
+    other = json.loads(json.dumps(primitive))
+    del other["attributes"]["_FEATURE_ID_1"]
+    other["extensions"]["EXT_mesh_features"]["featureIds"] = other["extensions"]["EXT_mesh_features"]["featureIds"][:1]
+    gltf["meshes"].append({"primitives": [other]})
+    gltf["nodes"].append({"mesh": 1, "translation": [0, 0, 500]})
+    gltf["scenes"][0]["nodes"].append(len(gltf["nodes"]) - 1)
+    (tmp_path / "city.glb").write_bytes(join_glb(gltf, binary))
+    items = list(read_file(tmp_path / "city.glb"))
+    assert _volumes_by_id(items) == pytest.approx(dict(zip(BUILDINGS, [float(np.prod(s)) for s in SIZES])))
+    (rejection,) = [m for m in items if isinstance(m, Rejection)]
+    assert "24 triangles of primitives without EXT_mesh_features set 1" in rejection.reason, rejection
