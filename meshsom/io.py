@@ -2549,6 +2549,37 @@ def _triangulate_polygons(polygons, inverse: np.ndarray, local: np.ndarray, tria
     return faces, np.concatenate([out_poly[0], np.concatenate(out_poly[1:])[order]]).astype(np.int64), dropped
 
 
+def polygon_faces(flat: np.ndarray, lengths: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, int]:
+    """Triangles of polygons given as one index array (a scene format's face lists: USD's faceVertexIndices, X3D's
+    coordIndex less its -1 separators): the triangles taken as they are, in one step, the other polygons
+    triangulated in their own plane (:func:`_triangulate_polygons`: convex quads at once, concave polygons such as an
+    L-shaped roof by GEOS).
+
+    Parameters
+    ----------
+    flat : (N,) int64
+        Every polygon's vertex indices into ``local``, one polygon after the other.
+    lengths : (P,) int64
+        The vertices of each polygon (3 or more; they add up to N).
+    local : (V, 3) float64
+
+    Returns
+    -------
+    faces : (F, 3) int64
+        The triangles first, then the other polygons' triangles.
+    dropped : int
+        Self-crossing polygons that lost the triangles that would need the crossing point.
+    """
+    starts = np.cumsum(lengths) - lengths
+    triangles = flat[starts[lengths == 3][:, None] + np.arange(3)].reshape(-1, 3)
+    other = np.flatnonzero(lengths != 3)
+    if len(other) == 0:
+        return triangles.astype(np.int64), 0
+    rings = [flat[a:a + n] for a, n in zip(starts[other].tolist(), lengths[other].tolist())]
+    faces, _, dropped = _triangulate_polygons([[r] for r in rings], np.concatenate(rings), local)
+    return np.concatenate([triangles, faces]).astype(np.int64), dropped
+
+
 def _triangulate_one_by_one(polygons: list) -> list:
     """The reference for :func:`meshsom.polygons.triangulate_polygons_3d`: each polygon by
     :func:`meshsom.polygons.triangulate_polygon_3d` alone (``polygons``: lists of (K, 3) float64 rings)."""

@@ -115,14 +115,18 @@ def read_3mf(path: Path, options, name: str | None = None) -> Iterator:
         crs = file_crs(None, options)
         taken: set[str] = set()
         for item_part, object_id, matrix, partnumber in model.build:
-            found = parts[item_part].objects.get(object_id) if item_part in parts else None
-            key = partnumber or (found.name if found is not None and found.name else f"object-{object_id}")
+            try:
+                item, problem = _item_object(package, path, parts, item_part, object_id), None
+            except InputFileError as err:  # its part or object is missing or damaged: this item alone is rejected
+                item, problem = None, err.problem
+            key = partnumber or (item.name if item is not None and item.name else f"object-{object_id}")
             key = free_id(key, taken) if key in taken else key
             taken.add(key)
             mesh_id = f"{name}#{key}"
             item_label = labels.get(f"{path.name}#{key}", label)
             try:
-                item = _item_object(package, path, parts, item_part, object_id)
+                if problem is not None:
+                    raise InputFileError(str(path), problem)
                 if item.type != BUILDING_TYPE:
                     raise InputFileError(str(path), f"builds object {object_id}, a 3MF {item.type!r} object (a "
                                                     f"support structure or an open surface), not a {BUILDING_TYPE!r}")

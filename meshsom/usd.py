@@ -304,7 +304,7 @@ def _triangles(prim, time, where: str, options) -> tuple[np.ndarray, np.ndarray,
     and indices that do not agree."""
     from pxr import UsdGeom
 
-    from meshsom.io import _triangulate_polygons
+    from meshsom.io import polygon_faces
 
     mesh = UsdGeom.Mesh(prim)
     points = np.asarray(mesh.GetPointsAttr().Get(time) or [], np.float64).reshape(-1, 3)
@@ -335,15 +335,9 @@ def _triangles(prim, time, where: str, options) -> tuple[np.ndarray, np.ndarray,
         said = "" if mesh.GetSubdivisionSchemeAttr().HasAuthoredValue() else " (USD's fallback)"
         notes.append(f"subdivisionScheme {scheme}{said}: its control cage is read, not the limit surface")
     counts, indices = counts[keep], indices[keep[face]]
-    if len(counts) and (counts == 3).all():
-        faces = indices.reshape(-1, 3)
-    elif len(counts):
-        rings = np.split(indices, np.cumsum(counts)[:-1])
-        faces, _, dropped = _triangulate_polygons([[ring] for ring in rings], indices, points)
-        if dropped:
-            notes.append(f"{dropped} self-crossing polygons lost the triangles that would need the crossing point")
-    else:
-        faces = np.zeros((0, 3), np.int64)
+    faces, dropped = polygon_faces(indices, counts, points) if len(counts) else (np.zeros((0, 3), np.int64), 0)
+    if dropped:
+        notes.append(f"{dropped} self-crossing polygons lost the triangles that would need the crossing point")
     if mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded:
         faces = faces[:, ::-1]
     return points, np.ascontiguousarray(faces, np.int64), notes

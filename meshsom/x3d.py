@@ -545,7 +545,7 @@ def _coordinates(node: Node, where: str) -> np.ndarray:
 
 def _geometry(node: Node, where: str) -> tuple[np.ndarray, np.ndarray]:
     """``(vertices (V, 3) float64, faces (F, 3) int64)`` of a geometry node, in its own frame."""
-    from meshsom.io import _triangulate_polygons
+    from meshsom.io import polygon_faces
 
     kind = node.type
     if kind == "Box":
@@ -559,24 +559,21 @@ def _geometry(node: Node, where: str) -> tuple[np.ndarray, np.ndarray]:
     else:
         index = _numbers(node.fields.get("coordIndex" if kind == "IndexedFaceSet" else "index"), ()).astype(np.int64)
     if kind == "IndexedFaceSet":
-        ends = np.flatnonzero(index < 0)
-        rings = [r for r in np.split(index, ends) if len(r)]
-        rings = [r[1:] if r[0] < 0 else r for r in rings]
-        rings = [r for r in rings if len(r) >= 3]
+        keep = index >= 0
+        ring = np.cumsum(~keep)[keep]  # the polygon of every index: -1 separates them
+        flat = index[keep]
+        lengths = np.unique(ring, return_counts=True)[1]
+        big = np.repeat(lengths >= 3, lengths)  # polygons of 1 or 2 vertices are no faces
+        flat, lengths = flat[big], lengths[lengths >= 3]
     else:
         size = 4 if "Quad" in kind else 3
-        rings = list(index[: len(index) - len(index) % size].reshape(-1, size))
-    flat = np.concatenate(rings) if rings else np.zeros(0, np.int64)
+        flat = index[: len(index) - len(index) % size]
+        lengths = np.full(len(flat) // size, size, np.int64)
     if len(flat) and (flat.min() < 0 or flat.max() >= len(points)):
         bad = int(flat[(flat < 0) | (flat >= len(points))][0])
         raise InputFileError(where, f"{kind} {node.name or ''}: a face refers to point {bad}, and its Coordinate has "
                                     f"{len(points)} points")
-    if not rings:
-        return points, np.zeros((0, 3), np.int64)
-    if all(len(r) == 3 for r in rings):
-        faces = flat.reshape(-1, 3)
-    else:
-        faces, _, _ = _triangulate_polygons([[r] for r in rings], flat, points)
+    faces = polygon_faces(flat, lengths, points)[0] if len(lengths) else np.zeros((0, 3), np.int64)
     if not _flag(node.fields.get("ccw"), True):
         faces = faces[:, ::-1]
     return points, np.ascontiguousarray(faces, np.int64)
