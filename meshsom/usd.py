@@ -6,9 +6,10 @@ composes them. Then:
 
 - **Meshes**: every ``UsdGeom.Mesh`` is read at the stage's first time (``points``, ``faceVertexCounts``,
   ``faceVertexIndices``), its polygons triangulated in their own plane (L- and U-shaped faces too:
-  :func:`meshsom.io._triangulate_polygons`, as PLY polygons are), its ``holeIndices`` faces left out, a
+  :func:`meshsom.io.polygon_faces`, as PLY polygons are), its ``holeIndices`` faces left out, a
   ``leftHanded`` mesh's faces turned. A subdivision surface (``subdivisionScheme`` other than ``none``; USD's
-  fallback is ``catmullClark``) is read as its control cage, noted.
+  fallback is ``catmullClark``) is read as its control cage, noted. A ``UsdGeom.Cube`` (massing models) is read as its
+  12 triangles.
 - **Placement**: each mesh stands where its world transform puts it (``ComputeLocalToWorldTransform``: every
   ``xformOp`` of its ancestors); a mirroring transform keeps the faces' sides (their order is turned).
 - **Instancing**: instanceable prims are read through their instance proxies, each instance where it stands; a
@@ -24,8 +25,8 @@ composes them. Then:
 - **Axes**: ``upAxis`` Y (USD's fallback, noted where not authored; ``corpus.reader.up_axis`` says which where it is
   not) is turned a quarter about x to z up, (x, y, z) -> (x, -z, y), noted, as glTF is; Z is read as it is.
 - **Left out, noted**: invisible prims (``visibility = invisible``, inherited), ``guide`` purpose, ``proxy``
-  purpose where the building has ``render`` meshes; gprims other than meshes (NURBS patches, curves, points,
-  implicit shapes such as ``Cube``): a building of only those is a rejection saying so.
+  purpose where the building has ``render`` meshes; gprims other than meshes and cubes (NURBS patches, curves,
+  points, spheres, cylinders, cones, capsules): a building of only those is a rejection saying so.
 - **Labels**: ``labels.csv`` beside the file (``file`` ``<name>`` or ``<name>#<prim path>``), as for OBJ.
 """
 
@@ -50,6 +51,12 @@ GUIDE_PURPOSES = ("guide",)
 ERROR_CHARS = 400
 #: The C++ namespace pxr writes before its class names (``pxrInternal_v0_26_11__pxrReserved__::``).
 _PXR_NAMESPACE = re.compile(r"pxrInternal_v[0-9_]+__pxrReserved__::")
+#: The 12 triangles of a cube's 8 corners (``(x, y, z)`` for z, y, x in (-1, 1)), counter-clockwise seen from
+#: outside.
+CUBE_TRIANGLES = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3],
+                           [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]], np.int64)
+#: Gprims read: meshes, and cubes (massing models) as their 12 triangles.
+READ_GPRIMS = ("Mesh", "Cube")
 #: A quarter turn about x: y up -> z up (a proper rotation: faces keep their side), as for glTF.
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -217,7 +224,7 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
         if not prim.IsA(UsdGeom.Gprim):
             continue
         owner = buildings.setdefault(_key(_building_of(prim, roots).GetPath()), _Building())
-        if not prim.IsA(UsdGeom.Mesh):
+        if str(prim.GetTypeName()) not in READ_GPRIMS:
             kind = str(prim.GetTypeName())
             owner.unread[kind] = owner.unread.get(kind, 0) + 1
             continue
@@ -246,8 +253,9 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
             continue
         if not pieces:
             kinds = ", ".join(f"{n} {k}" for k, n in building.unread.items())
-            yield Rejection(mesh_id, str(path), f"holds no UsdGeom.Mesh (only {kinds}: gprims that are not read; "
-                                                f"convert them to meshes)" if kinds else "holds no UsdGeom.Mesh",
+            yield Rejection(mesh_id, str(path), f"holds no UsdGeom.Mesh or Cube (only {kinds}: gprims that are not "
+                                                f"read; convert them to meshes)" if kinds else
+                            "holds no UsdGeom.Mesh or Cube (its PointInstancer's prototypes hold none)",
                             0, item_label)
             continue
         vertices, faces = _joined(pieces)
@@ -269,7 +277,7 @@ def _drawn(building: _Building) -> tuple[list, list[str]]:
         notes.append("its proxy-purpose meshes left out (it has render-purpose ones)")
     if building.unread and pieces:
         kinds = ", ".join(f"{n} {k}" for k, n in building.unread.items())
-        notes.append(f"left out: {kinds} (gprims that are not meshes are not read)")
+        notes.append(f"left out: {kinds} (gprims other than meshes and cubes are not read)")
     return [(v, f) for _, v, f in pieces], notes
 
 
@@ -299,6 +307,35 @@ def _mesh(prim, time, where: str, options, triangulated: dict) -> tuple[np.ndarr
     return triangulated[key]
 
 
+def _values(attribute, time, dtype, width: int, where: str) -> np.ndarray:
+    """An array attribute's values at ``time`` as ``(N, width)`` (``(N,)`` for width 1) ``dtype``; InputFileError
+    where it holds something else (a single value, another type)."""
+    value = attribute.Get(time)
+    if value is None:  # not authored: no points, no faces
+        return np.zeros((0, width) if width > 1 else 0, dtype)
+    try:
+        array = np.asarray(value, dtype)
+    except (TypeError, ValueError):
+        array = None
+    if array is None or array.ndim != (1 if width == 1 else 2) or (width > 1 and len(array) and array.shape[1] != width):
+        raise InputFileError(where, f"its {attribute.GetName()} holds {str(value)[:60]!r} ("
+                                    f"{type(value).__name__}), expected an array of " +
+                                    (f"{width}-vectors" if width > 1 else "integers"))
+    return array.reshape(-1, width) if width > 1 else array
+
+
+def _cube(prim, time, where: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The 8 corners and 12 outward triangles of a UsdGeom.Cube of its ``size`` (edge length; 2 by default), centred
+    on its origin."""
+    from pxr import UsdGeom
+
+    size = UsdGeom.Cube(prim).GetSizeAttr().Get(time)
+    if not (isinstance(size, (int, float)) and np.isfinite(size) and size > 0):
+        raise InputFileError(where, f"its size is {size!r}, expected a number > 0")
+    corners = np.array([(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)], np.float64) * (size / 2)
+    return corners, CUBE_TRIANGLES.copy(), []
+
+
 def _triangles(prim, time, where: str, options) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """The triangles of a UsdGeom.Mesh (:func:`_mesh`); InputFileError (naming the file and the mesh) for counts
     and indices that do not agree."""
@@ -306,10 +343,12 @@ def _triangles(prim, time, where: str, options) -> tuple[np.ndarray, np.ndarray,
 
     from meshsom.io import polygon_faces
 
+    if prim.IsA(UsdGeom.Cube):
+        return _cube(prim, time, where)
     mesh = UsdGeom.Mesh(prim)
-    points = np.asarray(mesh.GetPointsAttr().Get(time) or [], np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(time) or [], np.int64).reshape(-1)
-    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(time) or [], np.int64).reshape(-1)
+    points = _values(mesh.GetPointsAttr(), time, np.float64, 3, where)
+    counts = _values(mesh.GetFaceVertexCountsAttr(), time, np.int64, 1, where)
+    indices = _values(mesh.GetFaceVertexIndicesAttr(), time, np.int64, 1, where)
     notes = []
     if len(points) > options.max_vertices:
         raise InputFileError(where, f"has {len(points):,} points, more than max_vertices ({options.max_vertices:,})")
@@ -358,11 +397,12 @@ def _point_instances(prim, roots: set, time, cache, where: str, options, triangu
         raise InputFileError(f"{where}: PointInstancer {prim.GetPath()}",
                              f"protoIndices name prototype {int(proto_index.max())}, and it has {len(targets)}")
     stage = prim.GetStage()
-    prototypes = []  # per prototype: its meshes' (purpose, points, faces, notes, matrix relative to the prototype)
+    prototypes = []  # per prototype: its meshes' (purpose, points, faces, notes, matrix relative to the prototype),
+    unread = []  # and its gprims that are not read, by type
     for target in targets:
         root = stage.GetPrimAtPath(target)
         inside = np.linalg.inv(np.asarray(cache.GetLocalToWorldTransform(root), np.float64))
-        meshes = []
+        meshes, skipped = [], {}
         walk = iter(Usd.PrimRange(root, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
         for part in walk:
             imageable = UsdGeom.Imageable(part)
@@ -370,11 +410,15 @@ def _point_instances(prim, roots: set, time, cache, where: str, options, triangu
                 walk.PruneChildren()
                 continue
             purpose = str(imageable.GetPurposeAttr().Get(time)) if imageable else "default"
-            if purpose in GUIDE_PURPOSES or not part.IsA(UsdGeom.Mesh):
+            if purpose in GUIDE_PURPOSES or not part.IsA(UsdGeom.Gprim):
+                continue
+            if str(part.GetTypeName()) not in READ_GPRIMS:
+                skipped[str(part.GetTypeName())] = skipped.get(str(part.GetTypeName()), 0) + 1
                 continue
             relative = np.asarray(cache.GetLocalToWorldTransform(part), np.float64) @ inside
             meshes.append((purpose, *_mesh(part, time, where, options, triangulated), relative))
         prototypes.append(meshes)
+        unread.append(skipped)
     component = _component(prim)
     world = np.asarray(cache.GetLocalToWorldTransform(prim), np.float64)
     for i, (k, matrix) in enumerate(zip(proto_index.tolist(), transforms)):
@@ -383,6 +427,8 @@ def _point_instances(prim, roots: set, time, cache, where: str, options, triangu
         key = _key(component.GetPath()) if component is not None else f"{_key(prim.GetPath())}[{i}]"
         owner = buildings.setdefault(key, _Building())
         placed = np.asarray(matrix, np.float64) @ world
+        for kind, n in unread[k].items():
+            owner.unread[kind] = owner.unread.get(kind, 0) + n
         for purpose, points, faces, notes, relative in prototypes[k]:
             owner.pieces.append((purpose, *_placed(points, faces, relative @ placed)))
             owner.notes.update(dict.fromkeys(notes))

@@ -304,3 +304,33 @@ def test_the_l_roof_check_tells_a_fan_from_a_triangulation():
     corners = points[fan]
     area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum() / 2
     assert area > L_AREA * 1.01
+
+
+def test_cubes_read_and_attributes_of_the_wrong_type_rejected(tmp_path):
+    """A UsdGeom.Cube is a box of its size (a massing model); a PointInstancer of a Cube prototype gives a box per
+    instance; a mesh whose points attribute is not an array of 3-vectors is a rejection naming it."""
+    path = tmp_path / "massing.usda"
+    stage = new_stage(path, 1.0, "Z")
+    block = UsdGeom.Cube.Define(stage, "/World/Block")
+    block.CreateSizeAttr(4.0)
+    block.AddTranslateOp().Set(Gf.Vec3d(10, 0, 2))
+    instancer = UsdGeom.PointInstancer.Define(stage, "/World/Kiosks")
+    UsdGeom.Cube.Define(stage, "/World/Kiosks/Prototypes/Box")  # size 2 (USD's fallback)
+    instancer.CreatePrototypesRel().SetTargets(["/World/Kiosks/Prototypes/Box"])
+    instancer.CreateProtoIndicesAttr([0, 0])
+    instancer.CreatePositionsAttr([Gf.Vec3f(0, 0, 1), Gf.Vec3f(5, 0, 1)])
+    stage.Save()
+    got = {m.id: m for m in read_file(path)}
+    assert sorted(got) == ["massing.usda#World/Block", "massing.usda#World/Kiosks[0]", "massing.usda#World/Kiosks[1]"]
+    same_points(got["massing.usda#World/Block"],
+                np.array([(x, y, z) for x in (8, 12) for y in (-2, 2) for z in (0, 4)], np.float64))
+    assert signed_volume(got["massing.usda#World/Block"]) == pytest.approx(64.0)
+    same_points(got["massing.usda#World/Kiosks[1]"],
+                np.array([(x, y, z) for x in (4, 6) for y in (-1, 1) for z in (0, 2)], np.float64))
+    bad = tmp_path / "bad.usda"  # as the usd-wg test assets write a mistyped attribute
+    bad.write_text('#usda 1.0\n(\n    upAxis = "Z"\n    metersPerUnit = 1\n)\ndef Xform "World" {\n'
+                   '    def Mesh "Bad" {\n        int points = 7\n        int[] faceVertexCounts = [3]\n'
+                   '        int[] faceVertexIndices = [0, 1, 2]\n    }\n}\n')
+    (got,) = read_file(bad)
+    assert isinstance(got, Rejection) and got.id == "bad.usda#World/Bad"
+    assert "its points holds '7' (int), expected an array of 3-vectors" in got.reason
