@@ -27,8 +27,9 @@ def l_prism_polygons() -> tuple[np.ndarray, list[list[int]]]:
 
 
 def signed_volume(mesh) -> float:
-    """The volume a RawMesh's faces enclose (positive when they face outwards)."""
-    corners = (mesh.vertices + mesh.origin)[mesh.faces]
+    """The volume a RawMesh's closed faces enclose (positive when they face outwards), from its vertices about its
+    origin (the same for a closed mesh anywhere, and exact where world coordinates are millions of metres)."""
+    corners = mesh.vertices[mesh.faces]
     return float(np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum() / 6)
 
 

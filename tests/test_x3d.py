@@ -245,3 +245,22 @@ def test_binary_x3d_is_refused_naming_the_encodings_read(tmp_path):
     (got,) = read_file(path)
     assert got.reason.startswith("unknown file type '.x3db' (binary X3D: not read; save it in the XML (.x3d)")
     assert ".x3d, .x3dv, .wrl" in got.reason
+
+
+def test_a_city_in_one_group_split_into_its_buildings(tmp_path):
+    """CityGML2X writes a whole city as one top-level Group of Shapes (one IndexedFaceSet each, z up as CityGML
+    gave it): one building as read, its buildings with split_components, z up with up_axis z."""
+    cube = np.array([(x, y, z) for z in (0, 1) for y in (0, 1) for x in (0, 1)], float)
+    quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    index = " ".join(" ".join(map(str, q)) + " -1" for q in quads)
+    points = [" ".join(f"{v:.10g}" for v in (cube * (2, 3, 10) + offset).reshape(-1))
+              for offset in ((2600000, 1200000, 400), (2600010, 1200000, 400))]
+    shapes = "".join(f"<Shape><IndexedFaceSet solid='false' convex='false' coordIndex='{index}'>"
+                     f"<Coordinate point='{p}'/></IndexedFaceSet></Shape>" for p in points)
+    path = tmp_path / "output.x3d"
+    path.write_text(f"<X3D profile='Interchange' version='3.3'><Scene><Group>{shapes}</Group></Scene></X3D>")
+    (whole,) = read_file(path, ReaderOptions(up_axis="z"))
+    assert whole.id == "output.x3d#Group-1" and signed_volume(whole) == pytest.approx(120.0)
+    pieces = list(read_file(path, ReaderOptions(up_axis="z", split_components=True)))
+    assert [m.id for m in pieces] == ["output.x3d#Group-1#c1", "output.x3d#Group-1#c2"]
+    same_points(pieces[1], cube * (2, 3, 10) + (2600010, 1200000, 400))
