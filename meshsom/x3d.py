@@ -12,9 +12,10 @@ number arrays (``point [ ... ]``, ``coordIndex [ ... ]``) are read by NumPy in o
   ``(2)``). A top-level node of lights, viewpoints or other nodes without geometry is not a building.
 - **Geometry**: ``IndexedFaceSet`` (``coordIndex`` polygons between ``-1``, triangulated in their own plane: L-shaped
   faces too), ``IndexedTriangleSet``, ``TriangleSet``, ``IndexedQuadSet``, ``QuadSet`` (on ``Coordinate`` or
-  ``CoordinateDouble`` points) and ``Box``; ``ccw FALSE`` turns the faces. Other geometry (``Extrusion``,
-  ``ElevationGrid``, spheres, cylinders, cones, strips and fans, ``GeoCoordinate``) is noted as left out; a building
-  of only that is a rejection saying so.
+  ``CoordinateDouble`` points), ``Box`` and ``Extrusion`` (its cross-section swept along its spine, scaled and
+  oriented at each spine point, with its caps: walls and floors of old VRML models); ``ccw FALSE`` turns the faces.
+  Other geometry (``ElevationGrid``, spheres, cylinders, cones, strips and fans, ``GeoCoordinate``) is noted as left
+  out; a building of only that is a rejection saying so.
 - **Placement**: ``Transform`` (``translation``, ``rotation`` axis-angle, ``scale``, ``scaleOrientation``,
   ``center``) composed from the root down as the specification says, ``T C R SR S -SR -C``; a mirroring transform
   keeps the faces' sides. ``Switch`` reads its chosen child only (none where ``whichChoice`` is -1, noted), ``LOD``
@@ -49,13 +50,18 @@ VRML1_HEADER = re.compile(rb"^\s*#VRML V1\.0")
 GROUPS = ("Transform", "Group", "StaticGroup", "Collision", "Anchor", "Billboard", "CADAssembly", "CADLayer",
           "CADPart", "CADFace")
 #: Geometry nodes read, and their vertex-list nodes.
-GEOMETRY = ("IndexedFaceSet", "IndexedTriangleSet", "TriangleSet", "IndexedQuadSet", "QuadSet", "Box")
+GEOMETRY = ("IndexedFaceSet", "IndexedTriangleSet", "TriangleSet", "IndexedQuadSet", "QuadSet", "Box", "Extrusion")
 COORDINATES = ("Coordinate", "CoordinateDouble")
 #: Geometry nodes not read (noted, or a rejection of a building of only these).
-UNREAD_GEOMETRY = ("Extrusion", "ElevationGrid", "Sphere", "Cylinder", "Cone", "IndexedTriangleFanSet",
+UNREAD_GEOMETRY = ("ElevationGrid", "Sphere", "Cylinder", "Cone", "IndexedTriangleFanSet",
                    "IndexedTriangleStripSet", "TriangleFanSet", "TriangleStripSet", "GeoElevationGrid",
                    "NurbsPatchSurface", "NurbsTrimmedSurface", "Text", "Arc2D", "Rectangle2D", "Disk2D",
                    "PointSet", "IndexedLineSet", "LineSet")
+#: An Extrusion's fields where the node gives none (X3D's defaults: a 2 x 2 square swept 1 along y).
+EXTRUSION_DEFAULTS = {"crossSection": (1, 1, 1, -1, -1, -1, -1, 1, 1, 1), "spine": (0, 0, 0, 0, 1, 0),
+                      "scale": (1, 1), "orientation": (0, 0, 1, 0)}
+#: Spine directions and cross products shorter than this (relative to the spine's extent) are taken for zero.
+SPINE_TOL = 1e-12
 #: The size of a Box with no ``size`` field (metres).
 DEFAULT_BOX_SIZE = (2.0, 2.0, 2.0)
 #: A quarter turn about x: y up -> z up (a proper rotation: faces keep their side).
@@ -553,6 +559,16 @@ def _geometry(node: Node, where: str) -> tuple[np.ndarray, np.ndarray]:
         corners = np.array([(x, y, z) for z in (-1, 1) for y in (-1, 1) for x in (-1, 1)], np.float64) * size
         quads = np.array([[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]])
         return corners, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    if kind == "Extrusion":
+        points, flat, lengths, closed = _extrusion(node, where)
+        faces = polygon_faces(flat, lengths, points)[0] if len(lengths) else np.zeros((0, 3), np.int64)
+        if closed:  # a closed surface faces outwards, whichever way its cross-section runs
+            corners = (points - points.mean(axis=0))[faces]
+            if np.einsum("ij,ij->", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])) < 0:
+                faces = faces[:, ::-1]
+        elif not _flag(node.fields.get("ccw"), True):
+            faces = faces[:, ::-1]
+        return points, np.ascontiguousarray(faces, np.int64)
     points = _coordinates(node, where)
     if kind in ("TriangleSet", "QuadSet"):
         index = np.arange(len(points) - len(points) % (3 if kind == "TriangleSet" else 4))
@@ -577,3 +593,92 @@ def _geometry(node: Node, where: str) -> tuple[np.ndarray, np.ndarray]:
     if not _flag(node.fields.get("ccw"), True):
         faces = faces[:, ::-1]
     return points, np.ascontiguousarray(faces, np.int64)
+
+
+def _spine_frames(spine: np.ndarray) -> np.ndarray:
+    """The spine-aligned cross-section planes of an Extrusion (X3D 13.3.5): for each spine point, the 3 x 3 matrix
+    of columns X, Y, Z. Y follows the spine (the neighbours' difference), Z is the cross product of the spine's
+    two segments at the point (a zero one: the previous point's; turned to agree with it), X = Y x Z; a spine on one
+    line has the frame that turns (0, 1, 0) onto it.
+
+    Parameters
+    ----------
+    spine : (n, 3) float64, n >= 2
+
+    Returns
+    -------
+    frames : (n, 3, 3) float64
+    """
+    n = len(spine)
+    closed = n > 2 and np.allclose(spine[0], spine[-1])
+    extent = max(float(np.ptp(spine, axis=0).max()), 1.0)
+    y = np.empty((n, 3))
+    y[1:-1] = spine[2:] - spine[:-2]
+    y[0] = (spine[1] - spine[-2]) if closed else (spine[1] - spine[0])
+    y[-1] = y[0] if closed else (spine[-1] - spine[-2])
+    z = np.zeros((n, 3))
+    z[1:-1] = np.cross(spine[2:] - spine[1:-1], spine[:-2] - spine[1:-1])
+    if closed:
+        z[0] = z[-1] = np.cross(spine[1] - spine[0], spine[-2] - spine[0])
+    elif n > 2:
+        z[0], z[-1] = z[1], z[-2]
+    lengths = np.linalg.norm(y, axis=1)
+    y = y / np.where(lengths > SPINE_TOL * extent, lengths, 1.0)[:, None]
+    flat = np.linalg.norm(z, axis=1) <= SPINE_TOL * extent ** 2
+    if flat.all():  # a straight spine: the turn of (0, 1, 0) onto it
+        direction = next((v for v in y if np.linalg.norm(v) > 0.5), np.array([0.0, 1.0, 0.0]))
+        axis = np.cross([0.0, 1.0, 0.0], direction)
+        angle = float(np.arctan2(np.linalg.norm(axis), direction[1]))
+        if np.linalg.norm(axis) <= SPINE_TOL:
+            axis = np.array([1.0, 0.0, 0.0])
+        turn = _axis_angle(np.concatenate([axis, [angle]]))
+        return np.repeat((turn @ np.eye(3))[None], n, axis=0)
+    for i in range(n):  # a zero Z takes the previous one (the first non-zero one for those before it)
+        if flat[i]:
+            z[i] = z[i - 1] if i > 0 and not flat[i - 1] else z[np.flatnonzero(~flat)[0]]
+            flat[i] = False
+        elif i > 0 and z[i] @ z[i - 1] < 0:
+            z[i] = -z[i]
+    z /= np.linalg.norm(z, axis=1)[:, None]
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=2)
+
+
+def _extrusion(node: Node, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """An Extrusion's points ``(n * m, 3)``, its polygons (``flat`` indices, ``lengths``: a quad for each spine
+    segment and cross-section edge, then the begin and end caps where asked for and the cross-section is closed)
+    and whether they close a volume (a closed cross-section with both caps, or along a closed spine)."""
+    fields = {k: _numbers(node.fields.get(k), v) for k, v in EXTRUSION_DEFAULTS.items()}
+    section, spine = fields["crossSection"], fields["spine"]
+    if len(section) % 2 or len(spine) % 3 or len(fields["scale"]) % 2 or len(fields["orientation"]) % 4:
+        raise InputFileError(where, f"Extrusion {node.name or ''}: its crossSection, spine, scale or orientation "
+                                    f"is not made of 2-, 3-, 2- and 4-number values")
+    section, spine = section.reshape(-1, 2), spine.reshape(-1, 3)
+    n, m = len(spine), len(section)
+    if n < 2 or m < 2:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), False
+    scale = fields["scale"].reshape(-1, 2)
+    scale = np.repeat(scale[:1], n, axis=0) if len(scale) < n else scale[:n]  # one per spine point, or one for all
+    orientation = fields["orientation"].reshape(-1, 4)
+    orientation = np.repeat(orientation[:1], n, axis=0) if len(orientation) < n else orientation[:n]
+    turns = np.stack([_axis_angle(o) for o in orientation])  # one per spine point, or one for all
+    local = np.zeros((n, m, 3))
+    local[:, :, 0] = section[None, :, 0] * scale[:, None, 0]
+    local[:, :, 2] = section[None, :, 1] * scale[:, None, 1]
+    frames = _spine_frames(spine) @ turns  # the cross-section turned by its orientation, then set in its plane
+    points = (np.einsum("nij,nmj->nmi", frames, local) + spine[:, None, :]).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(m - 1), indexing="ij")
+    at = (i * m + j).reshape(-1)
+    sides = np.stack([at, at + 1, at + m + 1, at + m], axis=1)
+    flat, lengths = [sides.reshape(-1)], [np.full(len(sides), 4, np.int64)]
+    section_closed = m > 3 and np.allclose(section[0], section[-1])
+    ring = np.arange(m - 1)
+    caps = [_flag(node.fields.get("beginCap"), True), _flag(node.fields.get("endCap"), True)]
+    if section_closed and caps[0]:
+        flat.append(ring[::-1])
+        lengths.append(np.array([len(ring)]))
+    if section_closed and caps[1]:
+        flat.append(ring + (n - 1) * m)
+        lengths.append(np.array([len(ring)]))
+    closed = section_closed and (all(caps) or (n > 2 and np.allclose(spine[0], spine[-1])))
+    return points, np.concatenate(flat).astype(np.int64), np.concatenate(lengths), closed

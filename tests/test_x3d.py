@@ -264,3 +264,46 @@ def test_a_city_in_one_group_split_into_its_buildings(tmp_path):
     pieces = list(read_file(path, ReaderOptions(up_axis="z", split_components=True)))
     assert [m.id for m in pieces] == ["output.x3d#Group-1#c1", "output.x3d#Group-1#c2"]
     same_points(pieces[1], cube * (2, 3, 10) + (2600010, 1200000, 400))
+
+
+def test_extrusions_swept_along_their_spines(tmp_path):
+    """Extrusions by the specification's defaults (a 2 x 2 square swept 1 along y: 4 m3), an L cross-section with
+    its caps (the footprint's area times the height; the caps triangulated in their plane: the unsigned area), a
+    spine along (3, 0, 4) (20 m3, its end cap centred on the spine's end), a frustum by scale (the frustum formula)
+    and one without caps (the sides alone); faces outwards (positive volumes)."""
+    section = " ".join(f"{x:g} {z:g}" for x, z in [(12, 4), (12, 0), (0, 0), (0, 10), (4, 10), (4, 4), (12, 4)])
+    path = tmp_path / "extrusions.x3d"
+    path.write_text(f"""<X3D><Scene>
+      <Shape DEF='default'><Extrusion/></Shape>
+      <Shape DEF='L'><Extrusion crossSection='{section}' spine='0 0 0 0 7 0' convex='false'/></Shape>
+      <Shape DEF='tilted'><Extrusion spine='0 0 0 3 0 4'/></Shape>
+      <Shape DEF='frustum'><Extrusion scale='1 1 2 2' orientation='0 1 0 0.5'/></Shape>
+      <Shape DEF='open'><Extrusion beginCap='false' endCap='false'/></Shape>
+    </Scene></X3D>""")
+    got = {m.id.split("#")[1]: m for m in read_file(path, ReaderOptions(up_axis="z"))}
+    assert signed_volume(got["default"]) == pytest.approx(4.0)
+    same_points(got["default"], np.array([(x, y, z) for x in (-1, 1) for y in (0, 1) for z in (-1, 1)], float))
+    assert signed_volume(got["L"]) == pytest.approx(L_AREA * HEIGHT)
+    assert unsigned_area(got["L"]) == pytest.approx(2 * L_AREA + L_PERIMETER * HEIGHT)
+    assert signed_volume(got["tilted"]) == pytest.approx(20.0)
+    end = got["tilted"].vertices + got["tilted"].origin
+    far = end[np.argsort(end @ np.array([3, 0, 4]))[-4:]]  # the end cap: the 4 corners farthest along the spine
+    np.testing.assert_allclose(far.mean(axis=0), [3, 0, 4], atol=1e-9)
+    np.testing.assert_allclose((far - [3, 0, 4]) @ np.array([0.6, 0, 0.8]), 0, atol=1e-9)
+    assert signed_volume(got["frustum"]) == pytest.approx((4 + 16 + 8) / 3)
+    assert len(got["open"].faces) == 8
+
+
+def test_a_closed_extrusion_faces_outwards_whichever_way_its_section_runs(tmp_path):
+    """A wall swept around a closed square spine (no caps: the spine closes it) whose cross-section runs the other
+    way round from the specification's default still encloses a positive volume; reversing the section gives the
+    same volume."""
+    walls = "0.5 0 0.5 3 -0.5 3 -0.5 0 0.5 0"
+    reverse = "0.5 0 -0.5 0 -0.5 3 0.5 3 0.5 0"
+    spine = "0 0 0 10 0 0 10 0 10 0 0 10 0 0 0"
+    path = tmp_path / "ring.wrl"
+    shapes = [f"DEF {name} Shape {{ geometry Extrusion {{ crossSection [ {section} ] spine [ {spine} ] }} }}"
+              for name, section in (("A", walls), ("B", reverse))]
+    path.write_text("#VRML V2.0 utf8\n" + "\n".join(shapes) + "\n")
+    a, b = read_file(path)
+    assert signed_volume(a) > 0 and signed_volume(a) == pytest.approx(signed_volume(b))
