@@ -9,7 +9,9 @@ number arrays (``point [ ... ]``, ``coordIndex [ ... ]``) are read by NumPy in o
 - **Buildings**: each top-level node of the scene that holds geometry (a ``Transform``, ``Group``, ``Shape``,
   ``Inline``, ...) is one building, its shapes united, as a glTF scene's nodes are; id ``<file>#<DEF name>``, else
   ``<file>#<node type>-<k>`` (k: its place among the scene's top-level nodes, from 1; a name met again gets
-  ``(2)``). A top-level node of lights, viewpoints or other nodes without geometry is not a building.
+  ``(2)``). A top-level node of lights, viewpoints or other nodes without geometry is not a building. A city in one
+  top-level group (CityGML2X writes a whole city so, in CityGML's z-up coordinates) is one building as read:
+  ``--split-components`` cuts it into its buildings, ``--up z`` keeps its axes.
 - **Geometry**: ``IndexedFaceSet`` (``coordIndex`` polygons between ``-1``, triangulated in their own plane: L-shaped
   faces too), ``IndexedTriangleSet``, ``TriangleSet``, ``IndexedQuadSet``, ``QuadSet`` (on ``Coordinate`` or
   ``CoordinateDouble`` points), ``Box`` and ``Extrusion`` (its cross-section swept along its spine, scaled and
@@ -521,8 +523,10 @@ def _inlined(node: Node, resolver, where: str, options, depth: int, notes: dict)
     if depth >= MAX_INLINE_DEPTH:
         raise InputFileError(where, f"nests Inline files more than {MAX_INLINE_DEPTH} deep (does one inline itself?)")
     urls = node.fields.get("url")
-    urls = re.findall(r'"((?:[^"\\]|\\.)*)"', urls) or urls.split() if isinstance(urls, str) else [
-        u.strip('"') for u in (urls or [])]
+    if isinstance(urls, str):  # an XML attribute ('"a.x3d" "b.x3d"') or one classic string ('"a.wrl"')
+        urls = re.findall(r'"((?:[^"\\]|\\.)*)"', urls) or urls.split()
+    else:  # a classic list of strings
+        urls = [u.strip('"') for u in (urls or [])]
     tried = []
     for url in urls:
         try:
