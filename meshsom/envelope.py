@@ -21,7 +21,8 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    the roof, parts become one solid.
 4. Undersides: a face facing down with another face above it (a raised or sloping floor, the
    soffit of an overhang) and, under some point of it, nothing solid (the winding of the faces above
-   that point: the bottom of a part standing inside another or on another's roof is none) has the
+   that point: the bottom of a part standing inside another or on another's roof is none; nor the winding of
+   the faces below it: a roof slab's soffit over the walls, the ground under it, is none) has the
    column under it taken away again, and the prisms under faces at or below an underside (a lower
    roof under an overhang, the roof of a part another stands on) put back.
 5. Shells of the union thinner than ``envelope_tol`` on average (slivers between roofs that did
@@ -421,6 +422,9 @@ COVER_CHUNK = 1 << 20
 #: from its corners and from the middles of its edges (on an edge, a point would be a neighbour's too).
 SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [0.98, 0.01, 0.01], [0.01, 0.98, 0.01], [0.01, 0.01, 0.98],
                     [0.495, 0.495, 0.01], [0.01, 0.495, 0.495], [0.495, 0.01, 0.495]])
+#: z mirrored (x and y kept, so a face's facing in plan is kept): what lies below a point lies above it, for
+#: :func:`_winding_above` to count the faces below (-1 or less inside a closed solid, 0 outside every one).
+Z_MIRROR = np.array([1.0, 1.0, -1.0])
 #: How far from a triangle's edge in plan, in metres, a point counts as on it (:func:`_winding_above`):
 #: float64 rounding of local coordinates a few hundred metres across, not a modelling tolerance.
 ON_EDGE = 1e-9
@@ -630,8 +634,8 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
         snapped[used] = _snap_plan(local[used], tol)
     roofs = roof_faces(snapped, faces, params.wall_tilt_deg)
     base = float(local[used, 2].min())
-    tri = snapped[faces[roofs]]
-    tri = tri[tri[..., 2].max(axis=1) - base > tol]  # not a ground surface on the floor
+    every = snapped[faces[roofs]]  # the ground surfaces on the floor too
+    tri = every[every[..., 2].max(axis=1) - base > tol]  # not a ground surface on the floor
     if not len(tri):
         raise MeshError(
             source, f"no roof to rebuild it under: of its {len(faces)} faces, {int((~roofs).sum())} are walls "
@@ -655,7 +659,13 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
     down = np.flatnonzero(normal_z < 0)
     down = down[_covered_above(centroid[down], tri, tol)]
     points = np.einsum("sk,tkd->tsd", SAMPLES, tri[down]).reshape(-1, 3)
-    under[down] = (_winding_above(points, tri, -tol) <= 0).reshape(len(down), len(SAMPLES)).any(axis=1)
+    # A point with a solid under it is no underside either (the winding of the faces below it, the ground surfaces
+    # on the floor included): a roof slab's soffit that the walls stand against, as LoD3 writes a roof, has its top
+    # and itself above it, which wind to none as over an overhang, yet the storeys under it (geoRES's test data lost
+    # 85 % of a house so). An overhang's soffit has no ground under it.
+    beneath = _winding_above(points * Z_MIRROR, every * Z_MIRROR, tol)  # -1 or less inside a solid
+    empty = (_winding_above(points, tri, -tol) <= 0) & (beneath >= 0)
+    under[down] = empty.reshape(len(down), len(SAMPLES)).any(axis=1)
     below = ~under
     points = np.einsum("sk,tkd->tsd", SAMPLES, tri[below]).reshape(-1, 3)
     below[below] = _covered_above(points, tri[under], -tol).reshape(-1, len(SAMPLES)).any(axis=1)
