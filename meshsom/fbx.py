@@ -21,10 +21,8 @@ equal vertices joined. Then:
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import struct
-import tempfile
 from pathlib import Path
 from typing import Iterator
 
@@ -93,27 +91,15 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
         no mesh.
     """
     from meshsom.io import (
-        GZIP_MAGIC, Rejection, _connected_pieces, _labels_beside, file_crs, free_id, placed_mesh, read_input_bytes,
+        Rejection, _connected_pieces, _labels_beside, file_crs, free_id, library_input, placed_mesh, read_decompressed,
     )
 
-    try:
-        import assimp_py
-    except ImportError:
-        raise InputFileError(str(path), "reading FBX needs assimp-py (pip install assimp-py), which is not installed") \
-            from None
-    size = path.stat().st_size
-    if size > options.max_bytes:
-        raise InputFileError(str(path), f"is {size} bytes, more than max_bytes ({options.max_bytes})")
+    assimp_py, gzipped = library_input(path, options, "FBX", "assimp_py", "assimp-py")
+    if gzipped:  # assimp reads files: the content, decompressed, in a temporary one
+        yield from read_decompressed(path, options, name, read_fbx)
+        return
     with open(path, "rb") as fh:
         head = fh.read(SETTINGS_SEARCH_BYTES)
-    if head.startswith(GZIP_MAGIC):  # assimp reads files: the content, decompressed, in a temporary one
-        with tempfile.TemporaryDirectory() as folder:
-            plain = Path(folder) / path.name.removesuffix(".gz").removesuffix(".GZ")
-            plain.write_bytes(read_input_bytes(path, options))
-            for item in read_fbx(plain, options, name or path.name):
-                yield dataclasses.replace(item, source=str(path), **(
-                    {"reason": item.reason.replace(str(plain), str(path))} if isinstance(item, Rejection) else {}))
-        return
     unit = unit_scale(head)
     notes = () if unit is not None else (
         "the file names no UnitScaleFactor: read in centimetres, FBX's own unit",)

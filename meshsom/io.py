@@ -770,7 +770,9 @@ def expand_inputs(inputs: list[str | os.PathLike],
             root = p.resolve()
             tilesets = sorted((t.parent for t in p.rglob(TILESET_NAME)), key=lambda t: (len(t.parts), t))  # outermost first
             entries = sorted(p.rglob("*"))
-            placed_by = _kml_models(entries)
+            read_through = {model: f"placed by a KML Model of {kml}" for model, kml in _kml_models(entries).items()}
+            read_through.update({scene: f"inlined by the scene {by}" for scene, by in _inlined_scenes(entries).items()
+                                 if scene not in read_through})
             for q in entries:
                 if any(_is_gdb(p / d) for d in q.relative_to(p).parents if d != Path(".")):
                     continue  # inside a File Geodatabase: the folder is read as one input
@@ -779,9 +781,9 @@ def expand_inputs(inputs: list[str | os.PathLike],
                     if skipped is not None:
                         skipped.append((str(q), f"content of the 3D Tiles tileset {owner / TILESET_NAME}, read through it"))
                     continue
-                if q.is_file() and q.resolve() in placed_by:
+                if q.is_file() and q.resolve() in read_through:
                     if skipped is not None:
-                        skipped.append((str(q), f"placed by a KML Model of {placed_by[q.resolve()]}, read through it"))
+                        skipped.append((str(q), f"{read_through[q.resolve()]}, read through it"))
                     continue
                 if q.is_file() or _is_gdb(q):
                     try:
@@ -835,6 +837,29 @@ def _kml_models(entries: list[Path]) -> dict[Path, str]:
             for model in linked_models(kml):
                 found.setdefault(model, str(kml))
     return found
+
+
+def _inlined_scenes(entries: list[Path]) -> dict[Path, str]:
+    """The files of a folder that its X3D and VRML scenes inline (:func:`meshsom.x3d.inlined_files`), resolved, each
+    with the path of the (first) scene that inlines it: they are read through that scene. A scene inlined by
+    another scene that is itself inlined is read through the outermost one only."""
+    from meshsom.x3d import inlined_files
+
+    found: dict[Path, str] = {}
+    for scene in entries:
+        if scene.is_file() and format_name(scene).endswith(X3D_SUFFIXES):
+            for inlined in inlined_files(scene, ReaderOptions()):
+                if inlined != scene.resolve():
+                    found.setdefault(inlined, str(scene))
+    cyclic = set()
+    for inlined in found:  # scenes that inline each other are each read (their reading refuses the loop), not lost
+        seen, by = {inlined}, Path(found[inlined]).resolve()
+        while by in found and by not in seen:
+            seen.add(by)
+            by = Path(found[by]).resolve()
+        if by == inlined:
+            cyclic.add(inlined)
+    return {inlined: by for inlined, by in found.items() if inlined not in cyclic}
 
 
 def _is_gdb(path: Path) -> bool:

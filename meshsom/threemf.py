@@ -31,6 +31,7 @@ import dataclasses
 import io
 import xml.etree.ElementTree as ElementTree
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Iterator
 
@@ -145,7 +146,7 @@ def _root_part(package, path: Path) -> str:
     names = set(package.namelist())
     if RELATIONSHIPS_PART in names:
         try:
-            rels = ElementTree.fromstring(package.read(RELATIONSHIPS_PART))
+            rels = ElementTree.fromstring(_part_bytes(package, RELATIONSHIPS_PART, path))
         except ElementTree.ParseError as err:
             raise InputFileError(str(path), f"its {RELATIONSHIPS_PART} is not XML ({err})") from None
         for rel in rels.iter():
@@ -159,6 +160,16 @@ def _root_part(package, path: Path) -> str:
         return DEFAULT_MODEL_PART
     raise InputFileError(str(path), f"holds no 3MF model part (no 3D-model relationship in {RELATIONSHIPS_PART}, "
                                     f"no {DEFAULT_MODEL_PART}): not a 3MF package")
+
+
+def _part_bytes(package, part: str, path: Path) -> bytes:
+    """The bytes of a part of the package; InputFileError where its entry is damaged (a bad header, deflate data or
+    checksum: the zip's directory can be whole where an entry is not), encrypted or of a compression zip cannot undo."""
+    try:
+        return package.read(part)
+    except (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError, NotImplementedError, ValueError) as err:
+        raise InputFileError(str(path), f"its part /{part} cannot be read from the zip package "
+                                        f"({type(err).__name__}: {err})") from None
 
 
 def _matrix(text: str | None, where: str) -> np.ndarray:
@@ -184,7 +195,7 @@ def _model(package, part: str, path: Path, parts: dict) -> _Model:
     if part not in package.namelist():
         raise InputFileError(str(path), f"names the model part /{part}, which the package does not hold")
     try:
-        root = ElementTree.fromstring(package.read(part))
+        root = ElementTree.fromstring(_part_bytes(package, part, path))
     except ElementTree.ParseError as err:
         raise InputFileError(str(path), f"its model part /{part} is not XML ({err})") from None
     if root.tag != f"{{{CORE}}}model":

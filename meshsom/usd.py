@@ -104,10 +104,19 @@ def _open(path: Path):
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as err:  # pxr.Tf.ErrorException: what the file format plugin could not parse
-        raise InputFileError(str(path), f"cannot be read as USD ({_usd_errors(str(err))})") from None
+        raise InputFileError(str(path), f"cannot be read as USD ({_usd_errors(_exception_text(err))})") from None
     if stage is None:
         raise InputFileError(str(path), "cannot be read as USD (the stage did not open)")
     return stage
+
+
+def _exception_text(err: Exception) -> str:
+    """What a ``pxr.Tf.ErrorException`` says; its text cannot be made where USD quotes bytes of the file that are not
+    UTF-8 (a damaged or binary file read as text), and then says that."""
+    try:
+        return str(err)
+    except UnicodeDecodeError:
+        return "Error in 'parse' : 'the file holds bytes that are not UTF-8 text where USD's text syntax was expected'"
 
 
 def _usd_errors(text: str) -> str:
@@ -188,7 +197,7 @@ def _key(prim_path) -> str:
 
 def _stage_buildings(path: Path, options, name: str) -> Iterator:
     """The buildings of an uncompressed USD file."""
-    from pxr import Usd, UsdGeom
+    from pxr import Tf, Usd, UsdGeom
 
     from meshsom.io import Rejection, _labels_beside, building_meshes, file_crs
 
@@ -199,6 +208,50 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
     roots = _scene_roots(stage)
     buildings: dict[str, _Building] = {}
     triangulated: dict = {}  # a mesh's (prototype's) path -> (points, faces, notes): an instance's read once
+    try:
+        hidden = _gather(stage, roots, time, cache, path, options, buildings, triangulated)
+    except Tf.ErrorException as err:  # a value of the file that USD cannot unpack (a damaged crate file)
+        raise InputFileError(str(path), f"cannot be read as USD ({_usd_errors(_exception_text(err))})") from None
+    if not buildings:
+        raise InputFileError(str(path), "holds no mesh (a USD stage of no UsdGeom.Mesh, or only invisible or guide "
+                                        "prims)" + (f"; {hidden} invisible prims left out" if hidden else ""))
+    labels = _labels_beside(path)
+    label = labels.get(path.name)
+    crs = file_crs(None, options)
+    if hidden:
+        frame_notes.append(f"{hidden} invisible prims of the stage left out (visibility = invisible)")
+    for key, building in buildings.items():
+        mesh_id = f"{name}#{key}"
+        item_label = labels.get(f"{path.name}#{key}", label)
+        pieces, notes = _drawn(building)
+        if building.error is not None:
+            yield Rejection(mesh_id, str(path), building.error, 0, item_label)
+            continue
+        if not pieces:
+            kinds = ", ".join(f"{n} {k}" for k, n in building.unread.items())
+            yield Rejection(mesh_id, str(path), f"holds no UsdGeom.Mesh or Cube (only {kinds}: gprims that are not "
+                                                f"read; convert them to meshes)" if kinds else
+                            "holds no UsdGeom.Mesh or Cube (its PointInstancer's prototypes hold none)",
+                            0, item_label)
+            continue
+        vertices, faces = _joined(pieces)
+        with np.errstate(over="ignore", invalid="ignore"):
+            vertices = vertices * metres
+        if not np.isfinite(vertices).all():
+            yield Rejection(mesh_id, str(path), f"its coordinates times metersPerUnit ({metres:g}) are beyond "
+                                                f"float64's range", 0, item_label)
+            continue
+        if turn is not None:
+            vertices = vertices @ turn.T
+        yield from building_meshes(mesh_id, str(path), vertices, faces, item_label, crs,
+                                   tuple(frame_notes) + tuple(notes), options)
+
+
+def _gather(stage, roots: set, time, cache, path: Path, options, buildings: dict, triangulated: dict) -> int:
+    """Each drawn prim of the stage into its building of ``buildings`` (key -> :class:`_Building`); the number of
+    invisible prims left out. A mesh whose values USD cannot unpack is its building's rejection."""
+    from pxr import Tf, Usd, UsdGeom
+
     hidden = 0
     walk = iter(Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)))
     for prim in walk:
@@ -230,40 +283,17 @@ def _stage_buildings(path: Path, options, name: str) -> Iterator:
             continue
         try:
             points, faces, notes = _mesh(prim, time, str(path), options, triangulated)
+            world = np.asarray(cache.GetLocalToWorldTransform(prim), np.float64)
         except InputFileError as err:  # its building is not read, the others are
             owner.error = owner.error or f"{err.source}: {err.problem}"
             continue
-        world = np.asarray(cache.GetLocalToWorldTransform(prim), np.float64)
+        except Tf.ErrorException as err:  # a damaged value
+            owner.error = owner.error or (f"{path}: mesh {prim.GetPath()} cannot be read "
+                                          f"({_usd_errors(_exception_text(err))})")
+            continue
         owner.pieces.append((purpose, *_placed(points, faces, world)))
         owner.notes.update(dict.fromkeys(notes))
-    if not buildings:
-        raise InputFileError(str(path), "holds no mesh (a USD stage of no UsdGeom.Mesh, or only invisible or guide "
-                                        "prims)" + (f"; {hidden} invisible prims left out" if hidden else ""))
-    labels = _labels_beside(path)
-    label = labels.get(path.name)
-    crs = file_crs(None, options)
-    if hidden:
-        frame_notes.append(f"{hidden} invisible prims of the stage left out (visibility = invisible)")
-    for key, building in buildings.items():
-        mesh_id = f"{name}#{key}"
-        item_label = labels.get(f"{path.name}#{key}", label)
-        pieces, notes = _drawn(building)
-        if building.error is not None:
-            yield Rejection(mesh_id, str(path), building.error, 0, item_label)
-            continue
-        if not pieces:
-            kinds = ", ".join(f"{n} {k}" for k, n in building.unread.items())
-            yield Rejection(mesh_id, str(path), f"holds no UsdGeom.Mesh or Cube (only {kinds}: gprims that are not "
-                                                f"read; convert them to meshes)" if kinds else
-                            "holds no UsdGeom.Mesh or Cube (its PointInstancer's prototypes hold none)",
-                            0, item_label)
-            continue
-        vertices, faces = _joined(pieces)
-        vertices = vertices * metres
-        if turn is not None:
-            vertices = vertices @ turn.T
-        yield from building_meshes(mesh_id, str(path), vertices, faces, item_label, crs,
-                                   tuple(frame_notes) + tuple(notes), options)
+    return hidden
 
 
 def _drawn(building: _Building) -> tuple[list, list[str]]:
@@ -321,6 +351,8 @@ def _values(attribute, time, dtype, width: int, where: str) -> np.ndarray:
         raise InputFileError(where, f"its {attribute.GetName()} holds {str(value)[:60]!r} ("
                                     f"{type(value).__name__}), expected an array of " +
                                     (f"{width}-vectors" if width > 1 else "integers"))
+    if array.dtype.kind == "f" and not np.isfinite(array).all():
+        raise InputFileError(where, f"its {attribute.GetName()} hold a value that is not a finite number (NaN or inf)")
     return array.reshape(-1, width) if width > 1 else array
 
 

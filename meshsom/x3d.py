@@ -191,6 +191,8 @@ def _xml_scene(data: bytes, where: str) -> Scene:
         root = ElementTree.fromstring(data)
     except ElementTree.ParseError as err:
         raise InputFileError(where, f"cannot be read as X3D (XML: {err})") from None
+    except (LookupError, ValueError) as err:  # the XML declaration names an encoding Python does not know
+        raise InputFileError(where, f"cannot be read as X3D (XML: {err})") from None
     if _local(root.tag) != "X3D":
         raise InputFileError(where, f"holds <{_local(root.tag)}>, expected an <X3D> document")
     scene = next((e for e in root if _local(e.tag) == "Scene"), None)
@@ -440,6 +442,16 @@ def _numbers(value, default=None) -> np.ndarray | None:
         raise InputFileError("", f"has a field value {str(value)[:60]!r} where numbers are expected") from None
 
 
+def _indices(node: Node, field: str, where: str) -> np.ndarray:
+    """A node's index field ``(N,) int64``; InputFileError where a value is no integer (``1.5``, ``nan``, ``1e30``)."""
+    values = _numbers(node.fields.get(field), ())
+    whole = np.isfinite(values) & (values == np.round(values)) & (np.abs(values) < 2**62)
+    if not whole.all():
+        raise InputFileError(where, f"{node.type} {node.name or ''}: its {field} holds {values[~whole][0]!r}, "
+                                    f"expected point numbers (whole numbers, -1 between faces)")
+    return values.astype(np.int64)
+
+
 def _flag(value, default: bool) -> bool:
     if value is None:
         return default
@@ -515,6 +527,55 @@ def _gather(node: Node, matrix: np.ndarray, pieces: list, unread: dict, notes: d
         _gather(child, matrix, pieces, unread, notes, resolver, where, options, depth)
 
 
+#: The word that tells a scene inlines other files (scanned for before the scene is parsed to find them).
+_INLINE_WORD = re.compile(rb"\bInline\b")
+
+
+def inlined_files(path: Path, options) -> list[Path]:
+    """The files beside an X3D or VRML scene that its ``Inline`` nodes name (followed as :func:`read_x3d` follows
+    them, to :data:`MAX_INLINE_DEPTH`), resolved: a folder's walk reads them through the scene, not again as
+    scenes of their own. A scene that cannot be read names none (its reading says why)."""
+    from meshsom.io import FolderResolver, read_input_bytes
+
+    found: list[Path] = []
+    todo = [(path, 0)]
+    while todo:
+        scene_path, depth = todo.pop()
+        try:
+            data = bytes(read_input_bytes(scene_path, options))
+            if depth >= MAX_INLINE_DEPTH or not _INLINE_WORD.search(data):
+                continue
+            scene = parse_scene(data, str(scene_path))
+        except (InputFileError, RecursionError, OSError):
+            continue
+        resolver = FolderResolver(scene_path.parent, str(scene_path))
+        nodes, seen = list(scene.nodes), set()
+        while nodes:
+            node = nodes.pop()
+            if id(node) in seen:  # a USE of a node met before
+                continue
+            seen.add(id(node))
+            nodes.extend(node.children)
+            for url in _urls(node) if node.type == "Inline" else ():
+                try:
+                    target = resolver._path(url).resolve()
+                except InputFileError:
+                    continue
+                if target.is_file() and target not in found:
+                    found.append(target)
+                    todo.append((target, depth + 1))
+                break  # the first url that names a file is the one read
+    return found
+
+
+def _urls(node: Node) -> list[str]:
+    """An Inline's ``url`` values in order: an XML attribute ('"a.x3d" "b.x3d"'), one classic string, or a list."""
+    urls = node.fields.get("url")
+    if isinstance(urls, str):
+        return re.findall(r'"((?:[^"\\]|\\.)*)"', urls) or urls.split()
+    return [u.strip('"') for u in (urls or [])]
+
+
 def _inlined(node: Node, resolver, where: str, options, depth: int, notes: dict) -> tuple[list, object, str]:
     """The first ``url`` of an Inline that is a file beside the file that inlines it (in its folder or below): its
     top-level nodes (scaled by its unit, through a Transform), the resolver of its folder and its path."""
@@ -522,13 +583,8 @@ def _inlined(node: Node, resolver, where: str, options, depth: int, notes: dict)
 
     if depth >= MAX_INLINE_DEPTH:
         raise InputFileError(where, f"nests Inline files more than {MAX_INLINE_DEPTH} deep (does one inline itself?)")
-    urls = node.fields.get("url")
-    if isinstance(urls, str):  # an XML attribute ('"a.x3d" "b.x3d"') or one classic string ('"a.wrl"')
-        urls = re.findall(r'"((?:[^"\\]|\\.)*)"', urls) or urls.split()
-    else:  # a classic list of strings
-        urls = [u.strip('"') for u in (urls or [])]
     tried = []
-    for url in urls:
+    for url in _urls(node):
         try:
             path = resolver._path(url)
         except InputFileError as err:
@@ -577,7 +633,7 @@ def _geometry(node: Node, where: str) -> tuple[np.ndarray, np.ndarray]:
     if kind in ("TriangleSet", "QuadSet"):
         index = np.arange(len(points) - len(points) % (3 if kind == "TriangleSet" else 4))
     else:
-        index = _numbers(node.fields.get("coordIndex" if kind == "IndexedFaceSet" else "index"), ()).astype(np.int64)
+        index = _indices(node, "coordIndex" if kind == "IndexedFaceSet" else "index", where)
     if kind == "IndexedFaceSet":
         keep = index >= 0
         ring = np.cumsum(~keep)[keep]  # the polygon of every index: -1 separates them

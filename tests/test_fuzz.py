@@ -48,7 +48,7 @@ FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".city.json", ".city.jsonl", ".city.json.gz", ".gml",
             ".geojson", ".b3dm", ".cmpt", ".dae", ".gpkg", ".parquet", ".fgb", ".ifc", ".dxf", ".3dm", ".osm", ".fbx",
-            ".3ds", ".osm.bz2")
+            ".3ds", ".osm.bz2", ".usda", ".usdc", ".usdz", ".3mf", ".wrl", ".x3d")
 
 
 # ----------------------------------------------------------------------------- guards
@@ -261,6 +261,102 @@ def _rhino_seed() -> bytes:
         return Path(f"{folder}/seed.3dm").read_bytes()
 
 
+def _usd_seed(suffix: str):
+    """A USD stage (text, crate, or a USDZ package of the crate) of two blocks, each a building with its mesh as
+    quads and triangles, placed by a transform."""
+    def seed() -> bytes:
+        from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils
+
+        with tempfile.TemporaryDirectory() as folder:
+            layer = Path(folder) / f"seed{'.usdc' if suffix == '.usdz' else suffix}"
+            stage = Usd.Stage.CreateNew(str(layer))
+            UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+            UsdGeom.SetStageUpAxis(stage, "Z")
+            stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/City").GetPrim())
+            for k, block in enumerate(_blocks(2)):
+                house = UsdGeom.Xform.Define(stage, f"/City/B{k}")
+                house.AddTranslateOp().Set(Gf.Vec3d(40.0 * k, 0.0, 0.0))
+                mesh = UsdGeom.Mesh.Define(stage, f"/City/B{k}/shell")
+                mesh.CreatePointsAttr([Gf.Vec3f(*map(float, v)) for v in block.vertices])
+                mesh.CreateFaceVertexCountsAttr([3] * len(block.faces))
+                mesh.CreateFaceVertexIndicesAttr([int(i) for i in block.faces.ravel()])
+            stage.GetRootLayer().Save()
+            if suffix != ".usdz":
+                return layer.read_bytes()
+            UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(layer)), str(Path(folder) / "seed.usdz"))
+            return (Path(folder) / "seed.usdz").read_bytes()
+    return seed
+
+
+def _3mf_seed() -> bytes:
+    """A 3MF package (zip: content types, relationships, the model) of two blocks as build items, in metres."""
+    import io
+    import zipfile
+
+    objects, items = [], []
+    for k, block in enumerate(_blocks(2), 1):
+        vertices = "".join(f'<vertex x="{x:.4f}" y="{y:.4f}" z="{z:.4f}"/>' for x, y, z in block.vertices)
+        triangles = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in block.faces)
+        objects.append(f'<object id="{k}" type="model" name="house {k}"><mesh><vertices>{vertices}</vertices>'
+                       f'<triangles>{triangles}</triangles></mesh></object>')
+        items.append(f'<item objectid="{k}" transform="1 0 0 0 1 0 0 0 1 {40 * k} 0 0"/>')
+    model = ('<?xml version="1.0" encoding="UTF-8"?><model unit="meter" xml:lang="en-US" '
+             'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">'
+             f'<resources>{"".join(objects)}</resources><build>{"".join(items)}</build></model>')
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as package:
+        package.writestr("[Content_Types].xml", '<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/content-types"><Default Extension="model" ContentType="'
+                         'application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>')
+        package.writestr("_rels/.rels", '<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.'
+                         'openxmlformats.org/package/2006/relationships"><Relationship Target="/3D/3dmodel.model" '
+                         'Id="rel0" Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+                         '</Relationships>')
+        package.writestr("3D/3dmodel.model", model)
+    return out.getvalue()
+
+
+def _x3d_seed(suffix: str):
+    """An X3D (XML) or VRML97 scene of two blocks, each a DEF'd Transform of an IndexedFaceSet."""
+    def seed() -> bytes:
+        nodes = []
+        for k, block in enumerate(_blocks(2)):
+            points = ", ".join(" ".join(f"{c:.4f}" for c in v) for v in block.vertices)
+            index = " ".join(f"{a} {b} {c} -1" for a, b, c in block.faces)
+            if suffix == ".wrl":
+                nodes.append(f"DEF B{k} Transform {{ translation {40 * k} 0 0 children [ Shape {{ geometry "
+                             f"IndexedFaceSet {{ coord Coordinate {{ point [ {points} ] }} coordIndex [ {index} ] }} "
+                             f"}} ] }}")
+            else:
+                nodes.append(f"<Transform DEF='B{k}' translation='{40 * k} 0 0'><Shape><IndexedFaceSet "
+                             f"coordIndex='{index}'><Coordinate point='{points}'/></IndexedFaceSet></Shape></Transform>")
+        if suffix == ".wrl":
+            return ("#VRML V2.0 utf8\n" + "\n".join(nodes) + "\n").encode()
+        return ("<?xml version='1.0' encoding='UTF-8'?><X3D profile='Interchange' version='3.3'><Scene>"
+                + "".join(nodes) + "</Scene></X3D>").encode()
+    return seed
+
+
+@pytest.mark.parametrize("suffix,seeder", [(".usda", _usd_seed(".usda")), (".usdc", _usd_seed(".usdc")),
+                                           (".usdz", _usd_seed(".usdz")), (".3mf", _3mf_seed),
+                                           (".wrl", _x3d_seed(".wrl")), (".x3d", _x3d_seed(".x3d"))],
+                         ids=["usda", "usdc", "usdz", "3mf", "wrl", "x3d"])
+def test_mutated_scene_files_are_read_or_rejected(folder, suffix, seeder):
+    """Mutations of a USD stage (Pixar's text and crate parsers, a USDZ package), a 3MF package and X3D and VRML
+    scenes (their own parsers) are read or rejected: no exception escapes (USD's errors quote bytes that are not
+    UTF-8, and a damaged crate value raises only when it is read), no library takes the process down."""
+    seed = seeder()
+    items, records, _ = read_all(_write(folder / f"valid{suffix}", seed))
+    assert len(records) == 2 and all(r["status"] == "accepted" for r in records)  # the unmutated seed: 2 buildings
+
+    @settings(FUZZ, max_examples=60)
+    @given(data=mutated(seed))
+    def check(data):
+        read_bounded(_write(folder / f"mutant{suffix}", data))
+
+    check()
+
+
 @pytest.fixture(scope="module")
 def city_bytes(tmp_path_factory) -> bytes:
     path = tmp_path_factory.mktemp("city") / "blocks.city.json"
@@ -306,6 +402,12 @@ MAGIC = {
              struct.pack("<HI", 0x4D4D, 64) + struct.pack("<HI", 0x3D3D, 58) + struct.pack("<HI", 0x4000, 52) + b"a\0"],
     ".ifc": [b"", b"ISO-10303-21;\nHEADER;\n", b"ISO-10303-21;\nHEADER;\nFILE_SCHEMA(('IFC4'));\nENDSEC;\nDATA;\n"
              b"#1=IFCBUILDING('0p49tVvDnBOh5$bRyf1JGA',$,'b',$,$,$,$,$,$,$,$,$);\n"],
+    ".usda": [b"", b"#usda 1.0\n", b'#usda 1.0\n(\n    metersPerUnit = 1\n)\ndef Mesh "m" {\n    point3f[] points = [(0, 0, 0), '],
+    ".usdc": [b"", b"PXR-USDC", b"PXR-USDC\x00\x08\x00\x00\x00\x00\x00\x00" + struct.pack("<Q", 10**12)],
+    ".usdz": [b"", b"PK\x03\x04", b"PK\x03\x04\x14\x00\x00\x00\x00\x00" + b"\x00" * 16 + struct.pack("<HH", 9, 0) + b"seed.usdc"],
+    ".3mf": [b"", b"PK\x03\x04", b"PK\x05\x06" + b"\x00" * 18],
+    ".wrl": [b"", b"#VRML V2.0 utf8\n", b"#VRML V2.0 utf8\nShape { geometry IndexedFaceSet { coord Coordinate { point [ "],
+    ".x3d": [b"", b"<X3D><Scene>", b"<?xml version='1.0'?><X3D><Scene><Shape><IndexedFaceSet coordIndex='0 1 2 -1'>"],
     ".cmpt": [b"", b"cmpt" + struct.pack("<III", 1, 1600, 2) + b"b3dm" + struct.pack("<II", 1, 40),
               b"cmpt" + struct.pack("<III", 1, 4 * 10**9, 3) + b"cmpt" + struct.pack("<III", 1, 32, 1)],
 }

@@ -307,3 +307,32 @@ def test_a_closed_extrusion_faces_outwards_whichever_way_its_section_runs(tmp_pa
     path.write_text("#VRML V2.0 utf8\n" + "\n".join(shapes) + "\n")
     a, b = read_file(path)
     assert signed_volume(a) > 0 and signed_volume(a) == pytest.approx(signed_volume(b))
+
+
+def test_folder_walk_reads_inlined_scenes_through_their_scene(tmp_path):
+    """A folder of a city scene and the house scenes it inlines (and a roof the house inlines) reads the city once:
+    each inlined file is listed as skipped, read through the scene, not read again as a scene of its own (its
+    buildings would count twice). Scenes that inline each other are each read (the loop is their reading's
+    rejection), never both skipped; a scene nobody inlines is read as it is."""
+    (tmp_path / "roof.wrl").write_text("#VRML V2.0 utf8\nShape { geometry Box { size 1 1 1 } }\n")
+    (tmp_path / "house.wrl").write_text("#VRML V2.0 utf8\nShape { geometry Box { } }\nInline { url \"roof.wrl\" }\n")
+    (tmp_path / "city.x3d").write_text("<X3D><Scene><Transform DEF='H1'><Inline url='\"house.wrl\"'/></Transform>"
+                                       "<Transform DEF='H2' translation='10 0 0'><Inline url='\"house.wrl\"'/>"
+                                       "</Transform></Scene></X3D>")
+    (tmp_path / "loop").mkdir()
+    (tmp_path / "loop" / "a.wrl").write_text("#VRML V2.0 utf8\nInline { url \"b.wrl\" }\n")
+    (tmp_path / "loop" / "b.wrl").write_text("#VRML V2.0 utf8\nInline { url \"a.wrl\" }\n")
+    (tmp_path / "alone.wrl").write_text("#VRML V2.0 utf8\nDEF Kiosk Shape { geometry Box { size 1 2 3 } }\n")
+    skipped = []
+    files, rejected = expand_inputs([tmp_path], skipped)
+    assert sorted(f.name for f in files) == ["alone.wrl", "city.x3d", "loop/a.wrl", "loop/b.wrl"] and not rejected
+    reasons = dict(skipped)
+    assert reasons[str(tmp_path / "house.wrl")] == f"inlined by the scene {tmp_path / 'city.x3d'}, read through it"
+    assert reasons[str(tmp_path / "roof.wrl")].startswith("inlined by the scene ")
+    got = {m.id: m for f in files for m in read_file(f.path, name=f.name)}
+    # each house: a 2 m box and the 1 m roof box inlined in it (the two overlap; the volume is the sum of shells)
+    assert signed_volume(got["city.x3d#H1"]) == pytest.approx(8.0 + 1.0)
+    assert signed_volume(got["city.x3d#H2"]) == pytest.approx(8.0 + 1.0)
+    assert signed_volume(got["alone.wrl#Kiosk"]) == pytest.approx(6.0)
+    assert all(isinstance(m, Rejection) for k, m in got.items() if k.startswith("loop/"))
+    assert not any(k.startswith(("house.wrl", "roof.wrl")) for k in got)
