@@ -1138,6 +1138,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     label = labels.get(path.name)
     name = name or path.name
     crs = file_crs(None, options)
+    mesh_named = _gltf_mesh_names(bytes(content), file_type) if file_type in ("glb", "gltf") else {}
     if isinstance(loaded, trimesh.Scene):
         items = []
         collada_ids = set(re.findall(rb'<geometry\b[^>]*\bid="([^"]+)"', data.getvalue())) if file_type == "dae" else set()
@@ -1152,6 +1153,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 node = loaded.graph.transforms.parents.get(node, node)
             elif file_type == "dae":  # trimesh names a COLLADA geometry's primitives (a material each) id, id_1, ...
                 node = _collada_geometry(str(node), collada_ids)
+            node = mesh_named.get(node, node)
             items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64), labels.get(f"{path.name}#{node}", label)))
         items = _joined_by_id(items)
         if not items:
@@ -1166,6 +1168,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         items = [(name, np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64), label)]
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
+    items, version_notes = _versions_read(items, bytes(content), file_type, name, options)
     if file_type == "dae":  # COLLADA says its unit and up axis (SketchUp: inches, z up; others: y up)
         to_metres, turn = _collada_frame(data.getvalue())
         items = [(i, (v * to_metres) @ turn.T, f, lab) for i, v, f, lab in items]
@@ -1187,7 +1190,71 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             continue
         if turn_up and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
-        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, up_notes)
+        notes = up_notes + version_notes.get(mesh_id, version_notes.get(mesh_id.rpartition("#c")[0], ()))
+        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, notes)
+
+
+#: What a glTF file's ``asset.generator`` says when ``cjio export glb`` wrote it (every LoD of a building in its mesh).
+CJIO_GLTF_GENERATOR = "cjio"
+
+
+def _versions_read(items: list, content: bytes, file_type: str, name: str, options: ReaderOptions
+                   ) -> tuple[list, dict[str, tuple[str, ...]]]:
+    """Items (id, vertices, faces, label) of a mesh file of which those holding several versions of one building
+    (the LoDs of a multi-LoD export: an OBJ's ``o`` blocks of one name, a cjio glTF mesh's runs of closed faces;
+    :mod:`meshsom.mesh_versions`) are each replaced by the version :attr:`ReaderOptions.lod` asks for, with the notes
+    saying so by id; parts of a building written under one name stay joined."""
+    from meshsom.mesh_versions import closed_runs, obj_repeated_objects, one_version
+
+    if file_type == "obj":
+        blocks = obj_repeated_objects(content)
+        if not blocks:
+            return items, {}
+        single = len(items) == 1 and len(blocks) == 1 and "#" not in items[0][0][len(name):]
+        runs = {(items[0][0] if single else f"{name}#{obj}"): list(np.cumsum(c)) for obj, c in blocks.items()}
+        writer = "an OBJ object written once per version: a multi-LoD export, e.g. cjio's"
+    elif file_type in ("glb", "gltf") and CJIO_GLTF_GENERATOR in (gltf_generator(content[:1 << 20]) or "").lower():
+        runs = {item[0]: closed_runs(item[1], item[2]) for item in items}
+        writer = "cjio's glTF export writes every LoD of a building in its mesh"
+    else:
+        return items, {}
+    out, notes = [], {}
+    for mesh_id, v, f, lab in items:
+        chosen = one_version(np.asarray(v), f, [int(e) for e in runs[mesh_id]], options.lod, writer) \
+            if mesh_id in runs else None
+        if chosen is None:
+            out.append((mesh_id, v, f, lab))
+            continue
+        out.append((mesh_id, chosen[0], chosen[1], lab))
+        notes[mesh_id] = (chosen[2],)
+    return out, notes
+
+
+def _gltf_mesh_names(content: bytes, file_type: str) -> dict[str, str]:
+    """trimesh's names of the glTF nodes that have no name of their own (their index) mapped to their mesh's name,
+    where that name is given and no other node's (``cjio export glb`` names meshes by building id, not nodes)."""
+    try:
+        if file_type == "glb":
+            length = int.from_bytes(content[12:16], "little")
+            document = json.loads(content[20:20 + length].decode("utf-8"))
+        else:
+            document = json.loads(content.decode("utf-8-sig"))
+        nodes, meshes = document.get("nodes") or [], document.get("meshes") or []
+        named = {}
+        for i, node in enumerate(nodes):
+            mesh = node.get("mesh") if isinstance(node, dict) and not node.get("name") else None
+            if isinstance(mesh, int) and 0 <= mesh < len(meshes) and isinstance(meshes[mesh], dict):
+                mesh_name = meshes[mesh].get("name")
+                if isinstance(mesh_name, str) and mesh_name.strip():
+                    named[str(i)] = mesh_name
+    except (ValueError, UnicodeDecodeError, AttributeError, TypeError):
+        return {}
+    taken = {n.get("name") for n in nodes if isinstance(n, dict)}
+    counts: dict[str, int] = {}
+    for mesh_name in named.values():
+        counts[mesh_name] = counts.get(mesh_name, 0) + 1
+    return {node: mesh_name for node, mesh_name in named.items() if counts[mesh_name] == 1 and mesh_name not in taken
+            and mesh_name not in named}
 
 
 def _collada_geometry(name: str, ids: set) -> str:
