@@ -51,6 +51,15 @@ _NORMALIZED = {5120: ("<i1", 127), 5121: ("<u1", 255), 5122: ("<i2", 32767), 512
 KEPT_ATTRIBUTES = ("POSITION", "_BATCHID", "_batchid")
 KEPT_PREFIXES = ("_FEATURE_ID_",)
 
+#: A vertex attribute :func:`decompress_glb` gives each decoded Draco primitive: its positions' quantum (metres in the
+#: primitive's own frame, the same for every vertex; :func:`position_quantum`), so that a reader can weld the primitives
+#: of one building, which Draco quantized each on its own grid (:func:`meshsom.tiles3d.batched_meshes`).
+QUANTUM_ATTRIBUTE = "_DRACO_QUANTUM"
+#: Most quantization bits looked for (Draco allows 1 to 30), and how far (in quanta) every decoded coordinate may lie
+#: from its grid for the quantum to be taken as found (float32 rounding of the dequantized values aside).
+MAX_QUANTIZATION_BITS = 30
+GRID_TOL = 1e-3
+
 #: Bytes one meshopt buffer view may decode to (its fallback's size bounds it too).
 MAX_DECODED_BYTES = 1 << 32
 
@@ -344,6 +353,41 @@ def _dequantized(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
             accessor.update(min=plain.min(axis=0).tolist(), max=plain.max(axis=0).tolist())
 
 
+def position_quantum(points: np.ndarray) -> float | None:
+    """The quantum of Draco-dequantized positions: Draco quantizes a primitive's positions to ``bits`` bits over one
+    range for all three axes (the bounding box's largest extent ``R``) from its minimum corner, so the decoded values
+    lie on a grid of step ``R / (2^bits - 1)`` from the decoded minimum, and one axis spans the whole range. The bits
+    are found as the fewest for which every coordinate lies within :data:`GRID_TOL` quanta (and float32 rounding) of
+    that grid; None where none does (positions not quantized, or fewer than two distinct values).
+
+    Parameters
+    ----------
+    points : (V, 3) float32 or float64
+
+    Returns
+    -------
+    float or None
+    """
+    points = np.asarray(points, np.float64)
+    if len(points) < 2 or not np.isfinite(points).all():
+        return None
+    low = points.min(axis=0)
+    extent = float((points.max(axis=0) - low).max())
+    if extent <= 0:
+        return None
+    gaps = np.concatenate([np.diff(np.unique(points[:, k])) for k in range(3)])
+    smallest = float(gaps[gaps > 0].min())
+    rounding = 4 * float(np.spacing(np.float32(np.abs(points).max())))  # float32 values of the dequantized ones
+    steps = (points - low)
+    for bits in range(max(1, int(np.floor(np.log2(extent / smallest + 1)))), MAX_QUANTIZATION_BITS + 1):
+        quantum = extent / (2 ** bits - 1)
+        if quantum < 4 * rounding:  # a grid finer than float32 tells nothing
+            return None
+        if np.abs(steps / quantum - np.rint(steps / quantum)).max() * quantum <= GRID_TOL * quantum + rounding:
+            return quantum
+    return None
+
+
 def _kept(semantic: str) -> bool:
     return semantic in KEPT_ATTRIBUTES or semantic.startswith(KEPT_PREFIXES)
 
@@ -407,6 +451,9 @@ def _draco(gltf: dict, binary: bytes, out: _Binary, where: str) -> None:
         if "POSITION" not in attributes:
             raise InputFileError(where, f"holds {what} without positions")
         count = accessors[attributes["POSITION"]]["count"]
+        quantum = position_quantum(np.asarray(mesh.points).reshape(count, 3))
+        if quantum is not None:
+            attributes[QUANTUM_ATTRIBUTE] = add(np.full(count, quantum, np.float32), _FLOAT, 34962)
         if faces.size and (faces.min() < 0 or faces.max() >= count):
             raise InputFileError(where, f"holds {what} whose triangles index beyond its {count} vertices")
         primitive["attributes"] = attributes

@@ -53,7 +53,7 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 from meshsom.feature_ids import INSTANCE_FEATURE, INSTANCE_MARK, NO_SET_ID
-from meshsom.gltf_compression import decompress_glb, split_glb
+from meshsom.gltf_compression import QUANTUM_ATTRIBUTE, decompress_glb, split_glb
 from meshsom.implicit_tiling import implicit_contents
 
 #: File name endings read as 3D Tiles content.
@@ -396,18 +396,84 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
                                 f"content's compression)")
             ok = np.isfinite(value) & (value >= 0) & (value < 2**31) & (value == np.rint(value))
             face_batch = np.where(ok, np.rint(np.where(ok, value, 0)), -1).astype(np.int64)
+        quantum = None  # a Draco primitive's grid step (meshsom.gltf_compression), in the tile's frame
+        if QUANTUM_ATTRIBUTE in attrs and len(attrs[QUANTUM_ATTRIBUTE]):
+            linear = ((Y_UP_TO_Z_UP if y_up else np.eye(4)) @ transform)[:3, :3]
+            quantum = float(np.asarray(attrs[QUANTUM_ATTRIBUTE]).ravel()[0]) * float(np.linalg.norm(linear, 2))
         for batch in np.unique(face_batch):
             f = faces[face_batch == batch]
             used_v, inverse = np.unique(f, return_inverse=True)
-            parts.setdefault(int(batch), []).append((v[used_v], inverse.reshape(-1, 3)))
-    out = []
+            parts.setdefault(int(batch), []).append((v[used_v], inverse.reshape(-1, 3), quantum))
+    out, welds = [], [0, 0]
     for batch in sorted(parts):
         pieces = parts[batch]
         offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
-        out.append((batch, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])))
+        v = np.concatenate([p[0] for p in pieces])
+        f = np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])
+        if len(pieces) > 1 and any(p[2] is not None for p in pieces):
+            v, f, merged = weld_quantized(v, f, np.repeat(np.arange(len(pieces)), [len(p[0]) for p in pieces]),
+                                          np.array([p[2] or 0.0 for p in pieces]))
+            welds[0] += merged > 0
+            welds[1] += merged
+        out.append((batch, v, f))
+    if welds[0] and said is not None:
+        said.append(f"its Draco primitives (quantized each on its own grid) welded within half a quantum of each: "
+                    f"{welds[1]} vertices of {welds[0]} batches joined")
     if node_names is not None:
         node_names.update({batch: node for node, batch in batch_of.items()})
     return out
+
+
+#: How far (in quanta) two vertices of one building's Draco primitives may lie apart and still be one point: Draco
+#: moves each by up to half its primitive's quantum (per axis), so one point of two primitives of quanta ``q1``, ``q2``
+#: is read at most ``(q1 + q2) / 2`` apart; this factor on that bound leaves room for float32 rounding.
+WELD_QUANTA = 1.0 + 1e-3
+
+
+def weld_quantized(vertices: np.ndarray, faces: np.ndarray, piece: np.ndarray, quanta: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The vertices of a building's pieces that Draco quantized each on its own grid welded back: a vertex of one
+    piece and one of another whose coordinates all differ by at most ``WELD_QUANTA * (q_i + q_j) / 2`` (half a
+    quantum of each; pieces of quantum 0 are not quantized) are one point, placed at their mean; vertices of one
+    piece are joined only where they coincide. Triangles that lose a corner so are dropped.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    piece : (V,) int64
+        The piece each vertex belongs to.
+    quanta : (P,) float64
+        Each piece's quantum (metres; 0 where none).
+
+    Returns
+    -------
+    vertices : (W, 3) float64
+    faces : (G, 3) int64
+    merged : int
+        Vertices joined to another (V - W).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    reach = WELD_QUANTA * float(quanta.max(initial=0.0))
+    pairs = cKDTree(vertices).query_pairs(reach, p=np.inf, output_type="ndarray") if reach > 0 else np.zeros((0, 2), int)
+    if len(pairs):
+        a, b = pairs[:, 0], pairs[:, 1]
+        apart = np.abs(vertices[a] - vertices[b]).max(axis=1)
+        bound = WELD_QUANTA * (quanta[piece[a]] + quanta[piece[b]]) / 2
+        keep = (apart == 0) | ((piece[a] != piece[b]) & (quanta[piece[a]] > 0) & (quanta[piece[b]] > 0) & (apart <= bound))
+        pairs = pairs[keep]
+    n = len(vertices)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    sums = np.zeros((count, 3))
+    np.add.at(sums, label, vertices)
+    welded = sums / np.bincount(label, minlength=count)[:, None]
+    f = label[faces]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    return welded, f.astype(np.int64), n - count
 
 
 def _instance_feature(scene, node: str) -> int | None:
@@ -587,6 +653,27 @@ def _batch_binary(data: bytes) -> bytes:
     return bytes(data[start:start + bt_bin])
 
 
+#: Batch-table keys that are no per-batch column (the hierarchy, extensions, extras).
+_NOT_COLUMNS = ("HIERARCHY", "extensions", "extras")
+
+
+def batch_table_length(batch_table: dict, batches: list[int]) -> tuple[int | None, str]:
+    """The number of batches of a b3dm whose feature table gives no ``BATCH_LENGTH`` (py3dtiles, py3dtilers): the
+    length its batch table's JSON columns share, where every batch id the glTF holds (``batches``, -1 for ids that are
+    not whole numbers) lies below it; else None. Returns it with a note saying so, or why the table is not read.
+    Binary columns (``byteOffset``) count nothing: their length is the one sought."""
+    lengths = {len(v) for k, v in batch_table.items() if k not in _NOT_COLUMNS and isinstance(v, list)}
+    top = max((b for b in batches if b >= 0), default=-1)
+    if len(lengths) != 1:
+        return None, (f"no BATCH_LENGTH in its feature table, and its batch table's columns count "
+                      f"{sorted(lengths) or 'no'} rows: batches read by number, not by the table")
+    count = lengths.pop()
+    if top >= count:
+        return None, (f"no BATCH_LENGTH in its feature table, and its batch ids go to {top}, beyond its batch table's "
+                      f"{count} rows: batches read by number, not by the table")
+    return count, f"no BATCH_LENGTH in its feature table: {count} batches by its batch table's columns"
+
+
 def _batch_ids(batch_table: dict, length: int | None, options) -> list[str] | None:
     """The batches' ids: the first property of ``options.id_attributes`` that names the
     ``length`` batches uniquely; None (batch numbers) otherwise."""
@@ -699,9 +786,13 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     said = list(dict.fromkeys(said))
     if rows and not batch_table:  # 3D Tiles 1.1: the property table that the feature ids name
         batch_table = table
-    ids = _batch_ids(batch_table, length or rows, options)
+    counted = length
+    if b3dm and length is None and batch_table:  # no BATCH_LENGTH (py3dtiles): the batch table's columns count them
+        counted, note = batch_table_length(batch_table, [batch for batch, _, _ in batches])
+        said.append(note)
+    ids = _batch_ids(batch_table, counted or rows, options)
     labels = batch_table.get(options.label_attribute)
-    groups = hierarchy_groups(batch_table, _batch_binary(data), length, source) if b3dm and length else None
+    groups = hierarchy_groups(batch_table, _batch_binary(data), counted, source) if b3dm and counted else None
     parents = table.get(choice.parent_column) if choice.parent_column else None
     if isinstance(parents, list):  # EXT_mesh_features sets of parts only: the parts of one building together
         groups = {batch: str(parents[batch]) for batch, _, _ in batches if 0 <= batch < len(parents)
