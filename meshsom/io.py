@@ -69,6 +69,21 @@ GLTF_Y_UP_NOTE = ("glTF is y up by its specification: turned to z up (corpus.rea
 #: Units a footprint's height attributes may be given in (:attr:`ReaderOptions.height_unit`): metres per unit
 #: (the international foot; the US survey foot; centimetres as San Francisco's ``hgt_maxcm``).
 HEIGHT_UNITS = {"m": 1.0, "ft": 0.3048, "us-ft": 1200 / 3937, "dm": 0.1, "cm": 0.01, "mm": 0.001}
+
+#: Metres per unit of the units a mesh file that names none may be in (:attr:`ReaderOptions.unit`): CAD and BIM
+#: tools (Revit, Rhino, SketchUp's model units, cjio's STL of CityJSON's integer millimetres) often write mm.
+MESH_UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "ft": 0.3048, "in": 0.0254}
+
+#: Mesh files that name no unit (COLLADA without ``<unit>`` too): read in :attr:`ReaderOptions.unit`, metres when
+#: unset. glTF is metres by its specification, yet CAD tools write millimetres in it too: counted here.
+UNITLESS_MESH_TYPES = ("obj", "ply", "stl", "off", "glb", "gltf")
+
+#: The largest extent (metres, along any axis) of one building: a mesh that spans more is refused as no building
+#: in metres (a file in millimetres read as metres spans 1,000 times its size; a district in one mesh). The
+#: largest buildings on earth stay under it: the tallest, Burj Khalifa, is 828 m; the longest, Prora on Rugen
+#: (eight blocks in a row), 4.5 km, the largest footprints (Boeing's Everett factory, airport terminals) 1 to 2 km;
+#: a house of 5 m or more written in millimetres exceeds it.
+MAX_BUILDING_EXTENT_M = 5000.0
 #: IFC element classes (with their subclasses) whose solids make a building's envelope
 #: (:mod:`meshsom.ifc`; ``ReaderOptions.ifc_classes``). Classes a file's schema lacks (``IfcChimney``
 #: in IFC2X3) are passed over.
@@ -241,6 +256,11 @@ class ReaderOptions:
         ``asset.generator``: trimesh writes the coordinates it is given, z up); OBJ files Blender or
         SketchUp wrote (their header comment) y, noted, as their exporters write by default; other
         mesh files z (:func:`up_axis_note`).
+    unit : str or None
+        The unit of mesh files that name none (OBJ, PLY, STL, OFF, glTF, COLLADA without ``<unit>``): one of
+        :data:`MESH_UNITS` (``"mm"`` for CAD exports in millimetres); their coordinates are scaled to metres,
+        noted. None (the default): metres. Any building spanning more than :data:`MAX_BUILDING_EXTENT_M` is
+        refused, with a hint at this option where its file names no unit.
     split_components : bool
         Mesh files (OBJ, PLY, STL, OFF, glTF), Rhino objects and DXF meshes and blocks (not a
         Rhino group, which is one building by its maker's choice): each mesh (object, node) is split into its connected
@@ -284,6 +304,7 @@ class ReaderOptions:
     layer: str | None = None
     id_attributes: tuple[str, ...] = ("id", "gml_id", "identificatie", "osm_id")
     up_axis: str = "auto"
+    unit: str | None = None
     split_components: bool = False
     ifc_classes: tuple[str, ...] = IFC_ENVELOPE_CLASSES
     ifc_gap: float = 0.01
@@ -306,6 +327,8 @@ class ReaderOptions:
             raise ValueError(f"footprint_grid must be >= 0 (metres; 0 computes the union in full precision), received {self.footprint_grid}")
         if self.up_axis not in UP_AXES:
             raise ValueError(f"up_axis must be one of {', '.join(UP_AXES)}; received {self.up_axis!r}")
+        if self.unit is not None and self.unit not in MESH_UNITS:
+            raise ValueError(f"unit must be one of {', '.join(MESH_UNITS)} or null (metres), received {self.unit!r}")
         if self.height_unit is not None and self.height_unit not in HEIGHT_UNITS:
             raise ValueError(f"height_unit must be one of {', '.join(HEIGHT_UNITS)} or null (the CRS's vertical unit), "
                              f"received {self.height_unit!r}")
@@ -1169,9 +1192,15 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     else:
         raise InputFileError(str(path), f"holds a {type(loaded).__name__}, expected a triangle mesh")
     items, version_notes = _versions_read(items, bytes(content), file_type, name, options)
+    unitless = file_type in UNITLESS_MESH_TYPES
     if file_type == "dae":  # COLLADA says its unit and up axis (SketchUp: inches, z up; others: y up)
         to_metres, turn = _collada_frame(data.getvalue())
+        unitless = not re.search(rb"<unit\b", data.getvalue()[:1 << 16])
         items = [(i, (v * to_metres) @ turn.T, f, lab) for i, v, f, lab in items]
+    unit_notes = ()
+    if unitless and options.unit not in (None, "m"):
+        items = [(i, np.asarray(v, np.float64) * MESH_UNITS[options.unit], f, lab) for i, v, f, lab in items]
+        unit_notes = (f"coordinates read in {options.unit} (corpus.reader.unit, --unit): scaled to metres",)
     land = _3dfier_land(data.getvalue()) if file_type == "obj" else {}
     if land:
         kinds = [land.get(item[0][len(name) + 1:]) for item in items]  # by object name
@@ -1190,8 +1219,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
             continue
         if turn_up and file_type != "dae":  # a quarter turn about x: y up -> z up (orientation kept)
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
-        notes = up_notes + version_notes.get(mesh_id, version_notes.get(mesh_id.rpartition("#c")[0], ()))
-        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, notes)
+        notes = up_notes + unit_notes + version_notes.get(mesh_id, version_notes.get(mesh_id.rpartition("#c")[0], ()))
+        yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, notes, options, unitless)
 
 
 #: What a glTF file's ``asset.generator`` says when ``cjio export glb`` wrote it (every LoD of a building in its mesh).
@@ -1311,17 +1340,43 @@ def gltf_generator(head: bytes) -> str | None:
     return found.group(1).decode("utf-8", "replace") if found else None
 
 
-def placed_mesh(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes=()
-                ) -> "RawMesh | Rejection":
+def placed_mesh(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes=(),
+                options: ReaderOptions | None = None, unitless: bool = False) -> "RawMesh | Rejection":
     """A mesh of a file in world coordinates (``vertices (V, 3)``, ``faces (F, 3)``) recentred and in metres in the
     file's CRS (:func:`file_crs`; :func:`_in_metres`), with ``notes``; a Rejection where its coordinates cannot be
-    placed."""
+    placed, or where it spans more than :data:`MAX_BUILDING_EXTENT_M` (:func:`extent_problem`; ``unitless``: its file
+    names no unit, ``options`` the reader's)."""
     local, origin = recentre(vertices)
     try:
         local, crs_notes = _in_metres(mesh_id, local, origin, crs)
     except InputFileError as err:
         return Rejection(mesh_id, source, err.problem, 0, label)
+    problem = extent_problem(local, unitless, options or ReaderOptions())
+    if problem:
+        return Rejection(mesh_id, source, problem, int(len(faces)), label)
     return RawMesh(mesh_id, source, local, faces, origin, label, None, notes=tuple(notes) + tuple(crs_notes))
+
+
+def extent_problem(local: np.ndarray, unitless: bool, options: ReaderOptions) -> str | None:
+    """Why a mesh (``local (V, 3)``, metres) is no building in metres: it spans more than :data:`MAX_BUILDING_EXTENT_M`
+    along an axis, with a hint at what it may be (a file in millimetres where ``unitless``, its file naming no unit;
+    a district in one mesh where :attr:`ReaderOptions.split_components` is off); None where it does not."""
+    if len(local) == 0:
+        return None
+    span = float(np.max(np.ptp(local, axis=0)))
+    if not span > MAX_BUILDING_EXTENT_M:
+        return None
+    said = f"{span / 1000:,.3g} km" if span < 1e8 else f"{span / 1000:,.0f} km"
+    hints = []
+    if unitless and options.unit in (None, "m"):
+        what, hints = "not one building in metres", ["a file in millimetres? --unit mm"]
+    elif unitless:
+        what, hints = f"not one building in {options.unit} (--unit)", ["another unit? --unit"]
+    else:
+        what, hints = "not one building in the unit its file declares", ["a unit declared wrong?"]
+    if not options.split_components:
+        hints.append("a district in one mesh? --split-components")
+    return f"spans {said}: {what} ({'; '.join(hints)}; the largest building spans under {MAX_BUILDING_EXTENT_M / 1000:g} km)"
 
 
 def building_meshes(mesh_id: str, source: str, vertices: np.ndarray, faces: np.ndarray, label, crs, notes,
@@ -1335,7 +1390,7 @@ def building_meshes(mesh_id: str, source: str, vertices: np.ndarray, faces: np.n
         if len(f) == 0:
             yield Rejection(piece_id, source, "holds no faces (no polygon of 3 or more vertices)", 0, piece_label)
             continue
-        yield placed_mesh(piece_id, source, v, f, piece_label, crs, notes)
+        yield placed_mesh(piece_id, source, v, f, piece_label, crs, notes, options)
 
 
 #: COLLADA's up axes, as the rotation that turns each to z up (proper rotations: faces keep their side).

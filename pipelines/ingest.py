@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from meshsom.errors import ConfigError, MeshError, StoreError
-from meshsom.io import HEIGHT_UNITS
+from meshsom.io import HEIGHT_UNITS, MESH_UNITS
 
 log = logging.getLogger(__name__)
 
@@ -415,6 +415,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--up", choices=("auto", "z", "y"),
                    help="up axis of mesh files (many OBJ exports: y); default auto: glTF y, as its specification says "
                         "(z where trimesh wrote it), other mesh files z")
+    p.add_argument("--unit", choices=tuple(MESH_UNITS),
+                   help="unit of mesh files that name none (OBJ, PLY, STL, OFF, glTF, COLLADA without <unit>): CAD "
+                        "exports are often mm; default m")
     p.add_argument("--layer", help="GIS files (GeoPackage, FileGDB, ...): the layer to read; default every layer")
     p.add_argument("--split-components", action="store_true", default=None,
                    help="mesh files, Rhino objects, DXF meshes: each connected piece is a building (a city exported as "
@@ -485,7 +488,7 @@ def run(args: argparse.Namespace) -> int:
         paths, generator = list(args.inputs), None
     try:
         given = (("lod", args.lod), ("parts", args.parts), ("extrude_lod1", args.extrude_lod1), ("crs", args.crs),
-                 ("up_axis", args.up), ("layer", args.layer), ("split_components", args.split_components),
+                 ("up_axis", args.up), ("unit", args.unit), ("layer", args.layer), ("split_components", args.split_components),
                  ("default_height", args.default_height), ("roofs", False if args.flat_roofs else None),
                  ("height_unit", args.height_unit))
         changes = {k: v for k, v in given if v is not None}
