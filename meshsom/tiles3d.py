@@ -29,7 +29,15 @@ City models published for the web (Cesium ion, municipal portals, converters fro
 - **Coordinates**: earth-centred (ECEF, WGS 84) positions are turned into east-north-up metres
   about each building's centre (:func:`meshsom.crs.east_north_up_of_geocentric`), with a note;
   the mesh's origin stays earth-centred. Positions in a local frame (a b3dm read without the
-  tileset whose root transform places it) are read as metres, with a note.
+  tileset whose root transform places it) are read as metres, with a note. A lone content whose z is
+  not up (pg2b3dm writes offsets in earth-centred axes from its tileset's root translation: read alone,
+  Delaware's buildings lean 51 deg) is turned east-north-up about the up its walls and floors show
+  (:func:`earth_axes_up`), with a note; read the tileset to place it.
+- **Batches**: a b3dm whose feature table gives no ``BATCH_LENGTH`` (py3dtiles, py3dtilers) has as many
+  batches as its batch table's columns have rows (:func:`batch_table_length`); ``BATCH_LENGTH`` 0 with
+  ``_BATCHID`` in the glTF (pg2b3dm) is batched by those ids. A batch spread over Draco primitives (one per
+  material) that Draco quantized each on its own grid is welded within half a quantum of each
+  (:func:`weld_quantized`), so that a building closes again.
 
 Draco- and meshopt-compressed glTF is decompressed first (:mod:`meshsom.gltf_compression`);
 implicit tiling (3D Tiles 1.1 quadtrees and octrees named by templates, listed by subtree files) is
@@ -806,6 +814,13 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     elif groups:
         said.append(f"its {len(groups)} batches are parts of {len(set(groups.values()))} objects by the batch table's "
                     f"hierarchy (3DTILES_batch_table_hierarchy): each object read as a building of its parts")
+    tilt = None
+    if transform is None:  # a lone content: in earth-centred axes about a centre its tileset holds (pg2b3dm)?
+        tilt = earth_axes_up(batches, rtc)
+        if tilt is not None:
+            said.append(f"not earth-centred, but z is not up: its axes read as earth-centred ones (pg2b3dm writes "
+                        f"offsets from its tileset's root translation) and turned east-north-up about the up its walls "
+                        f"and floors show, {tilt[1]:.1f} deg from its z (read the tileset to place it)")
     for batch, key, v, f, parts, face_part in entries:
         if choice.set_index is not None and batch == NO_SET_ID:
             yield Rejection(f"{prefix}(no feature-id set)", source, f"{len(f)} triangles of primitives without "
@@ -831,8 +846,12 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
             yield Rejection(mesh_id, source, f"has coordinates that are not finite numbers of magnitude below {MAX_COORDINATE:g}",
                             0, label)
             continue
+        if tilt is not None:
+            world = _turned_up(world, tilt[0])
         local, origin = recentre(world)
-        if abs(np.linalg.norm(origin) - EARTH_RADIUS) < ECEF_BAND:
+        if tilt is not None:
+            note = "read in east-north-up metres of the up its walls and floors show"
+        elif abs(np.linalg.norm(origin) - EARTH_RADIUS) < ECEF_BAND:
             from meshsom.crs import east_north_up_of_geocentric
 
             local = east_north_up_of_geocentric(world, origin)
@@ -850,6 +869,91 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
                 yield RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said))
             continue
         yield RawMesh(mesh_id, source, local, f, origin, label, None, parts, face_part, notes=(note, *said))
+
+
+#: A lone content's frame is taken as tilted where faces within :data:`SQUARE_DEG` of vertical or horizontal to its z
+#: hold less than :data:`TILTED_SHARE` of its area and those to another direction at least :data:`UPRIGHT_SHARE` (LoD1
+#: and LoD2 buildings: walls and floors hold most of it; pg2b3dm's Delaware tile: 2 % to its z, 64 % to the up found),
+#: that direction at least :data:`MIN_TILT_DEG` from z. Candidates: the normals and the common perpendiculars of pairs
+#: of the :data:`UP_FACES` largest faces (:data:`UP_PAIRS` pairs, drawn with :data:`UP_SEED`).
+SQUARE_DEG = 2.0
+TILTED_SHARE = 0.25
+UPRIGHT_SHARE = 0.5
+MIN_TILT_DEG = 5.0
+UP_FACES = 2000
+UP_PAIRS = 2000
+UP_SEED = 0
+
+
+def _upright_share(up: np.ndarray, normals: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """``(K,)`` share of the area whose unit ``normals (F, 3)`` lie within :data:`SQUARE_DEG` of perpendicular or
+    parallel to each candidate ``up (K, 3)``."""
+    cos = np.abs(up @ normals.T)
+    square = (cos < np.sin(np.radians(SQUARE_DEG))) | (cos > np.cos(np.radians(SQUARE_DEG)))
+    return square.astype(np.float64) @ areas / max(float(areas.sum()), 1e-300)
+
+
+def earth_axes_up(batches: list, rtc: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The up of a lone tile content whose z is not up: pg2b3dm writes positions as offsets, in earth-centred axes,
+    from the translation of its tileset's root transform, so a tile read alone (no ``RTC_CENTER``, no transform) is
+    neither earth-centred nor z up (Delaware, 39 deg N: z 51 deg from up). The up is the direction to which most of the
+    buildings' area is square (walls perpendicular, floors and flat roofs parallel: :func:`_upright_share`), its sign
+    the one under which the buildings' lowest points spread less than their highest (they stand on one ground; for
+    fewer than three buildings, the one pointing to positive z, as in the northern hemisphere).
+
+    Parameters
+    ----------
+    batches : list of (batch, vertices (V, 3) float64, faces (F, 3) int64)
+    rtc : (3,) float64
+
+    Returns
+    -------
+    (up (3,) float64, degrees from z) or None
+        None where the content is earth-centred, z is up (:data:`TILTED_SHARE`), or no direction is clearly up.
+    """
+    if not batches:
+        return None
+    allv = np.concatenate([v for _, v, _ in batches])
+    if len(allv) == 0 or abs(np.linalg.norm(allv.mean(axis=0) + rtc) - EARTH_RADIUS) < ECEF_BAND:
+        return None
+    cross = np.concatenate([np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]) for _, v, f in batches])
+    areas = np.linalg.norm(cross, axis=1)
+    keep = areas > 0
+    normals, areas = cross[keep] / areas[keep, None], areas[keep] / 2
+    if len(areas) == 0 or _upright_share(np.array([[0.0, 0.0, 1.0]]), normals, areas)[0] >= TILTED_SHARE:
+        return None
+    largest = np.argsort(-areas)[:UP_FACES]
+    rng = np.random.default_rng(UP_SEED)
+    pairs = np.cross(normals[rng.choice(largest, UP_PAIRS)], normals[rng.choice(largest, UP_PAIRS)])
+    length = np.linalg.norm(pairs, axis=1)
+    candidates = np.concatenate([normals[largest], pairs[length > 0.2] / length[length > 0.2, None]])
+    share = _upright_share(candidates, normals[largest], areas[largest])
+    up = candidates[int(np.argmax(share))]
+    cos = normals @ up  # refined: the least square walls, the most square floors
+    walls, flats = np.abs(cos) < np.sin(np.radians(SQUARE_DEG)), np.abs(cos) > np.cos(np.radians(SQUARE_DEG))
+    scatter = (normals[walls].T * areas[walls]) @ normals[walls] - (normals[flats].T * areas[flats]) @ normals[flats]
+    refined = np.linalg.eigh(scatter)[1][:, 0]
+    up = refined * np.sign(refined @ up)
+    if _upright_share(up[None], normals, areas)[0] < UPRIGHT_SHARE:
+        return None
+    if len(batches) >= 3:
+        low = np.array([(v @ up).min() for _, v, _ in batches])
+        high = np.array([(v @ up).max() for _, v, _ in batches])
+        up = up if low.std() <= high.std() else -up
+    else:
+        up = up if up[2] >= 0 else -up
+    tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    return (up, tilt) if tilt >= MIN_TILT_DEG else None
+
+
+def _turned_up(points: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """``points (V, 3)`` in earth-centred axes turned east-north-up about ``up (3,)``, the ellipsoid's normal at the
+    place whose geodetic latitude and longitude it gives (:func:`meshsom.crs.east_north_up_of_geocentric`)."""
+    from meshsom.crs import WGS84, east_north_up_of_geocentric, geocentric
+
+    place = np.array([[np.degrees(np.arcsin(np.clip(up[2], -1.0, 1.0))), np.degrees(np.arctan2(up[1], up[0])), 0.0]])
+    centre = geocentric(place, *WGS84)[0]
+    return east_north_up_of_geocentric(points + centre, centre)
 
 
 def _beside(source: str, options):

@@ -160,3 +160,25 @@ def test_position_quantum_is_dracos_range_over_its_steps():
         assert position_quantum(decoded) == pytest.approx(float(np.ptp(decoded, axis=0).max()) / (2 ** bits - 1),
                                                           rel=1e-6)
     assert position_quantum(points.astype(np.float64) + 1e-4 * rng.random((400, 3))) is None  # not on a grid
+
+
+def test_a_lone_tile_in_earth_centred_axes_is_read_east_north_up(tmp_path):
+    """pg2b3dm's tiles hold offsets in earth-centred axes from their tileset's root translation (no RTC_CENTER), so a
+    tile read alone is tilted (Delft, 52 deg N: z 38 deg from up). It is turned east-north-up about the up its walls and
+    floors show; expected: the buildings' east-north-up coordinates by PROJ's topocentric conversion (tests.test_tiles3d
+    ._ecef), to a millimetre."""
+    from tests.test_tiles3d import CENTRE, _ecef
+
+    buildings = _buildings(12)
+    ecef = {id(v): _ecef(v) for _, v, _ in buildings}
+    centre = _ecef(np.zeros((1, 3)))[0]
+    (tmp_path / "t.b3dm").write_bytes(b3dm(buildings, lambda v: ecef[id(v)] - centre))
+    got = {m.id.split("#", 1)[1]: m for m in read_file(tmp_path / "t.b3dm")}
+    note = next(n for n in got[buildings[0][0]].notes if "z is not up" in n)
+    tilt = float(note.split(" deg from its z")[0].rsplit(" ", 1)[1])
+    assert tilt == pytest.approx(90 - CENTRE[0], abs=0.5)
+    for bid, v, f in buildings:
+        m = got[bid]
+        assert "east-north-up" in m.notes[0]
+        want, have = v - v.mean(axis=0), m.vertices - m.vertices.mean(axis=0)
+        assert np.abs(have - want).max() < 1e-3  # LoD1: walls exactly vertical, so the up is found exactly
