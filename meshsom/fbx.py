@@ -14,6 +14,12 @@ equal vertices joined. Then:
 - **Units**: FBX counts in centimetres times ``UnitScaleFactor`` (:func:`unit_scale`: 100 for a scene in metres);
   assimp leaves coordinates in the file's unit, so meshsom scales them to metres. A file that names no unit is in
   centimetres, as the format says, noted.
+- **CityEngine / PRT scenes**: Esri CityEngine (and PyPRT, its procedural runtime) writes a flat scene, the root
+  holding one node per generated shape and inserted asset (``SingleBrick_175``, ``Glass_3``, ``YellowWall_4``: 673
+  nodes for one building) and none for the building. In a file whose ``SceneInfo`` names CityEngine
+  (:data:`CITYENGINE_MARK`), the root's models whose placed meshes touch or overlap (within :data:`TOUCH_TOL_M`)
+  are one building (:func:`touching_groups`), its pieces kept as parts that preprocessing unites, noted; other FBX
+  files keep the rule above.
 - **Labels**: ``labels.csv`` beside the file (``file`` ``<name>`` or ``<name>#<node>``, ``label``), as for OBJ.
 - **Georeferencing**: FBX has none; ``corpus.reader.crs`` names the CRS of the coordinates where they are in one.
 - Lines and points are not surfaces: a node of only those is a rejection saying so.
@@ -44,6 +50,17 @@ PIVOT_MARK = "_$AssimpFbx$_"
 #: it holding meshes is so named (else it is a group of buildings).
 SURFACE_NAME = re.compile(r"^(?:(?:Wall|Roof|Ground|Closure|OuterCeiling|OuterFloor|Floor|Ceiling)Surface|wall|roof|"
                           r"ground|closure)(?:$|[_\-\s.:#0-9])", re.IGNORECASE)
+#: What a CityEngine or PRT export writes in its ``SceneInfo`` (``Original|ApplicationName`` "CityEngine", the
+#: document's ``Subject`` "CityEngine 2020.0...", the vendor "Esri R&D Center Zurich Inc."), searched in the header.
+CITYENGINE_MARK = re.compile(rb"CityEngine|Esri R&D Center Zurich")
+#: Bytes at the start of a file searched for :data:`CITYENGINE_MARK` (the header extension comes first).
+SCENE_INFO_BYTES = 1 << 16
+#: Pieces of a CityEngine scene closer than this (metres) touch: assets are set on their shapes' faces, and the
+#: scene's coordinates (LV03 or UTM, some 1e5-1e6 m, in doubles) carry them to well under a millimetre; 1 cm also
+#: takes a frame set a hair off its wall, never a building across a street or a wall's thickness away.
+TOUCH_TOL_M = 0.01
+#: Point-triangle pairs measured at once in :func:`_near_surface` (memory: some 200 bytes a pair).
+TOUCH_PAIRS_CHUNK = 1 << 20
 #: The start of a binary FBX file.
 BINARY_MAGIC = b"Kaydara FBX Binary"
 #: The unit's property in an ASCII file: ``P: "UnitScaleFactor", "double", "Number", "",100``.
@@ -91,7 +108,8 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
         no mesh.
     """
     from meshsom.io import (
-        Rejection, _connected_pieces, _labels_beside, file_crs, free_id, library_input, placed_mesh, read_decompressed,
+        RawMesh, Rejection, _connected_pieces, _labels_beside, file_crs, free_id, library_input, placed_mesh,
+        read_decompressed,
     )
 
     assimp_py, gzipped = library_input(path, options, "FBX", "assimp_py", "assimp-py")
@@ -101,6 +119,7 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
     with open(path, "rb") as fh:
         head = fh.read(SETTINGS_SEARCH_BYTES)
     unit = unit_scale(head)
+    cityengine = bool(CITYENGINE_MARK.search(head[:SCENE_INFO_BYTES]))
     notes = () if unit is not None else (
         "the file names no UnitScaleFactor: read in centimetres, FBX's own unit",)
     metres = (DEFAULT_UNIT_SCALE if unit is None else unit) / 100.0
@@ -130,8 +149,10 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
             if np.linalg.det(world[:3, :3]) < 0:  # mirrored: the faces' order turned so that they keep their side
                 faces = faces[:, ::-1]
             entry[1].append((placed, np.ascontiguousarray(faces)))
-    items, taken = [], set()
-    for node_name, parts in owners.values():
+    groups = _cityengine_buildings(list(owners.values())) if cityengine else [[entry] for entry in owners.values()]
+    items, taken, item_parts = [], set(), {}
+    for group in groups:
+        node_name, parts = max(group, key=lambda entry: sum(len(f) for _, f in entry[1]))  # named by its largest piece
         key = free_id(node_name, taken) if node_name in taken else node_name  # a name met again: "<name> (2)"
         taken.add(key)
         mesh_id = f"{name}#{key}"
@@ -139,6 +160,9 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
         if not parts:
             items.append(Rejection(mesh_id, str(path), "holds no faces (only lines or points)", 0, item_label))
             continue
+        if len(group) > 1:
+            item_parts[mesh_id] = group
+            parts = [piece for _, pieces in group for piece in pieces]
         vertices, faces = _united(parts)
         items.append((mesh_id, vertices, faces, item_label))
     if not items:
@@ -154,7 +178,105 @@ def read_fbx(path: Path, options, name: str | None = None) -> Iterator:
             yield item
             continue
         mesh_id, v, f, item_label = item
-        yield placed_mesh(mesh_id, str(path), v, f, item_label, crs, notes)
+        raw = placed_mesh(mesh_id, str(path), v, f, item_label, crs, notes, options)
+        if mesh_id in item_parts and isinstance(raw, RawMesh):
+            raw = _with_pieces(raw, item_parts[mesh_id], v, f)
+        yield raw
+
+
+def _with_pieces(raw, group: list, vertices: np.ndarray, faces: np.ndarray):
+    """A CityEngine building's RawMesh with its pieces as parts (each face's piece; preprocessing unites them) and a
+    note naming them (``vertices (V, 3)``, ``faces (F, 3)`` as :func:`_united` joined them, faces in the pieces' order)."""
+    import dataclasses
+
+    names = tuple(name or f"piece-{k}" for k, (name, _) in enumerate(group))
+    counts = [sum(len(f) for _, f in pieces) for _, pieces in group]
+    shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+    note = (f"a CityEngine scene writes a building as a node per generated piece: {len(names)} root nodes whose meshes "
+            f"touch or overlap (within {TOUCH_TOL_M:g} m) read as one building ({shown})")
+    face_part = np.repeat(np.arange(len(names)), counts)
+    if len(face_part) != len(raw.faces):  # pieces of no faces: the parts cannot be told, the mesh stays one
+        return dataclasses.replace(raw, notes=raw.notes + (note,))
+    return dataclasses.replace(raw, parts=names, face_part=face_part, notes=raw.notes + (note,))
+
+
+def _cityengine_buildings(entries: list) -> list[list]:
+    """The owners ``[name, [(placed vertices (V, 3), faces (F, 3)), ...]]`` of a CityEngine scene grouped into
+    buildings: those whose pieces touch or overlap (:func:`touching_groups`), in the order of their first."""
+    meshes = []
+    for _, pieces in entries:
+        if pieces:
+            meshes.append((np.concatenate([v for v, _ in pieces]),
+                           np.concatenate([f + o for (_, f), o in zip(pieces, np.cumsum([0] + [len(v) for v, _ in pieces]))])))
+        else:
+            meshes.append((np.zeros((0, 3)), np.zeros((0, 3), np.int64)))
+    labels = touching_groups(meshes, TOUCH_TOL_M)
+    grouped: dict[int, list] = {}
+    for entry, group in zip(entries, labels):
+        grouped.setdefault(int(group), []).append(entry)
+    return list(grouped.values())
+
+
+def touching_groups(meshes: list[tuple[np.ndarray, np.ndarray]], tol: float) -> np.ndarray:
+    """Which meshes touch or overlap, transitively: union-find (connected components) over the pairs whose bounding
+    boxes, grown by ``tol``, overlap and where a vertex of either lies within ``tol`` of the other's surface or one's
+    box lies inside the other's (a piece set into another).
+
+    Parameters
+    ----------
+    meshes : list of (vertices (V, 3) float, faces (F, 3) int)
+    tol : float
+
+    Returns
+    -------
+    (N,) int
+        A group number per mesh (a mesh of no faces is alone).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(meshes)
+    boxes = np.array([[v.min(axis=0), v.max(axis=0)] if len(f) else [[np.inf] * 3, [-np.inf] * 3] for v, f in meshes])
+    lo, hi = boxes[:, 0] - tol, boxes[:, 1] + tol
+    i, j = np.triu_indices(n, 1)
+    near = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+    i, j = i[near], j[near]
+    inside = np.all((boxes[i, 0] >= lo[j]) & (boxes[i, 1] <= hi[j]), axis=1) | np.all(
+        (boxes[j, 0] >= lo[i]) & (boxes[j, 1] <= hi[i]), axis=1)
+    linked = [bool(a) or _touch(meshes[p], meshes[q], tol) for p, q, a in zip(i, j, inside)]
+    i, j = i[np.asarray(linked, bool)], j[np.asarray(linked, bool)]
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _touch(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], tol: float) -> bool:
+    """Whether a vertex of mesh ``a`` lies within ``tol`` of ``b``'s surface or one of ``b``'s of ``a``'s."""
+    return _near_surface(a[0], b, tol) or _near_surface(b[0], a, tol)
+
+
+def _near_surface(points: np.ndarray, mesh: tuple[np.ndarray, np.ndarray], tol: float) -> bool:
+    """Whether any of ``points (P, 3)`` within the grown box of ``mesh`` (vertices (V, 3), faces (F, 3)) lies within
+    ``tol`` of one of its triangles (first by scipy's cKDTree against its vertices, then point-triangle distances
+    in chunks of :data:`TOUCH_PAIRS_CHUNK`)."""
+    from scipy.spatial import cKDTree
+    from trimesh.triangles import closest_point
+
+    vertices, faces = mesh
+    lo, hi = vertices.min(axis=0) - tol, vertices.max(axis=0) + tol
+    points = points[np.all((points >= lo) & (points <= hi), axis=1)]
+    if len(points) == 0:
+        return False
+    if np.isfinite(cKDTree(vertices).query(points, distance_upper_bound=tol)[0]).any():
+        return True
+    triangles = vertices[faces]
+    tri_lo, tri_hi = triangles.min(axis=1) - tol, triangles.max(axis=1) + tol
+    step = max(1, TOUCH_PAIRS_CHUNK // max(len(triangles), 1))
+    for start in range(0, len(points), step):
+        chunk = points[start:start + step]
+        p, t = np.nonzero(np.all((chunk[:, None] >= tri_lo[None]) & (chunk[:, None] <= tri_hi[None]), axis=2))
+        if len(p) and (np.linalg.norm(closest_point(triangles[t], chunk[p]) - chunk[p], axis=1) <= tol).any():
+            return True
+    return False
 
 
 def _triangles(mesh) -> tuple[np.ndarray, np.ndarray] | None:

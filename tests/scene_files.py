@@ -31,7 +31,7 @@ def _properties70(items) -> list:
     return [("P", list(item), []) for item in items]
 
 
-def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
+def fbx_document(objects, axes: str = "z-up", unit: float = 100.0, application: str | None = None) -> list:
     """The node tree of an FBX 7.4 scene.
 
     Parameters
@@ -43,6 +43,9 @@ def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
         A key of :data:`AXES`.
     unit : float
         ``UnitScaleFactor``: centimetres per unit (100: metres).
+    application : str or None
+        The application the header's ``SceneInfo`` names (``Original|ApplicationName``, with CityEngine's vendor
+        "Esri R&D Center Zurich Inc." when it is "CityEngine", as CityEngine and PyPRT write it); None: no SceneInfo.
 
     Returns
     -------
@@ -80,8 +83,15 @@ def fbx_document(objects, axes: str = "z-up", unit: float = 100.0) -> list:
                 ("Lcl Scaling", "Lcl Scaling", "", "A", *map(float, s)),
             ])),
         ]))
+    header = [("FBXHeaderVersion", [1003], []), ("FBXVersion", [7400], [])]
+    if application is not None:
+        vendor = "Esri R&D Center Zurich Inc." if application == "CityEngine" else "Vendor"
+        header.append(("SceneInfo", ["GlobalInfo\x00\x01SceneInfo", "UserData"], [("Properties70", [], _properties70([
+            ("Original|ApplicationVendor", "KString", "", "", vendor),
+            ("Original|ApplicationName", "KString", "", "", application),
+        ]))]))
     return [
-        ("FBXHeaderExtension", [], [("FBXHeaderVersion", [1003], []), ("FBXVersion", [7400], [])]),
+        ("FBXHeaderExtension", [], header),
         ("GlobalSettings", [], [("Version", [1000], []), ("Properties70", [], settings)]),
         ("Objects", [], objs),
         ("Connections", [], links),

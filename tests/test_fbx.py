@@ -9,9 +9,11 @@ and every volume from the footprint's area.
 from __future__ import annotations
 
 import gzip
+from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from meshsom.errors import InputFileError
 from meshsom.fbx import unit_scale
@@ -212,3 +214,48 @@ def test_an_fbx_scene_written_per_surface_is_read_per_building(tmp_path):
         assert signed_volume(m) == pytest.approx(L_AREA * HEIGHT, rel=1e-6), m.id
     assert (got[0].vertices + got[0].origin)[:, 0].min() == pytest.approx(100.0)
     assert len(got[0].faces) == len(got[1].faces) and len(got[0].vertices) == len(got[1].vertices) == 12  # welded
+
+
+def _box(x0, y0, z0, x1, y1, z1):
+    v = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z0], [x0, y1, z0], [x0, y0, z1], [x1, y0, z1], [x1, y1, z1],
+                  [x0, y1, z1]], float)
+    return v, [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+
+
+@pytest.mark.parametrize("application, expected", [("CityEngine", 2), ("Blender", 5)])
+def test_a_cityengine_scene_is_read_as_buildings_of_touching_pieces(tmp_path, application, expected):
+    """CityEngine writes a building as root nodes of its generated pieces: a 10 x 8 x 6 m body, a 1 x 1 x 2 m chimney
+    standing on its roof (its corners inside the roof face, near no roof vertex), a 1.2 x 0.1 x 1.5 m window frame
+    on its front wall, a pane inside the frame's box; and a shed 5 m away, a building of its own. Read as 2
+    buildings, the house's four pieces its parts (volumes by hand: 480 + 2 + 0.18 + the pane's 0.0375); any other
+    writer's FBX keeps a building per node."""
+    objects = [("Body", *_box(0, 0, 0, 10, 8, 6)), ("Chimney", *_box(7, 5, 6, 8, 6, 8)),
+               ("WindowFrame", *_box(4, -0.1, 2, 5.2, 0, 3.5)), ("Glass", *_box(4.1, -0.075, 2.1, 5.1, -0.05, 3.4)),
+               ("Shed", *_box(15, 0, 0, 18, 3, 2.5))]
+    objects = [(name, v, p, (0, 0, 0), (0, 0, 0), (1, 1, 1)) for name, v, p in objects]
+    path = tmp_path / "scene.fbx"
+    write_fbx_binary(path, fbx_document(objects, "z-up", 100.0, application))
+    out = list(read_file(path))
+    assert len(out) == expected and all(isinstance(m, RawMesh) for m in out)
+    if application != "CityEngine":
+        return
+    house, shed = out
+    assert house.id == "scene.fbx#Body" and house.parts == ("Body", "Chimney", "WindowFrame", "Glass")
+    assert np.bincount(house.face_part).tolist() == [12, 12, 12, 12]
+    volumes = [trimesh.Trimesh(house.vertices, house.faces[house.face_part == k]).volume for k in range(4)]
+    assert volumes == pytest.approx([480, 2, 1.2 * 0.1 * 1.5, 1.0 * 0.025 * 1.3])
+    assert "4 root nodes whose meshes touch or overlap" in house.notes[-1]
+    assert shed.id == "scene.fbx#Shed" and trimesh.Trimesh(shed.vertices, shed.faces).volume == pytest.approx(22.5)
+
+
+CITYENGINE_FILE = Path("/tmp/probeH/repro/cityengine_sternwarte.fbx")
+
+
+@pytest.mark.skipif(not CITYENGINE_FILE.exists(), reason="the probe's CityEngine export (Esri/pyprt-examples, 1.2 MB)")
+def test_the_sternwarte_cityengine_export_is_one_building():
+    """Esri/pyprt-examples@5a75eb6 data/Sternwarte.fbx (Apache-2.0; not copied: 1.2 MB): one building, 32 x 33 x 19 m
+    in LV03 (assimp's reading in the probe: x 683956-683989, y 248050-248083, z 466-485), was 730 buildings."""
+    (m,) = list(read_file(CITYENGINE_FILE))
+    lo, hi = m.origin + m.vertices.min(axis=0), m.origin + m.vertices.max(axis=0)
+    assert lo == pytest.approx([683956, 248050, 466], abs=1) and hi == pytest.approx([683989, 248083, 485], abs=1)
+    assert len(m.parts) == 730
