@@ -793,7 +793,10 @@ def expand_inputs(inputs: list[str | os.PathLike],
             root = p.resolve()
             tilesets = sorted((t.parent for t in p.rglob(TILESET_NAME)), key=lambda t: (len(t.parts), t))  # outermost first
             entries = sorted(p.rglob("*"))
-            read_through = {model: f"placed by a KML Model of {kml}" for model, kml in _kml_models(entries).items()}
+            placed = _kml_models(entries)
+            read_through = {model: f"placed by a KML Model of {kml}" for model, kml in placed.items()}
+            read_through.update({twin: f"the glTF twin of a COLLADA model placed by {kml}" for model, kml in placed.items()
+                                 for twin in _gltf_twins(model) if twin not in read_through})
             read_through.update({scene: f"inlined by the scene {by}" for scene, by in _inlined_scenes(entries).items()
                                  if scene not in read_through})
             for q in entries:
@@ -860,6 +863,18 @@ def _kml_models(entries: list[Path]) -> dict[Path, str]:
             for model in linked_models(kml):
                 found.setdefault(model, str(kml))
     return found
+
+
+#: The suffixes of the glTF files 3DCityDB writes beside each COLLADA model of a KML/COLLADA/glTF export.
+GLTF_TWIN_SUFFIXES = (".gltf", ".glb")
+
+
+def _gltf_twins(model: Path) -> list[Path]:
+    """The glTF files of the same stem beside a COLLADA model (3DCityDB's export writes a ``.gltf`` beside each
+    ``.dae`` its KML places: the same building, listed as skipped rather than read, or refused as glTF 1.0, again)."""
+    if model.suffix.lower() != ".dae":
+        return []
+    return [twin.resolve() for twin in (model.with_suffix(s) for s in GLTF_TWIN_SUFFIXES) if twin.is_file()]
 
 
 def _inlined_scenes(entries: list[Path]) -> dict[Path, str]:
@@ -1077,6 +1092,23 @@ def _labels_beside(path: Path) -> dict[str, str]:
         ) from None
 
 
+#: Why a glTF 1.0 file (COLLADA2GLTF before 2.0, 3DCityDB's glTF export) is refused.
+GLTF_1_PROBLEM = ("is glTF 1.0, which is not read: convert it to glTF 2.0 (gltf-pipeline -i f.gltf -o f.glb), or read "
+                  "the COLLADA beside it (3DCityDB writes both)")
+#: The first bytes of a glTF JSON file searched for its ``asset.version`` (writers put ``asset`` first or last: a
+#: file whose asset comes later is left to trimesh, which refuses version 1 in its own words).
+GLTF_VERSION_BYTES = 1 << 20
+_GLTF_1_DICTIONARIES = re.compile(rb'"(?:accessors|bufferViews|meshes|nodes)"\s*:\s*\{')
+_GLTF_ASSET_VERSION = re.compile(rb'"asset"\s*:\s*\{[^{}]*?"version"\s*:\s*"?(\d+)')
+
+
+def _gltf_1(head: bytes) -> bool:
+    """Whether a glTF JSON file is version 1.0 by its first bytes: its ``asset.version`` is 1, or (no version found)
+    its accessors, buffer views, meshes or nodes are dictionaries (1.0's ids), as 2.0's arrays never are."""
+    found = _GLTF_ASSET_VERSION.search(head)
+    return found.group(1) == b"1" if found else bool(_GLTF_1_DICTIONARIES.search(head))
+
+
 def _compressed_gltf(content: bytes) -> bool:
     """Whether a glTF JSON file declares Draco or meshopt compression (read by packing it into a GLB:
     :func:`meshsom.gltf_compression.pack_gltf`); False for JSON that cannot be read (trimesh says what is wrong)."""
@@ -1128,6 +1160,8 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
 
         content = decompress_glb(pack_gltf(bytes(content), FolderResolver(path.parent, str(path)), str(path)), str(path))
         file_type = "glb"
+    if file_type == "gltf" and _gltf_1(bytes(content[:GLTF_VERSION_BYTES])):  # a GLB of version 1: decompress_glb
+        raise InputFileError(str(path), GLTF_1_PROBLEM)
     if file_type in ("glb", "gltf"):
         from meshsom.tiles3d import content_meshes, is_tile_content
 
@@ -1597,6 +1631,16 @@ CONVERSIONS = {
     ".ifcjson": "IFC-JSON: IfcOpenShell reads IFC as STEP; export the model as .ifc from its authoring tool",
     ".x3db": "binary X3D: not read; save it in the XML (.x3d) or classic (.x3dv) encoding, which are read",
 }
+#: Ladybug Tools' building-energy models (JSON of ``"type": "Model"``), in words: what they are and the way out.
+LADYBUG_MODELS = {
+    "dragonfly": ("a Dragonfly model (Ladybug Tools: floor plates and storey heights, not surfaces), which is not "
+                  "read: export its buildings as GeoJSON footprints with their heights (Dragonfly writes URBANopt "
+                  "GeoJSON) or translate it to Honeybee and export the rooms as OBJ or IFC from its host (Rhino, "
+                  "Revit, SketchUp)"),
+    "honeybee": ("a Honeybee model (Ladybug Tools: rooms of planar faces for energy simulation), which is not read: "
+                 "export the rooms as OBJ or IFC from its host (Rhino, Revit, SketchUp)"),
+}
+CONVERSIONS[".dfjson"], CONVERSIONS[".hbjson"] = LADYBUG_MODELS["dragonfly"], LADYBUG_MODELS["honeybee"]
 #: The UTF-8 byte order mark that Windows tools put before text (JSON, OBJ); dropped before parsing.
 UTF8_BOM = b"\xef\xbb\xbf"
 #: A face line of an OBJ text with a vertex reference 0 (OBJ counts from 1).
@@ -1870,6 +1914,14 @@ def _parse_json(data: bytes, where: str):
         raise InputFileError(where, "invalid JSON: arrays or objects nested too deeply") from None
 
 
+def _ladybug_model(cj) -> str | None:
+    """"dragonfly" or "honeybee" where a JSON document is a Ladybug Tools model (``"type": "Model"`` with Dragonfly's
+    ``buildings`` or Honeybee's ``rooms``), else None."""
+    if not (isinstance(cj, dict) and cj.get("type") == "Model"):
+        return None
+    return "dragonfly" if "buildings" in cj else "honeybee" if "rooms" in cj or "orphaned_faces" in cj else None
+
+
 def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = False
                            ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The vertices, scale and translate of a CityJSON document (or a CityJSONSeq header line)."""
@@ -1879,6 +1931,9 @@ def _check_cityjson_header(cj, where: str, options: ReaderOptions, seq: bool = F
     if kind not in (("CityJSON", "CityModel") if draft else ("CityJSON",)):
         what = "its first line is not a CityJSON header" if seq else "is JSON but not CityJSON"
         found = cj.get("type") if isinstance(cj, dict) else type(cj).__name__
+        ladybug = _ladybug_model(cj)
+        if ladybug and not seq:
+            raise InputFileError(where, f"is {LADYBUG_MODELS[ladybug]}")
         raise InputFileError(where, f"{what} (expected \"type\": \"CityJSON\", found {found!r})")
     if major_minor not in SUPPORTED_CITYJSON_VERSIONS and not draft:
         raise InputFileError(

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -624,3 +626,49 @@ def test_an_object_with_a_cavity_is_split_with_the_cavity_in_its_shells_part(tmp
     record, _ = process_one(m, PreprocessParams())
     assert record["status"] == "accepted" and record["union"]["status"] == "united", record
     assert record["volume"] == pytest.approx(26.5, rel=1e-9)
+
+
+GLTF_1 = b'{"asset": {"generator": "collada2gltf@d78daf1", "profile": {"api": "WebGL", "version": "1.0.2"}, "version": 1}, '\
+         b'"accessors": {"accessor_37": {"bufferView": "bufferView_49", "count": 3}}, "meshes": {}, "nodes": {}}'
+
+
+def test_gltf_1_files_are_refused_in_meshsoms_words(tmp_path):
+    """3DCityDB's glTF export (COLLADA2GLTF before 2.0) writes glTF 1.0: its asset says version 1 (its "profile"
+    object between), its accessors are a dictionary (without the version: told by those alone)."""
+    for name, content in [("a.gltf", GLTF_1), ("b.gltf", GLTF_1.replace(b', "version": 1}', b'}'))]:
+        (tmp_path / name).write_bytes(content)
+        _, rej = _read(tmp_path / name)
+        assert rej[0].reason.startswith("is glTF 1.0, which is not read: convert it to glTF 2.0 (gltf-pipeline"), name
+
+
+def test_the_gltf_twin_of_a_kml_placed_collada_model_is_listed_as_skipped(tmp_path):
+    (tmp_path / "14").mkdir()
+    box = trimesh.creation.box(extents=[10, 8, 6])
+    (tmp_path / "14" / "B1.dae").write_bytes(trimesh.exchange.dae.export_collada(box))
+    (tmp_path / "14" / "B1.gltf").write_bytes(GLTF_1)
+    (tmp_path / "tile.kml").write_text(
+        '<kml xmlns="http://www.opengis.net/kml/2.2"><Document><Placemark><name>B1</name><Model>'
+        '<altitudeMode>relativeToGround</altitudeMode><Location><longitude>13.4</longitude><latitude>52.5</latitude>'
+        '<altitude>0</altitude></Location><Link><href>14/B1.dae</href></Link></Model></Placemark></Document></kml>')
+    skipped = []
+    found, rejected = expand_inputs([tmp_path], skipped=skipped)
+    assert [f.path.name for f in found] == ["tile.kml"] and rejected == []
+    why = dict((Path(p).name, w) for p, w in skipped)
+    assert why["B1.gltf"].startswith(f"the glTF twin of a COLLADA model placed by {tmp_path / 'tile.kml'}")
+
+
+@pytest.mark.parametrize("name, document, said", [
+    ("m.dfjson", {"type": "Model", "buildings": []}, "unknown file type '.dfjson' (a Dragonfly model (Ladybug Tools"),
+    ("m.hbjson", {"type": "Model", "rooms": []}, "unknown file type '.hbjson' (a Honeybee model (Ladybug Tools"),
+    ("m.json", {"type": "Model", "buildings": []}, "is a Dragonfly model (Ladybug Tools"),
+    ("h.json", {"type": "Model", "rooms": []}, "is a Honeybee model (Ladybug Tools"),
+    ("o.json", {"type": "Model"}, "is JSON but not CityJSON (expected \"type\": \"CityJSON\", found 'Model')"),
+])
+def test_ladybug_tools_models_are_refused_naming_the_format_and_the_way_out(tmp_path, name, document, said):
+    import json
+
+    (tmp_path / name).write_text(json.dumps(document))
+    _, rej = _read(tmp_path / name)
+    assert said in rej[0].reason
+    if "Ladybug" in said:
+        assert "OBJ or IFC" in rej[0].reason
