@@ -1126,7 +1126,12 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     applied, id ``name#node`` (``name`` defaults to the file name; a glTF node's mesh of several
     primitives, one per material, is one mesh); so does an OBJ of several
     objects (``o`` lines: a city's buildings), one mesh per object, and an OBJ of several groups
-    (``g``) and no objects when every group is closed on its own (:func:`_closed_groups`). Labels come from a
+    (``g``) and no objects when every group is closed on its own (:func:`_closed_groups`). Objects of one name that
+    are versions of one building (the LoDs ``cjio export obj`` / ``export glb`` write under a building's id: each
+    closed, each overlapping the most detailed; :mod:`meshsom.mesh_versions`) are read as the one
+    :attr:`ReaderOptions.lod` asks for, noted; a glTF node of no name is named by its mesh. Coordinates are in
+    :attr:`ReaderOptions.unit` (metres by default; COLLADA's ``<unit>`` where it says one), and a mesh spanning more
+    than :data:`MAX_BUILDING_EXTENT_M` is refused (:func:`extent_problem`). Labels come from a
     ``labels.csv`` (columns ``file``, ``label``; ``file#node`` for one object of a file) in the
     same folder, when there is one.
 
