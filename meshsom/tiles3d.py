@@ -760,7 +760,7 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
     ``EXT_structural_metadata`` schema, the file its ``schemaUri`` names (``resolve(uri)`` gives its bytes; by default
     a file beside ``source``), or else ``schema`` (the tileset's)."""
     from meshsom.feature_ids import building_ids, resolve_schema
-    from meshsom.io import RawMesh, Rejection, recentre
+    from meshsom.io import RawMesh, Rejection, extent_problem, recentre
 
     if b3dm:
         feature_table, batch_table, glb, feature_binary = parse_b3dm(data, source)
@@ -866,7 +866,13 @@ def content_meshes(data: bytes, source: str, prefix: str, options, transform: np
             from meshsom.io import _connected_pieces
 
             for piece_id, pv, pf, _ in _connected_pieces(mesh_id, local, f, label):  # about the feature's origin
-                yield RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said))
+                problem = extent_problem(pv, False, options)
+                yield (Rejection(piece_id, source, problem, len(pf), label) if problem else
+                       RawMesh(piece_id, source, pv, pf, origin, label, None, notes=(note, *said)))
+            continue
+        problem = extent_problem(local, False, options)  # 3D Tiles are metres; --unit does not apply to them
+        if problem:
+            yield Rejection(mesh_id, source, problem, len(f), label)
             continue
         yield RawMesh(mesh_id, source, local, f, origin, label, None, parts, face_part, notes=(note, *said))
 

@@ -182,3 +182,24 @@ def test_a_lone_tile_in_earth_centred_axes_is_read_east_north_up(tmp_path):
         assert "east-north-up" in m.notes[0]
         want, have = v - v.mean(axis=0), m.vertices - m.vertices.mean(axis=0)
         assert np.abs(have - want).max() < 1e-3  # LoD1: walls exactly vertical, so the up is found exactly
+
+
+def test_a_batch_spanning_kilometres_is_refused_not_a_building(tmp_path):
+    """3D Tiles are metres; a tile written in millimetres (cjio's b3dm export writes its integer millimetre
+    vertices unscaled: 525 km for a 3D BAG block) or a whole district as one model is refused with the span, as a
+    mesh file's building is (io.MAX_BUILDING_EXTENT_M), where it had been accepted at 3.4e12 m3; buildings beside it
+    are read."""
+    from meshsom.io import MAX_BUILDING_EXTENT_M, Rejection
+
+    buildings = _buildings(2)
+    scale = 1000.0  # millimetres, as written; the second building is kept in metres
+    tile = b3dm([(i, v * scale if k == 0 else v, f) for k, (i, v, f) in enumerate(buildings)], lambda v: v)
+    (tmp_path / "mm.b3dm").write_bytes(tile)
+    items = {m.id: m for m in read_file(tmp_path / "mm.b3dm")}
+    span = float(np.ptp(buildings[0][1] * scale, axis=0).max())
+    assert span > MAX_BUILDING_EXTENT_M  # the fixture does reach beyond the bound
+    (refused,) = [m for m in items.values() if isinstance(m, Rejection)]
+    assert refused.reason.startswith(f"spans {span / 1000:,.3g} km: not one building")
+    (kept,) = [m for m in items.values() if isinstance(m, RawMesh)]
+    v, f = buildings[1][1], buildings[1][2]
+    assert abs(_signed_volume(kept.vertices, kept.faces)) == pytest.approx(abs(_signed_volume(v, f)), rel=1e-5)
