@@ -210,6 +210,14 @@ def _polygon(element, where: str, flat_ok: bool = False) -> list[np.ndarray]:
     return exterior[:1] + interiors if exterior else []
 
 
+def openings_note(openings: int, polygons: int) -> str:
+    """The note of a building whose openings' geometry (``openings`` windows and doors of ``polygons`` polygons in
+    all) was left out of its envelope: CityGML's :data:`OPENING_NAMES`, CityJSON's semantic surfaces of those types
+    (:data:`meshsom.io.OPENING_SURFACES`)."""
+    return (f"left out the geometry of {openings} opening(s) (windows, doors: {polygons} polygon(s)): not the "
+            f"envelope; the holes they fill are closed where they are open")
+
+
 def _opening_polygons(building) -> dict[int, int]:
     """The polygons of a building's openings (:data:`OPENING_NAMES`): ``{id(polygon): id(opening)}``, so that a solid
     that refers to them (``xlink:href``) leaves them out too."""
@@ -472,8 +480,7 @@ def building_objects(building, where: str, label_attribute: str) -> tuple[dict, 
                 poly[:] = [[int(inverse[i]) for i in ring] for ring in poly]
     if left_out:
         polygons = len({p for p, o in openings.items() if o in left_out})
-        notes.append(f"left out the geometry of {len(left_out)} opening(s) (windows, doors: {polygons} polygon(s)): "
-                     f"not the envelope; the holes they fill are closed where they are open")
+        notes.append(openings_note(len(left_out), polygons))
     if missing:
         notes.append(f"{missing} polygon reference(s) (xlink:href) outside the building were not read")
     outside = [href for e in building.iter() if _local(e.tag) in ("consistsOfBuildingPart", "buildingPart")

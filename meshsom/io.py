@@ -150,6 +150,11 @@ PARTS_CHOICES = ("merge", "separate")
 SURFACE_TYPES = ("MultiSurface", "CompositeSurface")
 SOLID_TYPES = ("Solid",)
 MULTISOLID_TYPES = ("MultiSolid", "CompositeSolid")
+#: CityJSON's semantic surface types of a building's openings (a geometry's ``semantics.surfaces[values...]``): their
+#: polygons (frames, glass, recessed panes; a window body flush with its wall) are not the envelope. They are left out,
+#: counted in a note (:func:`meshsom.citygml.openings_note`, CityGML's ``bldg:Window`` / ``bldg:Door`` are left out
+#: alike), and the holes they fill are closed by preprocessing's planar caps where the walls leave them open.
+OPENING_SURFACES = ("Window", "Door")
 
 
 @dataclass(frozen=True)
@@ -1878,20 +1883,69 @@ def _shells_of(geom: dict, mesh_id: str) -> list[list[list[list[int]]]]:
     The nesting is checked (lists down to the rings) so malformed boundaries are an InputFileError naming the
     object; polygons with no ring are dropped, and shells left without a polygon.
     """
+    return _envelope_shells(geom, mesh_id, openings=False)[0]
+
+
+def _envelope_shells(geom: dict, mesh_id: str, openings: bool = True) -> tuple[list[list[list[list[int]]]], int, int]:
+    """:func:`_shells_of`, less (``openings``) the polygons whose semantic surface is a window or a door
+    (:data:`OPENING_SURFACES`).
+
+    Returns
+    -------
+    shells : list of shells, each a list of polygons (lists of rings of vertex indices)
+    polygons : int
+        Polygons left out as openings.
+    surfaces : int
+        Semantic surfaces (windows, doors) they are.
+    """
     gtype = geom.get("type")
     if gtype not in _NESTING:
-        return []
-    items = [geom.get("boundaries", [])]
+        return [], 0, 0
+    items, values = [geom.get("boundaries", [])], [_opening_values(geom) if openings else None]
     for _ in range(_NESTING[gtype]):
         if not all(isinstance(x, list) for x in items):
             break
+        # semantics' values nest as the boundaries less the rings; null (or a list cut short) at any level: none
+        values = [y for x, v in zip(items, values)
+                  for y in (v[:len(x)] + [None] * (len(x) - len(v)) if isinstance(v, list) else [None] * len(x))]
         items = [y for x in items for y in x]
     else:
         if all(isinstance(shell, list) and all(isinstance(poly, list) and all(isinstance(ring, list) for ring in poly)
                                                for poly in shell) for shell in items):
-            shells = [[poly for poly in shell if poly] for shell in items]
-            return [shell for shell in shells if shell]
+            shells, dropped = [], []
+            for shell, v in zip(items, values):
+                v = v if isinstance(v, list) else []
+                kept = []
+                for p, poly in enumerate(shell):
+                    mark = v[p] if p < len(v) else None
+                    if poly and isinstance(mark, int):
+                        dropped.append(mark)
+                    elif poly:
+                        kept.append(poly)
+                if kept:
+                    shells.append(kept)
+            return shells, len(dropped), len(set(dropped))
     raise InputFileError(mesh_id, f"{gtype} boundaries must be nested lists down to rings of vertex indices")
+
+
+def _opening_values(geom: dict) -> list | None:
+    """A geometry's semantics ``values`` with each index of a window or door surface (:data:`OPENING_SURFACES`) kept
+    and every other (another type, null, malformed) None; None where the geometry has no opening (or no semantics)."""
+    semantics = geom.get("semantics")
+    surfaces = semantics.get("surfaces") if isinstance(semantics, dict) else None
+    if not isinstance(surfaces, list):
+        return None
+    opening = {k for k, s in enumerate(surfaces) if isinstance(s, dict) and s.get("type") in OPENING_SURFACES}
+    if not opening:
+        return None
+
+    def kept(node):
+        if isinstance(node, list):
+            return [kept(x) for x in node]
+        return node if isinstance(node, int) and not isinstance(node, bool) and node in opening else None
+
+    values = kept(semantics.get("values"))
+    return values if isinstance(values, list) else None
 
 
 def _ids(value) -> list[str]:
@@ -2465,15 +2519,19 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     if _lod_key(want) < 1 and options.lod in LOD_CHOICES:  # a footprint alone: extruded by its height, if it has one
         lift = _footprint_height(mesh_id, objects[members[0]], want, options)
     polygons, poly_member, poly_shell = [], [], []
+    openings = [0, 0]  # polygons, surfaces (windows, doors) left out
     for i in usable_at:
         if str(geoms[i].get("lod")) == want:
-            for shell in _shells_of(geoms[i], mesh_id):
+            shells, *left = _envelope_shells(geoms[i], mesh_id)
+            openings = [a + b for a, b in zip(openings, left)]
+            for shell in shells:
                 polygons += shell
                 poly_member += [geom_member[i]] * len(shell)
                 # a solid's shells are each a shell; a member's surfaces are one
                 poly_shell += [len(poly_shell) if geoms[i].get("type") not in SURFACE_TYPES else -1 - geom_member[i]] * len(shell)
     if not polygons:
-        raise InputFileError(mesh_id, f"has no polygons at LoD {want}")
+        besides = f" but {openings[0]} of windows and doors (not the envelope)" if openings[0] else ""
+        raise InputFileError(mesh_id, f"has no polygons at LoD {want}{besides}")
     with_volume = {geom_member[i] for i in usable_at if not _lod_key(geoms[i].get("lod")) < 1}
     left_out = sorted(with_volume - set(poly_member))
     flat = _indices(mesh_id, [i for poly in polygons for ring in poly for i in ring])
@@ -2509,6 +2567,10 @@ def _building_mesh(mesh_id, source, members, objects, vertices, scale, translate
     import shapely.errors
 
     local, notes = _in_metres(mesh_id, local, origin, crs)
+    if openings[0]:
+        from meshsom.citygml import openings_note
+
+        notes.append(openings_note(openings[1], openings[0]))
     if passed_over:
         notes.append(f"its LoD {', '.join(passed_over)} geometry is flat (polygons in one horizontal plane, no volume): "
                      f"LoD {want} read")

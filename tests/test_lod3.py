@@ -80,11 +80,10 @@ def _opening_geometry(kind: str, rect):
     raise ValueError(kind)
 
 
-def house(kind: str, version: str = "2.0", solid: bool = False) -> str:
-    """The house as CityGML ``version`` with its window and door written as ``kind``; ``solid``: a ``lod3Solid``
-    referring (``xlink:href``) to every polygon, the openings' too, as KIT's FZK house LoD3 does."""
-    three = version == "3.0"
-    lod = "core:lod3MultiSurface" if three else "bldg:lod3MultiSurface"
+def house_surfaces(kind: str) -> list[tuple[str, str, list, list]]:
+    """The house's thematic surfaces with its window and door written as ``kind``: (CityGML name, id prefix, polygons
+    as (exterior, interiors), openings as (name, exteriors)), shared by the CityGML fixtures here and the CityJSON
+    ones (tests/test_cityjson_lod3.py)."""
     window, window_reveals = _opening_geometry(kind, WINDOW)
     door, door_reveals = _opening_geometry(kind, DOOR)
     dx0, dx1, _, dz1 = DOOR
@@ -94,30 +93,39 @@ def house(kind: str, version: str = "2.0", solid: bool = False) -> str:
     ground = [(0, 0, 0), (0, DEPTH, 0), (LENGTH, DEPTH, 0), (LENGTH, 0, 0)]
     if door_reveals:  # the ground follows the door's recess
         ground += [(dx1, 0, 0), (dx1, RECESS, 0), (dx0, RECESS, 0), (dx0, 0, 0)]
+    return [
+        ("GroundSurface", "ground", [(ground, [])], []),
+        ("RoofSurface", "roof", [([(0, 0, HEIGHT), (LENGTH, 0, HEIGHT), (LENGTH, DEPTH, HEIGHT), (0, DEPTH, HEIGHT)], [])], []),
+        ("WallSurface", "south", [(south, [hole])] + [(r, []) for r in window_reveals + door_reveals],
+         [("Window", window), ("Door", door)]),
+        ("WallSurface", "north", [(_quad_x(0, LENGTH, DEPTH, 0, HEIGHT, False), [])], []),
+        ("WallSurface", "east", [([(LENGTH, 0, 0), (LENGTH, DEPTH, 0), (LENGTH, DEPTH, HEIGHT), (LENGTH, 0, HEIGHT)], [])], []),
+        ("WallSurface", "west", [([(0, DEPTH, 0), (0, 0, 0), (0, 0, HEIGHT), (0, DEPTH, HEIGHT)], [])], []),
+    ]
+
+
+def house(kind: str, version: str = "2.0", solid: bool = False) -> str:
+    """The house as CityGML ``version`` with its window and door written as ``kind``; ``solid``: a ``lod3Solid``
+    referring (``xlink:href``) to every polygon, the openings' too, as KIT's FZK house LoD3 does."""
+    three = version == "3.0"
+    lod = "core:lod3MultiSurface" if three else "bldg:lod3MultiSurface"
     ids: list[str] = []
 
-    def polys(rings, prefix, interiors=None):
+    def polys(polygons, prefix):
         out = ""
-        for k, ring in enumerate(rings):
+        for k, (exterior, interiors) in enumerate(polygons):
             ids.append(f"{prefix}{k}")
-            out += _polygon(ring, interiors if k == 0 and interiors else (), f"{prefix}{k}")
+            out += _polygon(exterior, interiors, f"{prefix}{k}")
         return f"<{lod}><gml:MultiSurface>{out}</gml:MultiSurface></{lod}>"
 
     def opening(name, rings):
         if three:
-            return (f'<con:fillingSurface><con:{name}Surface gml:id="{name}">{polys(rings, name)}'
+            return (f'<con:fillingSurface><con:{name}Surface gml:id="{name}">{polys([(r, []) for r in rings], name)}'
                     f"</con:{name}Surface></con:fillingSurface>")
-        return f'<bldg:opening><bldg:{name} gml:id="{name}">{polys(rings, name)}</bldg:{name}></bldg:opening>'
+        return f'<bldg:opening><bldg:{name} gml:id="{name}">{polys([(r, []) for r in rings], name)}</bldg:{name}></bldg:opening>'
 
-    surfaces = [
-        ("GroundSurface", polys([ground], "ground"), ""),
-        ("RoofSurface", polys([[(0, 0, HEIGHT), (LENGTH, 0, HEIGHT), (LENGTH, DEPTH, HEIGHT), (0, DEPTH, HEIGHT)]], "roof"), ""),
-        ("WallSurface", polys([south] + window_reveals + door_reveals, "south", [hole]),
-         opening("Window", window) + opening("Door", door)),
-        ("WallSurface", polys([_quad_x(0, LENGTH, DEPTH, 0, HEIGHT, False)], "north"), ""),
-        ("WallSurface", polys([[(LENGTH, 0, 0), (LENGTH, DEPTH, 0), (LENGTH, DEPTH, HEIGHT), (LENGTH, 0, HEIGHT)]], "east"), ""),
-        ("WallSurface", polys([[(0, DEPTH, 0), (0, 0, 0), (0, 0, HEIGHT), (0, DEPTH, HEIGHT)]], "west"), ""),
-    ]
+    surfaces = [(name, polys(polygons, prefix), "".join(opening(o, rings) for o, rings in openings))
+                for name, prefix, polygons, openings in house_surfaces(kind)]
     boundary = "core:boundary" if three else "bldg:boundedBy"
     thematic = "con" if three else "bldg"
     body = "".join(f"<{boundary}><{thematic}:{name}>{geometry}{openings}</{thematic}:{name}></{boundary}>"
