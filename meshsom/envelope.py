@@ -29,13 +29,16 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    not quite meet) are dropped; the caller preprocesses the rest
    (:func:`meshsom.union.preprocess_shells`).
 
-Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex, more roof triangles
-than ``envelope_max_roofs`` (a detailed or scanned mesh: LoD2 roof models have tens to hundreds;
-43,000 prisms took 5 minutes to unite, once), a first union that preprocessing refuses and that
-falls into more than ``envelope_max_pieces`` pieces (a tree crown: no other way is tried), and walls standing
-outside every roof in plan that would lose more than ``envelope_max_loss`` of the volume (each wall
-face's area times its distance outside, an estimate: walls a few centimetres outside their eaves
-lose next to nothing, a part with no roof loses itself).
+Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex; only roofs reaching
+the lowest vertex (within ``envelope_tol``: no wall and no ground surface there, so nothing says
+where the ground is: a roof sheet alone would stand on its own eaves); more roof triangles, or prisms
+once split, than ``envelope_max_roofs`` (a detailed or scanned mesh: LoD2 roof models give tens to
+hundreds; 2,700 prisms took 106 s to be refused, 43,000 took 5 minutes to unite, once); a first
+union that preprocessing refuses and that falls into more than ``envelope_max_pieces`` pieces (a
+tree crown: no other way is tried); walls standing outside every roof in plan that would lose more
+than ``envelope_max_loss`` of the volume (each wall face's area times its distance outside, an
+estimate: walls a few centimetres outside their eaves lose next to nothing, a part with no roof
+loses itself); and a rebuild that runs past ``envelope_max_seconds``, all its ways together.
 
 What is lost: whatever is not 2.5D (passages, arcades, overhangs become walls down to the floor)
 and the terrain under the walls (the floor is flat, at the lowest vertex). The manifest records
@@ -45,6 +48,7 @@ that a mesh was rebuilt, why, and from how many roof and wall faces.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -285,10 +289,13 @@ def _split_in_rounds(tri: np.ndarray, label: np.ndarray, cuts, what: str) -> tup
         When the cutting makes more than :data:`MAX_SPLIT_GROWTH` times the triangles (plus 64), or
         finds cuts still after :data:`MAX_SPLIT_ROUNDS` rounds.
     """
+    from meshsom.time_limit import check as check_time
+
     limit = MAX_SPLIT_GROWTH * len(tri) + 64
     outline = np.ones((len(tri), 3), bool)
     splits = 0
     for _ in range(MAX_SPLIT_ROUNDS):
+        check_time(f"splitting {len(tri)} roof triangles {what}")
         found = cuts(tri, outline)
         if found is None:
             break
@@ -597,7 +604,7 @@ def _union_of_prisms(manifold3d, tri: np.ndarray, base: float, order: str = "bat
 
 class _Refusal(MeshError):
     """A refusal that no other way of uniting changes: walls outside the roofs losing too much, too
-    many roof triangles."""
+    many roof triangles, only roofs reaching the lowest vertex."""
 
 
 @dataclass
@@ -617,6 +624,46 @@ class _RoofPrisms:
     lost_volume: float = 0.0
     max_loss: float = 0.01
     weld_tol: float = 0.0
+
+
+def _check_ground(vertices: np.ndarray, faces: np.ndarray, roofs: np.ndarray, base: float, tol: float, source: str) -> None:
+    """Refuse a mesh where nothing but roofs reaches its lowest level (module docstring, refusals).
+
+    The floor of the rebuild is the mesh's lowest vertex; that is the ground only where a wall or a ground
+    surface reaches it. A roof sheet alone (a gable roof without walls or floor, a floor polygon of a
+    3D Tiles batch split from its walls) reaches its lowest level with roofs only: its eaves, which the
+    rebuild would take for the ground (a 10 x 10 m gable roof 3 m high would be accepted as 150 m3).
+
+    Parameters
+    ----------
+    vertices : (V, 3) float64
+    faces : (F, 3) int64
+    roofs : (F,) bool
+        :func:`roof_faces`.
+    base : float
+        The lowest vertex's z.
+    tol : float
+        Faces whose lowest vertex is within this of ``base`` reach the lowest level, and roof faces
+        whose highest is are ground surfaces (``envelope_tol``, as for the ground surfaces left out of the
+        prisms).
+    source : str
+
+    Raises
+    ------
+    _Refusal
+        When no wall face (of non-zero area) and no ground surface reaches within ``tol`` of ``base``.
+    """
+    tri = vertices[faces]
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    z = tri[..., 2]
+    reaches = (z.min(axis=1) - base <= tol) & (area2 > 0)
+    ground = ~roofs | (z.max(axis=1) - base <= tol)  # walls, and roofs lying on the floor: ground surfaces
+    if not (reaches & ground).any():
+        walls = int((~roofs & (area2 > 0)).sum())
+        raise _Refusal(
+            source, f"only roof faces: no wall or floor says where the ground is: nothing but its {int(roofs.sum())} "
+                    f"roof faces reaches its lowest vertex (within preprocess.envelope_tol, {tol:g} m), and it has "
+                    f"{walls} wall faces; a roof or floor sheet, not a building's shell")
 
 
 def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, split: str = "all") -> _RoofPrisms:
@@ -640,6 +687,7 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
         raise MeshError(
             source, f"no roof to rebuild it under: of its {len(faces)} faces, {int((~roofs).sum())} are walls "
                     f"(within {params.wall_tilt_deg:g} degrees of vertical) and none of the rest is above its lowest vertex")
+    _check_ground(snapped, faces, roofs, base, tol, source)
     if params.envelope_max_roofs and len(tri) > params.envelope_max_roofs:
         raise _Refusal(
             source, f"{len(tri)} roof triangles, more than preprocess.envelope_max_roofs ({params.envelope_max_roofs}): "
@@ -688,11 +736,13 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
 
 def _unite(prisms: _RoofPrisms, order: str, source: str) -> EnvelopeResult:
     """Steps 3-5 of the module docstring: the prisms united in one of :data:`UNION_ORDERS`."""
+    from meshsom.time_limit import check as check_time
     from meshsom.union import _area_volume, _manifold3d
 
     manifold3d = _manifold3d()
     tri, label, base, tol = prisms.tri, prisms.label, prisms.base, prisms.tol
     united = _union_of_prisms(manifold3d, tri, base, order)
+    check_time(f"uniting its {len(tri)} roof prisms ({order} union)")
     if united is None:
         raise MeshError(source, "no roof to rebuild it under: every roof triangle is vertical in plan")
     if (label == 1).any():
@@ -772,7 +822,13 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     """The solid under a building's roofs, preprocessed: the roof prisms (made once for each of
     :data:`SPLIT_RULES`, at ``envelope_tol`` and then at its multiples :data:`TOL_FACTORS`) united
     in each of :data:`UNION_ORDERS` until :func:`meshsom.union.preprocess_shells` accepts the
-    union's shells.
+    union's shells, within ``envelope_max_seconds``.
+
+    The budget (:mod:`meshsom.time_limit`, nested in the mesh's own ``max_seconds``, the earlier
+    deadline kept) is checked at every step of every way; manifold3d's union is not interrupted, so
+    a way is not started when the time left is shorter than the longest way so far took
+    (:data:`ATTEMPT_MARGIN` times it). Running out of it is a rejection like any other; running out of
+    ``max_seconds`` still ends the mesh's preprocessing (:class:`~meshsom.time_limit.TimeLimitExceeded`).
 
     Parameters
     ----------
@@ -789,14 +845,55 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     Raises
     ------
     MeshError
-        A refusal of the roofs themselves (no roof, walls outside them losing too much: no order
-        changes that), or the first way's reason when no way gives shells that preprocess.
+        A refusal of the roofs themselves (no roof, only roofs reaching the lowest level, walls outside
+        them losing too much: no order changes that), the budget spent (naming it, the ways tried and
+        the first way's reason), or the first way's reason when no way gives shells that preprocess.
+    TimeLimitExceeded
+        When the mesh's own ``max_seconds`` has run out.
     """
     from meshsom.preprocess import PreprocessParams
+    from meshsom.time_limit import TimeLimitExceeded, check as check_time, time_limit
+
+    params = params or PreprocessParams()
+    budget = params.envelope_max_seconds
+    tried: list = []  # (seconds, reason) of each way that failed
+    start = time.monotonic()
+    try:
+        with time_limit(budget):
+            return _rebuild(vertices, faces, params, source, tried, start)
+    except TimeLimitExceeded as err:
+        check_time(err.stage)  # the mesh's own max_seconds has run out too: that ends the mesh
+        took, stage = "took", f"stopped while {err.stage}"
+    except _OutOfTime as err:
+        took, stage = "would take", f"not started: {err.stage}"
+    ways = len(SPLIT_RULES) * len(UNION_ORDERS) * (len(TOL_FACTORS) if params.envelope_tol > 0 else 1)
+    first = f"; the first failed: {tried[0][1]}" if tried else ""
+    raise MeshError(
+        source, f"{took} more than {budget:g} s (preprocess.envelope_max_seconds; raise it, or 0 for no limit): "
+                f"{len(tried)} of {ways} ways of uniting its roof prisms tried "
+                f"in {time.monotonic() - start:.1f} s, {stage}{first}") from None
+
+
+class _OutOfTime(Exception):
+    """The next way of uniting would not end within ``envelope_max_seconds`` (:func:`rebuild_under_roofs`)."""
+
+    def __init__(self, stage: str):
+        self.stage = stage
+        super().__init__(stage)
+
+
+#: A way of uniting is started only where the time left of ``envelope_max_seconds`` is at least this many
+#: times the longest way so far (:func:`rebuild_under_roofs`): the next one takes about as long (on the
+#: 3DCityDB COLLADA model of 2,700 prisms, 7 to 21 s each), and manifold3d's union cannot be interrupted.
+ATTEMPT_MARGIN = 1.0
+
+
+def _rebuild(vertices: np.ndarray, faces: np.ndarray, params, source: str, tried: list, start: float):
+    """:func:`rebuild_under_roofs` within its budget; ``tried`` gets (seconds, reason) of each way that fails."""
     from meshsom import union
     from meshsom.time_limit import check as check_time
 
-    params = params or PreprocessParams()
+    budget = params.envelope_max_seconds
     first = None
     for factor in TOL_FACTORS if params.envelope_tol > 0 else (1,):
         snap = replace(params, envelope_tol=params.envelope_tol * factor)
@@ -809,9 +906,14 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                 first = first or err
                 continue
             for order in UNION_ORDERS:
-                check_time(f"rebuilding it under its roofs ({split} roof triangles split, {order} union, "
-                           f"{snap.envelope_tol:g} m snap)")
+                stage = (f"uniting its {len(prisms.tri)} roof prisms ({split} roof triangles split, {order} union, "
+                         f"{snap.envelope_tol:g} m snap)")
+                check_time(stage)
+                longest = max((t for t, _ in tried), default=0.0)
+                if budget and tried and time.monotonic() - start + ATTEMPT_MARGIN * longest > budget:
+                    raise _OutOfTime(f"{stage}, as each took up to {longest:.1f} s")
                 envelope = None
+                began = time.monotonic()
                 try:
                     envelope = _unite(prisms, order, source)
                     return envelope, union.preprocess_shells(envelope.shells, params, source=source)
@@ -819,6 +921,7 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
                     raise
                 except MeshError as err:
                     first = first or err
+                    tried.append((time.monotonic() - began, err.problem))
                     # flat sheets are no pieces: where parts' walls stand against each other inside a building
                     pieces = len(envelope.shells) + envelope.slivers - envelope.sheets if envelope is not None else 0
                     if params.envelope_max_pieces and pieces > params.envelope_max_pieces:

@@ -178,15 +178,26 @@ class PreprocessParams:
         outside, an estimate) may be at most this fraction of the rebuilt volume; more, and the
         rebuild is refused (default 0.01).
     envelope_max_roofs : int
-        For ``roof_envelope``: a mesh with more roof triangles above its floor than this is not
-        rebuilt (LoD2 roof models have tens to hundreds; a scanned or detailed mesh of 66,000
-        triangles has 28,000 and its prisms take minutes to unite); 0: no limit (default 5000).
+        For ``roof_envelope``: a mesh with more roof triangles above its floor than this, or whose
+        roof triangles split where they meet make more prisms than this, is not rebuilt (0: no
+        limit; default 2000). Roof models give hundreds: at most 511 prisms in the 27 rebuilt
+        buildings of Zürich's LoD2 subset, 411 in Delfshaven's 86, 859 in Ingolstadt's LoD3
+        buildings (the most rebuilt); the meshes over 2,000 took minutes and were refused anyway
+        (Ingolstadt 4018154, 2,016 prisms, 110 s; a 3DCityDB COLLADA LoD3 model, 2,731, 106 s), a
+        scanned mesh of 66,000 triangles has 28,000.
     envelope_max_pieces : int
         For ``roof_envelope``: where the first way of uniting the prisms falls into more separate
         pieces than this and preprocessing refuses it, no other way is tried (each costs a union):
         a roof model's union is one piece or a few (at most 21 in Zürich's and Delfshaven's 902
         buildings), a tree crown's a hundred and more (Cesium's 3D Tiles samples); 0: no limit
         (default 64).
+    envelope_max_seconds : float
+        For ``roof_envelope``: wall-clock seconds the rebuild under the roofs may take, all its ways
+        of uniting together (:func:`meshsom.envelope.rebuild_under_roofs`, within ``max_seconds``);
+        past it, or where the next way would not end within it, the mesh is rejected ("rebuilding
+        it as the solid under its roofs took more than N s"). The slowest rebuild measured took 18 s
+        (an Ingolstadt LoD3 building, 859 prisms, on 2 shared cores); Zürich's and Delfshaven's
+        take at most 0.6 s; 0: no limit (default 90).
     max_seconds : float
         Wall-clock seconds one mesh's preprocessing may take, its union of parts and its rebuild
         under the roofs included (:mod:`meshsom.time_limit`, checked at each repair round, cut
@@ -216,8 +227,9 @@ class PreprocessParams:
     wall_tilt_deg: float = 5.0
     envelope_tol: float = 0.002
     envelope_max_loss: float = 0.01
-    envelope_max_roofs: int = 5000
+    envelope_max_roofs: int = 2000
     envelope_max_pieces: int = 64
+    envelope_max_seconds: float = 90.0
     max_seconds: float = 300.0
 
     def __post_init__(self):
@@ -244,9 +256,10 @@ class PreprocessParams:
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
                 raise ValueError(f"{name} must be an integer >= 0 (0: no limit); received {value!r}")
-        if not (isinstance(self.max_seconds, (int, float)) and not isinstance(self.max_seconds, bool)
-                and 0 <= self.max_seconds < math.inf):
-            raise ValueError(f"max_seconds must be a finite number >= 0 (0: no limit); received {self.max_seconds!r}")
+        for name in ("envelope_max_seconds", "max_seconds"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and 0 <= value < math.inf):
+                raise ValueError(f"{name} must be a finite number >= 0 (0: no limit); received {value!r}")
         if not (isinstance(self.flat_fold_deg, (int, float)) and 0 <= self.flat_fold_deg < 90):
             raise ValueError(f"flat_fold_deg must be in [0, 90) degrees; received {self.flat_fold_deg!r}")
         if not (isinstance(self.min_faces, int) and self.min_faces >= 4):

@@ -440,11 +440,13 @@ def preprocess_shells(shells: Sequence[tuple[np.ndarray, np.ndarray]], params=No
         When a shell fails preprocessing (naming the shell).
     """
     from meshsom.preprocess import PreprocessParams, Result, preprocess
+    from meshsom.time_limit import check as check_time
 
     params = params or PreprocessParams()
     results = []
     for k, (v, f) in enumerate(shells):
         name = source if len(shells) == 1 else f"{source} shell {k + 1} of {len(shells)}"
+        check_time(f"preprocessing shell {k + 1} of {len(shells)} ({len(f)} faces)")
         try:
             results.append(preprocess(v, f, params, source=name))
             continue
