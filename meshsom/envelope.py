@@ -29,9 +29,9 @@ it stands for still is: everything under the roofs, down to the ground. That is 
    not quite meet) are dropped; the caller preprocesses the rest
    (:func:`meshsom.union.preprocess_shells`).
 
-Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex; only roofs reaching
-the lowest vertex (within ``envelope_tol``: no wall and no ground surface there, so nothing says
-where the ground is: a roof sheet alone would stand on its own eaves); more roof triangles, or prisms
+Refused (:class:`~meshsom.errors.MeshError`): no roof above the lowest vertex; roofs only (no wall,
+no ground surface within ``envelope_tol`` of the lowest vertex: nothing says where the ground is, and
+a roof sheet alone would stand on its own eaves); more roof triangles, or prisms
 once split, than ``envelope_max_roofs`` (a detailed or scanned mesh: LoD2 roof models give tens to
 hundreds; 2,700 prisms took 106 s to be refused, 43,000 took 5 minutes to unite, once); a first
 union that preprocessing refuses and that falls into more than ``envelope_max_pieces`` pieces (a
@@ -604,7 +604,7 @@ def _union_of_prisms(manifold3d, tri: np.ndarray, base: float, order: str = "bat
 
 class _Refusal(MeshError):
     """A refusal that no other way of uniting changes: walls outside the roofs losing too much, too
-    many roof triangles, only roofs reaching the lowest vertex."""
+    many roof triangles, roof faces only."""
 
 
 @dataclass
@@ -626,13 +626,17 @@ class _RoofPrisms:
     weld_tol: float = 0.0
 
 
-def _check_ground(vertices: np.ndarray, faces: np.ndarray, roofs: np.ndarray, base: float, tol: float, source: str) -> None:
-    """Refuse a mesh where nothing but roofs reaches its lowest level (module docstring, refusals).
+def _check_ground(vertices: np.ndarray, faces: np.ndarray, roofs: np.ndarray, base: float, tol: float,
+                  wall_tilt_deg: float, source: str) -> None:
+    """Refuse a mesh of roof faces only: no wall, no ground surface (module docstring, refusals).
 
-    The floor of the rebuild is the mesh's lowest vertex; that is the ground only where a wall or a ground
-    surface reaches it. A roof sheet alone (a gable roof without walls or floor, a floor polygon of a
-    3D Tiles batch split from its walls) reaches its lowest level with roofs only: its eaves, which the
-    rebuild would take for the ground (a 10 x 10 m gable roof 3 m high would be accepted as 150 m3).
+    The floor of the rebuild is the mesh's lowest vertex; that is the ground only where walls hang
+    towards it or a ground surface lies on it. A roof sheet alone (a gable roof without walls or
+    floor, a floor polygon of a 3D Tiles batch split from its walls) has neither: its lowest vertex is
+    its eave, which the rebuild would take for the ground (a 10 x 10 m gable roof 3 m high was
+    accepted as 150 m3). Roofs over a ground plate without walls are kept (the plate is the floor).
+    Walls are enough, wherever they end: LoD3 models whose lowest faces are a sloping ground surface
+    or a soffit (3DCityDB's railway scene) have hundreds of walls that stop above it.
 
     Parameters
     ----------
@@ -643,27 +647,25 @@ def _check_ground(vertices: np.ndarray, faces: np.ndarray, roofs: np.ndarray, ba
     base : float
         The lowest vertex's z.
     tol : float
-        Faces whose lowest vertex is within this of ``base`` reach the lowest level, and roof faces
-        whose highest is are ground surfaces (``envelope_tol``, as for the ground surfaces left out of the
-        prisms).
+        Roof faces whose highest vertex is within this of ``base`` lie on the floor: ground surfaces
+        (``envelope_tol``, as for the ground surfaces left out of the prisms).
+    wall_tilt_deg : float
+        Named in the refusal (``roofs`` are the faces not within it of vertical).
     source : str
 
     Raises
     ------
     _Refusal
-        When no wall face (of non-zero area) and no ground surface reaches within ``tol`` of ``base``.
+        When no face of non-zero area is a wall and none lies on the floor.
     """
     tri = vertices[faces]
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    z = tri[..., 2]
-    reaches = (z.min(axis=1) - base <= tol) & (area2 > 0)
-    ground = ~roofs | (z.max(axis=1) - base <= tol)  # walls, and roofs lying on the floor: ground surfaces
-    if not (reaches & ground).any():
-        walls = int((~roofs & (area2 > 0)).sum())
+    ground = (~roofs | (tri[..., 2].max(axis=1) - base <= tol)) & (area2 > 0)
+    if not ground.any():
         raise _Refusal(
-            source, f"only roof faces: no wall or floor says where the ground is: nothing but its {int(roofs.sum())} "
-                    f"roof faces reaches its lowest vertex (within preprocess.envelope_tol, {tol:g} m), and it has "
-                    f"{walls} wall faces; a roof or floor sheet, not a building's shell")
+            source, f"only roof faces: no wall or floor says where the ground is: its {int(roofs.sum())} faces are all "
+                    f"roofs, none within {wall_tilt_deg:g} degrees of vertical and none lying on its lowest vertex (within "
+                    f"preprocess.envelope_tol, {tol:g} m); a roof or floor sheet, not a building's shell")
 
 
 def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, split: str = "all") -> _RoofPrisms:
@@ -687,7 +689,7 @@ def _roof_prisms(vertices: np.ndarray, faces: np.ndarray, params, source: str, s
         raise MeshError(
             source, f"no roof to rebuild it under: of its {len(faces)} faces, {int((~roofs).sum())} are walls "
                     f"(within {params.wall_tilt_deg:g} degrees of vertical) and none of the rest is above its lowest vertex")
-    _check_ground(snapped, faces, roofs, base, tol, source)
+    _check_ground(snapped, faces, roofs, base, tol, params.wall_tilt_deg, source)
     if params.envelope_max_roofs and len(tri) > params.envelope_max_roofs:
         raise _Refusal(
             source, f"{len(tri)} roof triangles, more than preprocess.envelope_max_roofs ({params.envelope_max_roofs}): "
@@ -845,7 +847,7 @@ def rebuild_under_roofs(vertices: np.ndarray, faces: np.ndarray, params=None, so
     Raises
     ------
     MeshError
-        A refusal of the roofs themselves (no roof, only roofs reaching the lowest level, walls outside
+        A refusal of the roofs themselves (no roof, roof faces only, walls outside
         them losing too much: no order changes that), the budget spent (naming it, the ways tried and
         the first way's reason), or the first way's reason when no way gives shells that preprocess.
     TimeLimitExceeded

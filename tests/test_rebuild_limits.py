@@ -57,16 +57,16 @@ def test_roofs_over_a_ground_plate_without_walls_rebuild_to_the_prism_by_hand():
 def test_a_roof_alone_is_refused_as_saying_nothing_of_the_ground(eave):
     """The probe's roof_sheet_only.obj (eave 0) was accepted as 150 m3, standing on its own eaves."""
     vertices = np.array(ROOF_VERTICES, float) - [0, 0, EAVE - eave]
-    with pytest.raises(MeshError, match="only roof faces: no wall or floor says where the ground is: nothing but its "
-                                        r"4 roof faces reaches its lowest vertex \(within preprocess.envelope_tol, "
-                                        "0.002 m\\), and it has 0 wall faces"):
+    with pytest.raises(MeshError, match="only roof faces: no wall or floor says where the ground is: its 4 faces are "
+                                        "all roofs, none within 5 degrees of vertical and none lying on its lowest "
+                                        r"vertex \(within preprocess.envelope_tol, 0.002 m\); a roof or floor sheet"):
         envelope.rebuild_under_roofs(vertices, np.array(ROOF_FACES), PreprocessParams(), "roof")
     record, clean = process_one(_raw(vertices, ROOF_FACES, "roof"), PreprocessParams())
     assert record["status"] == "rejected" and clean is None
     assert "rebuilding it as the solid under its roofs failed too (only roof faces" in record["reason"]
 
 
-def test_a_wall_reaching_the_ground_says_where_it_is():
+def test_a_wall_says_where_the_ground_is():
     """A roof with one gable wall down to z = 0 (and no plate): the wall says where the ground is."""
     vertices = np.array(ROOF_VERTICES + [[0, 0, 0], [0, 10, 0]], float)
     faces = np.array(ROOF_FACES + [[6, 0, 3], [6, 3, 7], [7, 3, 4]], np.int64)  # the west gable, 10 m wide
