@@ -10,7 +10,6 @@ hole's edges (geoRES), a pane recessed behind reveals (KIT's FZK house), in City
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from meshsom.io import RawMesh, read_file
