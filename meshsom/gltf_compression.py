@@ -62,6 +62,14 @@ QUANTUM_ATTRIBUTE = "_DRACO_QUANTUM"
 MAX_QUANTIZATION_BITS = 30
 GRID_TOL = 1e-3
 
+def quantum_in_frame(attributes, linear) -> float | None:
+    """The grid step of a decoded Draco primitive (its :data:`QUANTUM_ATTRIBUTE` vertex attribute, in the primitive's
+    frame) in the frame that ``linear`` (a (3, 3) or (4, 4) matrix) maps it into: times the matrix's largest stretch;
+    None for a primitive Draco did not quantize."""
+    step = np.asarray(attributes.get(QUANTUM_ATTRIBUTE, ()), np.float64).ravel()
+    return float(step[0]) * float(np.linalg.norm(np.asarray(linear)[:3, :3], 2)) if len(step) else None
+
+
 #: Bytes one meshopt buffer view may decode to (its fallback's size bounds it too).
 MAX_DECODED_BYTES = 1 << 32
 

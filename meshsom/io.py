@@ -1146,6 +1146,9 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
     """
     import trimesh
 
+    from meshsom.gltf_compression import quantum_in_frame
+    from meshsom.tiles3d import DRACO_WELD_NOTE
+
     file_type = Path(format_name(path)).suffix.lstrip(".")
     # In memory: a length field claiming more than the file holds (a GLB chunk of 4 GB) then
     # reads what there is, where a read from the file would first allocate the claimed size.
@@ -1223,7 +1226,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
                 node = _collada_geometry(str(node), collada_ids)
             node = mesh_named.get(node, node)
             items.append((f"{name}#{node}", v, np.asarray(geom.faces, np.int64), labels.get(f"{path.name}#{node}", label)))
-            quanta.append(_draco_quantum(geom, transform))
+            quanta.append(quantum_in_frame(getattr(geom, "vertex_attributes", None) or {}, transform))
         items, welded = _joined_by_id(items, quanta)
         if not items:
             raise InputFileError(str(path), "holds no triangle mesh (only points, lines or nothing)")
@@ -1268,7 +1271,7 @@ def read_trimesh(path: Path, name: str | None = None, options: ReaderOptions = R
         whole = mesh_id if mesh_id in version_notes or mesh_id in welded else mesh_id.rpartition("#c")[0]
         notes = up_notes + unit_notes + version_notes.get(whole, ())
         if welded.get(whole):
-            notes += (DRACO_WELD_NOTE.format(merged=welded[whole]),)
+            notes += (DRACO_WELD_NOTE.format(joined=f"{welded[whole]} vertices"),)
         yield placed_mesh(mesh_id, str(path), v, f.reshape(-1, 3), item_label, crs, notes, options, unitless)
 
 
@@ -1343,28 +1346,13 @@ def _collada_geometry(name: str, ids: set) -> str:
 
 
 #: The note on a building of a mesh file whose Draco primitives were welded (:func:`_joined_by_id`).
-DRACO_WELD_NOTE = ("its Draco primitives (quantized each on its own grid) welded within half a quantum of each: "
-                   "{merged} vertices joined")
-
-
-def _draco_quantum(geom, transform: np.ndarray) -> float | None:
-    """The grid step of a trimesh geometry decoded from a Draco primitive (its
-    :data:`meshsom.gltf_compression.QUANTUM_ATTRIBUTE` vertex attribute, in the primitive's frame) in the scene's frame
-    (times the largest stretch of the node's ``transform (4, 4)``); None for a geometry Draco did not quantize."""
-    from meshsom.gltf_compression import QUANTUM_ATTRIBUTE
-
-    attrs = getattr(geom, "vertex_attributes", None) or {}
-    step = np.asarray(attrs.get(QUANTUM_ATTRIBUTE, ()), np.float64).ravel()
-    return float(step[0]) * float(np.linalg.norm(np.asarray(transform)[:3, :3], 2)) if len(step) else None
-
-
 def _joined_by_id(items: list, quanta: list | None = None) -> tuple[list, dict[str, int]]:
     """Items (id, vertices, faces, label) of one id joined into one, in the order of their first: the primitives of
     a glTF mesh or of a COLLADA geometry (trimesh gives each material's its own geometry) are one building, as the
     node or geometry that holds them.
 
     Where some of the primitives joined were Draco-quantized (``quanta``, each item's grid step or None;
-    :func:`_draco_quantum`), each on its own grid, their vertices are welded within half a quantum of each
+    :func:`meshsom.gltf_compression.quantum_in_frame`), each on its own grid, their vertices are welded within half a quantum of each
     (:func:`meshsom.tiles3d.weld_quantized`), as the 3D Tiles reader welds a batch's: a building whose floor, roof and
     walls are separate primitives closes again. Returns the items and, by id, the vertices so joined."""
     joined: dict[str, list] = {}
@@ -1377,21 +1365,15 @@ def _joined_by_id(items: list, quanta: list | None = None) -> tuple[list, dict[s
             continue
         # each primitive's own vertices only: trimesh gives every primitive the whole vertex accessor they share
         # (Cesium's tiles: 29 primitives of one 44,268-vertex accessor made 1.3 million vertices to weld)
-        pieces = []
-        for (_, v, f, _), _ in group:
-            used, inverse = np.unique(np.asarray(f, np.int64), return_inverse=True)
-            pieces.append((np.asarray(v)[used], inverse.reshape(-1, 3)))
-        offsets = np.cumsum([0] + [len(v) for v, _ in pieces])[:-1]
-        v = np.concatenate([v for v, _ in pieces])
-        f = np.concatenate([f + o for (_, f), o in zip(pieces, offsets)])
-        if any(q is not None for _, q in group):
-            from meshsom.tiles3d import weld_quantized
+        from meshsom.tiles3d import joined_welded
 
-            piece = np.repeat(np.arange(len(pieces)), [len(p) for p, _ in pieces])
-            v, f, merged = weld_quantized(np.asarray(v, np.float64), f, piece,
-                                          np.array([q or 0.0 for _, q in group], np.float64))
-            if merged:
-                welded[mesh_id] = merged
+        pieces = []
+        for (_, v, f, _), quantum in group:
+            used, inverse = np.unique(np.asarray(f, np.int64), return_inverse=True)
+            pieces.append((np.asarray(v)[used], inverse.reshape(-1, 3), quantum))
+        v, f, merged = joined_welded(pieces)
+        if merged:
+            welded[mesh_id] = merged
         out.append((mesh_id, v, f, group[0][0][3]))
     return out, welded
 

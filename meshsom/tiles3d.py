@@ -61,7 +61,7 @@ import numpy as np
 
 from meshsom.errors import InputFileError
 from meshsom.feature_ids import INSTANCE_FEATURE, INSTANCE_MARK, NO_SET_ID
-from meshsom.gltf_compression import QUANTUM_ATTRIBUTE, decompress_glb, split_glb
+from meshsom.gltf_compression import decompress_glb, quantum_in_frame, split_glb
 from meshsom.implicit_tiling import implicit_contents
 
 #: File name endings read as 3D Tiles content.
@@ -404,32 +404,40 @@ def batched_meshes(glb: bytes, where: str, said: list | None = None, by_node: bo
                                 f"content's compression)")
             ok = np.isfinite(value) & (value >= 0) & (value < 2**31) & (value == np.rint(value))
             face_batch = np.where(ok, np.rint(np.where(ok, value, 0)), -1).astype(np.int64)
-        quantum = None  # a Draco primitive's grid step (meshsom.gltf_compression), in the tile's frame
-        if QUANTUM_ATTRIBUTE in attrs and len(attrs[QUANTUM_ATTRIBUTE]):
-            linear = ((Y_UP_TO_Z_UP if y_up else np.eye(4)) @ transform)[:3, :3]
-            quantum = float(np.asarray(attrs[QUANTUM_ATTRIBUTE]).ravel()[0]) * float(np.linalg.norm(linear, 2))
+        quantum = quantum_in_frame(attrs, (Y_UP_TO_Z_UP if y_up else np.eye(4)) @ transform)  # in the tile's frame
         for batch in np.unique(face_batch):
             f = faces[face_batch == batch]
             used_v, inverse = np.unique(f, return_inverse=True)
             parts.setdefault(int(batch), []).append((v[used_v], inverse.reshape(-1, 3), quantum))
     out, welds = [], [0, 0]
     for batch in sorted(parts):
-        pieces = parts[batch]
-        offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
-        v = np.concatenate([p[0] for p in pieces])
-        f = np.concatenate([p[1] + o for p, o in zip(pieces, offsets)])
-        if len(pieces) > 1 and any(p[2] is not None for p in pieces):
-            v, f, merged = weld_quantized(v, f, np.repeat(np.arange(len(pieces)), [len(p[0]) for p in pieces]),
-                                          np.array([p[2] or 0.0 for p in pieces]))
-            welds[0] += merged > 0
-            welds[1] += merged
+        v, f, merged = joined_welded(parts[batch])
+        welds[0] += merged > 0
+        welds[1] += merged
         out.append((batch, v, f))
     if welds[0] and said is not None:
-        said.append(f"its Draco primitives (quantized each on its own grid) welded within half a quantum of each: "
-                    f"{welds[1]} vertices of {welds[0]} batches joined")
+        said.append(DRACO_WELD_NOTE.format(joined=f"{welds[1]} vertices of {welds[0]} batches"))
     if node_names is not None:
         node_names.update({batch: node for node, batch in batch_of.items()})
     return out
+
+
+#: The note on a building (or a tile's batches) whose Draco primitives were welded; ``joined`` says how many vertices.
+DRACO_WELD_NOTE = "its Draco primitives (quantized each on its own grid) welded within half a quantum of each: {joined} joined"
+
+
+def joined_welded(pieces: list) -> tuple[np.ndarray, np.ndarray, int]:
+    """Pieces of one building, ``[(vertices (V_i, 3), faces (F_i, 3) into them, quantum or None), ...]`` (a glTF
+    primitive each), as one mesh ``(vertices (V, 3) float64, faces (F, 3) int64)``; where any piece is a Draco
+    primitive (a quantum), the vertices of different pieces are welded (:func:`weld_quantized`). Also returns the
+    number of vertices so joined."""
+    offsets = np.cumsum([0] + [len(p[0]) for p in pieces])[:-1]
+    v = np.concatenate([np.asarray(p[0], np.float64) for p in pieces])
+    f = np.concatenate([np.asarray(p[1], np.int64) + o for p, o in zip(pieces, offsets)])
+    if len(pieces) < 2 or all(p[2] is None for p in pieces):
+        return v, f, 0
+    return weld_quantized(v, f, np.repeat(np.arange(len(pieces)), [len(p[0]) for p in pieces]),
+                          np.array([p[2] or 0.0 for p in pieces]))
 
 
 #: How far (in quanta) two vertices of one building's Draco primitives may lie apart and still be one point: Draco
